@@ -1,0 +1,68 @@
+"""The one error hierarchy of archself.
+
+Every error a user can cause derives from :class:`ArchselfError` and carries a
+one-line, user-facing message. The CLI prints ``str(err)`` and exits with
+``err.exit_code``; it never shows a traceback for these.
+"""
+
+from __future__ import annotations
+
+
+class ArchselfError(Exception):
+    """Root of all archself errors; ``str(err)`` is a one-line message for users."""
+
+    exit_code = 1
+
+
+class LoadError(ArchselfError):
+    """A file could not be read or parsed into an architecture.
+
+    Parameters
+    ----------
+    message : str
+        What was expected.
+    file : str
+        The file the error is in.
+    line, col : int, optional
+        1-based position of the offending node.
+    path : str, optional
+        Dotted path of the offending node (``modules.imu.params``).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        file: str = "<input>",
+        line: int | None = None,
+        col: int | None = None,
+        path: str = "",
+    ) -> None:
+        self.message = message
+        self.file = file
+        self.line = line
+        self.col = col
+        self.path = path
+        super().__init__(self.__str__())
+
+    def __str__(self) -> str:
+        where = self.file
+        if self.line is not None:
+            where += f":{self.line}:{self.col or 1}"
+        at = f" {self.path}:" if self.path else ""
+        return f"{where}:{at} {self.message}"
+
+
+class RegistryError(ArchselfError):
+    """A module type is unknown, or registered twice."""
+
+
+class CompileError(ArchselfError):
+    """An architecture could not be turned into runtime modules."""
+
+
+class SimulationError(ArchselfError):
+    """A simulation was asked for something the file does not declare."""
+
+
+class OutputError(ArchselfError):
+    """An output file or folder cannot be written."""

@@ -1,0 +1,336 @@
+"""Pydantic models of an architecture file: the single source of truth.
+
+An architecture ``a = (M, Γ)`` (paper Eq. 4) is written as a YAML file whose
+structure is defined here. ``schemas/architecture.schema.json`` is generated from
+these models (``archself schema``); the semantic rules that a schema cannot state
+(references resolve, ρ(W) < 1, ...) live in :mod:`archself.check`.
+
+Paper concepts and the keys that hold them:
+
+========================  ==========================================
+Concept (paper)           Key
+========================  ==========================================
+modules M (Eq. 5–7)       ``modules.<name>`` with ``kind``
+type τ_i (Eq. 6)          ``modules.<name>.type``
+parameter space Θ_i       ``modules.<name>.params``
+constraints k_i           ``modules.<name>.constraints``
+r_i (Eq. 12)              ``modules.<name>.residual``
+edges Γ, ω=W_ji (Eq. 13)  ``edges[*]`` with ``weight``
+admissible architectures  ``configurations``
+A(m_i) (Eq. 18, 25)       ``actions[*]``
+C(a, θ, e) ≤ 0 (Eq. 27)   ``constraints[*]``
+environment e             ``scenarios``
+Algorithm 1 settings      ``runtime``
+========================  ==========================================
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+FORMAT_VERSION = 1
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+Name = Annotated[
+    str,
+    Field(
+        min_length=1,
+        max_length=128,
+        pattern=r"^[^\x00-\x1f\x7f]+$",
+        description="A name: any printable text without control characters.",
+    ),
+]
+ParamValue = Union[bool, Finite, str, list[Finite], list[list[Finite]]]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, frozen=False)
+
+
+# --------------------------------------------------------------------------- modules
+class Parameter(_Strict):
+    """One dimension of a module's parameter space Θ_i (Eq. 6, 10)."""
+
+    value: ParamValue = Field(description="Nominal value; must lie inside the space.")
+    min: Finite | None = Field(None, description="Lower bound (numbers).")
+    max: Finite | None = Field(None, description="Upper bound (numbers).")
+    choices: list[ParamValue] | None = Field(None, description="Admissible discrete values.")
+    unit: str | None = Field(None, description="SI unit, e.g. m, rad/s, Hz.")
+    description: str | None = None
+
+
+class Residual(_Strict):
+    """How the module's local residual r_i = (∂J/∂θ_i)·δθ_i is formed (Eq. 12).
+
+    δθ_i is approximated by a local signal the module publishes (an estimator
+    innovation, an actuator command-versus-measured error, a tracking residual),
+    divided by its nominal noise level so that channels are comparable.
+    """
+
+    signal: Name = Field(description="Name of the local signal the module publishes.")
+    sensitivity: Finite = Field(1.0, description="∂J/∂θ_i of Eq. 12 (dimensionless).")
+    nominal: Positive = Field(
+        description="Nominal noise level of the signal; r_i is expressed in multiples of it."
+    )
+    smoothing_s: NonNeg = Field(
+        0.0, description="Time constant of a first-order filter on the signal (0 = none)."
+    )
+
+
+class ModuleConstraints(_Strict):
+    """Operational and compatibility constraints k_i (Eq. 6)."""
+
+    requires: list[Name] = Field(
+        default_factory=list, description="Modules that must be active whenever this one is."
+    )
+    excludes: list[Name] = Field(
+        default_factory=list, description="Modules that must not be active with this one."
+    )
+    limits: dict[Name, Finite] = Field(
+        default_factory=dict, description="Operating limits, e.g. max_speed_mps."
+    )
+
+
+class Module(_Strict):
+    """A module m_i = (τ_i, Θ_i, k_i) of kind physical, functional or model (Eq. 5–7)."""
+
+    kind: Literal["physical", "functional", "model"] = Field(
+        description="M_P (sensors, actuators, structure), M_F (processes) or M_M (models)."
+    )
+    type: Name = Field(description="τ_i: key of a registered module type.")
+    description: str | None = None
+    params: dict[Name, Parameter] = Field(default_factory=dict, description="Θ_i.")
+    constraints: ModuleConstraints = Field(default_factory=ModuleConstraints, description="k_i.")
+    resources: dict[Name, NonNeg] = Field(
+        default_factory=dict,
+        description="Resource use while active, e.g. power_w, compute, latency_ms.",
+    )
+    residual: Residual | None = Field(None, description="Local residual r_i (Eq. 12).")
+
+
+# --------------------------------------------------------------------------- edges
+class Edge(_Strict):
+    """A dependency (m_j, m_i) ∈ Γ: m_j provides ``carries`` to m_i (Eq. 8–9)."""
+
+    source: Name = Field(alias="from", description="Providing module m_j.")
+    target: Name = Field(alias="to", description="Receiving module m_i.")
+    weight: Finite = Field(description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).")
+    carries: Name = Field(description="The signal that flows, named as the source outputs it.")
+    latency_s: NonNeg = Field(0.0, description="Communication latency in seconds.")
+    uncertainty: NonNeg = Field(0.0, description="Standard deviation added to the carried value.")
+    description: str | None = None
+
+
+# --------------------------------------------------------------------------- configurations
+class Configuration(_Strict):
+    """An admissible architecture a ∈ A: the active modules (and optionally edges)."""
+
+    description: str | None = None
+    modules: list[Name] = Field(min_length=1, description="Active modules.")
+    disabled_edges: list[tuple[Name, Name]] = Field(
+        default_factory=list,
+        description="Edges [from, to] between active modules that are switched off here.",
+    )
+    initial: bool = Field(False, description="The configuration a run starts from.")
+
+
+# --------------------------------------------------------------------------- actions
+class SensitivityEstimate(_Strict):
+    """Δ_k ≈ −(∂J/∂θ_i)·Δθ_i^k (Eq. 18), Δθ as a fraction of the module's deviation."""
+
+    method: Literal["sensitivity"]
+    delta_theta: Finite = Field(
+        description="Δθ_i^k as a fraction of the current deviation δθ_i (−1 removes it)."
+    )
+
+
+class RolloutEstimate(_Strict):
+    """Δ_k from a short-horizon rollout of a snapshot of the running system."""
+
+    method: Literal["rollout"]
+    horizon_s: Positive = Field(description="Length of the rollout.")
+
+
+class TableEstimate(_Strict):
+    """Δ_k from a precomputed performance table keyed by candidate module."""
+
+    method: Literal["table"]
+    values: dict[Name, Finite] = Field(description="Δ when the named module is the candidate.")
+    default: Finite = Field(0.0, description="Δ for any other candidate.")
+
+
+Improvement = Annotated[
+    Union[SensitivityEstimate, RolloutEstimate, TableEstimate], Field(discriminator="method")
+]
+
+
+class Action(_Strict):
+    """An admissible action a_k ∈ A(m_i) (paper §4.2, Planning stage).
+
+    ``parameter_update`` changes parameters of ``module`` (``set``); the structural
+    kinds ``substitute``, ``activate``, ``deactivate`` and ``rewire`` move the system
+    to the declared configuration ``to``; the change they make is the difference
+    between the current configuration and ``to``.
+    """
+
+    id: Name
+    module: Name = Field(description="m_i: the module whose degradation this action addresses.")
+    kind: Literal["parameter_update", "substitute", "activate", "deactivate", "rewire"]
+    cost: NonNeg = Field(description="Cost(a_k) of Eq. 25: switching or computational penalty.")
+    to: Name | None = Field(None, description="Target configuration of a structural action.")
+    applies_in: list[Name] | None = Field(
+        None, description="Configurations in which the action is admissible (default: all)."
+    )
+    set: dict[Name, ParamValue] | None = Field(
+        None, description="New parameter values of a parameter_update."
+    )
+    improvement: Improvement = Field(description="How Δ_k is estimated (Eq. 18).")
+    description: str | None = None
+
+    @model_validator(mode="after")
+    def _kind_fields(self) -> Action:
+        if self.kind == "parameter_update":
+            if not self.set:
+                raise ValueError("a parameter_update needs 'set' with the new values")
+            if self.to is not None:
+                raise ValueError("a parameter_update takes 'set', not 'to'")
+        elif self.to is None:
+            raise ValueError(f"a {self.kind} action needs 'to': the configuration it leads to")
+        return self
+
+
+# --------------------------------------------------------------------------- constraints
+class Budget(_Strict):
+    """A system constraint C(a, θ, e) = Σ_{m_i active} use_i(resource) − max ≤ 0 (Eq. 3, 27)."""
+
+    resource: Name = Field(description="Resource summed over active modules, e.g. power_w.")
+    max: Finite = Field(description="Budget the sum must not exceed.")
+    description: str | None = None
+
+
+# --------------------------------------------------------------------------- scenarios
+FaultKind = Literal["bias_drift", "bias", "effectiveness_loss", "noise_increase", "dropout", "stuck"]
+
+
+class Fault(_Strict):
+    """A fault of the environment e acting on one module's output.
+
+    ``bias_drift``: an offset growing at ``magnitude`` units/s from onset;
+    ``bias``: a constant offset; ``effectiveness_loss``: output scaled by
+    (1 − magnitude); ``noise_increase``: noise standard deviation multiplied by
+    ``magnitude``; ``dropout``: no output; ``stuck``: output frozen at onset.
+    """
+
+    module: Name
+    kind: FaultKind
+    onset_s: NonNeg
+    end_s: Positive | None = Field(None, description="When the fault clears (default: never).")
+    magnitude: Finite = 0.0
+    signal: Name | None = Field(None, description="Affected output (default: the module's main one).")
+
+    @model_validator(mode="after")
+    def _window(self) -> Fault:
+        if self.end_s is not None and self.end_s <= self.onset_s:
+            raise ValueError("end_s must be after onset_s")
+        return self
+
+
+class Scenario(_Strict):
+    """An environment e: a duration, a seed and the faults injected."""
+
+    description: str | None = None
+    duration_s: Positive
+    seed: int = Field(0, ge=0)
+    faults: list[Fault] = Field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- runtime
+class Stability(_Strict):
+    """Stability-aware action filtering (Eq. 21–24)."""
+
+    margin: Positive = Field(description="ε: require max Re λ(A_k) ≤ −ε (Eq. 21).")
+    lyapunov_alpha: Positive = Field(description="α: require E[ΔV|a_k] ≤ −α‖x_t‖² (Eq. 24).")
+    horizon_steps: int = Field(gt=0, description="Rollout length of the Lyapunov test.")
+
+
+class Hysteresis(_Strict):
+    """Hysteresis on the candidate threshold: τ_on > τ_off (Eq. 28, alternative)."""
+
+    on: Positive
+    off: NonNeg
+
+    @model_validator(mode="after")
+    def _order(self) -> Hysteresis:
+        if not self.on > self.off:
+            raise ValueError("hysteresis needs on > off")
+        return self
+
+
+class Objective(_Strict):
+    """J: the error between an actual and a reference signal (Eq. 11)."""
+
+    actual: Name = Field(description="'module.signal' of the true state, e.g. chassis.pose.")
+    reference: Name = Field(description="'module.signal' of the reference.")
+    components: list[int] = Field(
+        default_factory=lambda: [0], description="Vector components compared."
+    )
+    acceptable: NonNeg = Field(0.0, description="J_ref: the acceptable error level.")
+
+
+class Runtime(_Strict):
+    """Settings of Algorithm 1 and of the simulation clock."""
+
+    step_s: Positive = Field(description="Simulation step.")
+    period_s: Positive = Field(description="Period of one MAPE-K cycle.")
+    objective: Objective
+    threshold: Positive | None = Field(None, description="τ of Eq. 16.")
+    top_k: int | None = Field(None, gt=0, description="Alternative to τ: the k largest |z_i|.")
+    hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
+    normalization: Literal["nominal", "none"] = Field(
+        "nominal",
+        description="z channels divided by the nominal level each would have (nominal) or raw.",
+    )
+    warmup_steps: int = Field(0, ge=0, description="MAPE-K cycles without adaptation.")
+    dwell_s: NonNeg = Field(0.0, description="T_min of Eq. 28.")
+    cost_weight: NonNeg = Field(description="λ of Eq. 25.")
+    stability: Stability
+    max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.95, description="ρ(W) must stay below this (Eq. 13)."
+    )
+
+    @model_validator(mode="after")
+    def _one_selector(self) -> Runtime:
+        chosen = [k for k in ("threshold", "top_k", "hysteresis") if getattr(self, k) is not None]
+        if len(chosen) != 1:
+            raise ValueError("give exactly one of threshold, top_k or hysteresis")
+        return self
+
+
+# --------------------------------------------------------------------------- file
+class Architecture(_Strict):
+    """An architecture file: a = (M, Γ) with its configurations, actions and scenarios."""
+
+    schema_: str | None = Field(None, alias="$schema", description="Optional schema URL.")
+    archself: Literal[1] = Field(description="Format version.")
+    name: Name
+    description: str | None = None
+    modules: dict[Name, Module] = Field(min_length=1, description="M = M_P ∪ M_F ∪ M_M.")
+    edges: list[Edge] = Field(default_factory=list, description="Γ ⊆ M × M with attributes.")
+    configurations: dict[Name, Configuration] = Field(
+        min_length=1, description="Admissible architectures A."
+    )
+    actions: list[Action] = Field(default_factory=list, description="Admissible actions A(m_i).")
+    constraints: list[Budget] = Field(default_factory=list, description="C(a, θ, e) ≤ 0.")
+    scenarios: dict[Name, Scenario] = Field(default_factory=dict, description="Environments e.")
+    runtime: Runtime
+
+    def initial_configuration(self) -> str:
+        """Name of the configuration marked ``initial`` (else the first one)."""
+        for name, conf in self.configurations.items():
+            if conf.initial:
+                return name
+        return next(iter(self.configurations))
