@@ -1,0 +1,387 @@
+"""Semantic checks of an architecture beyond its schema.
+
+Each rule yields :class:`~archself.findings.Finding` objects located at the
+offending node. The rules:
+
+* ``reference``: every name used (edges, configurations, actions, faults,
+  constraints, objective) refers to a declared module or configuration;
+* ``unknown-type``: every module ``type`` is registered (built-in or plugin);
+* ``self-loop``, ``duplicate``: edges are proper and unique, action ids unique;
+* ``weight``: W_ji ≥ 0 (Eq. 13);
+* ``spectral-radius``, ``singular``: ρ(W) < ``runtime.max_spectral_radius`` < 1 so
+  that I − Wᵀ is nonsingular and z = (I − Wᵀ)⁻¹ r is bounded (Eq. 13–14);
+* ``signal``: an edge carries a signal its source outputs;
+* ``incomplete``: in each configuration every active module receives its
+  required inputs over active edges, and the active modules are connected;
+* ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
+* ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
+* ``parameter``: nominal values lie inside their parameter spaces;
+* ``fault``: faults target modules whose type accepts that fault kind and signal;
+* ``action``: actions lead to declared configurations, their kind matches the
+  change, parameter updates name parameters of the module and stay in bounds;
+* ``residual``: a residual names a signal the module's type publishes;
+* ``initial``: at most one configuration is marked initial.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from archself.findings import Finding
+from archself.loader import Loaded, Path_, dotted
+from archself.model import Architecture, Parameter
+
+
+class _Ctx:
+    def __init__(self, loaded: Loaded) -> None:
+        self.arch: Architecture = loaded.arch
+        self.src = loaded.source
+        self.out: list[Finding] = []
+
+    def add(self, sev: str, code: str, msg: str, path: Path_, *, key: bool = False) -> None:
+        line, col = self.src.locate(path, key=key)
+        self.out.append(Finding(sev, code, msg, dotted(path), self.src.file, line, col))  # type: ignore[arg-type]
+
+
+def check(loaded: Loaded) -> list[Finding]:
+    """All semantic findings of a loaded architecture, sorted by position."""
+    ctx = _Ctx(loaded)
+    for rule in (
+        _types,
+        _edges,
+        _weights,
+        _configurations,
+        _parameters,
+        _actions,
+        _scenarios,
+        _objective,
+    ):
+        rule(ctx)
+    ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
+    return ctx.out
+
+
+def has_errors(findings: list[Finding]) -> bool:
+    """True when any finding has error severity."""
+    return any(f.severity == "error" for f in findings)
+
+
+# --------------------------------------------------------------------------- helpers
+def _type_info(name: str, arch: Architecture) -> Any:
+    from archself import registry
+
+    return registry.lookup(arch.modules[name].type)
+
+
+def _ref(ctx: _Ctx, name: str, path: Path_, what: str = "module") -> bool:
+    pool = ctx.arch.modules if what == "module" else ctx.arch.configurations
+    if name in pool:
+        return True
+    import difflib
+
+    close = difflib.get_close_matches(name, list(pool), n=1)
+    hint = f"; did you mean '{close[0]}'?" if close else ""
+    ctx.add("error", "reference", f"unknown {what} '{name}'{hint}", path)
+    return False
+
+
+# --------------------------------------------------------------------------- rules
+def _types(ctx: _Ctx) -> None:
+    from archself import registry
+
+    known = registry.known_types()
+    for name, mod in ctx.arch.modules.items():
+        cls = registry.lookup(mod.type)
+        if cls is None:
+            import difflib
+
+            close = difflib.get_close_matches(mod.type, known, n=1)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            ctx.add(
+                "error", "unknown-type",
+                f"unknown module type '{mod.type}'; {hint}known types: {', '.join(known)}",
+                ("modules", name, "type"),
+            )
+            continue
+        if mod.residual is not None and mod.residual.signal not in cls.residual_signals:
+            offered = ", ".join(cls.residual_signals) or "none"
+            ctx.add(
+                "error", "residual",
+                f"type '{mod.type}' publishes no residual signal '{mod.residual.signal}' "
+                f"(it offers: {offered})",
+                ("modules", name, "residual", "signal"),
+            )
+        for dep in ("requires", "excludes"):
+            for i, other in enumerate(getattr(mod.constraints, dep)):
+                _ref(ctx, other, ("modules", name, "constraints", dep, i))
+
+
+def _edges(ctx: _Ctx) -> None:
+    seen: dict[tuple[str, str, str], int] = {}
+    for i, e in enumerate(ctx.arch.edges):
+        ok = _ref(ctx, e.source, ("edges", i, "from")) & _ref(ctx, e.target, ("edges", i, "to"))
+        if e.source == e.target:
+            ctx.add("error", "self-loop", f"edge from '{e.source}' to itself", ("edges", i))
+        key = (e.source, e.target, e.carries)
+        if key in seen:
+            ctx.add("error", "duplicate",
+                    f"duplicate edge {e.source} -> {e.target} carrying '{e.carries}' "
+                    f"(first at edges[{seen[key]}])", ("edges", i))
+        seen.setdefault(key, i)
+        if e.weight < 0:
+            ctx.add("error", "weight",
+                    f"negative weight {e.weight}: influence weights must be ≥ 0 (Eq. 13)",
+                    ("edges", i, "weight"))
+        if ok:
+            src = _type_info(e.source, ctx.arch)
+            if src is not None and src.outputs and e.carries not in src.outputs:
+                ctx.add("error", "signal",
+                        f"'{e.source}' ({ctx.arch.modules[e.source].type}) does not output "
+                        f"'{e.carries}'; it outputs: {', '.join(src.outputs)}",
+                        ("edges", i, "carries"))
+            dst = _type_info(e.target, ctx.arch)
+            if (dst is not None and (dst.inputs or dst.optional_inputs)
+                    and e.carries not in dst.inputs + dst.optional_inputs):
+                ctx.add("warning", "signal",
+                        f"'{e.target}' ({ctx.arch.modules[e.target].type}) does not use "
+                        f"'{e.carries}'; it takes: {', '.join(dst.inputs + dst.optional_inputs)}",
+                        ("edges", i, "carries"))
+
+
+def spectral_radius(names: list[str], edges: list[tuple[str, str, float]]) -> float:
+    """ρ(W) of a weighted digraph, computed per strongly connected component.
+
+    The spectrum of W is the union of the spectra of its strongly connected
+    blocks, so ρ(W) is 0 for a DAG and otherwise the largest radius of a
+    (typically small) cyclic block; this scales to large graphs.
+    """
+    import networkx as nx
+
+    g = nx.DiGraph()
+    g.add_nodes_from(names)
+    for s, t, w in edges:
+        if s in g and t in g and s != t:
+            g.add_edge(s, t, weight=g.get_edge_data(s, t, {"weight": 0.0})["weight"] + w)
+    rho = 0.0
+    for comp in nx.strongly_connected_components(g):
+        if len(comp) < 2:
+            continue
+        nodes = sorted(comp)
+        w = nx.to_numpy_array(g, nodelist=nodes, weight="weight")
+        rho = max(rho, float(np.max(np.abs(np.linalg.eigvals(w)))))
+    return rho
+
+
+def _weights(ctx: _Ctx) -> None:
+    arch = ctx.arch
+    edges = [(e.source, e.target, e.weight) for e in arch.edges]
+    rho = spectral_radius(list(arch.modules), edges)
+    limit = arch.runtime.max_spectral_radius
+    if rho >= 1.0:
+        ctx.add("error", "spectral-radius",
+                f"spectral radius ρ(W) = {rho:.4g} ≥ 1: influence z = (I − Wᵀ)⁻¹ r is unbounded "
+                "or I − Wᵀ is singular (Eq. 13–14); lower the weights on the cycles",
+                ("edges",), key=True)
+    elif rho >= limit:
+        ctx.add("error", "spectral-radius",
+                f"spectral radius ρ(W) = {rho:.4g} exceeds runtime.max_spectral_radius = {limit}",
+                ("edges",), key=True)
+
+
+def _active_edges(arch: Architecture, conf_name: str) -> list[tuple[int, Any]]:
+    conf = arch.configurations[conf_name]
+    active = set(conf.modules)
+    off = {tuple(p) for p in conf.disabled_edges}
+    return [
+        (i, e) for i, e in enumerate(arch.edges)
+        if e.source in active and e.target in active and (e.source, e.target) not in off
+    ]
+
+
+def _configurations(ctx: _Ctx) -> None:
+    import networkx as nx
+
+    arch = ctx.arch
+    initial = [n for n, c in arch.configurations.items() if c.initial]
+    if len(initial) > 1:
+        ctx.add("error", "initial",
+                f"{len(initial)} configurations are marked initial ({', '.join(initial)}); "
+                "mark one", ("configurations", initial[1], "initial"))
+    edge_pairs = {(e.source, e.target) for e in arch.edges}
+    for cname, conf in arch.configurations.items():
+        base: Path_ = ("configurations", cname)
+        names = []
+        for i, m in enumerate(conf.modules):
+            if _ref(ctx, m, (*base, "modules", i)):
+                names.append(m)
+        if len(set(conf.modules)) != len(conf.modules):
+            ctx.add("error", "duplicate", "a module is listed twice", (*base, "modules"))
+        for i, (s, t) in enumerate(conf.disabled_edges):
+            if (s, t) not in edge_pairs:
+                ctx.add("error", "reference", f"no edge {s} -> {t} to disable",
+                        (*base, "disabled_edges", i))
+        active = set(names)
+        edges = _active_edges(arch, cname)
+        delivered: dict[str, set[str]] = {m: set() for m in active}
+        for _, e in edges:
+            delivered[e.target].add(e.carries)
+        for m in names:
+            cls = _type_info(m, arch)
+            if cls is None:
+                continue
+            missing = [s for s in cls.inputs if s not in delivered[m]]
+            if missing:
+                ctx.add("error", "incomplete",
+                        f"configuration '{cname}': '{m}' needs {', '.join(map(repr, missing))} "
+                        "but no active edge delivers it", (*base, "modules", conf.modules.index(m)))
+            k = arch.modules[m].constraints
+            for r in k.requires:
+                if r in arch.modules and r not in active:
+                    ctx.add("error", "module-constraint",
+                            f"configuration '{cname}': '{m}' requires '{r}', which is not active",
+                            (*base, "modules"))
+            for x in k.excludes:
+                if x in active:
+                    ctx.add("error", "module-constraint",
+                            f"configuration '{cname}': '{m}' excludes '{x}', which is active",
+                            (*base, "modules"))
+        if len(active) > 1:
+            g = nx.Graph()
+            g.add_nodes_from(active)
+            g.add_edges_from((e.source, e.target) for _, e in edges)
+            parts = list(nx.connected_components(g))
+            if len(parts) > 1:
+                lonely = sorted(min(parts, key=len))
+                ctx.add("error", "incomplete",
+                        f"configuration '{cname}' is not connected: {', '.join(lonely)} "
+                        "has no active edge to the rest", (*base, "modules"))
+        for b in arch.constraints:
+            use = sum(arch.modules[m].resources.get(b.resource, 0.0) for m in active)
+            if use > b.max:
+                ctx.add("warning", "budget",
+                        f"configuration '{cname}' uses {use:g} {b.resource} > budget {b.max:g} "
+                        "(Eq. 27); the runtime will never choose it", base, key=True)
+
+
+def _in_space(p: Parameter, value: Any) -> str | None:
+    """Why ``value`` is outside the space of ``p``, or None."""
+    if p.choices is not None:
+        return None if value in p.choices else f"not one of {p.choices}"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    if p.min is not None and value < p.min:
+        return f"below min {p.min:g}"
+    if p.max is not None and value > p.max:
+        return f"above max {p.max:g}"
+    return None
+
+
+def _parameters(ctx: _Ctx) -> None:
+    for name, mod in ctx.arch.modules.items():
+        for pname, p in mod.params.items():
+            path = ("modules", name, "params", pname)
+            if p.min is not None and p.max is not None and p.min > p.max:
+                ctx.add("error", "parameter", f"min {p.min:g} > max {p.max:g}", (*path, "min"))
+                continue
+            why = _in_space(p, p.value)
+            if why:
+                ctx.add("error", "parameter",
+                        f"nominal value {p.value!r} is outside the parameter space: {why}",
+                        (*path, "value"))
+
+
+def _actions(ctx: _Ctx) -> None:
+    arch = ctx.arch
+    seen: dict[str, int] = {}
+    for i, a in enumerate(arch.actions):
+        base: Path_ = ("actions", i)
+        if a.id in seen:
+            ctx.add("error", "duplicate", f"action id '{a.id}' already used by actions[{seen[a.id]}]",
+                    (*base, "id"))
+        seen.setdefault(a.id, i)
+        _ref(ctx, a.module, (*base, "module"))
+        for j, c in enumerate(a.applies_in or []):
+            _ref(ctx, c, (*base, "applies_in", j), "configuration")
+        if a.kind == "parameter_update":
+            if a.module in arch.modules:
+                params = arch.modules[a.module].params
+                for pname, value in (a.set or {}).items():
+                    if pname not in params:
+                        ctx.add("error", "action",
+                                f"'{a.module}' has no parameter '{pname}' "
+                                f"(it has: {', '.join(params) or 'none'})", (*base, "set", pname))
+                    elif why := _in_space(params[pname], value):
+                        ctx.add("error", "action", f"new value {value!r} is {why}",
+                                (*base, "set", pname))
+            continue
+        assert a.to is not None
+        if not _ref(ctx, a.to, (*base, "to"), "configuration"):
+            continue
+        target = arch.configurations[a.to]
+        for src_name in a.applies_in or []:
+            if src_name not in arch.configurations:
+                continue
+            src = arch.configurations[src_name]
+            added = set(target.modules) - set(src.modules)
+            removed = set(src.modules) - set(target.modules)
+            rewired = {tuple(p) for p in target.disabled_edges} != {tuple(p) for p in src.disabled_edges}
+            expect = {
+                "substitute": bool(added) and bool(removed),
+                "activate": bool(added) and not removed,
+                "deactivate": bool(removed) and not added,
+                "rewire": not added and not removed and rewired,
+            }[a.kind]
+            if not expect:
+                ctx.add("error", "action",
+                        f"a {a.kind} from '{src_name}' to '{a.to}' does not match the change "
+                        f"(adds {sorted(added) or 'nothing'}, removes {sorted(removed) or 'nothing'})",
+                        (*base, "kind"))
+
+
+def _fault_targets(arch: Architecture) -> Iterator[tuple[Path_, Any]]:
+    for sname, sc in arch.scenarios.items():
+        for i, f in enumerate(sc.faults):
+            yield ("scenarios", sname, "faults", i), f
+
+
+def _scenarios(ctx: _Ctx) -> None:
+    arch = ctx.arch
+    for path, f in _fault_targets(arch):
+        if not _ref(ctx, f.module, (*path, "module")):
+            continue
+        cls = _type_info(f.module, arch)
+        if cls is None:
+            continue
+        if f.kind not in cls.fault_kinds:
+            can = ", ".join(sorted(cls.fault_kinds)) or "no faults"
+            ctx.add("error", "fault",
+                    f"'{f.module}' ({arch.modules[f.module].type}) cannot take a {f.kind} fault "
+                    f"(it takes: {can})", (*path, "kind"))
+        if f.signal is not None and cls.outputs and f.signal not in cls.outputs:
+            ctx.add("error", "fault",
+                    f"'{f.module}' has no output '{f.signal}' (it outputs: {', '.join(cls.outputs)})",
+                    (*path, "signal"))
+        duration = arch.scenarios[path[1]].duration_s  # type: ignore[index]
+        if f.onset_s >= duration:
+            ctx.add("warning", "fault",
+                    f"onset {f.onset_s:g} s is after the end of the scenario ({duration:g} s)",
+                    (*path, "onset_s"))
+
+
+def _objective(ctx: _Ctx) -> None:
+    obj = ctx.arch.runtime.objective
+    for key in ("actual", "reference"):
+        ref = getattr(obj, key)
+        path = ("runtime", "objective", key)
+        mod, dot, sig = ref.partition(".")
+        if not dot:
+            ctx.add("error", "reference", f"expected 'module.signal', got '{ref}'", path)
+            continue
+        if _ref(ctx, mod, path):
+            cls = _type_info(mod, ctx.arch)
+            if cls is not None and cls.outputs and sig not in cls.outputs:
+                ctx.add("error", "reference",
+                        f"'{mod}' has no output '{sig}' (it outputs: {', '.join(cls.outputs)})", path)

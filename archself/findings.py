@@ -1,0 +1,47 @@
+"""Validation findings as data: what is wrong, how badly, and where."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+Severity = Literal["error", "warning", "info"]
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One result of loading or checking an architecture file.
+
+    Attributes
+    ----------
+    severity : {'error', 'warning', 'info'}
+        Errors make ``archself validate`` exit 1.
+    code : str
+        A short stable identifier of the rule (``schema``, ``reference``, ``spectral-radius``...).
+    message : str
+        What is wrong and what was expected, in one line.
+    path : str
+        Dotted path of the node (``edges[3].from``).
+    file : str
+    line, col : int or None
+        1-based position of the node.
+    """
+
+    severity: Severity
+    code: str
+    message: str
+    path: str = ""
+    file: str = "<input>"
+    line: int | None = None
+    col: int | None = None
+
+    def __str__(self) -> str:
+        where = self.file
+        if self.line is not None:
+            where += f":{self.line}:{self.col or 1}"
+        at = f" {self.path}:" if self.path else ""
+        return f"{where}: {self.severity}:{at} {self.message}"
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready dict of the finding."""
+        return asdict(self)

@@ -1,0 +1,115 @@
+"""Loader: YAML 1.2 parsing, caps, positions and golden error messages."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from archself.cli import app
+from archself.errors import ArchselfError, LoadError
+from archself.loader import MAX_FILE_BYTES, SchemaError, load_architecture, load_data, load_text
+from conftest import DIFFDRIVE, FIXTURES, ROOT, compare_golden
+
+INVALID = sorted((FIXTURES / "invalid").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", INVALID, ids=[p.stem for p in INVALID])
+def test_invalid_fixture_gives_golden_one_line_error(path: Path, regen: bool, monkeypatch) -> None:
+    monkeypatch.chdir(ROOT)
+    rel = path.relative_to(ROOT)
+    result = CliRunner().invoke(app, ["validate", str(rel)])
+    assert result.exit_code == 1
+    assert result.stdout == ""
+    assert "Traceback" not in result.stderr
+    assert result.stderr.count("\n") == 1, "one finding, one line"
+    assert result.stderr.startswith(f"{rel}:")
+    compare_golden(path.with_suffix(".expected"), result.stderr, regen)
+
+
+def test_positions_point_at_the_offending_node() -> None:
+    with pytest.raises(SchemaError) as info:
+        load_architecture(FIXTURES / "invalid" / "wrong_type.yaml")
+    f = info.value.findings[0]
+    assert (f.line, f.col, f.path) == (20, 66, "runtime.stability.horizon_steps")
+    line = (FIXTURES / "invalid" / "wrong_type.yaml").read_text().splitlines()[f.line - 1]
+    assert line[f.col - 1 :].startswith("ten")
+
+
+def test_unknown_key_suggests_the_close_one() -> None:
+    with pytest.raises(SchemaError) as info:
+        load_architecture(FIXTURES / "invalid" / "unknown_field.yaml")
+    assert "did you mean 'params'?" in str(info.value)
+
+
+def test_yaml_12_scalars() -> None:
+    data, _ = load_data("a: yes\nb: 1e-3\nc: 0o10\nd: on\ne: true\n")
+    assert data == {"a": "yes", "b": 0.001, "c": 8, "d": "on", "e": True}
+
+
+def test_alias_bomb_is_refused_without_expansion() -> None:
+    text = (FIXTURES / "invalid" / "alias_bomb.yaml").read_text()
+    assert len(text) < 1024
+    with pytest.raises(LoadError, match="aliases"):
+        load_data(text)
+
+
+def test_a_few_aliases_are_fine() -> None:
+    data, _ = load_data("base: &b {x: 1}\none: *b\ntwo: *b\n")
+    assert data["one"] == data["two"] == {"x": 1}
+
+
+def test_oversized_file_is_refused(tmp_path: Path) -> None:
+    big = tmp_path / "big.yaml"
+    big.write_bytes(b"# " + b"x" * MAX_FILE_BYTES + b"\n")
+    with pytest.raises(LoadError, match="cap") as info:
+        load_architecture(big)
+    assert str(info.value).startswith(f"{big}: ")
+
+
+def test_missing_file_and_directory(tmp_path: Path) -> None:
+    with pytest.raises(LoadError, match="no such file"):
+        load_architecture(tmp_path / "nope.yaml")
+    with pytest.raises(LoadError, match="directory"):
+        load_architecture(tmp_path)
+
+
+def test_not_utf8(tmp_path: Path) -> None:
+    p = tmp_path / "latin1.yaml"
+    p.write_bytes("name: caf\xe9\n".encode("latin-1"))
+    with pytest.raises(LoadError, match="UTF-8"):
+        load_architecture(p)
+
+
+def test_python_tags_are_never_constructed() -> None:
+    data, _ = load_data("a: !!python/object/apply:os.system ['echo pwned']\n")
+    assert isinstance(data["a"], (list, str))
+
+
+def test_diffdrive_loads_with_positions() -> None:
+    loaded = load_architecture(DIFFDRIVE)
+    assert loaded.arch.name == "diffdrive"
+    assert set(loaded.arch.configurations) >= {"a1", "a2", "a3"}
+    line, col = loaded.source.locate(("modules", "imu", "kind"))
+    assert DIFFDRIVE.read_text().splitlines()[line - 1][col - 1 :].startswith("kind")
+
+
+def test_every_error_is_an_archself_error() -> None:
+    for text in ["", "[", "a: [", ":", "- 1", "archself: 1", "{a: 1, a: 2}", "\t- x", "*x"]:
+        with pytest.raises(ArchselfError):
+            load_text(text)
+
+
+def test_validate_json_output(monkeypatch) -> None:
+    monkeypatch.chdir(ROOT)
+    result = CliRunner().invoke(
+        app, ["validate", "--json", "tests/fixtures/invalid/bad_kind.yaml"]
+    )
+    assert result.exit_code == 1
+    report = json.loads(result.stdout)
+    assert report["ok"] is False
+    (f,) = report["findings"]
+    assert f["severity"] == "error" and f["path"] == "modules.level_sensor.kind"
+    assert (f["line"], f["col"]) == (5, 11)
