@@ -1,0 +1,72 @@
+"""The command line: exit codes, streams and a light start-up."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from archself.cli import app
+from conftest import DIFFDRIVE, ROOT
+
+HEAVY = ("control", "filterpy", "matplotlib")
+
+
+def test_help_lists_the_commands() -> None:
+    result = CliRunner().invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for cmd in ("validate", "schema"):
+        assert cmd in result.stdout
+
+
+def test_validate_diffdrive_is_clean() -> None:
+    result = CliRunner().invoke(app, ["validate", str(DIFFDRIVE)])
+    assert result.exit_code == 0, result.stderr
+    assert result.stdout.strip().endswith("ok")
+
+
+def test_validate_without_paths_is_a_usage_error() -> None:
+    assert CliRunner().invoke(app, ["validate"]).exit_code == 2
+
+
+def test_missing_path_is_a_one_line_error() -> None:
+    result = CliRunner().invoke(app, ["validate", "does/not/exist.yaml"])
+    assert result.exit_code == 1
+    assert result.stderr == "does/not/exist.yaml: error: no such file\n"
+
+
+def test_mixed_files_exit_1_and_report_each(monkeypatch) -> None:
+    monkeypatch.chdir(ROOT)
+    result = CliRunner().invoke(
+        app, ["validate", "architectures/diffdrive.yaml", "tests/fixtures/invalid/empty.yaml"]
+    )
+    assert result.exit_code == 1
+    assert "architectures/diffdrive.yaml: ok" in result.stdout
+    assert result.stderr.startswith("tests/fixtures/invalid/empty.yaml:1:1: error:")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["validate", str(DIFFDRIVE)]])
+def test_startup_does_not_import_heavy_libraries(argv: list[str]) -> None:
+    code = (
+        "import sys\n"
+        "from archself.cli import app\n"
+        "try:\n"
+        f"    app({argv!r})\n"
+        "except SystemExit as e:\n"
+        "    assert e.code == 0, e.code\n"
+        f"heavy = [m for m in {HEAVY!r} if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_installed_script_runs() -> None:
+    from pathlib import Path
+
+    script = Path(sys.executable).parent / "archself"
+    proc = subprocess.run([str(script), "validate", str(DIFFDRIVE)], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr

@@ -1,0 +1,74 @@
+"""The JSON Schema: generated from the model, current, and usable by other validators."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from archself.cli import app
+from archself.schema import SCHEMA_DIALECT, schema_text
+from conftest import DIFFDRIVE, FIXTURES, ROOT
+
+SCHEMA = ROOT / "schemas" / "architecture.schema.json"
+ARCHITECTURES = sorted((ROOT / "architectures").glob("*.yaml"))
+
+# fixtures whose defect is structural (the schema alone must reject them)
+STRUCTURAL = [
+    "bad_kind", "wrong_type", "unknown_field", "missing_key", "not_mapping",
+    "bad_improvement_method", "control_char_name",
+]
+
+
+def test_checked_in_schema_is_current() -> None:
+    assert SCHEMA.read_text(encoding="utf-8") == schema_text(), (
+        "schemas/architecture.schema.json is stale: run `archself schema -o "
+        "schemas/architecture.schema.json`"
+    )
+
+
+def test_schema_check_command(tmp_path: Path) -> None:
+    runner = CliRunner()
+    assert runner.invoke(app, ["schema", "--check", str(SCHEMA)]).exit_code == 0
+    stale = tmp_path / "stale.json"
+    stale.write_text("{}")
+    result = runner.invoke(app, ["schema", "--check", str(stale)])
+    assert result.exit_code == 1 and "stale" in result.stderr
+
+
+def test_schema_carries_dialect_and_forbids_extras() -> None:
+    schema = json.loads(SCHEMA.read_text())
+    assert schema["$schema"] == SCHEMA_DIALECT
+    assert schema["additionalProperties"] is False
+    assert schema["$defs"]["Module"]["additionalProperties"] is False
+
+
+@pytest.mark.parametrize("path", ARCHITECTURES, ids=[p.stem for p in ARCHITECTURES])
+def test_architecture_files_carry_the_modeline(path: Path) -> None:
+    first = path.read_text(encoding="utf-8").splitlines()[0]
+    assert first == "# yaml-language-server: $schema=../schemas/architecture.schema.json"
+
+
+def _check_jsonschema() -> list[str]:
+    exe = shutil.which("check-jsonschema", path=str(Path(sys.executable).parent))
+    if exe is None:
+        pytest.skip("check-jsonschema is not installed")
+    return [exe, "--schemafile", str(SCHEMA)]
+
+
+def test_independent_validator_accepts_the_architectures() -> None:
+    proc = subprocess.run([*_check_jsonschema(), *map(str, ARCHITECTURES)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+@pytest.mark.parametrize("name", STRUCTURAL)
+def test_independent_validator_rejects_structural_breakage(name: str) -> None:
+    proc = subprocess.run([*_check_jsonschema(), str(FIXTURES / "invalid" / f"{name}.yaml")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
