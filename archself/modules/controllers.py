@@ -1,0 +1,227 @@
+"""Controllers: LQR on the tracking-error dynamics, and an asymmetric LQR.
+
+Both regulate ``e = [e_along, e_lateral, e_heading]`` (see
+:func:`archself.kinematics.tracking_error`) with the gain of
+``control.lqr`` on the linearized error dynamics at the reference speed
+(:func:`archself.kinematics.error_dynamics`, straight-line point), plus
+feed-forward of the reference speed and yaw rate:
+
+    [v, ω] = [v_ref, ω_ref] − K e,   wheel_cmd = body_to_wheels(v, ω).
+
+python-control is imported when a gain is first computed, not at import time.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from archself.kinematics import error_dynamics, tracking_error
+from archself.modules.base import RuntimeModule
+from archself.modules.models import Actuation, Kinematics
+from archself.registry import register
+
+__all__ = ["lqr_gain", "LqrController", "AsymLqrController"]
+
+_DEFAULT_KIN = Kinematics()
+_MIN_DESIGN_SPEED = 0.05
+
+
+def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) -> np.ndarray:
+    """LQR gain K (2×3) of the tracking-error dynamics at speed ``v``.
+
+    Parameters
+    ----------
+    v : float
+        Reference speed (m/s); floored at 0.05 m/s (the lateral error is not
+        controllable at standstill).
+    q : (q_along, q_lateral, q_heading)
+        Diagonal state weights.
+    r : (r_speed, r_turn)
+        Diagonal input weights.
+
+    Examples
+    --------
+    >>> K = lqr_gain(0.5, (1.0, 0.0, 0.0), (1.0, 1.0))
+    >>> K.round(6)
+    array([[1., 0., 0.],
+           [0., 0., 0.]])
+    """
+    import control
+
+    A, B = error_dynamics(max(float(v), _MIN_DESIGN_SPEED))
+    K, _, _ = control.lqr(A, B, np.diag(q), np.diag(r))
+    return np.asarray(K, dtype=float)
+
+
+@register("controller.lqr")
+class LqrController(RuntimeModule):
+    """LQR trajectory-tracking controller assuming symmetric, healthy wheels.
+
+    Parameters (``params``)
+    -----------------------
+    q_along, q_lateral, q_heading : float
+        State weights (a small ``q_lateral`` gives a deliberately soft lateral loop).
+    r_speed, r_turn : float
+        Input weights on δv and δω.
+    design_speed_mps : float, optional
+        Speed used for :meth:`linearization` before a reference has been seen
+        (default 0.5).
+
+    Inputs ``reference``, ``pose_estimate``, ``kinematics``; optional
+    ``dynamics`` (unused), ``actuation`` (wheel-speed limit). Output
+    ``wheel_cmd`` ``[l, r]`` (rad/s). Residual signal ``tracking_error``:
+    |estimate − reference| position (m).
+    """
+
+    role = "controller"
+    inputs = ("reference", "pose_estimate", "kinematics")
+    optional_inputs = ("dynamics", "actuation")
+    outputs = ("wheel_cmd",)
+    residual_signals = ("tracking_error",)
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self.v_ref = float(params.get("design_speed_mps", 0.5))
+        self._gains: dict[float, np.ndarray] = {}
+        self.K = self.gain(self.v_ref)
+        self.signals = {"tracking_error": math.nan}
+        self.last_cmd: np.ndarray | None = None
+
+    # gains -------------------------------------------------------------------
+    def _weights(self) -> tuple[tuple[float, float, float], tuple[float, float]]:
+        p = self.params
+        q = (float(p.get("q_along", 1.0)), float(p.get("q_lateral", 1.0)),
+             float(p.get("q_heading", 1.0)))
+        r = (float(p.get("r_speed", 1.0)), float(p.get("r_turn", 1.0)))
+        return q, r
+
+    def gain(self, v: float) -> np.ndarray:
+        """LQR gain at reference speed ``v`` (cached by speed rounded to 1 cm/s)."""
+        key = round(max(float(v), _MIN_DESIGN_SPEED), 2)
+        K = self._gains.get(key)
+        if K is None:
+            K = lqr_gain(key, *self._weights())
+            self._gains[key] = K
+        return K
+
+    def set_params(self, values: dict[str, Any]) -> None:
+        super().set_params(values)
+        self._gains.clear()
+        self.K = self.gain(self.v_ref)
+
+    def linearization(self) -> np.ndarray:
+        """Closed-loop ``A − B K`` of the error dynamics at the current reference speed."""
+        A, B = error_dynamics(max(self.v_ref, _MIN_DESIGN_SPEED))
+        return A - B @ self.gain(self.v_ref)
+
+    # data flow ---------------------------------------------------------------
+    def body_command(self, ref, est) -> tuple[float, float]:
+        """``(v, ω)`` from the reference and the pose estimate."""
+        v_ref = float(ref[3])
+        if abs(v_ref - self.v_ref) > 0.005:
+            self.v_ref = v_ref
+            self.K = self.gain(v_ref)
+        e = tracking_error(est, ref)
+        K = self.K
+        du0 = K[0, 0] * e[0] + K[0, 1] * e[1] + K[0, 2] * e[2]
+        du1 = K[1, 0] * e[0] + K[1, 1] * e[1] + K[1, 2] * e[2]
+        self.signals["tracking_error"] = math.hypot(float(est[0]) - float(ref[0]),
+                                                    float(est[1]) - float(ref[1]))
+        return v_ref - du0, float(ref[4]) - du1
+
+    def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:
+        kin = inputs.get("kinematics") or _DEFAULT_KIN
+        half = w * kin.wheel_base_m / 2.0
+        r = kin.wheel_radius_m
+        cmd = np.array([(v - half) / r, (v + half) / r])
+        act: Actuation | None = inputs.get("actuation")
+        if act is not None:
+            lim = act.max_wheel_speed_rad_s
+            cmd = np.clip(cmd, -lim, lim)
+        return cmd
+
+    def step(self, t, dt, inputs):
+        ref = inputs.get("reference")
+        est = inputs.get("pose_estimate")
+        if ref is None or est is None:
+            return {"wheel_cmd": self.last_cmd}
+        v, w = self.body_command(ref, est)
+        cmd = self.wheel_command(v, w, inputs)
+        self.last_cmd = cmd
+        return {"wheel_cmd": cmd}
+
+    def export_state(self):
+        return {"v_ref": self.v_ref}
+
+    def import_state(self, state):
+        if "v_ref" in state:
+            self.v_ref = float(state["v_ref"])
+            self.K = self.gain(self.v_ref)
+
+
+@register("controller.asym_lqr")
+class AsymLqrController(LqrController):
+    """LQR that estimates each wheel's effectiveness online and pre-compensates it.
+
+    The effectiveness ``e_i`` of wheel i is the exponentially weighted
+    least-squares ratio of measured (encoder) to commanded speed, with time
+    constant ``adaptation_time_s``, clipped to ``[min_effectiveness, 1]``; the
+    command sent is the LQR command divided by ``e_i``.
+
+    Parameters (``params``)
+    -----------------------
+    q_along, q_lateral, q_heading, r_speed, r_turn : float
+        As :class:`LqrController`.
+    adaptation_time_s : float
+        Time constant of the effectiveness estimate (s).
+    min_effectiveness : float
+        Lower clip of the estimate.
+
+    Inputs as :class:`LqrController` plus ``encoder_speeds``.
+    """
+
+    inputs = ("reference", "pose_estimate", "kinematics", "encoder_speeds")
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self.effectiveness = np.ones(2)
+        self._num = np.zeros(2)
+        self._den = np.zeros(2)
+        self._sent: np.ndarray | None = None
+
+    def step(self, t, dt, inputs):
+        enc = inputs.get("encoder_speeds")
+        if enc is not None and self._sent is not None:
+            lam = math.exp(-dt / max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6))
+            sent = self._sent
+            self._num = lam * self._num + sent * enc
+            self._den = lam * self._den + sent * sent
+            emin = float(self.params.get("min_effectiveness", 0.3))
+            ok = self._den > 1e-3
+            est = np.where(ok, self._num / np.where(ok, self._den, 1.0), 1.0)
+            self.effectiveness = np.clip(est, emin, 1.0)
+        ref = inputs.get("reference")
+        pose = inputs.get("pose_estimate")
+        if ref is None or pose is None:
+            self._sent = self.last_cmd
+            return {"wheel_cmd": self.last_cmd}
+        v, w = self.body_command(ref, pose)
+        cmd = self.wheel_command(v, w, {**inputs, "actuation": None}) / self.effectiveness
+        act = inputs.get("actuation")
+        if act is not None:
+            lim = act.max_wheel_speed_rad_s
+            cmd = np.clip(cmd, -lim, lim)
+        self.last_cmd = cmd
+        self._sent = cmd
+        return {"wheel_cmd": cmd}
+
+    def export_state(self):
+        return {**super().export_state(), "effectiveness": self.effectiveness.copy()}
+
+    def import_state(self, state):
+        super().import_state(state)
+        if "effectiveness" in state:
+            self.effectiveness = np.asarray(state["effectiveness"], dtype=float).copy()

@@ -1,0 +1,359 @@
+"""Estimators: dead-reckoning odometry and an EKF with GPS fusion and IMU-bias state.
+
+Both publish ``pose_estimate`` ``[x, y, θ]`` and the residual signal
+``innovation``: the norm of the *vector mean* of the GPS innovations
+(GPS position − predicted position) over a sliding window. Averaging the vectors
+lets zero-mean GPS noise cancel while a slowly growing estimation bias (an IMU
+drift dragging dead reckoning away) shows early.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+import numpy as np
+
+from archself.modules.base import RuntimeModule
+from archself.modules.models import Kinematics
+from archself.registry import register
+
+__all__ = ["InnovationWindow", "Odometry", "Ekf"]
+
+_DEFAULT_KIN = Kinematics()
+
+
+class InnovationWindow:
+    """Sliding-window vector mean of 2-D innovations.
+
+    Parameters
+    ----------
+    window_s : float
+        Length of the window (s).
+
+    Examples
+    --------
+    >>> w = InnovationWindow(10.0)
+    >>> w.add(0.0, 1.0, 0.0); w.add(1.0, -1.0, 0.0); w.add(2.0, 0.0, 3.0)
+    >>> w.value()
+    1.0
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = float(window_s)
+        self.items: deque[tuple[float, float, float]] = deque()
+        self.sx = 0.0
+        self.sy = 0.0
+
+    def add(self, t: float, ex: float, ey: float) -> None:
+        """Add the innovation ``(ex, ey)`` observed at ``t`` and drop old ones."""
+        self.items.append((t, ex, ey))
+        self.sx += ex
+        self.sy += ey
+        while self.items and self.items[0][0] <= t - self.window_s:
+            _, ox, oy = self.items.popleft()
+            self.sx -= ox
+            self.sy -= oy
+
+    def value(self) -> float:
+        """Norm of the mean innovation (NaN before the first one)."""
+        n = len(self.items)
+        if n == 0:
+            return math.nan
+        return math.hypot(self.sx / n, self.sy / n)
+
+    def clear(self) -> None:
+        """Forget every innovation."""
+        self.items.clear()
+        self.sx = self.sy = 0.0
+
+
+def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
+    wl, wr = float(enc[0]), float(enc[1])
+    r = kin.wheel_radius_m
+    return r * (wl + wr) / 2.0, r * (wr - wl) / kin.wheel_base_m
+
+
+@register("estimator.odometry")
+class Odometry(RuntimeModule):
+    """Dead reckoning: encoder speeds for the distance, IMU heading for the direction.
+
+    Parameters (``params``, all optional)
+    -------------------------------------
+    heading_noise_rad : float
+        Assumed IMU heading noise for the covariance (default 0.005 rad).
+    encoder_noise_rad_s : float
+        Assumed encoder noise for the covariance (default 0.05 rad/s).
+    innovation_window_s : float
+        Window of the GPS innovation monitor (default 20 s).
+    initial_pose : list of 3 float
+        Start pose (default zeros).
+
+    Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
+    (GPS) used only for the ``innovation`` residual, never for the estimate.
+    Outputs ``pose_estimate`` and ``covariance`` (3×3).
+
+    Examples
+    --------
+    >>> o = Odometry("odo", {}, np.random.default_rng(0))
+    >>> for k in range(20):
+    ...     out = o.step(0.05 * k, 0.05, {"encoder_speeds": np.array([5.0, 5.0]),
+    ...                                    "heading": 0.0})
+    >>> out["pose_estimate"].round(3)
+    array([1., 0., 0.])
+    """
+
+    role = "estimator"
+    inputs = ("encoder_speeds", "heading", "kinematics")
+    optional_inputs = ("position",)
+    outputs = ("pose_estimate", "covariance")
+    residual_signals = ("innovation",)
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self.x, self.y, self.th = (float(v) for v in params.get("initial_pose", [0, 0, 0]))
+        self.var_pos = 0.01
+        self.var_th = 0.0
+        self.started = False
+        self._configure()
+        self.monitor = InnovationWindow(self.window_s)
+        self.signals = {"innovation": math.nan}
+
+    def _configure(self) -> None:
+        p = self.params
+        self.sig_h = float(p.get("heading_noise_rad", 0.005))
+        self.sig_enc = float(p.get("encoder_noise_rad_s", 0.05))
+        self.window_s = float(p.get("innovation_window_s", 20.0))
+        self.var_th = self.sig_h**2
+
+    def set_params(self, values):
+        super().set_params(values)
+        self._configure()
+        self.monitor.window_s = self.window_s
+
+    def step(self, t, dt, inputs):
+        kin = inputs.get("kinematics") or _DEFAULT_KIN
+        enc = inputs.get("encoder_speeds")
+        heading = inputs.get("heading")
+        th0 = self.th
+        if enc is not None:
+            v, w = _wheel_body(enc, kin)
+        else:
+            v, w = 0.0, 0.0
+        if heading is not None:
+            th1 = th0 + ((float(heading) - th0 + math.pi) % (2 * math.pi) - math.pi)
+            if not self.started:
+                th0 = th1
+        else:
+            th1 = th0 + w * dt
+        if self.started:
+            mid = 0.5 * (th0 + th1)
+            self.x += v * dt * math.cos(mid)
+            self.y += v * dt * math.sin(mid)
+            sv = kin.wheel_radius_m * self.sig_enc / math.sqrt(2.0)
+            self.var_pos += (sv * dt) ** 2 + (v * dt) ** 2 * self.var_th
+        self.started = True
+        self.th = (th1 + math.pi) % (2 * math.pi) - math.pi
+        pos = inputs.get("position")
+        if pos is not None:
+            self.monitor.add(t, float(pos[0]) - self.x, float(pos[1]) - self.y)
+            self.signals["innovation"] = self.monitor.value()
+        return {"pose_estimate": np.array([self.x, self.y, self.th]),
+                "covariance": self.covariance()}
+
+    def covariance(self) -> np.ndarray:
+        """Pose covariance (isotropic position variance, heading variance)."""
+        return np.diag([self.var_pos, self.var_pos, self.var_th])
+
+    def export_state(self):
+        return {"pose": np.array([self.x, self.y, self.th]), "covariance": self.covariance()}
+
+    def import_state(self, state):
+        if "pose" in state:
+            self.x, self.y, self.th = (float(v) for v in np.asarray(state["pose"])[:3])
+            self.started = True
+        if "covariance" in state:
+            c = np.asarray(state["covariance"], dtype=float)
+            self.var_pos = float(max(c[0, 0], c[1, 1]))
+        self.monitor.clear()
+
+
+@register("estimator.ekf")
+class Ekf(RuntimeModule):
+    """Extended Kalman filter (filterpy) on ``[x, y, θ, b]`` with the IMU bias ``b`` as a state.
+
+    Predict with the encoder speeds (unicycle model, encoder noise propagated
+    into Q); update with the IMU heading (``h = θ + b``) every step and with a
+    GPS position whenever a fix arrives. A drifting IMU bias is thereby
+    estimated and removed from the heading.
+
+    Parameters (``params``)
+    -----------------------
+    q_position_m, q_heading_rad, q_bias_rad : float
+        Additive process noise densities (per √s) of position, heading and bias.
+    r_gps_m, r_heading_rad : float
+        Measurement noise standard deviations.
+    encoder_noise_rad_s : float, optional
+        Encoder noise propagated into Q (default 0.05 rad/s).
+    initial_position_std_m, initial_heading_std_rad, initial_bias_std_rad : float, optional
+        Initial uncertainty, and the inflation added to a handed-over covariance
+        (defaults 0.5 m, 0.05 rad, 0.05 rad).
+    innovation_window_s : float, optional
+        Window of the GPS innovation monitor (default 20 s).
+
+    Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``.
+    Outputs ``pose_estimate`` and ``covariance`` (3×3 pose block). Attributes
+    ``x``/``P`` give the full state and covariance (filterpy's names).
+    """
+
+    role = "estimator"
+    inputs = ("encoder_speeds", "heading", "kinematics")
+    optional_inputs = ("position",)
+    outputs = ("pose_estimate", "covariance")
+    residual_signals = ("innovation",)
+
+    _H_HEAD = np.array([[0.0, 0.0, 1.0, 1.0]])
+    _H_GPS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        from filterpy.kalman import ExtendedKalmanFilter
+
+        self.kf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
+        self._configure()
+        pose = params.get("initial_pose", [0.0, 0.0, 0.0])
+        self.kf.x = np.array([*map(float, pose), 0.0])
+        self.kf.P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
+        self.started = False
+        self.monitor = InnovationWindow(self.window_s)
+        self.signals = {"innovation": math.nan}
+
+    def _configure(self) -> None:
+        p = self.params
+        self.q_pos = float(p.get("q_position_m", 0.02))
+        self.q_th = float(p.get("q_heading_rad", 0.01))
+        self.q_b = float(p.get("q_bias_rad", 0.002))
+        self.r_gps = float(p.get("r_gps_m", 0.3))
+        self.r_head = float(p.get("r_heading_rad", 0.005))
+        self.sig_enc = float(p.get("encoder_noise_rad_s", 0.05))
+        self.p0_pos = float(p.get("initial_position_std_m", 0.5))
+        self.p0_th = float(p.get("initial_heading_std_rad", 0.05))
+        self.p0_b = float(p.get("initial_bias_std_rad", 0.05))
+        self.window_s = float(p.get("innovation_window_s", 20.0))
+        self.R_head = np.array([[self.r_head**2]])
+        self.R_gps = np.eye(2) * self.r_gps**2
+
+    def set_params(self, values):
+        super().set_params(values)
+        self._configure()
+        self.monitor.window_s = self.window_s
+
+    # filterpy-style API ------------------------------------------------------
+    @property
+    def x(self) -> np.ndarray:
+        """State ``[x, y, θ, b]``."""
+        return self.kf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        """State covariance (4×4)."""
+        return self.kf.P
+
+    def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
+        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``."""
+        kf = self.kf
+        x = kf.x
+        r, b = kin.wheel_radius_m, kin.wheel_base_m
+        v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
+        th = float(x[2])
+        mid = th + 0.5 * w * dt
+        c, s = math.cos(mid), math.sin(mid)
+        F = np.eye(4)
+        F[0, 2] = -v * dt * s
+        F[1, 2] = v * dt * c
+        # d(Δx, Δy, Δθ)/d(ω_l, ω_r) for the encoder noise
+        G = np.array([
+            [0.5 * r * dt * c, 0.5 * r * dt * c],
+            [0.5 * r * dt * s, 0.5 * r * dt * s],
+            [-r * dt / b, r * dt / b],
+            [0.0, 0.0],
+        ])
+        sig = self.sig_enc if enc is not None else 10.0
+        Q = (sig * sig) * (G @ G.T)
+        Q[0, 0] += self.q_pos**2 * dt
+        Q[1, 1] += self.q_pos**2 * dt
+        Q[2, 2] += self.q_th**2 * dt
+        Q[3, 3] += self.q_b**2 * dt
+        kf.x = np.array([x[0] + v * dt * c, x[1] + v * dt * s, th + w * dt, x[3]])
+        kf.F = F
+        kf.Q = Q
+        kf.P = F @ kf.P @ F.T + Q
+
+    def update_heading(self, heading: float) -> None:
+        """Update with an IMU heading ``h = θ + b`` (angle residual wrapped)."""
+        self.kf.update(
+            np.array([float(heading)]), _h_head_jac, _h_head, R=self.R_head, residual=_ang_res
+        )
+        self.kf.x[2] = (self.kf.x[2] + math.pi) % (2 * math.pi) - math.pi
+
+    def update_position(self, pos) -> tuple[float, float]:
+        """Update with a GPS fix; returns the innovation ``z − Hx``."""
+        ex = float(pos[0]) - float(self.kf.x[0])
+        ey = float(pos[1]) - float(self.kf.x[1])
+        self.kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
+        return ex, ey
+
+    # data flow ---------------------------------------------------------------
+    def step(self, t, dt, inputs):
+        kin = inputs.get("kinematics") or _DEFAULT_KIN
+        heading = inputs.get("heading")
+        if self.started:
+            self.predict(dt, inputs.get("encoder_speeds"), kin)
+        elif heading is not None:
+            self.kf.x[2] = float(heading) - self.kf.x[3]
+        self.started = True
+        if heading is not None:
+            self.update_heading(heading)
+        pos = inputs.get("position")
+        if pos is not None:
+            ex, ey = self.update_position(pos)
+            self.monitor.add(t, ex, ey)
+            self.signals["innovation"] = self.monitor.value()
+        x = self.kf.x
+        return {"pose_estimate": np.array([x[0], x[1], x[2]]), "covariance": self.kf.P[:3, :3]}
+
+    def export_state(self):
+        x = self.kf.x
+        return {"pose": np.array([x[0], x[1], x[2]]), "covariance": self.kf.P[:3, :3].copy(),
+                "imu_bias": float(x[3])}
+
+    def import_state(self, state):
+        if "pose" in state:
+            pose = np.asarray(state["pose"], dtype=float)[:3]
+            self.kf.x = np.array([pose[0], pose[1], pose[2], float(state.get("imu_bias", 0.0))])
+            self.started = True
+        P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
+        if "covariance" in state:
+            P[:3, :3] += np.asarray(state["covariance"], dtype=float)[:3, :3]
+        self.kf.P = P
+        self.monitor.clear()
+
+
+def _h_head(x):
+    return np.array([x[2] + x[3]])
+
+
+def _h_head_jac(x):
+    return Ekf._H_HEAD
+
+
+def _h_gps(x):
+    return np.array([x[0], x[1]])
+
+
+def _h_gps_jac(x):
+    return Ekf._H_GPS
+
+
+def _ang_res(a, b):
+    return (np.asarray(a) - np.asarray(b) + np.pi) % (2 * np.pi) - np.pi
+

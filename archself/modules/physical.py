@@ -1,0 +1,285 @@
+"""Physical modules (M_P): the differential-drive plant, wheel actuators and sensors.
+
+The plant holds the true state; sensors read it (plus noise) and actuators pass
+the controller's commands to it. Faults of a scenario are injected by the
+system executor on these modules' outputs (:mod:`archself.sim.faults`), so the
+classes here model only the healthy hardware.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from archself.kinematics import integrate_pose
+from archself.modules.base import RuntimeModule
+from archself.registry import register
+
+__all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
+
+_SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "stuck"})
+
+
+@register("plant.diffdrive")
+class DiffDrivePlant(RuntimeModule):
+    """Differential-drive chassis with first-order wheel-speed lag and speed limits.
+
+    Parameters (``params``)
+    -----------------------
+    wheel_base_m, wheel_radius_m : float
+        True geometry.
+    max_wheel_speed_rad_s : float
+        Per-wheel speed limit (the driven speed is clipped to ±limit).
+    initial_pose : list of 3 float, optional
+        ``[x, y, θ]`` at t = 0 (default zeros).
+    wheel_time_constant_s : float, optional
+        Lag of the wheel speeds behind the actuators' speeds (default 0.1 s).
+    effectiveness : list of 2 float, optional
+        Built-in per-wheel effectiveness (default ``[1, 1]``); scenario faults act
+        on the actuators instead.
+
+    Inputs ``wheel_speed_left``, ``wheel_speed_right`` (rad/s; None = motor off);
+    outputs the true ``pose`` ``[x, y, θ]`` and ``wheel_speeds`` ``[l, r]``.
+
+    Examples
+    --------
+    >>> p = DiffDrivePlant("c", {"wheel_base_m": 0.5, "wheel_radius_m": 0.1,
+    ...     "max_wheel_speed_rad_s": 12.0, "wheel_time_constant_s": 0.0},
+    ...     np.random.default_rng(0))
+    >>> _ = p.step(0.0, 1.0, {"wheel_speed_left": 5.0, "wheel_speed_right": 5.0})
+    >>> p.output(1.0)["pose"].round(3)
+    array([0.5, 0. , 0. ])
+    """
+
+    role = "plant"
+    inputs = ("wheel_speed_left", "wheel_speed_right")
+    outputs = ("pose", "wheel_speeds")
+    direct_feedthrough = False
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        pose = params.get("initial_pose", [0.0, 0.0, 0.0])
+        self.pose = np.array(pose, dtype=float)
+        self.wl = 0.0
+        self.wr = 0.0
+        self._configure()
+
+    def _configure(self) -> None:
+        p = self.params
+        self.tau = float(p.get("wheel_time_constant_s", 0.1))
+        self.limit = float(p.get("max_wheel_speed_rad_s", np.inf))
+        self._kp = {
+            "dt": 0.0,
+            "wheel_radius_m": float(p.get("wheel_radius_m", 0.1)),
+            "wheel_base_m": float(p.get("wheel_base_m", 0.5)),
+            "effectiveness": [float(e) for e in p.get("effectiveness", [1.0, 1.0])],
+        }
+
+    def set_params(self, values):
+        super().set_params(values)
+        self._configure()
+
+    def output(self, t):
+        return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
+
+    def step(self, t, dt, inputs):
+        lim = self.limit
+        tl = inputs.get("wheel_speed_left")
+        tr = inputs.get("wheel_speed_right")
+        tl = 0.0 if tl is None else min(max(float(tl), -lim), lim)
+        tr = 0.0 if tr is None else min(max(float(tr), -lim), lim)
+        a = 1.0 - math.exp(-dt / self.tau) if self.tau > 0 else 1.0
+        wl0, wr0 = self.wl, self.wr
+        self.wl = wl0 + a * (tl - wl0)
+        self.wr = wr0 + a * (tr - wr0)
+        self._kp["dt"] = dt
+        self.pose = integrate_pose(
+            t, self.pose, (0.5 * (wl0 + self.wl), 0.5 * (wr0 + self.wr)), self._kp
+        )
+        return {}
+
+    def export_state(self):
+        return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
+
+    def import_state(self, state):
+        if "pose" in state:
+            self.pose = np.array(state["pose"], dtype=float)[:3]
+        if "wheel_speeds" in state:
+            self.wl, self.wr = (float(w) for w in state["wheel_speeds"])
+
+
+@register("actuator.wheel")
+class WheelActuator(RuntimeModule):
+    """One wheel's motor and driver: drives its side of the controller's ``wheel_cmd``.
+
+    Parameters (``params``)
+    -----------------------
+    side : {"left", "right"}
+        Which entry of ``wheel_cmd`` ``[l, r]`` this wheel takes.
+
+    Inputs ``wheel_cmd`` (rad/s, from a controller) and optionally
+    ``encoder_speeds``; output ``wheel_speed_<side>``: the speed it drives.
+    Residual signal ``command_error`` = |previous command − measured encoder
+    speed| (rad/s): near the encoder noise when healthy, a sizeable fraction of
+    the command when the wheel loses effectiveness.
+
+    Examples
+    --------
+    >>> w = WheelActuator("wl", {"side": "left"}, np.random.default_rng(0))
+    >>> w.step(0.0, 0.05, {"wheel_cmd": np.array([4.0, 6.0])})
+    {'wheel_speed_left': 4.0}
+    >>> _ = w.step(0.05, 0.05, {"wheel_cmd": np.array([4.0, 6.0]),
+    ...                         "encoder_speeds": np.array([3.2, 6.0])})
+    >>> round(w.local_signals()["command_error"], 3)
+    0.8
+    """
+
+    role = "actuator"
+    inputs = ("wheel_cmd",)
+    optional_inputs = ("encoder_speeds",)
+    outputs = ("wheel_speed_left", "wheel_speed_right")
+    residual_signals = ("command_error",)
+    fault_kinds = frozenset(
+        {"effectiveness_loss", "stuck", "dropout", "bias", "bias_drift", "noise_increase"}
+    )
+    direct_feedthrough = True
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        side = params.get("side", "left")
+        if side not in ("left", "right"):
+            raise ValueError(f"side must be 'left' or 'right', not {side!r}")
+        self.index = 0 if side == "left" else 1
+        self.main_output = f"wheel_speed_{side}"
+        self.prev_cmd: float | None = None
+        self.signals = {"command_error": math.nan}
+
+    def step(self, t, dt, inputs):
+        enc = inputs.get("encoder_speeds")
+        if enc is not None and self.prev_cmd is not None:
+            self.signals["command_error"] = abs(self.prev_cmd - float(enc[self.index]))
+        cmd = inputs.get("wheel_cmd")
+        if cmd is None:
+            self.prev_cmd = None
+            return {self.main_output: None}
+        c = float(cmd[self.index])
+        self.prev_cmd = c
+        return {self.main_output: c}
+
+
+@register("sensor.encoders")
+class WheelEncoders(RuntimeModule):
+    """Wheel encoders: the real wheel speeds plus Gaussian noise.
+
+    Parameters (``params``)
+    -----------------------
+    noise_rad_s : float
+        Standard deviation of the speed noise (rad/s).
+
+    Input ``wheel_speeds`` (true, from the plant); output ``encoder_speeds`` ``[l, r]``.
+    """
+
+    role = "sensor"
+    inputs = ("wheel_speeds",)
+    outputs = ("encoder_speeds",)
+    fault_kinds = _SENSOR_FAULTS | {"effectiveness_loss"}
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self.noise = float(params.get("noise_rad_s", 0.05))
+        self.noise_levels = {"encoder_speeds": self.noise}
+
+    def set_params(self, values):
+        super().set_params(values)
+        self.noise = float(self.params.get("noise_rad_s", 0.05))
+        self.noise_levels = {"encoder_speeds": self.noise}
+
+    def step(self, t, dt, inputs):
+        ws = inputs.get("wheel_speeds")
+        if ws is None:
+            return {"encoder_speeds": None}
+        return {"encoder_speeds": ws + self.noise * self.rng.standard_normal(2)}
+
+
+@register("sensor.imu")
+class Imu(RuntimeModule):
+    """IMU heading (integrated gyro): true heading + bias + Gaussian noise, wrapped to [-π, π).
+
+    Parameters (``params``)
+    -----------------------
+    noise_rad : float
+        Standard deviation of the heading noise (rad).
+    bias_rad : float, optional
+        Constant built-in bias (default 0); a drifting bias comes from a
+        ``bias_drift`` fault of the scenario.
+
+    Input ``pose`` (true); output ``heading`` (rad).
+    """
+
+    role = "sensor"
+    inputs = ("pose",)
+    outputs = ("heading",)
+    fault_kinds = _SENSOR_FAULTS
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self._configure()
+
+    def _configure(self):
+        self.noise = float(self.params.get("noise_rad", 0.005))
+        self.bias = float(self.params.get("bias_rad", 0.0))
+        self.noise_levels = {"heading": self.noise}
+
+    def set_params(self, values):
+        super().set_params(values)
+        self._configure()
+
+    def step(self, t, dt, inputs):
+        pose = inputs.get("pose")
+        if pose is None:
+            return {"heading": None}
+        h = float(pose[2]) + self.bias + self.noise * float(self.rng.standard_normal())
+        return {"heading": (h + math.pi) % (2.0 * math.pi) - math.pi}
+
+
+@register("sensor.gps")
+class Gps(RuntimeModule):
+    """GNSS receiver: position fixes ``[x, y]`` at ``rate_hz``, None between fixes.
+
+    Parameters (``params``)
+    -----------------------
+    rate_hz : float
+        Fix rate; the first fix is at t = 0.
+    noise_m : float
+        Standard deviation of each coordinate (m).
+
+    Input ``pose`` (true); output ``position``.
+    """
+
+    role = "sensor"
+    inputs = ("pose",)
+    outputs = ("position",)
+    fault_kinds = _SENSOR_FAULTS
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self.next_fix = 0.0
+        self._configure()
+
+    def _configure(self):
+        self.period = 1.0 / float(self.params.get("rate_hz", 1.0))
+        self.noise = float(self.params.get("noise_m", 0.3))
+        self.noise_levels = {"position": self.noise}
+
+    def set_params(self, values):
+        super().set_params(values)
+        self._configure()
+
+    def step(self, t, dt, inputs):
+        pose = inputs.get("pose")
+        if pose is None or t < self.next_fix - 1e-9:
+            return {"position": None}
+        self.next_fix += self.period * max(1.0, math.floor((t - self.next_fix) / self.period) + 1)
+        return {"position": pose[:2] + self.noise * self.rng.standard_normal(2)}

@@ -1,0 +1,158 @@
+"""Planner: a smooth spline reference through waypoints, travelled at constant speed."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from archself.modules.base import RuntimeModule
+from archself.registry import register
+
+__all__ = ["SplinePlanner", "spline_path"]
+
+
+def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
+    """Arc-length table of a cubic spline through ``waypoints``.
+
+    The spline (:class:`scipy.interpolate.CubicSpline`, not-a-knot) is
+    parametrized by cumulative chord length, then resampled at equal arc-length
+    steps ``ds`` so that a reference moving at constant speed is a table lookup.
+
+    Parameters
+    ----------
+    waypoints : array_like, shape (n, 2)
+        At least two points (m); consecutive duplicates are dropped.
+    ds : float
+        Arc-length resolution of the table (m).
+
+    Returns
+    -------
+    dict
+        ``s`` (arc length), ``x``, ``y``, ``theta`` (unwrapped tangent heading) and
+        ``kappa`` (signed curvature, 1/m), each of shape (m,), and ``length``.
+
+    Examples
+    --------
+    >>> p = spline_path([[0, 0], [10, 0]])
+    >>> round(float(p["length"]), 6), float(abs(p["kappa"]).max()) < 1e-9
+    (10.0, True)
+    """
+    from scipy.interpolate import CubicSpline
+
+    pts = np.asarray(waypoints, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+        raise ValueError("waypoints must be a list of at least two [x, y] points")
+    keep = np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-9]
+    pts = pts[keep]
+    if len(pts) < 2:
+        raise ValueError("waypoints must contain two distinct points")
+    chord = np.r_[0.0, np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]
+    bc = "not-a-knot" if len(pts) > 3 else "natural"
+    cs = CubicSpline(chord, pts, axis=0, bc_type=bc)
+    u = np.linspace(0.0, chord[-1], max(2000, int(chord[-1] / ds) * 4))
+    d1 = cs(u, 1)
+    speed = np.hypot(d1[:, 0], d1[:, 1])
+    arc = np.r_[0.0, np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(u))]
+    s = np.arange(0.0, arc[-1], ds)
+    s = np.r_[s, arc[-1]] if arc[-1] - s[-1] > 1e-9 else s
+    us = np.interp(s, arc, u)
+    xy = cs(us)
+    d1 = cs(us, 1)
+    d2 = cs(us, 2)
+    theta = np.unwrap(np.arctan2(d1[:, 1], d1[:, 0]))
+    kappa = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(
+        np.hypot(d1[:, 0], d1[:, 1]) ** 3, 1e-12
+    )
+    return {"s": s, "x": xy[:, 0], "y": xy[:, 1], "theta": theta, "kappa": kappa,
+            "length": float(arc[-1])}
+
+
+class _Table:
+    """Immutable lookup table, shared (not copied) by ``copy.deepcopy`` snapshots."""
+
+    def __init__(self, path: dict[str, np.ndarray]) -> None:
+        self.xytk = tuple(path[k].tolist() for k in ("x", "y", "theta", "kappa"))
+
+    def __deepcopy__(self, memo: dict) -> _Table:
+        return self
+
+
+@register("planner.spline")
+class SplinePlanner(RuntimeModule):
+    """Smooth cubic-spline reference through ``waypoints`` at ``speed_mps``.
+
+    The reference at time t is the point at arc length ``s = speed · t`` with its
+    tangent heading, the speed and the yaw rate ``ω = κ(s) · speed``; after the
+    end of the path it stops there (v = ω = 0).
+
+    Parameters (``params``)
+    -----------------------
+    waypoints : list of [x, y]
+    speed_mps : float
+    resolution_m : float, optional
+        Arc-length step of the lookup table (default 0.02 m).
+
+    Optional input ``kinematics`` (unused; the path is kinematically smooth);
+    output ``reference`` ``[x, y, θ, v, ω]``.
+
+    Examples
+    --------
+    >>> pl = SplinePlanner("p", {"waypoints": [[0, 0], [10, 0]], "speed_mps": 0.5},
+    ...                    np.random.default_rng(0))
+    >>> pl.step(2.0, 0.05, {})["reference"].round(6)
+    array([1. , 0. , 0. , 0.5, 0. ])
+    """
+
+    role = "planner"
+    optional_inputs = ("kinematics",)
+    outputs = ("reference",)
+
+    def __init__(self, name, params, rng):
+        super().__init__(name, params, rng)
+        self._configure()
+
+    def _configure(self) -> None:
+        self.speed = float(self.params.get("speed_mps", 0.5))
+        self.ds = float(self.params.get("resolution_m", 0.02))
+        path = spline_path(self.params["waypoints"], self.ds)
+        self.length = path["length"]
+        self._table = _Table(path)
+        self._n = len(path["x"])
+
+    def set_params(self, values: dict[str, Any]) -> None:
+        super().set_params(values)
+        self._configure()
+
+    @property
+    def duration_s(self) -> float:
+        """Time the reference takes to reach the end of the path (s)."""
+        return self.length / self.speed
+
+    def reference(self, t: float) -> np.ndarray:
+        """``[x, y, θ, v, ω]`` of the reference at time ``t``."""
+        s = self.speed * t
+        if s >= self.length:
+            i = self._n - 1
+            x, y, th, _ = self._table.xytk
+            return np.array([x[i], y[i], th[i], 0.0, 0.0])
+        f = max(s, 0.0) / self.ds
+        i = min(int(f), self._n - 2)
+        a = min(f - i, 1.0)
+        b = 1.0 - a
+        x, y, th, k = self._table.xytk
+        return np.array([
+            b * x[i] + a * x[i + 1],
+            b * y[i] + a * y[i + 1],
+            b * th[i] + a * th[i + 1],
+            self.speed,
+            (b * k[i] + a * k[i + 1]) * self.speed,
+        ])
+
+    def step(self, t, dt, inputs):
+        return {"reference": self.reference(t)}
+
+    def path_points(self) -> np.ndarray:
+        """The tabulated path ``(m, 2)`` (for plots)."""
+        x, y, _, _ = self._table.xytk
+        return np.column_stack([x, y])

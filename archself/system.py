@@ -1,0 +1,458 @@
+"""The live system: a generic synchronous data-flow executor of runtime modules.
+
+:class:`LiveSystem` runs the active modules of one configuration of an
+architecture with the semantics of :mod:`archself.modules.base`:
+
+1. modules with ``direct_feedthrough = False`` publish ``output(t)``;
+2. the other modules ``step`` in topological order of the active edges, with
+   the edges *into* non-feedthrough modules cut (an remaining cycle is an
+   algebraic loop: :class:`~archself.errors.CompileError`);
+3. the non-feedthrough modules ``step`` to advance their state to ``t + dt``.
+
+It knows module *roles* and declared signals, never a module's name, so any
+architecture file runs. Everything that can be precomputed (the order, the
+routing of each input, edge delays and noise) is computed once per
+configuration; the step loop touches plain dicts and lists only.
+
+Design decisions
+----------------
+* **Hand-over.** On :meth:`LiveSystem.apply_configuration` every newly active
+  module receives ``import_state(old.export_state())`` from the deactivated
+  module with the same ``role`` (first in file order), e.g. odometry pose and
+  covariance → EKF.
+* **Persistence.** Module instances live in a pool for the whole run: a
+  deactivated module keeps its state and resumes from it when reactivated (after
+  the hand-over above, which refreshes what a successor can give it). Module
+  types that should not carry stale state reset it in ``import_state``.
+* **Robustness.** A module that raises, or publishes a non-finite number, is
+  marked unavailable for that step and its last good outputs are held; a module
+  whose required input is ``None`` is marked unavailable too (it still runs and
+  must tolerate it).
+* **Edges.** ``uncertainty`` adds zero-mean Gaussian noise (own random stream per
+  edge) to numeric values; ``latency_s`` delays the value by
+  ``round(latency_s / dt)`` steps (``None`` until the line fills).
+* **Randomness.** Each module gets ``numpy.random.default_rng([seed,
+  stable_hash(name)])``; edges and faults get their own streams the same way.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import math
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+from archself.errors import CompileError, SimulationError
+from archself.model import Architecture
+from archself.modules.base import RuntimeModule
+
+__all__ = ["LiveSystem", "stable_hash", "module_rng"]
+
+
+def stable_hash(text: str) -> int:
+    """A 64-bit hash of ``text`` that is the same in every process (unlike ``hash``).
+
+    Examples
+    --------
+    >>> stable_hash("imu") == stable_hash("imu")
+    True
+    """
+    return int.from_bytes(hashlib.blake2b(text.encode("utf-8"), digest_size=8).digest(), "little")
+
+
+def module_rng(seed: int, name: str) -> np.random.Generator:
+    """The deterministic random stream of module (or edge, fault) ``name`` for ``seed``."""
+    return np.random.default_rng([int(seed), stable_hash(name)])
+
+
+class _Shared:
+    """Holder of immutable data shared by snapshots (``deepcopy`` returns it as is)."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value: Any) -> None:
+        self.value = value
+
+    def __deepcopy__(self, memo: dict) -> _Shared:
+        return self
+
+
+class _Plan:
+    """Precomputed execution plan of one configuration (immutable)."""
+
+    def __init__(
+        self,
+        name: str,
+        active: list[str],
+        nonft: list[str],
+        order: list[str],
+        routes: dict[str, list[tuple[str, str, int, float, int]]],
+        required: dict[str, tuple[str, ...]],
+        edges: list[int],
+    ) -> None:
+        self.name = name
+        self.active = active
+        self.active_set = frozenset(active)
+        self.nonft = nonft
+        self.order = order
+        self.routes = routes
+        self.required = required
+        self.edges = edges
+
+
+def _is_bad(value: Any) -> bool:
+    """True for a non-finite float or an array with a non-finite entry."""
+    if value is None:
+        return False
+    if isinstance(value, float):
+        return not math.isfinite(value)
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind != "f":
+            return False
+        s = float(value.sum())
+        return not (s - s == 0.0)
+    return False
+
+
+class LiveSystem:
+    """A running configuration of an architecture (the compiler → runtime contract).
+
+    Build it with :func:`archself.compiler.compile_system`; see
+    ``docs/develop.md`` for the contract table.
+
+    Parameters
+    ----------
+    arch : Architecture
+        The architecture.
+    configuration : str
+        The active configuration.
+    factory : callable
+        ``factory(name) -> RuntimeModule``: instantiates a module with its
+        nominal parameters and own random stream.
+    seed : int
+        Seed of the edge noise streams.
+    faults : dict, optional
+        module name -> list of ``(signal, injector)`` from
+        :mod:`archself.sim.faults`; applied while the module is active.
+    """
+
+    def __init__(
+        self,
+        arch: Architecture,
+        configuration: str,
+        factory: Callable[[str], RuntimeModule],
+        *,
+        seed: int = 0,
+        faults: dict[str, list[tuple[str, Any]]] | None = None,
+    ) -> None:
+        self.arch = arch
+        self.seed = int(seed)
+        self.dt = float(arch.runtime.step_s)
+        self.t = 0.0
+        self.k = 0
+        self._factory = factory
+        self._pool: dict[str, RuntimeModule] = {}
+        self._faults = faults or {}
+        self._edge_rng: dict[int, np.random.Generator] = {}
+        self._delay: dict[int, deque] = {}
+        self._plans: dict[str, _Plan] = {}
+        self.outputs: dict[str, dict[str, Any]] = {}
+        self._ok: dict[str, bool] = {}
+        self.history: list[dict[str, Any]] = []
+        obj = arch.runtime.objective
+        self._obj_actual = tuple(obj.actual.rsplit(".", 1))
+        self._obj_ref = tuple(obj.reference.rsplit(".", 1))
+        self._obj_comp = list(obj.components)
+        self._plan = self._make_plan(configuration)
+        for name in self._plan.active:
+            self._module(name)
+        self.configuration = configuration
+
+    # ------------------------------------------------------------------ plans
+    def _module(self, name: str) -> RuntimeModule:
+        mod = self._pool.get(name)
+        if mod is None:
+            if name not in self.arch.modules:
+                raise SimulationError(f"unknown module {name!r}")
+            mod = self._factory(name)
+            self._pool[name] = mod
+        return mod
+
+    def _make_plan(self, configuration: str) -> _Plan:
+        cached = self._plans.get(configuration)
+        if cached is not None:
+            return cached
+        import networkx as nx
+
+        arch = self.arch
+        conf = arch.configurations.get(configuration)
+        if conf is None:
+            known = ", ".join(arch.configurations)
+            raise CompileError(f"unknown configuration {configuration!r}; known: {known}")
+        missing = [m for m in conf.modules if m not in arch.modules]
+        if missing:
+            raise CompileError(
+                f"configuration {configuration!r} names unknown modules: {', '.join(missing)}"
+            )
+        index = {n: i for i, n in enumerate(arch.modules)}
+        active = sorted(set(conf.modules), key=index.__getitem__)
+        act = set(active)
+        disabled = {tuple(e) for e in conf.disabled_edges}
+        classes = {n: type(self._module(n)) for n in active}
+        nonft = [n for n in active if not classes[n].direct_feedthrough]
+        nonft_set = set(nonft)
+        routes: dict[str, list[tuple[str, str, int, float, int]]] = {n: [] for n in active}
+        g = nx.DiGraph()
+        g.add_nodes_from(active)
+        edges: list[int] = []
+        for i, e in enumerate(arch.edges):
+            if e.source not in act or e.target not in act or (e.source, e.target) in disabled:
+                continue
+            edges.append(i)
+            delay = int(round(e.latency_s / self.dt)) if e.latency_s > 0 else 0
+            routes[e.target].append((e.carries, e.source, i, float(e.uncertainty), delay))
+            if e.target not in nonft_set:
+                g.add_edge(e.source, e.target)
+        try:
+            order = list(nx.lexicographical_topological_sort(g, key=index.__getitem__))
+        except nx.NetworkXUnfeasible:
+            cycle = nx.find_cycle(g)
+            path = " -> ".join([u for u, _ in cycle] + [cycle[0][0]])
+            raise CompileError(
+                f"configuration {configuration!r} has an algebraic loop: {path} "
+                "(a loop needs a module with direct_feedthrough = False)"
+            ) from None
+        order = [n for n in order if n not in nonft_set]
+        required = {n: tuple(classes[n].inputs) for n in active}
+        plan = _Plan(configuration, active, nonft, order, routes, required, edges)
+        self._plans[configuration] = plan
+        return plan
+
+    # ------------------------------------------------------------------ contract
+    @property
+    def active(self) -> set[str]:
+        """Names of the active modules."""
+        return set(self._plan.active)
+
+    @property
+    def modules(self) -> dict[str, RuntimeModule]:
+        """Active modules by name (file order)."""
+        return {n: self._pool[n] for n in self._plan.active}
+
+    @property
+    def execution_order(self) -> list[str]:
+        """Order of one step: non-feedthrough outputs, then the feedthrough modules."""
+        return list(self._plan.nonft) + list(self._plan.order)
+
+    @property
+    def active_edges(self) -> list[int]:
+        """Indices into ``arch.edges`` of the edges active in this configuration."""
+        return list(self._plan.edges)
+
+    def _gather(self, name: str) -> dict[str, Any]:
+        outs = self.outputs
+        inputs: dict[str, Any] = {}
+        for carries, src, idx, unc, delay in self._plan.routes[name]:
+            src_out = outs.get(src)
+            val = src_out.get(carries) if src_out is not None else None
+            if delay:
+                line = self._delay.get(idx)
+                if line is None:
+                    line = self._delay[idx] = deque([None] * delay)
+                line.append(val)
+                val = line.popleft()
+            if unc and val is not None and isinstance(val, (float, int, np.ndarray)):
+                rng = self._edge_rng.get(idx)
+                if rng is None:
+                    e = self.arch.edges[idx]
+                    rng = self._edge_rng[idx] = module_rng(
+                        self.seed, f"edge:{e.source}->{e.target}:{e.carries}"
+                    )
+                if isinstance(val, np.ndarray):
+                    val = val + unc * rng.standard_normal(val.shape)
+                else:
+                    val = val + unc * float(rng.standard_normal())
+            if val is not None or carries not in inputs:
+                inputs[carries] = val
+        return inputs
+
+    def _publish(self, name: str, out: dict[str, Any] | None, t: float) -> bool:
+        if out is None:
+            out = {}
+        faults = self._faults.get(name)
+        if faults:
+            out = dict(out)
+            for sig, inj in faults:
+                if sig in out:
+                    out[sig] = inj.apply(t, out[sig])
+        for v in out.values():
+            if _is_bad(v):
+                return False
+        self.outputs[name] = out
+        return True
+
+    def step(self) -> None:
+        """Advance the system by one step ``dt``."""
+        t = self.t
+        dt = self.dt
+        pool = self._pool
+        plan = self._plan
+        ok = self._ok
+        req = plan.required
+        for name in plan.nonft:
+            try:
+                good = self._publish(name, pool[name].output(t), t)
+            except Exception:
+                good = False
+            ok[name] = good
+        for name in plan.order:
+            inputs = self._gather(name)
+            try:
+                good = self._publish(name, pool[name].step(t, dt, inputs), t)
+            except Exception:
+                good = False
+            if good:
+                for s in req[name]:
+                    if inputs.get(s) is None:
+                        good = False
+                        break
+            ok[name] = good
+        for name in plan.nonft:
+            inputs = self._gather(name)
+            try:
+                pool[name].step(t, dt, inputs)
+            except Exception:
+                ok[name] = False
+                continue
+            if ok[name]:
+                for s in req[name]:
+                    if inputs.get(s) is None:
+                        ok[name] = False
+                        break
+        self.k += 1
+        self.t = self.k * dt
+
+    def run(self, duration_s: float) -> None:
+        """Step for ``duration_s`` seconds."""
+        for _ in range(int(round(duration_s / self.dt))):
+            self.step()
+
+    def local_signals(self) -> dict[str, dict[str, float]]:
+        """module -> signal -> value of the active modules' residual signals (Eq. 12)."""
+        return {n: self._pool[n].local_signals() for n in self._plan.active}
+
+    def available(self) -> dict[str, bool]:
+        """module -> False when it raised, gave NaN or lost a required input in the last step."""
+        return {n: self._ok.get(n, True) for n in self._plan.active}
+
+    def signal(self, ref: str | tuple[str, str]) -> Any:
+        """The current value of ``'module.signal'`` (None when not published)."""
+        mod, sig = ref.rsplit(".", 1) if isinstance(ref, str) else ref
+        out = self.outputs.get(mod)
+        return None if out is None else out.get(sig)
+
+    def state_error(self) -> np.ndarray:
+        """``x − x_ref`` of the ``runtime.objective`` components (NaN when unknown, Eq. 22)."""
+        a = self.signal(self._obj_actual)
+        r = self.signal(self._obj_ref)
+        n = len(self._obj_comp)
+        if a is None or r is None:
+            return np.full(n, np.nan)
+        a = np.asarray(a, dtype=float)
+        r = np.asarray(r, dtype=float)
+        c = self._obj_comp
+        return a[c] - r[c]
+
+    def objective_error(self) -> float:
+        """J_obs: norm of :meth:`state_error` (NaN before the first step)."""
+        return float(np.linalg.norm(self.state_error()))
+
+    # ------------------------------------------------------------------ changes
+    def apply_configuration(self, name: str) -> None:
+        """Hot swap to configuration ``name`` with state hand-over by role.
+
+        Raises
+        ------
+        CompileError
+            If the configuration is unknown or has an algebraic loop.
+        """
+        if name == self.configuration:
+            return
+        old = self._plan
+        new = self._make_plan(name)
+        gone = [n for n in old.active if n not in new.active_set]
+        for n in new.active:
+            if n in old.active_set:
+                continue
+            mod = self._module(n)
+            for g in gone:
+                prev = self._pool[g]
+                if prev.role == mod.role:
+                    mod.import_state(prev.export_state())
+                    break
+        for g in gone:
+            self.outputs.pop(g, None)
+            self._ok.pop(g, None)
+        self._plan = new
+        self.history.append({"t_s": self.t, "from": old.name, "to": name})
+        self.configuration = name
+
+    def set_params(self, module: str, values: dict[str, Any]) -> None:
+        """Apply a parameter update to ``module`` (instantiated if not yet used)."""
+        self._module(module).set_params(dict(values))
+
+    def snapshot(self) -> LiveSystem:
+        """An independent deep copy (same RNG states, so a rollout is deterministic)."""
+        memo = {id(self.arch): self.arch, id(self._factory): self._factory}
+        for p in self._plans.values():
+            memo[id(p)] = p
+        return copy.deepcopy(self, memo)
+
+    def linearization(self, configuration: str | None = None) -> np.ndarray | None:
+        """Closed-loop A (Eq. 20) of the configuration's modules that provide one.
+
+        Modules of ``configuration`` (default: the active one) whose
+        ``linearization()`` is not None contribute a diagonal block. An inactive
+        module is first given the state of the active module of the same role
+        (as a hand-over would). None when no module provides a model.
+        """
+        conf_name = configuration or self.configuration
+        plan = self._make_plan(conf_name)
+        blocks = []
+        for n in plan.active:
+            mod = self._module(n)
+            if n not in self._plan.active_set:
+                for a in self._plan.active:
+                    other = self._pool[a]
+                    if other.role == mod.role and a not in plan.active_set:
+                        mod.import_state(other.export_state())
+                        break
+            try:
+                A = mod.linearization()
+            except Exception:
+                A = None
+            if A is not None:
+                blocks.append(np.atleast_2d(np.asarray(A, dtype=float)))
+        if not blocks:
+            return None
+        size = sum(b.shape[0] for b in blocks)
+        out = np.zeros((size, size))
+        i = 0
+        for b in blocks:
+            k = b.shape[0]
+            out[i : i + k, i : i + k] = b
+            i += k
+        return out
+
+    def pool(self) -> dict[str, RuntimeModule]:
+        """Every module instantiated so far (active or not)."""
+        return dict(self._pool)
+
+    def modules_with_role(self, role: str, names: Iterable[str] | None = None) -> list[str]:
+        """Active modules (or ``names``) whose role is ``role``, in file order."""
+        names = self._plan.active if names is None else list(names)
+        return [n for n in names if self._module(n).role == role]
