@@ -358,7 +358,7 @@ def _scenarios(ctx: _Ctx) -> None:
         if f.kind not in cls.fault_kinds:
             can = ", ".join(sorted(cls.fault_kinds)) or "no faults"
             ctx.add("error", "fault",
-                    f"'{f.module}' ({arch.modules[f.module].type}) cannot take a {f.kind} fault "
+                    f"'{f.module}' ({arch.modules[f.module].type}) cannot take fault kind '{f.kind}' "
                     f"(it takes: {can})", (*path, "kind"))
         if f.signal is not None and cls.outputs and f.signal not in cls.outputs:
             ctx.add("error", "fault",

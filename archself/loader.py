@@ -22,6 +22,7 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ MAX_DEPTH = 64
 MAX_NODES = 5_000_000
 
 Path_ = tuple[str | int, ...]
+_PLAIN_KEY = re.compile(r"^[A-Za-z_$][A-Za-z0-9_$-]*$")
 
 
 class SchemaError(LoadError):
@@ -86,8 +88,10 @@ def dotted(path: Path_) -> str:
     for p in path:
         if isinstance(p, int):
             out += f"[{p}]"
-        else:
+        elif _PLAIN_KEY.match(str(p)):
             out += ("." if out else "") + str(p)
+        else:
+            out += "[" + json.dumps(str(p), ensure_ascii=False) + "]"
     return out
 
 
