@@ -106,15 +106,19 @@ class _Plan:
 
 def _is_bad(value: Any) -> bool:
     """True for a non-finite float or an array with a non-finite entry."""
-    if value is None:
-        return False
-    if isinstance(value, float):
+    tp = type(value)
+    if tp is float:
         return not math.isfinite(value)
-    if isinstance(value, np.ndarray):
+    if tp is np.ndarray:
         if value.dtype.kind != "f":
             return False
-        s = float(value.sum())
-        return not (s - s == 0.0)
+        if value.ndim == 1:
+            s = sum(value.tolist())
+        else:
+            s = float(value.sum())
+        return not math.isfinite(s)
+    if isinstance(value, (float, np.floating)):
+        return not math.isfinite(float(value))
     return False
 
 
@@ -417,8 +421,9 @@ class LiveSystem:
 
         Modules of ``configuration`` (default: the active one) whose
         ``linearization()`` is not None contribute a diagonal block. An inactive
-        module is first given the state of the active module of the same role
-        (as a hand-over would). None when no module provides a model.
+        module is evaluated on a copy that is first given the state of the
+        active module of the same role (as a hand-over would); the live system
+        is not changed. None when no module provides a model.
         """
         conf_name = configuration or self.configuration
         plan = self._make_plan(conf_name)
@@ -426,6 +431,7 @@ class LiveSystem:
         for n in plan.active:
             mod = self._module(n)
             if n not in self._plan.active_set:
+                mod = copy.deepcopy(mod)  # never change the live system
                 for a in self._plan.active:
                     other = self._pool[a]
                     if other.role == mod.role and a not in plan.active_set:

@@ -28,11 +28,12 @@ class InnovationWindow:
     Parameters
     ----------
     window_s : float
-        Length of the window (s).
+        Length of the window (s). The value is NaN until innovations span at
+        least half of it (a mean of one or two noisy fixes would look like a bias).
 
     Examples
     --------
-    >>> w = InnovationWindow(10.0)
+    >>> w = InnovationWindow(4.0)
     >>> w.add(0.0, 1.0, 0.0); w.add(1.0, -1.0, 0.0); w.add(2.0, 0.0, 3.0)
     >>> w.value()
     1.0
@@ -43,9 +44,14 @@ class InnovationWindow:
         self.items: deque[tuple[float, float, float]] = deque()
         self.sx = 0.0
         self.sy = 0.0
+        self.start: float | None = None
+        self.last = 0.0
 
     def add(self, t: float, ex: float, ey: float) -> None:
         """Add the innovation ``(ex, ey)`` observed at ``t`` and drop old ones."""
+        if self.start is None:
+            self.start = t
+        self.last = t
         self.items.append((t, ex, ey))
         self.sx += ex
         self.sy += ey
@@ -55,9 +61,9 @@ class InnovationWindow:
             self.sy -= oy
 
     def value(self) -> float:
-        """Norm of the mean innovation (NaN before the first one)."""
+        """Norm of the mean innovation (NaN until the window is half full)."""
         n = len(self.items)
-        if n == 0:
+        if n == 0 or self.start is None or self.last - self.start < 0.5 * self.window_s:
             return math.nan
         return math.hypot(self.sx / n, self.sy / n)
 
@@ -65,6 +71,7 @@ class InnovationWindow:
         """Forget every innovation."""
         self.items.clear()
         self.sx = self.sy = 0.0
+        self.start = None
 
 
 def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
@@ -211,7 +218,6 @@ class Ekf(RuntimeModule):
     outputs = ("pose_estimate", "covariance")
     residual_signals = ("innovation",)
 
-    _H_HEAD = np.array([[0.0, 0.0, 1.0, 1.0]])
     _H_GPS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
     def __init__(self, name, params, rng):
@@ -239,8 +245,9 @@ class Ekf(RuntimeModule):
         self.p0_th = float(p.get("initial_heading_std_rad", 0.05))
         self.p0_b = float(p.get("initial_bias_std_rad", 0.05))
         self.window_s = float(p.get("innovation_window_s", 20.0))
-        self.R_head = np.array([[self.r_head**2]])
         self.R_gps = np.eye(2) * self.r_gps**2
+        self._Qdiag = np.diag([self.q_pos**2, self.q_pos**2, self.q_th**2, self.q_b**2])
+        self._F = np.eye(4)
 
     def set_params(self, values):
         super().set_params(values)
@@ -259,7 +266,12 @@ class Ekf(RuntimeModule):
         return self.kf.P
 
     def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
-        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``."""
+        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``.
+
+        ``x ← f(x, u)`` (unicycle, midpoint heading), ``P ← F P Fᵀ + Q`` with
+        ``Q = σ_enc² G Gᵀ + diag(q²) dt``, G the Jacobian of the motion with
+        respect to the two wheel speeds.
+        """
         kf = self.kf
         x = kf.x
         r, b = kin.wheel_radius_m, kin.wheel_base_m
@@ -267,33 +279,42 @@ class Ekf(RuntimeModule):
         th = float(x[2])
         mid = th + 0.5 * w * dt
         c, s = math.cos(mid), math.sin(mid)
-        F = np.eye(4)
+        F = self._F
         F[0, 2] = -v * dt * s
         F[1, 2] = v * dt * c
-        # d(Δx, Δy, Δθ)/d(ω_l, ω_r) for the encoder noise
-        G = np.array([
-            [0.5 * r * dt * c, 0.5 * r * dt * c],
-            [0.5 * r * dt * s, 0.5 * r * dt * s],
-            [-r * dt / b, r * dt / b],
-            [0.0, 0.0],
-        ])
-        sig = self.sig_enc if enc is not None else 10.0
-        Q = (sig * sig) * (G @ G.T)
-        Q[0, 0] += self.q_pos**2 * dt
-        Q[1, 1] += self.q_pos**2 * dt
-        Q[2, 2] += self.q_th**2 * dt
-        Q[3, 3] += self.q_b**2 * dt
+        sig2 = (self.sig_enc if enc is not None else 10.0) ** 2
+        h = 0.5 * r * dt
+        k = r * dt / b
+        u0, u1 = h * c, h * s
+        Q = self._Qdiag * dt
+        Q[0, 0] += 2 * sig2 * u0 * u0
+        Q[0, 1] = Q[1, 0] = 2 * sig2 * u0 * u1
+        Q[1, 1] += 2 * sig2 * u1 * u1
+        Q[2, 2] += 2 * sig2 * k * k
         kf.x = np.array([x[0] + v * dt * c, x[1] + v * dt * s, th + w * dt, x[3]])
-        kf.F = F
         kf.Q = Q
         kf.P = F @ kf.P @ F.T + Q
 
     def update_heading(self, heading: float) -> None:
-        """Update with an IMU heading ``h = θ + b`` (angle residual wrapped)."""
-        self.kf.update(
-            np.array([float(heading)]), _h_head_jac, _h_head, R=self.R_head, residual=_ang_res
-        )
-        self.kf.x[2] = (self.kf.x[2] + math.pi) % (2 * math.pi) - math.pi
+        """Update with an IMU heading ``h = θ + b`` (angle residual wrapped).
+
+        The scalar measurement runs at every step, so it is written out in
+        closed form (the same equations as ``ExtendedKalmanFilter.update``,
+        Joseph form); the GPS update goes through filterpy.
+        """
+        kf = self.kf
+        P = kf.P
+        x = kf.x
+        y = (float(heading) - float(x[2] + x[3]) + math.pi) % (2 * math.pi) - math.pi
+        ph = P[:, 2] + P[:, 3]  # P Hᵀ
+        S = float(ph[2] + ph[3]) + self.r_head**2
+        K = ph / S
+        kf.x = x + K * y
+        IKH = np.eye(4)
+        IKH[:, 2] -= K
+        IKH[:, 3] -= K
+        kf.P = IKH @ P @ IKH.T + np.outer(K, K) * self.r_head**2
+        kf.x[2] = (kf.x[2] + math.pi) % (2 * math.pi) - math.pi
 
     def update_position(self, pos) -> tuple[float, float]:
         """Update with a GPS fix; returns the innovation ``z − Hx``."""
@@ -338,13 +359,6 @@ class Ekf(RuntimeModule):
         self.monitor.clear()
 
 
-def _h_head(x):
-    return np.array([x[2] + x[3]])
-
-
-def _h_head_jac(x):
-    return Ekf._H_HEAD
-
 
 def _h_gps(x):
     return np.array([x[0], x[1]])
@@ -352,8 +366,3 @@ def _h_gps(x):
 
 def _h_gps_jac(x):
     return Ekf._H_GPS
-
-
-def _ang_res(a, b):
-    return (np.asarray(a) - np.asarray(b) + np.pi) % (2 * np.pi) - np.pi
-

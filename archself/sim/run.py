@@ -1,0 +1,338 @@
+"""The simulation driver: step a compiled system through a scenario and record it.
+
+:func:`simulate` compiles the architecture in a configuration with the
+scenario's faults, steps it for the scenario's duration at ``runtime.step_s``,
+calls the adaptation loop (if any) every ``runtime.period_s``, and returns a
+:class:`RunResult` with the recorded series and the metrics of the
+``runtime.objective`` error.
+
+Examples
+--------
+>>> from archself.loader import load_architecture
+>>> from archself.resources import data_dir
+>>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+>>> res = simulate(arch, "nominal", configuration="a1")
+>>> res.metrics["max_error_m"] < 0.5
+True
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from archself.compiler import compile_system
+from archself.errors import SimulationError
+from archself.model import Architecture
+
+__all__ = ["RunResult", "simulate", "error_metrics"]
+
+
+def error_metrics(t: np.ndarray, err: np.ndarray) -> dict[str, float]:
+    """``max_error_m``, ``final_error_m``, ``rms_error_m`` and ``peak_time_s`` of an error series.
+
+    Examples
+    --------
+    >>> error_metrics(np.array([0.0, 1.0, 2.0]), np.array([0.0, 2.0, 1.0]))["peak_time_s"]
+    1.0
+    """
+    err = np.asarray(err, dtype=float)
+    ok = np.isfinite(err)
+    if not ok.any():
+        nan = math.nan
+        return {"max_error_m": nan, "final_error_m": nan, "rms_error_m": nan, "peak_time_s": nan}
+    e = np.where(ok, err, -np.inf)
+    i = int(np.argmax(e))
+    return {
+        "max_error_m": float(err[i]),
+        "final_error_m": float(err[ok][-1]),
+        "rms_error_m": float(np.sqrt(np.mean(err[ok] ** 2))),
+        "peak_time_s": float(t[i]),
+    }
+
+
+@dataclasses.dataclass
+class RunResult:
+    """The outcome of one simulation.
+
+    Attributes
+    ----------
+    scenario : str
+    seed : int
+    mode : str
+        ``"fixed"`` (no adaptation loop) or ``"adaptive"``.
+    configuration : str
+        The configuration the run started in.
+    final_configuration : str
+    metrics : dict
+        ``max_error_m``, ``final_error_m``, ``rms_error_m``, ``peak_time_s``.
+    switches : list of dict
+        Architecture switches ``{t_s, from, to, action, ...}`` (empty when fixed).
+    series : dict of str -> ndarray
+        Recorded time series, one row per step: ``t``, ``J`` (objective error),
+        ``reference`` and ``actual`` (the objective's signals), ``estimate``
+        (first output of the active estimator), ``command`` (first output of the
+        active controller), ``configuration`` (index into :attr:`configurations`)
+        and ``residual.<module>`` (each module's declared residual signal, NaN
+        while inactive).
+    decisions : list
+        The adaptation loop's decision log (its ``decisions`` attribute), if any.
+    meta : dict
+        Architecture name, step, period, duration.
+    """
+
+    scenario: str
+    seed: int
+    mode: str
+    configuration: str
+    final_configuration: str
+    metrics: dict[str, float]
+    switches: list[dict[str, Any]]
+    series: dict[str, np.ndarray]
+    decisions: list[Any] = dataclasses.field(default_factory=list)
+    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
+    configurations: list[str] = dataclasses.field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary as plain data (the ``--json`` output of ``archself simulate``)."""
+        return {
+            "scenario": self.scenario,
+            "seed": self.seed,
+            "mode": self.mode,
+            "configuration": self.configuration,
+            "final_configuration": self.final_configuration,
+            "metrics": {k: _clean(v) for k, v in self.metrics.items()},
+            "switches": _clean(self.switches),
+        }
+
+    def trace(self) -> dict[str, Any]:
+        """The trace document ``{meta, series, decisions}`` as plain JSON data."""
+        meta = {**self.meta, **self.to_dict(), "configurations": list(self.configurations)}
+        series = {name: _series_list(arr) for name, arr in self.series.items()}
+        decisions = [_decision(d) for d in self.decisions]
+        return {"meta": meta, "series": series, "decisions": _clean(decisions)}
+
+    def write_trace(self, path: str | Path) -> None:
+        """Write :meth:`trace` as JSON to ``path``, atomically and deterministically.
+
+        The same seed gives a byte-identical file. NaN is written as ``null``;
+        series values are rounded to 1e-6.
+
+        Raises
+        ------
+        OutputError
+            If the file cannot be written.
+        """
+        from archself.atomic import write_text
+
+        text = json.dumps(self.trace(), separators=(",", ":"), allow_nan=False)
+        write_text(path, text + "\n")
+
+
+def _series_list(arr: np.ndarray) -> list:
+    a = np.asarray(arr)
+    if a.dtype.kind in "iub":
+        return a.tolist()
+    a = np.round(a.astype(float), 6)
+    if a.ndim == 1:
+        return [None if v != v or v in (math.inf, -math.inf) else v for v in a.tolist()]
+    return [
+        [None if v != v or v in (math.inf, -math.inf) else v for v in row] for row in a.tolist()
+    ]
+
+
+def _decision(d: Any) -> Any:
+    if hasattr(d, "to_dict"):
+        return d.to_dict()
+    if dataclasses.is_dataclass(d) and not isinstance(d, type):
+        return dataclasses.asdict(d)
+    return d
+
+
+def _clean(obj: Any) -> Any:
+    """Plain JSON data: numpy scalars/arrays converted, NaN/inf → None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    if isinstance(obj, (str, int, bool)) or obj is None:
+        return obj
+    return str(obj)
+
+
+def _first_output(system: Any, role: str) -> tuple[str, str] | None:
+    for name, mod in system.modules.items():
+        if mod.role == role and mod.outputs:
+            return name, mod.outputs[0]
+    return None
+
+
+def simulate(
+    arch: Architecture | str | Path,
+    scenario: str,
+    *,
+    configuration: str | None = None,
+    seed: int | None = None,
+    adapt: Callable[[Any], list[dict[str, Any]] | None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> RunResult:
+    """Simulate ``scenario`` on ``arch``, fixed or with an adaptation loop.
+
+    Parameters
+    ----------
+    arch : Architecture or path
+        The architecture (a path is loaded with :func:`archself.loader.load_architecture`).
+    scenario : str
+        Name of a scenario of the file.
+    configuration : str, optional
+        Configuration to start in (default: the file's initial one).
+    seed : int, optional
+        Seed of every random stream (default: the scenario's ``seed``).
+    adapt : callable, optional
+        ``adapt(system) -> list of switch dicts`` called every
+        ``runtime.period_s`` (the MAPE-K loop); None runs the architecture fixed.
+        If it has a ``decisions`` list attribute, that log goes into the trace.
+    progress : callable, optional
+        ``progress(done_steps, total_steps)``, called about 100 times.
+
+    Returns
+    -------
+    RunResult
+
+    Raises
+    ------
+    SimulationError
+        Unknown scenario.
+    CompileError
+        The configuration cannot be built.
+    """
+    if not isinstance(arch, Architecture):
+        from archself.loader import load_architecture
+
+        arch = load_architecture(arch).arch
+    sc = arch.scenarios.get(scenario)
+    if sc is None:
+        known = ", ".join(arch.scenarios) or "none"
+        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}")
+    seed = sc.seed if seed is None else int(seed)
+    start = configuration or arch.initial_configuration()
+    system = compile_system(arch, start, seed=seed, scenario=sc)
+    rt = arch.runtime
+    dt = float(rt.step_s)
+    n = int(round(sc.duration_s / dt))
+    per = max(1, int(round(rt.period_s / dt)))
+    every = max(1, n // 100)
+
+    confs = list(arch.configurations)
+    conf_index = {c: i for i, c in enumerate(confs)}
+    act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
+    ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
+    comps = list(rt.objective.components)
+    res_mods = [(m, spec.residual.signal) for m, spec in arch.modules.items() if spec.residual]
+
+    t_arr = np.empty(n)
+    J = np.full(n, np.nan)
+    conf_arr = np.zeros(n, dtype=int)
+    res = np.full((n, len(res_mods)), np.nan)
+    cols: dict[str, np.ndarray] = {}
+    widths: dict[str, int] = {}
+
+    def put(key: str, i: int, val: Any) -> None:
+        if val is None:
+            return
+        arr = cols.get(key)
+        if arr is None:
+            w = int(np.size(val))
+            widths[key] = w
+            arr = cols[key] = np.full((n, w), np.nan)
+        v = np.asarray(val, dtype=float).ravel()
+        if v.size == widths[key]:
+            arr[i] = v
+
+    switches: list[dict[str, Any]] = []
+    est = ctl = None
+    cur_conf = None
+    outputs = system.outputs
+    for i in range(n):
+        system.step()
+        if system.configuration != cur_conf:
+            cur_conf = system.configuration
+            est = _first_output(system, "estimator")
+            ctl = _first_output(system, "controller")
+            active = system.active
+            res_idx = [(j, m, s) for j, (m, s) in enumerate(res_mods) if m in active]
+            modules = system.modules
+        t_arr[i] = system.t
+        conf_arr[i] = conf_index.get(cur_conf, -1)
+        a = outputs.get(act_mod, {}).get(act_sig)
+        r = outputs.get(ref_mod, {}).get(ref_sig)
+        if a is not None and r is not None:
+            s2 = 0.0
+            for c in comps:
+                d = float(a[c]) - float(r[c])
+                s2 += d * d
+            J[i] = math.sqrt(s2)
+        put("reference", i, r)
+        put("actual", i, a)
+        if est is not None:
+            put("estimate", i, outputs.get(est[0], {}).get(est[1]))
+        if ctl is not None:
+            put("command", i, outputs.get(ctl[0], {}).get(ctl[1]))
+        for j, m, s in res_idx:
+            v = modules[m].signals.get(s) if hasattr(modules[m], "signals") else None
+            if v is None:
+                v = modules[m].local_signals().get(s, math.nan)
+            res[i, j] = v
+        if adapt is not None and (i + 1) % per == 0:
+            out = adapt(system)
+            if out:
+                switches.extend(dict(s) for s in out)
+        if progress is not None and ((i + 1) % every == 0 or i + 1 == n):
+            progress(i + 1, n)
+
+    series: dict[str, np.ndarray] = {"t": t_arr, "J": J}
+    for key in ("reference", "actual", "estimate", "command"):
+        if key in cols:
+            arr = cols[key]
+            series[key] = arr[:, 0] if arr.shape[1] == 1 else arr
+    series["configuration"] = conf_arr
+    for j, (m, _s) in enumerate(res_mods):
+        series[f"residual.{m}"] = res[:, j]
+    decisions = list(getattr(adapt, "decisions", []) or []) if adapt is not None else []
+    meta = {
+        "architecture": arch.name,
+        "step_s": dt,
+        "period_s": float(rt.period_s),
+        "duration_s": float(sc.duration_s),
+        "objective": {"actual": rt.objective.actual, "reference": rt.objective.reference,
+                      "components": comps},
+        "residuals": {m: s for m, s in res_mods},
+    }
+    return RunResult(
+        scenario=scenario,
+        seed=seed,
+        mode="fixed" if adapt is None else "adaptive",
+        configuration=start,
+        final_configuration=system.configuration,
+        metrics=error_metrics(t_arr, J),
+        switches=switches,
+        series=series,
+        decisions=decisions,
+        meta=meta,
+        configurations=confs,
+    )
