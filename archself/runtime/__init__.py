@@ -1,0 +1,25 @@
+"""The generic MAPE-K runtime of Algorithm 1 (Franz & Yasin, §4.2).
+
+Nothing here knows a module, configuration or scenario by name: everything is
+read from the :class:`archself.model.Architecture`, and the running system is
+reached only through the LiveSystem contract (docs/develop.md).
+
+============================  ==============================================
+file                          role
+============================  ==============================================
+``influence.py``              W (Eq. 13), ρ(W), z = (I − Wᵀ)⁻¹ r (Eq. 14–15)
+``candidates.py``             candidate set C: τ, top-k, hysteresis (Eq. 16, 28)
+``monitor.py``                J_obs, r (Eq. 11), r_i (Eq. 12), κ_i
+``stability.py``              eigenvalue margin (Eq. 21), Lyapunov test (Eq. 24)
+``planner.py``                s (Eq. 17), Δ (Eq. 18), score (Eq. 25), argmax (Eq. 26–28)
+``knowledge.py``              the live architecture graph, t_last
+``decisions.py``              the decision log and :func:`explain`
+``mapek.py``                  :class:`MapeK`: one cycle of Algorithm 1
+============================  ==============================================
+"""
+
+from archself.runtime.decisions import explain
+from archself.runtime.influence import InfluenceSolver
+from archself.runtime.mapek import MapeK
+
+__all__ = ["InfluenceSolver", "MapeK", "explain"]

@@ -1,0 +1,144 @@
+"""The candidate set C of modules to adapt (paper Eq. 16 and the hysteresis of §4.2).
+
+Three selectors, chosen by the ``runtime`` block of the architecture file:
+
+- ``threshold: τ`` — ``C = {m_i : |z_i| ≥ τ}`` (Eq. 16), :func:`threshold_candidates`;
+- ``top_k: k`` — the ``k`` modules with the largest non-zero ``|z_i|``,
+  :func:`top_k_candidates`;
+- ``hysteresis: {on, off}`` — a module enters C when ``|z_i| ≥ τ_on`` and leaves it
+  only when ``|z_i| < τ_off`` (τ_on > τ_off), :class:`HysteresisSelector`.
+
+Every selector returns the candidates ordered by decreasing ``|z_i|``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+from archself.model import Runtime
+
+__all__ = [
+    "CandidateSelector",
+    "HysteresisSelector",
+    "ThresholdSelector",
+    "TopKSelector",
+    "selector_from_runtime",
+    "threshold_candidates",
+    "top_k_candidates",
+]
+
+
+def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
+    return sorted(names, key=lambda n: (-abs(z[n]), n))
+
+
+def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
+    """Modules with ``|z_i| ≥ τ`` (Eq. 16), largest first.
+
+    Examples
+    --------
+    >>> threshold_candidates({"a": 0.2, "b": -0.9, "c": 0.6}, 0.55)
+    ['b', 'c']
+    """
+    return _ranked(z, [n for n, v in z.items() if abs(v) >= tau])
+
+
+def top_k_candidates(z: Mapping[str, float], k: int) -> list[str]:
+    """The ``k`` modules with the largest ``|z_i|``, ignoring ``z_i = 0``.
+
+    Examples
+    --------
+    >>> top_k_candidates({"a": 0.2, "b": -0.9, "c": 0.0}, 2)
+    ['b', 'a']
+    """
+    return _ranked(z, [n for n, v in z.items() if v != 0.0])[:k]
+
+
+class CandidateSelector:
+    """Base class: ``select(z) -> list of module names``, largest ``|z|`` first."""
+
+    def select(self, z: Mapping[str, float]) -> list[str]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forget any state (nothing for the stateless selectors)."""
+
+    def describe(self) -> str:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class ThresholdSelector(CandidateSelector):
+    """``|z_i| ≥ τ`` (Eq. 16)."""
+
+    def __init__(self, tau: float) -> None:
+        self.tau = float(tau)
+
+    def select(self, z: Mapping[str, float]) -> list[str]:
+        return threshold_candidates(z, self.tau)
+
+    def describe(self) -> str:
+        return f"|z| >= {self.tau:g}"
+
+
+class TopKSelector(CandidateSelector):
+    """The ``k`` largest non-zero ``|z_i|``."""
+
+    def __init__(self, k: int) -> None:
+        self.k = int(k)
+
+    def select(self, z: Mapping[str, float]) -> list[str]:
+        return top_k_candidates(z, self.k)
+
+    def describe(self) -> str:
+        return f"top {self.k} by |z|"
+
+
+class HysteresisSelector(CandidateSelector):
+    """Candidate set with hysteresis: enter at ``|z| ≥ on``, leave at ``|z| < off``.
+
+    Parameters
+    ----------
+    on, off : float
+        Thresholds τ_on > τ_off ≥ 0.
+
+    Examples
+    --------
+    >>> sel = HysteresisSelector(on=0.6, off=0.3)
+    >>> sel.select({"a": 0.5})      # below on: not yet a candidate
+    []
+    >>> sel.select({"a": 0.7})      # crosses on: enters
+    ['a']
+    >>> sel.select({"a": 0.4})      # between off and on: stays
+    ['a']
+    >>> sel.select({"a": 0.2})      # below off: leaves
+    []
+    """
+
+    def __init__(self, on: float, off: float) -> None:
+        if not on > off:
+            raise ValueError("hysteresis needs on > off")
+        self.on = float(on)
+        self.off = float(off)
+        self.members: set[str] = set()
+
+    def select(self, z: Mapping[str, float]) -> list[str]:
+        keep = {n for n in self.members if n in z and abs(z[n]) >= self.off}
+        enter = {n for n, v in z.items() if abs(v) >= self.on}
+        self.members = keep | enter
+        return _ranked(z, self.members)
+
+    def reset(self) -> None:
+        self.members.clear()
+
+    def describe(self) -> str:
+        return f"hysteresis on |z| >= {self.on:g}, off |z| < {self.off:g}"
+
+
+def selector_from_runtime(runtime: Runtime) -> CandidateSelector:
+    """The selector the ``runtime`` block declares (exactly one is given)."""
+    if runtime.hysteresis is not None:
+        return HysteresisSelector(runtime.hysteresis.on, runtime.hysteresis.off)
+    if runtime.top_k is not None:
+        return TopKSelector(runtime.top_k)
+    assert runtime.threshold is not None
+    return ThresholdSelector(runtime.threshold)

@@ -1,0 +1,279 @@
+"""The decision log of the MAPE-K loop and its human-readable rendering.
+
+One :class:`DecisionRecord` per cycle holds what Algorithm 1 saw and decided:
+the objective ``J_obs`` and global residual ``r`` (Eq. 11), the module residuals
+``r_i`` (Eq. 12), the influence ``z`` (Eq. 14), the candidate set (Eq. 16), and
+for every action evaluated its estimated improvement Δ (Eq. 18), its stability
+verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
+``unavailable``, ``constraint``, ``budget``, ``dwell``, ``no improvement``,
+``unstable``), its score (Eq. 25) and the action chosen (Eq. 26). Records are
+plain JSON (``to_dict``): lists, strings, floats and ``None`` for non-finite
+numbers.
+
+:func:`explain` renders a log for a person asking "why did it switch?".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["ActionEvaluation", "DecisionRecord", "explain", "jsonable"]
+
+REJECTIONS = (
+    "not applicable",
+    "no change",
+    "unavailable",
+    "constraint",
+    "budget",
+    "dwell",
+    "no improvement",
+    "unstable",
+)
+
+
+def jsonable(x: Any) -> Any:
+    """Convert numpy scalars/arrays, tuples, sets and non-finite floats to plain JSON.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> jsonable({"a": np.float64(1.5), "b": [np.nan, 2], "c": (1, 2)})
+    {'a': 1.5, 'b': [None, 2], 'c': [1, 2]}
+    """
+    if isinstance(x, Mapping):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (set, frozenset)):
+        return [jsonable(v) for v in sorted(x, key=str)]
+    if isinstance(x, bool) or x is None or isinstance(x, str):
+        return x
+    if hasattr(x, "tolist") and not isinstance(x, (int, float)):
+        return jsonable(x.tolist())
+    if isinstance(x, int):
+        return int(x)
+    if isinstance(x, float) or hasattr(x, "__float__"):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    return str(x)
+
+
+@dataclass
+class ActionEvaluation:
+    """One action considered in the Plan stage."""
+
+    action: str
+    module: str
+    kind: str
+    to: str | None
+    z: float | None = None
+    delta: float | None = None
+    cost: float = 0.0
+    score: float | None = None
+    stability: dict[str, Any] | None = None
+    rejected: str | None = None
+    detail: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return jsonable(
+            {
+                "action": self.action,
+                "module": self.module,
+                "kind": self.kind,
+                "to": self.to,
+                "z": self.z,
+                "delta": self.delta,
+                "cost": self.cost,
+                "score": self.score,
+                "stability": self.stability,
+                "rejected": self.rejected,
+                "detail": self.detail,
+            }
+        )
+
+
+@dataclass
+class DecisionRecord:
+    """What one MAPE-K cycle saw and decided."""
+
+    cycle: int
+    t: float
+    configuration: str
+    phase: str  # "warmup" or "adapt"
+    j_obs: float
+    j_ref: float
+    r_global: float
+    r: dict[str, float]
+    z: dict[str, float]
+    candidates: list[str]
+    selector: str
+    kappa: dict[str, dict[str, Any]] = field(default_factory=dict)
+    evaluations: list[ActionEvaluation] = field(default_factory=list)
+    chosen: dict[str, Any] | None = None
+    note: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return jsonable(
+            {
+                "cycle": self.cycle,
+                "t": self.t,
+                "configuration": self.configuration,
+                "phase": self.phase,
+                "j_obs": self.j_obs,
+                "j_ref": self.j_ref,
+                "r_global": self.r_global,
+                "r": self.r,
+                "z": self.z,
+                "candidates": self.candidates,
+                "selector": self.selector,
+                "kappa": self.kappa,
+                "evaluations": [e.to_dict() for e in self.evaluations],
+                "chosen": self.chosen,
+                "note": self.note,
+            }
+        )
+
+
+# --------------------------------------------------------------------------- explain
+def _fmt(x: Any, spec: str = ".3g") -> str:
+    if x is None:
+        return "n/a"
+    try:
+        return format(float(x), spec)
+    except (TypeError, ValueError):
+        return str(x)
+
+
+def _as_dict(d: Any) -> dict[str, Any]:
+    return d.to_dict() if hasattr(d, "to_dict") else dict(d)
+
+
+def _signature(d: dict[str, Any]) -> tuple:
+    """What makes two quiet cycles "the same" for summarizing."""
+    evals = tuple((e["action"], e.get("rejected")) for e in d.get("evaluations", []))
+    return (d.get("phase"), d.get("configuration"), tuple(d.get("candidates", [])), evals)
+
+
+def _top_z(d: dict[str, Any], k: int = 3) -> str:
+    z = {n: v for n, v in (d.get("z") or {}).items() if v is not None}
+    top = sorted(z.items(), key=lambda kv: -abs(kv[1]))[:k]
+    return ", ".join(f"{n} {_fmt(v, '.2f')}" for n, v in top) or "none"
+
+
+def _describe_eval(e: dict[str, Any]) -> str:
+    target = f" → {e['to']}" if e.get("to") else ""
+    head = f"{e['action']} ({e['kind']} on {e['module']}{target})"
+    parts = []
+    if e.get("delta") is not None:
+        parts.append(f"Δ={_fmt(e['delta'])}")
+    if e.get("score") is not None:
+        parts.append(f"score={_fmt(e['score'])} = z·Δ − λ·cost")
+    st = e.get("stability")
+    if st:
+        parts.append(("stable: " if st.get("ok") else "UNSTABLE: ") + st.get("reason", ""))
+    if e.get("rejected"):
+        why = e["rejected"] + (f": {e['detail']}" if e.get("detail") else "")
+        parts.append(f"rejected ({why})")
+    return head + ("  " + "; ".join(parts) if parts else "")
+
+
+def _cycle_block(d: dict[str, Any]) -> list[str]:
+    lines = [
+        f"t = {_fmt(d['t'], '.1f')} s  [{d['configuration']}]  J_obs = {_fmt(d.get('j_obs'))} "
+        f"(acceptable {_fmt(d.get('j_ref'))}, r = {_fmt(d.get('r_global'), '+.3g')})",
+    ]
+    if d.get("phase") == "warmup":
+        lines.append("  warm-up: adaptation suppressed")
+    cands = d.get("candidates") or []
+    z = d.get("z") or {}
+    r = d.get("r") or {}
+    if cands:
+        shown = ", ".join(
+            f"{c} (z = {_fmt(z.get(c), '.2f')}, own r = {_fmt(r.get(c), '.2f')})" for c in cands
+        )
+        lines.append(f"  candidates ({d.get('selector', '')}): {shown}")
+    else:
+        lines.append(f"  no candidate; largest z: {_top_z(d)}")
+    for e in d.get("evaluations") or []:
+        mark = "  ← chosen" if d.get("chosen") and d["chosen"].get("action") == e["action"] else ""
+        lines.append("    - " + _describe_eval(e) + mark)
+    ch = d.get("chosen")
+    if ch:
+        if ch.get("kind") == "parameter_update":
+            lines.append(f"  ⇒ updated {ch.get('module')} {ch.get('set')} by {ch['action']}")
+        else:
+            lines.append(f"  ⇒ switched {ch.get('from')} → {ch.get('to')} by {ch['action']}")
+    if d.get("note"):
+        lines.append(f"  note: {d['note']}")
+    return lines
+
+
+def explain(decisions: Iterable[Any]) -> str:
+    """Render a decision log for a person asking "why did it switch?".
+
+    Cycles where an action was chosen, or where the candidate set or the outcome
+    of the evaluations changed, are shown in full (J, candidates with z and r_i,
+    every action with Δ, stability verdict, score or rejection reason). Runs of
+    cycles that repeat the previous situation are summarized in one line.
+
+    Parameters
+    ----------
+    decisions : iterable of DecisionRecord or dict
+        The log (``MapeK.decisions``, or the dicts saved with a trace).
+
+    Returns
+    -------
+    str
+        Plain text, one block per notable cycle.
+    """
+    recs = [_as_dict(d) for d in decisions]
+    if not recs:
+        return "No MAPE-K decisions were logged."
+    chosen = [d for d in recs if d.get("chosen")]
+    switches = [d for d in chosen if d["chosen"].get("kind") != "parameter_update"]
+    lines = [
+        f"MAPE-K decision log: {len(recs)} cycles from t = {_fmt(recs[0]['t'], '.1f')} s "
+        f"to {_fmt(recs[-1]['t'], '.1f')} s; {len(switches)} architectural change(s), "
+        f"{len(chosen) - len(switches)} parameter update(s).",
+    ]
+    for d in switches:
+        ch = d["chosen"]
+        lines.append(
+            f"  switch at t = {_fmt(d['t'], '.1f')} s: {ch.get('from')} → {ch.get('to')} "
+            f"({ch['action']}, module {ch.get('module')}, z = {_fmt(ch.get('z'), '.2f')}, "
+            f"score {_fmt(ch.get('score'))})"
+        )
+    lines.append("")
+    prev_sig: tuple | None = None
+    run: list[dict[str, Any]] = []
+
+    def flush() -> None:
+        if not run:
+            return
+        a, b = run[0], run[-1]
+        peak = max(
+            (abs(v) for d in run for v in (d.get("z") or {}).values() if v is not None),
+            default=0.0,
+        )
+        what = "warm-up" if a.get("phase") == "warmup" else "same situation"
+        lines.append(
+            f"t = {_fmt(a['t'], '.1f')}–{_fmt(b['t'], '.1f')} s: {len(run)} more cycle(s), "
+            f"{what} [{a['configuration']}], candidates {a.get('candidates') or 'none'}, "
+            f"max |z| {_fmt(peak, '.2f')}"
+        )
+        run.clear()
+
+    for d in recs:
+        sig = _signature(d)
+        notable = bool(d.get("chosen")) or d.get("note") or sig != prev_sig
+        if notable:
+            flush()
+            lines.extend(_cycle_block(d))
+        else:
+            run.append(d)
+        prev_sig = sig
+    flush()
+    return "\n".join(lines)

@@ -1,0 +1,193 @@
+"""The Knowledge of the MAPE-K loop: the live architecture graph a = (M, Γ).
+
+:class:`Knowledge` holds a :class:`networkx.DiGraph` of *all* modules of the
+architecture file (node attributes ``kind``, ``type``, ``active``, ``params``)
+and of all edges (attributes ``weight``, ``carries``, ``active``), the name of
+the current configuration, the parameter values changed at run time and
+``t_last``, the time of the last architectural change (Eq. 28). It is kept in
+step with the running system: :meth:`Knowledge.sync` reads the active modules
+and configuration from the system after each executed action.
+
+It also owns the index order of the influence vector and the weighted adjacency
+matrix W of the *active* edges (Eq. 13), with the factorization of ``I − Wᵀ``
+cached per active edge set (:class:`archself.runtime.influence.InfluenceSolver`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Any
+
+import networkx as nx
+import numpy as np
+
+from archself.model import Architecture
+from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
+
+__all__ = ["Knowledge", "active_edges"]
+
+EdgeKey = tuple[str, str, str]  # (source, target, carries)
+
+
+def active_edges(
+    arch: Architecture, active: Iterable[str], disabled: Iterable[Iterable[str]] = ()
+) -> frozenset[EdgeKey]:
+    """Edges whose two ends are active and which the configuration does not switch off.
+
+    Parameters
+    ----------
+    arch : Architecture
+        The architecture.
+    active : iterable of str
+        Active module names.
+    disabled : iterable of (source, target)
+        The configuration's ``disabled_edges``.
+
+    Returns
+    -------
+    frozenset of (source, target, carries)
+    """
+    on = set(active)
+    off = {tuple(pair) for pair in disabled}
+    return frozenset(
+        (e.source, e.target, e.carries)
+        for e in arch.edges
+        if e.source in on and e.target in on and (e.source, e.target) not in off
+    )
+
+
+class Knowledge:
+    """The live architecture graph, the current configuration and ``t_last``.
+
+    Parameters
+    ----------
+    arch : Architecture
+        The architecture file's model.
+    configuration : str, optional
+        The starting configuration (default: the one marked ``initial``).
+
+    Attributes
+    ----------
+    graph : networkx.DiGraph
+        All modules and edges; ``active`` flags follow the running system.
+    names : list of str
+        Module names in the index order of ``z``, ``r`` and ``W``.
+    configuration : str
+        Name of the current configuration.
+    active : frozenset of str
+        Active modules.
+    edges : frozenset of (source, target, carries)
+        Active edges.
+    params : dict
+        module -> {parameter: value}: current parameter values (nominal values
+        updated by executed parameter updates).
+    t_last : float
+        Time of the last architectural change (−inf before the first).
+    w_scale : float
+        Factor applied to every weight so that ρ(W) ≤ ``runtime.max_spectral_radius``
+        (1.0 when the file's weights already satisfy it).
+    """
+
+    def __init__(self, arch: Architecture, configuration: str | None = None) -> None:
+        self.arch = arch
+        self.names: list[str] = list(arch.modules)
+        self.index = {n: k for k, n in enumerate(self.names)}
+        self.graph = nx.DiGraph()
+        for name, mod in arch.modules.items():
+            self.graph.add_node(name, kind=mod.kind, type=mod.type, active=False)
+        for e in arch.edges:
+            if self.graph.has_edge(e.source, e.target):
+                data = self.graph.edges[e.source, e.target]
+                data["weight"] += e.weight
+                data["carries"].append(e.carries)
+            else:
+                self.graph.add_edge(
+                    e.source, e.target, weight=e.weight, carries=[e.carries], active=False
+                )
+        self.params: dict[str, dict[str, Any]] = {
+            name: {p: spec.value for p, spec in mod.params.items()}
+            for name, mod in arch.modules.items()
+        }
+        self._weights: dict[EdgeKey, float] = {}
+        for e in arch.edges:
+            key = (e.source, e.target, e.carries)
+            self._weights[key] = self._weights.get(key, 0.0) + e.weight
+        self.t_last = -math.inf
+        self.history: list[dict[str, Any]] = []
+        self.solver = InfluenceSolver()
+        # Normalize W so that ρ(W) stays below the declared bound (paper: "the
+        # weights are normalized such that ρ(W) < 1"). W of any active subset is
+        # entrywise ≤ W of all edges, so by Perron–Frobenius its ρ is no larger.
+        full = weight_matrix(self.names, [(e.source, e.target, e.weight) for e in arch.edges])
+        self.rho_full = spectral_radius(full)
+        bound = arch.runtime.max_spectral_radius
+        self.w_scale = 1.0 if self.rho_full <= bound else bound / self.rho_full
+        conf = configuration or arch.initial_configuration()
+        self.configuration = conf
+        self.active: frozenset[str] = frozenset(arch.configurations[conf].modules)
+        self.edges: frozenset[EdgeKey] = frozenset()
+        self._set_active(conf, self.active)
+
+    # ------------------------------------------------------------------ state
+    def _set_active(self, configuration: str, active: Iterable[str]) -> None:
+        self.configuration = configuration
+        self.active = frozenset(active)
+        conf = self.arch.configurations.get(configuration)
+        disabled = conf.disabled_edges if conf is not None else []
+        self.edges = active_edges(self.arch, self.active, disabled)
+        pairs = {(s, t) for s, t, _ in self.edges}
+        for n in self.graph.nodes:
+            self.graph.nodes[n]["active"] = n in self.active
+        for s, t, data in self.graph.edges(data=True):
+            data["active"] = (s, t) in pairs
+
+    def sync(self, system: Any) -> bool:
+        """Read configuration and active modules from the running system.
+
+        Returns
+        -------
+        bool
+            True when something changed.
+        """
+        conf = str(system.configuration)
+        active = frozenset(system.active)
+        if conf == self.configuration and active == self.active:
+            return False
+        self._set_active(conf, active)
+        return True
+
+    def record_structural(self, t: float, action_id: str, before: str, after: str) -> None:
+        """Note an executed architectural change; sets ``t_last`` (Eq. 28)."""
+        self.t_last = float(t)
+        self.history.append({"t_s": float(t), "action": action_id, "from": before, "to": after})
+
+    def record_parameters(self, t: float, action_id: str, module: str, values: dict) -> None:
+        """Note an executed parameter update."""
+        self.params.setdefault(module, {}).update(values)
+        self.history.append(
+            {"t_s": float(t), "action": action_id, "module": module, "set": dict(values)}
+        )
+
+    # ------------------------------------------------------------------ analysis
+    def weight_matrix(self):
+        """W of the active edges (Eq. 13), normalized by :attr:`w_scale`."""
+        return weight_matrix(
+            self.names,
+            [(s, t, self.arch_weight(s, t, c)) for s, t, c in sorted(self.edges)],
+            scale=self.w_scale,
+        )
+
+    def arch_weight(self, source: str, target: str, carries: str) -> float:
+        """Declared weight of an edge (parallel edges with the same ``carries`` add up)."""
+        return self._weights.get((source, target, carries), 0.0)
+
+    def influence(self, r: np.ndarray) -> np.ndarray:
+        """``z = (I − Wᵀ)⁻¹ r`` (Eq. 14) for the active edges, factorization cached."""
+        if self.solver.key != self.edges:
+            self.solver.set_matrix(self.weight_matrix(), key=self.edges)
+        return self.solver.solve(r)
+
+    def configuration_modules(self, configuration: str) -> list[str]:
+        """Modules of a declared configuration."""
+        return list(self.arch.configurations[configuration].modules)

@@ -1,0 +1,194 @@
+"""The MAPE-K loop of Algorithm 1, generic over any architecture file.
+
+:class:`MapeK` is called once per ``runtime.period_s`` with the running system
+(the LiveSystem contract of docs/develop.md) and performs one cycle:
+
+1. **Monitor** (steps 1–2, :mod:`~archself.runtime.monitor`): J_obs, the global
+   residual r = J_ref − J_obs (Eq. 11), the module residuals r_i (Eq. 12) and κ_i.
+2. **Analyze** (steps 3–5, :mod:`~archself.runtime.influence`,
+   :mod:`~archself.runtime.candidates`): W of the active edges (Eq. 13), the
+   influence z = (I − Wᵀ)⁻¹ r (Eq. 14) and the candidate set C (Eq. 16).
+3. **Plan** (steps 6–8, :mod:`~archself.runtime.planner`): Δ, stability filter,
+   dwell time, score and argmax under the constraints (Eq. 17–28).
+4. **Execute** (step 9): ``system.apply_configuration(to)`` (hot swap with state
+   hand-over) or ``system.set_params(module, values)``; the Knowledge
+   (:mod:`~archself.runtime.knowledge`) is synchronized with the system and
+   ``t_last`` recorded for architectural changes.
+
+No adaptation happens during the first ``runtime.warmup_steps`` cycles (the loop
+still monitors, analyzes and logs). Every cycle appends a
+:class:`~archself.runtime.decisions.DecisionRecord` to :attr:`MapeK.decisions`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from archself.model import Architecture
+from archself.runtime.candidates import selector_from_runtime
+from archself.runtime.decisions import DecisionRecord
+from archself.runtime.knowledge import Knowledge
+from archself.runtime.monitor import Monitor
+from archself.runtime.planner import Planner, PlanState
+
+__all__ = ["MapeK"]
+
+
+class MapeK:
+    """One architecture-aware MAPE-K loop (Algorithm 1).
+
+    Parameters
+    ----------
+    arch : Architecture
+        The architecture file's model. Everything the loop knows — modules,
+        edges and weights, configurations, actions, budgets and the ``runtime``
+        settings — comes from it.
+
+    Attributes
+    ----------
+    knowledge : Knowledge
+        The live architecture graph, current configuration, t_last.
+    decisions : list of DecisionRecord
+        One record per cycle (``[d.to_dict() for d in decisions]`` is JSON).
+    switches : list of dict
+        Every architectural change: ``{t_s, from, to, action, module}``.
+    updates : list of dict
+        Every parameter update: ``{t_s, action, module, set}``.
+    cycle : int
+        Number of cycles run.
+
+    Examples
+    --------
+    >>> loop = MapeK(arch)                                 # doctest: +SKIP
+    >>> simulate(arch, "imu_drift", adapt=loop)            # doctest: +SKIP
+    >>> print(explain(loop.decisions))                     # doctest: +SKIP
+    """
+
+    def __init__(self, arch: Architecture) -> None:
+        self.arch = arch
+        self.knowledge = Knowledge(arch)
+        self.monitor = Monitor(arch, self.knowledge.names)
+        self.selector = selector_from_runtime(arch.runtime)
+        self.planner = Planner(arch)
+        self.decisions: list[DecisionRecord] = []
+        self.switches: list[dict[str, Any]] = []
+        self.updates: list[dict[str, Any]] = []
+        self.cycle = 0
+
+    # ------------------------------------------------------------------ cycle
+    def __call__(self, system: Any) -> list[dict[str, Any]]:
+        """Run one MAPE-K cycle on ``system``.
+
+        Parameters
+        ----------
+        system : LiveSystem
+            The running system (docs/develop.md, "live-system contract").
+
+        Returns
+        -------
+        list of dict
+            The architectural changes made in this cycle (zero or one), each
+            ``{"t_s", "from", "to", "action", "module"}``. Parameter updates are
+            not switches; they are in :attr:`updates` and the decision log.
+        """
+        k = self.knowledge
+        k.sync(system)  # the system may start in any configuration: adopt it
+        t = float(system.t)
+
+        # MONITOR (Eq. 11-12)
+        obs = self.monitor.observe(system, k.active)
+        # ANALYZE (Eq. 13-16)
+        z = k.influence(obs.r)
+        z_active = {n: float(z[i]) for i, n in enumerate(k.names) if n in k.active}
+        r_active = {n: float(obs.r[i]) for i, n in enumerate(k.names) if n in k.active}
+        candidates = self.selector.select(z_active)
+
+        warm = self.cycle < self.arch.runtime.warmup_steps
+        record = DecisionRecord(
+            cycle=self.cycle,
+            t=t,
+            configuration=k.configuration,
+            phase="warmup" if warm else "adapt",
+            j_obs=obs.j_obs,
+            j_ref=obs.j_ref,
+            r_global=obs.r_global,
+            r=r_active,
+            z=z_active,
+            candidates=list(candidates),
+            selector=self.selector.describe(),
+            kappa={
+                n: s.to_dict()
+                for n, s in obs.kappa.items()
+                if s.active and (not s.available or not s.residual_ok or s.violations)
+            },
+        )
+        self.decisions.append(record)
+        self.cycle += 1
+        if warm or not candidates:
+            return []
+
+        # PLAN (Eq. 17-28)
+        state = PlanState(
+            t=t,
+            configuration=k.configuration,
+            active=k.active,
+            edges=k.edges,
+            z=z_active,
+            r=r_active,
+            kappa=obs.kappa,
+            params=k.params,
+            t_last=k.t_last,
+        )
+        evaluations, action, ev = self.planner.plan(system, state, candidates)
+        record.evaluations = evaluations
+        if action is None or ev is None:
+            return []
+
+        # EXECUTE (step 9)
+        before = k.configuration
+        try:
+            if action.kind == "parameter_update":
+                values = dict(action.set or {})
+                system.set_params(action.module, values)
+            else:
+                system.apply_configuration(action.to)
+        except Exception as exc:  # noqa: BLE001 - a failed execution is logged, not fatal
+            ev.rejected, ev.detail = "unavailable", f"execution failed: {exc}"
+            record.note = f"execution of {action.id} failed: {exc}"
+            k.sync(system)
+            return []
+        k.sync(system)
+        chosen = {
+            "action": action.id,
+            "kind": action.kind,
+            "module": action.module,
+            "z": ev.z,
+            "delta": ev.delta,
+            "score": ev.score,
+        }
+        if action.kind == "parameter_update":
+            k.record_parameters(t, action.id, action.module, values)
+            chosen["set"] = values
+            self.updates.append(
+                {"t_s": t, "action": action.id, "module": action.module, "set": values}
+            )
+            record.chosen = chosen
+            return []
+        after = k.configuration
+        k.record_structural(t, action.id, before, after)
+        chosen.update({"from": before, "to": after})
+        record.chosen = chosen
+        switch = {
+            "t_s": t,
+            "from": before,
+            "to": after,
+            "action": action.id,
+            "module": action.module,
+        }
+        self.switches.append(switch)
+        return [dict(switch)]
+
+    # ------------------------------------------------------------------ output
+    def log(self) -> list[dict[str, Any]]:
+        """The decision log as JSON-ready dicts."""
+        return [d.to_dict() for d in self.decisions]

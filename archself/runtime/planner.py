@@ -1,0 +1,313 @@
+"""Plan stage of Algorithm 1: admissible actions, Δ, stability, dwell, score, argmax.
+
+For the state ``s = (M, Γ, z, r, κ)`` (Eq. 17, :class:`PlanState`) and each
+candidate module ``m_i`` (Eq. 16), every declared action with ``module == m_i``
+is evaluated in this order (the first failing check is logged as the rejection
+reason; cheap checks come before the costly ones):
+
+1. *applicable* — ``applies_in`` is unset or contains the current configuration;
+   a structural action leads somewhere else (``to`` ≠ current); a parameter update
+   targets an active module (``not applicable``) and changes a value (``no change``);
+2. *available* — every module of the target configuration is available according
+   to κ (an action whose modules are unavailable is not admissible, §4.2);
+3. *constraints* C(a, θ, e) ≤ 0 (Eq. 27) of the resulting architecture: each
+   module's ``requires``/``excludes`` (``constraint``) and each budget
+   ``Σ_{m in target} resources[resource] ≤ max`` (``budget``);
+4. *dwell time* — a structural change only if ``t − t_last ≥ T_min`` (Eq. 28);
+5. *improvement* Δ_k (Eq. 18) by the method the action declares, and the score
+   ``|z_i|·Δ_k − λ·Cost(a_k)`` (Eq. 25); a score ≤ 0 is ``no improvement``;
+6. *stability* (Eq. 21 or Eq. 24, :mod:`archself.runtime.stability`): ``unstable``.
+
+The chosen action is the argmax of the score over the survivors (Eq. 26), ties
+broken by lower cost, then by declaration order. Nothing is chosen when no
+survivor scores above 0.
+
+Improvement estimates Δ (positive = better):
+
+- ``sensitivity``: ``Δ = −Δθ·|r_i|`` with Δθ (``delta_theta``) a fraction of the
+  module's current deviation (Eq. 18 with ``r_i = (∂J/∂θ_i)·δθ_i``);
+- ``rollout``: ``Δ = mean J(no action) − mean J(action)`` over ``horizon_s`` on two
+  snapshots of the running system;
+- ``table``: ``values[m_i]`` (or ``default``).
+
+``z_i`` and ``r_i`` enter as magnitudes: their sign only reflects the sign of a
+declared sensitivity.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from archself.model import Action, Architecture
+from archself.runtime.decisions import ActionEvaluation
+from archself.runtime.monitor import ModuleStatus
+from archself.runtime.stability import StabilityVerdict, check_action_stability
+
+__all__ = [
+    "PlanState",
+    "Planner",
+    "budget_violations",
+    "constraint_violations",
+    "estimate_improvement",
+    "rollout_improvement",
+]
+
+
+@dataclass
+class PlanState:
+    """The state s = (M, Γ, z, r, κ) of Eq. 17 plus what the planner needs to act.
+
+    Attributes
+    ----------
+    t : float
+        Current time.
+    configuration : str
+        Current configuration (M and Γ follow from it).
+    active : frozenset of str
+        M: active modules.
+    edges : frozenset
+        Γ: active edges (source, target, carries).
+    z, r : dict
+        Influence and local residual per module.
+    kappa : dict
+        Module status κ_i.
+    params : dict
+        Current parameter values per module.
+    t_last : float
+        Time of the last architectural change.
+    """
+
+    t: float
+    configuration: str
+    active: frozenset[str]
+    edges: frozenset
+    z: Mapping[str, float]
+    r: Mapping[str, float]
+    kappa: Mapping[str, ModuleStatus]
+    params: Mapping[str, Mapping[str, Any]]
+    t_last: float
+
+
+def budget_violations(arch: Architecture, modules: Iterable[str]) -> list[str]:
+    """Budgets violated by a module set: Σ_{m} resources[resource] − max > 0 (Eq. 27).
+
+    Returns
+    -------
+    list of str
+        One line per violated budget (empty when C(a) ≤ 0 holds).
+    """
+    mods = list(modules)
+    out = []
+    for b in arch.constraints:
+        use = sum(arch.modules[m].resources.get(b.resource, 0.0) for m in mods if m in arch.modules)
+        if use > b.max + 1e-12:
+            out.append(f"{b.resource} {use:g} > {b.max:g}")
+    return out
+
+
+def constraint_violations(arch: Architecture, modules: Iterable[str]) -> list[str]:
+    """Module constraints k_i (``requires``/``excludes``) violated by a module set."""
+    on = set(modules)
+    out = []
+    for m in sorted(on):
+        if m not in arch.modules:
+            continue
+        cons = arch.modules[m].constraints
+        out += [f"{m} requires {x}" for x in cons.requires if x not in on]
+        out += [f"{m} excludes {x}" for x in cons.excludes if x in on]
+    return out
+
+
+def _apply(system: Any, action: Action) -> None:
+    if action.kind == "parameter_update":
+        system.set_params(action.module, dict(action.set or {}))
+    else:
+        system.apply_configuration(action.to)
+
+
+def _mean_objective(system: Any, steps: int) -> float:
+    total = 0.0
+    for _ in range(steps):
+        system.step()
+        total += float(system.objective_error())
+    return total / steps
+
+
+def rollout_improvement(system: Any, action: Action, horizon_s: float) -> float:
+    """Δ = mean J(no action) − mean J(action) over ``horizon_s`` on two snapshots.
+
+    The live system is not modified. Snapshots share the RNG state, so noise is
+    common to both branches and the difference isolates the action's effect.
+    """
+    steps = max(1, int(round(horizon_s / float(system.dt))))
+    base = system.snapshot()
+    trial = system.snapshot()
+    _apply(trial, action)
+    return _mean_objective(base, steps) - _mean_objective(trial, steps)
+
+
+def estimate_improvement(action: Action, module: str, r_i: float, system: Any = None) -> float:
+    """Δ_k(m_i) of Eq. 18 by the action's declared method.
+
+    Examples
+    --------
+    >>> from archself.model import Action
+    >>> a = Action(id="x", module="m", kind="substitute", to="b", cost=0.1,
+    ...            improvement={"method": "sensitivity", "delta_theta": -0.9})
+    >>> estimate_improvement(a, "m", 2.0)
+    1.8
+    """
+    imp = action.improvement
+    if imp.method == "sensitivity":
+        return float(-imp.delta_theta * abs(r_i))
+    if imp.method == "table":
+        return float(imp.values.get(module, imp.default))
+    if system is None:
+        raise ValueError("a rollout estimate needs the running system")
+    return float(rollout_improvement(system, action, imp.horizon_s))
+
+
+class Planner:
+    """Plan stage: evaluates the candidates' actions and picks the best admissible one.
+
+    Parameters
+    ----------
+    arch : Architecture
+        Reads ``actions``, ``configurations``, ``constraints`` and ``runtime``.
+    """
+
+    def __init__(self, arch: Architecture) -> None:
+        self.arch = arch
+        self.by_module: dict[str, list[tuple[int, Action]]] = {}
+        for k, a in enumerate(arch.actions):
+            self.by_module.setdefault(a.module, []).append((k, a))
+        rt = arch.runtime
+        self.cost_weight = rt.cost_weight
+        self.dwell_s = rt.dwell_s
+        self.margin = rt.stability.margin
+        self.alpha = rt.stability.lyapunov_alpha
+        self.horizon_steps = rt.stability.horizon_steps
+        acceptable = rt.objective.acceptable
+        self.v_floor = acceptable**2 if acceptable > 0 else 1e-6
+
+    # ------------------------------------------------------------------ checks
+    def _admissible(self, a: Action, s: PlanState) -> tuple[str | None, str, list[str]]:
+        """(rejection, detail, target modules) of the cheap checks 1–4."""
+        if a.applies_in is not None and s.configuration not in a.applies_in:
+            return "not applicable", f"only in {', '.join(a.applies_in)}", []
+        if a.kind == "parameter_update":
+            if a.module not in s.active:
+                return "not applicable", f"{a.module} is not active", []
+            current = s.params.get(a.module, {})
+            if all(current.get(k) == v for k, v in (a.set or {}).items()):
+                return "no change", "parameters already set", []
+            target = sorted(s.active)
+        else:
+            if a.to == s.configuration:
+                return "not applicable", f"already in {a.to}", []
+            if a.to not in self.arch.configurations:
+                return "not applicable", f"unknown configuration {a.to}", []
+            target = list(self.arch.configurations[a.to].modules)
+        down = [m for m in target if m in s.kappa and not s.kappa[m].available]
+        if down:
+            return "unavailable", "unavailable: " + ", ".join(down), target
+        bad = constraint_violations(self.arch, target)
+        if bad:
+            return "constraint", "; ".join(bad), target
+        over = budget_violations(self.arch, target)
+        if over:
+            return "budget", "; ".join(over), target
+        if a.kind != "parameter_update" and s.t - s.t_last < self.dwell_s:
+            wait = self.dwell_s - (s.t - s.t_last)
+            return (
+                "dwell",
+                f"t − t_last = {s.t - s.t_last:.3g} s < T_min = {self.dwell_s:g} s "
+                f"({wait:.3g} s to go)",
+                target,
+            )
+        return None, "", target
+
+    # ------------------------------------------------------------------ plan
+    def plan(
+        self, system: Any, state: PlanState, candidates: Iterable[str]
+    ) -> tuple[list[ActionEvaluation], Action | None, ActionEvaluation | None]:
+        """Evaluate every action of every candidate (Algorithm 1, steps 6–8).
+
+        Parameters
+        ----------
+        system : LiveSystem
+            The running system (for rollouts, snapshots and linearizations; not
+            modified).
+        state : PlanState
+            s of Eq. 17.
+        candidates : iterable of str
+            The candidate set C.
+
+        Returns
+        -------
+        evaluations : list of ActionEvaluation
+            One per action considered, with Δ, verdict, score or rejection.
+        chosen : Action or None
+            a* of Eq. 26, or None.
+        chosen_eval : ActionEvaluation or None
+            The evaluation of ``chosen``.
+        """
+        evaluations: list[ActionEvaluation] = []
+        best: tuple[float, float, int] | None = None
+        chosen: Action | None = None
+        chosen_eval: ActionEvaluation | None = None
+        for module in candidates:
+            z_i = abs(float(state.z.get(module, 0.0)))
+            r_i = abs(float(state.r.get(module, 0.0)))
+            for order, a in self.by_module.get(module, []):
+                ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
+                evaluations.append(ev)
+                reason, detail, _ = self._admissible(a, state)
+                if reason is not None:
+                    ev.rejected, ev.detail = reason, detail
+                    continue
+                try:
+                    delta = estimate_improvement(a, module, r_i, system)
+                except Exception as exc:  # noqa: BLE001 - a failing estimate rejects the action
+                    ev.rejected, ev.detail = "no improvement", f"estimate failed: {exc}"
+                    continue
+                if not math.isfinite(delta):
+                    ev.rejected, ev.detail = "no improvement", "estimate is not finite"
+                    continue
+                ev.delta = delta
+                ev.score = z_i * delta - self.cost_weight * a.cost
+                if ev.score <= 0:
+                    ev.rejected = "no improvement"
+                    gain, penalty = z_i * delta, self.cost_weight * a.cost
+                    ev.detail = f"z·Δ = {gain:.3g} ≤ λ·cost = {penalty:.3g}"
+                    continue
+                verdict = self.stability(system, a)
+                ev.stability = verdict.to_dict()
+                if not verdict.ok:
+                    ev.rejected, ev.detail = "unstable", verdict.reason
+                    continue
+                key = (ev.score, -a.cost, -order)
+                if best is None or key > best:
+                    best, chosen, chosen_eval = key, a, ev
+        return evaluations, chosen, chosen_eval
+
+    def stability(self, system: Any, action: Action) -> StabilityVerdict:
+        """Stability filter (Eq. 21, else Eq. 24) for one action."""
+        return check_action_stability(
+            system,
+            action,
+            margin=self.margin,
+            alpha=self.alpha,
+            horizon_steps=self.horizon_steps,
+            floor=self.v_floor,
+        )
+
+
+def as_index_dict(names: Iterable[str], values: np.ndarray) -> dict[str, float]:
+    """``{name: float(value)}`` in index order."""
+    return {n: float(v) for n, v in zip(names, values, strict=True)}

@@ -1,0 +1,214 @@
+"""Stability-aware action filtering (paper Eq. 19–24).
+
+An action ``a_k`` is admissible only if the closed loop it leads to is stable:
+
+- **Eigenvalue margin** (Eq. 21), when a model is available: the system gives
+  the closed-loop matrix ``A_k`` of the target configuration
+  (``system.linearization(configuration)``; for a parameter update, of the
+  current configuration on a snapshot to which the update was applied), and the
+  test is ``max Re λ(A_k) ≤ −ε`` with ``ε = runtime.stability.margin``
+  (:func:`eigenvalue_margin`).
+- **Lyapunov decrease** (Eq. 22–24), otherwise: on a snapshot of the running
+  system the action is applied and the system stepped
+  ``runtime.stability.horizon_steps`` times, recording
+  ``V_t = ‖x_t − x_ref‖²`` from ``system.state_error()``. The mean one-step
+  change ``E[ΔV | a_k] ≈ (V_H − V_0)/H`` must satisfy
+  ``E[ΔV | a_k] ≤ −α‖x_0 − x_ref‖² = −α V_0`` (:func:`lyapunov_decrease`).
+
+  *Near the reference* the condition cannot hold: with ``V_0 ≈ 0`` noise alone
+  makes ΔV positive as often as negative, so a literal test would reject every
+  action whenever the system tracks well. We therefore also accept an action
+  whose trajectory stays inside a small floor, ``max_t V_t ≤ V_floor``: a system
+  that stays within the acceptable error is not being destabilized. The floor is
+  ``J_ref²`` (``runtime.objective.acceptable`` squared) when that is positive,
+  else ``1e-6``.
+
+Every failure of the test itself (no snapshot, an exception in the rollout,
+NaN) rejects the action: the filter fails closed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "StabilityVerdict",
+    "check_action_stability",
+    "eigenvalue_margin",
+    "lyapunov_decrease",
+]
+
+
+@dataclass
+class StabilityVerdict:
+    """Outcome of the stability filter for one action (logged in the decision record).
+
+    Attributes
+    ----------
+    ok : bool
+        The action preserves stability.
+    method : str
+        ``"eigenvalue"`` (Eq. 21), ``"lyapunov"`` (Eq. 24), ``"lyapunov-floor"``
+        (accepted because V stayed below the floor) or ``"error"``.
+    value : float or None
+        ``max Re λ(A_k)`` or ``E[ΔV|a_k]``.
+    bound : float or None
+        ``−ε`` or ``−α V_0``.
+    reason : str
+        One sentence for the decision log.
+    """
+
+    ok: bool
+    method: str
+    value: float | None
+    bound: float | None
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        def f(x: float | None) -> float | None:
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        return {
+            "ok": bool(self.ok),
+            "method": self.method,
+            "value": f(self.value),
+            "bound": f(self.bound),
+            "reason": self.reason,
+        }
+
+
+def eigenvalue_margin(A: Any, margin: float) -> StabilityVerdict:
+    """Eq. 21: ``max Re λ(A) ≤ −ε``.
+
+    Examples
+    --------
+    >>> eigenvalue_margin([[-1.0, 0.0], [0.0, -2.0]], 0.01).ok
+    True
+    >>> eigenvalue_margin([[0.5, 0.0], [0.0, -2.0]], 0.01).ok
+    False
+    """
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    if A.shape[0] != A.shape[1] or not np.all(np.isfinite(A)):
+        why = "linearization is not a finite square matrix"
+        return StabilityVerdict(False, "error", None, -margin, why)
+    if A.size == 0:
+        return StabilityVerdict(True, "eigenvalue", None, -margin, "empty linearization")
+    worst = float(np.max(np.linalg.eigvals(A).real))
+    ok = worst <= -margin
+    rel = "≤" if ok else ">"
+    return StabilityVerdict(
+        ok, "eigenvalue", worst, -margin, f"max Re λ(A_k) = {worst:.4g} {rel} −ε = {-margin:.4g}"
+    )
+
+
+def lyapunov_decrease(v: Any, alpha: float, floor: float) -> StabilityVerdict:
+    """Eq. 22–24 on a sampled ``V_0 … V_H``: ``mean ΔV ≤ −α V_0`` or ``max V ≤ floor``.
+
+    Parameters
+    ----------
+    v : array_like
+        ``V_t = ‖x_t − x_ref‖²`` at the start (``v[0]``) and after each step.
+    alpha : float
+        α of Eq. 24.
+    floor : float
+        Below this V the system is considered at the reference (see module docs).
+
+    Examples
+    --------
+    >>> lyapunov_decrease([1.0, 0.8, 0.6], alpha=0.01, floor=1e-6).ok
+    True
+    >>> lyapunov_decrease([1.0, 1.2, 1.5], alpha=0.01, floor=1e-6).ok
+    False
+    >>> lyapunov_decrease([1e-4, 2e-4, 1e-4], alpha=0.01, floor=0.25).method
+    'lyapunov-floor'
+    """
+    v = np.asarray(v, dtype=float).ravel()
+    if v.size < 2 or not np.all(np.isfinite(v)):
+        return StabilityVerdict(False, "error", None, None, "Lyapunov rollout gave no finite V")
+    mean_dv = float((v[-1] - v[0]) / (v.size - 1))
+    bound = -alpha * float(v[0])
+    if mean_dv <= bound:
+        return StabilityVerdict(
+            True, "lyapunov", mean_dv, bound, f"E[ΔV|a_k] = {mean_dv:.4g} ≤ −α‖x‖² = {bound:.4g}"
+        )
+    vmax = float(v.max())
+    if vmax <= floor:
+        return StabilityVerdict(
+            True,
+            "lyapunov-floor",
+            mean_dv,
+            bound,
+            f"V stays ≤ {floor:.4g} (near the reference; max V = {vmax:.4g})",
+        )
+    return StabilityVerdict(
+        False, "lyapunov", mean_dv, bound, f"E[ΔV|a_k] = {mean_dv:.4g} > −α‖x‖² = {bound:.4g}"
+    )
+
+
+def _apply(system: Any, action: Any) -> None:
+    if action.kind == "parameter_update":
+        system.set_params(action.module, dict(action.set or {}))
+    else:
+        system.apply_configuration(action.to)
+
+
+def _v(system: Any) -> float:
+    x = np.asarray(system.state_error(), dtype=float).ravel()
+    return float(x @ x)
+
+
+def check_action_stability(
+    system: Any,
+    action: Any,
+    *,
+    margin: float,
+    alpha: float,
+    horizon_steps: int,
+    floor: float,
+) -> StabilityVerdict:
+    """Stability filter of Algorithm 1 step 7b for one action on the live system.
+
+    Tries Eq. 21 with the target configuration's linearization; if the system has
+    none, runs the Lyapunov test on a snapshot. The live ``system`` is never
+    modified.
+
+    Parameters
+    ----------
+    system : LiveSystem
+        The running system (see docs/develop.md).
+    action : archself.model.Action
+        The candidate action.
+    margin, alpha : float
+        ε and α (``runtime.stability``).
+    horizon_steps : int
+        Steps of the Lyapunov rollout.
+    floor : float
+        V floor of the Lyapunov test.
+    """
+    try:
+        if action.kind == "parameter_update":
+            snap = system.snapshot()
+            snap.set_params(action.module, dict(action.set or {}))
+            A = snap.linearization(snap.configuration)
+        else:
+            snap = None
+            A = system.linearization(action.to)
+    except Exception as exc:  # noqa: BLE001 - fail closed
+        return StabilityVerdict(False, "error", None, -margin, f"linearization failed: {exc}")
+    if A is not None:
+        return eigenvalue_margin(A, margin)
+    try:
+        if snap is None:
+            snap = system.snapshot()
+            _apply(snap, action)
+        v = [_v(snap)]
+        for _ in range(horizon_steps):
+            snap.step()
+            v.append(_v(snap))
+    except Exception as exc:  # noqa: BLE001 - fail closed
+        return StabilityVerdict(False, "error", None, None, f"Lyapunov rollout failed: {exc}")
+    return lyapunov_decrease(v, alpha, floor)
