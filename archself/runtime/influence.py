@@ -218,7 +218,8 @@ class InfluenceSolver:
     >>> import numpy as np
     >>> W = weight_matrix(["a", "b", "c"], [("a", "b", 0.5), ("b", "c", 0.4)])
     >>> solver = InfluenceSolver()
-    >>> solver.set_matrix(W, key="chain")
+    >>> solver.set_matrix(W, key="chain")   # factorizes
+    True
     >>> solver.solve(np.array([1.0, 0.0, 0.0])).round(6).tolist()
     [1.0, 0.5, 0.2]
     """

@@ -81,7 +81,7 @@ def module_residual(
 
     Examples
     --------
-    >>> module_residual(0.3, 1.0, 0.2)      # 50 % above nominal
+    >>> module_residual(0.375, 1.0, 0.25)   # 50 % above nominal
     0.5
     >>> module_residual(0.1, 1.0, 0.2)      # inside the noise band
     0.0
