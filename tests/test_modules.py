@@ -1,0 +1,288 @@
+"""The built-in module library: declarations, LQR gain, EKF consistency, planner, faults."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy.stats import chi2
+
+from archself import registry
+from archself.kinematics import error_dynamics
+from archself.modules.controllers import AsymLqrController, LqrController, lqr_gain
+from archself.modules.estimators import Ekf, InnovationWindow, Odometry
+from archself.modules.models import Kinematics
+from archself.modules.physical import DiffDrivePlant, Gps, WheelActuator
+from archself.modules.planner import SplinePlanner
+from archself.sim.faults import FAULT_KINDS, FaultInjector
+
+KEYS = [
+    "plant.diffdrive", "actuator.wheel", "sensor.encoders", "sensor.imu", "sensor.gps",
+    "planner.spline", "estimator.odometry", "estimator.ekf", "controller.lqr",
+    "controller.asym_lqr", "model.diffdrive_kinematics", "model.diffdrive_dynamics",
+    "model.actuator",
+]
+
+
+def rng(seed=0):
+    return np.random.default_rng(seed)
+
+
+def test_import_is_light():
+    code = (
+        "import archself.modules, sys; "
+        "heavy = [m for m in ('control', 'filterpy', 'matplotlib') if m in sys.modules]; "
+        "assert not heavy, heavy"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("key", KEYS)
+def test_declarations(key):
+    cls = registry.get(key)
+    assert cls.type_key == key
+    assert cls.outputs, "every module publishes something"
+    assert set(cls.fault_kinds) <= FAULT_KINDS
+    assert not set(cls.inputs) & set(cls.optional_inputs)
+    if cls.role == "model":
+        assert cls.direct_feedthrough is False and not cls.inputs
+
+
+def test_residual_signals_are_published():
+    # every declared residual signal appears in local_signals (NaN before data)
+    mods = [WheelActuator("w", {"side": "left"}, rng()), Odometry("o", {}, rng()),
+            Ekf("e", {}, rng()), LqrController("c", {}, rng())]
+    for m in mods:
+        assert set(m.residual_signals) <= set(m.local_signals())
+
+
+# ---------------------------------------------------------------- LQR
+@pytest.mark.parametrize("v", [0.3, 0.5, 1.2])
+@pytest.mark.parametrize("q", [(1.0, 0.001, 0.05), (2.0, 0.5, 1.0)])
+def test_lqr_gain_closed_form(v, q):
+    """Along: scalar integrator, K = √(q/r). Lateral: ė_y = v e_θ, ė_θ = u, a scaled
+    double integrator with K = [√(q_y/r), √(q_θ/r + 2 v √(q_y/r))]."""
+    r = (1.5, 0.7)
+    K = lqr_gain(v, q, r)
+    ky = math.sqrt(q[1] / r[1])
+    expected = np.array([
+        [math.sqrt(q[0] / r[0]), 0.0, 0.0],
+        [0.0, ky, math.sqrt(q[2] / r[1] + 2 * v * ky)],
+    ])
+    assert_allclose(K, expected, rtol=1e-6, atol=1e-9)
+
+
+def test_lqr_linearization_is_stable_and_updates():
+    c = LqrController("lqr", {"q_along": 1.0, "q_lateral": 0.001, "q_heading": 0.05,
+                              "r_speed": 1.0, "r_turn": 1.0}, rng())
+    A = c.linearization()
+    A0, B0 = error_dynamics(0.5)
+    assert_allclose(A, A0 - B0 @ c.K)
+    assert np.linalg.eigvals(A).real.max() < -0.001  # Eq. 21 with the file's margin
+    k_before = c.K[1, 1]
+    c.set_params({"q_lateral": 0.01})
+    assert c.K[1, 1] == pytest.approx(math.sqrt(0.01))
+    assert c.K[1, 1] > k_before
+
+
+def test_lqr_command_feedforward_on_the_reference():
+    c = LqrController("lqr", {}, rng())
+    ref = np.array([1.0, 2.0, 0.3, 0.5, 0.1])
+    out = c.step(0.0, 0.05, {"reference": ref, "pose_estimate": ref[:3],
+                             "kinematics": Kinematics(0.5, 0.1)})
+    # on the reference: pure feed-forward v = 0.5, ω = 0.1
+    assert_allclose(out["wheel_cmd"], [(0.5 - 0.025) / 0.1, (0.5 + 0.025) / 0.1])
+    assert c.local_signals()["tracking_error"] == 0.0
+
+
+def test_asym_lqr_learns_effectiveness():
+    c = AsymLqrController("a", {"adaptation_time_s": 1.0, "min_effectiveness": 0.3}, rng())
+    ref = np.array([0.0, 0.0, 0.0, 0.5, 0.0])
+    enc = None
+    for k in range(200):
+        out = c.step(0.05 * k, 0.05, {"reference": ref, "pose_estimate": ref[:3],
+                                      "kinematics": Kinematics(), "encoder_speeds": enc})
+        enc = out["wheel_cmd"] * np.array([0.8, 1.0])
+    assert_allclose(c.effectiveness, [0.8, 1.0], atol=1e-6)
+    assert_allclose(out["wheel_cmd"], [5.0 / 0.8, 5.0], atol=1e-6)
+
+
+# ---------------------------------------------------------------- EKF consistency
+def test_ekf_nees_consistency():
+    """Normalized estimation error squared inside its χ² band over Monte Carlo runs."""
+    n_runs, n_steps, dt = 25, 600, 0.05
+    sig_enc, r_head, r_gps, q_b = 0.05, 0.005, 0.2, 0.002
+    params = {"q_position_m": 0.0, "q_heading_rad": 0.0, "q_bias_rad": q_b,
+              "r_gps_m": r_gps, "r_heading_rad": r_head, "encoder_noise_rad_s": sig_enc,
+              "initial_position_std_m": 0.3, "initial_heading_std_rad": 0.02,
+              "initial_bias_std_rad": 0.02}
+    kin = Kinematics(0.5, 0.1)
+    nees = np.zeros((n_runs, n_steps))
+    for run in range(n_runs):
+        g = np.random.default_rng(100 + run)
+        f = Ekf("ekf", params, g)
+        x0 = np.array([0.3 * g.standard_normal(), 0.3 * g.standard_normal(),
+                       0.02 * g.standard_normal(), 0.02 * g.standard_normal()])
+        truth = x0.copy()
+        f.kf.x = np.zeros(4)
+        f.started = True
+        for k in range(n_steps):
+            t = k * dt
+            wl, wr = 5.0 + 1.5 * math.sin(0.2 * t), 5.0 + 1.5 * math.cos(0.13 * t)
+            v, w = kin.wheel_radius_m * (wl + wr) / 2, kin.wheel_radius_m * (wr - wl) / kin.wheel_base_m
+            mid = truth[2] + 0.5 * w * dt
+            truth = truth + np.array([v * dt * math.cos(mid), v * dt * math.sin(mid), w * dt, 0.0])
+            truth[3] += q_b * math.sqrt(dt) * g.standard_normal()
+            enc = np.array([wl, wr]) + sig_enc * g.standard_normal(2)
+            f.predict(dt, enc, kin)
+            f.update_heading(truth[2] + truth[3] + r_head * g.standard_normal())
+            if k % 20 == 0:
+                f.update_position(truth[:2] + r_gps * g.standard_normal(2))
+            e = truth - f.x
+            e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+            nees[run, k] = e @ np.linalg.solve(f.P, e)
+    anees = nees.mean(axis=0)  # average over runs at each step
+    lo, hi = chi2.ppf([0.005, 0.995], 4 * n_runs) / n_runs
+    inside = np.mean((anees >= lo) & (anees <= hi))
+    assert inside > 0.9, f"ANEES inside [{lo:.2f}, {hi:.2f}] only {inside:.0%} of the time"
+    assert 3.3 < anees.mean() < 4.7
+
+
+def test_ekf_handover_from_odometry():
+    odo = Odometry("odo", {}, rng())
+    odo.import_state({"pose": [3.0, -1.0, 0.4], "covariance": np.diag([0.2, 0.2, 0.01])})
+    ekf = Ekf("ekf", {}, rng())
+    ekf.import_state(odo.export_state())
+    assert_allclose(ekf.x, [3.0, -1.0, 0.4, 0.0])
+    assert ekf.P[0, 0] > 0.2 and ekf.P[3, 3] > 0
+    st = ekf.export_state()
+    assert set(st) >= {"pose", "covariance"}
+
+
+def test_ekf_estimates_a_drifting_imu_bias():
+    kin = Kinematics()
+    f = Ekf("ekf", {"q_bias_rad": 0.002, "r_gps_m": 0.2}, rng(3))
+    g = rng(4)
+    truth = np.zeros(3)
+    dt = 0.05
+    for k in range(6000):
+        t = k * dt
+        wl, wr = 5.0, 5.0 + 0.5 * math.sin(0.05 * t)
+        v, w = 0.1 * (wl + wr) / 2, 0.1 * (wr - wl) / 0.5
+        mid = truth[2] + 0.5 * w * dt
+        truth = truth + [v * dt * math.cos(mid), v * dt * math.sin(mid), w * dt]
+        bias = 7e-4 * t
+        out = f.step(t, dt, {"encoder_speeds": np.array([wl, wr]) + 0.05 * g.standard_normal(2),
+                             "heading": truth[2] + bias + 0.005 * g.standard_normal(),
+                             "kinematics": kin,
+                             "position": truth[:2] + 0.2 * g.standard_normal(2)
+                             if k % 20 == 0 else None})
+    assert f.x[3] == pytest.approx(bias, abs=0.03)
+    assert np.hypot(*(out["pose_estimate"][:2] - truth[:2])) < 0.5
+
+
+# ---------------------------------------------------------------- estimators, sensors
+def test_odometry_exact_without_noise():
+    o = Odometry("o", {}, rng())
+    kin = Kinematics(0.5, 0.1)
+    wl, wr = 4.0, 6.0
+    w = 0.1 * (wr - wl) / 0.5
+    pose = np.zeros(3)
+    dt = 0.05
+    for k in range(400):
+        out = o.step(k * dt, dt, {"encoder_speeds": np.array([wl, wr]), "heading": w * k * dt,
+                                  "kinematics": kin})
+    # circle of radius v / ω = 0.5 / 0.4 after 19.95 s
+    t = 399 * dt
+    pose = [1.25 * math.sin(w * t), 1.25 * (1 - math.cos(w * t))]
+    assert_allclose(out["pose_estimate"][:2], pose, atol=1e-3)
+
+
+def test_innovation_window_vector_mean():
+    w = InnovationWindow(10.0)
+    g = rng(5)
+    for k in range(200):
+        e = 0.3 * g.standard_normal(2)
+        w.add(float(k) * 0.5, *e)
+    assert w.value() < 0.15  # noise averages out
+    w.clear()
+    for k in range(30):
+        w.add(float(k), 0.5, 0.0)
+    assert w.value() == pytest.approx(0.5)
+
+
+def test_gps_rate_and_gaps():
+    gps = Gps("gps", {"rate_hz": 2.0, "noise_m": 0.0}, rng())
+    fixes = [gps.step(k * 0.05, 0.05, {"pose": np.array([1.0, 2.0, 0.0])})["position"]
+             for k in range(200)]
+    got = [p for p in fixes if p is not None]
+    assert len(got) == 20
+    assert_allclose(got[0], [1.0, 2.0])
+
+
+def test_wheel_actuator_picks_side_and_measures_error():
+    w = WheelActuator("wr", {"side": "right"}, rng())
+    assert w.step(0.0, 0.05, {"wheel_cmd": np.array([1.0, 2.0])}) == {"wheel_speed_right": 2.0}
+    w.step(0.05, 0.05, {"wheel_cmd": np.array([1.0, 2.0]), "encoder_speeds": np.array([1, 1.5])})
+    assert w.local_signals()["command_error"] == pytest.approx(0.5)
+    with pytest.raises(ValueError):
+        WheelActuator("x", {"side": "middle"}, rng())
+
+
+def test_plant_lag_and_limit():
+    p = DiffDrivePlant("c", {"wheel_time_constant_s": 0.1, "max_wheel_speed_rad_s": 6.0}, rng())
+    for k in range(100):
+        p.step(k * 0.05, 0.05, {"wheel_speed_left": 10.0, "wheel_speed_right": None})
+    ws = p.output(5.0)["wheel_speeds"]
+    assert_allclose(ws, [6.0, 0.0], atol=1e-6)
+    assert p.output(5.0)["pose"][2] < 0  # only the left wheel drives: turns right
+
+
+def test_planner_arc_length_and_curvature():
+    pl = SplinePlanner("p", {"waypoints": [[0, 0], [10, 5], [20, 0], [30, -5], [40, 0]],
+                             "speed_mps": 0.5}, rng())
+    dt = 0.05
+    refs = np.array([pl.reference(k * dt) for k in range(1, int(pl.duration_s / dt))])
+    step = np.hypot(*np.diff(refs[:, :2], axis=0).T)
+    assert_allclose(step, 0.5 * dt, rtol=2e-3)  # constant speed along the path
+    heading = np.arctan2(*np.diff(refs[:, :2], axis=0).T[::-1])
+    assert_allclose(np.unwrap(heading), refs[:-1, 2] + 0.5 * np.diff(refs[:, 2]), atol=2e-3)
+    dth = np.diff(refs[:, 2]) / dt
+    assert_allclose(dth, refs[:-1, 4], atol=2e-3)  # ω = κ v
+    end = pl.reference(pl.duration_s + 10)
+    assert_allclose(end[3:], [0.0, 0.0])
+
+
+def test_diffdrive_path_lasts_400_s():
+    from ruamel.yaml import YAML
+
+    from archself.resources import data_dir
+
+    raw = YAML(typ="safe").load(data_dir("architectures") / "diffdrive.yaml")
+    p = raw["modules"]["planner"]["params"]
+    pl = SplinePlanner("p", {k: v["value"] for k, v in p.items()}, rng())
+    assert pl.duration_s >= 400
+
+
+# ---------------------------------------------------------------- faults
+def test_fault_kinds():
+    arr = np.array([1.0, 2.0])
+    assert FaultInjector("bias", 1.0, 0.5).apply(0.5, 1.0) == 1.0  # before onset
+    assert_allclose(FaultInjector("bias", 1.0, 0.5).apply(2.0, arr), [1.5, 2.5])
+    assert FaultInjector("bias_drift", 10.0, 0.1).apply(30.0, 0.0) == pytest.approx(2.0)
+    assert_allclose(FaultInjector("effectiveness_loss", 0.0, 0.2).apply(1.0, arr), [0.8, 1.6])
+    assert FaultInjector("dropout", 0.0).apply(1.0, arr) is None
+    stuck = FaultInjector("stuck", 1.0, end_s=3.0)
+    assert stuck.apply(1.0, 5.0) == 5.0
+    assert stuck.apply(2.0, 7.0) == 5.0
+    assert stuck.apply(2.5, None) is None
+    assert stuck.apply(3.0, 9.0) == 9.0  # cleared at end_s
+    noisy = FaultInjector("noise_increase", 0.0, 3.0, rng=rng(1), base_noise=0.1)
+    draws = np.array([noisy.apply(1.0, 0.0) for _ in range(20000)])
+    assert draws.std() == pytest.approx(0.1 * math.sqrt(8), rel=0.03)
+    with pytest.raises(ValueError):
+        FaultInjector("melt", 0.0)
