@@ -60,7 +60,7 @@ class MapeK:
     Examples
     --------
     >>> loop = MapeK(arch)                                 # doctest: +SKIP
-    >>> simulate(arch, "imu_drift", adapt=loop)            # doctest: +SKIP
+    >>> simulate(arch, scenario, adapt=loop)               # doctest: +SKIP
     >>> print(explain(loop.decisions))                     # doctest: +SKIP
     """
 
