@@ -73,7 +73,7 @@ def wheels_to_body(wheel_speeds, wheel_radius: float, wheel_base: float):
 
 
 def body_to_wheels(v, omega, wheel_radius: float, wheel_base: float) -> np.ndarray:
-    """Wheel speeds ``[ω_l, ω_r]`` (rad/s) that realise ``(v, ω)``; inverse of :func:`wheels_to_body`.
+    """Wheel speeds ``[ω_l, ω_r]`` (rad/s) realising ``(v, ω)``; inverse of :func:`wheels_to_body`.
 
     Examples
     --------
@@ -134,7 +134,7 @@ def integrate_pose(t: float, x, u, params: dict[str, Any]) -> np.ndarray:
     >>> p = {"dt": 1.0, "wheel_radius_m": 0.1, "wheel_base_m": 0.5,
     ...      "effectiveness": [0.5, 1.0]}
     >>> integrate_pose(0.0, [0.0, 0.0, 0.0], [4.0, 4.0], p).round(4)
-    array([0.2948, 0.0483, 0.4   ])
+    array([0.2921, 0.0592, 0.4   ])
     """
     dt = float(params["dt"])
     r = float(params["wheel_radius_m"])
@@ -180,7 +180,7 @@ def tracking_error(pose, reference) -> np.ndarray:
     Examples
     --------
     >>> tracking_error([1.0, 2.0, 0.1], [1.0, 0.0, np.pi / 2]).round(4)
-    array([ 2.    , -0.    , -1.4708])
+    array([ 2.    ,  0.    , -1.4708])
     """
     dx = float(pose[0]) - float(reference[0])
     dy = float(pose[1]) - float(reference[1])
@@ -220,6 +220,6 @@ def error_dynamics(v: float, omega: float = 0.0) -> tuple[np.ndarray, np.ndarray
            [0. , 0. , 0.5],
            [0. , 0. , 0. ]])
     """
-    A = np.array([[0.0, omega, 0.0], [-omega, 0.0, v], [0.0, 0.0, 0.0]])
+    A = np.array([[0.0, omega, 0.0], [-omega, 0.0, v], [0.0, 0.0, 0.0]]) + 0.0  # no -0.0
     B = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
     return A, B

@@ -66,14 +66,22 @@ def _one(args: tuple[str, str, str, int]) -> dict:
             "smooth_max": float(np.nanmax(sm[late])),
             "at": [float(sm[min(len(t) - 1, int(round(p / dt)) - 1)]) for p in PROBE_T],
         }
-    return {"scenario": scenario, "conf": conf, "seed": seed, "metrics": res.metrics,
-            "levels": levels}
+    return {
+        "scenario": scenario,
+        "conf": conf,
+        "seed": seed,
+        "metrics": res.metrics,
+        "levels": levels,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("arch", nargs="?", default=str(Path(__file__).resolve().parents[1]
-                                                   / "architectures" / "diffdrive.yaml"))
+    ap.add_argument(
+        "arch",
+        nargs="?",
+        default=str(Path(__file__).resolve().parents[1] / "architectures" / "diffdrive.yaml"),
+    )
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
     ns = ap.parse_args(argv)
@@ -81,18 +89,25 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(max_workers=ns.jobs) as ex:
         results = list(ex.map(_one, jobs))
     print(f"Tracking error over seeds 1..{ns.seeds} (fixed architecture; m, s)\n")
-    print("| scenario | config | max error mean | max error worst | peak time mean "
-          "| final error mean | final worst | RMS mean |")
+    print(
+        "| scenario | config | max error mean | max error worst | peak time mean "
+        "| final error mean | final worst | RMS mean |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for sc, c in CASES:
         rs = [r for r in results if r["scenario"] == sc and r["conf"] == c]
         m = {k: np.array([r["metrics"][k] for r in rs]) for k in rs[0]["metrics"]}
-        print(f"| {sc} | {c} | {m['max_error_m'].mean():.2f} | {m['max_error_m'].max():.2f} "
-              f"| {m['peak_time_s'].mean():.0f} | {m['final_error_m'].mean():.2f} "
-              f"| {m['final_error_m'].max():.2f} | {m['rms_error_m'].mean():.2f} |")
-    print("\nResidual signals (raw mean after 25 s; max of the smoothed signal after 25 s, "
-          "mean/worst over seeds; smoothed value at t = "
-          + ", ".join(f"{p:.0f}" for p in PROBE_T) + " s, mean [min])\n")
+        print(
+            f"| {sc} | {c} | {m['max_error_m'].mean():.2f} | {m['max_error_m'].max():.2f} "
+            f"| {m['peak_time_s'].mean():.0f} | {m['final_error_m'].mean():.2f} "
+            f"| {m['final_error_m'].max():.2f} | {m['rms_error_m'].mean():.2f} |"
+        )
+    print(
+        "\nResidual signals (raw mean after 25 s; max of the smoothed signal after 25 s, "
+        "mean/worst over seeds; smoothed value at t = "
+        + ", ".join(f"{p:.0f}" for p in PROBE_T)
+        + " s, mean [min])\n"
+    )
     print("| scenario | config | module | raw mean | smoothed max (mean / worst) | smoothed at t |")
     print("|---|---|---|---|---|---|")
     for sc, c in CASES:
@@ -101,9 +116,12 @@ def main(argv: list[str] | None = None) -> int:
             raw = np.array([r["levels"][mod]["raw_mean"] for r in rs])
             smx = np.array([r["levels"][mod]["smooth_max"] for r in rs])
             at = np.array([r["levels"][mod]["at"] for r in rs])
-            at_s = " / ".join(f"{a:.3g} [{b:.3g}]" for a, b in zip(at.mean(0), at.min(0)))
-            print(f"| {sc} | {c} | {mod} | {raw.mean():.3g} | {smx.mean():.3g} / {smx.max():.3g} "
-                  f"| {at_s} |")
+            pairs = zip(at.mean(0), at.min(0), strict=True)
+            at_s = " / ".join(f"{a:.3g} [{b:.3g}]" for a, b in pairs)
+            print(
+                f"| {sc} | {c} | {mod} | {raw.mean():.3g} | {smx.mean():.3g} / {smx.max():.3g} "
+                f"| {at_s} |"
+            )
     return 0
 
 

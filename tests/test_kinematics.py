@@ -42,7 +42,9 @@ def test_wheels_to_body_vectorized():
 def test_integrate_straight_and_limits():
     p = integrate_pose(0.0, [0, 0, 0], [5.0, 5.0], {**P, "dt": 2.0})
     assert_allclose(p, [1.0, 0.0, 0.0], atol=1e-12)
-    lim = integrate_pose(0.0, [0, 0, 0], [50.0, 50.0], {**P, "dt": 1.0, "max_wheel_speed_rad_s": 10})
+    lim = integrate_pose(
+        0.0, [0, 0, 0], [50.0, 50.0], {**P, "dt": 1.0, "max_wheel_speed_rad_s": 10}
+    )
     assert_allclose(lim, [1.0, 0.0, 0.0], atol=1e-12)
 
 
@@ -62,8 +64,9 @@ def test_integrate_full_circle_returns_home():
 def test_integrate_matches_ode_solution():
     wl, wr = 3.0, 7.0
     v, w = wheels_to_body([wl, wr], R, B)
-    sol = solve_ivp(lambda t, x: unicycle_rhs(t, x, [v, w]), (0, 3.0), [1.0, 2.0, 0.3],
-                    rtol=1e-10, atol=1e-12)
+    sol = solve_ivp(
+        lambda t, x: unicycle_rhs(t, x, [v, w]), (0, 3.0), [1.0, 2.0, 0.3], rtol=1e-10, atol=1e-12
+    )
     exact = integrate_pose(0.0, [1.0, 2.0, 0.3], [wl, wr], {**P, "dt": 3.0})
     assert_allclose(exact, sol.y[:, -1], atol=1e-7)
 
@@ -89,17 +92,22 @@ def test_tracking_error_rotation_invariant():
     for _ in range(20):
         pose, ref = rng.normal(size=3), rng.normal(size=3)
         a = rng.uniform(-np.pi, np.pi)
-        c, s = math.cos(a), math.sin(a)
-        rot = lambda p: np.array([c * p[0] - s * p[1], s * p[0] + c * p[1], p[2] + a])  # noqa: E731
-        assert_allclose(tracking_error(rot(pose), rot(ref)), tracking_error(pose, ref), atol=1e-12)
+        assert_allclose(
+            tracking_error(_rotate(pose, a), _rotate(ref, a)), tracking_error(pose, ref), atol=1e-12
+        )
+
+
+def _rotate(p, a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([c * p[0] - s * p[1], s * p[0] + c * p[1], p[2] + a])
 
 
 def _error_rhs(e, du, v, w):
     """Nonlinear error dynamics for a reference moving at (v, w)."""
     ex, ey, et = e
-    return np.array([w * ey + (v + du[0]) * math.cos(et) - v,
-                     -w * ex + (v + du[0]) * math.sin(et),
-                     du[1]])
+    return np.array(
+        [w * ey + (v + du[0]) * math.cos(et) - v, -w * ex + (v + du[0]) * math.sin(et), du[1]]
+    )
 
 
 @pytest.mark.parametrize("v,w", [(0.5, 0.0), (0.8, 0.1)])
@@ -119,5 +127,6 @@ def test_error_dynamics_is_the_jacobian(v, w):
 
 
 def test_wrap_angle():
-    assert_allclose(wrap_angle(np.array([0.0, 2 * np.pi + 0.5, -np.pi - 0.5])),
-                    [0.0, 0.5, np.pi - 0.5])
+    assert_allclose(
+        wrap_angle(np.array([0.0, 2 * np.pi + 0.5, -np.pi - 0.5])), [0.0, 0.5, np.pi - 0.5]
+    )

@@ -21,9 +21,18 @@ from archself.modules.planner import SplinePlanner
 from archself.sim.faults import FAULT_KINDS, FaultInjector
 
 KEYS = [
-    "plant.diffdrive", "actuator.wheel", "sensor.encoders", "sensor.imu", "sensor.gps",
-    "planner.spline", "estimator.odometry", "estimator.ekf", "controller.lqr",
-    "controller.asym_lqr", "model.diffdrive_kinematics", "model.diffdrive_dynamics",
+    "plant.diffdrive",
+    "actuator.wheel",
+    "sensor.encoders",
+    "sensor.imu",
+    "sensor.gps",
+    "planner.spline",
+    "estimator.odometry",
+    "estimator.ekf",
+    "controller.lqr",
+    "controller.asym_lqr",
+    "model.diffdrive_kinematics",
+    "model.diffdrive_dynamics",
     "model.actuator",
 ]
 
@@ -54,8 +63,12 @@ def test_declarations(key):
 
 def test_residual_signals_are_published():
     # every declared residual signal appears in local_signals (NaN before data)
-    mods = [WheelActuator("w", {"side": "left"}, rng()), Odometry("o", {}, rng()),
-            Ekf("e", {}, rng()), LqrController("c", {}, rng())]
+    mods = [
+        WheelActuator("w", {"side": "left"}, rng()),
+        Odometry("o", {}, rng()),
+        Ekf("e", {}, rng()),
+        LqrController("c", {}, rng()),
+    ]
     for m in mods:
         assert set(m.residual_signals) <= set(m.local_signals())
 
@@ -69,16 +82,21 @@ def test_lqr_gain_closed_form(v, q):
     r = (1.5, 0.7)
     K = lqr_gain(v, q, r)
     ky = math.sqrt(q[1] / r[1])
-    expected = np.array([
-        [math.sqrt(q[0] / r[0]), 0.0, 0.0],
-        [0.0, ky, math.sqrt(q[2] / r[1] + 2 * v * ky)],
-    ])
+    expected = np.array(
+        [
+            [math.sqrt(q[0] / r[0]), 0.0, 0.0],
+            [0.0, ky, math.sqrt(q[2] / r[1] + 2 * v * ky)],
+        ]
+    )
     assert_allclose(K, expected, rtol=1e-6, atol=1e-9)
 
 
 def test_lqr_linearization_is_stable_and_updates():
-    c = LqrController("lqr", {"q_along": 1.0, "q_lateral": 0.001, "q_heading": 0.05,
-                              "r_speed": 1.0, "r_turn": 1.0}, rng())
+    c = LqrController(
+        "lqr",
+        {"q_along": 1.0, "q_lateral": 0.001, "q_heading": 0.05, "r_speed": 1.0, "r_turn": 1.0},
+        rng(),
+    )
     A = c.linearization()
     A0, B0 = error_dynamics(0.5)
     assert_allclose(A, A0 - B0 @ c.K)
@@ -92,8 +110,9 @@ def test_lqr_linearization_is_stable_and_updates():
 def test_lqr_command_feedforward_on_the_reference():
     c = LqrController("lqr", {}, rng())
     ref = np.array([1.0, 2.0, 0.3, 0.5, 0.1])
-    out = c.step(0.0, 0.05, {"reference": ref, "pose_estimate": ref[:3],
-                             "kinematics": Kinematics(0.5, 0.1)})
+    out = c.step(
+        0.0, 0.05, {"reference": ref, "pose_estimate": ref[:3], "kinematics": Kinematics(0.5, 0.1)}
+    )
     # on the reference: pure feed-forward v = 0.5, ω = 0.1
     assert_allclose(out["wheel_cmd"], [(0.5 - 0.025) / 0.1, (0.5 + 0.025) / 0.1])
     assert c.local_signals()["tracking_error"] == 0.0
@@ -104,8 +123,16 @@ def test_asym_lqr_learns_effectiveness():
     ref = np.array([0.0, 0.0, 0.0, 0.5, 0.0])
     enc = None
     for k in range(200):
-        out = c.step(0.05 * k, 0.05, {"reference": ref, "pose_estimate": ref[:3],
-                                      "kinematics": Kinematics(), "encoder_speeds": enc})
+        out = c.step(
+            0.05 * k,
+            0.05,
+            {
+                "reference": ref,
+                "pose_estimate": ref[:3],
+                "kinematics": Kinematics(),
+                "encoder_speeds": enc,
+            },
+        )
         enc = out["wheel_cmd"] * np.array([0.8, 1.0])
     assert_allclose(c.effectiveness, [0.8, 1.0], atol=1e-6)
     assert_allclose(out["wheel_cmd"], [5.0 / 0.8, 5.0], atol=1e-6)
@@ -116,24 +143,40 @@ def test_ekf_nees_consistency():
     """Normalized estimation error squared inside its χ² band over Monte Carlo runs."""
     n_runs, n_steps, dt = 25, 600, 0.05
     sig_enc, r_head, r_gps, q_b = 0.05, 0.005, 0.2, 0.002
-    params = {"q_position_m": 0.0, "q_heading_rad": 0.0, "q_bias_rad": q_b,
-              "r_gps_m": r_gps, "r_heading_rad": r_head, "encoder_noise_rad_s": sig_enc,
-              "initial_position_std_m": 0.3, "initial_heading_std_rad": 0.02,
-              "initial_bias_std_rad": 0.02}
+    params = {
+        "q_position_m": 0.0,
+        "q_heading_rad": 0.0,
+        "q_bias_rad": q_b,
+        "r_gps_m": r_gps,
+        "r_heading_rad": r_head,
+        "encoder_noise_rad_s": sig_enc,
+        "initial_position_std_m": 0.3,
+        "initial_heading_std_rad": 0.02,
+        "initial_bias_std_rad": 0.02,
+    }
     kin = Kinematics(0.5, 0.1)
     nees = np.zeros((n_runs, n_steps))
     for run in range(n_runs):
         g = np.random.default_rng(100 + run)
         f = Ekf("ekf", params, g)
-        x0 = np.array([0.3 * g.standard_normal(), 0.3 * g.standard_normal(),
-                       0.02 * g.standard_normal(), 0.02 * g.standard_normal()])
+        x0 = np.array(
+            [
+                0.3 * g.standard_normal(),
+                0.3 * g.standard_normal(),
+                0.02 * g.standard_normal(),
+                0.02 * g.standard_normal(),
+            ]
+        )
         truth = x0.copy()
         f.kf.x = np.zeros(4)
         f.started = True
         for k in range(n_steps):
             t = k * dt
             wl, wr = 5.0 + 1.5 * math.sin(0.2 * t), 5.0 + 1.5 * math.cos(0.13 * t)
-            v, w = kin.wheel_radius_m * (wl + wr) / 2, kin.wheel_radius_m * (wr - wl) / kin.wheel_base_m
+            v, w = (
+                kin.wheel_radius_m * (wl + wr) / 2,
+                kin.wheel_radius_m * (wr - wl) / kin.wheel_base_m,
+            )
             mid = truth[2] + 0.5 * w * dt
             truth = truth + np.array([v * dt * math.cos(mid), v * dt * math.sin(mid), w * dt, 0.0])
             truth[3] += q_b * math.sqrt(dt) * g.standard_normal()
@@ -176,11 +219,16 @@ def test_ekf_estimates_a_drifting_imu_bias():
         mid = truth[2] + 0.5 * w * dt
         truth = truth + [v * dt * math.cos(mid), v * dt * math.sin(mid), w * dt]
         bias = 7e-4 * t
-        out = f.step(t, dt, {"encoder_speeds": np.array([wl, wr]) + 0.05 * g.standard_normal(2),
-                             "heading": truth[2] + bias + 0.005 * g.standard_normal(),
-                             "kinematics": kin,
-                             "position": truth[:2] + 0.2 * g.standard_normal(2)
-                             if k % 20 == 0 else None})
+        out = f.step(
+            t,
+            dt,
+            {
+                "encoder_speeds": np.array([wl, wr]) + 0.05 * g.standard_normal(2),
+                "heading": truth[2] + bias + 0.005 * g.standard_normal(),
+                "kinematics": kin,
+                "position": truth[:2] + 0.2 * g.standard_normal(2) if k % 20 == 0 else None,
+            },
+        )
     assert f.x[3] == pytest.approx(bias, abs=0.03)
     assert np.hypot(*(out["pose_estimate"][:2] - truth[:2])) < 0.5
 
@@ -194,8 +242,11 @@ def test_odometry_exact_without_noise():
     pose = np.zeros(3)
     dt = 0.05
     for k in range(400):
-        out = o.step(k * dt, dt, {"encoder_speeds": np.array([wl, wr]), "heading": w * k * dt,
-                                  "kinematics": kin})
+        out = o.step(
+            k * dt,
+            dt,
+            {"encoder_speeds": np.array([wl, wr]), "heading": w * k * dt, "kinematics": kin},
+        )
     # circle of radius v / ω = 0.5 / 0.4 after 19.95 s
     t = 399 * dt
     pose = [1.25 * math.sin(w * t), 1.25 * (1 - math.cos(w * t))]
@@ -217,8 +268,10 @@ def test_innovation_window_vector_mean():
 
 def test_gps_rate_and_gaps():
     gps = Gps("gps", {"rate_hz": 2.0, "noise_m": 0.0}, rng())
-    fixes = [gps.step(k * 0.05, 0.05, {"pose": np.array([1.0, 2.0, 0.0])})["position"]
-             for k in range(200)]
+    fixes = [
+        gps.step(k * 0.05, 0.05, {"pose": np.array([1.0, 2.0, 0.0])})["position"]
+        for k in range(200)
+    ]
     got = [p for p in fixes if p is not None]
     assert len(got) == 20
     assert_allclose(got[0], [1.0, 2.0])
@@ -243,8 +296,9 @@ def test_plant_lag_and_limit():
 
 
 def test_planner_arc_length_and_curvature():
-    pl = SplinePlanner("p", {"waypoints": [[0, 0], [10, 5], [20, 0], [30, -5], [40, 0]],
-                             "speed_mps": 0.5}, rng())
+    pl = SplinePlanner(
+        "p", {"waypoints": [[0, 0], [10, 5], [20, 0], [30, -5], [40, 0]], "speed_mps": 0.5}, rng()
+    )
     dt = 0.05
     refs = np.array([pl.reference(k * dt) for k in range(1, int(pl.duration_s / dt))])
     step = np.hypot(*np.diff(refs[:, :2], axis=0).T)

@@ -76,18 +76,23 @@ def toys():
 
 
 def toy_arch(modules: dict[str, str], edges: list[dict], confs=None) -> Architecture:
-    return Architecture.model_validate({
-        "archself": 1,
-        "name": "toy",
-        "modules": {n: {"kind": "functional", "type": t} for n, t in modules.items()},
-        "edges": [{"weight": 0.1, "carries": "value", **e} for e in edges],
-        "configurations": confs or {"c": {"modules": list(modules)}},
-        "runtime": {
-            "step_s": 0.05, "period_s": 1.0, "cost_weight": 0.5, "threshold": 0.5,
-            "objective": {"actual": "src.value", "reference": "src.value"},
-            "stability": {"margin": 0.001, "lyapunov_alpha": 0.01, "horizon_steps": 5},
-        },
-    })
+    return Architecture.model_validate(
+        {
+            "archself": 1,
+            "name": "toy",
+            "modules": {n: {"kind": "functional", "type": t} for n, t in modules.items()},
+            "edges": [{"weight": 0.1, "carries": "value", **e} for e in edges],
+            "configurations": confs or {"c": {"modules": list(modules)}},
+            "runtime": {
+                "step_s": 0.05,
+                "period_s": 1.0,
+                "cost_weight": 0.5,
+                "threshold": 0.5,
+                "objective": {"actual": "src.value", "reference": "src.value"},
+                "stability": {"margin": 0.001, "lyapunov_alpha": 0.01, "horizon_steps": 5},
+            },
+        }
+    )
 
 
 # ---------------------------------------------------------------- executor
@@ -104,16 +109,22 @@ def test_order_respects_active_edges(arch):
 
 
 def test_algebraic_loop_is_a_compile_error(toys):
-    a = toy_arch({"src": "toy.clock", "p": "toy.pass", "q": "toy.pass"},
-                 [{"from": "src", "to": "p"}, {"from": "p", "to": "q"}, {"from": "q", "to": "p"}])
+    a = toy_arch(
+        {"src": "toy.clock", "p": "toy.pass", "q": "toy.pass"},
+        [{"from": "src", "to": "p"}, {"from": "p", "to": "q"}, {"from": "q", "to": "p"}],
+    )
     with pytest.raises(CompileError, match="algebraic loop"):
         compile_system(a, "c", seed=0)
 
 
 def test_latency_and_uncertainty(toys):
-    a = toy_arch({"src": "toy.clock", "late": "toy.pass", "noisy": "toy.pass"},
-                 [{"from": "src", "to": "late", "latency_s": 0.1},
-                  {"from": "src", "to": "noisy", "uncertainty": 0.5}])
+    a = toy_arch(
+        {"src": "toy.clock", "late": "toy.pass", "noisy": "toy.pass"},
+        [
+            {"from": "src", "to": "late", "latency_s": 0.1},
+            {"from": "src", "to": "noisy", "uncertainty": 0.5},
+        ],
+    )
     s = compile_system(a, "c", seed=0)
     got = []
     for _ in range(4000):
@@ -124,8 +135,10 @@ def test_latency_and_uncertainty(toys):
 
 
 def test_failing_module_is_held_and_flagged(toys):
-    a = toy_arch({"src": "toy.clock", "f": "toy.flaky", "sink": "toy.pass"},
-                 [{"from": "src", "to": "f"}, {"from": "f", "to": "sink"}])
+    a = toy_arch(
+        {"src": "toy.clock", "f": "toy.flaky", "sink": "toy.pass"},
+        [{"from": "src", "to": "f"}, {"from": "f", "to": "sink"}],
+    )
     s = compile_system(a, "c", seed=0)
     flags = {}
     for _ in range(40):
@@ -232,8 +245,15 @@ def test_simulate_is_deterministic_and_fast(arch, tmp_path):
     doc = json.loads(p1.read_text())
     assert set(doc) == {"meta", "series", "decisions"}
     assert len(doc["series"]["t"]) == 8000
-    assert {"reference", "actual", "estimate", "command", "J",
-            "residual.wheel_left", "residual.odometry"} <= set(doc["series"])
+    assert {
+        "reference",
+        "actual",
+        "estimate",
+        "command",
+        "J",
+        "residual.wheel_left",
+        "residual.odometry",
+    } <= set(doc["series"])
     d = a.to_dict()
     assert d["mode"] == "fixed" and d["switches"] == [] and d["seed"] == 5
     assert d["configuration"] == d["final_configuration"] == "a1"
@@ -258,8 +278,9 @@ def test_simulate_calls_adapt_every_period(arch):
     r = simulate(arch, "imu_drift", configuration="a1", adapt=adapt)
     assert len(calls) == 400 and calls[0] == pytest.approx(1.0)
     assert r.mode == "adaptive" and r.final_configuration == "a2"
-    assert r.switches == [{"t_s": pytest.approx(30.0), "from": "a1", "to": "a2",
-                           "action": "use_ekf_gps"}]
+    assert r.switches == [
+        {"t_s": pytest.approx(30.0), "from": "a1", "to": "a2", "action": "use_ekf_gps"}
+    ]
     assert r.metrics["max_error_m"] < 1.5  # switched early: the EKF keeps the robot on track
     assert np.isnan(r.series["residual.odometry"][-1])  # inactive after the switch
 

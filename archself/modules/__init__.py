@@ -22,5 +22,12 @@ model.actuator              :class:`~archself.modules.models.ActuatorModel`
 ==========================  ==============================================
 """
 
-from archself.modules import base  # noqa: F401
-from archself.modules import controllers, estimators, models, physical, planner  # noqa: F401
+from archself.modules import (  # noqa: F401
+    base,  # noqa: F401
+    controllers,
+    estimators,
+    generic,  # noqa: F401
+    models,
+    physical,
+    planner,
+)

@@ -38,21 +38,24 @@ def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) ->
         Reference speed (m/s); floored at 0.05 m/s (the lateral error is not
         controllable at standstill).
     q : (q_along, q_lateral, q_heading)
-        Diagonal state weights.
+        Diagonal state weights; floored at 1e-9 (a zero weight on a marginally
+        stable error state leaves the Riccati equation without a stabilizing
+        solution).
     r : (r_speed, r_turn)
         Diagonal input weights.
 
     Examples
     --------
-    >>> K = lqr_gain(0.5, (1.0, 0.0, 0.0), (1.0, 1.0))
-    >>> K.round(6)
-    array([[1., 0., 0.],
-           [0., 0., 0.]])
+    >>> K = lqr_gain(0.5, (4.0, 1.0, 0.0), (1.0, 1.0))
+    >>> np.abs(K).round(6)   # K = [[√q_a, 0, 0], [0, √q_l, √(q_h + 2 v √q_l)]]
+    array([[2., 0., 0.],
+           [0., 1., 1.]])
     """
     import control
 
     A, B = error_dynamics(max(float(v), _MIN_DESIGN_SPEED))
-    K, _, _ = control.lqr(A, B, np.diag(q), np.diag(r))
+    Q = np.diag([max(float(x), 1e-9) for x in q])
+    K, _, _ = control.lqr(A, B, Q, np.diag([float(x) for x in r]))
     return np.asarray(K, dtype=float)
 
 
@@ -93,8 +96,11 @@ class LqrController(RuntimeModule):
     # gains -------------------------------------------------------------------
     def _weights(self) -> tuple[tuple[float, float, float], tuple[float, float]]:
         p = self.params
-        q = (float(p.get("q_along", 1.0)), float(p.get("q_lateral", 1.0)),
-             float(p.get("q_heading", 1.0)))
+        q = (
+            float(p.get("q_along", 1.0)),
+            float(p.get("q_lateral", 1.0)),
+            float(p.get("q_heading", 1.0)),
+        )
         r = (float(p.get("r_speed", 1.0)), float(p.get("r_turn", 1.0)))
         return q, r
 
@@ -128,8 +134,9 @@ class LqrController(RuntimeModule):
         K = self.K
         du0 = K[0, 0] * e[0] + K[0, 1] * e[1] + K[0, 2] * e[2]
         du1 = K[1, 0] * e[0] + K[1, 1] * e[1] + K[1, 2] * e[2]
-        self.signals["tracking_error"] = math.hypot(float(est[0]) - float(ref[0]),
-                                                    float(est[1]) - float(ref[1]))
+        self.signals["tracking_error"] = math.hypot(
+            float(est[0]) - float(ref[0]), float(est[1]) - float(ref[1])
+        )
         return v_ref - du0, float(ref[4]) - du1
 
     def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+
 import numpy as np
 
 from archself.modules.base import RuntimeModule
@@ -102,11 +103,11 @@ class Odometry(RuntimeModule):
     Examples
     --------
     >>> o = Odometry("odo", {}, np.random.default_rng(0))
-    >>> for k in range(20):
+    >>> for k in range(21):
     ...     out = o.step(0.05 * k, 0.05, {"encoder_speeds": np.array([5.0, 5.0]),
     ...                                    "heading": 0.0})
     >>> out["pose_estimate"].round(3)
-    array([1., 0., 0.])
+    array([0.5, 0. , 0. ])
     """
 
     role = "estimator"
@@ -164,8 +165,10 @@ class Odometry(RuntimeModule):
         if pos is not None:
             self.monitor.add(t, float(pos[0]) - self.x, float(pos[1]) - self.y)
             self.signals["innovation"] = self.monitor.value()
-        return {"pose_estimate": np.array([self.x, self.y, self.th]),
-                "covariance": self.covariance()}
+        return {
+            "pose_estimate": np.array([self.x, self.y, self.th]),
+            "covariance": self.covariance(),
+        }
 
     def covariance(self) -> np.ndarray:
         """Pose covariance (isotropic position variance, heading variance)."""
@@ -344,8 +347,11 @@ class Ekf(RuntimeModule):
 
     def export_state(self):
         x = self.kf.x
-        return {"pose": np.array([x[0], x[1], x[2]]), "covariance": self.kf.P[:3, :3].copy(),
-                "imu_bias": float(x[3])}
+        return {
+            "pose": np.array([x[0], x[1], x[2]]),
+            "covariance": self.kf.P[:3, :3].copy(),
+            "imu_bias": float(x[3]),
+        }
 
     def import_state(self, state):
         if "pose" in state:
@@ -357,7 +363,6 @@ class Ekf(RuntimeModule):
             P[:3, :3] += np.asarray(state["covariance"], dtype=float)[:3, :3]
         self.kf.P = P
         self.monitor.clear()
-
 
 
 def _h_gps(x):

@@ -9,7 +9,6 @@ classes here model only the healthy hardware.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -95,9 +94,11 @@ class DiffDrivePlant(RuntimeModule):
         self.wl = wl0 + a * (tl - wl0)
         self.wr = wr0 + a * (tr - wr0)
         self._kp["dt"] = dt
-        self.pose = integrate_pose(
-            t, self.pose, (0.5 * (wl0 + self.wl), 0.5 * (wr0 + self.wr)), self._kp
-        )
+        if self.tau > 0:  # trapezoidal wheel speeds over the step
+            u = (0.5 * (wl0 + self.wl), 0.5 * (wr0 + self.wr))
+        else:
+            u = (self.wl, self.wr)
+        self.pose = integrate_pose(t, self.pose, u, self._kp)
         return {}
 
     def export_state(self):

@@ -64,8 +64,14 @@ def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
     kappa = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(
         np.hypot(d1[:, 0], d1[:, 1]) ** 3, 1e-12
     )
-    return {"s": s, "x": xy[:, 0], "y": xy[:, 1], "theta": theta, "kappa": kappa,
-            "length": float(arc[-1])}
+    return {
+        "s": s,
+        "x": xy[:, 0],
+        "y": xy[:, 1],
+        "theta": theta,
+        "kappa": kappa,
+        "length": float(arc[-1]),
+    }
 
 
 class _Table:
@@ -141,13 +147,15 @@ class SplinePlanner(RuntimeModule):
         a = min(f - i, 1.0)
         b = 1.0 - a
         x, y, th, k = self._table.xytk
-        return np.array([
-            b * x[i] + a * x[i + 1],
-            b * y[i] + a * y[i + 1],
-            b * th[i] + a * th[i + 1],
-            self.speed,
-            (b * k[i] + a * k[i + 1]) * self.speed,
-        ])
+        return np.array(
+            [
+                b * x[i] + a * x[i + 1],
+                b * y[i] + a * y[i + 1],
+                b * th[i] + a * th[i + 1],
+                self.speed,
+                (b * k[i] + a * k[i + 1]) * self.speed,
+            ]
+        )
 
     def step(self, t, dt, inputs):
         return {"reference": self.reference(t)}

@@ -86,7 +86,9 @@ class FaultInjector:
         base_noise: float | None = None,
     ) -> None:
         if kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(sorted(FAULT_KINDS))}")
+            raise ValueError(
+                f"unknown fault kind {kind!r}; known: {', '.join(sorted(FAULT_KINDS))}"
+            )
         self.kind = kind
         self.onset = float(onset_s)
         self.end = math.inf if end_s is None else float(end_s)

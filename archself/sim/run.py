@@ -319,8 +319,11 @@ def simulate(
         "step_s": dt,
         "period_s": float(rt.period_s),
         "duration_s": float(sc.duration_s),
-        "objective": {"actual": rt.objective.actual, "reference": rt.objective.reference,
-                      "components": comps},
+        "objective": {
+            "actual": rt.objective.actual,
+            "reference": rt.objective.reference,
+            "components": comps,
+        },
         "residuals": {m: s for m, s in res_mods},
     }
     return RunResult(
