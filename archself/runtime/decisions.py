@@ -158,7 +158,7 @@ def _signature(d: dict[str, Any]) -> tuple:
 
 
 def _top_z(d: dict[str, Any], k: int = 3) -> str:
-    z = {n: v for n, v in (d.get("z") or {}).items() if v is not None}
+    z = {n: v for n, v in (d.get("z") or {}).items() if v}
     top = sorted(z.items(), key=lambda kv: -abs(kv[1]))[:k]
     return ", ".join(f"{n} {_fmt(v, '.2f')}" for n, v in top) or "none"
 
