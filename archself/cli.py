@@ -126,3 +126,11 @@ def main() -> None:
     except ArchselfError as exc:
         typer.echo(str(exc), err=True)
         raise SystemExit(exc.exit_code) from None
+    except Exception as exc:  # a bug, not a user error: say so in one line
+        import os
+
+        if os.environ.get("ARCHSELF_DEBUG"):
+            raise
+        typer.echo(f"internal error: {type(exc).__name__}: {exc} "
+                   "(set ARCHSELF_DEBUG=1 for the traceback; please report it)", err=True)
+        raise SystemExit(3) from None

@@ -96,48 +96,57 @@ def dotted(path: Path_) -> str:
 
 
 # --------------------------------------------------------------------------- YAML
-def _yaml():
+_PLAIN_TAG = "tag:archself,2026:plain"
+_PLAIN: Any = None
+
+
+def _composer():
     from ruamel.yaml import YAML
-    from ruamel.yaml.composer import Composer
 
-    class _CappedComposer(Composer):
-        aliases = 0
+    from ruamel.yaml.nodes import MappingNode, ScalarNode
+    from ruamel.yaml.resolver import BaseResolver
 
-        def return_alias(self, a: Any) -> Any:
-            self.aliases += 1
-            if self.aliases > MAX_ALIASES:
-                from ruamel.yaml.error import MarkedYAMLError
+    class _PlainResolver(BaseResolver):  # type: ignore[misc]
+        """Tag nothing implicitly: :func:`_scalar` applies the YAML 1.2 core schema."""
 
-                raise MarkedYAMLError(
-                    problem=f"more than {MAX_ALIASES} aliases (refused: possible alias bomb)",
-                    problem_mark=getattr(a, "start_mark", None),
-                )
-            return a
+        def __init__(self, version: Any = None, loadumper: Any = None) -> None:
+            super().__init__(loadumper)
 
-    y = YAML(typ="rt", pure=True)
+        def resolve(self, kind: Any, value: Any, implicit: Any) -> Any:
+            if kind is ScalarNode:
+                return _PLAIN if implicit[0] else self.DEFAULT_SCALAR_TAG
+            if kind is MappingNode:
+                return self.DEFAULT_MAPPING_TAG
+            return self.DEFAULT_SEQUENCE_TAG
+
+    global _PLAIN
+    if _PLAIN is None:
+        from ruamel.yaml.tag import Tag
+
+        _PLAIN = Tag(suffix=_PLAIN_TAG)
+    y = YAML(typ="safe", pure=False)  # libyaml-based parser when ruamel.yaml.clib is present
     y.version = (1, 2)
-    y.allow_duplicate_keys = False
-    y.max_depth = MAX_DEPTH
-    y.Composer = _CappedComposer
+    y.Resolver = _PlainResolver  # plain scalars are resolved here, by the YAML 1.2 core schema
     return y
 
 
 def _parse(text: str, file: str) -> Any:
+    """Compose the YAML 1.2 node graph (aliases stay shared: nothing is expanded)."""
     from ruamel.yaml.error import MarkedYAMLError, YAMLError
 
     try:
-        return _yaml().load(text)
+        return _composer().compose(text)
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else None
         col = mark.column + 1 if mark is not None else None
-        problem = (exc.problem or exc.context or "invalid YAML").strip()
-        if "\t" in problem or "'\\t'" in problem:
-            problem = "tab character: YAML indentation must use spaces"
-        elif "duplicate key" in problem:
-            problem = problem.replace('found duplicate key "', "duplicate key '").split('"')[0]
-            problem += "' (each key may appear once in a mapping)"
-        problem = problem.splitlines()[0]
+        problem = (exc.problem or exc.context or "invalid YAML").strip().splitlines()[0]
+        if line is not None and col is not None:
+            rows = text.splitlines()
+            row = rows[line - 1] if line - 1 < len(rows) else ""
+            if "\t" in row[: col] or "\t" in problem:
+                problem = "tab character: YAML indentation must use spaces"
+                col = row.index("\t") + 1 if "\t" in row else col
         raise LoadError(f"invalid YAML: {problem}", file, line, col) from None
     except YAMLError as exc:  # unmarked ruamel errors
         raise LoadError(f"invalid YAML: {str(exc).splitlines()[0]}", file) from None
@@ -145,53 +154,114 @@ def _parse(text: str, file: str) -> Any:
         raise LoadError("invalid YAML: nesting too deep", file) from None
 
 
-def _plain(node: Any, path: Path_, src: SourceMap, counter: list[int]) -> Any:
-    """Convert ruamel round-trip nodes to plain Python, recording positions."""
-    from ruamel.yaml.comments import CommentedMap, CommentedSeq
-    from ruamel.yaml.scalarbool import ScalarBoolean
+_TAG = "tag:yaml.org,2002:"
+# YAML 1.2 core schema (https://yaml.org/spec/1.2.2/#1032-tag-resolution)
+_NULL = re.compile(r"^(~|null|Null|NULL|)$")
+_BOOL = re.compile(r"^(true|True|TRUE|false|False|FALSE)$")
+_INT = re.compile(r"^([-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$")
+_FLOAT = re.compile(
+    r"^([-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?|[-+]?\.(inf|Inf|INF)|\.(nan|NaN|NAN))$"
+)
 
-    counter[0] += 1
-    if counter[0] > MAX_NODES:
-        raise LoadError(f"document expands to more than {MAX_NODES} nodes", src.file)
-    if isinstance(node, CommentedMap):
-        out: dict[Any, Any] = {}
-        for k, v in node.items():
-            key = k if isinstance(k, str) else _plain(k, path, src, counter)
-            p = (*path, key)
-            try:
-                kl, kc = node.lc.key(k)
-                src.keys[p] = (kl + 1, kc + 1)
-                vl, vc = node.lc.value(k)
-                src.values[p] = (vl + 1, vc + 1)
-            except (KeyError, TypeError, AttributeError):
-                pass
-            out[key] = _plain(v, p, src, counter)
-        return out
-    if isinstance(node, CommentedSeq):
-        items = []
-        for i, v in enumerate(node):
-            p = (*path, i)
-            try:
-                line, col = node.lc.item(i)
-                src.keys[p] = src.values[p] = (line + 1, col + 1)
-            except (KeyError, TypeError, AttributeError):
-                pass
-            items.append(_plain(v, p, src, counter))
-        return items
-    if isinstance(node, ScalarBoolean):
-        return bool(node)
-    if isinstance(node, bool) or node is None:
-        return node
-    if isinstance(node, int):
-        return int(node)
-    if isinstance(node, float):
-        return float(node)
-    if isinstance(node, str):
-        return str(node)
-    if hasattr(node, "value") and hasattr(node, "tag"):  # TaggedScalar: never constructed
-        return str(node.value)
-    # dates, sets and other YAML types are not part of the format
-    return repr(node)
+
+def _scalar(node: Any, file: str) -> Any:
+    """Resolve a scalar node by the YAML 1.2 core schema (explicit tags honoured)."""
+    tag, v = node.tag, node.value
+    if tag == _TAG + "str":
+        return v
+    if tag == _PLAIN_TAG:
+        tag = (
+            _TAG + "null" if _NULL.match(v) else
+            _TAG + "bool" if _BOOL.match(v) else
+            _TAG + "int" if _INT.match(v) else
+            _TAG + "float" if _FLOAT.match(v) else _TAG + "str"
+        )
+    if tag == _TAG + "str":
+        return v
+    if tag == _TAG + "null" and _NULL.match(v):
+        return None
+    if tag == _TAG + "bool" and _BOOL.match(v):
+        return v.lower() == "true"
+    if tag == _TAG + "int" and _INT.match(v):
+        if v.startswith("0o"):
+            return int(v[2:], 8)
+        if v.startswith("0x"):
+            return int(v[2:], 16)
+        return int(v)
+    if tag == _TAG + "float" and (_FLOAT.match(v) or _INT.match(v)):
+        low = v.lower().lstrip("+")
+        if low in (".inf", "-.inf"):
+            return float("-inf") if low.startswith("-") else float("inf")
+        if low == ".nan":
+            return float("nan")
+        return float(v)
+    m = node.start_mark
+    raise LoadError(f"unsupported YAML tag {tag!r} for {v!r}", file, m.line + 1, m.column + 1)
+
+
+class _Converter:
+    """Node graph → plain Python with positions, duplicate-key and alias checks."""
+
+    def __init__(self, src: SourceMap) -> None:
+        self.src = src
+        self.seen: set[int] = set()
+        self.aliases = 0
+        self.nodes = 0
+
+    def _pos(self, node: Any) -> tuple[int, int]:
+        m = node.start_mark
+        return (m.line + 1, m.column + 1)
+
+    def convert(self, node: Any, path: Path_, depth: int = 0) -> Any:
+        from ruamel.yaml.nodes import MappingNode, SequenceNode
+
+        if depth > MAX_DEPTH:
+            raise LoadError(f"nesting deeper than {MAX_DEPTH} levels", self.src.file,
+                            *self._pos(node))
+        self.nodes += 1
+        if self.nodes > MAX_NODES:
+            raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.src.file)
+        if isinstance(node, (MappingNode, SequenceNode)):
+            if id(node) in self.seen:
+                self.aliases += 1
+                if self.aliases > MAX_ALIASES:
+                    raise LoadError(
+                        f"invalid YAML: more than {MAX_ALIASES} alias uses "
+                        "(refused: possible alias bomb)", self.src.file, *self._pos(node))
+            self.seen.add(id(node))
+        if isinstance(node, MappingNode):
+            if node.tag not in (_TAG + "map",):
+                raise LoadError(f"unsupported YAML tag {node.tag!r}", self.src.file,
+                                *self._pos(node))
+            out: dict[Any, Any] = {}
+            for knode, vnode in node.value:
+                if knode.tag == _TAG + "merge":
+                    raise LoadError("merge keys '<<' are not supported", self.src.file,
+                                    *self._pos(knode))
+                key = self.convert(knode, path, depth + 1)
+                if isinstance(key, (list, dict)):
+                    raise LoadError("a mapping key must be a scalar", self.src.file,
+                                    *self._pos(knode))
+                if key in out:
+                    raise LoadError(
+                        f"invalid YAML: duplicate key {key!r} (each key may appear once in a "
+                        "mapping)", self.src.file, *self._pos(knode))
+                p = (*path, key)
+                self.src.keys[p] = self._pos(knode)
+                self.src.values[p] = self._pos(vnode)
+                out[key] = self.convert(vnode, p, depth + 1)
+            return out
+        if isinstance(node, SequenceNode):
+            if node.tag != _TAG + "seq":
+                raise LoadError(f"unsupported YAML tag {node.tag!r}", self.src.file,
+                                *self._pos(node))
+            items = []
+            for i, v in enumerate(node.value):
+                p = (*path, i)
+                self.src.keys[p] = self.src.values[p] = self._pos(v)
+                items.append(self.convert(v, p, depth + 1))
+            return items
+        return _scalar(node, self.src.file)
 
 
 def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
@@ -233,7 +303,7 @@ def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceM
             1,
             1,
         )
-    data = _plain(node, (), src, [0])
+    data = _Converter(src).convert(node, ())
     if not isinstance(data, dict):
         raise LoadError(
             f"expected a mapping at the top level, got {_kind(data)}", file, 1, 1
