@@ -154,7 +154,8 @@ def _as_dict(d: Any) -> dict[str, Any]:
 def _signature(d: dict[str, Any]) -> tuple:
     """What makes two quiet cycles "the same" for summarizing."""
     evals = tuple((e["action"], e.get("rejected")) for e in d.get("evaluations", []))
-    return (d.get("phase"), d.get("configuration"), tuple(d.get("candidates", [])), evals)
+    evals = tuple(sorted(evals, key=str))
+    return (d.get("phase"), d.get("configuration"), frozenset(d.get("candidates", [])), evals)
 
 
 def _top_z(d: dict[str, Any], k: int = 3) -> str:
