@@ -28,8 +28,7 @@ app = typer.Typer(
 
 
 def _fail(msg: str, code: int = 1) -> typer.Exit:
-    typer.echo(f"error: {msg}" if not msg.startswith(("error", "/")) and ":" not in msg[:200]
-               else msg, err=True)
+    typer.echo(msg if ":" in msg else f"error: {msg}", err=True)
     return typer.Exit(code)
 
 
@@ -114,6 +113,146 @@ def schema(
             write_text(output, text)
         except ArchselfError as exc:
             raise _die(exc) from None
+
+
+# --------------------------------------------------------------------------- simulate
+def _load(path: Path):
+    from archself.check import check, has_errors
+    from archself.loader import load_architecture
+
+    loaded = load_architecture(path)
+    findings = check(loaded)
+    if has_errors(findings):
+        for f in findings:
+            if f.severity == "error":
+                typer.echo(str(f), err=True)
+        raise typer.Exit(1)
+    return loaded.arch
+
+
+def _run(arch, scenario: str, config: Optional[str], seed: Optional[int], adaptive: bool,
+         show_progress: bool):
+    from archself.sim.run import simulate as run_simulation
+
+    adapt = None
+    if adaptive:
+        from archself.runtime import MapeK
+
+        adapt = MapeK(arch)
+    if not show_progress:
+        return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt)
+    label = f"{scenario} ({'adaptive' if adaptive else 'fixed'})"
+    with typer.progressbar(length=100, label=label, file=sys.stderr) as bar:
+        state = {"done": 0}
+
+        def progress(done: int, total: int) -> None:
+            pct = int(100 * done / max(total, 1))
+            if pct > state["done"]:
+                bar.update(pct - state["done"])
+                state["done"] = pct
+
+        return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt,
+                              progress=progress)
+
+
+def _switches_text(switches: list[dict]) -> str:
+    if not switches:
+        return "none"
+    return "; ".join(f"t = {s['t_s']:.1f} s {s['from']} → {s['to']} ({s['action']})"
+                     for s in switches)
+
+
+def _summary(results: list) -> str:
+    rows = [
+        ("max error [m]", "max_error_m", "{:.3f}"),
+        ("final error [m]", "final_error_m", "{:.3f}"),
+        ("RMS error [m]", "rms_error_m", "{:.3f}"),
+        ("peak time [s]", "peak_time_s", "{:.1f}"),
+    ]
+    first = results[0]
+    head = f"scenario {first.scenario} · seed {first.seed} · start {first.configuration}"
+    lines = [head]
+    names = [f"{r.mode} (→ {r.final_configuration})" for r in results]
+    width = max(16, *(len(n) + 2 for n in names))
+    lines.append(" " * 18 + "".join(n.rjust(width) for n in names))
+    for label, key, fmt in rows:
+        vals = "".join(fmt.format(r.metrics[key]).rjust(width) for r in results)
+        lines.append(label.ljust(18) + vals)
+    for r in results:
+        lines.append(f"switches ({r.mode}): {_switches_text(r.switches)}")
+    return "\n".join(lines)
+
+
+@app.command()
+def simulate(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    scenario: Annotated[str, typer.Option("--scenario", "-s", help="Scenario of the file.")],
+    config: Annotated[
+        Optional[str], typer.Option("--config", "-c", help="Start configuration (default: initial).")
+    ] = None,
+    fixed: Annotated[bool, typer.Option("--fixed", help="Hold the architecture fixed.")] = False,
+    compare: Annotated[
+        bool, typer.Option("--compare", help="Run the fixed baseline beside the adaptive run.")
+    ] = False,
+    seed: Annotated[Optional[int], typer.Option("--seed", help="Seed (default: the scenario's).")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    trace: Annotated[
+        Optional[Path],
+        typer.Option("--trace", help="Write the time series and decision log (JSON) to FILE."),
+    ] = None,
+) -> None:
+    """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
+
+    With --compare both run from the same start and seed; --trace FILE writes the
+    adaptive trace to FILE and the fixed one to FILE with '.fixed' before the suffix.
+    """
+    if fixed and compare:
+        raise _fail("--fixed and --compare exclude each other", 2)
+    if trace is not None and not (trace.parent if str(trace.parent) else Path(".")).is_dir():
+        raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
+    try:
+        arch = _load(arch_path)
+        if config is not None and config not in arch.configurations:
+            known = ", ".join(arch.configurations)
+            raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
+        show = sys.stderr.isatty() and not json_out
+        modes = [False, True] if compare else [not fixed]
+        results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
+        if trace is not None:
+            for r in results:
+                target = trace
+                if compare and r.mode == "fixed":
+                    target = trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
+                r.write_trace(target)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if json_out:
+        data = [r.to_dict() for r in results]
+        typer.echo(json.dumps(data if compare else data[0], indent=2, ensure_ascii=False))
+    else:
+        typer.echo(_summary(results))
+
+
+# --------------------------------------------------------------------------- explain
+@app.command()
+def explain(
+    trace: Annotated[Path, typer.Argument(help="A trace written by `simulate --trace`.")],
+) -> None:
+    """Explain a run's decisions: why (and why not) the architecture switched."""
+    from archself.runtime.decisions import explain as render
+
+    try:
+        doc = json.loads(trace.read_text(encoding="utf-8"))
+        meta, decisions = doc["meta"], doc["decisions"]
+    except FileNotFoundError:
+        raise _fail(f"{trace}: error: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise _fail(f"{trace}: error: not an archself trace ({type(exc).__name__})") from None
+    typer.echo(
+        f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · seed {meta.get('seed')} · "
+        f"{meta.get('mode')} · {meta.get('configuration')} → {meta.get('final_configuration')}"
+    )
+    typer.echo(render(decisions))
 
 
 def main() -> None:
