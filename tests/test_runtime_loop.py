@@ -351,6 +351,7 @@ def test_parameter_update_is_executed_once():
     assert system.param_log == [(pytest.approx(1.0), "ctl_a", {"gain": 2.0})]
     assert loop.updates[0]["set"] == {"gain": 2.0}
     assert loop.knowledge.params["ctl_a"]["gain"] == 2.0
+    assert loop.knowledge.graph.nodes["ctl_a"]["params"]["gain"] == 2.0
     later = [e for d in loop.decisions[1:] for e in d.evaluations if e.action == "tune"]
     assert later and all(e.rejected == "no change" for e in later)
     assert "updated ctl_a" in explain(loop.decisions)

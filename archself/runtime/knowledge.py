@@ -21,6 +21,7 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+import scipy.sparse
 
 from archself.model import Architecture
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
@@ -109,6 +110,8 @@ class Knowledge:
             name: {p: spec.value for p, spec in mod.params.items()}
             for name, mod in arch.modules.items()
         }
+        for name in self.names:
+            self.graph.nodes[name]["params"] = self.params[name]  # same dict: stays in step
         self._weights: dict[EdgeKey, float] = {}
         for e in arch.edges:
             key = (e.source, e.target, e.carries)
@@ -170,7 +173,7 @@ class Knowledge:
         )
 
     # ------------------------------------------------------------------ analysis
-    def weight_matrix(self):
+    def weight_matrix(self) -> scipy.sparse.csr_matrix:
         """W of the active edges (Eq. 13), normalized by :attr:`w_scale`."""
         return weight_matrix(
             self.names,
