@@ -15,7 +15,7 @@ offending node. The rules:
   required inputs over active edges, and the active modules are connected;
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
 * ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
-* ``parameter``: nominal values lie inside their parameter spaces;
+* ``parameter``: required parameters are given; nominal values lie inside their spaces;
 * ``fault``: faults target modules whose type accepts that fault kind and signal;
 * ``action``: actions lead to declared configurations, their kind matches the
   change, parameter updates name parameters of the module and stay in bounds;
@@ -106,6 +106,11 @@ def _types(ctx: _Ctx) -> None:
                 ("modules", name, "type"),
             )
             continue
+        for pname in cls.required_params:
+            if pname not in mod.params:
+                ctx.add("error", "parameter",
+                        f"type '{mod.type}' needs parameter '{pname}'", ("modules", name),
+                        key=True)
         if mod.residual is not None and mod.residual.signal not in cls.residual_signals:
             offered = ", ".join(cls.residual_signals) or "none"
             ctx.add(

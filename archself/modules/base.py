@@ -59,6 +59,8 @@ class RuntimeModule:
         Fault kinds a scenario may inject into this module's outputs.
     direct_feedthrough : bool
         False when outputs depend only on the state (plants).
+    required_params : tuple of str
+        Parameters the file must give (the others have defaults in the class).
     """
 
     type_key: ClassVar[str] = ""
@@ -69,6 +71,7 @@ class RuntimeModule:
     residual_signals: ClassVar[tuple[str, ...]] = ()
     fault_kinds: ClassVar[frozenset[str]] = frozenset()
     direct_feedthrough: ClassVar[bool] = True
+    required_params: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         self.name = name

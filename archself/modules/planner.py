@@ -111,6 +111,7 @@ class SplinePlanner(RuntimeModule):
     """
 
     role = "planner"
+    required_params = ("waypoints",)
     optional_inputs = ("kinematics",)
     outputs = ("reference",)
 

@@ -1,0 +1,112 @@
+"""`archself simulate` and `archself explain` from the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from archself.cli import app
+from conftest import FIXTURES
+
+MINIMAL = FIXTURES / "valid" / "minimal.yaml"
+KEYS = {"scenario", "seed", "mode", "metrics", "switches", "final_configuration"}
+METRICS = {"max_error_m", "final_error_m", "rms_error_m", "peak_time_s"}
+
+
+def _json(args: list[str]) -> object:
+    result = CliRunner().invoke(app, ["simulate", *args, "--json"])
+    assert result.exit_code == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_fixed_json_shape() -> None:
+    out = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])
+    assert KEYS <= set(out)
+    assert set(out["metrics"]) == METRICS
+    assert out["mode"] == "fixed" and out["seed"] == 3 and out["switches"] == []
+    assert out["final_configuration"] == "only"
+    assert 0 <= out["metrics"]["rms_error_m"] <= out["metrics"]["max_error_m"]
+
+
+def test_same_seed_same_result_different_seed_differs() -> None:
+    a = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "5"])
+    b = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "5"])
+    c = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "6"])
+    assert a == b
+    assert a["metrics"] != c["metrics"]
+
+
+def test_compare_prints_both_modes() -> None:
+    out = _json([str(MINIMAL), "--scenario", "calm", "--compare"])
+    assert [o["mode"] for o in out] == ["fixed", "adaptive"]
+
+
+def test_readable_summary() -> None:
+    result = CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--compare"])
+    assert result.exit_code == 0, result.stderr
+    assert "max error [m]" in result.stdout and "switches (adaptive): none" in result.stdout
+
+
+def test_trace_and_explain(tmp_path: Path) -> None:
+    trace = tmp_path / "run.json"
+    result = CliRunner().invoke(
+        app, ["simulate", str(MINIMAL), "-s", "calm", "--compare", "--trace", str(trace)]
+    )
+    assert result.exit_code == 0, result.stderr
+    doc = json.loads(trace.read_text())
+    assert {"meta", "series", "decisions"} <= set(doc)
+    assert len(doc["series"]["t"]) == len(doc["series"]["J"]) > 0
+    assert doc["decisions"], "the adaptive run logs every MAPE-K cycle"
+    assert (tmp_path / "run.fixed.json").exists()
+    out = CliRunner().invoke(app, ["explain", str(trace)])
+    assert out.exit_code == 0, out.stderr
+    assert "MAPE-K decision log" in out.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["-s", "storm"], "unknown scenario 'storm'"),
+        (["-s", "calm", "--config", "nope"], "unknown configuration 'nope'"),
+        (["-s", "calm", "--trace", "/nonexistent/dir/t.json"], "does not exist"),
+    ],
+)
+def test_user_errors_are_one_line(args: list[str], message: str) -> None:
+    result = CliRunner().invoke(app, ["simulate", str(MINIMAL), *args])
+    assert result.exit_code == 1
+    assert message in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in result.stderr
+
+
+def test_invalid_file_is_refused_before_running() -> None:
+    result = CliRunner().invoke(
+        app, ["simulate", str(FIXTURES / "invalid" / "self_loop.yaml"), "-s", "calm"]
+    )
+    assert result.exit_code == 1
+    assert "edge from 'control' to itself" in result.stderr
+
+
+def test_explain_rejects_a_non_trace(tmp_path: Path) -> None:
+    bad = tmp_path / "x.json"
+    bad.write_text("[1, 2]")
+    result = CliRunner().invoke(app, ["explain", str(bad)])
+    assert result.exit_code == 1 and "not an archself trace" in result.stderr
+
+
+def test_plugin_type_runs_in_a_simulation(tmp_path: Path) -> None:
+    """A module type from the in-repo plugin package (entry point) runs like a built-in."""
+    from archself import registry
+
+    assert "example.magnetometer" in registry.known_types(), (
+        "install the example plugin: pip install ./plugins/archself-example"
+    )
+    text = MINIMAL.read_text().replace("type: sensor.imu", "type: example.magnetometer")
+    arch = tmp_path / "magnetometer.yaml"
+    arch.write_text(text)
+    assert CliRunner().invoke(app, ["validate", str(arch)]).exit_code == 0
+    out = _json([str(arch), "--scenario", "calm", "--fixed"])
+    assert out["metrics"]["max_error_m"] < 0.5
