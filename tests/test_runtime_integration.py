@@ -65,3 +65,25 @@ def test_nominal_never_switches(arch, seed):
     loop, res = run(arch, "nominal", seed)
     assert res.switches == []
     assert loop.updates == []
+
+
+def test_rollout_and_lyapunov_paths_on_the_live_system(arch):
+    """Δ by rollout on snapshots and the Lyapunov test (no model) drive the same switch."""
+    data = arch.model_dump(by_alias=True)
+    for a in data["actions"]:
+        if a["kind"] != "parameter_update":
+            a["improvement"] = {"method": "rollout", "horizon_s": 5.0}
+    arch2 = type(arch).model_validate(data)
+    loop = MapeK(arch2)
+
+    def adapt(system):
+        system.linearization = lambda configuration=None: None  # no model: Eq. 24 path
+        return loop(system)
+
+    adapt.decisions = loop.decisions
+    res = sim.simulate(arch2, "actuator_fault", seed=1, adapt=adapt)
+    assert [(s["from"], s["to"]) for s in res.switches] == [("a1", "a3")]
+    chosen = next(d for d in loop.decisions if d.chosen)
+    ev = next(e for e in chosen.evaluations if e.action == chosen.chosen["action"])
+    assert ev.delta > 0
+    assert ev.stability["method"].startswith("lyapunov") and ev.stability["ok"]
