@@ -89,20 +89,30 @@ def schema(
     check_file: Annotated[
         Optional[Path], typer.Option("--check", help="Exit 1 if FILE differs from the model.")
     ] = None,
+    markdown: Annotated[
+        bool, typer.Option("--markdown", help="The Markdown format reference instead.")
+    ] = False,
 ) -> None:
-    """Print the JSON Schema of architecture files, generated from the model."""
+    """Print the JSON Schema of architecture files (or its Markdown reference), from the model."""
     from archself.atomic import write_text
-    from archself.schema import schema_text
 
-    text = schema_text()
+    if markdown:
+        from archself.docgen import format_reference
+
+        text = format_reference()
+    else:
+        from archself.schema import schema_text
+
+        text = schema_text()
     if check_file is not None:
         try:
             current = check_file.read_text(encoding="utf-8")
         except OSError as exc:
             raise _fail(f"{check_file}: cannot read: {exc.strerror}") from None
         if current != text:
-            typer.echo(f"{check_file}: stale; regenerate with `archself schema -o {check_file}`",
-                       err=True)
+            flag = " --markdown" if markdown else ""
+            typer.echo(f"{check_file}: stale; regenerate with "
+                       f"`archself schema{flag} -o {check_file}`", err=True)
             raise typer.Exit(1)
         typer.echo(f"{check_file}: up to date")
         return

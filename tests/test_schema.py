@@ -72,3 +72,14 @@ def test_independent_validator_rejects_structural_breakage(name: str) -> None:
     proc = subprocess.run([*_check_jsonschema(), str(FIXTURES / "invalid" / f"{name}.yaml")],
                           capture_output=True, text=True)
     assert proc.returncode == 1, proc.stdout + proc.stderr
+
+
+def test_format_reference_is_current() -> None:
+    from archself.docgen import format_reference
+
+    current = (ROOT / "docs" / "format.md").read_text(encoding="utf-8")
+    assert current == format_reference(), (
+        "docs/format.md is stale: run `archself schema --markdown -o docs/format.md`"
+    )
+    for name in ("Module", "Edge", "Configuration", "Action", "Scenario", "Runtime"):
+        assert f"## {name}\n" in current

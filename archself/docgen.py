@@ -1,0 +1,74 @@
+"""Reference documentation generated from the schema, so that it cannot drift."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+
+def _type(s: dict[str, Any]) -> str:
+    if "$ref" in s:
+        name = s["$ref"].split("/")[-1]
+        return f"[{name}](#{name.lower()})"
+    if "const" in s:
+        return f"`{json.dumps(s['const'])}`"
+    if "enum" in s:
+        return " | ".join(f"`{v}`" for v in s["enum"])
+    for key in ("anyOf", "oneOf"):
+        if key in s:
+            parts = [_type(a) for a in s[key] if a.get("type") != "null"]
+            return " or ".join(dict.fromkeys(parts))
+    t = s.get("type")
+    if t == "array":
+        if "prefixItems" in s:
+            return "[" + ", ".join(_type(i) for i in s["prefixItems"]) + "]"
+        return f"list of {_type(s.get('items', {}))}"
+    if t == "object":
+        sub = s.get("additionalProperties")
+        if not isinstance(sub, dict) and s.get("patternProperties"):
+            sub = next(iter(s["patternProperties"].values()))
+        return f"map name → {_type(sub)}" if isinstance(sub, dict) else "mapping"
+    bounds = []
+    for k, sym in (("minimum", "≥"), ("exclusiveMinimum", ">"), ("maximum", "≤"),
+                   ("exclusiveMaximum", "<")):
+        if k in s:
+            bounds.append(f"{sym} {s[k]}")
+    return (t or "any") + (f" ({', '.join(bounds)})" if bounds else "")
+
+
+def _cell(text: Any) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def format_reference() -> str:
+    """Markdown reference of every object of the architecture file format."""
+    from jinja2 import Environment, FileSystemLoader, StrictUndefined
+
+    from archself.resources import data_dir
+    from archself.schema import architecture_schema
+
+    schema = architecture_schema()
+    defs = schema.get("$defs", {})
+    objects = [("Architecture", schema)] + sorted(defs.items())
+    sections = []
+    for name, s in objects:
+        if "properties" not in s:
+            continue
+        req = set(s.get("required", []))
+        props = []
+        for pname, p in s["properties"].items():
+            default = p.get("default")
+            props.append({
+                "name": pname,
+                "type": _cell(_type(p)),
+                "required": pname in req,
+                "default": "" if "default" not in p else _cell(f"`{json.dumps(default)}`"),
+                "description": _cell(p.get("description", "")),
+            })
+        title = "Architecture (top level)" if name == "Architecture" else name
+        sections.append({"title": title, "description": _cell(s.get("description", "")).strip(),
+                         "properties": props})
+    env = Environment(loader=FileSystemLoader(str(data_dir("templates"))),
+                      undefined=StrictUndefined, autoescape=False, keep_trailing_newline=True,
+                      trim_blocks=True, lstrip_blocks=True)
+    return env.get_template("format.md.j2").render(sections=sections)
