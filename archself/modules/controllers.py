@@ -202,14 +202,16 @@ class AsymLqrController(LqrController):
     def step(self, t, dt, inputs):
         enc = inputs.get("encoder_speeds")
         if enc is not None and self._sent is not None:
-            lam = math.exp(-dt / max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6))
-            sent = self._sent
-            self._num = lam * self._num + sent * enc
-            self._den = lam * self._den + sent * sent
+            tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
+            lam = math.exp(-dt / tau)
             emin = float(self.params.get("min_effectiveness", 0.3))
-            ok = self._den > 1e-3
-            est = np.where(ok, self._num / np.where(ok, self._den, 1.0), 1.0)
-            self.effectiveness = np.clip(est, emin, 1.0)
+            num, den, eff = self._num, self._den, self.effectiveness
+            for i in (0, 1):
+                c = float(self._sent[i])
+                num[i] = lam * num[i] + c * float(enc[i])
+                den[i] = lam * den[i] + c * c
+                est = num[i] / den[i] if den[i] > 1e-3 else 1.0
+                eff[i] = min(max(est, emin), 1.0)
         ref = inputs.get("reference")
         pose = inputs.get("pose_estimate")
         if ref is None or pose is None:
