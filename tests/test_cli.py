@@ -70,3 +70,24 @@ def test_installed_script_runs() -> None:
     proc = subprocess.run([str(script), "validate", str(DIFFDRIVE)], capture_output=True,
                           text=True)
     assert proc.returncode == 0, proc.stderr
+
+
+VALID = sorted((ROOT / "tests" / "fixtures" / "valid").glob("*.yaml")) + sorted(
+    (ROOT / "architectures").glob("*.yaml")
+)
+
+
+@pytest.mark.parametrize("path", VALID, ids=[p.stem for p in VALID])
+def test_valid_files_validate_clean(path) -> None:
+    result = CliRunner().invoke(app, ["validate", "--strict", str(path)])
+    assert result.exit_code == 0, result.stderr
+
+
+@pytest.mark.slow
+def test_generated_10000_module_file_validates(tmp_path) -> None:
+    from archself.generate import generate_architecture
+
+    big = tmp_path / "big.yaml"
+    big.write_text(generate_architecture(10_000, seed=2, feedback=5))
+    result = CliRunner().invoke(app, ["validate", "--json", str(big)])
+    assert result.exit_code == 0, result.stdout[-2000:]
