@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_runtime_fakes import FakeSystem, high, make_arch, run_loop
 
 import archself.runtime as runtime_pkg
@@ -445,3 +447,48 @@ def test_failed_execution_is_logged_not_raised():
     assert loop(system) == []
     assert "execution of swap_est failed" in loop.decisions[-1].note
     assert loop.knowledge.t_last == -math.inf
+
+
+_maybe_num = st.one_of(st.none(), st.floats(allow_nan=False, allow_infinity=False), st.integers())
+_name = st.sampled_from(["m1", "m2", "m3"])
+_eval = st.fixed_dictionaries(
+    {"action": _name, "module": _name, "kind": st.sampled_from(["substitute", "parameter_update"])},
+    optional={
+        "to": st.one_of(st.none(), _name),
+        "delta": _maybe_num,
+        "score": _maybe_num,
+        "stability": st.one_of(
+            st.none(),
+            st.fixed_dictionaries({}, optional={"ok": st.booleans(), "reason": st.text()}),
+        ),
+        "rejected": st.one_of(st.none(), st.text()),
+        "detail": st.text(),
+    },
+)
+_record = st.fixed_dictionaries(
+    {},
+    optional={
+        "t": _maybe_num,
+        "configuration": st.one_of(st.none(), _name),
+        "phase": st.sampled_from(["warmup", "adapt"]),
+        "j_obs": _maybe_num,
+        "r": st.dictionaries(_name, _maybe_num),
+        "z": st.dictionaries(_name, _maybe_num),
+        "candidates": st.lists(_name, max_size=3),
+        "evaluations": st.lists(_eval, max_size=3),
+        "chosen": st.one_of(
+            st.none(),
+            st.fixed_dictionaries(
+                {"action": _name},
+                optional={"kind": st.sampled_from(["substitute", "parameter_update"])},
+            ),
+        ),
+        "note": st.text(max_size=5),
+    },
+)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(_record, max_size=6))
+def test_explain_never_crashes_on_partial_records(records):
+    assert isinstance(explain(records), str)

@@ -153,9 +153,9 @@ def _as_dict(d: Any) -> dict[str, Any]:
 
 def _signature(d: dict[str, Any]) -> tuple:
     """What makes two quiet cycles "the same" for summarizing."""
-    evals = tuple((e["action"], e.get("rejected")) for e in d.get("evaluations", []))
+    evals = tuple((e.get("action"), e.get("rejected")) for e in d.get("evaluations") or [])
     evals = tuple(sorted(evals, key=str))
-    return (d.get("phase"), d.get("configuration"), frozenset(d.get("candidates", [])), evals)
+    return (d.get("phase"), d.get("configuration"), frozenset(d.get("candidates") or []), evals)
 
 
 def _top_z(d: dict[str, Any], k: int = 3) -> str:
@@ -166,7 +166,7 @@ def _top_z(d: dict[str, Any], k: int = 3) -> str:
 
 def _describe_eval(e: dict[str, Any]) -> str:
     target = f" → {e['to']}" if e.get("to") else ""
-    head = f"{e['action']} ({e['kind']} on {e['module']}{target})"
+    head = f"{e.get('action')} ({e.get('kind')} on {e.get('module')}{target})"
     parts = []
     if e.get("delta") is not None:
         parts.append(f"Δ={_fmt(e['delta'])}")
@@ -174,16 +174,17 @@ def _describe_eval(e: dict[str, Any]) -> str:
         parts.append(f"score={_fmt(e['score'])} = z·Δ − λ·cost")
     st = e.get("stability")
     if st:
-        parts.append(("stable: " if st.get("ok") else "UNSTABLE: ") + st.get("reason", ""))
+        parts.append(("stable: " if st.get("ok") else "UNSTABLE: ") + str(st.get("reason") or ""))
     if e.get("rejected"):
-        why = e["rejected"] + (f": {e['detail']}" if e.get("detail") else "")
+        why = f"{e['rejected']}" + (f": {e['detail']}" if e.get("detail") else "")
         parts.append(f"rejected ({why})")
     return head + ("  " + "; ".join(parts) if parts else "")
 
 
 def _cycle_block(d: dict[str, Any]) -> list[str]:
     lines = [
-        f"t = {_fmt(d['t'], '.1f')} s  [{d['configuration']}]  J_obs = {_fmt(d.get('j_obs'))} "
+        f"t = {_fmt(d.get('t'), '.1f')} s  [{d.get('configuration')}]  "
+        f"J_obs = {_fmt(d.get('j_obs'))} "
         f"(acceptable {_fmt(d.get('j_ref'))}, r = {_fmt(d.get('r_global'), '+.3g')})",
     ]
     if d.get("phase") == "warmup":
@@ -199,14 +200,15 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
     else:
         lines.append(f"  no candidate; largest z: {_top_z(d)}")
     for e in d.get("evaluations") or []:
-        mark = "  ← chosen" if d.get("chosen") and d["chosen"].get("action") == e["action"] else ""
+        chosen_id = (d.get("chosen") or {}).get("action")
+        mark = "  ← chosen" if chosen_id is not None and chosen_id == e.get("action") else ""
         lines.append("    - " + _describe_eval(e) + mark)
     ch = d.get("chosen")
     if ch:
         if ch.get("kind") == "parameter_update":
-            lines.append(f"  ⇒ updated {ch.get('module')} {ch.get('set')} by {ch['action']}")
+            lines.append(f"  ⇒ updated {ch.get('module')} {ch.get('set')} by {ch.get('action')}")
         else:
-            lines.append(f"  ⇒ switched {ch.get('from')} → {ch.get('to')} by {ch['action']}")
+            lines.append(f"  ⇒ switched {ch.get('from')} → {ch.get('to')} by {ch.get('action')}")
     if d.get("note"):
         lines.append(f"  note: {d['note']}")
     return lines
@@ -236,15 +238,15 @@ def explain(decisions: Iterable[Any]) -> str:
     chosen = [d for d in recs if d.get("chosen")]
     switches = [d for d in chosen if d["chosen"].get("kind") != "parameter_update"]
     lines = [
-        f"MAPE-K decision log: {len(recs)} cycles from t = {_fmt(recs[0]['t'], '.1f')} s "
-        f"to {_fmt(recs[-1]['t'], '.1f')} s; {len(switches)} architectural change(s), "
+        f"MAPE-K decision log: {len(recs)} cycles from t = {_fmt(recs[0].get('t'), '.1f')} s "
+        f"to {_fmt(recs[-1].get('t'), '.1f')} s; {len(switches)} architectural change(s), "
         f"{len(chosen) - len(switches)} parameter update(s).",
     ]
     for d in switches:
         ch = d["chosen"]
         lines.append(
-            f"  switch at t = {_fmt(d['t'], '.1f')} s: {ch.get('from')} → {ch.get('to')} "
-            f"({ch['action']}, module {ch.get('module')}, z = {_fmt(ch.get('z'), '.2f')}, "
+            f"  switch at t = {_fmt(d.get('t'), '.1f')} s: {ch.get('from')} → {ch.get('to')} "
+            f"({ch.get('action')}, module {ch.get('module')}, z = {_fmt(ch.get('z'), '.2f')}, "
             f"score {_fmt(ch.get('score'))})"
         )
     lines.append("")
@@ -261,8 +263,8 @@ def explain(decisions: Iterable[Any]) -> str:
         )
         what = "warm-up" if a.get("phase") == "warmup" else "same situation"
         lines.append(
-            f"t = {_fmt(a['t'], '.1f')}–{_fmt(b['t'], '.1f')} s: {len(run)} more cycle(s), "
-            f"{what} [{a['configuration']}], candidates {a.get('candidates') or 'none'}, "
+            f"t = {_fmt(a.get('t'), '.1f')}–{_fmt(b.get('t'), '.1f')} s: {len(run)} more cycle(s), "
+            f"{what} [{a.get('configuration')}], candidates {a.get('candidates') or 'none'}, "
             f"max |z| {_fmt(peak, '.2f')}"
         )
         run.clear()
