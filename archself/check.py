@@ -198,7 +198,7 @@ def _weights(ctx: _Ctx) -> None:
 
 def _active_edges(arch: Architecture, conf_name: str) -> list[tuple[int, Any]]:
     conf = arch.configurations[conf_name]
-    active = set(conf.modules)
+    active = set(conf.modules) & set(arch.modules)
     off = {tuple(p) for p in conf.disabled_edges}
     return [
         (i, e) for i, e in enumerate(arch.edges)

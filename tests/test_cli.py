@@ -91,3 +91,13 @@ def test_generated_10000_module_file_validates(tmp_path) -> None:
     big.write_text(generate_architecture(10_000, seed=2, feedback=5))
     result = CliRunner().invoke(app, ["validate", "--json", str(big)])
     assert result.exit_code == 0, result.stdout[-2000:]
+
+
+def test_ci_runs_the_readme_test_command() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    blocks = [b.split("```")[0].strip() for b in readme.split("```sh\n")[1:]]
+    assert len(blocks) == 2, "the quick start is exactly two commands"
+    install_and_run, install_and_test = blocks
+    assert "archself simulate" in install_and_run and "pytest" in install_and_test
+    assert install_and_test in ci
