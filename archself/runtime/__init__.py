@@ -18,8 +18,21 @@ file                          role
 ============================  ==============================================
 """
 
-from archself.runtime.decisions import explain
-from archself.runtime.influence import InfluenceSolver
+from archself.runtime.decisions import ActionEvaluation, DecisionRecord, explain
+from archself.runtime.influence import InfluenceSolver, influence, spectral_radius, weight_matrix
+from archself.runtime.knowledge import Knowledge
 from archself.runtime.mapek import MapeK
+from archself.runtime.stability import StabilityVerdict
 
-__all__ = ["InfluenceSolver", "MapeK", "explain"]
+__all__ = [
+    "ActionEvaluation",
+    "DecisionRecord",
+    "InfluenceSolver",
+    "Knowledge",
+    "MapeK",
+    "StabilityVerdict",
+    "explain",
+    "influence",
+    "spectral_radius",
+    "weight_matrix",
+]
