@@ -18,11 +18,25 @@ file                          role
 ============================  ==============================================
 """
 
-from archself.runtime.decisions import ActionEvaluation, DecisionRecord, explain
-from archself.runtime.influence import InfluenceSolver, influence, spectral_radius, weight_matrix
-from archself.runtime.knowledge import Knowledge
-from archself.runtime.mapek import MapeK
-from archself.runtime.stability import StabilityVerdict
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# Attributes are imported lazily (PEP 562) so that ``archself explain`` — which only
+# needs :func:`explain` — does not pay for scipy and networkx.
+_LAZY = {
+    "ActionEvaluation": "decisions",
+    "DecisionRecord": "decisions",
+    "explain": "decisions",
+    "InfluenceSolver": "influence",
+    "influence": "influence",
+    "spectral_radius": "influence",
+    "weight_matrix": "influence",
+    "Knowledge": "knowledge",
+    "MapeK": "mapek",
+    "StabilityVerdict": "stability",
+}
 
 __all__ = [
     "ActionEvaluation",
@@ -36,3 +50,28 @@ __all__ = [
     "spectral_radius",
     "weight_matrix",
 ]
+
+if TYPE_CHECKING:  # pragma: no cover
+    from archself.runtime.decisions import ActionEvaluation, DecisionRecord, explain
+    from archself.runtime.influence import (
+        InfluenceSolver,
+        influence,
+        spectral_radius,
+        weight_matrix,
+    )
+    from archself.runtime.knowledge import Knowledge
+    from archself.runtime.mapek import MapeK
+    from archself.runtime.stability import StabilityVerdict
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'archself.runtime' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"archself.runtime.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
