@@ -492,3 +492,15 @@ _record = st.fixed_dictionaries(
 @given(st.lists(_record, max_size=6))
 def test_explain_never_crashes_on_partial_records(records):
     assert isinstance(explain(records), str)
+
+
+def test_explain_import_is_light():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from archself.runtime import explain; "
+        "heavy = [m for m in ('scipy', 'networkx', 'numpy') if m in sys.modules]; "
+        "assert not heavy, heavy"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
