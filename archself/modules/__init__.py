@@ -31,3 +31,4 @@ from archself.modules import (  # noqa: F401
     physical,
     planner,
 )
+from archself.modules import process  # noqa: F401
