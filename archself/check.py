@@ -157,11 +157,25 @@ def _edges(ctx: _Ctx) -> None:
 
 
 def spectral_radius(names: list[str], edges: list[tuple[str, str, float]]) -> float:
+    """ρ(W); see :func:`spectrum_summary`."""
+    return spectrum_summary(names, edges)[0]
+
+
+def spectrum_summary(
+    names: list[str], edges: list[tuple[str, str, float]]
+) -> tuple[float, bool]:
     """ρ(W) of a weighted digraph, computed per strongly connected component.
 
     The spectrum of W is the union of the spectra of its strongly connected
     blocks, so ρ(W) is 0 for a DAG and otherwise the largest radius of a
     (typically small) cyclic block; this scales to large graphs.
+
+    Returns
+    -------
+    rho : float
+        The spectral radius ρ(W).
+    singular : bool
+        True when W has the eigenvalue 1, i.e. I − Wᵀ is singular.
     """
     import networkx as nx
 
@@ -170,22 +184,28 @@ def spectral_radius(names: list[str], edges: list[tuple[str, str, float]]) -> fl
     for s, t, w in edges:
         if s in g and t in g and s != t:
             g.add_edge(s, t, weight=g.get_edge_data(s, t, {"weight": 0.0})["weight"] + w)
-    rho = 0.0
+    rho, singular = 0.0, False
     for comp in nx.strongly_connected_components(g):
         if len(comp) < 2:
             continue
         nodes = sorted(comp)
         w = nx.to_numpy_array(g, nodelist=nodes, weight="weight")
-        rho = max(rho, float(np.max(np.abs(np.linalg.eigvals(w)))))
-    return rho
+        lam = np.linalg.eigvals(w)
+        rho = max(rho, float(np.max(np.abs(lam))))
+        singular |= bool(np.any(np.abs(lam - 1.0) < 1e-9))
+    return rho, singular
 
 
 def _weights(ctx: _Ctx) -> None:
     arch = ctx.arch
     edges = [(e.source, e.target, e.weight) for e in arch.edges]
-    rho = spectral_radius(list(arch.modules), edges)
+    rho, singular = spectrum_summary(list(arch.modules), edges)
     limit = arch.runtime.max_spectral_radius
-    if rho >= 1.0:
+    if singular:
+        ctx.add("error", "singular",
+                "I − Wᵀ is singular (W has the eigenvalue 1): z = (I − Wᵀ)⁻¹ r is undefined "
+                "(Eq. 14); lower the weights on the cycles", ("edges",), key=True)
+    elif rho >= 1.0:
         ctx.add("error", "spectral-radius",
                 f"spectral radius ρ(W) = {rho:.4g} ≥ 1: influence z = (I − Wᵀ)⁻¹ r is unbounded "
                 "or I − Wᵀ is singular (Eq. 13–14); lower the weights on the cycles",
