@@ -210,6 +210,11 @@ def simulate(
         Optional[Path],
         typer.Option("--trace", help="Write the time series and decision log (JSON) to FILE."),
     ] = None,
+    report: Annotated[
+        Optional[Path],
+        typer.Option("--report", metavar="DIR",
+                     help="Write an HTML run report with the paper's figures to DIR."),
+    ] = None,
 ) -> None:
     """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
 
@@ -234,6 +239,11 @@ def simulate(
                 if compare and r.mode == "fixed":
                     target = trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
                 r.write_trace(target)
+        if report is not None:
+            from archself.reports.run_report import write_run_report
+
+            write_run_report(arch, results, report)
+            typer.echo(f"report: {report / 'index.html'}", err=True)
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
@@ -241,6 +251,32 @@ def simulate(
         typer.echo(json.dumps(data if compare else data[0], indent=2, ensure_ascii=False))
     else:
         typer.echo(_summary(results))
+
+
+# --------------------------------------------------------------------------- report
+@app.command()
+def report(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
+                                         help="Folder to write the report into (created).")],
+    no_render: Annotated[
+        bool, typer.Option("--no-render", help="Write DOT sources only, even if `dot` is installed.")
+    ] = False,
+) -> None:
+    """Architecture report: DSMs (HTML, Markdown, CSV), Fig. 1 graphs and configuration diffs.
+
+    Graphs are rendered to SVG and PNG when Graphviz `dot` is on PATH; index.html links all.
+    """
+    try:
+        arch = _load(arch_path)
+        from archself.reports.architecture import write_architecture_report
+
+        rep = write_architecture_report(arch, output, dot=not no_render)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if rep.note and not no_render:
+        typer.echo(f"note: {rep.note}", err=True)
+    typer.echo(str(rep.index))
 
 
 # --------------------------------------------------------------------------- explain

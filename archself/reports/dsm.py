@@ -1,0 +1,371 @@
+"""Design Structure Matrix (DSM) of an architecture: the report model, no rendering.
+
+Convention (the paper's Eq. 13): the cell in **row j, column i** is
+``W_ji = ω_ji``, the influence of the row module m_j on the column module m_i,
+i.e. the summed weight of the edges ``m_j → m_i`` (parallel edges add up, as in
+:func:`archself.runtime.influence.weight_matrix`). A row reads "what this module
+feeds", a column "what this module depends on".
+
+Three orderings of the same matrix:
+
+``kind``
+    Modules grouped by kind (physical M_P, functional M_F, model M_M), in file order.
+``sequenced``
+    Strongly connected components of the dependency digraph (networkx
+    condensation) in topological order; inside a component the members are
+    ordered by the greedy heuristic of Eades, Lin and Smyth (1993) so that little
+    weight falls below the diagonal (ties: kind, then file order). Components with more than one module are the *coupled blocks*; with
+    this convention a dependency on a later module (an entry below the diagonal,
+    row after column) is a *feedback* mark and only occurs inside coupled blocks.
+``clustered``
+    Weighted communities (networkx Louvain on the weighted digraph with a fixed
+    seed), largest first, members in sequenced order.
+
+Examples
+--------
+>>> from archself.loader import load_architecture
+>>> from archself.resources import data_dir
+>>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+>>> dsm = build_dsm(arch, "a1")
+>>> dsm.weight("imu", "odometry")
+0.6
+>>> [b.members for b in sequence(dsm).blocks if b.coupled][0][:3]
+('chassis', 'encoders', 'imu')
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import networkx as nx
+
+from archself.model import Architecture
+
+__all__ = [
+    "KINDS",
+    "Block",
+    "Dsm",
+    "DsmCell",
+    "DsmModule",
+    "Ordering",
+    "build_dsm",
+    "cluster",
+    "orderings",
+    "order_by_kind",
+    "scope_edges",
+    "sequence",
+]
+
+KINDS = ("physical", "functional", "model")
+KIND_TITLES = {
+    "physical": "physical (M_P)",
+    "functional": "functional (M_F)",
+    "model": "model (M_M)",
+}
+CLUSTER_SEED = 0
+
+
+@dataclass(frozen=True)
+class DsmModule:
+    """A row/column of the DSM."""
+
+    name: str
+    kind: str
+    type: str
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Dsm:
+    """The weighted dependency matrix of one scope (whole architecture or a configuration).
+
+    Attributes
+    ----------
+    scope : str
+        ``"architecture"`` or the configuration name.
+    title : str
+        Human title of the scope.
+    modules : tuple of DsmModule
+        The modules of the scope in file order.
+    weights : dict of (source, target) -> float
+        ``W_ji`` for every (m_j, m_i) with at least one edge.
+    carries : dict of (source, target) -> tuple of str
+        The signals of those edges.
+    max_weight : float
+        Largest ``W_ji`` of the whole architecture (the shading scale, shared by all scopes).
+    """
+
+    scope: str
+    title: str
+    modules: tuple[DsmModule, ...]
+    weights: dict[tuple[str, str], float]
+    carries: dict[tuple[str, str], tuple[str, ...]]
+    max_weight: float
+    description: str = ""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.modules)
+
+    def module(self, name: str) -> DsmModule:
+        return next(m for m in self.modules if m.name == name)
+
+    def weight(self, source: str, target: str) -> float:
+        """``W_ji`` with j = ``source`` (row) and i = ``target`` (column); 0 without an edge."""
+        return self.weights.get((source, target), 0.0)
+
+    def digraph(self) -> nx.DiGraph:
+        """The scope as a weighted networkx digraph (nodes in file order)."""
+        g = nx.DiGraph()
+        g.add_nodes_from(self.names)
+        for (s, t), w in self.weights.items():
+            g.add_edge(s, t, weight=w)
+        return g
+
+
+@dataclass(frozen=True)
+class Block:
+    """A diagonal block of an ordering: a kind group, a component or a community."""
+
+    label: str
+    members: tuple[str, ...]
+    coupled: bool = False
+
+
+@dataclass(frozen=True)
+class DsmCell:
+    """One cell of an ordered DSM, with what a renderer needs to draw it."""
+
+    row: str
+    col: str
+    weight: float
+    carries: tuple[str, ...]
+    shade: float  # weight / max_weight, 0..1
+    diagonal: bool
+    in_block: bool  # row and column in the same diagonal block
+    coupled: bool  # ... and that block is a coupled (strongly connected) one
+    feedback: bool  # a mark below the diagonal (row after column)
+    block_top: bool  # the row is the first of its block (draw a border above)
+    block_left: bool  # the column is the first of its block (draw a border left)
+
+
+@dataclass(frozen=True)
+class Ordering:
+    """A permutation of the DSM with its diagonal blocks."""
+
+    key: str  # "kind", "sequenced", "clustered"
+    title: str
+    explanation: str
+    order: tuple[str, ...]
+    blocks: tuple[Block, ...]
+    modules: tuple[DsmModule, ...] = field(default=())
+
+    def block_of(self) -> dict[str, int]:
+        return {m: k for k, b in enumerate(self.blocks) for m in b.members}
+
+    def rows(self, dsm: Dsm) -> list[tuple[DsmModule, Block, list[DsmCell]]]:
+        """The matrix in this order: one ``(module, its block, cells)`` per row."""
+        where = self.block_of()
+        pos = {n: k for k, n in enumerate(self.order)}
+        first = {b.members[0] for b in self.blocks if b.members}
+        out = []
+        for j in self.order:
+            bj = self.blocks[where[j]]
+            cells = []
+            for i in self.order:
+                w = dsm.weight(j, i)
+                same = where[j] == where[i]
+                cells.append(
+                    DsmCell(
+                        row=j,
+                        col=i,
+                        weight=w,
+                        carries=dsm.carries.get((j, i), ()),
+                        shade=(w / dsm.max_weight) if dsm.max_weight > 0 else 0.0,
+                        diagonal=i == j,
+                        in_block=same,
+                        coupled=same and bj.coupled,
+                        feedback=w > 0 and pos[j] > pos[i],
+                        block_top=j in first,
+                        block_left=i in first,
+                    )
+                )
+            out.append((dsm.module(j), bj, cells))
+        return out
+
+    def feedback_marks(self, dsm: Dsm) -> int:
+        """Number of marks below the diagonal (dependencies on a later module)."""
+        pos = {n: k for k, n in enumerate(self.order)}
+        return sum(1 for (s, t) in dsm.weights if pos[s] > pos[t])
+
+
+# --------------------------------------------------------------------------- building
+def scope_edges(
+    arch: Architecture, configuration: str | None = None
+) -> list[tuple[str, str, float, str]]:
+    """``(source, target, weight, carries)`` of the scope's edges, in file order.
+
+    For a configuration: the edges whose two ends are active and that it does not
+    switch off (``disabled_edges``), the same rule as the runtime's
+    :func:`archself.runtime.knowledge.active_edges`.
+    """
+    if configuration is None:
+        return [(e.source, e.target, float(e.weight), e.carries) for e in arch.edges]
+    conf = arch.configurations[configuration]
+    on = set(conf.modules)
+    off = {tuple(p) for p in conf.disabled_edges}
+    return [
+        (e.source, e.target, float(e.weight), e.carries)
+        for e in arch.edges
+        if e.source in on and e.target in on and (e.source, e.target) not in off
+    ]
+
+
+def _max_weight(arch: Architecture) -> float:
+    sums: dict[tuple[str, str], float] = {}
+    for e in arch.edges:
+        sums[(e.source, e.target)] = sums.get((e.source, e.target), 0.0) + float(e.weight)
+    return max(sums.values(), default=0.0)
+
+
+def build_dsm(arch: Architecture, configuration: str | None = None) -> Dsm:
+    """The DSM of the whole architecture (``configuration=None``) or of one configuration."""
+    if configuration is None:
+        names: Iterable[str] = arch.modules
+        scope, title, desc = "architecture", f"{arch.name}: all modules", arch.description
+    else:
+        conf = arch.configurations[configuration]
+        active = set(conf.modules)
+        names = [n for n in arch.modules if n in active]
+        scope, title, desc = configuration, f"configuration {configuration}", conf.description
+    modules = tuple(
+        DsmModule(n, arch.modules[n].kind, arch.modules[n].type, arch.modules[n].description or "")
+        for n in names
+    )
+    weights: dict[tuple[str, str], float] = {}
+    carries: dict[tuple[str, str], tuple[str, ...]] = {}
+    for s, t, w, c in scope_edges(arch, configuration):
+        weights[(s, t)] = weights.get((s, t), 0.0) + w
+        carries[(s, t)] = (*carries.get((s, t), ()), c)
+    weights = {k: round(v, 12) for k, v in weights.items()}
+    return Dsm(scope, title, modules, weights, carries, _max_weight(arch), desc or "")
+
+
+def _kind_key(dsm: Dsm) -> dict[str, tuple[int, int]]:
+    return {
+        m.name: (KINDS.index(m.kind), k) for k, m in enumerate(dsm.modules)
+    }
+
+
+def order_by_kind(dsm: Dsm) -> Ordering:
+    """Modules grouped by kind (physical, functional, model), file order inside a kind."""
+    key = _kind_key(dsm)
+    order = tuple(sorted(dsm.names, key=key.__getitem__))
+    blocks = tuple(
+        Block(KIND_TITLES[kind], tuple(n for n in order if dsm.module(n).kind == kind))
+        for kind in KINDS
+        if any(m.kind == kind for m in dsm.modules)
+    )
+    return Ordering(
+        "kind",
+        "grouped by kind",
+        "Physical, functional and model modules in file order.",
+        order,
+        blocks,
+        tuple(dsm.module(n) for n in order),
+    )
+
+
+def _eades(g: nx.DiGraph, nodes: list[str], key: dict[str, tuple[int, int]]) -> list[str]:
+    """Order ``nodes`` to keep the weight of backward edges small (greedy, Eades et al.)."""
+    sub = g.subgraph(nodes).copy()
+    head: list[str] = []
+    tail: list[str] = []
+    while sub.number_of_nodes():
+        progress = True
+        while progress:
+            progress = False
+            sinks = sorted((n for n in sub.nodes if sub.out_degree(n) == 0), key=key.__getitem__)
+            if sinks:
+                tail[:0] = sinks
+                sub.remove_nodes_from(sinks)
+                progress = True
+            sources = sorted((n for n in sub.nodes if sub.in_degree(n) == 0), key=key.__getitem__)
+            if sources:
+                head.extend(sources)
+                sub.remove_nodes_from(sources)
+                progress = True
+        if sub.number_of_nodes():
+            def gain(n: str) -> float:
+                out = sum(d["weight"] for _, _, d in sub.out_edges(n, data=True))
+                inn = sum(d["weight"] for _, _, d in sub.in_edges(n, data=True))
+                return out - inn
+
+            best = min(sub.nodes, key=lambda n: (-round(gain(n), 12), key[n]))
+            head.append(best)
+            sub.remove_node(best)
+    return head + tail
+
+
+def sequence(dsm: Dsm) -> Ordering:
+    """Strongly connected blocks in topological order (networkx condensation)."""
+    key = _kind_key(dsm)
+    g = dsm.digraph()
+    cond = nx.condensation(g)
+    members = {c: sorted(cond.nodes[c]["members"], key=key.__getitem__) for c in cond.nodes}
+    topo = list(nx.lexicographical_topological_sort(cond, key=lambda c: key[members[c][0]]))
+    blocks = []
+    n_coupled = 0
+    for c in topo:
+        mem = tuple(members[c])
+        if len(mem) > 1:
+            mem = tuple(_eades(g, list(mem), key))
+            n_coupled += 1
+            blocks.append(Block(f"coupled block {n_coupled}", mem, coupled=True))
+        else:
+            blocks.append(Block(mem[0], mem, coupled=False))
+    order = tuple(n for b in blocks for n in b.members)
+    return Ordering(
+        "sequenced",
+        "sequenced",
+        "Strongly connected blocks in topological order (providers before users); "
+        "marks below the diagonal are feedback and only occur inside coupled blocks.",
+        order,
+        tuple(blocks),
+        tuple(dsm.module(n) for n in order),
+    )
+
+
+def cluster(dsm: Dsm, seed: int = CLUSTER_SEED) -> Ordering:
+    """Weighted communities (Louvain, fixed seed), largest first, sequenced inside."""
+    seq = sequence(dsm)
+    pos = {n: k for k, n in enumerate(seq.order)}
+    g = dsm.digraph()
+    if g.number_of_edges() == 0:
+        comms = [{n} for n in dsm.names]
+    else:
+        comms = nx.community.louvain_communities(g, weight="weight", seed=seed)
+    groups = [sorted(c, key=pos.__getitem__) for c in comms]
+    groups.sort(key=lambda grp: (-len(grp), pos[grp[0]]))
+    coupled_sets = [set(b.members) for b in seq.blocks if b.coupled]
+    blocks = tuple(
+        Block(f"cluster {k + 1}", tuple(grp),
+              coupled=any(len(s & set(grp)) > 1 for s in coupled_sets))
+        for k, grp in enumerate(groups)
+    )
+    order = tuple(n for b in blocks for n in b.members)
+    return Ordering(
+        "clustered",
+        "clustered",
+        f"Weighted communities (networkx Louvain, seed {seed}), largest first; a cluster "
+        "is marked coupled when it holds two or more modules of one coupled block.",
+        order,
+        blocks,
+        tuple(dsm.module(n) for n in order),
+    )
+
+
+def orderings(dsm: Dsm) -> tuple[Ordering, Ordering, Ordering]:
+    """The three orderings of a DSM: by kind, sequenced, clustered."""
+    return order_by_kind(dsm), sequence(dsm), cluster(dsm)

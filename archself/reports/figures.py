@@ -1,0 +1,150 @@
+"""The run report's figures (paper Fig. 2–6) with matplotlib, headless.
+
+matplotlib is imported inside the functions (never at ``archself`` start-up) and
+used through :class:`matplotlib.figure.Figure` with the Agg canvas: no pyplot,
+no global backend switch, no display needed. Each function returns PNG bytes
+(no ``Software`` metadata, so the bytes depend only on the data and the
+matplotlib version).
+
+Text from the architecture file (module names) is passed through :func:`_tex`
+so that a ``$`` in a name is shown, not parsed as mathtext.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Any
+
+import numpy as np
+
+from archself.reports.run import RunReport
+
+__all__ = ["error_figure", "influence_figure", "trajectory_figure"]
+
+COLORS = {"fixed": "#c0392b", "adaptive": "#1f77b4", "reference": "#222222"}
+LABELS = {"fixed": "fixed architecture", "adaptive": "architecture-aware adaptation"}
+
+
+def _tex(s: Any) -> str:
+    return str(s).replace("$", r"\$")
+
+
+def _figure(w: float = 7.5, h: float = 4.2) -> Any:
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(w, h), dpi=100, layout="constrained")
+
+
+def _png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    return buf.getvalue()
+
+
+def _comp(arr: np.ndarray, c: int) -> np.ndarray:
+    a = np.asarray(arr, dtype=float)
+    return a if a.ndim == 1 else a[:, c]
+
+
+def _switch_lines(ax: Any, rep: RunReport, label: bool = True) -> None:
+    for k, s in enumerate(rep.switches):
+        ax.axvline(s["t_s"], color="#2ca02c", ls="--", lw=1.2,
+                   label=("architecture switch" if label and k == 0 else None))
+        ax.annotate(_tex(f"{s['from']} → {s['to']}"), (s["t_s"], 1.0),
+                    xycoords=("data", "axes fraction"), xytext=(3, -12),
+                    textcoords="offset points", fontsize=8, color="#2ca02c")
+
+
+def _fault_lines(ax: Any, rep: RunReport) -> None:
+    for k, f in enumerate(rep.faults):
+        ax.axvline(f["onset_s"], color="#7f7f7f", ls=":", lw=1.0,
+                   label=("fault onset" if k == 0 else None))
+
+
+def trajectory_figure(rep: RunReport) -> bytes:
+    """Fig. 2–4: the objective's actual signal against its reference (x–y, or vs. t)."""
+    comps = rep.objective["components"]
+    fig = _figure(7.5, 5.0)
+    ax = fig.add_subplot()
+    first = next(iter(rep.series.values()))
+    if len(comps) >= 2 and "reference" in first and np.ndim(first["reference"]) == 2:
+        cx, cy = comps[0], comps[1]
+        ax.plot(_comp(first["reference"], cx), _comp(first["reference"], cy),
+                color=COLORS["reference"], ls="--", lw=1.2, label="reference")
+        for mode, s in rep.series.items():
+            if "actual" not in s:
+                continue
+            x, y = _comp(s["actual"], cx), _comp(s["actual"], cy)
+            ax.plot(x, y, color=COLORS.get(mode), lw=1.4, label=LABELS.get(mode, mode))
+            if mode == "adaptive":
+                t = np.asarray(s["t"])
+                for k, sw in enumerate(rep.switches):
+                    i = int(np.searchsorted(t, sw["t_s"]))
+                    if i < len(t):
+                        ax.plot(x[i], y[i], "o", color="#2ca02c", ms=7,
+                                label=("switch" if k == 0 else None))
+        ax.set_xlabel(_tex(f"{rep.objective['actual']}[{cx}]"))
+        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{cy}]"))
+        ax.set_aspect("equal", adjustable="datalim")
+    else:
+        c = comps[0]
+        for mode, s in rep.series.items():
+            t = np.asarray(s["t"])
+            if mode == next(iter(rep.series)) and "reference" in s:
+                ax.plot(t, _comp(s["reference"], c), color=COLORS["reference"], ls="--",
+                        label="reference")
+            if "actual" in s:
+                ax.plot(t, _comp(s["actual"], c), color=COLORS.get(mode),
+                        label=LABELS.get(mode, mode))
+        _switch_lines(ax, rep, label=False)
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{c}]"))
+    ax.set_title(_tex(f"Trajectory: {rep.scenario}"))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return _png(fig)
+
+
+def error_figure(rep: RunReport) -> bytes:
+    """Fig. 6: tracking error ‖actual − reference‖ of each run, switches and faults marked."""
+    fig = _figure()
+    ax = fig.add_subplot()
+    for mode, s in rep.series.items():
+        ax.plot(np.asarray(s["t"]), np.asarray(s["J"], dtype=float), color=COLORS.get(mode),
+                lw=1.4, label=LABELS.get(mode, mode))
+    if rep.acceptable > 0:
+        ax.axhline(rep.acceptable, color="#555555", ls="-.", lw=0.9,
+                   label=f"acceptable J_ref = {rep.acceptable:g}")
+    _fault_lines(ax, rep)
+    _switch_lines(ax, rep)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("tracking error [m]")
+    ax.set_title(_tex(f"Tracking error: {rep.scenario}"))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    return _png(fig)
+
+
+def influence_figure(rep: RunReport) -> bytes:
+    """Fig. 5: |z_i| per module per MAPE-K cycle, τ, the warm-up and the switch events."""
+    fig = _figure(7.5, 4.6)
+    ax = fig.add_subplot()
+    if rep.warmup_s > 0:
+        ax.axvspan(0, rep.warmup_s, color="#bbbbbb", alpha=0.35,
+                   label=f"warm-up ({rep.warmup_steps} cycles)")
+    for name, z in rep.z.items():
+        ax.plot(rep.z_t, z, lw=1.3, label=_tex(f"|z| {name}"))
+    for k, (label, value) in enumerate(rep.tau):
+        ax.axhline(value, color="#000000", ls="--" if k == 0 else ":", lw=1.0,
+                   label=f"{label} = {value:g}")
+    _fault_lines(ax, rep)
+    _switch_lines(ax, rep)
+    if not rep.z:
+        ax.text(0.5, 0.5, "no module influence above zero", ha="center",
+                transform=ax.transAxes, color="#777777")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("|z_i|  (Eq. 14)")
+    ax.set_title(_tex(f"Influence channels: {rep.scenario}"))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", ncols=2)
+    return _png(fig)

@@ -1,0 +1,180 @@
+"""The architecture graph in the style of the paper's Fig. 1, and configuration diffs.
+
+Report models only (no DOT text here: ``templates/graph.dot.j2`` renders them).
+
+Which diffs are drawn
+---------------------
+:func:`diff_pairs` gives one diff per ordered pair ``(from, to)`` that a
+structural action of the file can perform: ``to`` is the action's target and
+``from`` each configuration in its ``applies_in`` (all configurations when it
+is not given), except ``to`` itself. For diffdrive that is a1 → a2, a1 → a3 and
+a2 → a3. A file without structural actions gets the consecutive pairs of its
+configurations in file order instead.
+
+Examples
+--------
+>>> from archself.loader import load_architecture
+>>> from archself.resources import data_dir
+>>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+>>> diff_pairs(arch)
+[('a1', 'a2'), ('a1', 'a3'), ('a2', 'a3')]
+>>> d = config_diff(arch, "a1", "a2")
+>>> d.added_modules, d.removed_modules
+(('ekf',), ('odometry',))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from archself.model import Architecture
+from archself.reports.dsm import KINDS, scope_edges
+
+__all__ = ["ArchGraph", "ConfigDiff", "GraphEdge", "GraphNode", "build_graph", "config_diff",
+           "diff_graph", "diff_pairs"]
+
+
+@dataclass(frozen=True)
+class GraphNode:
+    name: str
+    kind: str
+    type: str
+    description: str = ""
+    status: str = "normal"  # normal | kept | added | removed
+
+
+@dataclass(frozen=True)
+class GraphEdge:
+    source: str
+    target: str
+    weight: float
+    carries: str
+    penwidth: float
+    status: str = "normal"  # normal | kept | added | removed
+
+
+@dataclass(frozen=True)
+class ArchGraph:
+    """A drawable graph: nodes grouped by kind, weighted edges."""
+
+    title: str
+    subtitle: str
+    nodes: tuple[GraphNode, ...]
+    edges: tuple[GraphEdge, ...]
+    diff: bool = False
+
+    def nodes_of(self, kind: str) -> tuple[GraphNode, ...]:
+        return tuple(n for n in self.nodes if n.kind == kind)
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return tuple(k for k in KINDS if self.nodes_of(k))
+
+
+@dataclass(frozen=True)
+class ConfigDiff:
+    """What moving from configuration ``a`` to ``b`` adds and removes."""
+
+    a: str
+    b: str
+    actions: tuple[str, ...]
+    added_modules: tuple[str, ...]
+    removed_modules: tuple[str, ...]
+    kept_modules: tuple[str, ...]
+    added_edges: tuple[tuple[str, str, str], ...]  # (source, target, carries)
+    removed_edges: tuple[tuple[str, str, str], ...]
+
+    @property
+    def empty(self) -> bool:
+        return not (self.added_modules or self.removed_modules or self.added_edges
+                    or self.removed_edges)
+
+
+def _penwidth(w: float, wmax: float) -> float:
+    return round(0.8 + 4.2 * (w / wmax if wmax > 0 else 0.0), 2)
+
+
+def _wmax(arch: Architecture) -> float:
+    return max((float(e.weight) for e in arch.edges), default=0.0)
+
+
+def _node(arch: Architecture, name: str, status: str = "normal") -> GraphNode:
+    m = arch.modules[name]
+    return GraphNode(name, m.kind, m.type, m.description or "", status)
+
+
+def build_graph(arch: Architecture, configuration: str | None = None) -> ArchGraph:
+    """The graph of the whole architecture or of one configuration (its active part)."""
+    wmax = _wmax(arch)
+    if configuration is None:
+        names = list(arch.modules)
+        title, sub = arch.name, "all modules and edges"
+    else:
+        conf = arch.configurations[configuration]
+        active = set(conf.modules)
+        names = [n for n in arch.modules if n in active]
+        title, sub = f"{arch.name}: {configuration}", conf.description or ""
+    edges = tuple(
+        GraphEdge(s, t, w, c, _penwidth(w, wmax)) for s, t, w, c in scope_edges(arch, configuration)
+    )
+    return ArchGraph(title, sub, tuple(_node(arch, n) for n in names), edges)
+
+
+def diff_pairs(arch: Architecture) -> list[tuple[str, str]]:
+    """The (from, to) configuration pairs to diff (see the module docstring)."""
+    confs = list(arch.configurations)
+    pairs: set[tuple[str, str]] = set()
+    for act in arch.actions:
+        if act.kind == "parameter_update" or act.to is None:
+            continue
+        for src in act.applies_in or confs:
+            if src != act.to and src in arch.configurations and act.to in arch.configurations:
+                pairs.add((src, act.to))
+    if not pairs:
+        pairs = set(zip(confs, confs[1:]))
+    idx = {c: k for k, c in enumerate(confs)}
+    return sorted(pairs, key=lambda p: (idx[p[0]], idx[p[1]]))
+
+
+def config_diff(arch: Architecture, a: str, b: str) -> ConfigDiff:
+    """Modules and edges that configuration ``b`` adds to and removes from ``a``."""
+    ma, mb = set(arch.configurations[a].modules), set(arch.configurations[b].modules)
+    ea = {(s, t, c) for s, t, _w, c in scope_edges(arch, a)}
+    eb = {(s, t, c) for s, t, _w, c in scope_edges(arch, b)}
+    order = {n: k for k, n in enumerate(arch.modules)}
+    eorder = {(e.source, e.target, e.carries): k for k, e in enumerate(arch.edges)}
+    acts = tuple(
+        act.id for act in arch.actions
+        if act.to == b and act.kind != "parameter_update" and (act.applies_in is None
+                                                               or a in act.applies_in)
+    )
+    return ConfigDiff(
+        a, b, acts,
+        tuple(sorted(mb - ma, key=order.__getitem__)),
+        tuple(sorted(ma - mb, key=order.__getitem__)),
+        tuple(sorted(ma & mb, key=order.__getitem__)),
+        tuple(sorted(eb - ea, key=eorder.__getitem__)),
+        tuple(sorted(ea - eb, key=eorder.__getitem__)),
+    )
+
+
+def diff_graph(arch: Architecture, d: ConfigDiff) -> ArchGraph:
+    """The union of both configurations, every node and edge marked kept, added or removed."""
+    wmax = _wmax(arch)
+    added, removed = set(d.added_modules), set(d.removed_modules)
+    names = [n for n in arch.modules if n in added or n in removed or n in set(d.kept_modules)]
+    nodes = tuple(
+        _node(arch, n, "added" if n in added else "removed" if n in removed else "kept")
+        for n in names
+    )
+    ea, eb = set(d.removed_edges), set(d.added_edges)
+    kept = {(s, t, c) for s, t, _w, c in scope_edges(arch, d.a)} - ea
+    edges = []
+    for e in arch.edges:
+        key = (e.source, e.target, e.carries)
+        status = "added" if key in eb else "removed" if key in ea else "kept" if key in kept else ""
+        if status:
+            w = float(e.weight)
+            edges.append(GraphEdge(e.source, e.target, w, e.carries, _penwidth(w, wmax), status))
+    via = ", ".join(d.actions) if d.actions else "consecutive configurations"
+    return ArchGraph(f"{arch.name}: {d.a} → {d.b}", f"via {via}", nodes, tuple(edges), diff=True)

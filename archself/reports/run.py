@@ -1,0 +1,253 @@
+"""The run report model: what a simulation did, as data (no plotting, no HTML here).
+
+:func:`build_run_report` takes the :class:`archself.sim.run.RunResult` of one run
+(or of a fixed and an adaptive run, ``simulate --compare``) and extracts:
+
+- a summary per run (metrics, start and final configuration, switches);
+- the z channels per module per MAPE-K cycle from the decision records
+  (``decisions[i]['z']``; NaN where a module was inactive), τ from
+  ``runtime.threshold`` (or τ_on/τ_off), the warm-up (``runtime.warmup_steps``
+  cycles) and the switch events;
+- the decision log reduced to the cycles where something happened: a candidate
+  set, an action chosen, a note, or the end of the warm-up. Consecutive cycles
+  in the same situation (configuration, candidates, rejections) are folded into
+  one row.
+
+:meth:`RunReport.summary` is deterministic plain JSON (floats rounded to 6
+significant digits), the file the docs test compares.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from archself.model import Architecture
+
+__all__ = ["DecisionRow", "RunReport", "RunSummary", "build_run_report"]
+
+
+def _round(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _round(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_round(v) for v in x]
+    if isinstance(x, (bool, str)) or x is None:
+        return x
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        v = float(x)
+        return float(f"{v:.6g}") if math.isfinite(v) else None
+    return x
+
+
+def _as_dict(d: Any) -> dict[str, Any]:
+    return d.to_dict() if hasattr(d, "to_dict") else dict(d)
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    mode: str
+    configuration: str
+    final_configuration: str
+    metrics: dict[str, float]
+    switches: tuple[dict[str, Any], ...]
+    updates: tuple[dict[str, Any], ...] = ()
+
+
+@dataclass(frozen=True)
+class DecisionRow:
+    """One line of the decision-log table (one cycle, or a run of similar cycles)."""
+
+    t_from: float
+    t_to: float
+    cycles: int
+    configuration: str
+    phase: str
+    j_obs: float | None
+    candidates: tuple[tuple[str, float | None], ...]  # (module, z)
+    outcome: str  # "switch", "update", "rejected", "warm-up", "note", "no candidate"
+    detail: str
+
+
+@dataclass
+class RunReport:
+    """Everything the run report shows, as data."""
+
+    architecture: str
+    scenario: str
+    scenario_description: str
+    seed: int
+    faults: list[dict[str, Any]]
+    objective: dict[str, Any]
+    acceptable: float
+    selector: str
+    tau: list[tuple[str, float]]  # [("τ", 0.55)] or [("τ_on", ..), ("τ_off", ..)] or []
+    period_s: float
+    warmup_steps: int
+    warmup_s: float
+    runs: list[RunSummary]
+    decision_rows: list[DecisionRow] = field(default_factory=list)
+    z_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    z: dict[str, np.ndarray] = field(default_factory=dict)
+    series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # mode -> series
+
+    @property
+    def adaptive(self) -> RunSummary | None:
+        return next((r for r in self.runs if r.mode == "adaptive"), None)
+
+    @property
+    def switches(self) -> tuple[dict[str, Any], ...]:
+        a = self.adaptive
+        return a.switches if a else ()
+
+    def summary(self) -> dict[str, Any]:
+        """Deterministic plain-JSON summary (``summary.json`` of the run report)."""
+        return _round({
+            "architecture": self.architecture,
+            "scenario": self.scenario,
+            "seed": self.seed,
+            "faults": self.faults,
+            "selector": self.selector,
+            "warmup_s": self.warmup_s,
+            "runs": [
+                {
+                    "mode": r.mode,
+                    "configuration": r.configuration,
+                    "final_configuration": r.final_configuration,
+                    "metrics": r.metrics,
+                    "switches": list(r.switches),
+                    "parameter_updates": list(r.updates),
+                }
+                for r in self.runs
+            ],
+            "decision_log": [
+                {
+                    "t_from": row.t_from,
+                    "t_to": row.t_to,
+                    "cycles": row.cycles,
+                    "configuration": row.configuration,
+                    "phase": row.phase,
+                    "candidates": [[m, z] for m, z in row.candidates],
+                    "outcome": row.outcome,
+                    "detail": row.detail,
+                }
+                for row in self.decision_rows
+            ],
+        })
+
+
+def _selector(arch: Architecture) -> tuple[str, list[tuple[str, float]]]:
+    rt = arch.runtime
+    if rt.hysteresis is not None:
+        h = rt.hysteresis
+        return (f"hysteresis |z| ≥ {h.on:g} on, < {h.off:g} off",
+                [("τ_on", float(h.on)), ("τ_off", float(h.off))])
+    if rt.top_k is not None:
+        return f"top {rt.top_k} by |z|", []
+    assert rt.threshold is not None
+    return f"|z| ≥ τ = {rt.threshold:g}", [("τ", float(rt.threshold))]
+
+
+def _outcome(d: dict[str, Any]) -> tuple[str, str]:
+    chosen = d.get("chosen")
+    if chosen:
+        if chosen.get("to"):
+            return "switch", (f"{chosen['action']}: {chosen.get('from')} → {chosen['to']} "
+                              f"(score {_g(chosen.get('score'))})")
+        return "update", f"{chosen['action']} on {chosen.get('module')} (score {_g(chosen.get('score'))})"
+    if d.get("note"):
+        return "note", str(d["note"])
+    evals = d.get("evaluations") or []
+    if evals:
+        parts = [f"{e['action']}: {e.get('rejected') or 'not chosen'}" for e in evals]
+        return "rejected", "; ".join(parts)
+    if d.get("phase") == "warmup":
+        return "warm-up", "adaptation suppressed"
+    return "no candidate", ""
+
+
+def _g(x: Any) -> str:
+    return "n/a" if x is None else f"{float(x):.3g}"
+
+
+def _decision_rows(decisions: list[dict[str, Any]], warmup_steps: int) -> list[DecisionRow]:
+    rows: list[DecisionRow] = []
+    prev_sig = None
+    for d in decisions:
+        cands = tuple((c, (d.get("z") or {}).get(c)) for c in d.get("candidates") or [])
+        outcome, detail = _outcome(d)
+        first_after_warmup = warmup_steps > 0 and d.get("cycle") == warmup_steps
+        interesting = bool(cands) or outcome in ("switch", "update", "note") or first_after_warmup
+        if not interesting:
+            prev_sig = None
+            continue
+        if first_after_warmup and outcome == "no candidate":
+            outcome, detail = "warm-up over", "adaptation enabled from this cycle"
+        sig = (d.get("configuration"), tuple(c for c, _ in cands), outcome, detail)
+        t = float(d.get("t", math.nan))
+        if sig == prev_sig and outcome not in ("switch", "update") and rows:
+            last = rows[-1]
+            rows[-1] = DecisionRow(last.t_from, t, last.cycles + 1, last.configuration,
+                                   last.phase, last.j_obs, last.candidates, last.outcome,
+                                   last.detail)
+            continue
+        rows.append(DecisionRow(t, t, 1, str(d.get("configuration")), str(d.get("phase")),
+                                d.get("j_obs"), cands, outcome, detail))
+        prev_sig = sig
+    return rows
+
+
+def build_run_report(arch: Architecture, results: list[Any]) -> RunReport:
+    """The report model of one run or of a fixed/adaptive pair from the same start and seed."""
+    first = results[0]
+    sc = arch.scenarios[first.scenario]
+    selector, tau = _selector(arch)
+    rt = arch.runtime
+    runs = []
+    series = {}
+    decisions: list[dict[str, Any]] = []
+    for r in results:
+        recs = [_as_dict(d) for d in r.decisions]
+        updates = tuple(
+            {"t_s": d["t"], "action": d["chosen"]["action"], "module": d["chosen"].get("module"),
+             "set": d["chosen"].get("set")}
+            for d in recs if d.get("chosen") and not d["chosen"].get("to")
+        )
+        runs.append(RunSummary(r.mode, r.configuration, r.final_configuration,
+                               dict(r.metrics), tuple(dict(s) for s in r.switches), updates))
+        series[r.mode] = r.series
+        if r.mode == "adaptive":
+            decisions = recs
+    names = [n for n in arch.modules
+             if any((d.get("z") or {}).get(n) not in (None, 0.0) for d in decisions)]
+    z_t = np.array([float(d["t"]) for d in decisions])
+    z = {
+        n: np.array([abs(v) if (v := (d.get("z") or {}).get(n)) is not None else np.nan
+                     for d in decisions], dtype=float)
+        for n in names
+    }
+    return RunReport(
+        architecture=arch.name,
+        scenario=first.scenario,
+        scenario_description=sc.description or "",
+        seed=int(first.seed),
+        faults=[f.model_dump(exclude_none=True) for f in sc.faults],
+        objective={"actual": rt.objective.actual, "reference": rt.objective.reference,
+                   "components": list(rt.objective.components)},
+        acceptable=float(rt.objective.acceptable),
+        selector=selector,
+        tau=tau,
+        period_s=float(rt.period_s),
+        warmup_steps=int(rt.warmup_steps),
+        warmup_s=float(rt.warmup_steps * rt.period_s),
+        runs=runs,
+        decision_rows=_decision_rows(decisions, int(rt.warmup_steps)),
+        z_t=z_t,
+        z=z,
+        series=series,
+    )
