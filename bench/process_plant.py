@@ -37,8 +37,18 @@ def run_one(arch: str, scenario: str, seed: int) -> dict:
 
     with tempfile.TemporaryDirectory() as tmp:
         trace = Path(tmp) / "trace.json"
-        args = ["simulate", arch, "--scenario", scenario, "--seed", str(seed), "--compare",
-                "--json", "--trace", str(trace)]
+        args = [
+            "simulate",
+            arch,
+            "--scenario",
+            scenario,
+            "--seed",
+            str(seed),
+            "--compare",
+            "--json",
+            "--trace",
+            str(trace),
+        ]
         res = CliRunner().invoke(app, args)
         if res.exit_code != 0:
             raise RuntimeError(f"{' '.join(args)} exited {res.exit_code}: {res.output}")
