@@ -301,6 +301,166 @@ def explain(
     typer.echo(render(decisions))
 
 
+# --------------------------------------------------------------------------- campaign
+@app.command()
+def campaign(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    scenarios: Annotated[
+        list[str], typer.Option("--scenario", "-s", help="Scenario of the file (repeatable).")
+    ],
+    seeds: Annotated[int, typer.Option("--seeds", help="Seeds (replicates) per scenario and sweep point.")],
+    sweep: Annotated[
+        Optional[list[str]],
+        typer.Option("--sweep", metavar="PATH=START:STOP:NUM",
+                     help="Vary a value of the file, e.g. runtime.threshold=0.4:0.7:4 or "
+                          "scenarios.imu_drift.faults[0].magnitude=1e-4,7e-4 (repeatable: product)."),
+    ] = None,
+    mode: Annotated[
+        str, typer.Option("--mode", help="both, fixed or adaptive.")
+    ] = "both",
+    executor: Annotated[
+        str, typer.Option("--executor", help="local (process pool) or dask.")
+    ] = "local",
+    address: Annotated[
+        Optional[str], typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
+    ] = None,
+    workers: Annotated[
+        Optional[int], typer.Option("--workers", min=1, help="Processes (default: all cores).")
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results file (Parquet).")] = Path(
+        "results.parquet"
+    ),
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Keep the runs already in --out; run the rest.")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --out.")] = False,
+    traces: Annotated[
+        Optional[Path], typer.Option("--traces", metavar="DIR", help="Write every run's trace here.")
+    ] = None,
+    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the outcome as JSON.")] = False,
+) -> None:
+    """Run a Monte Carlo campaign: scenarios x sweep values x seeds, fixed and adaptive.
+
+    One Parquet row per run, written as runs finish; Ctrl-C keeps the finished
+    runs (exit 130) and --resume continues. The same command gives the same
+    table whatever the number of workers.
+    """
+    from archself.campaign.driver import plan_campaign, run_campaign
+    from archself.campaign.sweep import parse_sweep
+
+    modes = {"both": ("fixed", "adaptive"), "fixed": ("fixed",), "adaptive": ("adaptive",)}
+    if mode not in modes:
+        raise _fail(f"--mode {mode}: expected both, fixed or adaptive", 2)
+    if executor not in ("local", "dask"):
+        raise _fail(f"--executor {executor}: expected local or dask", 2)
+    if resume and force:
+        raise _fail("--resume and --force exclude each other", 2)
+    try:
+        sweeps = [parse_sweep(s) for s in sweep or []]
+        jobs, meta = plan_campaign(arch_path, scenarios, seeds, sweeps, modes=modes[mode],
+                                   root_seed=root_seed, traces=traces)
+        show = sys.stderr.isatty() and not json_out
+        bar = None
+        state = {"done": 0}
+
+        def progress(done: int, total: int) -> None:
+            nonlocal bar
+            if bar is None:
+                bar = typer.progressbar(length=total, label=f"{total} runs", file=sys.stderr)
+                bar.__enter__()
+            bar.update(done - state["done"])
+            state["done"] = done
+
+        try:
+            outcome = run_campaign(jobs, meta, out, executor=executor, workers=workers,
+                                   address=address, resume=resume, force=force,
+                                   progress=progress if show else None)
+        finally:
+            if bar is not None:
+                bar.__exit__(None, None, None)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    data = {
+        "out": str(outcome.out), "planned": outcome.planned, "skipped": outcome.skipped,
+        "ran": outcome.ran, "failed": outcome.failed, "rows": outcome.rows,
+        "executor": outcome.executor, "workers": outcome.workers,
+        "elapsed_s": round(outcome.elapsed_s, 3), "errors": outcome.errors,
+    }
+    if json_out:
+        typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
+    else:
+        rate = f", {outcome.ran / outcome.elapsed_s:.2f} runs/s" if outcome.elapsed_s > 0 else ""
+        typer.echo(f"{outcome.out}: {outcome.rows} runs ({outcome.ran} new, {outcome.skipped} "
+                   f"already there, {outcome.failed} failed) in {outcome.elapsed_s:.1f} s on "
+                   f"{outcome.workers} {outcome.executor} worker"
+                   f"{'s' * (outcome.workers != 1)}{rate}")
+        for e in outcome.errors:
+            typer.echo(f"failed: {e}", err=True)
+
+
+@app.command("campaign-report")
+def campaign_report_cmd(
+    results: Annotated[Path, typer.Argument(metavar="RESULTS", help="Parquet file of `campaign`.")],
+    out_dir: Annotated[Path, typer.Option("-o", "--output", metavar="DIR", help="Report folder.")],
+    expect: Annotated[
+        Optional[list[str]],
+        typer.Option("--expect", metavar="SCENARIO=CONFIG",
+                     help="Expected final configuration of a scenario (repeatable)."),
+    ] = None,
+    tau: Annotated[
+        Optional[str], typer.Option("--tau", metavar="PATH", help="Swept column holding τ.")
+    ] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Summarize a campaign: correct switches, detection delay, false switches, errors, τ sweep.
+
+    Writes DIR/index.html (figures as SVG beside it) and DIR/summary.json.
+    """
+    from archself.campaign.report import campaign_report, parse_expect, summary_text
+
+    try:
+        summary = campaign_report(results, out_dir, expect=parse_expect(expect or []),
+                                  tau_path=tau)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if json_out:
+        from archself.campaign.report import _jsonable
+
+        typer.echo(json.dumps(_jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
+    else:
+        typer.echo(summary_text(summary))
+        typer.echo(f"report: {out_dir / 'index.html'}", err=True)
+
+
+# --------------------------------------------------------------------------- generate
+@app.command()
+def generate(
+    n: Annotated[int, typer.Argument(metavar="N", min=2, help="Number of modules.")],
+    output: Annotated[
+        Optional[Path], typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the random wiring.")] = 0,
+    fan_in: Annotated[int, typer.Option("--fan-in", min=1, help="Max. edges into a module.")] = 3,
+    feedback: Annotated[
+        int, typer.Option("--feedback", min=0, help="Weak backward edges (cycles).")
+    ] = 0,
+) -> None:
+    """Generate a large DAG-like architecture of N generic.relay modules (scaling studies)."""
+    from archself.atomic import write_text
+    from archself.generate import generate_architecture
+
+    text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
+    if output is None:
+        sys.stdout.write(text)
+        return
+    try:
+        write_text(output, text)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(f"{output}: {n} modules", err=True)
+
+
 def main() -> None:
     """Entry point of the ``archself`` script."""
     try:

@@ -1,0 +1,312 @@
+"""Where campaign runs execute: one small interface, a local process pool or Dask.
+
+:class:`Executor` is all the campaign driver uses: ``submit`` a function and its
+arguments, ``map`` a function over items, iterate futures ``as_completed``,
+``cancel`` what has not started and ``close``. Two implementations:
+
+- :class:`LocalExecutor` — :class:`concurrent.futures.ProcessPoolExecutor` on
+  all cores (the embedded default; no server). Workers are started with the
+  ``forkserver`` method where available (fresh processes, not copies of the
+  caller) and ignore SIGINT, so Ctrl-C reaches only the driver, which then stops
+  cleanly.
+- :class:`DaskExecutor` — a :class:`distributed.Client` on an existing scheduler
+  (``tcp://HOST:PORT``) or on a :class:`distributed.LocalCluster` it starts and
+  stops itself. Needs the optional extra ``pip install 'archself[dask]'``.
+
+Both return futures with ``result()``, ``done()`` and ``cancel()``.
+
+Examples
+--------
+>>> with make_executor("local", workers=1) as ex:     # doctest: +SKIP
+...     list(ex.map(abs, [-1, -2]))
+[1, 2]
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol
+
+from archself.campaign.sweep import CampaignError
+
+__all__ = [
+    "DaskExecutor",
+    "Executor",
+    "InlineExecutor",
+    "LocalExecutor",
+    "default_workers",
+    "make_executor",
+]
+
+
+class Executor(Protocol):
+    """What the campaign driver needs from a pool of workers."""
+
+    #: Number of worker processes (for the progress label and the report).
+    workers: int
+    #: ``"local"`` or ``"dask"``.
+    name: str
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
+        """Run ``fn(*args)`` in a worker; a future."""
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        """``fn(item)`` for every item, results in the order of ``items``."""
+
+    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
+        """The futures in the order they finish."""
+
+    def cancel(self, futures: Iterable[Any]) -> None:
+        """Cancel the futures that have not started."""
+
+    def close(self) -> None:
+        """Stop the workers (and a cluster started by this executor)."""
+
+    def __enter__(self) -> Executor: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+def default_workers() -> int:
+    """Number of usable cores (the process's CPU affinity where the OS tells it)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class LocalExecutor:
+    """A process pool on this machine (the default executor).
+
+    Parameters
+    ----------
+    workers : int, optional
+        Number of processes (default: all usable cores).
+    preload : sequence of str, optional
+        Modules the forkserver imports once, so every worker starts with them.
+    """
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None, preload: Iterable[str] = ()) -> None:
+        import concurrent.futures
+        import multiprocessing
+
+        self.workers = int(workers or default_workers())
+        if self.workers < 1:
+            raise CampaignError("--workers must be at least 1")
+        methods = multiprocessing.get_all_start_methods()
+        method = "forkserver" if "forkserver" in methods else "spawn"
+        ctx = multiprocessing.get_context(method)
+        if method == "forkserver":
+            ctx.set_forkserver_preload(list(preload))
+        self._cf = concurrent.futures
+        self._pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=self.workers, mp_context=ctx, initializer=_ignore_sigint
+        )
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
+        return self._pool.submit(fn, *args)
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        return self._pool.map(fn, items)
+
+    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
+        return self._cf.as_completed(list(futures))
+
+    def cancel(self, futures: Iterable[Any]) -> None:
+        for f in futures:
+            f.cancel()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> LocalExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class DaskExecutor:
+    """A dask.distributed client: on a scheduler at ``address`` or on a LocalCluster.
+
+    Parameters
+    ----------
+    address : str, optional
+        Scheduler address, e.g. ``tcp://10.0.0.5:8786``. None starts a
+        :class:`distributed.LocalCluster` of ``workers`` single-threaded
+        processes, closed again by :meth:`close`.
+    workers : int, optional
+        Workers of the LocalCluster (default: all usable cores); ignored with an
+        address (the cluster has what it has).
+
+    Raises
+    ------
+    CampaignError
+        If dask.distributed is not installed or the scheduler cannot be reached.
+    """
+
+    name = "dask"
+
+    def __init__(self, address: str | None = None, workers: int | None = None,
+                 timeout_s: float = 30.0) -> None:
+        try:
+            import distributed
+        except ImportError:
+            raise CampaignError(
+                "--executor dask needs dask.distributed: pip install 'archself[dask]'"
+            ) from None
+        self._distributed = distributed
+        self._cluster = None
+        try:
+            if address is None:
+                n = int(workers or default_workers())
+                if n < 1:
+                    raise CampaignError("--workers must be at least 1")
+                self._cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True,
+                    dashboard_address=None, silence_logs=50,
+                )
+                self._client = distributed.Client(self._cluster, timeout=timeout_s)
+            else:
+                self._client = distributed.Client(address, timeout=timeout_s)
+        except CampaignError:
+            raise
+        except (OSError, TimeoutError) as exc:
+            self.close()
+            where = address or "a LocalCluster"
+            raise CampaignError(f"cannot connect to the Dask scheduler at {where}: {exc}") from None
+        info = self._client.scheduler_info()
+        threads = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
+        self.workers = max(1, threads)
+        self.address = self._client.scheduler.address
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
+        return self._client.submit(fn, *args, pure=False)
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        futures = self._client.map(fn, list(items), pure=False)
+        return (f.result() for f in futures)
+
+    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
+        return iter(self._distributed.as_completed(list(futures)))
+
+    def cancel(self, futures: Iterable[Any]) -> None:
+        fs = [f for f in futures if not f.done()]
+        if fs:
+            self._client.cancel(fs)
+
+    def close(self) -> None:
+        client = getattr(self, "_client", None)
+        if client is not None:
+            client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+    def __enter__(self) -> DaskExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class _Deferred:
+    """A future of :class:`InlineExecutor`: computed when first asked for."""
+
+    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        self._fn, self._args = fn, args
+        self._done = self._cancelled = False
+        self._value: Any = None
+        self._exc: BaseException | None = None
+
+    def _run(self) -> None:
+        if not self._done and not self._cancelled:
+            try:
+                self._value = self._fn(*self._args)
+            except Exception as exc:  # noqa: BLE001 - kept for result(), like a real future
+                self._exc = exc
+            self._done = True
+
+    def result(self) -> Any:
+        if self._cancelled:
+            import concurrent.futures
+
+            raise concurrent.futures.CancelledError()
+        self._run()
+        if self._exc is not None:
+            raise self._exc
+        return self._value
+
+    def done(self) -> bool:
+        return self._done or self._cancelled
+
+    def cancel(self) -> bool:
+        if self._done:
+            return False
+        self._cancelled = True
+        return True
+
+
+class InlineExecutor:
+    """Runs every job in the calling process, one after the other, when its result is asked for.
+
+    For debugging (a breakpoint in a module works) and for tests; not offered by
+    the command line.
+    """
+
+    name = "inline"
+    workers = 1
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
+        return _Deferred(fn, args)
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        return (fn(x) for x in items)
+
+    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
+        for f in list(futures):
+            if not f._cancelled:
+                f._run()
+                yield f
+
+    def cancel(self, futures: Iterable[Any]) -> None:
+        for f in futures:
+            f.cancel()
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> InlineExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def make_executor(kind: str = "local", *, workers: int | None = None,
+                  address: str | None = None, preload: Iterable[str] = ()) -> Executor:
+    """The executor named ``kind``: ``"local"``, ``"dask"`` (or ``"inline"``, for tests).
+
+    Raises
+    ------
+    CampaignError
+        On an unknown kind, or an address given to the local executor.
+    """
+    if kind == "local":
+        if address is not None:
+            raise CampaignError("--address needs --executor dask")
+        return LocalExecutor(workers, preload=preload)
+    if kind == "dask":
+        return DaskExecutor(address, workers)
+    if kind == "inline":
+        return InlineExecutor()
+    raise CampaignError(f"unknown executor {kind!r}; known: local, dask")

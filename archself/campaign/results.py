@@ -1,0 +1,148 @@
+"""The results table of a campaign: one Parquet row per run.
+
+Columns (in this order; the sweep columns, one per PATH, follow ``scenario``):
+
+========================  ===============  =============================================
+column                    type             meaning
+========================  ===============  =============================================
+``run_id``                string           stable key: scenario, sweep values, replicate, mode
+``scenario``              string           scenario of the file
+*PATH* …                  float64          the swept values (column name = the PATH)
+``replicate``             int32            index of the seed, 0 … N−1
+``seed``                  int64            seed given to the simulation
+``mode``                  string           ``fixed`` or ``adaptive``
+``start_configuration``   string           configuration at t = 0
+``final_configuration``   string           configuration at the end
+``configuration_path``    string           e.g. ``a1>a2``
+``switch_times_s``        list<float64>    times of the architectural switches
+``n_switches``            int32
+``first_fault_onset_s``   float64 (null)   earliest fault onset (null: fault-free)
+``detection_delay_s``     float64 (null)   first switch at/after the onset − onset
+``false_switches``        int32            switches without a fault / before the onset
+``max_error_m``           float64          objective error metrics of the run
+``final_error_m``         float64
+``rms_error_m``           float64
+``peak_time_s``           float64
+``trace``                 string (null)    trace file, with ``--traces``
+``error``                 string (null)    why the run failed (metrics NaN then)
+========================  ===============  =============================================
+
+The file's schema metadata ``archself.campaign`` holds JSON describing the
+campaign (architecture name and SHA-256, root seed, sweep PATHs), which
+``--resume`` checks before it continues a file.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from archself.campaign.sweep import CampaignError
+
+__all__ = ["META_KEY", "read_results", "results_schema", "sort_key", "write_results"]
+
+META_KEY = b"archself.campaign"
+
+_BEFORE = [("run_id", "string"), ("scenario", "string")]
+_AFTER = [
+    ("replicate", "int32"),
+    ("seed", "int64"),
+    ("mode", "string"),
+    ("start_configuration", "string"),
+    ("final_configuration", "string"),
+    ("configuration_path", "string"),
+    ("switch_times_s", "list<float64>"),
+    ("n_switches", "int32"),
+    ("first_fault_onset_s", "float64"),
+    ("detection_delay_s", "float64"),
+    ("false_switches", "int32"),
+    ("max_error_m", "float64"),
+    ("final_error_m", "float64"),
+    ("rms_error_m", "float64"),
+    ("peak_time_s", "float64"),
+    ("trace", "string"),
+    ("error", "string"),
+]
+
+
+def _type(pa: Any, name: str) -> Any:
+    if name == "list<float64>":
+        return pa.list_(pa.float64())
+    return getattr(pa, name)()
+
+
+def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = None) -> Any:
+    """The :class:`pyarrow.Schema` of a campaign's results table."""
+    import pyarrow as pa
+
+    cols = _BEFORE + [(p, "float64") for p in sweep_paths] + _AFTER
+    fields = [pa.field(name, _type(pa, t)) for name, t in cols]
+    metadata = {META_KEY: json.dumps(meta or {}, sort_keys=True).encode()}
+    return pa.schema(fields, metadata=metadata)
+
+
+def sort_key(sweep_paths: Sequence[str]) -> Any:
+    """Key ordering rows by scenario, sweep values, replicate, mode (deterministic)."""
+
+    def key(row: dict[str, Any]) -> tuple[Any, ...]:
+        return (
+            row["scenario"],
+            tuple(row[p] for p in sweep_paths),
+            row["replicate"],
+            row["mode"],
+        )
+
+    return key
+
+
+def write_results(path: str | Path, rows: list[dict[str, Any]], sweep_paths: Sequence[str],
+                  meta: dict[str, Any]) -> None:
+    """Write ``rows`` as Parquet to ``path`` atomically, sorted by :func:`sort_key`.
+
+    Raises
+    ------
+    OutputError
+        If the file cannot be written.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from archself.atomic import write_bytes
+
+    schema = results_schema(sweep_paths, meta)
+    ordered = sorted(rows, key=sort_key(sweep_paths))
+    table = pa.Table.from_pylist(ordered, schema=schema)
+    buf = io.BytesIO()
+    pq.write_table(table, buf, compression="zstd")
+    write_bytes(path, buf.getvalue())
+
+
+def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """Read a results file: the :class:`pyarrow.Table` and the campaign metadata.
+
+    Raises
+    ------
+    CampaignError
+        If the file is missing or not an archself campaign's results.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    if not p.is_file():
+        raise CampaignError(f"{p}: no such file")
+    try:
+        table = pq.read_table(p)
+    except (OSError, pa.ArrowException) as exc:
+        raise CampaignError(f"{p}: not a Parquet file ({type(exc).__name__})") from None
+    raw = (table.schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise CampaignError(f"{p}: not the results of an archself campaign (no metadata)")
+    try:
+        meta = json.loads(raw)
+    except ValueError:
+        raise CampaignError(f"{p}: damaged campaign metadata") from None
+    return table, meta

@@ -1,0 +1,204 @@
+"""What a campaign worker does: one simulation run → one results row.
+
+A :class:`Job` carries everything a worker needs: the architecture's text and
+its digest, the sweep point, the scenario, the seed, the mode and where to
+write the trace. A worker process parses each architecture text once and keeps
+the validated model of each sweep point in a small cache, so a campaign of
+thousands of runs loads the file once per process, not once per run.
+
+This module never imports matplotlib, jinja2 or pyarrow (a worker needs none of
+them); python-control, which the LQR modules import, is another matter (see
+docs/campaigns.md).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+from archself.campaign.sweep import Sweep
+
+__all__ = ["Job", "run_job", "summarize_run"]
+
+#: How many validated sweep points a worker keeps.
+CACHE_SIZE = 64
+
+_TEXTS: dict[str, Any] = {}  # arch digest -> Loaded (parsed once per process)
+_ARCHS: OrderedDict[tuple[str, tuple[float, ...]], Any] = OrderedDict()
+
+
+@dataclass(frozen=True)
+class Job:
+    """One run of a campaign.
+
+    Attributes
+    ----------
+    run_id : str
+        Stable key of the run (scenario, sweep values, replicate, mode).
+    arch_text, arch_digest, file : str
+        The architecture file's text, its SHA-256 and its name (for messages).
+    sweeps : tuple of Sweep
+    point : tuple of float
+        The sweep values of this run, in the order of ``sweeps``.
+    scenario : str
+    replicate : int
+        Index of the seed (0 … N−1).
+    seed : int
+        The seed passed to :func:`archself.sim.run.simulate`.
+    mode : str
+        ``"fixed"`` or ``"adaptive"``.
+    trace : str or None
+        Where to write the run's trace (JSON), if anywhere.
+    """
+
+    run_id: str
+    arch_text: str
+    arch_digest: str
+    file: str
+    sweeps: tuple[Sweep, ...]
+    point: tuple[float, ...]
+    scenario: str
+    replicate: int
+    seed: int
+    mode: str
+    trace: str | None = None
+
+
+def _architecture(job: Job) -> Any:
+    key = (job.arch_digest, tuple(job.point))
+    arch = _ARCHS.get(key)
+    if arch is not None:
+        _ARCHS.move_to_end(key)
+        return arch
+    loaded = _TEXTS.get(job.arch_digest)
+    if loaded is None:
+        from archself.loader import load_text
+
+        loaded = load_text(job.arch_text, job.file)
+        _TEXTS.clear()  # one campaign at a time
+        _TEXTS[job.arch_digest] = loaded
+    if job.sweeps:
+        from archself.campaign.sweep import apply_values
+
+        arch = apply_values(loaded.data, job.sweeps, job.point, job.file)
+    else:
+        arch = loaded.arch
+    _ARCHS[key] = arch
+    while len(_ARCHS) > CACHE_SIZE:
+        _ARCHS.popitem(last=False)
+    return arch
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Run one job and return its results row (never raises for a failed run).
+
+    A run that raises is a row with the ``error`` column set and NaN metrics.
+    """
+    row = _base_row(job)
+    try:
+        arch = _architecture(job)
+        from archself.sim.run import simulate
+
+        adapt = None
+        if job.mode == "adaptive":
+            from archself.runtime import MapeK
+
+            adapt = MapeK(arch)
+        # the cached model is shared by the runs of this process: give each run its own copy
+        result = simulate(arch.model_copy(deep=True), job.scenario, seed=job.seed, adapt=adapt)
+        row.update(summarize_run(result, arch))
+        if job.trace is not None:
+            result.write_trace(job.trace)
+            row["trace"] = job.trace
+    except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a failed campaign
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        row["error"] = f"{type(exc).__name__}: {msg}"[:500]
+    return row
+
+
+def _base_row(job: Job) -> dict[str, Any]:
+    nan = math.nan
+    row: dict[str, Any] = {
+        "run_id": job.run_id,
+        "scenario": job.scenario,
+    }
+    for s, v in zip(job.sweeps, job.point, strict=True):
+        row[s.path] = float(v)
+    row.update({
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "mode": job.mode,
+        "start_configuration": None,
+        "final_configuration": None,
+        "configuration_path": None,
+        "switch_times_s": [],
+        "n_switches": 0,
+        "first_fault_onset_s": None,
+        "detection_delay_s": None,
+        "false_switches": 0,
+        "max_error_m": nan,
+        "final_error_m": nan,
+        "rms_error_m": nan,
+        "peak_time_s": nan,
+        "trace": None,
+        "error": None,
+    })
+    return row
+
+
+def summarize_run(result: Any, arch: Any) -> dict[str, Any]:
+    """The per-run columns derived from a :class:`~archself.sim.run.RunResult`.
+
+    - ``configuration_path``: start and every switch target joined by ``>``.
+    - ``first_fault_onset_s``: the earliest ``onset_s`` of the scenario's faults.
+    - ``detection_delay_s``: first switch at or after that onset minus the onset
+      (None without faults or without such a switch).
+    - ``false_switches``: every switch in a scenario without faults, or before the
+      first onset in one with faults.
+    """
+    sc = arch.scenarios[result.scenario]
+    onset = min((float(f.onset_s) for f in sc.faults), default=None)
+    times = [float(s["t_s"]) for s in result.switches]
+    path = [result.configuration] + [str(s["to"]) for s in result.switches]
+    if onset is None:
+        false = len(times)
+        delay = None
+    else:
+        false = sum(1 for t in times if t < onset)
+        after = [t for t in times if t >= onset]
+        delay = (after[0] - onset) if after else None
+    m = result.metrics
+    return {
+        "start_configuration": result.configuration,
+        "final_configuration": result.final_configuration,
+        "configuration_path": ">".join(path),
+        "switch_times_s": times,
+        "n_switches": len(times),
+        "first_fault_onset_s": onset,
+        "detection_delay_s": delay,
+        "false_switches": false,
+        "max_error_m": float(m["max_error_m"]),
+        "final_error_m": float(m["final_error_m"]),
+        "rms_error_m": float(m["rms_error_m"]),
+        "peak_time_s": float(m["peak_time_s"]),
+    }
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.=-]+")
+
+
+def trace_name(scenario: str, point: tuple[float, ...], replicate: int, mode: str) -> str:
+    """A file name for a run's trace: readable, unique per run, safe on every OS.
+
+    Examples
+    --------
+    >>> trace_name("imu drift", (0.5,), 3, "adaptive")
+    'imu_drift_0.5_r0003_adaptive.json'
+    """
+    parts = [_UNSAFE.sub("_", scenario).strip("._") or "scenario"]
+    parts += [f"{v:.6g}" for v in point]
+    parts += [f"r{replicate:04d}", mode]
+    return "_".join(parts) + ".json"
