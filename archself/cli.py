@@ -260,7 +260,7 @@ def report(
     output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
                                          help="Folder to write the report into (created).")],
     no_render: Annotated[
-        bool, typer.Option("--no-render", help="Write DOT sources only, even if `dot` is installed.")
+        bool, typer.Option("--no-render", help="DOT sources only, even if `dot` is installed.")
     ] = False,
 ) -> None:
     """Architecture report: DSMs (HTML, Markdown, CSV), Fig. 1 graphs and configuration diffs.

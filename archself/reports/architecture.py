@@ -29,7 +29,7 @@ from pathlib import Path
 from archself.atomic import write_bytes, write_text
 from archself.errors import OutputError
 from archself.model import Architecture
-from archself.reports.dsm import KINDS, KIND_TITLES, build_dsm, orderings
+from archself.reports.dsm import KIND_TITLES, KINDS, build_dsm, orderings
 from archself.reports.graph import build_graph, config_diff, diff_graph, diff_pairs
 from archself.reports.render import render, unique_slugs
 
@@ -52,6 +52,8 @@ class ArchitectureReport:
 
 def ensure_dir(path: Path) -> None:
     """Create the output folder (and parents); an OutputError if that fails."""
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{path}: not a folder")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -14,9 +14,10 @@ Three orderings of the same matrix:
     Strongly connected components of the dependency digraph (networkx
     condensation) in topological order; inside a component the members are
     ordered by the greedy heuristic of Eades, Lin and Smyth (1993) so that little
-    weight falls below the diagonal (ties: kind, then file order). Components with more than one module are the *coupled blocks*; with
-    this convention a dependency on a later module (an entry below the diagonal,
-    row after column) is a *feedback* mark and only occurs inside coupled blocks.
+    weight falls below the diagonal (ties: kind, then file order). Components
+    with more than one module are the *coupled blocks*; with this convention a
+    dependency on a later module (an entry below the diagonal, row after column)
+    is a *feedback* mark and only occurs inside coupled blocks.
 ``clustered``
     Weighted communities (networkx Louvain on the weighted digraph with a fixed
     seed), largest first, members in sequenced order.

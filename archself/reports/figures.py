@@ -127,7 +127,7 @@ def error_figure(rep: RunReport) -> bytes:
 
 def influence_figure(rep: RunReport) -> bytes:
     """Fig. 5: |z_i| per module per MAPE-K cycle, τ, the warm-up and the switch events."""
-    fig = _figure(7.5, 4.6)
+    fig = _figure(9.0, 4.6)
     ax = fig.add_subplot()
     if rep.warmup_s > 0:
         ax.axvspan(0, rep.warmup_s, color="#bbbbbb", alpha=0.35,
@@ -146,5 +146,5 @@ def influence_figure(rep: RunReport) -> bytes:
     ax.set_ylabel("|z_i|  (Eq. 14)")
     ax.set_title(_tex(f"Influence channels: {rep.scenario}"))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", ncols=2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return _png(fig)

@@ -131,7 +131,7 @@ def diff_pairs(arch: Architecture) -> list[tuple[str, str]]:
             if src != act.to and src in arch.configurations and act.to in arch.configurations:
                 pairs.add((src, act.to))
     if not pairs:
-        pairs = set(zip(confs, confs[1:]))
+        pairs = set(zip(confs, confs[1:], strict=False))
     idx = {c: k for k, c in enumerate(confs)}
     return sorted(pairs, key=lambda p: (idx[p[0]], idx[p[1]]))
 

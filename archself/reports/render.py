@@ -32,7 +32,8 @@ def dot_quote(value: Any) -> str:
 
     Backslashes and double quotes are escaped; newlines become DOT's ``\\n``
     (a centred line break) and other control characters are dropped, so no
-    value can close the string or inject attributes.
+    value can close the string or inject attributes. Graphviz keeps ``\\\\`` literally
+    in ids (ids stay unique and consistent) and shows it as one backslash in labels.
     """
     s = str(value)
     s = s.replace("\\", "\\\\").replace('"', '\\"')

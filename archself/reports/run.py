@@ -159,7 +159,8 @@ def _outcome(d: dict[str, Any]) -> tuple[str, str]:
         if chosen.get("to"):
             return "switch", (f"{chosen['action']}: {chosen.get('from')} → {chosen['to']} "
                               f"(score {_g(chosen.get('score'))})")
-        return "update", f"{chosen['action']} on {chosen.get('module')} (score {_g(chosen.get('score'))})"
+        score = _g(chosen.get("score"))
+        return "update", f"{chosen['action']} on {chosen.get('module')} (score {score})"
     if d.get("note"):
         return "note", str(d["note"])
     evals = d.get("evaluations") or []
