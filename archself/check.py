@@ -13,6 +13,8 @@ offending node. The rules:
 * ``signal``: an edge carries a signal its source outputs;
 * ``incomplete``: in each configuration every active module receives its
   required inputs over active edges, and the active modules are connected;
+* ``algebraic-loop``: every cycle of active edges passes through a module
+  without direct feedthrough (a plant, a delay), so the data flow can be ordered;
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
 * ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
 * ``parameter``: required parameters are given; nominal values lie inside their spaces;
@@ -273,6 +275,21 @@ def _configurations(ctx: _Ctx) -> None:
                     ctx.add("error", "module-constraint",
                             f"configuration '{cname}': '{m}' excludes '{x}', which is active",
                             (*base, "modules"))
+        flow = nx.DiGraph()
+        for _, e in edges:
+            cls = _type_info(e.target, arch)
+            if cls is not None and cls.direct_feedthrough and e.source != e.target:
+                flow.add_edge(e.source, e.target)
+        try:
+            loop = nx.find_cycle(flow)
+        except nx.NetworkXNoCycle:
+            loop = None
+        if loop:
+            path = " -> ".join([u for u, _ in loop] + [loop[0][0]])
+            ctx.add("error", "algebraic-loop",
+                    f"configuration '{cname}' has an algebraic loop {path}: a cycle needs a "
+                    "module whose outputs depend on its state only (direct_feedthrough = False)",
+                    (*base, "modules"))
         if len(active) > 1:
             g = nx.Graph()
             g.add_nodes_from(active)

@@ -2,7 +2,8 @@
 
 The graph is layered: module ``m{i}`` receives edges from up to ``fan_in``
 modules in earlier layers, so W is nilpotent (ρ(W) = 0) unless ``feedback``
-adds a few weak backward edges, which keep ρ(W) well below 1.
+adds a few weak backward edges, which keep ρ(W) well below 1. The relays are
+unit delays, so feedback edges make no algebraic loop.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def generate_architecture(
     if n < 2:
         raise ValueError("n must be at least 2")
     rng = np.random.default_rng(seed)
-    width = max(2, int(np.sqrt(n)))
+    width = max(1, int(np.sqrt(n)))
     lines = [
         "# yaml-language-server: $schema=../schemas/architecture.schema.json",
         "archself: 1",
@@ -48,18 +49,23 @@ def generate_architecture(
             f"  m{i}: {{kind: {kind}, type: generic.relay, "
             f"residual: {{signal: deviation, nominal: 0.1}}}}"
         )
-    lines.append("edges:")
+    edges: list[str] = []
     for i in range(width, n):
-        layer_start = (i // width - 1) * width
-        k = int(rng.integers(1, fan_in + 1))
-        sources = rng.choice(np.arange(0, max(layer_start + width, 1)), size=min(k, i),
-                             replace=False)
+        earlier = np.arange(0, (i // width) * width)  # every module of the earlier layers
+        k = min(int(rng.integers(1, fan_in + 1)), len(earlier))
+        sources = set(rng.choice(earlier, size=k, replace=False).tolist())
+        if i < 2 * width:  # columns c and c+1 of the first layer: the graph is connected
+            sources |= {i - width, (i - width + 1) % width}
         w = 0.9 / len(sources)
         for s in sorted(int(x) for x in sources):
-            lines.append(f"  - {{from: m{s}, to: m{i}, weight: {w:.4f}, carries: signal}}")
+            edges.append(f"  - {{from: m{s}, to: m{i}, weight: {w:.4f}, carries: signal}}")
+    backward: set[tuple[int, int]] = set()
     for _ in range(feedback):
         a, b = sorted(int(x) for x in rng.choice(n, size=2, replace=False))
-        lines.append(f"  - {{from: m{b}, to: m{a}, weight: 0.01, carries: signal}}")
+        if (b, a) not in backward:
+            backward.add((b, a))
+            edges.append(f"  - {{from: m{b}, to: m{a}, weight: 0.01, carries: signal}}")
+    lines += ["edges:" + ("" if edges else " []"), *edges]
     lines += [
         "configurations:",
         "  all:",

@@ -15,10 +15,11 @@ from archself.registry import register
 
 @register("generic.relay")
 class Relay(RuntimeModule):
-    """Forward the mean of the incoming ``signal`` values, plus Gaussian noise.
+    """A unit delay: publish ``gain`` times last step's ``signal`` input, plus noise.
 
     Parameters (``params``): ``gain`` (default 1.0), ``noise`` (default 0.0).
-    Local signal ``deviation``: |output − gain·mean input|, the injected disturbance.
+    Local signal ``deviation``: |output − gain·input|, the injected disturbance.
+    Having no direct feedthrough, relays can form feedback loops.
     """
 
     role = "relay"
@@ -28,10 +29,22 @@ class Relay(RuntimeModule):
     fault_kinds = frozenset({"bias", "bias_drift", "effectiveness_loss", "noise_increase",
                              "dropout", "stuck"})
 
+    direct_feedthrough = False
+
+    def __init__(self, name: str, params: dict[str, Any], rng: Any) -> None:
+        super().__init__(name, params, rng)
+        self.state = 0.0
+
+    def output(self, t: float) -> dict[str, Any]:
+        return {"signal": self.state}
+
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         x = inputs.get("signal")
-        base = float(self.params.get("gain", 1.0)) * (float(x) if x is not None else 0.0)
+        try:
+            base = float(self.params.get("gain", 1.0)) * float(x if x is not None else 0.0)
+        except (TypeError, ValueError):  # a vector or junk on the wire: hold the state
+            base = self.state
         noise = float(self.params.get("noise", 0.0))
-        y = base + (noise * float(self.rng.standard_normal()) if noise else 0.0)
-        self.signals["deviation"] = abs(y - base)
-        return {"signal": y}
+        self.state = base + (noise * float(self.rng.standard_normal()) if noise else 0.0)
+        self.signals["deviation"] = abs(self.state - base)
+        return {}

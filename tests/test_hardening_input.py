@@ -1,0 +1,128 @@
+"""Hardening against bad input and failed writes; generated architectures always run."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from archself.atomic import write_text
+from archself.check import check, has_errors
+from archself.cli import app
+from archself.errors import OutputError
+from archself.generate import generate_architecture
+from archself.loader import load_text
+from conftest import FIXTURES
+
+MINIMAL = FIXTURES / "valid" / "minimal.yaml"
+
+
+# --------------------------------------------------------------------------- atomic output
+def test_failed_write_keeps_the_old_file(tmp_path: Path, monkeypatch) -> None:
+    target = tmp_path / "result.json"
+    target.write_text("good")
+
+    def boom(src: str, dst: str) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OutputError, match="No space left"):
+        write_text(target, "new and half-written")
+    assert target.read_text() == "good"
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"], "temporary file removed"
+
+
+def test_interrupted_write_keeps_the_old_file(tmp_path: Path, monkeypatch) -> None:
+    target = tmp_path / "trace.json"
+    target.write_text("good")
+    real_fdopen = os.fdopen
+
+    class Interrupting:
+        def __init__(self, fh):
+            self.fh = fh
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+        def write(self, data):
+            self.fh.write(data[:10])
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "fdopen", lambda fd, mode: Interrupting(real_fdopen(fd, mode)))
+    with pytest.raises(KeyboardInterrupt):
+        write_text(target, "x" * 1000)
+    assert target.read_text() == "good"
+    assert len(list(tmp_path.iterdir())) == 1
+
+
+def test_missing_output_folder_is_a_one_line_error(tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match="does not exist"):
+        write_text(tmp_path / "no" / "such" / "dir" / "x.json", "{}")
+    result = CliRunner().invoke(app, ["schema", "-o", str(tmp_path / "nope" / "s.json")])
+    assert result.exit_code == 1
+    assert "does not exist" in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root can write into read-only folders")
+def test_read_only_folder(tmp_path: Path) -> None:
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        with pytest.raises(OutputError, match="cannot write"):
+            write_text(ro / "x.json", "{}")
+    finally:
+        ro.chmod(0o700)
+
+
+def test_output_path_that_is_a_folder(tmp_path: Path) -> None:
+    (tmp_path / "taken").mkdir()
+    with pytest.raises(OutputError):
+        write_text(tmp_path / "taken", "{}")
+    assert (tmp_path / "taken").is_dir()
+
+
+# --------------------------------------------------------------------------- generated files
+FAULT_KINDS = ["bias", "bias_drift", "effectiveness_loss", "noise_increase", "dropout", "stuck"]
+
+
+@st.composite
+def generated_architectures(draw) -> str:
+    n = draw(st.integers(2, 25))
+    text = generate_architecture(
+        n,
+        seed=draw(st.integers(0, 2**16)),
+        fan_in=draw(st.integers(1, 4)),
+        feedback=draw(st.integers(0, 3)),
+    )
+    faults = []
+    for _ in range(draw(st.integers(0, 3))):
+        kind = draw(st.sampled_from(FAULT_KINDS))
+        module = f"m{draw(st.integers(0, n - 1))}"
+        onset = draw(st.floats(0, 4, allow_nan=False))
+        mag = draw(st.floats(-5, 5, allow_nan=False))
+        faults.append(f"{{module: {module}, kind: {kind}, onset_s: {onset!r}, magnitude: {mag!r}}}")
+    text += "scenarios:\n  s:\n    duration_s: 5\n    faults: [" + ", ".join(faults) + "]\n"
+    return text
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(generated_architectures(), st.booleans())
+def test_any_valid_generated_file_compiles_and_runs(text: str, adaptive: bool) -> None:
+    from archself.runtime import MapeK
+    from archself.sim.run import simulate
+
+    loaded = load_text(text, "generated.yaml")
+    findings = check(loaded)
+    assert not has_errors(findings), [str(f) for f in findings]
+    arch = loaded.arch
+    result = simulate(arch, "s", seed=1, adapt=MapeK(arch) if adaptive else None)
+    assert len(result.series["t"]) == 50
+    assert result.mode == ("adaptive" if adaptive else "fixed")
