@@ -125,6 +125,39 @@ def schema(
             raise _die(exc) from None
 
 
+# --------------------------------------------------------------------------- init
+@app.command()
+def init(
+    name: Annotated[str, typer.Argument(help="Name of the system; writes NAME.yaml.")],
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+) -> None:
+    """Write a small, valid architecture file to start from (NAME.yaml).
+
+    The file carries the schema modeline, so an editor with yaml-language-server
+    completes and checks it while you edit.
+    """
+    import os
+
+    from archself.atomic import write_text
+    from archself.resources import schema_path
+    from archself.reports.render import render
+
+    target = Path(name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
+    if target.exists() and not force:
+        raise _fail(f"{target}: error: exists; pass --force to overwrite it")
+    folder = target.parent if str(target.parent) else Path(".")
+    try:
+        schema = os.path.relpath(schema_path(), folder.resolve())
+    except ValueError:  # another drive
+        schema = schema_path().as_uri()
+    text = render("init.yaml.j2", name=target.stem, file_name=target.name, schema_url=schema)
+    try:
+        write_text(target, text)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(f"wrote {target}; next: archself validate {target}")
+
+
 # --------------------------------------------------------------------------- simulate
 def _load(path: Path):
     from archself.check import check, has_errors

@@ -42,9 +42,7 @@ def _cell(text: Any) -> str:
 
 def format_reference() -> str:
     """Markdown reference of every object of the architecture file format."""
-    from jinja2 import Environment, FileSystemLoader, StrictUndefined
-
-    from archself.resources import data_dir
+    from archself.reports.render import render
     from archself.schema import architecture_schema
 
     schema = architecture_schema()
@@ -68,7 +66,4 @@ def format_reference() -> str:
         title = "Architecture (top level)" if name == "Architecture" else name
         sections.append({"title": title, "description": _cell(s.get("description", "")).strip(),
                          "properties": props})
-    env = Environment(loader=FileSystemLoader(str(data_dir("templates"))),
-                      undefined=StrictUndefined, autoescape=False, keep_trailing_newline=True,
-                      trim_blocks=True, lstrip_blocks=True)
-    return env.get_template("format.md.j2").render(sections=sections)
+    return render("format.md.j2", sections=sections)

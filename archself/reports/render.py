@@ -24,7 +24,22 @@ import re
 import unicodedata
 from typing import Any
 
-__all__ = ["csv_field", "dot_label", "dot_quote", "md_cell", "num", "render", "slug"]
+__all__ = [
+    "csv_field", "dot_label", "dot_quote", "md_cell", "num", "render", "slug", "yaml_string",
+]
+
+
+def yaml_string(value: Any) -> str:
+    """A YAML double-quoted scalar (JSON string syntax is valid YAML 1.2).
+
+    Examples
+    --------
+    >>> print(yaml_string('tank "A": 1'))
+    "tank \\"A\\": 1"
+    """
+    import json
+
+    return json.dumps(str(value), ensure_ascii=False)
 
 
 def dot_quote(value: Any) -> str:
@@ -146,7 +161,7 @@ def environment() -> Any:
         )
         env.filters.update(
             dot_quote=dot_quote, dot_label=dot_label, md_cell=md_cell, csv_field=csv_field,
-            num=num,
+            num=num, yaml_string=yaml_string,
         )
         _ENV = env
     return _ENV
