@@ -89,40 +89,53 @@ def schema(
     check_file: Annotated[
         Optional[Path], typer.Option("--check", help="Exit 1 if FILE differs from the model.")
     ] = None,
-    markdown: Annotated[
-        bool, typer.Option("--markdown", help="The Markdown format reference instead.")
-    ] = False,
 ) -> None:
-    """Print the JSON Schema of architecture files (or its Markdown reference), from the model."""
+    """Print the JSON Schema of architecture files, generated from the model."""
+    from archself.schema import schema_text
+
+    _write_or_check({"architecture.schema.json": schema_text()}, output, check_file,
+                    "archself schema -o")
+
+
+@app.command()
+def docs(
+    folder: Annotated[Path, typer.Argument(help="Folder of the reference pages.")] = Path("docs"),
+    check: Annotated[bool, typer.Option("--check", help="Exit 1 if a page is stale.")] = False,
+) -> None:
+    """Regenerate the reference pages (format.md from the schema, cli.md from this CLI)."""
+    from archself.docgen import reference_pages
+
+    for name, text in reference_pages().items():
+        target = folder / name
+        if check:
+            _write_or_check({name: text}, None, target, f"archself docs {folder}")
+        else:
+            _write_or_check({name: text}, target, None, "")
+
+
+def _write_or_check(pages: dict[str, str], output: Optional[Path], check_file: Optional[Path],
+                    regen: str) -> None:
     from archself.atomic import write_text
 
-    if markdown:
-        from archself.docgen import format_reference
-
-        text = format_reference()
-    else:
-        from archself.schema import schema_text
-
-        text = schema_text()
+    (text,) = pages.values()
     if check_file is not None:
         try:
             current = check_file.read_text(encoding="utf-8")
         except OSError as exc:
-            raise _fail(f"{check_file}: cannot read: {exc.strerror}") from None
+            raise _fail(f"{check_file}: error: cannot read: {exc.strerror}") from None
         if current != text:
-            flag = " --markdown" if markdown else ""
-            typer.echo(f"{check_file}: stale; regenerate with "
-                       f"`archself schema{flag} -o {check_file}`", err=True)
+            typer.echo(f"{check_file}: stale; regenerate with `{regen} {check_file}`"
+                       if regen.endswith("-o") else f"{check_file}: stale; run `{regen}`", err=True)
             raise typer.Exit(1)
         typer.echo(f"{check_file}: up to date")
-        return
-    if output is None:
+    elif output is None:
         sys.stdout.write(text)
     else:
         try:
             write_text(output, text)
         except ArchselfError as exc:
             raise _die(exc) from None
+        typer.echo(f"wrote {output}", err=True)
 
 
 # --------------------------------------------------------------------------- init

@@ -67,3 +67,30 @@ def format_reference() -> str:
         sections.append({"title": title, "description": _cell(s.get("description", "")).strip(),
                          "properties": props})
     return render("format.md.j2", sections=sections)
+
+
+def cli_reference() -> str:
+    """Markdown reference of every ``archself`` command, from the typer app's own help."""
+    import typer.main
+
+    from archself.cli import app
+    from archself.reports.render import render
+
+    group = typer.main.get_command(app)
+    ctx = group.make_context("archself", [], resilient_parsing=True)
+    ctx.max_content_width = ctx.terminal_width = 100
+    commands = []
+    for name in group.list_commands(ctx):
+        cmd = group.get_command(ctx, name)
+        if cmd is None or cmd.hidden:
+            continue
+        sub = cmd.make_context(name, [], parent=ctx, resilient_parsing=True)
+        sub.max_content_width = sub.terminal_width = 100
+        commands.append({"name": name, "summary": cmd.get_short_help_str(100),
+                         "help": cmd.get_help(sub).rstrip()})
+    return render("cli.md.j2", overview=group.get_help(ctx).rstrip(), commands=commands)
+
+
+def reference_pages() -> dict[str, str]:
+    """File name → content of every generated reference page in ``docs/``."""
+    return {"format.md": format_reference(), "cli.md": cli_reference()}

@@ -74,12 +74,22 @@ def test_independent_validator_rejects_structural_breakage(name: str) -> None:
     assert proc.returncode == 1, proc.stdout + proc.stderr
 
 
-def test_format_reference_is_current() -> None:
-    from archself.docgen import format_reference
+def test_reference_pages_are_current() -> None:
+    from archself.docgen import reference_pages
 
-    current = (ROOT / "docs" / "format.md").read_text(encoding="utf-8")
-    assert current == format_reference(), (
-        "docs/format.md is stale: run `archself schema --markdown -o docs/format.md`"
-    )
+    for name, text in reference_pages().items():
+        current = (ROOT / "docs" / name).read_text(encoding="utf-8")
+        assert current == text, f"docs/{name} is stale: run `archself docs`"
+    fmt = (ROOT / "docs" / "format.md").read_text(encoding="utf-8")
     for name in ("Module", "Edge", "Configuration", "Action", "Scenario", "Runtime"):
-        assert f"## {name}\n" in current
+        assert f"## {name}\n" in fmt
+    cli = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
+    for command in ("validate", "simulate", "explain", "init", "docs"):
+        assert f"## archself {command}\n" in cli
+
+
+def test_docs_check_command(tmp_path: Path) -> None:
+    runner = CliRunner()
+    assert runner.invoke(app, ["docs", "--check", str(ROOT / "docs")]).exit_code == 0
+    result = runner.invoke(app, ["docs", "--check", str(tmp_path)])
+    assert result.exit_code == 1
