@@ -213,7 +213,9 @@ class Budget(_Strict):
 
 
 # --------------------------------------------------------------------------- scenarios
-FaultKind = Literal["bias_drift", "bias", "effectiveness_loss", "noise_increase", "dropout", "stuck"]
+FaultKind = Literal[
+    "bias_drift", "bias", "effectiveness_loss", "noise_increase", "dropout", "stuck", "nan"
+]
 
 
 class Fault(_Strict):
@@ -222,7 +224,8 @@ class Fault(_Strict):
     ``bias_drift``: an offset growing at ``magnitude`` units/s from onset;
     ``bias``: a constant offset; ``effectiveness_loss``: output scaled by
     (1 − magnitude); ``noise_increase``: noise standard deviation multiplied by
-    ``magnitude``; ``dropout``: no output; ``stuck``: output frozen at onset.
+    ``magnitude``; ``dropout``: no output; ``stuck``: output frozen at onset;
+    ``nan``: the output becomes NaN (a broken value).
     """
 
     module: Name

@@ -27,7 +27,16 @@ Design decisions
 * **Robustness.** A module that raises, or publishes a non-finite number, is
   marked unavailable for that step and its last good outputs are held; a module
   whose required input is ``None`` is marked unavailable too (it still runs and
-  must tolerate it).
+  must tolerate it). A module whose last value was NaN stays unavailable until
+  it publishes a good one (a GPS between fixes gives ``None``, not news). Two
+  checks need a declaration by the module type: a module with ``max_silence_s``
+  (a GPS receiver: a few fix periods) that has published no value for longer
+  than that is *silent* (a dropout), and a signal with a declared noise level
+  (``noise_levels``, > 0) that repeats the same value ``STALE_REPEATS`` times in
+  a row is *stale* (a frozen sensor: real noise never repeats bit for bit).
+  :meth:`LiveSystem.health` gives the reason of each unavailable module and
+  :meth:`LiveSystem.dependencies` the modules each module of a configuration
+  cannot run without.
 * **Edges.** ``uncertainty`` adds zero-mean Gaussian noise (own random stream per
   edge) to numeric values; ``latency_s`` delays the value by
   ``round(latency_s / dt)`` steps (``None`` until the line fills).
@@ -50,7 +59,10 @@ from archself.errors import CompileError, SimulationError
 from archself.model import Architecture
 from archself.modules.base import RuntimeModule
 
-__all__ = ["LiveSystem", "stable_hash", "module_rng"]
+__all__ = ["LiveSystem", "STALE_REPEATS", "stable_hash", "module_rng"]
+
+#: A noisy signal repeating the same value this many times in a row is stale.
+STALE_REPEATS = 3
 
 
 def stable_hash(text: str) -> int:
@@ -166,6 +178,11 @@ class LiveSystem:
         self._plans: dict[str, _Plan] = {}
         self.outputs: dict[str, dict[str, Any]] = {}
         self._ok: dict[str, bool] = {}
+        self._why: dict[str, str] = {}
+        self._heard: dict[str, float] = {}  # module -> time of its last published value
+        self._last: dict[tuple[str, str], Any] = {}  # (module, signal) -> last value
+        self._repeats: dict[tuple[str, str], int] = {}
+        self._broken: set[str] = set()  # modules whose last value was not finite
         self.history: list[dict[str, Any]] = []
         obj = arch.runtime.objective
         self._obj_actual = tuple(obj.actual.rsplit(".", 1))
@@ -284,7 +301,8 @@ class LiveSystem:
                 inputs[carries] = val
         return inputs
 
-    def _publish(self, name: str, out: dict[str, Any] | None, t: float) -> bool:
+    def _publish(self, name: str, out: dict[str, Any] | None, t: float) -> str | None:
+        """Apply the faults and publish ``out``; the reason the module is unavailable, or None."""
         if out is None:
             out = {}
         faults = self._faults.get(name)
@@ -293,11 +311,56 @@ class LiveSystem:
             for sig, inj in faults:
                 if sig in out:
                     out[sig] = inj.apply(t, out[sig])
+        heard = False
         for v in out.values():
+            if v is None:
+                continue
             if _is_bad(v):
-                return False
+                self._broken.add(name)
+                return "non-finite output"
+            heard = True
         self.outputs[name] = out
-        return True
+        mod = self._pool[name]
+        if heard:
+            self._heard[name] = t
+            self._broken.discard(name)
+            levels = getattr(mod, "noise_levels", None)
+            if levels:
+                for sig, level in levels.items():
+                    v = out.get(sig)
+                    if v is None or not level or level <= 0:
+                        continue
+                    key = (name, sig)
+                    prev = self._last.get(key)
+                    same = prev is not None and (
+                        np.array_equal(v, prev) if isinstance(v, np.ndarray) else v == prev
+                    )
+                    self._repeats[key] = self._repeats.get(key, 0) + 1 if same else 0
+                    self._last[key] = v.copy() if isinstance(v, np.ndarray) else v
+        return self._watch(name, mod, t)
+
+    def _watch(self, name: str, mod: RuntimeModule, t: float) -> str | None:
+        """Silence and staleness of a module that published (held) outputs."""
+        if name in self._broken:  # its last value was NaN: broken until a good one comes
+            return "non-finite output"
+        limit = getattr(mod, "max_silence_s", None)
+        if limit is not None:
+            quiet = t - self._heard.setdefault(name, t)
+            if quiet > float(limit) + 1e-9:
+                return f"silent for {quiet:.3g} s"
+        if self._repeats:
+            for sig in getattr(mod, "noise_levels", None) or ():
+                n = self._repeats.get((name, sig), 0)
+                if n >= STALE_REPEATS:
+                    return f"stale {sig} ({n + 1} identical values)"
+        return None
+
+    def _mark(self, name: str, reason: str | None) -> None:
+        self._ok[name] = reason is None
+        if reason is None:
+            self._why.pop(name, None)
+        else:
+            self._why[name] = reason
 
     def step(self) -> None:
         """Advance the system by one step ``dt``."""
@@ -305,37 +368,37 @@ class LiveSystem:
         dt = self.dt
         pool = self._pool
         plan = self._plan
-        ok = self._ok
         req = plan.required
+        mark = self._mark
         for name in plan.nonft:
             try:
-                good = self._publish(name, pool[name].output(t), t)
-            except Exception:
-                good = False
-            ok[name] = good
+                reason = self._publish(name, pool[name].output(t), t)
+            except Exception as exc:  # noqa: BLE001 - a failing module must not stop the run
+                reason = f"raised {type(exc).__name__}"
+            mark(name, reason)
         for name in plan.order:
             inputs = self._gather(name)
             try:
-                good = self._publish(name, pool[name].step(t, dt, inputs), t)
-            except Exception:
-                good = False
-            if good:
+                reason = self._publish(name, pool[name].step(t, dt, inputs), t)
+            except Exception as exc:  # noqa: BLE001
+                reason = f"raised {type(exc).__name__}"
+            if reason is None:
                 for s in req[name]:
                     if inputs.get(s) is None:
-                        good = False
+                        reason = f"lost input {s}"
                         break
-            ok[name] = good
+            mark(name, reason)
         for name in plan.nonft:
             inputs = self._gather(name)
             try:
                 pool[name].step(t, dt, inputs)
-            except Exception:
-                ok[name] = False
+            except Exception as exc:  # noqa: BLE001
+                mark(name, f"raised {type(exc).__name__}")
                 continue
-            if ok[name]:
+            if self._ok[name]:
                 for s in req[name]:
                     if inputs.get(s) is None:
-                        ok[name] = False
+                        mark(name, f"lost input {s}")
                         break
         self.k += 1
         self.t = self.k * dt
@@ -350,8 +413,36 @@ class LiveSystem:
         return {n: self._pool[n].local_signals() for n in self._plan.active}
 
     def available(self) -> dict[str, bool]:
-        """module -> False when it raised, gave NaN or lost a required input in the last step."""
+        """module -> False when it raised, gave NaN, lost a required input, fell silent or
+        stale in the last step."""
         return {n: self._ok.get(n, True) for n in self._plan.active}
+
+    def health(self) -> dict[str, str | None]:
+        """module -> why it is unavailable (None when available), for the active modules.
+
+        Reasons: ``raised <Exception>``, ``non-finite output``, ``lost input <signal>``
+        (an upstream failure, not the module's own), ``silent for <t> s``,
+        ``stale <signal> (<n> identical values)``.
+        """
+        why = self._why
+        return {n: (None if self._ok.get(n, True) else why.get(n)) for n in self._plan.active}
+
+    def dependencies(self, configuration: str | None = None) -> dict[str, frozenset[str]]:
+        """module -> the modules it cannot run without in ``configuration`` (default: active).
+
+        A module depends on the providers of its required inputs (the type's
+        ``inputs``) along the configuration's edges, and on the modules its
+        ``constraints.requires`` names. Optional inputs create no dependency.
+        """
+        plan = self._make_plan(configuration or self.configuration)
+        out: dict[str, frozenset[str]] = {}
+        for n in plan.active:
+            need = set(plan.required[n])
+            deps = {src for carries, src, *_ in plan.routes[n] if carries in need}
+            deps.update(m for m in self.arch.modules[n].constraints.requires if m in plan.active_set)
+            deps.discard(n)
+            out[n] = frozenset(deps)
+        return out
 
     def signal(self, ref: str | tuple[str, str]) -> Any:
         """The current value of ``'module.signal'`` (None when not published)."""
@@ -401,6 +492,9 @@ class LiveSystem:
         for g in gone:
             self.outputs.pop(g, None)
             self._ok.pop(g, None)
+            self._why.pop(g, None)
+            self._heard.pop(g, None)
+            self._broken.discard(g)
         self._plan = new
         self.history.append({"t_s": self.t, "from": old.name, "to": name})
         self.configuration = name

@@ -70,6 +70,10 @@ def test_nominal_never_switches(arch, seed):
 def test_rollout_and_lyapunov_paths_on_the_live_system(arch):
     """Δ by rollout on snapshots and the Lyapunov test (no model) drive the same switch."""
     data = arch.model_dump(by_alias=True)
+    # the GPS-outage fallbacks are keyed to the GPS, whose z is inherited from the chassis;
+    # with a rollout Δ (not tied to the module's own residual) they would compete on every
+    # cycle of a long actuator fault, so this test leaves them out
+    data["actions"] = [a for a in data["actions"] if a["module"] != "gps"]
     for a in data["actions"]:
         if a["kind"] != "parameter_update":
             a["improvement"] = {"method": "rollout", "horizon_s": 5.0}

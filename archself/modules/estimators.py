@@ -185,6 +185,7 @@ class Odometry(RuntimeModule):
             c = np.asarray(state["covariance"], dtype=float)
             self.var_pos = float(max(c[0, 0], c[1, 1]))
         self.monitor.clear()
+        self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 
 
 @register("estimator.ekf")
@@ -363,6 +364,7 @@ class Ekf(RuntimeModule):
             P[:3, :3] += np.asarray(state["covariance"], dtype=float)[:3, :3]
         self.kf.P = P
         self.monitor.clear()
+        self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 
 
 def _h_gps(x):

@@ -18,7 +18,7 @@ from archself.registry import register
 
 __all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
 
-_SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "stuck"})
+_SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "stuck", "nan"})
 
 
 @register("plant.diffdrive")
@@ -256,7 +256,8 @@ class Gps(RuntimeModule):
     noise_m : float
         Standard deviation of each coordinate (m).
 
-    Input ``pose`` (true); output ``position``.
+    Input ``pose`` (true); output ``position``. ``max_silence_s`` (2.5 fix
+    periods) tells the system when a receiver without fixes is in dropout.
     """
 
     role = "sensor"
@@ -273,6 +274,7 @@ class Gps(RuntimeModule):
         self.period = 1.0 / float(self.params.get("rate_hz", 1.0))
         self.noise = float(self.params.get("noise_m", 0.3))
         self.noise_levels = {"position": self.noise}
+        self.max_silence_s = 2.5 * self.period
 
     def set_params(self, values):
         super().set_params(values)

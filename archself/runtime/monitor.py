@@ -18,6 +18,15 @@
 
   Inactive modules, modules without a ``residual`` block and modules whose signal
   is missing or not finite contribute ``r_i = 0``; the last are flagged in κ_i.
+- Unavailable modules (Eq. 12 with a total deviation): an active module the
+  system reports unavailable for a reason of its own (it raised, gave NaN, fell
+  silent or froze; not ``lost input``, which is an upstream failure) gets the
+  saturated residual ``r_sat`` (:func:`unavailable_residual`), with or without a
+  ``residual`` block. It is thereby a candidate, and the actions keyed to it
+  (e.g. a fallback to a configuration that does not need it) are evaluated. The
+  reason comes from ``system.health()``; a system without it (or without a
+  reason for the module) leaves ``r_i = 0`` and unavailability only blocks
+  target configurations in the Planner.
 - Status indicators κ_i (:class:`ModuleStatus`): availability as the system
   reports it, whether the residual signal was usable, a confidence in [0, 1]
   (how settled the residual filter is) and violated module constraints.
@@ -40,6 +49,7 @@ __all__ = [
     "ResidualFilter",
     "filter_gain",
     "module_residual",
+    "unavailable_residual",
 ]
 
 
@@ -95,6 +105,33 @@ def module_residual(
     return float(sensitivity * max(0.0, abs(value) - nominal) / nominal)
 
 
+def unavailable_residual(runtime: Any) -> float:
+    """``r_sat``: the residual of an unavailable module, ``max(1, 2·τ)``.
+
+    τ is ``runtime.threshold`` (or ``hysteresis.on``), so an unavailable module
+    is always a candidate (z_i ≥ r_i with non-negative weights); 1 is "a
+    deviation as large as the nominal level" under ``nominal`` normalization.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> unavailable_residual(NS(threshold=0.55, hysteresis=None))
+    1.1
+    >>> unavailable_residual(NS(threshold=None, hysteresis=None))
+    1.0
+    """
+    tau = getattr(runtime, "threshold", None)
+    hyst = getattr(runtime, "hysteresis", None)
+    if tau is None and hyst is not None:
+        tau = hyst.on
+    return float(max(1.0, 2.0 * float(tau or 0.0)))
+
+
+def is_own_failure(reason: str | None) -> bool:
+    """Whether an unavailability reason is the module's own (not a lost upstream input)."""
+    return not (reason or "").startswith("lost input")
+
+
 class ResidualFilter:
     """First-order low-pass filter ``y ← y + g·(s − y)`` holding on missing samples.
 
@@ -148,15 +185,19 @@ class ModuleStatus:
     residual_ok: bool = True
     confidence: float = 1.0
     violations: list[str] = field(default_factory=list)
+    reason: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "active": self.active,
             "available": self.available,
             "residual_ok": self.residual_ok,
             "confidence": float(self.confidence),
             "violations": list(self.violations),
         }
+        if self.reason is not None:
+            out["reason"] = self.reason
+        return out
 
 
 @dataclass
@@ -201,6 +242,7 @@ class Monitor:
             if mod.residual is not None
         }
         self._t_prev: float | None = None
+        self.r_sat = unavailable_residual(arch.runtime)
 
     def observe(self, system: Any, active: frozenset[str]) -> Observation:
         """Sample the system once (Algorithm 1, steps 1–2); never raises on bad signals."""
@@ -225,6 +267,11 @@ class Monitor:
             avail = system.available() or {}
         except Exception:  # noqa: BLE001
             avail = {}
+        health = getattr(system, "health", None)
+        try:
+            why = (health() or {}) if health is not None else {}
+        except Exception:  # noqa: BLE001
+            why = {}
 
         r = np.zeros(len(self.names))
         signals: dict[str, float | None] = {}
@@ -236,6 +283,11 @@ class Monitor:
             kappa[name] = status
             if is_active:
                 status.violations = self._violations(name, active, local.get(name) or {})
+                if not status.available:
+                    reason = why.get(name)
+                    status.reason = reason
+                    if reason is not None and is_own_failure(reason):
+                        r[k] = self.r_sat
             filt = self.filters.get(name)
             if filt is None:
                 continue

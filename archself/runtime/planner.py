@@ -8,8 +8,13 @@ reason; cheap checks come before the costly ones):
 1. *applicable* — ``applies_in`` is unset or contains the current configuration;
    a structural action leads somewhere else (``to`` ≠ current); a parameter update
    targets an active module (``not applicable``) and changes a value (``no change``);
-2. *available* — every module of the target configuration is available according
-   to κ (an action whose modules are unavailable is not admissible, §4.2);
+2. *available* — the target configuration does not rely on an unavailable module
+   (κ; an action whose modules are unavailable is not admissible, §4.2). When the
+   system reports ``dependencies(to)`` (module -> modules it cannot run without:
+   providers of required inputs, ``constraints.requires``), a target is rejected
+   if one of its modules depends on an unavailable one; an unavailable module
+   nothing depends on (a dead sensor used only for monitoring) does not block it.
+   Without that information every module of the target must be available;
 3. *constraints* C(a, θ, e) ≤ 0 (Eq. 27) of the resulting architecture: each
    module's ``requires``/``excludes`` (``constraint``) and each budget
    ``Σ_{m in target} resources[resource] ≤ max`` (``budget``);
@@ -194,10 +199,27 @@ class Planner:
         self.horizon_steps = rt.stability.horizon_steps
         acceptable = rt.objective.acceptable
         self.v_floor = acceptable**2 if acceptable > 0 else 1e-6
+        self._deps: dict[str, Mapping[str, Iterable[str]] | None] = {}
+
+    def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
+        """``system.dependencies(configuration)``, cached (None if the system has none)."""
+        if configuration not in self._deps:
+            fn = getattr(system, "dependencies", None)
+            try:
+                self._deps[configuration] = fn(configuration) if fn is not None else None
+            except Exception:  # noqa: BLE001 - fall back to the strict rule
+                self._deps[configuration] = None
+        return self._deps[configuration]
 
     # ------------------------------------------------------------------ checks
-    def _admissible(self, a: Action, s: PlanState) -> tuple[str | None, str, list[str]]:
-        """(rejection, detail, target modules) of the cheap checks 1–4."""
+    def _admissible(
+        self, a: Action, s: PlanState, deps: Mapping[str, Iterable[str]] | None = None
+    ) -> tuple[str | None, str, list[str]]:
+        """(rejection, detail, target modules) of the cheap checks 1–4.
+
+        ``deps`` is the target configuration's dependency map (module -> modules
+        it needs), or None for the strict rule (every target module available).
+        """
         if a.applies_in is not None and s.configuration not in a.applies_in:
             return "not applicable", f"only in {', '.join(a.applies_in)}", []
         if a.kind == "parameter_update":
@@ -214,6 +236,13 @@ class Planner:
                 return "not applicable", f"unknown configuration {a.to}", []
             target = list(self.arch.configurations[a.to].modules)
         down = [m for m in target if m in s.kappa and not s.kappa[m].available]
+        if down and deps is not None:
+            dead = set(down)
+            needed = {
+                u: sorted(m for m in target if m not in dead and u in set(deps.get(m, ())))
+                for u in down
+            }
+            down = [f"{u} (needed by {', '.join(by)})" for u, by in needed.items() if by]
         if down:
             return "unavailable", "unavailable: " + ", ".join(down), target
         bad = constraint_violations(self.arch, target)
@@ -267,7 +296,9 @@ class Planner:
             for order, a in self.by_module.get(module, []):
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
-                reason, detail, _ = self._admissible(a, state)
+                dest = state.configuration if a.kind == "parameter_update" else a.to
+                deps = self.dependencies(system, dest) if dest else None
+                reason, detail, _ = self._admissible(a, state, deps)
                 if reason is not None:
                     ev.rejected, ev.detail = reason, detail
                     continue

@@ -19,6 +19,7 @@ noise_increase      ``y + n``, ``n ~ N(0, σ²)``: if the module declares its
 dropout             ``None``
 stuck               the first value at or after onset, held (steps where the
                     module gives ``None`` stay ``None``)
+nan                 NaN (every component of a vector); ``None`` stays ``None``
 ==================  =====================================================
 
 Examples
@@ -41,7 +42,7 @@ import numpy as np
 __all__ = ["FAULT_KINDS", "FaultInjector", "default_signal"]
 
 FAULT_KINDS = frozenset(
-    {"bias_drift", "bias", "effectiveness_loss", "noise_increase", "dropout", "stuck"}
+    {"bias_drift", "bias", "effectiveness_loss", "noise_increase", "dropout", "stuck", "nan"}
 )
 
 
@@ -124,6 +125,10 @@ class FaultInjector:
             return value + self.magnitude
         if kind == "effectiveness_loss":
             return value * (1.0 - self.magnitude)
+        if kind == "nan":
+            if isinstance(value, np.ndarray):
+                return np.full(value.shape, math.nan)
+            return math.nan
         if kind == "noise_increase":
             if isinstance(value, np.ndarray):
                 return value + self.sigma * self.rng.standard_normal(value.shape)
