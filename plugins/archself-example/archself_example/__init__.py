@@ -1,4 +1,4 @@
-"""Example archself plugin: a magnetometer heading sensor.
+"""Example archself plugin: a magnetometer heading sensor and a level controller.
 
 Registered through the ``archself.modules`` entry point in this package's
 pyproject.toml (name = type key, value = class); archself never imports a name
@@ -12,6 +12,9 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import RuntimeModule
+from archself_example.level import ProportionalLevel
+
+__all__ = ["Magnetometer", "ProportionalLevel"]
 
 
 class Magnetometer(RuntimeModule):
