@@ -101,3 +101,4 @@ def test_ci_runs_the_readme_test_command() -> None:
     install_and_run, install_and_test = blocks
     assert "archself simulate" in install_and_run and "pytest" in install_and_test
     assert install_and_test in ci
+    assert install_and_run in ci
