@@ -341,7 +341,8 @@ def _actions(ctx: _Ctx) -> None:
     for i, a in enumerate(arch.actions):
         base: Path_ = ("actions", i)
         if a.id in seen:
-            ctx.add("error", "duplicate", f"action id '{a.id}' already used by actions[{seen[a.id]}]",
+            ctx.add("error", "duplicate",
+                    f"action id '{a.id}' already used by actions[{seen[a.id]}]",
                     (*base, "id"))
         seen.setdefault(a.id, i)
         _ref(ctx, a.module, (*base, "module"))
@@ -369,7 +370,8 @@ def _actions(ctx: _Ctx) -> None:
             src = arch.configurations[src_name]
             added = set(target.modules) - set(src.modules)
             removed = set(src.modules) - set(target.modules)
-            rewired = {tuple(p) for p in target.disabled_edges} != {tuple(p) for p in src.disabled_edges}
+            off_src = {tuple(p) for p in src.disabled_edges}
+            rewired = {tuple(p) for p in target.disabled_edges} != off_src
             expect = {
                 "substitute": bool(added) and bool(removed),
                 "activate": bool(added) and not removed,
@@ -379,7 +381,8 @@ def _actions(ctx: _Ctx) -> None:
             if not expect:
                 ctx.add("error", "action",
                         f"a {a.kind} from '{src_name}' to '{a.to}' does not match the change "
-                        f"(adds {sorted(added) or 'nothing'}, removes {sorted(removed) or 'nothing'})",
+                        f"(adds {sorted(added) or 'nothing'}, "
+                        f"removes {sorted(removed) or 'nothing'})",
                         (*base, "kind"))
 
 
@@ -400,11 +403,13 @@ def _scenarios(ctx: _Ctx) -> None:
         if f.kind not in cls.fault_kinds:
             can = ", ".join(sorted(cls.fault_kinds)) or "no faults"
             ctx.add("error", "fault",
-                    f"'{f.module}' ({arch.modules[f.module].type}) cannot take fault kind '{f.kind}' "
+                    f"'{f.module}' ({arch.modules[f.module].type}) cannot take fault kind "
+                    f"'{f.kind}' "
                     f"(it takes: {can})", (*path, "kind"))
         if f.signal is not None and cls.outputs and f.signal not in cls.outputs:
             ctx.add("error", "fault",
-                    f"'{f.module}' has no output '{f.signal}' (it outputs: {', '.join(cls.outputs)})",
+                    f"'{f.module}' has no output '{f.signal}' "
+                    f"(it outputs: {', '.join(cls.outputs)})",
                     (*path, "signal"))
         duration = arch.scenarios[path[1]].duration_s  # type: ignore[index]
         if f.onset_s >= duration:
@@ -426,4 +431,5 @@ def _objective(ctx: _Ctx) -> None:
             cls = _type_info(mod, ctx.arch)
             if cls is not None and cls.outputs and sig not in cls.outputs:
                 ctx.add("error", "reference",
-                        f"'{mod}' has no output '{sig}' (it outputs: {', '.join(cls.outputs)})", path)
+                        f"'{mod}' has no output '{sig}' (it outputs: {', '.join(cls.outputs)})",
+                        path)

@@ -102,7 +102,6 @@ _PLAIN: Any = None
 
 def _composer():
     from ruamel.yaml import YAML
-
     from ruamel.yaml.nodes import MappingNode, ScalarNode
     from ruamel.yaml.resolver import BaseResolver
 

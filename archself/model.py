@@ -44,7 +44,7 @@ Name = Annotated[
         description="A name: any printable text without control characters.",
     ),
 ]
-ParamValue = Union[bool, Finite, str, list[Finite], list[list[Finite]]]
+ParamValue = Union[bool, Finite, str, list[Finite], list[list[Finite]]]  # noqa: UP007
 
 
 class _Strict(BaseModel):
@@ -164,7 +164,7 @@ class TableEstimate(_Strict):
 
 
 Improvement = Annotated[
-    Union[SensitivityEstimate, RolloutEstimate, TableEstimate], Field(discriminator="method")
+    SensitivityEstimate | RolloutEstimate | TableEstimate, Field(discriminator="method")
 ]
 
 
@@ -233,7 +233,9 @@ class Fault(_Strict):
     onset_s: NonNeg
     end_s: Positive | None = Field(None, description="When the fault clears (default: never).")
     magnitude: Finite = 0.0
-    signal: Name | None = Field(None, description="Affected output (default: the module's main one).")
+    signal: Name | None = Field(
+        None, description="Affected output (default: the module's main one)."
+    )
 
     @model_validator(mode="after")
     def _window(self) -> Fault:

@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from archself.cli import app
+
 from conftest import FIXTURES
 
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from archself.check import check
 from archself.errors import ArchselfError
 from archself.loader import load_data, load_text
+
 from conftest import DIFFDRIVE
 
 BASE, _ = load_data(DIFFDRIVE.read_text(encoding="utf-8"))

@@ -16,6 +16,7 @@ from archself.cli import app
 from archself.errors import OutputError
 from archself.generate import generate_architecture
 from archself.loader import load_text
+
 from conftest import FIXTURES
 
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"

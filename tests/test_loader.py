@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 from archself.cli import app
 from archself.errors import ArchselfError, LoadError
 from archself.loader import MAX_FILE_BYTES, SchemaError, load_architecture, load_data, load_text
+
 from conftest import DIFFDRIVE, FIXTURES, ROOT, compare_golden
 
 INVALID = sorted((FIXTURES / "invalid").glob("*.yaml"))

@@ -49,7 +49,8 @@ def test_wheel_installs_and_finds_its_data(wheel: Path, tmp_path: Path) -> None:
         "from archself.resources import schema_path, data_dir;"
         "p = schema_path(); assert p.is_file() and '_data' in str(p), p;"
         "assert (data_dir('templates')).is_dir();"
-        "from archself.cli import app; app(['validate', str(data_dir('architectures') / 'diffdrive.yaml')])"
+        "from archself.cli import app;"
+        "app(['validate', str(data_dir('architectures') / 'diffdrive.yaml')])"
     )
     proc = subprocess.run([sys.executable, "-c", code, str(target)], capture_output=True,
                           text=True, cwd=tmp_path)

@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 
 from archself.cli import app
 from archself.schema import SCHEMA_DIALECT, schema_text
-from conftest import DIFFDRIVE, FIXTURES, ROOT
+
+from conftest import FIXTURES, ROOT
 
 SCHEMA = ROOT / "schemas" / "architecture.schema.json"
 ARCHITECTURES = sorted((ROOT / "architectures").glob("*.yaml"))

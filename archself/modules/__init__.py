@@ -30,5 +30,5 @@ from archself.modules import (  # noqa: F401
     models,
     physical,
     planner,
+    process,  # noqa: F401
 )
-from archself.modules import process  # noqa: F401

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from archself.modules.base import RuntimeModule
 from archself_example.level import ProportionalLevel
 
