@@ -439,7 +439,9 @@ class LiveSystem:
         for n in plan.active:
             need = set(plan.required[n])
             deps = {src for carries, src, *_ in plan.routes[n] if carries in need}
-            deps.update(m for m in self.arch.modules[n].constraints.requires if m in plan.active_set)
+            deps.update(
+                m for m in self.arch.modules[n].constraints.requires if m in plan.active_set
+            )
             deps.discard(n)
             out[n] = frozenset(deps)
         return out

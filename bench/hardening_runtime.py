@@ -32,8 +32,13 @@ def gps_variant(arch, kind: str):
         "description": f"IMU drift from 10 s, GPS {kind} 90-120 s",
         "duration_s": 170,
         "faults": [
-            {"module": "imu", "kind": "bias_drift", "onset_s": 10, "magnitude": 7e-4,
-             "signal": "heading"},
+            {
+                "module": "imu",
+                "kind": "bias_drift",
+                "onset_s": 10,
+                "magnitude": 7e-4,
+                "signal": "heading",
+            },
             {"module": "gps", "kind": kind, "onset_s": 90, "end_s": 120},
         ],
     }
@@ -75,7 +80,8 @@ def _switches(rows: list) -> str:
 
 def table(results: list[dict]) -> str:
     out = [
-        "| seed | switches (time, action) | final | max error (m) | at (s) | unavailable (reason) |",
+        "| seed | switches (time, action) | final | max error (m) | at (s) "
+        "| unavailable (reason) |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
     for r in results:
@@ -90,8 +96,11 @@ def table(results: list[dict]) -> str:
 def summary(results: list[dict]) -> str:
     pats: dict[str, int] = {}
     for r in results:
-        key = " → ".join([r["switches"][0][1]] + [s[2] for s in r["switches"]]) if r[
-            "switches"] else "none"
+        key = (
+            " → ".join([r["switches"][0][1]] + [s[2] for s in r["switches"]])
+            if r["switches"]
+            else "none"
+        )
         pats[key] = pats.get(key, 0) + 1
     errs = [r["max_error"] for r in results]
     seq = ", ".join(f"{k} on {n}/{len(results)}" for k, n in sorted(pats.items()))

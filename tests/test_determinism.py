@@ -27,10 +27,24 @@ def _traces(tmp_path: Path, arch: Path, scenario: str, seed: int) -> list[bytes]
     for k, hash_seed in enumerate(("1", "4242")):
         out = tmp_path / f"run{k}.json"
         env = {**os.environ, "PYTHONHASHSEED": hash_seed}
-        cmd = [sys.executable, "-c", CLI, "simulate", str(arch), "-s", scenario,
-               "--seed", str(seed), "--trace", str(out)]
-        procs.append(subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE,
-                                      stderr=subprocess.PIPE))
+        cmd = [
+            sys.executable,
+            "-c",
+            CLI,
+            "simulate",
+            str(arch),
+            "-s",
+            scenario,
+            "--seed",
+            str(seed),
+            "--trace",
+            str(out),
+        ]
+        procs.append(
+            subprocess.Popen(
+                cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+            )
+        )
         paths.append(out)
     for p in procs:
         stdout, stderr = p.communicate(timeout=300)

@@ -226,10 +226,22 @@ def crash_arch(crash_s: float = 3.0) -> Architecture:
             },
             "actions": [
                 # declared first and cheaper: must be rejected, the sink needs primary there
-                {"id": "to_both", "module": "primary", "kind": "activate", "to": "both",
-                 "cost": 0.1, "improvement": {"method": "table", "values": {}, "default": 1.0}},
-                {"id": "to_spare", "module": "primary", "kind": "substitute", "to": "spare",
-                 "cost": 0.2, "improvement": {"method": "sensitivity", "delta_theta": -0.9}},
+                {
+                    "id": "to_both",
+                    "module": "primary",
+                    "kind": "activate",
+                    "to": "both",
+                    "cost": 0.1,
+                    "improvement": {"method": "table", "values": {}, "default": 1.0},
+                },
+                {
+                    "id": "to_spare",
+                    "module": "primary",
+                    "kind": "substitute",
+                    "to": "spare",
+                    "cost": 0.2,
+                    "improvement": {"method": "sensitivity", "delta_theta": -0.9},
+                },
             ],
             "scenarios": {"run": {"duration_s": 12}},
             "runtime": {
@@ -238,8 +250,7 @@ def crash_arch(crash_s: float = 3.0) -> Architecture:
                 "cost_weight": 0.5,
                 "threshold": 0.5,
                 "dwell_s": 1.0,
-                "objective": {"actual": "sink.value", "reference": "src.value",
-                              "acceptable": 0.1},
+                "objective": {"actual": "sink.value", "reference": "src.value", "acceptable": 0.1},
                 "stability": {"margin": 0.001, "lyapunov_alpha": 0.01, "horizon_steps": 5},
             },
         }
@@ -326,8 +337,13 @@ def test_gps_fault_on_the_ekf_falls_back_to_odometry_and_returns(arch, kind):
         "drift_then_gps",
         duration_s=170,
         faults=[
-            {"module": "imu", "kind": "bias_drift", "onset_s": 10, "magnitude": 7e-4,
-             "signal": "heading"},
+            {
+                "module": "imu",
+                "kind": "bias_drift",
+                "onset_s": 10,
+                "magnitude": 7e-4,
+                "signal": "heading",
+            },
             {"module": "gps", "kind": kind, "onset_s": 90, "end_s": 120},
         ],
     )
