@@ -181,6 +181,22 @@ def _gelfand_estimate(A: scipy.sparse.csr_matrix, bound: float, iters: int = 200
     return min(est, bound)
 
 
+def _block_triangular_order(S: scipy.sparse.spmatrix) -> np.ndarray | None:
+    """Module order with every edge ``j → i`` going forward between strong components.
+
+    The strong components of :func:`scipy.sparse.csgraph.connected_components`
+    are numbered in reverse topological order (Tarjan/Pearce); sorting by
+    descending label puts sources first, so ``I − Wᵀ`` permuted symmetrically is
+    block lower triangular. Verified on the edges; None if it does not hold.
+    """
+    C = scipy.sparse.coo_matrix(S)
+    _, labels = scipy.sparse.csgraph.connected_components(C, directed=True, connection="strong")
+    src, dst = labels[C.row], labels[C.col]
+    if np.any(src < dst):  # not the documented order: let SuperLU choose (COLAMD)
+        return None
+    return np.argsort(-labels, kind="stable")
+
+
 def matrix_key(W: Any) -> Hashable:
     """A hashable fingerprint of a matrix's sparsity pattern and values."""
     if scipy.sparse.issparse(W):
@@ -231,6 +247,7 @@ class InfluenceSolver:
         self.n = 0
         self._dense: tuple[np.ndarray, np.ndarray] | None = None
         self._sparse: Any = None
+        self._order: np.ndarray | None = None
 
     def set_matrix(self, W: Any, key: Hashable | None = None) -> bool:
         """Use ``W``; refactorize only if its key differs from the current one.
@@ -275,10 +292,22 @@ class InfluenceSolver:
         else:
             S = scipy.sparse.csc_matrix(W, dtype=float)
             M = (scipy.sparse.identity(n, format="csc") - S.T).tocsc()
+            # Scale fix: SuperLU's default COLAMD ordering took minutes on a 10^5-module
+            # DAG. Ordered by the strongly connected components in topological order,
+            # I - W^T is block lower triangular, so the natural ordering has no fill-in
+            # outside the (small) cyclic blocks: ~0.1 s at 10^5 modules.
+            order = _block_triangular_order(S)
             try:
-                self._sparse = scipy.sparse.linalg.splu(M)
+                if order is None:
+                    self._sparse = scipy.sparse.linalg.splu(M)
+                else:
+                    P = M[order][:, order].tocsc()
+                    self._sparse = scipy.sparse.linalg.splu(
+                        P, permc_spec="NATURAL", diag_pivot_thresh=0.1
+                    )
             except RuntimeError as exc:  # "Factor is exactly singular"
                 raise np.linalg.LinAlgError(f"I - W^T is singular: {exc}") from exc
+            self._order = order
             self._dense = None
         self.key = key
         self.n = n
@@ -307,7 +336,11 @@ class InfluenceSolver:
             return np.zeros(0)
         if self._dense is not None:
             return scipy.linalg.lu_solve(self._dense, r)
-        return np.asarray(self._sparse.solve(r))
+        if self._order is None:
+            return np.asarray(self._sparse.solve(r))
+        z = np.empty(self.n)
+        z[self._order] = self._sparse.solve(r[self._order])
+        return z
 
 
 def influence(W: Any, r: Any) -> np.ndarray:
