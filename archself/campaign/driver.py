@@ -244,7 +244,8 @@ def run_campaign(
     elif out.exists() and not force:
         raise CampaignError(f"{out}: exists; --resume to continue it, --force to start over")
     done_ids = {r["run_id"] for r in rows}
-    todo = [j for j in jobs if j.run_id not in done_ids]
+    # replicate-major submission: an interrupted campaign has seeds of every cell
+    todo = sorted((j for j in jobs if j.run_id not in done_ids), key=lambda j: j.replicate)
     for j in todo:
         if j.trace is not None:
             Path(j.trace).parent.mkdir(parents=True, exist_ok=True)

@@ -90,6 +90,8 @@ def parse_path(text: str) -> Path_:
             i += 1
             continue
         if s[i] == "[":
+            if expect_key and out:
+                raise CampaignError(f"sweep PATH {text!r}: '[' right after '.' at position {i + 1}")
             m = _INDEX.match(s, i)
             if m:
                 if not out:
