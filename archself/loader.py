@@ -1,10 +1,12 @@
 """Load architecture files: YAML 1.2 with source positions, then the pydantic model.
 
-The loader reads with ruamel.yaml's round-trip parser (YAML 1.2 scalars: only
-``true``/``false`` are booleans, ``1e-3`` is a float), rejects duplicate keys,
-caps the file size, the nesting depth and the number of aliases (an alias bomb
-is refused while it is being composed, never expanded), and records the
-``line:col`` of every key and value. Schema violations are reported at the
+The loader composes the YAML node graph with ruamel.yaml (its libyaml-backed
+parser when ``ruamel.yaml.clib`` is installed) and resolves scalars itself by the
+YAML 1.2 core schema (only ``true``/``false`` are booleans, ``1e-3`` is a float,
+``yes`` and ``on`` are strings); it rejects duplicate keys and unknown tags, caps
+the file size, the nesting depth, the node count and the alias uses (aliases stay
+shared in the node graph, so an alias bomb is refused before anything is
+expanded), and records the ``line:col`` of every key and value. Schema violations are reported at the
 position of the offending node with its dotted path and what was expected,
 with a "did you mean" hint for misspelt keys.
 
