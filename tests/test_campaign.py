@@ -13,7 +13,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import DIFFDRIVE, FIXTURES
 from typer.testing import CliRunner
 
 from archself.campaign.driver import (
@@ -34,6 +33,8 @@ from archself.campaign.sweep import (
 )
 from archself.cli import app
 
+from conftest import DIFFDRIVE, FIXTURES
+
 pa = pytest.importorskip("pyarrow")
 
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"
@@ -53,10 +54,14 @@ def short_diffdrive(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ("text", "keys"),
     [
         ("runtime.threshold", ("runtime", "threshold")),
-        ("scenarios.imu_drift.faults[0].magnitude", ("scenarios", "imu_drift", "faults", 0,
-                                                     "magnitude")),
-        ('modules["left wheel"].params.side.value', ("modules", "left wheel", "params", "side",
-                                                     "value")),
+        (
+            "scenarios.imu_drift.faults[0].magnitude",
+            ("scenarios", "imu_drift", "faults", 0, "magnitude"),
+        ),
+        (
+            'modules["left wheel"].params.side.value',
+            ("modules", "left wheel", "params", "side", "value"),
+        ),
         ("a[1][2].b", ("a", 1, 2, "b")),
         ("edges[-1].weight", ("edges", -1, "weight")),
     ],
@@ -131,8 +136,10 @@ def test_apply_values_revalidates() -> None:
     from archself.loader import load_architecture
 
     data = load_architecture(DIFFDRIVE).data
-    sw = [parse_sweep("scenarios.imu_drift.faults[0].magnitude=1e-3"),
-          parse_sweep("runtime.threshold=0.4")]
+    sw = [
+        parse_sweep("scenarios.imu_drift.faults[0].magnitude=1e-3"),
+        parse_sweep("runtime.threshold=0.4"),
+    ]
     arch = apply_values(data, sw, (1e-3, 0.4))
     assert arch.scenarios["imu_drift"].faults[0].magnitude == 1e-3
     assert arch.runtime.threshold == 0.4
@@ -159,8 +166,9 @@ def test_plan_rejects_user_errors(tmp_path: Path) -> None:
         plan_campaign(MINIMAL, ["calm"], 0)
     with pytest.raises(CampaignError, match="no such key"):
         plan_campaign(MINIMAL, ["calm"], 1, [parse_sweep("scenarios.storm.duration_s=1,2")])
-    jobs, meta = plan_campaign(MINIMAL, ["calm"], 2, [parse_sweep("runtime.threshold=0.4,0.6")],
-                               traces=tmp_path / "tr")
+    jobs, meta = plan_campaign(
+        MINIMAL, ["calm"], 2, [parse_sweep("runtime.threshold=0.4,0.6")], traces=tmp_path / "tr"
+    )
     assert len(jobs) == 8 and len({j.run_id for j in jobs}) == 8
     assert meta["sweeps"] == ["runtime.threshold"] and meta["thresholds"] == ["runtime.threshold"]
     assert meta["fault_free"] == ["calm"]
@@ -170,13 +178,26 @@ def test_plan_rejects_user_errors(tmp_path: Path) -> None:
 
 # --------------------------------------------------------------------------- running
 SCHEMA = {
-    "run_id": "string", "scenario": "string", "runtime.threshold": "double",
-    "replicate": "int32", "seed": "int64", "mode": "string",
-    "start_configuration": "string", "final_configuration": "string",
-    "configuration_path": "string", "switch_times_s": "list<element: double>",
-    "n_switches": "int32", "first_fault_onset_s": "double", "detection_delay_s": "double",
-    "false_switches": "int32", "max_error_m": "double", "final_error_m": "double",
-    "rms_error_m": "double", "peak_time_s": "double", "trace": "string", "error": "string",
+    "run_id": "string",
+    "scenario": "string",
+    "runtime.threshold": "double",
+    "replicate": "int32",
+    "seed": "int64",
+    "mode": "string",
+    "start_configuration": "string",
+    "final_configuration": "string",
+    "configuration_path": "string",
+    "switch_times_s": "list<element: double>",
+    "n_switches": "int32",
+    "first_fault_onset_s": "double",
+    "detection_delay_s": "double",
+    "false_switches": "int32",
+    "max_error_m": "double",
+    "final_error_m": "double",
+    "rms_error_m": "double",
+    "peak_time_s": "double",
+    "trace": "string",
+    "error": "string",
 }
 
 
@@ -184,11 +205,27 @@ SCHEMA = {
 def local_results(short_diffdrive: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real local campaign on 2 processes through the CLI (the determinism reference)."""
     out = tmp_path_factory.mktemp("local") / "results.parquet"
-    res = CliRunner().invoke(app, [
-        "campaign", str(short_diffdrive), "-s", "actuator_fault", "-s", "nominal",
-        "--seeds", "2", "--sweep", "runtime.threshold=0.45,0.65", "--workers", "2",
-        "-o", str(out), "--traces", str(out.parent / "traces"),
-    ])
+    res = CliRunner().invoke(
+        app,
+        [
+            "campaign",
+            str(short_diffdrive),
+            "-s",
+            "actuator_fault",
+            "-s",
+            "nominal",
+            "--seeds",
+            "2",
+            "--sweep",
+            "runtime.threshold=0.45,0.65",
+            "--workers",
+            "2",
+            "-o",
+            str(out),
+            "--traces",
+            str(out.parent / "traces"),
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "16 runs (16 new, 0 already there, 0 failed)" in res.stdout
     return out
@@ -210,8 +247,7 @@ def test_parquet_schema_and_rows(local_results: Path) -> None:
     fixed = [r for r in rows if r["mode"] == "fixed"]
     assert all(r["n_switches"] == 0 and r["configuration_path"] == "a1" for r in fixed)
     nominal = [r for r in rows if r["scenario"] == "nominal"]
-    assert all(r["first_fault_onset_s"] is None and r["detection_delay_s"] is None
-               for r in nominal)
+    assert all(r["first_fault_onset_s"] is None and r["detection_delay_s"] is None for r in nominal)
     assert all(r["false_switches"] == r["n_switches"] for r in nominal)
     traces = [Path(r["trace"]) for r in rows]
     assert all(p.is_file() for p in traces) and len(set(traces)) == 16
@@ -219,12 +255,17 @@ def test_parquet_schema_and_rows(local_results: Path) -> None:
     assert set(doc) == {"meta", "series", "decisions"}
 
 
-def test_same_table_whatever_the_workers(local_results: Path, short_diffdrive: Path,
-                                         tmp_path: Path) -> None:
+def test_same_table_whatever_the_workers(
+    local_results: Path, short_diffdrive: Path, tmp_path: Path
+) -> None:
     """1 worker (in-process) and 2 worker processes give the same table."""
-    jobs, meta = plan_campaign(short_diffdrive, ["actuator_fault", "nominal"], 2,
-                               [parse_sweep("runtime.threshold=0.45,0.65")],
-                               traces=local_results.parent / "traces")
+    jobs, meta = plan_campaign(
+        short_diffdrive,
+        ["actuator_fault", "nominal"],
+        2,
+        [parse_sweep("runtime.threshold=0.45,0.65")],
+        traces=local_results.parent / "traces",
+    )
     out = tmp_path / "one.parquet"
     outcome = run_campaign(jobs, meta, out, executor="inline")
     assert outcome.ran == 16 and outcome.failed == 0
@@ -239,7 +280,8 @@ def test_local_executor_one_worker_matches(short_diffdrive: Path, tmp_path: Path
     assert one.workers == 1 and one.executor == "local"
     run_campaign(jobs, meta, tmp_path / "inline.parquet", executor="inline")
     assert read_results(tmp_path / "w1.parquet")[0].equals(
-        read_results(tmp_path / "inline.parquet")[0])
+        read_results(tmp_path / "inline.parquet")[0]
+    )
 
 
 def test_resume_skips_finished_runs(tmp_path: Path) -> None:
@@ -250,8 +292,9 @@ def test_resume_skips_finished_runs(tmp_path: Path) -> None:
     with pytest.raises(CampaignError, match="exists; --resume"):
         run_campaign(jobs, meta, out, executor="inline")
     calls: list[tuple[int, int]] = []
-    second = run_campaign(jobs, meta, out, executor="inline", resume=True,
-                          progress=lambda d, t: calls.append((d, t)))
+    second = run_campaign(
+        jobs, meta, out, executor="inline", resume=True, progress=lambda d, t: calls.append((d, t))
+    )
     assert (second.skipped, second.ran, second.rows) == (2, 4, 6)
     assert calls[0] == (0, 4) and calls[-1] == (4, 4)
     third = run_campaign(jobs, meta, out, executor="inline", resume=True)
@@ -292,9 +335,11 @@ def test_failed_run_is_a_row(tmp_path: Path) -> None:
 
 
 def test_worker_imports_stay_light() -> None:
-    code = ("import sys, archself.campaign.worker, archself.campaign.driver; "
-            "print(sorted(m for m in ('matplotlib', 'jinja2', 'pyarrow', 'dask') "
-            "if m in sys.modules))")
+    code = (
+        "import sys, archself.campaign.worker, archself.campaign.driver; "
+        "print(sorted(m for m in ('matplotlib', 'jinja2', 'pyarrow', 'dask') "
+        "if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
@@ -302,16 +347,43 @@ def test_worker_imports_stay_light() -> None:
 # --------------------------------------------------------------------------- CLI
 def test_cli_campaign_errors(tmp_path: Path) -> None:
     runner = CliRunner()
-    res = runner.invoke(app, ["campaign", str(MINIMAL), "-s", "calm", "--seeds", "1",
-                              "--sweep", "runtime.treshold=1,2", "-o", str(tmp_path / "x.pq")])
+    res = runner.invoke(
+        app,
+        [
+            "campaign",
+            str(MINIMAL),
+            "-s",
+            "calm",
+            "--seeds",
+            "1",
+            "--sweep",
+            "runtime.treshold=1,2",
+            "-o",
+            str(tmp_path / "x.pq"),
+        ],
+    )
     assert res.exit_code == 1
     assert res.stderr.strip().count("\n") == 0
     assert "runtime.treshold: Extra inputs are not permitted" in res.stderr
-    res = runner.invoke(app, ["campaign", str(MINIMAL), "-s", "calm", "--seeds", "1",
-                              "--executor", "ray"])
+    res = runner.invoke(
+        app, ["campaign", str(MINIMAL), "-s", "calm", "--seeds", "1", "--executor", "ray"]
+    )
     assert res.exit_code == 2
-    res = runner.invoke(app, ["campaign", str(MINIMAL), "-s", "calm", "--seeds", "1",
-                              "--address", "tcp://127.0.0.1:1", "-o", str(tmp_path / "x.pq")])
+    res = runner.invoke(
+        app,
+        [
+            "campaign",
+            str(MINIMAL),
+            "-s",
+            "calm",
+            "--seeds",
+            "1",
+            "--address",
+            "tcp://127.0.0.1:1",
+            "-o",
+            str(tmp_path / "x.pq"),
+        ],
+    )
     assert res.exit_code == 1 and "--address needs --executor dask" in res.stderr
     res = runner.invoke(app, ["campaign", "--help"])
     assert res.exit_code == 0 and "--resume" in res.stdout and "--traces" in res.stdout
@@ -319,8 +391,19 @@ def test_cli_campaign_errors(tmp_path: Path) -> None:
 
 def test_campaign_report_renders(local_results: Path, tmp_path: Path) -> None:
     out = tmp_path / "report"
-    res = CliRunner().invoke(app, ["campaign-report", str(local_results), "-o", str(out),
-                                   "--expect", "actuator_fault=a3", "--expect", "nominal=a1"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "campaign-report",
+            str(local_results),
+            "-o",
+            str(out),
+            "--expect",
+            "actuator_fault=a3",
+            "--expect",
+            "nominal=a1",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "actuator_fault: correct 100 % (4/4)" in res.stdout
     assert "τ sweep (runtime.threshold)" in res.stdout
@@ -333,11 +416,13 @@ def test_campaign_report_renders(local_results: Path, tmp_path: Path) -> None:
     assert blocks["actuator_fault"]["faulted"] and not blocks["nominal"]["faulted"]
     assert blocks["actuator_fault"]["detected"]["rate"] == 1.0
     assert [p["value"] for p in summary["tau"]["points"]] == [0.45, 0.65]
-    res = CliRunner().invoke(app, ["campaign-report", str(local_results), "-o", str(out),
-                                   "--expect", "storm=a2"])
+    res = CliRunner().invoke(
+        app, ["campaign-report", str(local_results), "-o", str(out), "--expect", "storm=a2"]
+    )
     assert res.exit_code == 1 and "storm: no such scenario" in res.stderr
-    res = CliRunner().invoke(app, ["campaign-report", str(tmp_path / "none.parquet"),
-                                   "-o", str(out)])
+    res = CliRunner().invoke(
+        app, ["campaign-report", str(tmp_path / "none.parquet"), "-o", str(out)]
+    )
     assert res.exit_code == 1 and "no such file" in res.stderr
 
 
@@ -346,15 +431,33 @@ def test_report_escapes_hostile_names(tmp_path: Path) -> None:
     from archself.campaign.results import write_results
 
     row = {
-        "run_id": "x", "scenario": "<script>alert(1)</script>", "replicate": 0, "seed": 1,
-        "mode": "adaptive", "start_configuration": "a", "final_configuration": "<b>",
-        "configuration_path": "a><b>", "switch_times_s": [1.0], "n_switches": 1,
-        "first_fault_onset_s": None, "detection_delay_s": None, "false_switches": 1,
-        "max_error_m": 1.0, "final_error_m": 1.0, "rms_error_m": 1.0, "peak_time_s": 1.0,
-        "trace": None, "error": None,
+        "run_id": "x",
+        "scenario": "<script>alert(1)</script>",
+        "replicate": 0,
+        "seed": 1,
+        "mode": "adaptive",
+        "start_configuration": "a",
+        "final_configuration": "<b>",
+        "configuration_path": "a><b>",
+        "switch_times_s": [1.0],
+        "n_switches": 1,
+        "first_fault_onset_s": None,
+        "detection_delay_s": None,
+        "false_switches": 1,
+        "max_error_m": 1.0,
+        "final_error_m": 1.0,
+        "rms_error_m": 1.0,
+        "peak_time_s": 1.0,
+        "trace": None,
+        "error": None,
     }
-    meta = {"architecture": "<i>x</i>", "file": "f", "sha256": "0" * 64, "root_seed": 0,
-            "sweeps": []}
+    meta = {
+        "architecture": "<i>x</i>",
+        "file": "f",
+        "sha256": "0" * 64,
+        "root_seed": 0,
+        "sweeps": [],
+    }
     write_results(tmp_path / "r.parquet", [row], [], meta)
     campaign_report(tmp_path / "r.parquet", tmp_path / "rep")
     html = (tmp_path / "rep" / "index.html").read_text(encoding="utf-8")
@@ -363,19 +466,39 @@ def test_report_escapes_hostile_names(tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------- Dask
-def test_dask_local_cluster_address(short_diffdrive: Path, local_results: Path,
-                                    tmp_path: Path) -> None:
+def test_dask_local_cluster_address(
+    short_diffdrive: Path, local_results: Path, tmp_path: Path
+) -> None:
     """The same command through a scheduler address gives the same table."""
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster:
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
         out = tmp_path / "dask.parquet"
-        res = CliRunner().invoke(app, [
-            "campaign", str(short_diffdrive), "-s", "actuator_fault", "-s", "nominal",
-            "--seeds", "2", "--sweep", "runtime.threshold=0.45,0.65",
-            "--executor", "dask", "--address", cluster.scheduler_address,
-            "-o", str(out), "--traces", str(local_results.parent / "traces"), "--json",
-        ])
+        res = CliRunner().invoke(
+            app,
+            [
+                "campaign",
+                str(short_diffdrive),
+                "-s",
+                "actuator_fault",
+                "-s",
+                "nominal",
+                "--seeds",
+                "2",
+                "--sweep",
+                "runtime.threshold=0.45,0.65",
+                "--executor",
+                "dask",
+                "--address",
+                cluster.scheduler_address,
+                "-o",
+                str(out),
+                "--traces",
+                str(local_results.parent / "traces"),
+                "--json",
+            ],
+        )
         assert res.exit_code == 0, res.output
         data = json.loads(res.stdout)
         assert data["executor"] == "dask" and data["ran"] == 16 and data["workers"] == 2

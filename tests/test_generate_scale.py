@@ -70,8 +70,9 @@ def test_influence_with_cycles_matches_direct_solve() -> None:
 
 def test_generate_command(tmp_path: Path) -> None:
     out = tmp_path / "g.yaml"
-    res = CliRunner().invoke(app, ["generate", "300", "-o", str(out), "--seed", "2",
-                                   "--feedback", "3"])
+    res = CliRunner().invoke(
+        app, ["generate", "300", "-o", str(out), "--seed", "2", "--feedback", "3"]
+    )
     assert res.exit_code == 0, res.output
     assert out.read_text(encoding="utf-8") == generate_architecture(300, seed=2, feedback=3)
     res = CliRunner().invoke(app, ["validate", str(out)])

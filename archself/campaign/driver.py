@@ -74,8 +74,9 @@ def _fmt(v: float) -> str:
     return f"{v:.12g}"
 
 
-def run_id(scenario: str, sweeps: Sequence[Sweep], point: Sequence[float], replicate: int,
-           mode: str) -> str:
+def run_id(
+    scenario: str, sweeps: Sequence[Sweep], point: Sequence[float], replicate: int, mode: str
+) -> str:
     """The stable key of a run, e.g. ``imu_drift|runtime.threshold=0.5|3|adaptive``."""
     parts = [scenario] + [f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True)]
     return "|".join(parts + [str(replicate), mode])
@@ -113,8 +114,9 @@ def plan_campaign(
         raise CampaignError("the same --scenario is given twice")
     bad_modes = [m for m in modes if m not in MODES]
     if bad_modes or not modes:
-        raise CampaignError(f"unknown mode {bad_modes[0] if bad_modes else ''!r}; known: "
-                            + ", ".join(MODES))
+        raise CampaignError(
+            f"unknown mode {bad_modes[0] if bad_modes else ''!r}; known: " + ", ".join(MODES)
+        )
     text = read_text(arch_path)
     loaded = load_text(text, file)
     _no_errors(check(loaded), has_errors, "")
@@ -127,8 +129,7 @@ def plan_campaign(
     for point in points if sweeps else []:
         swept = apply_values(loaded.data, sweeps, point, file)
         setting = ", ".join(f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True))
-        _no_errors(check(Loaded(swept, SourceMap(file), loaded.data)), has_errors,
-                   f"{setting}: ")
+        _no_errors(check(Loaded(swept, SourceMap(file), loaded.data)), has_errors, f"{setting}: ")
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     seed_list = run_seeds(root_seed, seeds)
     tdir = Path(traces) if traces is not None else None
@@ -140,19 +141,21 @@ def plan_campaign(
                     trace = None
                     if tdir is not None:
                         trace = str(tdir / trace_name(sc, tuple(point), rep, mode))
-                    jobs.append(Job(
-                        run_id=run_id(sc, sweeps, point, rep, mode),
-                        arch_text=text,
-                        arch_digest=digest,
-                        file=file,
-                        sweeps=tuple(sweeps),
-                        point=tuple(float(v) for v in point),
-                        scenario=sc,
-                        replicate=rep,
-                        seed=seed,
-                        mode=mode,
-                        trace=trace,
-                    ))
+                    jobs.append(
+                        Job(
+                            run_id=run_id(sc, sweeps, point, rep, mode),
+                            arch_text=text,
+                            arch_digest=digest,
+                            file=file,
+                            sweeps=tuple(sweeps),
+                            point=tuple(float(v) for v in point),
+                            scenario=sc,
+                            replicate=rep,
+                            seed=seed,
+                            mode=mode,
+                            trace=trace,
+                        )
+                    )
     meta = {
         "format": 1,
         "architecture": arch.name,
@@ -167,8 +170,11 @@ def plan_campaign(
 
 
 def _threshold_paths(sweeps: Sequence[Sweep]) -> list[str]:
-    return [s.path for s in sweeps if s.keys in (("runtime", "threshold"),
-                                                 ("runtime", "hysteresis", "on"))]
+    return [
+        s.path
+        for s in sweeps
+        if s.keys in (("runtime", "threshold"), ("runtime", "hysteresis", "on"))
+    ]
 
 
 def _no_errors(findings: list[Any], has_errors: Callable[[list[Any]], bool], prefix: str) -> None:
@@ -181,8 +187,11 @@ def _existing(out: Path, meta: dict[str, Any]) -> list[dict[str, Any]]:
     from archself.campaign.results import read_results
 
     table, old = read_results(out)
-    for key, what in (("sha256", "architecture file"), ("root_seed", "--root-seed"),
-                      ("sweeps", "sweep PATHs")):
+    for key, what in (
+        ("sha256", "architecture file"),
+        ("root_seed", "--root-seed"),
+        ("sweeps", "sweep PATHs"),
+    ):
         if old.get(key) != meta.get(key):
             raise CampaignError(
                 f"{out}: was made with a different {what}; cannot resume it "
@@ -260,8 +269,9 @@ def run_campaign(
     if not todo:
         flush()
         return CampaignOutcome(out, len(jobs), len(jobs), 0, 0, len(rows), 0, executor, 0.0)
-    ex = make_executor(executor, workers=workers, address=address,
-                       preload=["archself.campaign.worker"])
+    ex = make_executor(
+        executor, workers=workers, address=address, preload=["archself.campaign.worker"]
+    )
     futures: list[Any] = []
     try:
         futures = [ex.submit(run_job, j) for j in todo]
@@ -301,8 +311,18 @@ def run_campaign(
         raise
     ex.close()
     elapsed = time.perf_counter() - t0
-    return CampaignOutcome(out, len(jobs), len(jobs) - len(todo), ran, failed, len(rows),
-                           ex.workers, ex.name, elapsed, errors)
+    return CampaignOutcome(
+        out,
+        len(jobs),
+        len(jobs) - len(todo),
+        ran,
+        failed,
+        len(rows),
+        ex.workers,
+        ex.name,
+        elapsed,
+        errors,
+    )
 
 
 def throughput(outcome: CampaignOutcome) -> float:

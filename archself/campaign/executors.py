@@ -155,8 +155,9 @@ class DaskExecutor:
 
     name = "dask"
 
-    def __init__(self, address: str | None = None, workers: int | None = None,
-                 timeout_s: float = 30.0) -> None:
+    def __init__(
+        self, address: str | None = None, workers: int | None = None, timeout_s: float = 30.0
+    ) -> None:
         try:
             import distributed
         except ImportError:
@@ -171,8 +172,11 @@ class DaskExecutor:
                 if n < 1:
                     raise CampaignError("--workers must be at least 1")
                 self._cluster = distributed.LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True,
-                    dashboard_address=None, silence_logs=50,
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=50,
                 )
                 self._client = distributed.Client(self._cluster, timeout=timeout_s)
             else:
@@ -292,8 +296,13 @@ class InlineExecutor:
         self.close()
 
 
-def make_executor(kind: str = "local", *, workers: int | None = None,
-                  address: str | None = None, preload: Iterable[str] = ()) -> Executor:
+def make_executor(
+    kind: str = "local",
+    *,
+    workers: int | None = None,
+    address: str | None = None,
+    preload: Iterable[str] = (),
+) -> Executor:
     """The executor named ``kind``: ``"local"``, ``"dask"`` (or ``"inline"``, for tests).
 
     Raises

@@ -65,14 +65,25 @@ def _quantiles(values: Sequence[float]) -> dict[str, float | None]:
     if v.size == 0:
         return {"n": 0, "mean": None, "p10": None, "median": None, "p90": None, "max": None}
     q = np.quantile(v, [0.1, 0.5, 0.9])
-    return {"n": int(v.size), "mean": float(v.mean()), "p10": float(q[0]),
-            "median": float(q[1]), "p90": float(q[2]), "max": float(v.max())}
+    return {
+        "n": int(v.size),
+        "mean": float(v.mean()),
+        "p10": float(q[0]),
+        "median": float(q[1]),
+        "p90": float(q[2]),
+        "max": float(v.max()),
+    }
 
 
 def _rate(k: int, n: int) -> dict[str, Any]:
     lo, hi = wilson(k, n)
-    return {"k": k, "n": n, "rate": (k / n) if n else None,
-            "lo": None if math.isnan(lo) else lo, "hi": None if math.isnan(hi) else hi}
+    return {
+        "k": k,
+        "n": n,
+        "rate": (k / n) if n else None,
+        "lo": None if math.isnan(lo) else lo,
+        "hi": None if math.isnan(hi) else hi,
+    }
 
 
 # --------------------------------------------------------------------------- summary
@@ -123,8 +134,7 @@ def _pair_key(row: Mapping[str, Any], sweeps: Sequence[str]) -> tuple[Any, ...]:
     return (row["scenario"], tuple(row[p] for p in sweeps), row["replicate"])
 
 
-def _classify(rows: list[dict[str, Any]], sweeps: Sequence[str],
-              expect: Mapping[str, str]) -> None:
+def _classify(rows: list[dict[str, Any]], sweeps: Sequence[str], expect: Mapping[str, str]) -> None:
     """Add ``faulted``, ``correct`` and ``false_any`` to every adaptive row (in place)."""
     fixed = {_pair_key(r, sweeps): r for r in rows if r["mode"] == "fixed"}
     for r in rows:
@@ -153,8 +163,7 @@ def _lt(a: Any, b: Any) -> bool:
     return not math.isfinite(b) or a < b
 
 
-def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
-                    ) -> dict[str, Any]:
+def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]) -> dict[str, Any]:
     ada = [r for r in rows if r["mode"] == "adaptive"]
     fix = [r for r in rows if r["mode"] == "fixed"]
     faulted = any(r["first_fault_onset_s"] is not None for r in rows)
@@ -165,7 +174,8 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
         "correct": _rate(sum(1 for r in ada if r["correct"]), len(ada)),
         "false_switch": _rate(sum(1 for r in ada if r["false_any"]), len(ada)),
         "false_switches_per_run": (sum(r["false_switches"] or 0 for r in ada) / len(ada))
-        if ada else None,
+        if ada
+        else None,
         "final_configurations": _counts(r["final_configuration"] for r in ada),
         "paths": _counts(r["configuration_path"] for r in ada),
     }
@@ -184,7 +194,8 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
     pairs = [(r, fixed[_pair_key(r, sweeps)]) for r in ada if _pair_key(r, sweeps) in fixed]
     if pairs:
         block["adaptive_better_rms"] = _rate(
-            sum(1 for a, f in pairs if _lt(a["rms_error_m"], f["rms_error_m"])), len(pairs))
+            sum(1 for a, f in pairs if _lt(a["rms_error_m"], f["rms_error_m"])), len(pairs)
+        )
     else:
         block["adaptive_better_rms"] = None
     return block
@@ -215,21 +226,27 @@ def _by_value(path: str, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         else:
             fs = _rate(sum(1 for r in faulted if r["false_any"]), len(faulted))
             fs_basis = "before the onset"
-        out.append({
-            "value": value,
-            "runs": len(g),
-            "correct": _rate(sum(1 for r in faulted if r["correct"]), len(faulted)),
-            "detected": _rate(len(delays), len(faulted)),
-            "delay_s": _quantiles(delays),
-            "false_switch": fs,
-            "false_switch_basis": fs_basis,
-            "rms_error_m": _quantiles([r["rms_error_m"] for r in g]),
-        })
+        out.append(
+            {
+                "value": value,
+                "runs": len(g),
+                "correct": _rate(sum(1 for r in faulted if r["correct"]), len(faulted)),
+                "detected": _rate(len(delays), len(faulted)),
+                "delay_s": _quantiles(delays),
+                "false_switch": fs,
+                "false_switch_basis": fs_basis,
+                "rms_error_m": _quantiles([r["rms_error_m"] for r in g]),
+            }
+        )
     return out
 
 
-def summarize(table: Any, meta: Mapping[str, Any], expect: Mapping[str, str] | None = None,
-              tau_path: str | None = None) -> CampaignSummary:
+def summarize(
+    table: Any,
+    meta: Mapping[str, Any],
+    expect: Mapping[str, str] | None = None,
+    tau_path: str | None = None,
+) -> CampaignSummary:
     """The numbers of the report, from a results table and its metadata.
 
     Parameters
@@ -258,22 +275,22 @@ def summarize(table: Any, meta: Mapping[str, Any], expect: Mapping[str, str] | N
     names = list(dict.fromkeys(r["scenario"] for r in rows))
     unknown = sorted(set(expect) - set(names))
     if unknown:
-        raise CampaignError(f"--expect {unknown[0]}: no such scenario in the results; "
-                            f"known: {', '.join(names)}")
-    scenarios = [_scenario_block(n, [r for r in ok if r["scenario"] == n], sweeps)
-                 for n in names]
+        raise CampaignError(
+            f"--expect {unknown[0]}: no such scenario in the results; known: {', '.join(names)}"
+        )
+    scenarios = [_scenario_block(n, [r for r in ok if r["scenario"] == n], sweeps) for n in names]
     if tau_path is None:
         found = [p for p in meta.get("thresholds", []) if p in sweeps]
         tau_path = found[0] if found else None
     elif tau_path not in sweeps:
-        raise CampaignError(f"--tau {tau_path}: not a swept column; swept: "
-                            f"{', '.join(sweeps) or 'none'}")
+        raise CampaignError(
+            f"--tau {tau_path}: not a swept column; swept: {', '.join(sweeps) or 'none'}"
+        )
     tau = None
     if tau_path is not None:
         tau = {"path": tau_path, "points": _by_value(tau_path, ok)}
     by_sweep = [{"path": p, "points": _by_value(p, ok)} for p in sweeps if p != tau_path]
-    return CampaignSummary(dict(meta), len(rows), failed, scenarios, tau, by_sweep, expect,
-                           errors)
+    return CampaignSummary(dict(meta), len(rows), failed, scenarios, tau, by_sweep, expect, errors)
 
 
 def _pct(rate: Mapping[str, Any] | None) -> str:
@@ -288,8 +305,10 @@ def _num(x: Any, fmt: str = "{:.2f}") -> str:
 
 def summary_text(s: CampaignSummary) -> str:
     """A few lines for the terminal: per scenario the rates, delay and errors."""
-    lines = [f"{s.meta.get('architecture', '?')}: {s.runs} runs"
-             + (f", {s.failed} failed" if s.failed else "")]
+    lines = [
+        f"{s.meta.get('architecture', '?')}: {s.runs} runs"
+        + (f", {s.failed} failed" if s.failed else "")
+    ]
     for b in s.scenarios:
         e = b["errors"]["rms_error_m"]
         head = f"  {b['scenario']}{' (fault-free)' if not b['faulted'] else ''}: "
@@ -297,15 +316,19 @@ def summary_text(s: CampaignSummary) -> str:
         if b["faulted"]:
             parts.append(f"median delay {_num(b['delay_s']['median'], '{:.1f}')} s")
         parts.append(f"false switches {_pct(b['false_switch'])}")
-        parts.append(f"median RMS fixed {_num(e['fixed']['median'])} m"
-                     f" / adaptive {_num(e['adaptive']['median'])} m")
+        parts.append(
+            f"median RMS fixed {_num(e['fixed']['median'])} m"
+            f" / adaptive {_num(e['adaptive']['median'])} m"
+        )
         lines.append(head + ", ".join(parts))
     if s.tau:
         lines.append(f"  τ sweep ({s.tau['path']}):")
         for p in s.tau["points"]:
-            lines.append(f"    τ = {p['value']:g}: median delay "
-                         f"{_num(p['delay_s']['median'], '{:.1f}')} s, false switches "
-                         f"{_pct(p['false_switch'])}, detected {_pct(p['detected'])}")
+            lines.append(
+                f"    τ = {p['value']:g}: median delay "
+                f"{_num(p['delay_s']['median'], '{:.1f}')} s, false switches "
+                f"{_pct(p['false_switch'])}, detected {_pct(p['detected'])}"
+            )
     return "\n".join(lines)
 
 
@@ -331,9 +354,17 @@ def _save(fig: Any, path: Path) -> None:
 
 
 def _fig_delays(rows: list[dict[str, Any]], names: list[str], path: Path) -> bool:
-    data = [[r["detection_delay_s"] for r in rows
-             if r["scenario"] == n and r["mode"] == "adaptive" and r.get("error") is None
-             and r["detection_delay_s"] is not None] for n in names]
+    data = [
+        [
+            r["detection_delay_s"]
+            for r in rows
+            if r["scenario"] == n
+            and r["mode"] == "adaptive"
+            and r.get("error") is None
+            and r["detection_delay_s"] is not None
+        ]
+        for n in names
+    ]
     if not any(data):
         return False
     fig = _figure()
@@ -355,9 +386,15 @@ def _fig_errors(rows: list[dict[str, Any]], names: list[str], metric: str, path:
     data, labels, colors = [], [], []
     for n in names:
         for mode, color in (("fixed", "#999999"), ("adaptive", "#1f77b4")):
-            v = [r[metric] for r in rows if r["scenario"] == n and r["mode"] == mode
-                 and r.get("error") is None and r[metric] is not None
-                 and math.isfinite(r[metric])]
+            v = [
+                r[metric]
+                for r in rows
+                if r["scenario"] == n
+                and r["mode"] == mode
+                and r.get("error") is None
+                and r[metric] is not None
+                and math.isfinite(r[metric])
+            ]
             if v:
                 data.append(v)
                 labels.append(f"{n}\n{mode}")
@@ -393,13 +430,20 @@ def _fig_tau(tau: Mapping[str, Any], path: Path) -> bool:
             ax.plot([x, x], [lo, hi], color="#1f77b4", alpha=0.4, lw=3)
             flo, fhi = p["false_switch"]["lo"], p["false_switch"]["hi"]
             ax.plot([flo, fhi], [y, y], color="#1f77b4", alpha=0.4, lw=1)
-            ax.annotate(f"τ={p['value']:g}", (x, y), textcoords="offset points",
-                        xytext=(6, 4), fontsize=8)
+            ax.annotate(
+                f"τ={p['value']:g}", (x, y), textcoords="offset points", xytext=(6, 4), fontsize=8
+            )
     missed = [(x, p) for x, y, p in zip(xs, ys, pts, strict=True) if y is None]
     for x, p in missed:
         ax.axvline(x, color="#d62728", ls=":", lw=1)
-        ax.annotate(f"τ={p['value']:g}: no detection", (x, 0), fontsize=8, color="#d62728",
-                    rotation=90, va="bottom")
+        ax.annotate(
+            f"τ={p['value']:g}: no detection",
+            (x, 0),
+            fontsize=8,
+            color="#d62728",
+            rotation=90,
+            va="bottom",
+        )
     basis = pts[0]["false_switch_basis"]
     ax.set_xlabel(f"false-switch rate ({basis})")
     ax.set_ylabel("detection delay [s] (median, 10–90 %)")
@@ -429,9 +473,13 @@ def _environment() -> Any:
     return env
 
 
-def campaign_report(results: str | Path, out_dir: str | Path, *,
-                    expect: Mapping[str, str] | None = None,
-                    tau_path: str | None = None) -> CampaignSummary:
+def campaign_report(
+    results: str | Path,
+    out_dir: str | Path,
+    *,
+    expect: Mapping[str, str] | None = None,
+    tau_path: str | None = None,
+) -> CampaignSummary:
     """Write ``index.html``, ``summary.json`` and the SVG figures of a campaign to ``out_dir``.
 
     Raises
@@ -456,8 +504,12 @@ def campaign_report(results: str | Path, out_dir: str | Path, *,
     names = [b["scenario"] for b in summary.scenarios]
     figures: dict[str, str | None] = {}
     specs = [
-        ("delays", lambda p: _fig_delays(rows, [b["scenario"] for b in summary.scenarios
-                                                if b["faulted"]], p)),
+        (
+            "delays",
+            lambda p: _fig_delays(
+                rows, [b["scenario"] for b in summary.scenarios if b["faulted"]], p
+            ),
+        ),
         ("rms", lambda p: _fig_errors(rows, names, "rms_error_m", p)),
         ("max", lambda p: _fig_errors(rows, names, "max_error_m", p)),
         ("final", lambda p: _fig_errors(rows, names, "final_error_m", p)),
@@ -473,8 +525,10 @@ def campaign_report(results: str | Path, out_dir: str | Path, *,
         results_name=Path(results).name,
     )
     write_text(out / "index.html", html)
-    write_text(out / "summary.json",
-               json.dumps(_jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n")
+    write_text(
+        out / "summary.json",
+        json.dumps(_jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n",
+    )
     return summary
 
 

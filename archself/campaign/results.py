@@ -98,8 +98,9 @@ def sort_key(sweep_paths: Sequence[str]) -> Any:
     return key
 
 
-def write_results(path: str | Path, rows: list[dict[str, Any]], sweep_paths: Sequence[str],
-                  meta: dict[str, Any]) -> None:
+def write_results(
+    path: str | Path, rows: list[dict[str, Any]], sweep_paths: Sequence[str], meta: dict[str, Any]
+) -> None:
     """Write ``rows`` as Parquet to ``path`` atomically, sorted by :func:`sort_key`.
 
     Raises

@@ -101,7 +101,7 @@ def parse_path(text: str) -> Path_:
                 m = _QUOTED.match(s, i)
                 if not m:
                     raise CampaignError(
-                        f"sweep PATH {text!r}: expected [N] or [\"key\"] at position {i + 1}"
+                        f'sweep PATH {text!r}: expected [N] or ["key"] at position {i + 1}'
                     )
                 out.append(json.loads(m.group(1)))
             i = m.end()
@@ -145,8 +145,10 @@ def _step(cur: Any, p: str | int, path: Path_, k: int) -> Any:
         if not isinstance(cur, list):
             raise CampaignError(f"sweep PATH {_where(path, k)}: not a list")
         if not -len(cur) <= p < len(cur):
-            raise CampaignError(f"sweep PATH {_where(path, k)}: index out of range "
-                                f"(the list has {len(cur)} item{'s' * (len(cur) != 1)})")
+            raise CampaignError(
+                f"sweep PATH {_where(path, k)}: index out of range "
+                f"(the list has {len(cur)} item{'s' * (len(cur) != 1)})"
+            )
         return cur[p]
     if not isinstance(cur, dict):
         raise CampaignError(f"sweep PATH {_where(path, k)}: not a mapping")
@@ -275,8 +277,9 @@ def sweep_points(sweeps: Sequence[Sweep]) -> list[tuple[float, ...]]:
     return list(itertools.product(*(s.values for s in sweeps)))
 
 
-def apply_values(data: dict[str, Any], sweeps: Sequence[Sweep], point: Sequence[float],
-                 file: str = "<campaign>") -> Any:
+def apply_values(
+    data: dict[str, Any], sweeps: Sequence[Sweep], point: Sequence[float], file: str = "<campaign>"
+) -> Any:
     """Apply one sweep point to the plain data and validate the result through the model.
 
     Returns

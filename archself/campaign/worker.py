@@ -127,25 +127,27 @@ def _base_row(job: Job) -> dict[str, Any]:
     }
     for s, v in zip(job.sweeps, job.point, strict=True):
         row[s.path] = float(v)
-    row.update({
-        "replicate": job.replicate,
-        "seed": job.seed,
-        "mode": job.mode,
-        "start_configuration": None,
-        "final_configuration": None,
-        "configuration_path": None,
-        "switch_times_s": [],
-        "n_switches": 0,
-        "first_fault_onset_s": None,
-        "detection_delay_s": None,
-        "false_switches": 0,
-        "max_error_m": nan,
-        "final_error_m": nan,
-        "rms_error_m": nan,
-        "peak_time_s": nan,
-        "trace": None,
-        "error": None,
-    })
+    row.update(
+        {
+            "replicate": job.replicate,
+            "seed": job.seed,
+            "mode": job.mode,
+            "start_configuration": None,
+            "final_configuration": None,
+            "configuration_path": None,
+            "switch_times_s": [],
+            "n_switches": 0,
+            "first_fault_onset_s": None,
+            "detection_delay_s": None,
+            "false_switches": 0,
+            "max_error_m": nan,
+            "final_error_m": nan,
+            "rms_error_m": nan,
+            "peak_time_s": nan,
+            "trace": None,
+            "error": None,
+        }
+    )
     return row
 
 

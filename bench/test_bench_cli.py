@@ -1,0 +1,41 @@
+"""Start-up of the command line and validation of a 10,000-module file (subprocesses)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import DIFFDRIVE
+
+ARCHSELF = str(Path(sys.executable).parent / "archself")
+
+
+def _run(*args: str, ok: int = 0) -> None:
+    res = subprocess.run([ARCHSELF, *args], capture_output=True, text=True)
+    assert res.returncode == ok, res.stderr
+
+
+def test_startup_help(benchmark) -> None:
+    benchmark.pedantic(_run, args=("--help",), rounds=10, iterations=1, warmup_rounds=1)
+
+
+def test_startup_validate_diffdrive(benchmark) -> None:
+    benchmark.pedantic(
+        _run, args=("validate", str(DIFFDRIVE)), rounds=10, iterations=1, warmup_rounds=1
+    )
+
+
+@pytest.fixture(scope="module")
+def file_10k(tmp_path_factory) -> Path:
+    from archself.generate import generate_architecture
+
+    path = tmp_path_factory.mktemp("gen") / "g10k.yaml"
+    path.write_text(generate_architecture(10_000, seed=1), encoding="utf-8")
+    return path
+
+
+def test_validate_10k(benchmark, file_10k: Path) -> None:
+    benchmark.pedantic(_run, args=("validate", str(file_10k)), rounds=3, iterations=1)
