@@ -13,10 +13,11 @@ with a "did you mean" hint for misspelt keys.
 Examples
 --------
 >>> from archself.loader import load_text
->>> loaded = load_text("archself: 1\\nname: x\\n", "x.yaml")  # doctest: +ELLIPSIS
-Traceback (most recent call last):
-...
-archself.loader.SchemaError: x.yaml:1:1: missing required key 'modules' ...
+>>> try:
+...     load_text("archself: 1\\nnmae: x\\n", "x.yaml")
+... except SchemaError as err:
+...     print(next(f for f in err.findings if f.path == "nmae"))
+x.yaml:2:1: error: nmae: unknown key 'nmae'; did you mean 'name'?
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ class SourceMap:
                 if p in t:
                     return t[p]
             if not p:
-                return (None, None)
+                return (1, 1)  # the document itself
             p = p[:-1]
 
 

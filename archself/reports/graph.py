@@ -7,8 +7,8 @@ Which diffs are drawn
 :func:`diff_pairs` gives one diff per ordered pair ``(from, to)`` that a
 structural action of the file can perform: ``to`` is the action's target and
 ``from`` each configuration in its ``applies_in`` (all configurations when it
-is not given), except ``to`` itself. For diffdrive that is a1 → a2, a1 → a3 and
-a2 → a3. A file without structural actions gets the consecutive pairs of its
+is not given), except ``to`` itself. For diffdrive that is a1 → a2, a1 → a3,
+a2 → a1 and a2 → a3, and the a3 ↔ a4 fallbacks. A file without structural actions gets the consecutive pairs of its
 configurations in file order instead.
 
 Examples
@@ -17,7 +17,7 @@ Examples
 >>> from archself.resources import data_dir
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> diff_pairs(arch)
-[('a1', 'a2'), ('a1', 'a3'), ('a2', 'a3')]
+[('a1', 'a2'), ('a1', 'a3'), ('a2', 'a1'), ('a2', 'a3'), ('a3', 'a4'), ('a4', 'a3')]
 >>> d = config_diff(arch, "a1", "a2")
 >>> d.added_modules, d.removed_modules
 (('ekf',), ('odometry',))
