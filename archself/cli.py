@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -40,7 +40,9 @@ def _die(err: ArchselfError) -> typer.Exit:
 # --------------------------------------------------------------------------- validate
 @app.command()
 def validate(
-    paths: Annotated[list[Path], typer.Argument(help="Architecture files to check.", metavar="PATH...")],
+    paths: Annotated[
+        list[Path], typer.Argument(help="Architecture files to check.", metavar="PATH...")
+    ],
     json_out: Annotated[bool, typer.Option("--json", help="Print findings as JSON.")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Treat warnings as errors.")] = False,
 ) -> None:
@@ -62,14 +64,23 @@ def validate(
             findings = exc.findings
         except ArchselfError as exc:
             e = exc
-            findings = [Finding("error", "load", getattr(e, "message", str(e)),
-                                getattr(e, "path", ""), str(path), getattr(e, "line", None),
-                                getattr(e, "col", None))]
+            findings = [
+                Finding(
+                    "error",
+                    "load",
+                    getattr(e, "message", str(e)),
+                    getattr(e, "path", ""),
+                    str(path),
+                    getattr(e, "line", None),
+                    getattr(e, "col", None),
+                )
+            ]
         bad = [f for f in findings if f.severity == "error" or (strict and f.severity == "warning")]
         failed |= bool(bad)
         if json_out:
-            report.append({"file": str(path), "ok": not bad,
-                           "findings": [f.to_dict() for f in findings]})
+            report.append(
+                {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings]}
+            )
         else:
             for f in findings:
                 typer.echo(str(f), err=True)
@@ -77,24 +88,26 @@ def validate(
                 n = len(findings)
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
     if json_out:
-        typer.echo(json.dumps(report if len(report) != 1 else report[0], indent=2,
-                              ensure_ascii=False))
+        typer.echo(
+            json.dumps(report if len(report) != 1 else report[0], indent=2, ensure_ascii=False)
+        )
     raise typer.Exit(1 if failed else 0)
 
 
 # --------------------------------------------------------------------------- schema
 @app.command()
 def schema(
-    output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Write to FILE.")] = None,
+    output: Annotated[Path | None, typer.Option("-o", "--output", help="Write to FILE.")] = None,
     check_file: Annotated[
-        Optional[Path], typer.Option("--check", help="Exit 1 if FILE differs from the model.")
+        Path | None, typer.Option("--check", help="Exit 1 if FILE differs from the model.")
     ] = None,
 ) -> None:
     """Print the JSON Schema of architecture files, generated from the model."""
     from archself.schema import schema_text
 
-    _write_or_check({"architecture.schema.json": schema_text()}, output, check_file,
-                    "archself schema -o")
+    _write_or_check(
+        {"architecture.schema.json": schema_text()}, output, check_file, "archself schema -o"
+    )
 
 
 @app.command()
@@ -113,8 +126,9 @@ def docs(
             _write_or_check({name: text}, target, None, "")
 
 
-def _write_or_check(pages: dict[str, str], output: Optional[Path], check_file: Optional[Path],
-                    regen: str) -> None:
+def _write_or_check(
+    pages: dict[str, str], output: Path | None, check_file: Path | None, regen: str
+) -> None:
     from archself.atomic import write_text
 
     (text,) = pages.values()
@@ -124,8 +138,12 @@ def _write_or_check(pages: dict[str, str], output: Optional[Path], check_file: O
         except OSError as exc:
             raise _fail(f"{check_file}: error: cannot read: {exc.strerror}") from None
         if current != text:
-            typer.echo(f"{check_file}: stale; regenerate with `{regen} {check_file}`"
-                       if regen.endswith("-o") else f"{check_file}: stale; run `{regen}`", err=True)
+            typer.echo(
+                f"{check_file}: stale; regenerate with `{regen} {check_file}`"
+                if regen.endswith("-o")
+                else f"{check_file}: stale; run `{regen}`",
+                err=True,
+            )
             raise typer.Exit(1)
         typer.echo(f"{check_file}: up to date")
     elif output is None:
@@ -152,8 +170,8 @@ def init(
     import os
 
     from archself.atomic import write_text
-    from archself.resources import schema_path
     from archself.reports.render import render
+    from archself.resources import schema_path
 
     target = Path(name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
     if target.exists() and not force:
@@ -186,8 +204,9 @@ def _load(path: Path):
     return loaded.arch
 
 
-def _run(arch, scenario: str, config: Optional[str], seed: Optional[int], adaptive: bool,
-         show_progress: bool):
+def _run(
+    arch, scenario: str, config: str | None, seed: int | None, adaptive: bool, show_progress: bool
+):
     from archself.sim.run import simulate as run_simulation
 
     adapt = None
@@ -207,15 +226,17 @@ def _run(arch, scenario: str, config: Optional[str], seed: Optional[int], adapti
                 bar.update(pct - state["done"])
                 state["done"] = pct
 
-        return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt,
-                              progress=progress)
+        return run_simulation(
+            arch, scenario, configuration=config, seed=seed, adapt=adapt, progress=progress
+        )
 
 
 def _switches_text(switches: list[dict]) -> str:
     if not switches:
         return "none"
-    return "; ".join(f"t = {s['t_s']:.1f} s {s['from']} → {s['to']} ({s['action']})"
-                     for s in switches)
+    return "; ".join(
+        f"t = {s['t_s']:.1f} s {s['from']} → {s['to']} ({s['action']})" for s in switches
+    )
 
 
 def _summary(results: list) -> str:
@@ -244,22 +265,27 @@ def simulate(
     arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
     scenario: Annotated[str, typer.Option("--scenario", "-s", help="Scenario of the file.")],
     config: Annotated[
-        Optional[str], typer.Option("--config", "-c", help="Start configuration (default: initial).")
+        str | None, typer.Option("--config", "-c", help="Start configuration (default: initial).")
     ] = None,
     fixed: Annotated[bool, typer.Option("--fixed", help="Hold the architecture fixed.")] = False,
     compare: Annotated[
         bool, typer.Option("--compare", help="Run the fixed baseline beside the adaptive run.")
     ] = False,
-    seed: Annotated[Optional[int], typer.Option("--seed", help="Seed (default: the scenario's).")] = None,
+    seed: Annotated[
+        int | None, typer.Option("--seed", help="Seed (default: the scenario's).")
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     trace: Annotated[
-        Optional[Path],
+        Path | None,
         typer.Option("--trace", help="Write the time series and decision log (JSON) to FILE."),
     ] = None,
     report: Annotated[
-        Optional[Path],
-        typer.Option("--report", metavar="DIR",
-                     help="Write an HTML run report with the paper's figures to DIR."),
+        Path | None,
+        typer.Option(
+            "--report",
+            metavar="DIR",
+            help="Write an HTML run report with the paper's figures to DIR.",
+        ),
     ] = None,
 ) -> None:
     """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
@@ -303,8 +329,12 @@ def simulate(
 @app.command()
 def report(
     arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
-    output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
-                                         help="Folder to write the report into (created).")],
+    output: Annotated[
+        Path,
+        typer.Option(
+            "-o", "--output", metavar="DIR", help="Folder to write the report into (created)."
+        ),
+    ],
     no_render: Annotated[
         bool, typer.Option("--no-render", help="DOT sources only, even if `dot` is installed.")
     ] = False,
@@ -341,8 +371,9 @@ def explain(
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
         raise _fail(f"{trace}: error: not an archself trace ({type(exc).__name__})") from None
     typer.echo(
-        f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · seed {meta.get('seed')} · "
-        f"{meta.get('mode')} · {meta.get('configuration')} → {meta.get('final_configuration')}"
+        f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · "
+        f"seed {meta.get('seed')} · {meta.get('mode')} · "
+        f"{meta.get('configuration')} → {meta.get('final_configuration')}"
     )
     typer.echo(render(decisions))
 
@@ -354,24 +385,27 @@ def campaign(
     scenarios: Annotated[
         list[str], typer.Option("--scenario", "-s", help="Scenario of the file (repeatable).")
     ],
-    seeds: Annotated[int, typer.Option("--seeds", help="Seeds (replicates) per scenario and sweep point.")],
+    seeds: Annotated[
+        int, typer.Option("--seeds", help="Seeds (replicates) per scenario and sweep point.")
+    ],
     sweep: Annotated[
-        Optional[list[str]],
-        typer.Option("--sweep", metavar="PATH=START:STOP:NUM",
-                     help="Vary a value of the file, e.g. runtime.threshold=0.4:0.7:4 or "
-                          "scenarios.imu_drift.faults[0].magnitude=1e-4,7e-4 (repeatable: product)."),
+        list[str] | None,
+        typer.Option(
+            "--sweep",
+            metavar="PATH=START:STOP:NUM",
+            help="Vary a value of the file, e.g. runtime.threshold=0.4:0.7:4 or "
+            "scenarios.imu_drift.faults[0].magnitude=1e-4,7e-4 (repeatable: product).",
+        ),
     ] = None,
-    mode: Annotated[
-        str, typer.Option("--mode", help="both, fixed or adaptive.")
-    ] = "both",
+    mode: Annotated[str, typer.Option("--mode", help="both, fixed or adaptive.")] = "both",
     executor: Annotated[
         str, typer.Option("--executor", help="local (process pool) or dask.")
     ] = "local",
     address: Annotated[
-        Optional[str], typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
+        str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
     ] = None,
     workers: Annotated[
-        Optional[int], typer.Option("--workers", min=1, help="Processes (default: all cores).")
+        int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
     ] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Results file (Parquet).")] = Path(
         "results.parquet"
@@ -381,7 +415,7 @@ def campaign(
     ] = False,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --out.")] = False,
     traces: Annotated[
-        Optional[Path], typer.Option("--traces", metavar="DIR", help="Write every run's trace here.")
+        Path | None, typer.Option("--traces", metavar="DIR", help="Write every run's trace here.")
     ] = None,
     root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the outcome as JSON.")] = False,
@@ -404,8 +438,15 @@ def campaign(
         raise _fail("--resume and --force exclude each other", 2)
     try:
         sweeps = [parse_sweep(s) for s in sweep or []]
-        jobs, meta = plan_campaign(arch_path, scenarios, seeds, sweeps, modes=modes[mode],
-                                   root_seed=root_seed, traces=traces)
+        jobs, meta = plan_campaign(
+            arch_path,
+            scenarios,
+            seeds,
+            sweeps,
+            modes=modes[mode],
+            root_seed=root_seed,
+            traces=traces,
+        )
         show = sys.stderr.isatty() and not json_out
         bar = None
         state = {"done": 0}
@@ -419,28 +460,44 @@ def campaign(
             state["done"] = done
 
         try:
-            outcome = run_campaign(jobs, meta, out, executor=executor, workers=workers,
-                                   address=address, resume=resume, force=force,
-                                   progress=progress if show else None)
+            outcome = run_campaign(
+                jobs,
+                meta,
+                out,
+                executor=executor,
+                workers=workers,
+                address=address,
+                resume=resume,
+                force=force,
+                progress=progress if show else None,
+            )
         finally:
             if bar is not None:
                 bar.__exit__(None, None, None)
     except ArchselfError as exc:
         raise _die(exc) from None
     data = {
-        "out": str(outcome.out), "planned": outcome.planned, "skipped": outcome.skipped,
-        "ran": outcome.ran, "failed": outcome.failed, "rows": outcome.rows,
-        "executor": outcome.executor, "workers": outcome.workers,
-        "elapsed_s": round(outcome.elapsed_s, 3), "errors": outcome.errors,
+        "out": str(outcome.out),
+        "planned": outcome.planned,
+        "skipped": outcome.skipped,
+        "ran": outcome.ran,
+        "failed": outcome.failed,
+        "rows": outcome.rows,
+        "executor": outcome.executor,
+        "workers": outcome.workers,
+        "elapsed_s": round(outcome.elapsed_s, 3),
+        "errors": outcome.errors,
     }
     if json_out:
         typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
     else:
         rate = f", {outcome.ran / outcome.elapsed_s:.2f} runs/s" if outcome.elapsed_s > 0 else ""
-        typer.echo(f"{outcome.out}: {outcome.rows} runs ({outcome.ran} new, {outcome.skipped} "
-                   f"already there, {outcome.failed} failed) in {outcome.elapsed_s:.1f} s on "
-                   f"{outcome.workers} {outcome.executor} worker"
-                   f"{'s' * (outcome.workers != 1)}{rate}")
+        typer.echo(
+            f"{outcome.out}: {outcome.rows} runs ({outcome.ran} new, {outcome.skipped} "
+            f"already there, {outcome.failed} failed) in {outcome.elapsed_s:.1f} s on "
+            f"{outcome.workers} {outcome.executor} worker"
+            f"{'s' * (outcome.workers != 1)}{rate}"
+        )
         for e in outcome.errors:
             typer.echo(f"failed: {e}", err=True)
 
@@ -450,12 +507,15 @@ def campaign_report_cmd(
     results: Annotated[Path, typer.Argument(metavar="RESULTS", help="Parquet file of `campaign`.")],
     out_dir: Annotated[Path, typer.Option("-o", "--output", metavar="DIR", help="Report folder.")],
     expect: Annotated[
-        Optional[list[str]],
-        typer.Option("--expect", metavar="SCENARIO=CONFIG",
-                     help="Expected final configuration of a scenario (repeatable)."),
+        list[str] | None,
+        typer.Option(
+            "--expect",
+            metavar="SCENARIO=CONFIG",
+            help="Expected final configuration of a scenario (repeatable).",
+        ),
     ] = None,
     tau: Annotated[
-        Optional[str], typer.Option("--tau", metavar="PATH", help="Swept column holding τ.")
+        str | None, typer.Option("--tau", metavar="PATH", help="Swept column holding τ.")
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
@@ -466,8 +526,7 @@ def campaign_report_cmd(
     from archself.campaign.report import campaign_report, parse_expect, summary_text
 
     try:
-        summary = campaign_report(results, out_dir, expect=parse_expect(expect or []),
-                                  tau_path=tau)
+        summary = campaign_report(results, out_dir, expect=parse_expect(expect or []), tau_path=tau)
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
@@ -484,7 +543,7 @@ def campaign_report_cmd(
 def generate(
     n: Annotated[int, typer.Argument(metavar="N", min=2, help="Number of modules.")],
     output: Annotated[
-        Optional[Path], typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
+        Path | None, typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the random wiring.")] = 0,
     fan_in: Annotated[int, typer.Option("--fan-in", min=1, help="Max. edges into a module.")] = 3,
@@ -522,6 +581,9 @@ def main() -> None:
 
         if os.environ.get("ARCHSELF_DEBUG"):
             raise
-        typer.echo(f"internal error: {type(exc).__name__}: {exc} "
-                   "(set ARCHSELF_DEBUG=1 for the traceback; please report it)", err=True)
+        typer.echo(
+            f"internal error: {type(exc).__name__}: {exc} "
+            "(set ARCHSELF_DEBUG=1 for the traceback; please report it)",
+            err=True,
+        )
         raise SystemExit(3) from None
