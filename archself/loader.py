@@ -6,9 +6,9 @@ YAML 1.2 core schema (only ``true``/``false`` are booleans, ``1e-3`` is a float,
 ``yes`` and ``on`` are strings); it rejects duplicate keys and unknown tags, caps
 the file size, the nesting depth, the node count and the alias uses (aliases stay
 shared in the node graph, so an alias bomb is refused before anything is
-expanded), and records the ``line:col`` of every key and value. Schema violations are reported at the
-position of the offending node with its dotted path and what was expected,
-with a "did you mean" hint for misspelt keys.
+expanded), and records the ``line:col`` of every key and value. Schema
+violations are reported at the position of the offending node with its dotted
+path and what was expected, with a "did you mean" hint for misspelt keys.
 
 Examples
 --------

@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import DIFFDRIVE, FIXTURES, ROOT, compare_golden
 from typer.testing import CliRunner
 
 from archself.cli import app
@@ -19,6 +18,8 @@ from archself.reports.architecture import write_architecture_report
 from archself.reports.dsm import build_dsm, cluster, orderings, sequence
 from archself.reports.graph import config_diff, diff_pairs
 from archself.reports.render import csv_field, dot_label, dot_quote, md_cell, slug, unique_slugs
+
+from conftest import DIFFDRIVE, FIXTURES, ROOT, compare_golden
 
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"
 HOSTILE = FIXTURES / "valid" / "hostile_names.yaml"

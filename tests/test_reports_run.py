@@ -6,10 +6,11 @@ import json
 import re
 
 import pytest
-from conftest import FIXTURES
 from typer.testing import CliRunner
 
 from archself.cli import app
+
+from conftest import FIXTURES
 
 HOSTILE = FIXTURES / "valid" / "hostile_names.yaml"
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"

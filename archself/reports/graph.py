@@ -8,7 +8,8 @@ Which diffs are drawn
 structural action of the file can perform: ``to`` is the action's target and
 ``from`` each configuration in its ``applies_in`` (all configurations when it
 is not given), except ``to`` itself. For diffdrive that is a1 → a2, a1 → a3,
-a2 → a1 and a2 → a3, and the a3 ↔ a4 fallbacks. A file without structural actions gets the consecutive pairs of its
+a2 → a1 and a2 → a3, and the a3 ↔ a4 fallbacks. A file without structural
+actions gets the consecutive pairs of its
 configurations in file order instead.
 
 Examples
