@@ -6,6 +6,7 @@ Run them with ``pytest bench/ -p no:cacheprovider --benchmark-columns=min,mean,m
 
 from __future__ import annotations
 
+import functools
 import re
 from pathlib import Path
 
@@ -24,6 +25,7 @@ def diffdrive():
     return load_architecture(DIFFDRIVE).arch
 
 
+@functools.lru_cache(maxsize=8)
 def generated_w(n: int, seed: int = 1):
     """W of a generated n-module DAG, read straight from the generator's edge lines.
 

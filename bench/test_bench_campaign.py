@@ -8,7 +8,7 @@ from archself.campaign.executors import default_workers
 
 from conftest import DIFFDRIVE
 
-RUNS = 8  # seeds of imu_drift, adaptive
+RUNS = 16  # seeds of imu_drift, adaptive
 
 
 @pytest.mark.parametrize("workers", sorted({1, default_workers()}))

@@ -288,7 +288,15 @@ def summarize(
         )
     tau = None
     if tau_path is not None:
-        tau = {"path": tau_path, "points": _by_value(tau_path, ok)}
+        free = [r for r in ok if r["mode"] == "adaptive" and not r["faulted"]]
+        curves = []
+        for b in scenarios:
+            if b["faulted"]:
+                mine = [r for r in ok if r["scenario"] == b["scenario"]]
+                curves.append(
+                    {"scenario": b["scenario"], "points": _by_value(tau_path, mine + free)}
+                )
+        tau = {"path": tau_path, "points": _by_value(tau_path, ok), "curves": curves}
     by_sweep = [{"path": p, "points": _by_value(p, ok)} for p in sweeps if p != tau_path]
     return CampaignSummary(dict(meta), len(rows), failed, scenarios, tau, by_sweep, expect, errors)
 
@@ -323,12 +331,13 @@ def summary_text(s: CampaignSummary) -> str:
         lines.append(head + ", ".join(parts))
     if s.tau:
         lines.append(f"  τ sweep ({s.tau['path']}):")
-        for p in s.tau["points"]:
-            lines.append(
-                f"    τ = {p['value']:g}: median delay "
-                f"{_num(p['delay_s']['median'], '{:.1f}')} s, false switches "
-                f"{_pct(p['false_switch'])}, detected {_pct(p['detected'])}"
-            )
+        for c in s.tau["curves"]:
+            for p in c["points"]:
+                lines.append(
+                    f"    {c['scenario']} τ = {p['value']:g}: median delay "
+                    f"{_num(p['delay_s']['median'], '{:.1f}')} s, detected "
+                    f"{_pct(p['detected'])}, false switches {_pct(p['false_switch'])}"
+                )
     return "\n".join(lines)
 
 
@@ -415,40 +424,69 @@ def _fig_errors(rows: list[dict[str, Any]], names: list[str], metric: str, path:
 
 
 def _fig_tau(tau: Mapping[str, Any], path: Path) -> bool:
-    pts = [p for p in tau["points"] if p["false_switch"]["rate"] is not None]
-    if not pts:
-        return False
-    fig = _figure(5.6, 4.2)
+    """One curve per faulted scenario: false-switch rate (x) against median delay (y) over τ."""
+    curves = tau.get("curves") or [{"scenario": "all faulted", "points": tau["points"]}]
+    fig = _figure(6.0, 4.4)
     ax = fig.add_subplot()
-    xs = [p["false_switch"]["rate"] for p in pts]
-    ys = [p["delay_s"]["median"] for p in pts]
-    ok = [(x, y, p) for x, y, p in zip(xs, ys, pts, strict=True) if y is not None]
-    if ok:
-        ax.plot([o[0] for o in ok], [o[1] for o in ok], "-o", color="#1f77b4")
-        for x, y, p in ok:
-            lo, hi = p["delay_s"]["p10"], p["delay_s"]["p90"]
-            ax.plot([x, x], [lo, hi], color="#1f77b4", alpha=0.4, lw=3)
-            flo, fhi = p["false_switch"]["lo"], p["false_switch"]["hi"]
-            ax.plot([flo, fhi], [y, y], color="#1f77b4", alpha=0.4, lw=1)
-            ax.annotate(
-                f"τ={p['value']:g}", (x, y), textcoords="offset points", xytext=(6, 4), fontsize=8
-            )
-    missed = [(x, p) for x, y, p in zip(xs, ys, pts, strict=True) if y is None]
-    for x, p in missed:
-        ax.axvline(x, color="#d62728", ls=":", lw=1)
-        ax.annotate(
-            f"τ={p['value']:g}: no detection",
-            (x, 0),
-            fontsize=8,
-            color="#d62728",
-            rotation=90,
-            va="bottom",
-        )
-    basis = pts[0]["false_switch_basis"]
+    colors = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
+    drawn = False
+    xs_all: list[float] = []
+    basis = ""
+    for c, curve in enumerate(curves):
+        color = colors[c % len(colors)]
+        pts = [p for p in curve["points"] if p["false_switch"]["rate"] is not None]
+        ok = [p for p in pts if p["delay_s"]["median"] is not None]
+        if not pts:
+            continue
+        basis = pts[0]["false_switch_basis"]
+        xs_all += [p["false_switch"]["rate"] for p in pts]
+        if ok:
+            drawn = True
+            x = [p["false_switch"]["rate"] for p in ok]
+            y = [p["delay_s"]["median"] for p in ok]
+            ax.plot(x, y, "-o", color=color, label=str(curve["scenario"]))
+            for p, xi, yi in zip(ok, x, y, strict=True):
+                ax.plot(
+                    [xi, xi],
+                    [p["delay_s"]["p10"], p["delay_s"]["p90"]],
+                    color=color,
+                    alpha=0.35,
+                    lw=3,
+                )
+                ax.plot(
+                    [p["false_switch"]["lo"], p["false_switch"]["hi"]],
+                    [yi, yi],
+                    color=color,
+                    alpha=0.35,
+                    lw=1,
+                )
+                ax.annotate(
+                    f"τ={p['value']:g}",
+                    (xi, yi),
+                    textcoords="offset points",
+                    xytext=(6, 2),
+                    fontsize=7,
+                    color=color,
+                )
+        for p in pts:
+            if p["delay_s"]["median"] is None:
+                drawn = True
+                ax.axvline(p["false_switch"]["rate"], color=color, ls=":", lw=1)
+                ax.annotate(
+                    f"{curve['scenario']}, τ={p['value']:g}: never detected",
+                    (p["false_switch"]["rate"], 0),
+                    fontsize=7,
+                    color=color,
+                    rotation=90,
+                    va="bottom",
+                )
+    if not drawn:
+        return False
     ax.set_xlabel(f"false-switch rate ({basis})")
     ax.set_ylabel("detection delay [s] (median, 10–90 %)")
     ax.set_title(f"τ sweep: {tau['path']}")
-    ax.set_xlim(-0.03, max(1.0, max(xs)) + 0.03)
+    ax.set_xlim(-0.03, max(1.0, max(xs_all)) + 0.03)
+    ax.legend(frameon=False, fontsize=8)
     _save(fig, path)
     return True
 
