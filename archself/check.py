@@ -296,7 +296,7 @@ def _configurations(ctx: _Ctx) -> None:
             g.add_edges_from((e.source, e.target) for _, e in edges)
             parts = list(nx.connected_components(g))
             if len(parts) > 1:
-                lonely = sorted(min(parts, key=len))
+                lonely = sorted(min(parts, key=lambda part: len(set(part))))
                 ctx.add("error", "incomplete",
                         f"configuration '{cname}' is not connected: {', '.join(lonely)} "
                         "has no active edge to the rest", (*base, "modules"))

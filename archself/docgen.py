@@ -76,7 +76,7 @@ def cli_reference() -> str:
     from archself.cli import app
     from archself.reports.render import render
 
-    group = typer.main.get_command(app)
+    group: Any = typer.main.get_command(app)
     ctx = group.make_context("archself", [], resilient_parsing=True)
     ctx.max_content_width = ctx.terminal_width = 100
     commands = []

@@ -447,9 +447,10 @@ def schema_findings(data: dict[str, Any], exc: Any, src: SourceMap) -> list[Find
     from archself.schema import architecture_schema
 
     schema = architecture_schema()
-    grouped: dict[tuple[Path_, str | None], list[dict[str, Any]]] = {}
+    grouped: dict[tuple[Path_, Any], list[dict[str, Any]]] = {}
     for err in exc.errors(include_url=False):
         loc = tuple(err["loc"])
+        key: tuple[Path_, Any]
         if err["type"] == "extra_forbidden" and loc:
             path, _, _ = _data_path(data, loc[:-1])
             key = (path, str(loc[-1]))

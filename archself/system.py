@@ -185,8 +185,8 @@ class LiveSystem:
         self._broken: set[str] = set()  # modules whose last value was not finite
         self.history: list[dict[str, Any]] = []
         obj = arch.runtime.objective
-        self._obj_actual = tuple(obj.actual.rsplit(".", 1))
-        self._obj_ref = tuple(obj.reference.rsplit(".", 1))
+        self._obj_actual = obj.actual
+        self._obj_ref = obj.reference
         self._obj_comp = list(obj.components)
         self._plan = self._make_plan(configuration)
         for name in self._plan.active:

@@ -14,7 +14,7 @@ python-control is imported when a gain is first computed, not at import time.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -80,7 +80,7 @@ class LqrController(RuntimeModule):
     """
 
     role = "controller"
-    inputs = ("reference", "pose_estimate", "kinematics")
+    inputs: ClassVar[tuple[str, ...]] = ("reference", "pose_estimate", "kinematics")
     optional_inputs = ("dynamics", "actuation")
     outputs = ("wheel_cmd",)
     residual_signals = ("tracking_error",)

@@ -134,7 +134,7 @@ class SplinePlanner(RuntimeModule):
     @property
     def duration_s(self) -> float:
         """Time the reference takes to reach the end of the path (s)."""
-        return self.length / self.speed
+        return float(self.length / self.speed)
 
     def reference(self, t: float) -> np.ndarray:
         """``[x, y, θ, v, ω]`` of the reference at time ``t``."""

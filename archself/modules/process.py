@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -567,8 +567,8 @@ class PiController(RuntimeModule):
     """
 
     role = "controller"
-    inputs = ("setpoint", "level_estimate")
-    optional_inputs = ("tank_model",)
+    inputs: ClassVar[tuple[str, ...]] = ("setpoint", "level_estimate")
+    optional_inputs: ClassVar[tuple[str, ...]] = ("tank_model",)
     outputs = ("valve_cmd",)
     residual_signals = ("tracking_error",)
 

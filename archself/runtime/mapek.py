@@ -158,7 +158,7 @@ class MapeK:
             k.sync(system)
             return []
         k.sync(system)
-        chosen = {
+        chosen: dict[str, Any] = {
             "action": action.id,
             "kind": action.kind,
             "module": action.module,

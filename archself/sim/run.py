@@ -226,6 +226,7 @@ def simulate(
         from archself.loader import load_architecture
 
         arch = load_architecture(arch).arch
+    assert isinstance(arch, Architecture)
     sc = arch.scenarios.get(scenario)
     if sc is None:
         known = ", ".join(arch.scenarios) or "none"
