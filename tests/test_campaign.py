@@ -503,3 +503,25 @@ def test_dask_local_cluster_address(
         data = json.loads(res.stdout)
         assert data["executor"] == "dask" and data["ran"] == 16 and data["workers"] == 2
     assert read_results(out)[0].equals(read_results(local_results)[0])
+
+
+def test_worker_parses_the_file_once_per_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    import archself.loader
+    from archself.campaign import worker
+
+    calls = []
+    real = archself.loader.load_text
+
+    def counting(text: str, file: str = "<input>"):
+        calls.append(file)
+        return real(text, file)
+
+    monkeypatch.setattr(archself.loader, "load_text", counting)
+    monkeypatch.setattr(worker, "_TEXTS", {})
+    monkeypatch.setattr(worker, "_ARCHS", worker.OrderedDict())
+    jobs, _ = plan_campaign(MINIMAL, ["calm"], 2, [parse_sweep("runtime.threshold=0.4,0.6")])
+    calls.clear()  # planning loads the file too (in the driver process)
+    rows = [worker.run_job(j) for j in jobs]
+    assert all(r["error"] is None for r in rows)
+    assert len(calls) == 1  # 8 runs, 2 sweep points: parsed once, validated once per point
+    assert len(worker._ARCHS) == 2

@@ -197,10 +197,17 @@ def trace_name(scenario: str, point: tuple[float, ...], replicate: int, mode: st
 
     Examples
     --------
-    >>> trace_name("imu drift", (0.5,), 3, "adaptive")
+    >>> trace_name("imu_drift", (0.5,), 3, "adaptive")
     'imu_drift_0.5_r0003_adaptive.json'
+    >>> trace_name("imu drift", (), 0, "fixed")
+    'imu_drift-cd60cc_r0000_fixed.json'
     """
-    parts = [_UNSAFE.sub("_", scenario).strip("._") or "scenario"]
+    safe = _UNSAFE.sub("_", scenario).strip("._") or "scenario"
+    if safe != scenario:  # keep names apart that differ only in replaced characters
+        import hashlib
+
+        safe += "-" + hashlib.sha256(scenario.encode("utf-8")).hexdigest()[:6]
+    parts = [safe]
     parts += [f"{v:.6g}" for v in point]
     parts += [f"r{replicate:04d}", mode]
     return "_".join(parts) + ".json"
