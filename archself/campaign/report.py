@@ -445,7 +445,7 @@ def _fig_tau(tau: Mapping[str, Any], path: Path) -> bool:
             x = [p["false_switch"]["rate"] for p in ok]
             y = [p["delay_s"]["median"] for p in ok]
             ax.plot(x, y, "-o", color=color, label=str(curve["scenario"]))
-            for p, xi, yi in zip(ok, x, y, strict=True):
+            for k, (p, xi, yi) in enumerate(zip(ok, x, y, strict=True)):
                 ax.plot(
                     [xi, xi],
                     [p["delay_s"]["p10"], p["delay_s"]["p90"]],
@@ -460,14 +460,15 @@ def _fig_tau(tau: Mapping[str, Any], path: Path) -> bool:
                     alpha=0.35,
                     lw=1,
                 )
-                ax.annotate(
-                    f"τ={p['value']:g}",
-                    (xi, yi),
-                    textcoords="offset points",
-                    xytext=(6, 2),
-                    fontsize=7,
-                    color=color,
-                )
+                if k in (0, len(ok) - 1):
+                    ax.annotate(
+                        f"τ={p['value']:g}",
+                        (xi, yi),
+                        textcoords="offset points",
+                        xytext=(6, 2),
+                        fontsize=7,
+                        color=color,
+                    )
         for p in pts:
             if p["delay_s"]["median"] is None:
                 drawn = True
