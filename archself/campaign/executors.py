@@ -165,7 +165,8 @@ class DaskExecutor:
                 "--executor dask needs dask.distributed: pip install 'archself[dask]'"
             ) from None
         self._distributed = distributed
-        self._cluster = None
+        self._cluster: Any = None
+        self._client: Any = None
         try:
             if address is None:
                 n = int(workers or default_workers())
@@ -208,7 +209,7 @@ class DaskExecutor:
             self._client.cancel(fs)
 
     def close(self) -> None:
-        client = getattr(self, "_client", None)
+        client = self._client
         if client is not None:
             client.close()
             self._client = None
