@@ -1,8 +1,9 @@
 """Every ``console`` example in README.md and docs/ runs as written and prints what it shows.
 
-A ``console`` block holds ``$ command`` lines, each followed by the output it prints
-(stdout and stderr as a terminal shows them). A line ``...`` stands for any number of
-lines. The blocks of one page run in order in one fresh folder that holds links to the
+A ``console`` block holds ``$ command`` lines (a trailing ``\\`` continues a command on
+the next line), each followed by the output it prints (stdout and stderr as a terminal
+shows them). A line ``...`` stands for any number of lines; ``...`` inside a line stands
+for any text. The blocks of one page run in order in one fresh folder that holds links to the
 repository's ``architectures/``, ``plugins/``, ``schemas/`` and ``tests/``.
 ``pytest tests/test_docs_examples.py --regen-golden`` rewrites the shown outputs.
 
@@ -28,25 +29,45 @@ LINKED = ("architectures", "plugins", "schemas", "tests")
 
 
 def _commands(block: str) -> list[tuple[str, list[str]]]:
+    """``$ command`` lines (a trailing backslash continues one) with the output after them."""
     out: list[tuple[str, list[str]]] = []
+    continued = False
     for line in block.splitlines():
-        if line.startswith("$ "):
+        if continued:
+            out[-1] = (out[-1][0] + "\n" + line, [])
+        elif line.startswith("$ "):
             out.append((line[2:], []))
         elif out:
             out[-1][1].append(line)
+        continued = bool(out) and not out[-1][1] and line.endswith("\\")
     return out
+
+
+def _line_matches(expected: str, actual: str) -> bool:
+    """Equal, or equal where ``...`` inside the expected line stands for any text."""
+    if "..." not in expected:
+        return expected == actual
+    pattern = ".*".join(re.escape(part) for part in expected.split("..."))
+    return re.fullmatch(pattern, actual) is not None
+
+
+def _lines_match(expected: list[str], actual: list[str]) -> bool:
+    return len(expected) == len(actual) and all(map(_line_matches, expected, actual))
 
 
 def _matches(expected: list[str], actual: list[str]) -> bool:
     if "..." not in expected:
-        return expected == actual
+        return _lines_match(expected, actual)
     i = expected.index("...")
     head, tail = expected[:i], expected[i + 1 :]
     if len(head) + len(tail) > len(actual):
         return False
-    return actual[: len(head)] == head and (not tail or actual[-len(tail) :] == tail) and (
-        _matches(tail, actual[len(actual) - len(tail) :]) if "..." in tail else True
-    )
+    rest = actual[len(head) :]
+    if not _lines_match(head, actual[: len(head)]):
+        return False
+    if "..." in tail:
+        return any(_matches(tail, rest[k:]) for k in range(len(rest) + 1))
+    return not tail or _lines_match(tail, rest[len(rest) - len(tail) :])
 
 
 def _elide(expected: list[str], actual: list[str]) -> list[str]:
@@ -84,7 +105,7 @@ def test_console_examples(page: Path, tmp_path: Path, regen: bool) -> None:
             if not _matches([e.rstrip() for e in expected], actual):
                 failures.append(f"$ {cmd}\n--- expected\n" + "\n".join(expected)
                                 + "\n--- actual\n" + "\n".join(actual))
-            lines += [f"$ {cmd}", *_elide(expected, actual)]
+            lines += [f"$ {cmd}", *_elide(expected, actual)]  # continuations kept verbatim
         new_text = new_text.replace(m.group(0), "```console\n" + "\n".join(lines) + "\n```\n", 1)
     if regen and new_text != text:
         page.write_text(new_text, encoding="utf-8")
