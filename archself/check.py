@@ -179,19 +179,26 @@ def spectrum_summary(
     singular : bool
         True when W has the eigenvalue 1, i.e. I − Wᵀ is singular.
     """
-    import networkx as nx
+    from archself.graphs import strongly_connected_components
 
-    g = nx.DiGraph()
-    g.add_nodes_from(names)
+    known = set(names)
+    weight: dict[tuple[str, str], float] = {}
+    succ: dict[str, list[str]] = {n: [] for n in names}
     for s, t, w in edges:
-        if s in g and t in g and s != t:
-            g.add_edge(s, t, weight=g.get_edge_data(s, t, {"weight": 0.0})["weight"] + w)
+        if s in known and t in known and s != t:
+            if (s, t) not in weight:
+                succ[s].append(t)
+            weight[(s, t)] = weight.get((s, t), 0.0) + w  # parallel edges add up
     rho, singular = 0.0, False
-    for comp in nx.strongly_connected_components(g):
+    for comp in strongly_connected_components(succ):
         if len(comp) < 2:
             continue
-        nodes = sorted(comp)
-        w = nx.to_numpy_array(g, nodelist=nodes, weight="weight")
+        pos = {n: i for i, n in enumerate(comp)}
+        w = np.zeros((len(comp), len(comp)))
+        for s in comp:
+            for t in succ[s]:
+                if t in pos:
+                    w[pos[s], pos[t]] = weight[(s, t)]
         lam = np.linalg.eigvals(w)
         rho = max(rho, float(np.max(np.abs(lam))))
         singular |= bool(np.any(np.abs(lam - 1.0) < 1e-9))
@@ -229,7 +236,7 @@ def _active_edges(arch: Architecture, conf_name: str) -> list[tuple[int, Any]]:
 
 
 def _configurations(ctx: _Ctx) -> None:
-    import networkx as nx
+    from archself.graphs import find_cycle, weakly_connected_components
 
     arch = ctx.arch
     initial = [n for n, c in arch.configurations.items() if c.initial]
@@ -275,28 +282,24 @@ def _configurations(ctx: _Ctx) -> None:
                     ctx.add("error", "module-constraint",
                             f"configuration '{cname}': '{m}' excludes '{x}', which is active",
                             (*base, "modules"))
-        flow = nx.DiGraph()
+        flow: dict[str, list[str]] = {}
         for _, e in edges:
             cls = _type_info(e.target, arch)
             if cls is not None and cls.direct_feedthrough and e.source != e.target:
-                flow.add_edge(e.source, e.target)
-        try:
-            loop = nx.find_cycle(flow)
-        except nx.NetworkXNoCycle:
-            loop = None
+                flow.setdefault(e.source, []).append(e.target)
+        loop = find_cycle(flow)
         if loop:
-            path = " -> ".join([u for u, _ in loop] + [loop[0][0]])
+            path = " -> ".join([*loop, loop[0]])
             ctx.add("error", "algebraic-loop",
                     f"configuration '{cname}' has an algebraic loop {path}: a cycle needs a "
                     "module whose outputs depend on its state only (direct_feedthrough = False)",
                     (*base, "modules"))
         if len(active) > 1:
-            g = nx.Graph()
-            g.add_nodes_from(active)
-            g.add_edges_from((e.source, e.target) for _, e in edges)
-            parts = list(nx.connected_components(g))
+            parts = weakly_connected_components(
+                sorted(active), ((e.source, e.target) for _, e in edges)
+            )
             if len(parts) > 1:
-                lonely = sorted(min(parts, key=lambda part: len(set(part))))
+                lonely = sorted(min(parts, key=len))
                 ctx.add("error", "incomplete",
                         f"configuration '{cname}' is not connected: {', '.join(lonely)} "
                         "has no active edge to the rest", (*base, "modules"))
