@@ -32,5 +32,5 @@ def test_components_and_cycles_match_networkx(edges: list[tuple[int, int]]) -> N
     cycle = find_cycle(_succ(edges))
     assert (cycle is None) == nx.is_directed_acyclic_graph(g)
     if cycle is not None:
-        ring = list(zip(cycle, cycle[1:] + cycle[:1]))
+        ring = list(zip(cycle, cycle[1:] + cycle[:1], strict=True))
         assert all(g.has_edge(a, b) for a, b in ring)
