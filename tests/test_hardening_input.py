@@ -63,6 +63,14 @@ def test_interrupted_write_keeps_the_old_file(tmp_path: Path, monkeypatch) -> No
     assert len(list(tmp_path.iterdir())) == 1
 
 
+def test_written_files_get_the_usual_mode(tmp_path: Path) -> None:
+    target = tmp_path / "out.json"
+    write_text(target, "{}")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~mask
+
+
 def test_missing_output_folder_is_a_one_line_error(tmp_path: Path) -> None:
     with pytest.raises(OutputError, match="does not exist"):
         write_text(tmp_path / "no" / "such" / "dir" / "x.json", "{}")
