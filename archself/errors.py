@@ -8,6 +8,21 @@ one-line, user-facing message. The CLI prints ``str(err)`` and exits with
 from __future__ import annotations
 
 
+def located(file: str, line: int | None, col: int | None, path: str, message: str,
+            severity: str = "") -> str:
+    """``file:line:col: [severity:] path: message``, the one format of every located message.
+
+    Examples
+    --------
+    >>> located("a.yaml", 3, 5, "edges[0].weight", "expected a number", "error")
+    'a.yaml:3:5: error: edges[0].weight: expected a number'
+    """
+    where = file if line is None else f"{file}:{line}:{col or 1}"
+    sev = f" {severity}:" if severity else ""
+    at = f" {path}:" if path else ""
+    return f"{where}:{sev}{at} {message}"
+
+
 class ArchselfError(Exception):
     """Root of all archself errors; ``str(err)`` is a one-line message for users."""
 
@@ -45,11 +60,7 @@ class LoadError(ArchselfError):
         super().__init__(self.__str__())
 
     def __str__(self) -> str:
-        where = self.file
-        if self.line is not None:
-            where += f":{self.line}:{self.col or 1}"
-        at = f" {self.path}:" if self.path else ""
-        return f"{where}:{at} {self.message}"
+        return located(self.file, self.line, self.col, self.path, self.message)
 
 
 class RegistryError(ArchselfError):

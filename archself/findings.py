@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Literal
 
+from archself.errors import located
+
 Severity = Literal["error", "warning", "info"]
 
 
@@ -36,11 +38,7 @@ class Finding:
     col: int | None = None
 
     def __str__(self) -> str:
-        where = self.file
-        if self.line is not None:
-            where += f":{self.line}:{self.col or 1}"
-        at = f" {self.path}:" if self.path else ""
-        return f"{where}: {self.severity}:{at} {self.message}"
+        return located(self.file, self.line, self.col, self.path, self.message, self.severity)
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready dict of the finding."""
