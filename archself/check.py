@@ -184,11 +184,11 @@ def spectrum_summary(
     known = set(names)
     weight: dict[tuple[str, str], float] = {}
     succ: dict[str, list[str]] = {n: [] for n in names}
-    for s, t, w in edges:
+    for s, t, omega in edges:
         if s in known and t in known and s != t:
             if (s, t) not in weight:
                 succ[s].append(t)
-            weight[(s, t)] = weight.get((s, t), 0.0) + w  # parallel edges add up
+            weight[(s, t)] = weight.get((s, t), 0.0) + omega  # parallel edges add up
     rho, singular = 0.0, False
     for comp in strongly_connected_components(succ):
         if len(comp) < 2:
@@ -295,11 +295,12 @@ def _configurations(ctx: _Ctx) -> None:
                     "module whose outputs depend on its state only (direct_feedthrough = False)",
                     (*base, "modules"))
         if len(active) > 1:
-            parts = weakly_connected_components(
-                sorted(active), ((e.source, e.target) for _, e in edges)
+            parts: list[list[str]] = weakly_connected_components(
+                sorted(active), [(e.source, e.target) for _, e in edges]
             )
             if len(parts) > 1:
-                lonely = sorted(min(parts, key=len))
+                smallest = min(parts, key=len)
+                lonely = sorted(smallest)
                 ctx.add("error", "incomplete",
                         f"configuration '{cname}' is not connected: {', '.join(lonely)} "
                         "has no active edge to the rest", (*base, "modules"))

@@ -19,8 +19,9 @@ Examples
 from __future__ import annotations
 
 from collections.abc import Hashable, Iterable, Mapping, Sequence
+from typing import TypeVar
 
-Node = Hashable
+Node = TypeVar("Node", bound=Hashable)
 
 
 def strongly_connected_components(succ: Mapping[Node, Sequence[Node]]) -> list[list[Node]]:
@@ -96,8 +97,8 @@ def weakly_connected_components(
     nodes: Iterable[Node], edges: Iterable[tuple[Node, Node]]
 ) -> list[list[Node]]:
     """Connected components of the undirected version of a graph (union-find)."""
-    nodes = list(dict.fromkeys(nodes))
-    parent = {n: n for n in nodes}
+    order = list(dict.fromkeys(nodes))
+    parent = {n: n for n in order}
 
     def root(n: Node) -> Node:
         while parent[n] != n:
@@ -111,6 +112,6 @@ def weakly_connected_components(
             if ra != rb:
                 parent[rb] = ra
     groups: dict[Node, list[Node]] = {}
-    for n in nodes:
+    for n in order:
         groups.setdefault(root(n), []).append(n)
     return list(groups.values())
