@@ -7,8 +7,9 @@ for any text. The blocks of one page run in order in one fresh folder that holds
 repository's ``architectures/``, ``plugins/``, ``schemas/`` and ``tests/``.
 ``pytest tests/test_docs_examples.py --regen-golden`` rewrites the shown outputs.
 
-``sh`` blocks (installation commands) are not run here: CI runs the README's two
-quick-start commands verbatim (see ``.ci/run``).
+``sh`` blocks are not run here: installation commands (CI runs the README's two
+quick-start commands verbatim, see ``.ci/run``) and long jobs (benchmarks, the
+1,000-run campaign), each of which has a short ``console`` counterpart that is run.
 """
 
 from __future__ import annotations
