@@ -8,7 +8,8 @@ Three selectors, chosen by the ``runtime`` block of the architecture file:
 - ``hysteresis: {on, off}`` — a module enters C when ``|z_i| ≥ τ_on`` and leaves it
   only when ``|z_i| < τ_off`` (τ_on > τ_off), :class:`HysteresisSelector`.
 
-Every selector returns the candidates ordered by decreasing ``|z_i|``.
+Every selector returns the candidates ordered by decreasing ``|z_i|``, equal
+magnitudes by name.
 """
 
 from __future__ import annotations
@@ -29,7 +30,12 @@ __all__ = [
 
 
 def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
-    return sorted(names, key=lambda n: (-abs(z[n]), n))
+    """Names by decreasing ``|z|``; ties (equal to 12 significant digits) by name.
+
+    Comparing rounded magnitudes keeps the order of equal channels fixed when the
+    last bits of z change with the BLAS or SuperLU build.
+    """
+    return sorted(names, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
