@@ -1,11 +1,16 @@
-"""Every ``console`` example in README.md and docs/ runs as written and prints what it shows.
+"""Every example in README.md and docs/ runs as written; ``console`` ones print what they show.
 
 A ``console`` block holds ``$ command`` lines (a trailing ``\\`` continues a command on
 the next line), each followed by the output it prints (stdout and stderr as a terminal
 shows them). A line ``...`` stands for any number of lines; ``...`` inside a line stands
-for any text. The blocks of one page run in order in one fresh folder that holds links to the
+for any text. A command must exit with status 0, unless its last line ends with a comment
+``# exit N`` that states the status it must end with: ``$ archself validate bad.yaml  # exit 1``.
+The blocks of one page run in order in one fresh folder that holds links to the
 repository's ``architectures/``, ``plugins/``, ``schemas/`` and ``tests/``.
 ``pytest tests/test_docs_examples.py --regen-golden`` rewrites the shown outputs.
+
+Every ``python`` block runs too, on its own (``python -c``, in such a folder) and must exit
+with status 0: a block is a complete script, not a fragment.
 
 ``sh`` blocks are not run here: installation commands (CI runs the README's two
 quick-start commands verbatim, see ``.ci/run``) and long jobs (benchmarks, the
@@ -26,6 +31,8 @@ from conftest import ROOT
 
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"^```console\n(.*?)^```\n", re.S | re.M)
+PYTHON = re.compile(r"^```python\n(.*?)^```\n", re.S | re.M)
+EXIT = re.compile(r"\s#\s*exit\s+(\d+)\s*$")
 LINKED = ("architectures", "plugins", "schemas", "tests")
 
 
@@ -79,31 +86,56 @@ def _elide(expected: list[str], actual: list[str]) -> list[str]:
     return actual[:i] + ["..."] + (actual[-n_tail:] if n_tail else [])
 
 
-def _run(cmd: str, cwd: Path) -> list[str]:
-    env = {**os.environ, "COLUMNS": "100", "TERM": "dumb", "NO_COLOR": "1",
-           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
-    proc = subprocess.run(["bash", "-c", cmd], cwd=cwd, env=env, capture_output=True,
+def expected_status(cmd: str) -> int:
+    """The exit status a command must end with: ``N`` of a trailing ``# exit N``, else 0."""
+    m = EXIT.search(cmd.splitlines()[-1])
+    return int(m.group(1)) if m else 0
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "COLUMNS": "100", "TERM": "dumb", "NO_COLOR": "1",
+            "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+
+
+def _run(cmd: str, cwd: Path) -> tuple[int, list[str]]:
+    """Exit status and output lines (stdout, then stderr) of ``cmd`` run by bash in ``cwd``."""
+    proc = subprocess.run(["bash", "-c", cmd], cwd=cwd, env=_env(), capture_output=True,
                           text=True, timeout=600)
     text = proc.stdout + proc.stderr
-    return [line.rstrip() for line in text.rstrip("\n").splitlines()]
+    return proc.returncode, [line.rstrip() for line in text.rstrip("\n").splitlines()]
 
 
-def _pages_with_examples() -> list[Path]:
-    return [p for p in PAGES if "```console" in p.read_text(encoding="utf-8")]
-
-
-@pytest.mark.parametrize("page", _pages_with_examples(), ids=lambda p: p.name)
-def test_console_examples(page: Path, tmp_path: Path, regen: bool) -> None:
+def _link_repository(folder: Path) -> None:
     for name in LINKED:
-        (tmp_path / name).symlink_to(ROOT / name)
+        (folder / name).symlink_to(ROOT / name)
+
+
+def _pages_with(fence: str) -> list[Path]:
+    return [p for p in PAGES if f"```{fence}\n" in p.read_text(encoding="utf-8")]
+
+
+def test_expected_status_convention() -> None:
+    assert expected_status("archself validate tank.yaml") == 0
+    assert expected_status("archself validate tank.yaml  # exit 1") == 1
+    assert expected_status("archself simulate x.yaml \\\n  -s drift # exit 2") == 2
+    assert expected_status("echo '# exit 1 is a comment'") == 0
+
+
+@pytest.mark.parametrize("page", _pages_with("console"), ids=lambda p: p.name)
+def test_console_examples(page: Path, tmp_path: Path, regen: bool) -> None:
+    _link_repository(tmp_path)
     text = page.read_text(encoding="utf-8")
     new_text = text
     failures = []
     for m in BLOCK.finditer(text):
         lines = []
         for cmd, expected in _commands(m.group(1)):
-            actual = _run(cmd, tmp_path)
-            if not _matches([e.rstrip() for e in expected], actual):
+            status, actual = _run(cmd, tmp_path)
+            if status != expected_status(cmd):
+                failures.append(f"$ {cmd}\nexit status {status}, expected "
+                                f"{expected_status(cmd)} (mark an expected failure with "
+                                "a trailing '# exit N')\n--- output\n" + "\n".join(actual))
+            elif not _matches([e.rstrip() for e in expected], actual):
                 failures.append(f"$ {cmd}\n--- expected\n" + "\n".join(expected)
                                 + "\n--- actual\n" + "\n".join(actual))
             lines += [f"$ {cmd}", *_elide(expected, actual)]  # continuations kept verbatim
@@ -113,3 +145,16 @@ def test_console_examples(page: Path, tmp_path: Path, regen: bool) -> None:
         return
     assert not failures, f"{page.name}: examples differ (regenerate with --regen-golden)\n\n" + \
         "\n\n".join(failures)
+
+
+@pytest.mark.parametrize("page", _pages_with("python"), ids=lambda p: p.name)
+def test_python_examples(page: Path, tmp_path: Path) -> None:
+    _link_repository(tmp_path)
+    failures = []
+    for i, m in enumerate(PYTHON.finditer(page.read_text(encoding="utf-8")), 1):
+        proc = subprocess.run([sys.executable, "-c", m.group(1)], cwd=tmp_path, env=_env(),
+                              capture_output=True, text=True, timeout=600)
+        if proc.returncode != 0:
+            failures.append(f"python block {i} exited with {proc.returncode}:\n"
+                            + m.group(1) + "--- stderr\n" + proc.stderr[-3000:])
+    assert not failures, f"{page.name}:\n\n" + "\n\n".join(failures)
