@@ -35,6 +35,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,6 +48,7 @@ __all__ = [
     "Monitor",
     "Observation",
     "ResidualFilter",
+    "StatusMap",
     "filter_gain",
     "module_residual",
     "unavailable_residual",
@@ -164,11 +166,7 @@ class ResidualFilter:
     @property
     def confidence(self) -> float:
         """How settled the filter is: ``1 − exp(−t_valid/T)`` (1 without smoothing)."""
-        if self.samples == 0:
-            return 0.0
-        if self.time_constant <= 0:
-            return 1.0
-        return float(1.0 - math.exp(-self.valid_time / self.time_constant))
+        return _confidence(self.samples, self.valid_time, self.time_constant)
 
     def reset(self) -> None:
         self.value = 0.0
@@ -200,17 +198,141 @@ class ModuleStatus:
         return out
 
 
+def _confidence(samples: int, valid_time: float, time_constant: float) -> float:
+    """``1 − exp(−t_valid/T)`` of a residual filter (0 before a sample, 1 without smoothing)."""
+    if samples == 0:
+        return 0.0
+    if time_constant <= 0:
+        return 1.0
+    return float(1.0 - math.exp(-valid_time / time_constant))
+
+
+class StatusMap(Mapping[str, ModuleStatus]):
+    """κ of every module (Eq. 17) as a read-only mapping, built on demand.
+
+    The Monitor keeps the status of all modules in arrays; a
+    :class:`ModuleStatus` is only created when a module is looked up (and then
+    kept, so repeated look-ups give the same object). :meth:`findings` lists the
+    modules with something to report without touching the others, which is what
+    keeps a cycle on 10^4 modules cheap.
+
+    Parameters
+    ----------
+    names : list of str
+        All modules, in index order (iteration order of the mapping).
+    index : dict
+        name -> position in ``names``.
+    active, available, residual_ok : numpy.ndarray of bool
+        Per position.
+    confidence : callable
+        position -> confidence of the module's residual filter.
+    violations : dict
+        name -> violated constraints (active modules with at least one).
+    reasons : dict
+        name -> reason of an active unavailable module (may be None).
+    finding : numpy.ndarray of int
+        Positions of the active modules that are unavailable, have an unusable
+        residual signal or violate a constraint, ascending.
+    """
+
+    def __init__(
+        self,
+        names: list[str],
+        index: dict[str, int],
+        active: np.ndarray,
+        available: np.ndarray,
+        residual_ok: np.ndarray,
+        confidence: Callable[[int], float],
+        violations: dict[str, list[str]],
+        reasons: dict[str, str | None],
+        finding: np.ndarray,
+    ) -> None:
+        self._names = names
+        self._index = index
+        self._active = active
+        self._available = available
+        self._residual_ok = residual_ok
+        self._confidence = confidence
+        self._violations = violations
+        self._reasons = reasons
+        self._finding = finding
+        self._built: dict[str, ModuleStatus] = {}
+
+    def __getitem__(self, name: str) -> ModuleStatus:
+        status = self._built.get(name)
+        if status is None:
+            k = self._index[name]
+            status = ModuleStatus(
+                active=bool(self._active[k]),
+                available=bool(self._available[k]),
+                residual_ok=bool(self._residual_ok[k]),
+                confidence=self._confidence(k),
+                violations=list(self._violations.get(name, ())),
+                reason=self._reasons.get(name),
+            )
+            self._built[name] = status
+        return status
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def findings(self) -> list[tuple[str, ModuleStatus]]:
+        """``(name, κ)`` of the active modules with a finding, in index order.
+
+        A finding is: unavailable, residual signal unusable, or a violated
+        constraint (what the decision log records).
+        """
+        names = self._names
+        return [(names[k], self[names[k]]) for k in self._finding.tolist()]
+
+    def unavailable(self) -> set[str]:
+        """Names of the modules the system reports unavailable (active or not)."""
+        names = self._names
+        return {names[k] for k in np.flatnonzero(~self._available).tolist()}
+
+
 @dataclass
 class Observation:
-    """Everything the Monitor stage measured in one cycle."""
+    """Everything the Monitor stage measured in one cycle.
+
+    Attributes
+    ----------
+    t, j_obs, j_ref, r_global : float
+        Time, J_obs, J_ref and the global residual (Eq. 11).
+    r : numpy.ndarray
+        Module residuals r_i (Eq. 12) in index order.
+    kappa : StatusMap
+        κ_i of every module.
+    signals : dict
+        Filtered residual signal of each active module with a ``residual``
+        block (None when the sample was unusable), in index order.
+    """
 
     t: float
     j_obs: float
     j_ref: float
     r_global: float
     r: np.ndarray
-    signals: dict[str, float | None]
-    kappa: dict[str, ModuleStatus]
+    kappa: StatusMap
+    signal_names: list[str] = field(default_factory=list, repr=False)
+    signal_values: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    signal_ok: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool), repr=False)
+
+    @property
+    def signals(self) -> dict[str, float | None]:
+        """name -> filtered residual signal, None where the sample was unusable."""
+        return {
+            n: (v if ok else None)
+            for n, v, ok in zip(
+                self.signal_names, self.signal_values.tolist(), self.signal_ok.tolist(), strict=True
+            )
+        }
 
 
 def _finite(x: Any) -> float:
@@ -221,8 +343,65 @@ def _finite(x: Any) -> float:
     return v
 
 
+def _floats(values: list[Any]) -> np.ndarray:
+    """``[_finite(v) for v in values]`` as a float array; one numpy call for plain numbers."""
+    try:
+        a = np.array(values)
+    except (TypeError, ValueError):
+        a = None
+    if a is not None and a.ndim == 1 and a.dtype.kind in "fiub":
+        return a.astype(float, copy=False)
+    return np.array([_finite(v) for v in values], dtype=float)
+
+
+def _limit_violations(limits: Mapping[str, Any], local: Mapping[str, Any]) -> list[str]:
+    """Declared ``max_<signal>``/``min_<signal>`` limits the module's local signals break."""
+    out = []
+    for key, limit in limits.items():
+        for prefix, worse in (("max_", float.__gt__), ("min_", float.__lt__)):
+            if key.startswith(prefix):
+                value = _finite(local.get(key[len(prefix) :], math.nan))
+                if math.isfinite(value) and worse(value, float(limit)):
+                    out.append(f"{key} {limit:g} violated ({value:g})")
+    return out
+
+
+class _Layout:
+    """What the Monitor precomputes for one set of active modules."""
+
+    def __init__(self, monitor: Monitor, active: frozenset[str]) -> None:
+        names = monitor.names
+        self.key = active
+        self.active = np.fromiter((n in active for n in names), dtype=bool, count=len(names))
+        on = self.active[monitor.res_pos]
+        self.res_on = np.flatnonzero(on)  # residual slots of the active modules
+        self.res_off = np.flatnonzero(~on)
+        self.on_pos = monitor.res_pos[self.res_on]  # their positions in names
+        self.on_names = [names[k] for k in self.on_pos.tolist()]
+        self.pairs = [
+            (names[k], monitor.res_signal[j])
+            for j, k in zip(self.res_on.tolist(), self.on_pos.tolist(), strict=True)
+        ]
+        # requires/excludes depend on the active set only; limits are read every cycle
+        self.constrained: list[tuple[int, str, list[str], Mapping[str, Any]]] = []
+        for k, name in monitor.constrained:
+            if name not in active:
+                continue
+            cons = monitor.arch.modules[name].constraints
+            fixed = [f"requires {m} (inactive)" for m in cons.requires if m not in active]
+            fixed += [f"excludes {m} (active)" for m in cons.excludes if m in active]
+            self.constrained.append((k, name, fixed, cons.limits))
+
+
 class Monitor:
     """Monitor stage: residual filters per module and the κ_i indicators.
+
+    The filters of all modules with a ``residual`` block are held in numpy arrays
+    (value, valid time, sample count) and updated together; κ_i is a
+    :class:`StatusMap`. What depends only on the set of active modules
+    (which filters run, the ``requires``/``excludes`` checks) is computed once
+    per set. The arithmetic is that of :class:`ResidualFilter` and
+    :func:`module_residual`, operation for operation, so the numbers are the same.
 
     Parameters
     ----------
@@ -235,14 +414,52 @@ class Monitor:
     def __init__(self, arch: Architecture, names: list[str]) -> None:
         self.arch = arch
         self.names = list(names)
+        self.index = {n: k for k, n in enumerate(self.names)}
         self.normalization = arch.runtime.normalization
-        self.filters: dict[str, ResidualFilter] = {
-            name: ResidualFilter(mod.residual.smoothing_s)
-            for name, mod in arch.modules.items()
-            if mod.residual is not None
-        }
+        res = [
+            (k, spec)
+            for k, name in enumerate(self.names)
+            if (spec := arch.modules[name].residual) is not None
+        ]
+        self.res_pos = np.array([k for k, _ in res], dtype=np.intp)
+        self.res_signal = [spec.signal for _, spec in res]
+        self.time_constant = np.array([float(spec.smoothing_s) for _, spec in res], dtype=float)
+        self.sensitivity = np.array([float(spec.sensitivity) for _, spec in res], dtype=float)
+        self.nominal = np.array([float(spec.nominal) for _, spec in res], dtype=float)
+        self._instant = self.time_constant <= 0
+        self._tc_values, self._tc_slot = np.unique(self.time_constant, return_inverse=True)
+        self._tc_list = self._tc_values.tolist()
+        self._res_slot = np.full(len(self.names), -1, dtype=np.intp)
+        self._res_slot[self.res_pos] = np.arange(len(res), dtype=np.intp)
+        # filter state, one entry per residual-carrying module
+        self.value = np.zeros(len(res))
+        self.valid_time = np.zeros(len(res))
+        self.samples = np.zeros(len(res), dtype=np.int64)
+        self.constrained = [
+            (k, n)
+            for k, n in enumerate(self.names)
+            if (c := arch.modules[n].constraints).requires or c.excludes or c.limits
+        ]
+        self._layout: _Layout | None = None
+        self._gain_dt: float | None = None
+        self._gain = np.ones(len(res))
         self._t_prev: float | None = None
         self.r_sat = unavailable_residual(arch.runtime)
+
+    def layout(self, active: frozenset[str]) -> _Layout:
+        """The precomputed layout of ``active`` (rebuilt when the active set changes)."""
+        lay = self._layout
+        if lay is None or (lay.key is not active and lay.key != active):
+            lay = self._layout = _Layout(self, frozenset(active))
+        return lay
+
+    def gains(self, dt: float) -> np.ndarray:
+        """:func:`filter_gain` of every residual filter for the sampling interval ``dt``."""
+        if dt != self._gain_dt:
+            per_tc = np.array([filter_gain(dt, tc) for tc in self._tc_list], dtype=float)
+            self._gain = per_tc[self._tc_slot] if per_tc.size else np.ones(0)
+            self._gain_dt = dt
+        return self._gain
 
     def observe(self, system: Any, active: frozenset[str]) -> Observation:
         """Sample the system once (Algorithm 1, steps 1–2); never raises on bad signals."""
@@ -267,58 +484,119 @@ class Monitor:
             avail = system.available() or {}
         except Exception:  # noqa: BLE001
             avail = {}
-        health = getattr(system, "health", None)
-        try:
-            why = (health() or {}) if health is not None else {}
-        except Exception:  # noqa: BLE001
-            why = {}
 
-        r = np.zeros(len(self.names))
-        signals: dict[str, float | None] = {}
-        kappa: dict[str, ModuleStatus] = {}
-        for k, name in enumerate(self.names):
-            mod = self.arch.modules[name]
-            is_active = name in active
-            status = ModuleStatus(active=is_active, available=bool(avail.get(name, True)))
-            kappa[name] = status
-            if is_active:
-                status.violations = self._violations(name, active, local.get(name) or {})
-                if not status.available:
-                    reason = why.get(name)
-                    status.reason = reason
+        names, index = self.names, self.index
+        n = len(names)
+        lay = self.layout(active)
+        r = np.zeros(n)
+
+        # availability (κ) and the saturated residual of own failures
+        available = np.ones(n, dtype=bool)
+        reasons: dict[str, str | None] = {}
+        if not all(avail.values()):
+            down = [index[m] for m, ok in avail.items() if not ok and m in index]
+            available[down] = False
+            down_active = sorted(k for k in down if lay.active[k])
+            if down_active:
+                health = getattr(system, "health", None)
+                try:
+                    why = (health() or {}) if health is not None else {}
+                except Exception:  # noqa: BLE001
+                    why = {}
+                for k in down_active:
+                    reason = why.get(names[k])
+                    reasons[names[k]] = reason
                     if reason is not None and is_own_failure(reason):
                         r[k] = self.r_sat
-            filt = self.filters.get(name)
-            if filt is None:
-                continue
-            if not is_active:
-                filt.reset()
-                status.confidence = 0.0
-                continue
-            assert mod.residual is not None
-            sample = _finite((local.get(name) or {}).get(mod.residual.signal, math.nan))
-            ok = math.isfinite(sample) and status.available
-            status.residual_ok = ok
-            value = filt.update(sample if ok else math.nan, dt)
-            status.confidence = filt.confidence
-            if ok:
-                signals[name] = float(value)
-                r[k] = module_residual(
-                    value, mod.residual.sensitivity, mod.residual.nominal, self.normalization
-                )
-            else:
-                signals[name] = None
-        return Observation(t, j_obs, j_ref, r_global, r, signals, kappa)
+
+        # constraint violations of the active modules
+        violations: dict[str, list[str]] = {}
+        for _k, name, fixed, limits in lay.constrained:
+            found = list(fixed)
+            if limits:
+                found += _limit_violations(limits, local.get(name) or {})
+            if found:
+                violations[name] = found
+
+        # residual filters: reset the inactive ones, update the active ones
+        if lay.res_off.size:
+            self.value[lay.res_off] = 0.0
+            self.valid_time[lay.res_off] = 0.0
+            self.samples[lay.res_off] = 0
+        residual_ok = np.ones(n, dtype=bool)
+        on = lay.res_on
+        ok = np.zeros(on.size, dtype=bool)
+        if on.size:
+            empty: dict[str, Any] = {}
+            x = _floats([(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs])
+            with np.errstate(all="ignore"):
+                ok = np.isfinite(x) & available[lay.on_pos]
+                residual_ok[lay.on_pos] = ok
+                upd = on[ok]
+                if upd.size:
+                    s = x[ok]
+                    v = self.value[upd]
+                    new = v + self.gains(dt)[upd] * (s - v)
+                    first = self._instant[upd] & (self.samples[upd] == 0)
+                    if first.any():
+                        new = np.where(first, s, new)  # T = 0: the first sample as is
+                    self.value[upd] = new
+                    self.samples[upd] += 1
+                    self.valid_time[upd] += max(dt, 0.0)
+                    r[lay.on_pos[ok]] = self._residuals(upd, new)
+
+        finding = ~available | ~residual_ok
+        if violations:
+            finding[[k for k, name, *_ in lay.constrained if name in violations]] = True
+        finding &= lay.active
+
+        samples, valid_time, tc = self.samples.copy(), self.valid_time.copy(), self.time_constant
+        slot = self._res_slot
+
+        def confidence(k: int) -> float:
+            j = int(slot[k])
+            if j < 0:
+                return 1.0
+            return _confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
+
+        kappa = StatusMap(
+            names,
+            index,
+            lay.active,
+            available,
+            residual_ok,
+            confidence,
+            violations,
+            reasons,
+            np.flatnonzero(finding),
+        )
+        return Observation(
+            t,
+            j_obs,
+            j_ref,
+            r_global,
+            r,
+            kappa,
+            lay.on_names,
+            self.value[on] if on.size else np.zeros(0),
+            ok,
+        )
+
+    def _residuals(self, slots: np.ndarray, value: np.ndarray) -> np.ndarray:
+        """:func:`module_residual` of the filtered values of the given residual slots."""
+        sens = self.sensitivity[slots]
+        fin = np.isfinite(value)
+        if self.normalization == "none":
+            out = sens * np.abs(value)
+        else:
+            nom = self.nominal[slots]
+            excess = np.abs(value) - nom
+            out = sens * np.where(excess > 0.0, excess, 0.0) / nom
+        return out if fin.all() else np.where(fin, out, 0.0)
 
     def _violations(self, name: str, active: frozenset[str], local: dict) -> list[str]:
         """Constraint violations of k_i: requires/excludes and declared limits."""
         cons = self.arch.modules[name].constraints
         out = [f"requires {m} (inactive)" for m in cons.requires if m not in active]
         out += [f"excludes {m} (active)" for m in cons.excludes if m in active]
-        for key, limit in cons.limits.items():
-            for prefix, worse in (("max_", float.__gt__), ("min_", float.__lt__)):
-                if key.startswith(prefix):
-                    value = _finite(local.get(key[len(prefix) :], math.nan))
-                    if math.isfinite(value) and worse(value, float(limit)):
-                        out.append(f"{key} {limit:g} violated ({value:g})")
-        return out
+        return out + _limit_violations(cons.limits, local)
