@@ -61,6 +61,8 @@ from archself.modules.base import RuntimeModule
 
 __all__ = ["LiveSystem", "STALE_REPEATS", "stable_hash", "module_rng"]
 
+_isfinite = math.isfinite
+
 #: A noisy signal repeating the same value this many times in a row is stale.
 STALE_REPEATS = 3
 
@@ -124,11 +126,8 @@ def _is_bad(value: Any) -> bool:
     if tp is np.ndarray:
         if value.dtype.kind != "f":
             return False
-        if value.ndim == 1:
-            s = sum(value.tolist())
-        else:
-            s = float(value.sum())
-        return not math.isfinite(s)
+        flat = value.tolist() if value.ndim == 1 else value.ravel().tolist()
+        return not math.isfinite(sum(flat))
     if isinstance(value, (float, np.floating)):
         return not math.isfinite(float(value))
     return False
@@ -302,7 +301,12 @@ class LiveSystem:
         return inputs
 
     def _publish(self, name: str, out: dict[str, Any] | None, t: float) -> str | None:
-        """Apply the faults and publish ``out``; the reason the module is unavailable, or None."""
+        """Apply the faults and publish ``out``; the reason the module is unavailable, or None.
+
+        The reason covers the module's own output only: a non-finite value, silence
+        longer than its ``max_silence_s``, or a noisy signal (``noise_levels``) that
+        repeated itself ``STALE_REPEATS`` times.
+        """
         if out is None:
             out = {}
         faults = self._faults.get(name)
@@ -315,52 +319,60 @@ class LiveSystem:
         for v in out.values():
             if v is None:
                 continue
-            if _is_bad(v):
+            tp = type(v)
+            if tp is float:  # inlined _is_bad for the common types (a hot loop)
+                bad = not _isfinite(v)
+            elif tp is np.ndarray and v.ndim == 1:
+                bad = v.dtype.kind == "f" and not _isfinite(sum(v.tolist()))
+            else:
+                bad = _is_bad(v)
+            if bad:
                 self._broken.add(name)
                 return "non-finite output"
             heard = True
         self.outputs[name] = out
         mod = self._pool[name]
+        levels = getattr(mod, "noise_levels", None)
         if heard:
             self._heard[name] = t
             self._broken.discard(name)
-            levels = getattr(mod, "noise_levels", None)
             if levels:
-                for sig, level in levels.items():
-                    v = out.get(sig)
-                    if v is None or not level or level <= 0:
-                        continue
-                    key = (name, sig)
-                    prev = self._last.get(key)
-                    same = prev is not None and (
-                        np.array_equal(v, prev) if isinstance(v, np.ndarray) else v == prev
-                    )
-                    self._repeats[key] = self._repeats.get(key, 0) + 1 if same else 0
-                    self._last[key] = v.copy() if isinstance(v, np.ndarray) else v
-        return self._watch(name, mod, t)
-
-    def _watch(self, name: str, mod: RuntimeModule, t: float) -> str | None:
-        """Silence and staleness of a module that published (held) outputs."""
-        if name in self._broken:  # its last value was NaN: broken until a good one comes
+                stale = self._count_repeats(name, levels, out)
+                if stale is not None:
+                    return stale
+        elif name in self._broken:  # its last value was NaN: broken until a good one comes
             return "non-finite output"
         limit = getattr(mod, "max_silence_s", None)
         if limit is not None:
             quiet = t - self._heard.setdefault(name, t)
             if quiet > float(limit) + 1e-9:
                 return f"silent for {quiet:.3g} s"
-        if self._repeats:
-            for sig in getattr(mod, "noise_levels", None) or ():
+        if not heard and levels and self._repeats:
+            for sig in levels:
                 n = self._repeats.get((name, sig), 0)
                 if n >= STALE_REPEATS:
                     return f"stale {sig} ({n + 1} identical values)"
         return None
 
-    def _mark(self, name: str, reason: str | None) -> None:
-        self._ok[name] = reason is None
-        if reason is None:
-            self._why.pop(name, None)
-        else:
-            self._why[name] = reason
+    def _count_repeats(
+        self, name: str, levels: dict[str, float], out: dict[str, Any]
+    ) -> str | None:
+        """Count bit-identical repeats of the noisy signals; the stale reason, or None."""
+        last = self._last
+        repeats = self._repeats
+        reason = None
+        for sig, level in levels.items():
+            v = out.get(sig)
+            if v is None or not level or level <= 0:
+                n = repeats.get((name, sig), 0)
+            else:
+                key = (name, sig)
+                cur = v.tobytes() if type(v) is np.ndarray else v
+                n = repeats[key] = repeats.get(key, 0) + 1 if last.get(key) == cur else 0
+                last[key] = cur
+            if n >= STALE_REPEATS and reason is None:
+                reason = f"stale {sig} ({n + 1} identical values)"
+        return reason
 
     def step(self) -> None:
         """Advance the system by one step ``dt``."""
@@ -369,17 +381,25 @@ class LiveSystem:
         pool = self._pool
         plan = self._plan
         req = plan.required
-        mark = self._mark
+        ok = self._ok
+        why = self._why
+        publish = self._publish
+        gather = self._gather
         for name in plan.nonft:
             try:
-                reason = self._publish(name, pool[name].output(t), t)
+                reason = publish(name, pool[name].output(t), t)
             except Exception as exc:  # noqa: BLE001 - a failing module must not stop the run
                 reason = f"raised {type(exc).__name__}"
-            mark(name, reason)
+            if reason is None:
+                ok[name] = True
+                why.pop(name, None)
+            else:
+                ok[name] = False
+                why[name] = reason
         for name in plan.order:
-            inputs = self._gather(name)
+            inputs = gather(name)
             try:
-                reason = self._publish(name, pool[name].step(t, dt, inputs), t)
+                reason = publish(name, pool[name].step(t, dt, inputs), t)
             except Exception as exc:  # noqa: BLE001
                 reason = f"raised {type(exc).__name__}"
             if reason is None:
@@ -387,18 +407,25 @@ class LiveSystem:
                     if inputs.get(s) is None:
                         reason = f"lost input {s}"
                         break
-            mark(name, reason)
+            if reason is None:
+                ok[name] = True
+                why.pop(name, None)
+            else:
+                ok[name] = False
+                why[name] = reason
         for name in plan.nonft:
-            inputs = self._gather(name)
+            inputs = gather(name)
             try:
                 pool[name].step(t, dt, inputs)
             except Exception as exc:  # noqa: BLE001
-                mark(name, f"raised {type(exc).__name__}")
+                ok[name] = False
+                why[name] = f"raised {type(exc).__name__}"
                 continue
-            if self._ok[name]:
+            if ok[name]:
                 for s in req[name]:
                     if inputs.get(s) is None:
-                        mark(name, f"lost input {s}")
+                        ok[name] = False
+                        why[name] = f"lost input {s}"
                         break
         self.k += 1
         self.t = self.k * dt

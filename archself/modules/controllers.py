@@ -130,25 +130,34 @@ class LqrController(RuntimeModule):
         if abs(v_ref - self.v_ref) > 0.005:
             self.v_ref = v_ref
             self.K = self.gain(v_ref)
-        e = tracking_error(est, ref)
-        K = self.K
-        du0 = K[0, 0] * e[0] + K[0, 1] * e[1] + K[0, 2] * e[2]
-        du1 = K[1, 0] * e[0] + K[1, 1] * e[1] + K[1, 2] * e[2]
+        e0, e1, e2 = tracking_error(est, ref).tolist()
+        (k00, k01, k02), (k10, k11, k12) = self.K.tolist()
+        du0 = k00 * e0 + k01 * e1 + k02 * e2
+        du1 = k10 * e0 + k11 * e1 + k12 * e2
         self.signals["tracking_error"] = math.hypot(
             float(est[0]) - float(ref[0]), float(est[1]) - float(ref[1])
         )
         return v_ref - du0, float(ref[4]) - du1
 
-    def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:
+    @staticmethod
+    def _wheel_speeds(v: float, w: float, inputs) -> tuple[float, float]:
         kin = inputs.get("kinematics") or _DEFAULT_KIN
         half = w * kin.wheel_base_m / 2.0
         r = kin.wheel_radius_m
-        cmd = np.array([(v - half) / r, (v + half) / r])
+        return (v - half) / r, (v + half) / r
+
+    @staticmethod
+    def _limit(left: float, right: float, inputs) -> np.ndarray:
         act: Actuation | None = inputs.get("actuation")
         if act is not None:
             lim = act.max_wheel_speed_rad_s
-            cmd = np.clip(cmd, -lim, lim)
-        return cmd
+            left = min(max(left, -lim), lim)
+            right = min(max(right, -lim), lim)
+        return np.array([left, right])
+
+    def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:
+        """Wheel speeds ``[l, r]`` (rad/s) realising ``(v, ω)``, within the actuation limit."""
+        return self._limit(*self._wheel_speeds(v, w, inputs), inputs)
 
     def step(self, t, dt, inputs):
         ref = inputs.get("reference")
@@ -194,10 +203,19 @@ class AsymLqrController(LqrController):
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
-        self.effectiveness = np.ones(2)
-        self._num = np.zeros(2)
-        self._den = np.zeros(2)
+        self._eff = [1.0, 1.0]
+        self._num = [0.0, 0.0]
+        self._den = [0.0, 0.0]
         self._sent: np.ndarray | None = None
+
+    @property
+    def effectiveness(self) -> np.ndarray:
+        """Estimated effectiveness ``[e_l, e_r]`` of the two wheels."""
+        return np.array(self._eff)
+
+    @effectiveness.setter
+    def effectiveness(self, value) -> None:
+        self._eff = [float(v) for v in np.asarray(value, dtype=float).ravel()[:2]]
 
     def step(self, t, dt, inputs):
         enc = inputs.get("encoder_speeds")
@@ -205,10 +223,12 @@ class AsymLqrController(LqrController):
             tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
             lam = math.exp(-dt / tau)
             emin = float(self.params.get("min_effectiveness", 0.3))
-            num, den, eff = self._num, self._den, self.effectiveness
+            num, den, eff = self._num, self._den, self._eff
+            sent = self._sent.tolist()
+            measured = enc.tolist() if isinstance(enc, np.ndarray) else [float(x) for x in enc]
             for i in (0, 1):
-                c = float(self._sent[i])
-                num[i] = lam * num[i] + c * float(enc[i])
+                c = float(sent[i])
+                num[i] = lam * num[i] + c * float(measured[i])
                 den[i] = lam * den[i] + c * c
                 est = num[i] / den[i] if den[i] > 1e-3 else 1.0
                 eff[i] = min(max(est, emin), 1.0)
@@ -218,11 +238,8 @@ class AsymLqrController(LqrController):
             self._sent = self.last_cmd
             return {"wheel_cmd": self.last_cmd}
         v, w = self.body_command(ref, pose)
-        cmd = self.wheel_command(v, w, {**inputs, "actuation": None}) / self.effectiveness
-        act = inputs.get("actuation")
-        if act is not None:
-            lim = act.max_wheel_speed_rad_s
-            cmd = np.clip(cmd, -lim, lim)
+        left, right = self._wheel_speeds(v, w, inputs)
+        cmd = self._limit(left / self._eff[0], right / self._eff[1], inputs)
         self.last_cmd = cmd
         self._sent = cmd
         return {"wheel_cmd": cmd}

@@ -252,6 +252,7 @@ class Ekf(RuntimeModule):
         self.R_gps = np.eye(2) * self.r_gps**2
         self._Qdiag = np.diag([self.q_pos**2, self.q_pos**2, self.q_th**2, self.q_b**2])
         self._F = np.eye(4)
+        self._I = np.eye(4)
 
     def set_params(self, values):
         super().set_params(values)
@@ -277,10 +278,9 @@ class Ekf(RuntimeModule):
         respect to the two wheel speeds.
         """
         kf = self.kf
-        x = kf.x
+        x0, x1, th, x3 = kf.x.tolist()
         r, b = kin.wheel_radius_m, kin.wheel_base_m
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
-        th = float(x[2])
         mid = th + 0.5 * w * dt
         c, s = math.cos(mid), math.sin(mid)
         F = self._F
@@ -295,7 +295,7 @@ class Ekf(RuntimeModule):
         Q[0, 1] = Q[1, 0] = 2 * sig2 * u0 * u1
         Q[1, 1] += 2 * sig2 * u1 * u1
         Q[2, 2] += 2 * sig2 * k * k
-        kf.x = np.array([x[0] + v * dt * c, x[1] + v * dt * s, th + w * dt, x[3]])
+        kf.x = np.array([x0 + v * dt * c, x1 + v * dt * s, th + w * dt, x3])
         kf.Q = Q
         kf.P = F @ kf.P @ F.T + Q
 
@@ -309,15 +309,17 @@ class Ekf(RuntimeModule):
         kf = self.kf
         P = kf.P
         x = kf.x
-        y = (float(heading) - float(x[2] + x[3]) + math.pi) % (2 * math.pi) - math.pi
+        xl = x.tolist()
+        y = (float(heading) - (xl[2] + xl[3]) + math.pi) % (2 * math.pi) - math.pi
         ph = P[:, 2] + P[:, 3]  # P Hᵀ
-        S = float(ph[2] + ph[3]) + self.r_head**2
+        phl = ph.tolist()
+        S = (phl[2] + phl[3]) + self.r_head**2
         K = ph / S
         kf.x = x + K * y
-        IKH = np.eye(4)
+        IKH = self._I.copy()
         IKH[:, 2] -= K
         IKH[:, 3] -= K
-        kf.P = IKH @ P @ IKH.T + np.outer(K, K) * self.r_head**2
+        kf.P = IKH @ P @ IKH.T + (K[:, None] * K) * self.r_head**2
         kf.x[2] = (kf.x[2] + math.pi) % (2 * math.pi) - math.pi
 
     def update_position(self, pos) -> tuple[float, float]:

@@ -262,6 +262,10 @@ def simulate(
             w = int(np.size(val))
             widths[key] = w
             arr = cols[key] = np.full((n, w), np.nan)
+        if type(val) is np.ndarray and val.ndim == 1 and val.dtype.kind == "f":
+            if val.shape[0] == widths[key]:  # the common case: a float vector
+                arr[i] = val
+            return
         v = np.asarray(val, dtype=float).ravel()
         if v.size == widths[key]:
             arr[i] = v
@@ -277,8 +281,8 @@ def simulate(
             est = _first_output(system, "estimator")
             ctl = _first_output(system, "controller")
             active = system.active
-            res_idx = [(j, m, s) for j, (m, s) in enumerate(res_mods) if m in active]
             modules = system.modules
+            res_idx = [(j, modules[m], s) for j, (m, s) in enumerate(res_mods) if m in active]
         t_arr[i] = system.t
         conf_arr[i] = conf_index.get(cur_conf, -1)
         a = outputs.get(act_mod, {}).get(act_sig)
@@ -298,10 +302,11 @@ def simulate(
             put("estimate", i, outputs.get(est[0], {}).get(est[1]))
         if ctl is not None:
             put("command", i, outputs.get(ctl[0], {}).get(ctl[1]))
-        for j, m, s in res_idx:
-            v = modules[m].signals.get(s) if hasattr(modules[m], "signals") else None
+        for j, mod, s in res_idx:
+            sigs = getattr(mod, "signals", None)
+            v = sigs.get(s) if sigs is not None else None
             if v is None:
-                v = modules[m].local_signals().get(s, math.nan)
+                v = mod.local_signals().get(s, math.nan)
             res[i, j] = v
         if adapt is not None and (i + 1) % per == 0:
             out = adapt(system)
