@@ -22,6 +22,11 @@ Three orderings of the same matrix:
     Weighted communities (networkx Louvain on the weighted digraph with a fixed
     seed), largest first, members in sequenced order.
 
+In every ordering a cell is *coupled* when its row and column modules belong to one
+coupled block (the same strongly connected component of two or more modules), wherever
+the ordering puts them: a community or a kind group may hold uncoupled modules beside
+coupled ones, and only the truly coupled pairs are marked.
+
 Examples
 --------
 >>> from archself.loader import load_architecture
@@ -127,7 +132,11 @@ class Dsm:
 
 @dataclass(frozen=True)
 class Block:
-    """A diagonal block of an ordering: a kind group, a component or a community."""
+    """A diagonal block of an ordering: a kind group, a component or a community.
+
+    ``coupled`` is true only for a strongly connected component of two or more modules
+    (a block of the sequenced ordering, or one of :attr:`Ordering.coupled_blocks`).
+    """
 
     label: str
     members: tuple[str, ...]
@@ -145,7 +154,7 @@ class DsmCell:
     shade: float  # weight / max_weight, 0..1
     diagonal: bool
     in_block: bool  # row and column in the same diagonal block
-    coupled: bool  # ... and that block is a coupled (strongly connected) one
+    coupled: bool  # row and column in the same coupled block (strongly connected component)
     feedback: bool  # a mark below the diagonal (row after column)
     block_top: bool  # the row is the first of its block (draw a border above)
     block_left: bool  # the column is the first of its block (draw a border left)
@@ -161,13 +170,19 @@ class Ordering:
     order: tuple[str, ...]
     blocks: tuple[Block, ...]
     modules: tuple[DsmModule, ...] = field(default=())
+    coupled_blocks: tuple[Block, ...] = field(default=())  # the scope's coupled components
 
     def block_of(self) -> dict[str, int]:
         return {m: k for k, b in enumerate(self.blocks) for m in b.members}
 
+    def coupled_block(self, name: str) -> str:
+        """Label of the coupled block (strongly connected component) holding ``name``, or ""."""
+        return next((b.label for b in self.coupled_blocks if name in b.members), "")
+
     def rows(self, dsm: Dsm) -> list[tuple[DsmModule, Block, list[DsmCell]]]:
         """The matrix in this order: one ``(module, its block, cells)`` per row."""
         where = self.block_of()
+        component = {m: k for k, b in enumerate(self.coupled_blocks) for m in b.members}
         pos = {n: k for k, n in enumerate(self.order)}
         first = {b.members[0] for b in self.blocks if b.members}
         out = []
@@ -186,7 +201,7 @@ class Ordering:
                         shade=(w / dsm.max_weight) if dsm.max_weight > 0 else 0.0,
                         diagonal=i == j,
                         in_block=same,
-                        coupled=same and bj.coupled,
+                        coupled=j in component and component.get(i) == component[j],
                         feedback=w > 0 and pos[j] > pos[i],
                         block_top=j in first,
                         block_left=i in first,
@@ -275,6 +290,7 @@ def order_by_kind(dsm: Dsm) -> Ordering:
         order,
         blocks,
         tuple(dsm.module(n) for n in order),
+        sequence(dsm).coupled_blocks,
     )
 
 
@@ -335,6 +351,7 @@ def sequence(dsm: Dsm) -> Ordering:
         order,
         tuple(blocks),
         tuple(dsm.module(n) for n in order),
+        tuple(b for b in blocks if b.coupled),
     )
 
 
@@ -349,21 +366,18 @@ def cluster(dsm: Dsm, seed: int = CLUSTER_SEED) -> Ordering:
         comms = nx.community.louvain_communities(g, weight="weight", seed=seed)
     groups = [sorted(c, key=pos.__getitem__) for c in comms]
     groups.sort(key=lambda grp: (-len(grp), pos[grp[0]]))
-    coupled_sets = [set(b.members) for b in seq.blocks if b.coupled]
-    blocks = tuple(
-        Block(f"cluster {k + 1}", tuple(grp),
-              coupled=any(len(s & set(grp)) > 1 for s in coupled_sets))
-        for k, grp in enumerate(groups)
-    )
+    blocks = tuple(Block(f"cluster {k + 1}", tuple(grp)) for k, grp in enumerate(groups))
     order = tuple(n for b in blocks for n in b.members)
     return Ordering(
         "clustered",
         "clustered",
-        f"Weighted communities (networkx Louvain, seed {seed}), largest first; a cluster "
-        "is marked coupled when it holds two or more modules of one coupled block.",
+        f"Weighted communities (networkx Louvain, seed {seed}), largest first. A cluster "
+        "may mix coupled and uncoupled modules: only pairs of modules of one coupled "
+        "(strongly connected) block are shaded as coupled.",
         order,
         blocks,
         tuple(dsm.module(n) for n in order),
+        seq.coupled_blocks,
     )
 
 
