@@ -138,6 +138,31 @@ def test_orderings_are_permutations_and_feedback_stays_in_coupled_blocks(diffdri
     assert seq.feedback_marks(dsm) <= orderings(dsm)[0].feedback_marks(dsm)
 
 
+
+@pytest.mark.parametrize("conf", [None, "a1", "a2", "a3"])
+def test_only_strongly_connected_pairs_are_marked_coupled(diffdrive, conf) -> None:
+    """The coupled shading means "in one strongly connected component", in every view."""
+    import networkx as nx
+
+    dsm = build_dsm(diffdrive, conf)
+    scc = {n: k for k, c in enumerate(nx.strongly_connected_components(dsm.digraph()))
+           for n in c}
+    size = {k: sum(1 for v in scc.values() if v == k) for k in set(scc.values())}
+    for o in orderings(dsm):
+        for module, block, cells in o.rows(dsm):
+            in_scc = size[scc[module.name]] > 1
+            assert bool(o.coupled_block(module.name)) == in_scc
+            assert not block.coupled or set(block.members) <= {
+                n for n in dsm.names if scc[n] == scc[module.name]}
+            for c in cells:
+                assert c.coupled == (in_scc and scc[c.row] == scc[c.col]), (o.key, c)
+    clustered = cluster(dsm)
+    loose = [n for n in dsm.names if size[scc[n]] == 1]
+    assert loose and not any(b.coupled for b in clustered.blocks)
+    if conf == "a1":  # a cluster mixes loose and coupled modules; the loose are not shaded
+        assert any(set(b.members) & set(loose) and set(b.members) - set(loose)
+                   for b in clustered.blocks)
+
 def test_clustering_is_deterministic(diffdrive) -> None:
     dsm = build_dsm(diffdrive)
     assert cluster(dsm) == cluster(dsm)
@@ -223,6 +248,18 @@ def test_dot_files_keep_hostile_names_in_their_strings(hostile_report) -> None:
     text = (hostile_report / "graph-architecture.dot").read_text(encoding="utf-8")
     assert '"caméra \\"avant\\" <script>alert(1)</script> &"' in text
     assert '"ekf \\\\ back\\\\slash"' in text
+
+
+def test_dot_attribute_lists_name_each_attribute_once(hostile_report) -> None:
+    """A diff restyles nodes and edges by replacing attributes, never by repeating them."""
+    files = sorted(hostile_report.glob("*.dot"))
+    assert any(f.name.startswith("diff-") for f in files)
+    for f in files:
+        for line in f.read_text(encoding="utf-8").splitlines():
+            bare = re.sub(r'"(?:[^"\\]|\\.)*"', '""', line)  # quoted strings out of the way
+            for attrs in re.findall(r"\[([^\]]*)\]", bare):
+                names = re.findall(r"(\w+)\s*=", attrs)
+                assert len(names) == len(set(names)), f"{f.name}: {line}"
 
 
 @needs_dot
