@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from archself.cli import app
 
-from conftest import FIXTURES
+from conftest import DIFFDRIVE, FIXTURES, ROOT
 
 HOSTILE = FIXTURES / "valid" / "hostile_names.yaml"
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"
@@ -75,3 +75,42 @@ def test_report_into_a_file_fails_cleanly(tmp_path) -> None:
                               str(tmp_path / "f")])
     assert res.exit_code == 1
     assert res.stderr.strip().splitlines()[-1].endswith("not a folder")
+
+
+PLANT = ROOT / "architectures" / "process_plant.yaml"
+
+
+@pytest.mark.parametrize("path", [HOSTILE, DIFFDRIVE, PLANT],
+                         ids=["hostile-xy", "diffdrive-xy", "process-plant-1d"])
+def test_legends_cover_no_switch_label(path) -> None:
+    """The "a1 → a2" labels at the top of the axes stay visible: no legend lies on them."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from archself.loader import load_architecture
+    from archself.reports import figures
+    from archself.reports.run import build_run_report
+    from archself.runtime import MapeK
+    from archself.sim.run import simulate
+
+    arch = load_architecture(path).arch
+    scenario = SCENARIO if path == HOSTILE else _switching_scenario(arch)
+    rep = build_run_report(arch, [simulate(arch, scenario),
+                                  simulate(arch, scenario, adapt=MapeK(arch))])
+    assert rep.switches
+    for plot in (figures.plot_trajectory, figures.plot_error, figures.plot_influence):
+        fig = plot(rep)
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        ax = fig.axes[0]
+        labels = [t.get_window_extent(renderer) for t in ax.texts if "→" in t.get_text()]
+        legends = [lg.get_window_extent(renderer)
+                   for lg in [*fig.legends, ax.get_legend()] if lg is not None]
+        assert legends and (labels or plot is figures.plot_trajectory), plot.__name__
+        for box in labels:
+            assert not any(box.overlaps(lg) for lg in legends), (plot.__name__, box, legends)
+
+
+def _switching_scenario(arch) -> str:
+    """The first scenario with faults (imu_drift in diffdrive.yaml: the adaptive run switches)."""
+    return next(name for name, sc in arch.scenarios.items() if sc.faults)

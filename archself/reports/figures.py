@@ -2,9 +2,10 @@
 
 matplotlib is imported inside the functions (never at ``archself`` start-up) and
 used through :class:`matplotlib.figure.Figure` with the Agg canvas: no pyplot,
-no global backend switch, no display needed. Each function returns PNG bytes
-(no ``Software`` metadata, so the bytes depend only on the data and the
-matplotlib version).
+no global backend switch, no display needed. ``plot_*`` return the Figure,
+``*_figure`` its PNG bytes (no ``Software`` metadata, so the bytes depend only on
+the data and the matplotlib version). Legends sit where they cover no label: outside
+the axes wherever switch labels ("a1 → a2") are drawn at the top of the axes.
 
 Text from the architecture file (module names) is passed through :func:`_tex`
 so that a ``$`` in a name is shown, not parsed as mathtext.
@@ -19,7 +20,14 @@ import numpy as np
 
 from archself.reports.run import RunReport
 
-__all__ = ["error_figure", "influence_figure", "trajectory_figure"]
+__all__ = [
+    "error_figure",
+    "influence_figure",
+    "plot_error",
+    "plot_influence",
+    "plot_trajectory",
+    "trajectory_figure",
+]
 
 COLORS = {"fixed": "#c0392b", "adaptive": "#1f77b4", "reference": "#222222"}
 LABELS = {"fixed": "fixed architecture", "adaptive": "architecture-aware adaptation"}
@@ -46,6 +54,18 @@ def _comp(arr: np.ndarray, c: int) -> np.ndarray:
     return a if a.ndim == 1 else a[:, c]
 
 
+def _legend_below(fig: Any, ax: Any) -> None:
+    """The legend under the axes, outside them: it can hide neither a curve nor a label.
+
+    The switch labels ("a1 → a2") sit at the top of the axes, where a legend inside
+    the axes (``upper left``, or ``best``, which ignores text) may cover them.
+    """
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", fontsize=8,
+                   ncols=min(3, len(handles)), frameon=False)
+
+
 def _switch_lines(ax: Any, rep: RunReport, label: bool = True) -> None:
     for k, s in enumerate(rep.switches):
         ax.axvline(s["t_s"], color="#2ca02c", ls="--", lw=1.2,
@@ -62,12 +82,28 @@ def _fault_lines(ax: Any, rep: RunReport) -> None:
 
 
 def trajectory_figure(rep: RunReport) -> bytes:
+    """Fig. 2–4 as PNG bytes (:func:`plot_trajectory`)."""
+    return _png(plot_trajectory(rep))
+
+
+def error_figure(rep: RunReport) -> bytes:
+    """Fig. 6 as PNG bytes (:func:`plot_error`)."""
+    return _png(plot_error(rep))
+
+
+def influence_figure(rep: RunReport) -> bytes:
+    """Fig. 5 as PNG bytes (:func:`plot_influence`)."""
+    return _png(plot_influence(rep))
+
+
+def plot_trajectory(rep: RunReport) -> Any:
     """Fig. 2–4: the objective's actual signal against its reference (x–y, or vs. t)."""
     comps = rep.objective["components"]
     fig = _figure(7.5, 5.0)
     ax = fig.add_subplot()
     first = next(iter(rep.series.values()))
-    if len(comps) >= 2 and "reference" in first and np.ndim(first["reference"]) == 2:
+    xy = len(comps) >= 2 and "reference" in first and np.ndim(first["reference"]) == 2
+    if xy:
         cx, cy = comps[0], comps[1]
         ax.plot(_comp(first["reference"], cx), _comp(first["reference"], cy),
                 color=COLORS["reference"], ls="--", lw=1.2, label="reference")
@@ -101,11 +137,14 @@ def trajectory_figure(rep: RunReport) -> bytes:
         ax.set_ylabel(_tex(f"{rep.objective['actual']}[{c}]"))
     ax.set_title(_tex(f"Trajectory: {rep.scenario}"))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
-    return _png(fig)
+    if xy:  # x–y: no switch labels, and "best" avoids the curves
+        ax.legend(fontsize=8, loc="best")
+    else:
+        _legend_below(fig, ax)
+    return fig
 
 
-def error_figure(rep: RunReport) -> bytes:
+def plot_error(rep: RunReport) -> Any:
     """Fig. 6: tracking error ‖actual − reference‖ of each run, switches and faults marked."""
     fig = _figure()
     ax = fig.add_subplot()
@@ -121,11 +160,11 @@ def error_figure(rep: RunReport) -> bytes:
     ax.set_ylabel("tracking error [m]")
     ax.set_title(_tex(f"Tracking error: {rep.scenario}"))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
-    return _png(fig)
+    _legend_below(fig, ax)
+    return fig
 
 
-def influence_figure(rep: RunReport) -> bytes:
+def plot_influence(rep: RunReport) -> Any:
     """Fig. 5: |z_i| per module per MAPE-K cycle, τ, the warm-up and the switch events."""
     fig = _figure(9.0, 4.6)
     ax = fig.add_subplot()
@@ -147,4 +186,4 @@ def influence_figure(rep: RunReport) -> bytes:
     ax.set_title(_tex(f"Influence channels: {rep.scenario}"))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    return _png(fig)
+    return fig
