@@ -6,7 +6,9 @@ YAML 1.2 core schema (only ``true``/``false`` are booleans, ``1e-3`` is a float,
 ``yes`` and ``on`` are strings); it rejects duplicate keys and unknown tags, caps
 the file size, the nesting depth, the node count and the alias uses (aliases stay
 shared in the node graph, so an alias bomb is refused before anything is
-expanded), and records the ``line:col`` of every key and value. Schema
+expanded), and keeps the node graph so that the ``line:col`` of any key or value
+is found on demand (nothing is recorded per node: a 10,000-module file converts
+in a fraction of a second; plain scalars are resolved once per distinct text). Schema
 violations are reported at the position of the offending node with its dotted
 path and what was expected, with a "did you mean" hint for misspelt keys.
 
@@ -53,23 +55,85 @@ class SchemaError(LoadError):
 
 @dataclass
 class SourceMap:
-    """Positions (1-based line, column) of the nodes of a loaded file."""
+    """Positions (1-based line, column) of the nodes of a loaded file.
+
+    ``keys`` and ``values`` map a data path to the position of a mapping key (or
+    sequence item) and of its value. A map made by :func:`load_data` holds the
+    composed YAML node graph instead and finds positions in it on demand, so
+    loading a large file records nothing on the happy path; explicit entries in
+    ``keys``/``values`` take precedence.
+    """
 
     file: str
     keys: dict[Path_, tuple[int, int]] = field(default_factory=dict)
     values: dict[Path_, tuple[int, int]] = field(default_factory=dict)
+    root: Any = field(default=None, repr=False, compare=False)
+    _index: dict[int, dict[Any, tuple[Any, Any]]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def locate(self, path: Path_, *, key: bool = True) -> tuple[int | None, int | None]:
         """Position of ``path``: the key (or value), else the nearest enclosing node."""
         p = tuple(path)
+        found = self._walk(p)
         while True:
             table = (self.keys, self.values) if key else (self.values, self.keys)
             for t in table:
                 if p in t:
                     return t[p]
+            if p and len(p) <= len(found):
+                kpos, vpos = found[len(p) - 1]
+                return kpos if key else vpos
             if not p:
                 return (1, 1)  # the document itself
             p = p[:-1]
+
+    def _walk(self, path: Path_) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+        """(key, value) positions of the longest prefix of ``path`` in the node graph."""
+        from ruamel.yaml.nodes import MappingNode, SequenceNode
+
+        out: list[tuple[tuple[int, int], tuple[int, int]]] = []
+        cur = self.root
+        for item in path:
+            if isinstance(cur, MappingNode):
+                index = self._index.get(id(cur))
+                if index is None:
+                    index = {}
+                    for knode, vnode in cur.value:
+                        if not _is_scalar(knode):
+                            continue
+                        try:
+                            index.setdefault(_scalar(knode, self.file), (knode, vnode))
+                        except (LoadError, TypeError):
+                            continue
+                    self._index[id(cur)] = index
+                try:
+                    pair = index.get(item)
+                except TypeError:  # an unhashable path item
+                    pair = None
+                if pair is None:
+                    break
+                out.append((_mark(pair[0]), _mark(pair[1])))
+                cur = pair[1]
+            elif (isinstance(cur, SequenceNode) and isinstance(item, int)
+                  and not isinstance(item, bool) and 0 <= item < len(cur.value)):
+                cur = cur.value[item]
+                pos = _mark(cur)
+                out.append((pos, pos))
+            else:
+                break
+        return out
+
+
+def _mark(node: Any) -> tuple[int, int]:
+    m = node.start_mark
+    return (m.line + 1, m.column + 1)
+
+
+def _is_scalar(node: Any) -> bool:
+    from ruamel.yaml.nodes import ScalarNode
+
+    return isinstance(node, ScalarNode)
 
 
 @dataclass
@@ -202,68 +266,83 @@ def _scalar(node: Any, file: str) -> Any:
 
 
 class _Converter:
-    """Node graph → plain Python with positions, duplicate-key and alias checks."""
+    """Node graph → plain Python, with duplicate-key, alias, depth and node-count checks.
 
-    def __init__(self, src: SourceMap) -> None:
-        self.src = src
+    Positions are not recorded here: :class:`SourceMap` keeps the node graph and
+    finds them on demand. Plain scalars are resolved once per distinct text.
+    """
+
+    def __init__(self, file: str) -> None:
+        from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
+        from ruamel.yaml.resolver import BaseResolver
+
+        self.file = file
         self.seen: set[int] = set()
         self.aliases = 0
         self.nodes = 0
+        self.plain: dict[str, Any] = {}
+        self._scalar_t, self._map_t, self._seq_t = ScalarNode, MappingNode, SequenceNode
+        self._str_tag = BaseResolver.DEFAULT_SCALAR_TAG
+        self._map_tag = BaseResolver.DEFAULT_MAPPING_TAG
+        self._seq_tag = BaseResolver.DEFAULT_SEQUENCE_TAG
 
-    def _pos(self, node: Any) -> tuple[int, int]:
-        m = node.start_mark
-        return (m.line + 1, m.column + 1)
+    def _error(self, msg: str, node: Any) -> LoadError:
+        return LoadError(msg, self.file, *_mark(node))
 
-    def convert(self, node: Any, path: Path_, depth: int = 0) -> Any:
-        from ruamel.yaml.nodes import MappingNode, SequenceNode
-
+    def convert(self, node: Any, depth: int = 0) -> Any:
+        cls = type(node)
         if depth > MAX_DEPTH:
-            raise LoadError(f"nesting deeper than {MAX_DEPTH} levels", self.src.file,
-                            *self._pos(node))
+            raise self._error(f"nesting deeper than {MAX_DEPTH} levels", node)
+        if cls is self._scalar_t or isinstance(node, self._scalar_t):
+            self.nodes += 1
+            if self.nodes > MAX_NODES:
+                raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.file)
+            ctag = node.ctag
+            if ctag is _PLAIN:
+                v = node.value
+                try:
+                    return self.plain[v]
+                except KeyError:
+                    value = self.plain[v] = _scalar(node, self.file)
+                    return value
+            if ctag is self._str_tag:
+                return node.value
+            return _scalar(node, self.file)
         self.nodes += 1
         if self.nodes > MAX_NODES:
-            raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.src.file)
-        if isinstance(node, (MappingNode, SequenceNode)):
-            if id(node) in self.seen:
-                self.aliases += 1
-                if self.aliases > MAX_ALIASES:
-                    raise LoadError(
-                        f"invalid YAML: more than {MAX_ALIASES} alias uses "
-                        "(refused: possible alias bomb)", self.src.file, *self._pos(node))
-            self.seen.add(id(node))
-        if isinstance(node, MappingNode):
-            if node.tag not in (_TAG + "map",):
-                raise LoadError(f"unsupported YAML tag {node.tag!r}", self.src.file,
-                                *self._pos(node))
+            raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.file)
+        if id(node) in self.seen:
+            self.aliases += 1
+            if self.aliases > MAX_ALIASES:
+                raise self._error(
+                    f"invalid YAML: more than {MAX_ALIASES} alias uses "
+                    "(refused: possible alias bomb)", node)
+        self.seen.add(id(node))
+        if cls is self._map_t or isinstance(node, self._map_t):
+            if node.ctag is not self._map_tag and node.tag != _TAG + "map":
+                raise self._error(f"unsupported YAML tag {node.tag!r}", node)
             out: dict[Any, Any] = {}
+            convert = self.convert
+            d = depth + 1
             for knode, vnode in node.value:
-                if knode.tag == _TAG + "merge":
-                    raise LoadError("merge keys '<<' are not supported", self.src.file,
-                                    *self._pos(knode))
-                key = self.convert(knode, path, depth + 1)
+                if knode.ctag is not _PLAIN and knode.tag == _TAG + "merge":
+                    raise self._error("merge keys '<<' are not supported", knode)
+                key = convert(knode, d)
                 if isinstance(key, (list, dict)):
-                    raise LoadError("a mapping key must be a scalar", self.src.file,
-                                    *self._pos(knode))
+                    raise self._error("a mapping key must be a scalar", knode)
                 if key in out:
-                    raise LoadError(
+                    raise self._error(
                         f"invalid YAML: duplicate key {key!r} (each key may appear once in a "
-                        "mapping)", self.src.file, *self._pos(knode))
-                p = (*path, key)
-                self.src.keys[p] = self._pos(knode)
-                self.src.values[p] = self._pos(vnode)
-                out[key] = self.convert(vnode, p, depth + 1)
+                        "mapping)", knode)
+                out[key] = convert(vnode, d)
             return out
-        if isinstance(node, SequenceNode):
-            if node.tag != _TAG + "seq":
-                raise LoadError(f"unsupported YAML tag {node.tag!r}", self.src.file,
-                                *self._pos(node))
-            items = []
-            for i, v in enumerate(node.value):
-                p = (*path, i)
-                self.src.keys[p] = self.src.values[p] = self._pos(v)
-                items.append(self.convert(v, p, depth + 1))
-            return items
-        return _scalar(node, self.src.file)
+        if cls is self._seq_t or isinstance(node, self._seq_t):
+            if node.ctag is not self._seq_tag and node.tag != _TAG + "seq":
+                raise self._error(f"unsupported YAML tag {node.tag!r}", node)
+            convert = self.convert
+            d = depth + 1
+            return [convert(v, d) for v in node.value]
+        return _scalar(node, self.file)
 
 
 def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
@@ -296,7 +375,7 @@ def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceM
     if len(text.encode("utf-8", "surrogatepass")) > MAX_FILE_BYTES:
         raise LoadError(f"document larger than the {MAX_FILE_BYTES}-byte cap", file)
     node = _parse(text, file)
-    src = SourceMap(file)
+    src = SourceMap(file, root=node)
     if node is None:
         raise LoadError(
             "file is empty; expected a mapping with keys archself, name, modules, "
@@ -305,7 +384,7 @@ def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceM
             1,
             1,
         )
-    data = _Converter(src).convert(node, ())
+    data = _Converter(file).convert(node)
     if not isinstance(data, dict):
         raise LoadError(
             f"expected a mapping at the top level, got {_kind(data)}", file, 1, 1
