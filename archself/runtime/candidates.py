@@ -9,12 +9,16 @@ Three selectors, chosen by the ``runtime`` block of the architecture file:
   only when ``|z_i| < τ_off`` (τ_on > τ_off), :class:`HysteresisSelector`.
 
 Every selector returns the candidates ordered by decreasing ``|z_i|``, equal
-magnitudes by name.
+magnitudes by name. ``select(z, values)`` may be given ``values``, the array of
+``z``'s values in its key order: the test on ``|z_i|`` then runs on the array
+(same result, far cheaper on 10^4 modules).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+
+import numpy as np
 
 from archself.model import Runtime
 
@@ -35,7 +39,19 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
     Comparing rounded magnitudes keeps the order of equal channels fixed when the
     last bits of z change with the BLAS or SuperLU build.
     """
+    names = list(names)
+    if len(names) < 2:
+        return names
     return sorted(names, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
+
+
+def _where(z: Mapping[str, float], mask: np.ndarray) -> list[str]:
+    """Keys of ``z`` (in order) where ``mask``, a boolean array over its values, is True."""
+    hits = np.flatnonzero(mask).tolist()
+    if not hits:
+        return []
+    keys = list(z)
+    return [keys[i] for i in hits]
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
@@ -61,9 +77,15 @@ def top_k_candidates(z: Mapping[str, float], k: int) -> list[str]:
 
 
 class CandidateSelector:
-    """Base class: ``select(z) -> list of module names``, largest ``|z|`` first."""
+    """Base class: ``select(z[, values]) -> list of module names``, largest ``|z|`` first.
 
-    def select(self, z: Mapping[str, float]) -> list[str]:  # pragma: no cover - abstract
+    ``values``, when given, is ``numpy.array(list(z.values()))`` (computed
+    already by the caller); selectors use it to test every module at once.
+    """
+
+    def select(
+        self, z: Mapping[str, float], values: np.ndarray | None = None
+    ) -> list[str]:  # pragma: no cover - abstract
         raise NotImplementedError
 
     def reset(self) -> None:
@@ -79,8 +101,10 @@ class ThresholdSelector(CandidateSelector):
     def __init__(self, tau: float) -> None:
         self.tau = float(tau)
 
-    def select(self, z: Mapping[str, float]) -> list[str]:
-        return threshold_candidates(z, self.tau)
+    def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
+        if values is None:
+            return threshold_candidates(z, self.tau)
+        return _ranked(z, _where(z, np.abs(values) >= self.tau))
 
     def describe(self) -> str:
         return f"|z| >= {self.tau:g}"
@@ -92,8 +116,10 @@ class TopKSelector(CandidateSelector):
     def __init__(self, k: int) -> None:
         self.k = int(k)
 
-    def select(self, z: Mapping[str, float]) -> list[str]:
-        return top_k_candidates(z, self.k)
+    def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
+        if values is None:
+            return top_k_candidates(z, self.k)
+        return _ranked(z, _where(z, values != 0.0))[: self.k]
 
     def describe(self) -> str:
         return f"top {self.k} by |z|"
@@ -127,9 +153,12 @@ class HysteresisSelector(CandidateSelector):
         self.off = float(off)
         self.members: set[str] = set()
 
-    def select(self, z: Mapping[str, float]) -> list[str]:
+    def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         keep = {n for n in self.members if n in z and abs(z[n]) >= self.off}
-        enter = {n for n, v in z.items() if abs(v) >= self.on}
+        if values is None:
+            enter = {n for n, v in z.items() if abs(v) >= self.on}
+        else:
+            enter = set(_where(z, np.abs(values) >= self.on))
         self.members = keep | enter
         return _ranked(z, self.members)
 

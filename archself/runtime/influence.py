@@ -248,6 +248,7 @@ class InfluenceSolver:
         self._dense: tuple[np.ndarray, np.ndarray] | None = None
         self._sparse: Any = None
         self._order: np.ndarray | None = None
+        self._getrs: Any = None
 
     def set_matrix(self, W: Any, key: Hashable | None = None) -> bool:
         """Use ``W``; refactorize only if its key differs from the current one.
@@ -288,6 +289,8 @@ class InfluenceSolver:
                 if diag.min() <= 1e-12 * max(1.0, diag.max()):
                     raise np.linalg.LinAlgError("I - W^T is singular")
                 self._dense = (lu, piv)
+                # LAPACK getrs, the routine lu_solve calls, without its per-call checks
+                (self._getrs,) = scipy.linalg.get_lapack_funcs(("getrs",), (lu,))
             self._sparse = None
         else:
             S = scipy.sparse.csc_matrix(W, dtype=float)
@@ -335,7 +338,13 @@ class InfluenceSolver:
         if self.n == 0:
             return np.zeros(0)
         if self._dense is not None:
-            return scipy.linalg.lu_solve(self._dense, r)
+            if not np.isfinite(r).all():  # what lu_solve's check_finite reports
+                raise ValueError("array must not contain infs or NaNs")
+            lu, piv = self._dense
+            z, info = self._getrs(lu, piv, r, trans=0, overwrite_b=False)
+            if info != 0:
+                raise ValueError(f"illegal value in {-info}th argument of internal getrs")
+            return np.asarray(z)
         if self._order is None:
             return np.asarray(self._sparse.solve(r))
         z = np.empty(self.n)

@@ -78,6 +78,10 @@ class Knowledge:
         Name of the current configuration.
     active : frozenset of str
         Active modules.
+    active_index : numpy.ndarray of int
+        Positions of the active modules in :attr:`names`, ascending.
+    active_names : list of str
+        The active modules in index order.
     edges : frozenset of (source, target, carries)
         Active edges.
     params : dict
@@ -130,12 +134,18 @@ class Knowledge:
         self.configuration = conf
         self.active: frozenset[str] = frozenset(arch.configurations[conf].modules)
         self.edges: frozenset[EdgeKey] = frozenset()
+        self.active_index = np.zeros(0, dtype=np.intp)
+        self.active_names: list[str] = []
         self._set_active(conf, self.active)
 
     # ------------------------------------------------------------------ state
     def _set_active(self, configuration: str, active: Iterable[str]) -> None:
         self.configuration = configuration
         self.active = frozenset(active)
+        self.active_index = np.array(
+            [k for k, n in enumerate(self.names) if n in self.active], dtype=np.intp
+        )
+        self.active_names = [self.names[k] for k in self.active_index.tolist()]
         conf = self.arch.configurations.get(configuration)
         disabled = conf.disabled_edges if conf is not None else []
         self.edges = active_edges(self.arch, self.active, disabled)
@@ -154,10 +164,12 @@ class Knowledge:
             True when something changed.
         """
         conf = str(system.configuration)
-        active = frozenset(system.active)
-        if conf == self.configuration and active == self.active:
+        active = system.active
+        if not isinstance(active, (set, frozenset)):
+            active = frozenset(active)
+        if conf == self.configuration and active == self.active:  # no copy when unchanged
             return False
-        self._set_active(conf, active)
+        self._set_active(conf, frozenset(active))
         return True
 
     def record_structural(self, t: float, action_id: str, before: str, after: str) -> None:
@@ -187,7 +199,8 @@ class Knowledge:
 
     def influence(self, r: np.ndarray) -> np.ndarray:
         """``z = (I − Wᵀ)⁻¹ r`` (Eq. 14) for the active edges, factorization cached."""
-        if self.solver.key != self.edges:
+        key = self.solver.key
+        if key is not self.edges and key != self.edges:
             self.solver.set_matrix(self.weight_matrix(), key=self.edges)
         return self.solver.solve(r)
 

@@ -99,9 +99,10 @@ class MapeK:
         obs = self.monitor.observe(system, k.active)
         # ANALYZE (Eq. 13-16)
         z = k.influence(obs.r)
-        z_active = {n: float(z[i]) for i, n in enumerate(k.names) if n in k.active}
-        r_active = {n: float(obs.r[i]) for i, n in enumerate(k.names) if n in k.active}
-        candidates = self.selector.select(z_active)
+        z_values = z[k.active_index]
+        z_active = dict(zip(k.active_names, z_values.tolist(), strict=True))
+        r_active = dict(zip(k.active_names, obs.r[k.active_index].tolist(), strict=True))
+        candidates = self.selector.select(z_active, z_values)
 
         warm = self.cycle < self.arch.runtime.warmup_steps
         record = DecisionRecord(
@@ -116,11 +117,7 @@ class MapeK:
             z=z_active,
             candidates=list(candidates),
             selector=self.selector.describe(),
-            kappa={
-                n: s.to_dict()
-                for n, s in obs.kappa.items()
-                if s.active and (not s.available or not s.residual_ok or s.violations)
-            },
+            kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
         )
         self.decisions.append(record)
         self.cycle += 1

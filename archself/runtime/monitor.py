@@ -354,6 +354,12 @@ def _floats(values: list[Any]) -> np.ndarray:
     return np.array([_finite(v) for v in values], dtype=float)
 
 
+def _samples(local: Mapping[str, Any], lay: _Layout) -> list[Any]:
+    """``(local[m] or {}).get(signal, nan)`` for every active residual module of ``lay``."""
+    empty: dict[str, Any] = {}
+    return [(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs]
+
+
 def _limit_violations(limits: Mapping[str, Any], local: Mapping[str, Any]) -> list[str]:
     """Declared ``max_<signal>``/``min_<signal>`` limits the module's local signals break."""
     out = []
@@ -527,8 +533,7 @@ class Monitor:
         on = lay.res_on
         ok = np.zeros(on.size, dtype=bool)
         if on.size:
-            empty: dict[str, Any] = {}
-            x = _floats([(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs])
+            x = _floats(_samples(local, lay))
             with np.errstate(all="ignore"):
                 ok = np.isfinite(x) & available[lay.on_pos]
                 residual_ok[lay.on_pos] = ok

@@ -50,7 +50,7 @@ import numpy as np
 
 from archself.model import Action, Architecture
 from archself.runtime.decisions import ActionEvaluation
-from archself.runtime.monitor import ModuleStatus
+from archself.runtime.monitor import ModuleStatus, StatusMap
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 
 __all__ = [
@@ -200,6 +200,8 @@ class Planner:
         acceptable = rt.objective.acceptable
         self.v_floor = acceptable**2 if acceptable > 0 else 1e-6
         self._deps: dict[str, Mapping[str, Iterable[str]] | None] = {}
+        # C(a) of a module set depends on the file only: computed once per set
+        self._static: dict[tuple[str, ...], tuple[str | None, str]] = {}
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
@@ -235,7 +237,12 @@ class Planner:
             if a.to not in self.arch.configurations:
                 return "not applicable", f"unknown configuration {a.to}", []
             target = list(self.arch.configurations[a.to].modules)
-        down = [m for m in target if m in s.kappa and not s.kappa[m].available]
+        kappa = s.kappa
+        if isinstance(kappa, StatusMap):  # no κ object built for the available modules
+            off = kappa.unavailable()
+            down = [m for m in target if m in off] if off else []
+        else:
+            down = [m for m in target if m in kappa and not kappa[m].available]
         if down and deps is not None:
             dead = set(down)
             needed = {
@@ -245,12 +252,9 @@ class Planner:
             down = [f"{u} (needed by {', '.join(by)})" for u, by in needed.items() if by]
         if down:
             return "unavailable", "unavailable: " + ", ".join(down), target
-        bad = constraint_violations(self.arch, target)
-        if bad:
-            return "constraint", "; ".join(bad), target
-        over = budget_violations(self.arch, target)
-        if over:
-            return "budget", "; ".join(over), target
+        reason, detail = self._constraints(target)
+        if reason is not None:
+            return reason, detail, target
         if a.kind != "parameter_update" and s.t - s.t_last < self.dwell_s:
             wait = self.dwell_s - (s.t - s.t_last)
             return (
@@ -260,6 +264,22 @@ class Planner:
                 target,
             )
         return None, "", target
+
+    def _constraints(self, target: list[str]) -> tuple[str | None, str]:
+        """(``"constraint"``/``"budget"``/None, detail) of a module set, cached per set."""
+        key = tuple(target)
+        found = self._static.get(key)
+        if found is None:
+            bad = constraint_violations(self.arch, target)
+            over = budget_violations(self.arch, target) if not bad else []
+            if bad:
+                found = ("constraint", "; ".join(bad))
+            elif over:
+                found = ("budget", "; ".join(over))
+            else:
+                found = (None, "")
+            self._static[key] = found
+        return found
 
     # ------------------------------------------------------------------ plan
     def plan(
