@@ -110,6 +110,8 @@ class Odometry(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
+    optional_params = ("heading_noise_rad", "encoder_noise_rad_s", "innovation_window_s",
+                       "initial_pose")
     role = "estimator"
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
@@ -216,6 +218,10 @@ class Ekf(RuntimeModule):
     ``x``/``P`` give the full state and covariance (filterpy's names).
     """
 
+    optional_params = ("q_position_m", "q_heading_rad", "q_bias_rad", "r_gps_m", "r_heading_rad",
+                       "encoder_noise_rad_s", "initial_position_std_m",
+                       "initial_heading_std_rad", "initial_bias_std_rad",
+                       "innovation_window_s", "initial_pose")
     role = "estimator"
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
@@ -250,9 +256,7 @@ class Ekf(RuntimeModule):
         self.p0_b = float(p.get("initial_bias_std_rad", 0.05))
         self.window_s = float(p.get("innovation_window_s", 20.0))
         self.R_gps = np.eye(2) * self.r_gps**2
-        self._Qdiag = np.diag([self.q_pos**2, self.q_pos**2, self.q_th**2, self.q_b**2])
-        self._F = np.eye(4)
-        self._I = np.eye(4)
+        self._q2 = (self.q_pos**2, self.q_pos**2, self.q_th**2, self.q_b**2)
 
     def set_params(self, values):
         super().set_params(values)
@@ -275,7 +279,10 @@ class Ekf(RuntimeModule):
 
         ``x ← f(x, u)`` (unicycle, midpoint heading), ``P ← F P Fᵀ + Q`` with
         ``Q = σ_enc² G Gᵀ + diag(q²) dt``, G the Jacobian of the motion with
-        respect to the two wheel speeds.
+        respect to the two wheel speeds. ``F = I + f₀ e₀e₂ᵀ + f₁ e₁e₂ᵀ`` has two
+        off-diagonal entries, so ``F P Fᵀ`` is written out on plain floats (the
+        same equations as ``ExtendedKalmanFilter.predict``, without 4×4 matrix
+        products at every step; also free of the BLAS build's rounding).
         """
         kf = self.kf
         x0, x1, th, x3 = kf.x.tolist()
@@ -283,44 +290,65 @@ class Ekf(RuntimeModule):
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
         mid = th + 0.5 * w * dt
         c, s = math.cos(mid), math.sin(mid)
-        F = self._F
-        F[0, 2] = -v * dt * s
-        F[1, 2] = v * dt * c
+        f0 = -v * dt * s  # F[0, 2]
+        f1 = v * dt * c  # F[1, 2]
         sig2 = (self.sig_enc if enc is not None else 10.0) ** 2
         h = 0.5 * r * dt
         k = r * dt / b
         u0, u1 = h * c, h * s
-        Q = self._Qdiag * dt
-        Q[0, 0] += 2 * sig2 * u0 * u0
-        Q[0, 1] = Q[1, 0] = 2 * sig2 * u0 * u1
-        Q[1, 1] += 2 * sig2 * u1 * u1
-        Q[2, 2] += 2 * sig2 * k * k
+        q = self._q2
+        q00 = q[0] * dt + 2 * sig2 * u0 * u0
+        q01 = 2 * sig2 * u0 * u1
+        q11 = q[1] * dt + 2 * sig2 * u1 * u1
+        q22 = q[2] * dt + 2 * sig2 * k * k
+        q33 = q[3] * dt
+        (p00, p01, p02, p03), (p10, p11, p12, p13), (p20, p21, p22, p23), (
+            p30,
+            p31,
+            p32,
+            p33,
+        ) = kf.P.tolist()
+        # F P: rows 0 and 1 gain f0, f1 times row 2
+        a00, a01, a02, a03 = p00 + f0 * p20, p01 + f0 * p21, p02 + f0 * p22, p03 + f0 * p23
+        a10, a11, a12, a13 = p10 + f1 * p20, p11 + f1 * p21, p12 + f1 * p22, p13 + f1 * p23
+        # (F P) Fᵀ: columns 0 and 1 gain f0, f1 times column 2; then + Q
+        kf.P = np.array(
+            [
+                [a00 + f0 * a02 + q00, a01 + f1 * a02 + q01, a02, a03],
+                [a10 + f0 * a12 + q01, a11 + f1 * a12 + q11, a12, a13],
+                [p20 + f0 * p22, p21 + f1 * p22, p22 + q22, p23],
+                [p30 + f0 * p32, p31 + f1 * p32, p32, p33 + q33],
+            ]
+        )
         kf.x = np.array([x0 + v * dt * c, x1 + v * dt * s, th + w * dt, x3])
-        kf.Q = Q
-        kf.P = F @ kf.P @ F.T + Q
 
     def update_heading(self, heading: float) -> None:
         """Update with an IMU heading ``h = θ + b`` (angle residual wrapped).
 
         The scalar measurement runs at every step, so it is written out in
-        closed form (the same equations as ``ExtendedKalmanFilter.update``,
-        Joseph form); the GPS update goes through filterpy.
+        closed form on plain floats (the same equations as
+        ``ExtendedKalmanFilter.update`` with ``H = [0, 0, 1, 1]``, Joseph form
+        ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``); the GPS update goes through filterpy.
         """
         kf = self.kf
-        P = kf.P
-        x = kf.x
-        xl = x.tolist()
-        y = (float(heading) - (xl[2] + xl[3]) + math.pi) % (2 * math.pi) - math.pi
-        ph = P[:, 2] + P[:, 3]  # P Hᵀ
-        phl = ph.tolist()
-        S = (phl[2] + phl[3]) + self.r_head**2
-        K = ph / S
-        kf.x = x + K * y
-        IKH = self._I.copy()
-        IKH[:, 2] -= K
-        IKH[:, 3] -= K
-        kf.P = IKH @ P @ IKH.T + (K[:, None] * K) * self.r_head**2
-        kf.x[2] = (kf.x[2] + math.pi) % (2 * math.pi) - math.pi
+        x0, x1, x2, x3 = kf.x.tolist()
+        P = kf.P.tolist()
+        r2 = self.r_head**2
+        y = (float(heading) - (x2 + x3) + math.pi) % (2 * math.pi) - math.pi
+        ph = [row[2] + row[3] for row in P]  # P Hᵀ
+        S = (ph[2] + ph[3]) + r2
+        K = [v / S for v in ph]
+        hp = [P[2][j] + P[3][j] for j in range(4)]  # H P
+        # A = (I − K H) P, then A (I − K H)ᵀ = A − (A Hᵀ) Kᵀ, then + r² K Kᵀ
+        A = [[P[i][j] - K[i] * hp[j] for j in range(4)] for i in range(4)]
+        ah = [row[2] + row[3] for row in A]
+        kf.P = np.array(
+            [[A[i][j] - ah[i] * K[j] + r2 * K[i] * K[j] for j in range(4)] for i in range(4)]
+        )
+        th = x2 + K[2] * y
+        kf.x = np.array(
+            [x0 + K[0] * y, x1 + K[1] * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + K[3] * y]
+        )
 
     def update_position(self, pos) -> tuple[float, float]:
         """Update with a GPS fix; returns the innovation ``z − Hx``."""
