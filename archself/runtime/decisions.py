@@ -16,11 +16,11 @@ numbers.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import ItemsView, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["ActionEvaluation", "DecisionRecord", "explain", "jsonable"]
+__all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "jsonable"]
 
 REJECTIONS = (
     "not applicable",
@@ -59,6 +59,64 @@ def jsonable(x: Any) -> Any:
         v = float(x)
         return v if math.isfinite(v) else None
     return str(x)
+
+
+class _ValueItems(ItemsView[str, float]):
+    _mapping: ValueMap
+
+    def __iter__(self) -> Iterator[tuple[str, float]]:
+        m = self._mapping
+        return zip(m._names, m._values.tolist(), strict=True)
+
+
+class ValueMap(Mapping[str, float]):
+    """Read-only ``name -> float`` over a list of names and an array of values.
+
+    What a :class:`DecisionRecord` keeps for ``r`` and ``z``: the cycle's arrays
+    themselves, not a dict of 10^4 floats per cycle. It compares equal to the
+    dict it stands for, and :func:`jsonable` turns it into that dict.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The keys, in order.
+    index : mapping
+        name -> position (shared between cycles while the names are the same).
+    values : numpy.ndarray
+        One value per name (not copied: do not change it afterwards).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> m = ValueMap(["a", "b"], {"a": 0, "b": 1}, np.array([0.5, 2.0]))
+    >>> m["b"], m == {"a": 0.5, "b": 2.0}
+    (2.0, True)
+    """
+
+    __slots__ = ("_index", "_names", "_values")
+
+    def __init__(self, names: Sequence[str], index: Mapping[str, int], values: Any) -> None:
+        self._names = names
+        self._index = index
+        self._values = values
+
+    def __getitem__(self, name: str) -> float:
+        return float(self._values[self._index[name]])
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def items(self) -> ItemsView[str, float]:
+        return _ValueItems(self)
+
+    def __repr__(self) -> str:
+        return repr(dict(self.items()))
 
 
 @dataclass
@@ -106,8 +164,8 @@ class DecisionRecord:
     j_obs: float
     j_ref: float
     r_global: float
-    r: dict[str, float]
-    z: dict[str, float]
+    r: Mapping[str, float]
+    z: Mapping[str, float]
     candidates: list[str]
     selector: str
     kappa: dict[str, dict[str, Any]] = field(default_factory=dict)

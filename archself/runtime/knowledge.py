@@ -82,6 +82,8 @@ class Knowledge:
         Positions of the active modules in :attr:`names`, ascending.
     active_names : list of str
         The active modules in index order.
+    active_pos : dict
+        name -> position in :attr:`active_names`.
     edges : frozenset of (source, target, carries)
         Active edges.
     params : dict
@@ -136,6 +138,7 @@ class Knowledge:
         self.edges: frozenset[EdgeKey] = frozenset()
         self.active_index = np.zeros(0, dtype=np.intp)
         self.active_names: list[str] = []
+        self.active_pos: dict[str, int] = {}
         self._set_active(conf, self.active)
 
     # ------------------------------------------------------------------ state
@@ -146,6 +149,7 @@ class Knowledge:
             [k for k, n in enumerate(self.names) if n in self.active], dtype=np.intp
         )
         self.active_names = [self.names[k] for k in self.active_index.tolist()]
+        self.active_pos = {n: i for i, n in enumerate(self.active_names)}
         conf = self.arch.configurations.get(configuration)
         disabled = conf.disabled_edges if conf is not None else []
         self.edges = active_edges(self.arch, self.active, disabled)

@@ -26,7 +26,7 @@ from typing import Any
 
 from archself.model import Architecture
 from archself.runtime.candidates import selector_from_runtime
-from archself.runtime.decisions import DecisionRecord
+from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
@@ -100,8 +100,8 @@ class MapeK:
         # ANALYZE (Eq. 13-16)
         z = k.influence(obs.r)
         z_values = z[k.active_index]
-        z_active = dict(zip(k.active_names, z_values.tolist(), strict=True))
-        r_active = dict(zip(k.active_names, obs.r[k.active_index].tolist(), strict=True))
+        z_active = ValueMap(k.active_names, k.active_pos, z_values)
+        r_active = ValueMap(k.active_names, k.active_pos, obs.r[k.active_index])
         candidates = self.selector.select(z_active, z_values)
 
         warm = self.cycle < self.arch.runtime.warmup_steps
