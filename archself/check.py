@@ -12,15 +12,20 @@ offending node. The rules:
   that I − Wᵀ is nonsingular and z = (I − Wᵀ)⁻¹ r is bounded (Eq. 13–14);
 * ``signal``: an edge carries a signal its source outputs;
 * ``incomplete``: in each configuration every active module receives its
-  required inputs over active edges, and the active modules are connected;
+  required inputs over active edges, the active modules are connected, and the
+  modules ``runtime.objective`` reads are active; a configuration that fills
+  none of the roles the initial configuration fills gets a warning;
 * ``algebraic-loop``: every cycle of active edges passes through a module
   without direct feedthrough (a plant, a delay), so the data flow can be ordered;
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
 * ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
-* ``parameter``: required parameters are given; nominal values lie inside their spaces;
+* ``parameter``: required parameters are given, every parameter is one the type
+  declares (when it declares them: ``required_params`` + ``optional_params``), and
+  nominal values lie inside their spaces;
 * ``fault``: faults target modules whose type accepts that fault kind and signal;
 * ``action``: actions lead to declared configurations, their kind matches the
   change, parameter updates name parameters of the module and stay in bounds;
+  the module an action addresses is active where it applies (a warning);
 * ``residual``: a residual names a signal the module's type publishes;
 * ``initial``: at most one configuration is marked initial.
 """
@@ -30,8 +35,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
-import numpy as np
-
 from archself.findings import Finding
 from archself.loader import Loaded, Path_, dotted
 from archself.model import Architecture, Parameter
@@ -39,9 +42,17 @@ from archself.model import Architecture, Parameter
 
 class _Ctx:
     def __init__(self, loaded: Loaded) -> None:
+        from archself import registry
+
         self.arch: Architecture = loaded.arch
         self.src = loaded.source
         self.out: list[Finding] = []
+        by_type: dict[str, Any] = {}
+        self.types: dict[str, Any] = {}
+        for name, mod in self.arch.modules.items():
+            if mod.type not in by_type:
+                by_type[mod.type] = registry.lookup(mod.type)
+            self.types[name] = by_type[mod.type]
 
     def add(self, sev: str, code: str, msg: str, path: Path_, *, key: bool = False) -> None:
         line, col = self.src.locate(path, key=key)
@@ -72,10 +83,11 @@ def has_errors(findings: list[Finding]) -> bool:
 
 
 # --------------------------------------------------------------------------- helpers
-def _type_info(name: str, arch: Architecture) -> Any:
-    from archself import registry
+def _close(word: str, options: Any) -> str | None:
+    import difflib
 
-    return registry.lookup(arch.modules[name].type)
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return close[0] if close else None
 
 
 def _ref(ctx: _Ctx, name: str, path: Path_, what: str = "module") -> bool:
@@ -96,7 +108,7 @@ def _types(ctx: _Ctx) -> None:
 
     known = registry.known_types()
     for name, mod in ctx.arch.modules.items():
-        cls = registry.lookup(mod.type)
+        cls = ctx.types[name]
         if cls is None:
             import difflib
 
@@ -113,6 +125,17 @@ def _types(ctx: _Ctx) -> None:
                 ctx.add("error", "parameter",
                         f"type '{mod.type}' needs parameter '{pname}'", ("modules", name),
                         key=True)
+        if cls.optional_params is not None:
+            takes = (*cls.required_params, *cls.optional_params)
+            for pname in mod.params:
+                if pname in takes:
+                    continue
+                near = _close(pname, takes)
+                hint = (f"did you mean '{near}'?" if near
+                        else f"it takes: {', '.join(takes) or 'none'}")
+                ctx.add("error", "parameter",
+                        f"type '{mod.type}' has no parameter '{pname}'; {hint}",
+                        ("modules", name, "params", pname), key=True)
         if mod.residual is not None and mod.residual.signal not in cls.residual_signals:
             offered = ", ".join(cls.residual_signals) or "none"
             ctx.add(
@@ -143,13 +166,13 @@ def _edges(ctx: _Ctx) -> None:
                     f"negative weight {e.weight}: influence weights must be ≥ 0 (Eq. 13)",
                     ("edges", i, "weight"))
         if ok:
-            src = _type_info(e.source, ctx.arch)
+            src = ctx.types.get(e.source)
             if src is not None and src.outputs and e.carries not in src.outputs:
                 ctx.add("error", "signal",
                         f"'{e.source}' ({ctx.arch.modules[e.source].type}) does not output "
                         f"'{e.carries}'; it outputs: {', '.join(src.outputs)}",
                         ("edges", i, "carries"))
-            dst = _type_info(e.target, ctx.arch)
+            dst = ctx.types.get(e.target)
             if (dst is not None and (dst.inputs or dst.optional_inputs)
                     and e.carries not in dst.inputs + dst.optional_inputs):
                 ctx.add("warning", "signal",
@@ -170,7 +193,10 @@ def spectrum_summary(
 
     The spectrum of W is the union of the spectra of its strongly connected
     blocks, so ρ(W) is 0 for a DAG and otherwise the largest radius of a
-    (typically small) cyclic block; this scales to large graphs.
+    (typically small) cyclic block; this scales to large graphs. A small block
+    with weights ≥ 0 is solved in plain Python (:func:`perron_root`); numpy's
+    eigenvalues are used (and imported) only for large or negative blocks and
+    when ρ comes near 1, where the singularity of I − Wᵀ must be told apart.
 
     Returns
     -------
@@ -178,6 +204,11 @@ def spectrum_summary(
         The spectral radius ρ(W).
     singular : bool
         True when W has the eigenvalue 1, i.e. I − Wᵀ is singular.
+
+    Examples
+    --------
+    >>> spectrum_summary(["a", "b", "c"], [("a", "b", 0.5), ("b", "a", 0.5), ("b", "c", 2.0)])
+    (0.5, False)
     """
     from archself.graphs import strongly_connected_components
 
@@ -194,15 +225,73 @@ def spectrum_summary(
         if len(comp) < 2:
             continue
         pos = {n: i for i, n in enumerate(comp)}
-        w = np.zeros((len(comp), len(comp)))
+        w = [[0.0] * len(comp) for _ in comp]
         for s in comp:
             for t in succ[s]:
                 if t in pos:
-                    w[pos[s], pos[t]] = weight[(s, t)]
-        lam = np.linalg.eigvals(w)
+                    w[pos[s]][pos[t]] = weight[(s, t)]
+        r = perron_root(w) if len(comp) <= _PLAIN_MAX else None
+        if r is not None and r < 1.0 - 1e-6:
+            rho = max(rho, r)  # every |λ| ≤ ρ < 1: the eigenvalue 1 is impossible
+            continue
+        import numpy as np
+
+        lam = np.linalg.eigvals(np.array(w))
         rho = max(rho, float(np.max(np.abs(lam))))
         singular |= bool(np.any(np.abs(lam - 1.0) < 1e-9))
     return rho, singular
+
+
+_PLAIN_MAX = 16  # blocks up to this size are solved without numpy
+
+
+def perron_root(w: list[list[float]]) -> float | None:
+    """ρ(W) of a small matrix with entries ≥ 0 (the Perron root), or None if one is < 0.
+
+    For W ≥ 0 the matrix λI − W is a nonsingular M-matrix exactly when λ > ρ(W),
+    i.e. when Gaussian elimination without pivoting meets only positive pivots;
+    ρ is found by bisection on that test between 0 and the largest row sum.
+
+    Examples
+    --------
+    >>> round(perron_root([[0.0, 0.5], [0.5, 0.0]]), 12)
+    0.5
+    >>> round(perron_root([[0.0, 1.0], [0.0, 0.0]]), 12)  # nilpotent
+    0.0
+    >>> perron_root([[0.0, -1.0], [1.0, 0.0]]) is None
+    True
+    """
+    if any(x < 0.0 for row in w for x in row):
+        return None
+    hi = max((sum(row) for row in w), default=0.0)  # ρ ≤ the largest row sum
+    if not hi > 0.0:
+        return 0.0
+    lo, tol = 0.0, 1e-14 * hi
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        if _above(w, mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _above(w: list[list[float]], lam: float) -> bool:
+    """True when λ > ρ(W) for W ≥ 0: all pivots of λI − W (no pivoting) are > 0."""
+    n = len(w)
+    a = [[(lam if i == j else 0.0) - w[i][j] for j in range(n)] for i in range(n)]
+    for k in range(n):
+        piv = a[k][k]
+        if not piv > 0.0:
+            return False
+        rowk = a[k]
+        for i in range(k + 1, n):
+            f = a[i][k] / piv
+            if f:
+                rowi = a[i]
+                for j in range(k + 1, n):
+                    rowi[j] -= f * rowk[j]
+    return True
 
 
 def _weights(ctx: _Ctx) -> None:
@@ -245,12 +334,33 @@ def _configurations(ctx: _Ctx) -> None:
                 f"{len(initial)} configurations are marked initial ({', '.join(initial)}); "
                 "mark one", ("configurations", initial[1], "initial"))
     edge_pairs = {(e.source, e.target) for e in arch.edges}
+    obj = arch.runtime.objective
+    needed: dict[str, str] = {}  # module -> the objective key that reads it
+    for key in ("actual", "reference"):
+        mod = getattr(obj, key).partition(".")[0]
+        if mod in arch.modules:
+            needed.setdefault(mod, key)
+    first = arch.initial_configuration()
+    roles = {ctx.types[m].role for m in arch.configurations[first].modules
+             if ctx.types.get(m) is not None}
     for cname, conf in arch.configurations.items():
         base: Path_ = ("configurations", cname)
         names = []
         for i, m in enumerate(conf.modules):
             if _ref(ctx, m, (*base, "modules", i)):
                 names.append(m)
+        for mod, key in needed.items():
+            if mod not in conf.modules:
+                ctx.add("error", "incomplete",
+                        f"configuration '{cname}' lacks '{mod}', which runtime.objective.{key} "
+                        f"reads ('{getattr(obj, key)}')", (*base, "modules"))
+        if cname != first:
+            have = {ctx.types[m].role for m in names if ctx.types.get(m) is not None}
+            if roles - have:
+                ctx.add("warning", "incomplete",
+                        f"configuration '{cname}' has no module of role "
+                        f"{', '.join(map(repr, sorted(roles - have)))}, which the initial "
+                        f"configuration '{first}' has", (*base, "modules"))
         if len(set(conf.modules)) != len(conf.modules):
             ctx.add("error", "duplicate", "a module is listed twice", (*base, "modules"))
         for i, (s, t) in enumerate(conf.disabled_edges):
@@ -263,7 +373,7 @@ def _configurations(ctx: _Ctx) -> None:
         for _, e in edges:
             delivered[e.target].add(e.carries)
         for m in names:
-            cls = _type_info(m, arch)
+            cls = ctx.types.get(m)
             if cls is None:
                 continue
             missing = [s for s in cls.inputs if s not in delivered[m]]
@@ -284,7 +394,7 @@ def _configurations(ctx: _Ctx) -> None:
                             (*base, "modules"))
         flow: dict[str, list[str]] = {}
         for _, e in edges:
-            cls = _type_info(e.target, arch)
+            cls = ctx.types.get(e.target)
             if cls is not None and cls.direct_feedthrough and e.source != e.target:
                 flow.setdefault(e.source, []).append(e.target)
         loop = find_cycle(flow)
@@ -349,9 +459,13 @@ def _actions(ctx: _Ctx) -> None:
                     f"action id '{a.id}' already used by actions[{seen[a.id]}]",
                     (*base, "id"))
         seen.setdefault(a.id, i)
-        _ref(ctx, a.module, (*base, "module"))
+        known = _ref(ctx, a.module, (*base, "module"))
         for j, c in enumerate(a.applies_in or []):
-            _ref(ctx, c, (*base, "applies_in", j), "configuration")
+            if (_ref(ctx, c, (*base, "applies_in", j), "configuration") and known
+                    and a.module not in arch.configurations[c].modules):
+                ctx.add("warning", "action",
+                        f"'{a.module}' is not active in configuration '{c}', so the action "
+                        "never applies there", (*base, "applies_in", j))
         if a.kind == "parameter_update":
             if a.module in arch.modules:
                 params = arch.modules[a.module].params
@@ -401,7 +515,7 @@ def _scenarios(ctx: _Ctx) -> None:
     for path, f in _fault_targets(arch):
         if not _ref(ctx, f.module, (*path, "module")):
             continue
-        cls = _type_info(f.module, arch)
+        cls = ctx.types.get(f.module)
         if cls is None:
             continue
         if f.kind not in cls.fault_kinds:
@@ -432,7 +546,7 @@ def _objective(ctx: _Ctx) -> None:
             ctx.add("error", "reference", f"expected 'module.signal', got '{ref}'", path)
             continue
         if _ref(ctx, mod, path):
-            cls = _type_info(mod, ctx.arch)
+            cls = ctx.types.get(mod)
             if cls is not None and cls.outputs and sig not in cls.outputs:
                 ctx.add("error", "reference",
                         f"'{mod}' has no output '{sig}' (it outputs: {', '.join(cls.outputs)})",

@@ -72,6 +72,7 @@ class RuntimeModule:
     fault_kinds: ClassVar[frozenset[str]] = frozenset()
     direct_feedthrough: ClassVar[bool] = True
     required_params: ClassVar[tuple[str, ...]] = ()
+    optional_params: ClassVar[tuple[str, ...] | None] = None  # None: parameters not checked
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         self.name = name

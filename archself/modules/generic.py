@@ -22,6 +22,7 @@ class Relay(RuntimeModule):
     Having no direct feedthrough, relays can form feedback loops.
     """
 
+    optional_params = ("gain", "noise")
     role = "relay"
     optional_inputs = ("signal",)
     outputs = ("signal",)

@@ -87,6 +87,7 @@ class _ModelNode(RuntimeModule):
 class DiffDriveKinematicsModel(_ModelNode):
     """Unicycle kinematics (``wheel_base_m``, ``wheel_radius_m``) → output ``kinematics``."""
 
+    optional_params = tuple(Kinematics.__dataclass_fields__)
     outputs = ("kinematics",)
     _cls = Kinematics
     _key = "kinematics"
@@ -96,6 +97,7 @@ class DiffDriveKinematicsModel(_ModelNode):
 class DiffDriveDynamicsModel(_ModelNode):
     """Dynamics (``mass_kg``, ``inertia_kg_m2``, ``wheel_time_constant_s``) → ``dynamics``."""
 
+    optional_params = tuple(Dynamics.__dataclass_fields__)
     outputs = ("dynamics",)
     _cls = Dynamics
     _key = "dynamics"
@@ -105,6 +107,7 @@ class DiffDriveDynamicsModel(_ModelNode):
 class ActuatorModel(_ModelNode):
     """Actuator limits (``max_wheel_speed_rad_s``, ``effectiveness``) → ``actuation``."""
 
+    optional_params = tuple(Actuation.__dataclass_fields__)
     outputs = ("actuation",)
     _cls = Actuation
     _key = "actuation"

@@ -52,6 +52,8 @@ class DiffDrivePlant(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
+    optional_params = ("wheel_base_m", "wheel_radius_m", "max_wheel_speed_rad_s", "initial_pose",
+                       "wheel_time_constant_s", "effectiveness")
     role = "plant"
     inputs = ("wheel_speed_left", "wheel_speed_right")
     outputs = ("pose", "wheel_speeds")
@@ -137,6 +139,7 @@ class WheelActuator(RuntimeModule):
     0.8
     """
 
+    optional_params = ("side",)
     role = "actuator"
     inputs = ("wheel_cmd",)
     optional_inputs = ("encoder_speeds",)
@@ -182,6 +185,7 @@ class WheelEncoders(RuntimeModule):
     Input ``wheel_speeds`` (true, from the plant); output ``encoder_speeds`` ``[l, r]``.
     """
 
+    optional_params = ("noise_rad_s",)
     role = "sensor"
     inputs = ("wheel_speeds",)
     outputs = ("encoder_speeds",)
@@ -219,6 +223,7 @@ class Imu(RuntimeModule):
     Input ``pose`` (true); output ``heading`` (rad).
     """
 
+    optional_params = ("noise_rad", "bias_rad")
     role = "sensor"
     inputs = ("pose",)
     outputs = ("heading",)
@@ -260,6 +265,7 @@ class Gps(RuntimeModule):
     periods) tells the system when a receiver without fixes is in dropout.
     """
 
+    optional_params = ("rate_hz", "noise_m")
     role = "sensor"
     inputs = ("pose",)
     outputs = ("position",)

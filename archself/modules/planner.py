@@ -110,6 +110,7 @@ class SplinePlanner(RuntimeModule):
     array([1. , 0. , 0. , 0.5, 0. ])
     """
 
+    optional_params = ("speed_mps", "resolution_m")
     role = "planner"
     required_params = ("waypoints",)
     optional_inputs = ("kinematics",)

@@ -224,6 +224,7 @@ class TankPlant(RuntimeModule):
     (what a flow meter in the inlet line sees).
     """
 
+    optional_params = ("initial_level_m", "area_m2", "outflow_coeff", "max_level_m", "substeps")
     role = "plant"
     inputs = ("inflow",)
     outputs = ("level", "inflow")
@@ -293,6 +294,7 @@ class ControlValve(RuntimeModule):
     0.004
     """
 
+    optional_params = ("max_flow_m3_s",)
     role = "actuator"
     inputs = ("valve_cmd",)
     optional_inputs = ("flow_measured",)
@@ -334,6 +336,7 @@ class FlowMeter(RuntimeModule):
     Input ``inflow`` (true, from the plant); output ``flow_measured``.
     """
 
+    optional_params = ("noise_m3_s",)
     role = "sensor"
     inputs = ("inflow",)
     outputs = ("flow_measured",)
@@ -373,6 +376,7 @@ class LevelSensor(RuntimeModule):
     Input ``level`` (true); output ``level_measured`` (m).
     """
 
+    optional_params = ("noise_m", "bias_m")
     role = "sensor"
     inputs = ("level",)
     outputs = ("level_measured",)
@@ -406,6 +410,7 @@ class TankModelNode(RuntimeModule):
     Parameters: ``area_m2``, ``outflow_coeff``, ``max_flow_m3_s``, ``max_level_m``.
     """
 
+    optional_params = tuple(TankModel.__dataclass_fields__)
     role = "model"
     outputs = ("tank_model",)
     direct_feedthrough = False
@@ -469,6 +474,8 @@ class LevelObserver(RuntimeModule):
     (1.0, 0.0)
     """
 
+    optional_params = ("initial_level_m", "correction_gain", "innovation_window_s",
+                       "handover_gain", "handover_s")
     role = "estimator"
     inputs = ("level_measured", "flow_measured", "tank_model")
     outputs = ("level_estimate",)
@@ -566,6 +573,7 @@ class PiController(RuntimeModule):
     0.22
     """
 
+    optional_params: ClassVar[tuple[str, ...] | None] = ("kp", "ki", "initial_output")
     role = "controller"
     inputs: ClassVar[tuple[str, ...]] = ("setpoint", "level_estimate")
     optional_inputs: ClassVar[tuple[str, ...]] = ("tank_model",)
@@ -666,6 +674,8 @@ class PiFeedforwardController(PiController):
     Inputs ``setpoint``, ``level_estimate``, ``flow_measured``, ``tank_model``.
     """
 
+    optional_params = (*(PiController.optional_params or ()), "adaptation_time_s",
+                       "min_effectiveness")
     inputs = ("setpoint", "level_estimate", "flow_measured", "tank_model")
     optional_inputs = ()
 
@@ -754,6 +764,7 @@ class SetpointPlanner(RuntimeModule):
     [1.0, 1.05, 1.2]
     """
 
+    optional_params = ("steps", "max_rate_m_s")
     role = "planner"
     outputs = ("setpoint",)
 

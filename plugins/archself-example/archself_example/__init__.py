@@ -28,6 +28,7 @@ class Magnetometer(RuntimeModule):
     Inputs ``pose`` [x, y, θ]; output ``heading`` (rad).
     """
 
+    optional_params = ("noise_rad", "offset_rad")
     role = "sensor"
     inputs = ("pose",)
     outputs = ("heading",)

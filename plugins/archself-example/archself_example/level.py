@@ -28,6 +28,7 @@ class ProportionalLevel(RuntimeModule):
     ``max_flow_m3_s``). Output ``valve_cmd``. Residual signal ``tracking_error``.
     """
 
+    optional_params = ("kp",)
     role = "controller"
     inputs = ("setpoint", "level_estimate")
     optional_inputs = ("tank_model",)

@@ -1,0 +1,142 @@
+"""Semantic rules added after an audit: declared parameters, complete configurations, ρ(W)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from archself import registry
+from archself.check import check, perron_root, spectrum_summary
+from archself.errors import RegistryError
+from archself.loader import load_text
+from archself.modules.base import RuntimeModule
+from archself.modules.physical import Imu
+
+from conftest import DIFFDRIVE, FIXTURES
+
+MINIMAL = (FIXTURES / "valid" / "minimal.yaml").read_text(encoding="utf-8")
+
+
+def _findings(text: str, code: str | None = None) -> list[str]:
+    return [str(f) for f in check(load_text(text, "t.yaml")) if code in (None, f.code)]
+
+
+# --------------------------------------------------------------------------- parameters
+def test_misspelt_parameter_is_an_error_with_a_suggestion() -> None:
+    text = DIFFDRIVE.read_text(encoding="utf-8").replace("noise_rad_s:", "noise_rads:", 1)
+    (msg,) = _findings(text, "parameter")
+    assert "modules.encoders.params.noise_rads" in msg and ": error: " in msg
+    assert "has no parameter 'noise_rads'; did you mean 'noise_rad_s'?" in msg
+
+
+def test_unknown_parameter_without_a_close_match_lists_what_the_type_takes() -> None:
+    text = MINIMAL.replace("type: sensor.imu}", "type: sensor.imu, params: {zz: {value: 1}}}")
+    (msg,) = _findings(text, "parameter")
+    assert msg.startswith("t.yaml:10:") and "it takes: noise_rad, bias_rad" in msg
+
+
+def test_every_built_in_type_declares_its_parameters() -> None:
+    for key in registry.known_types():
+        cls = registry.get(key)
+        if cls.__module__.startswith("archself."):
+            assert cls.optional_params is not None, key
+
+
+def test_a_type_that_declares_nothing_is_not_checked() -> None:
+    class Undeclared(Imu):
+        optional_params = None
+
+    registry.add("test.undeclared_imu", Undeclared)
+    try:
+        text = MINIMAL.replace(
+            "type: sensor.imu}", "type: test.undeclared_imu, params: {anything: {value: 1}}}"
+        )
+        assert _findings(text, "parameter") == []
+    finally:
+        registry.unregister("test.undeclared_imu")
+
+
+# --------------------------------------------------------------------------- configurations
+def test_configuration_without_the_objective_modules_is_an_error() -> None:
+    text = DIFFDRIVE.read_text(encoding="utf-8").replace(
+        "configurations:\n", "configurations:\n  a0: {modules: [planner, kinematic_model]}\n", 1
+    )
+    msgs = _findings(text, "incomplete")
+    assert any("configuration 'a0' lacks 'chassis', which runtime.objective.actual reads" in m
+               and ": error: " in m for m in msgs), msgs
+    assert any("'a0' has no module of role 'actuator', 'controller', 'estimator', 'plant', "
+               "'sensor'" in m and ": warning: " in m for m in msgs), msgs
+
+
+def test_action_on_a_module_inactive_where_it_applies_is_a_warning() -> None:
+    text = MINIMAL.replace(
+        "scenarios:",
+        "  spare:\n    modules: [body, left, right, encoders, path, dead_reckoning, control,"
+        " kinematics]\nactions:\n  - {id: tune, module: compass, kind: parameter_update,"
+        " set: {noise_rad: 0.01}, applies_in: [spare], cost: 0.1,"
+        " improvement: {method: sensitivity, delta_theta: -0.5}}\nscenarios:",
+    )
+    text = text.replace("compass: {kind: physical, type: sensor.imu}",
+                        "compass: {kind: physical, type: sensor.imu,"
+                        " params: {noise_rad: {value: 0.005}}}")
+    msgs = _findings(text, "action")
+    assert len(msgs) == 1 and ": warning: actions[0].applies_in[0]: " in msgs[0]
+    assert "'compass' is not active in configuration 'spare'" in msgs[0]
+
+
+# --------------------------------------------------------------------------- ρ(W)
+@pytest.mark.parametrize("n", [2, 3, 5, 8, 16])
+def test_perron_root_matches_numpy(n: int) -> None:
+    rng = np.random.default_rng(n)
+    for _ in range(50):
+        w = rng.random((n, n)) * (rng.random((n, n)) < 0.5) * rng.random()
+        expected = float(np.max(np.abs(np.linalg.eigvals(w))))
+        assert perron_root(w.tolist()) == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def test_spectrum_of_a_small_cycle_needs_no_numpy() -> None:
+    code = (
+        "import sys\n"
+        "from archself.check import spectrum_summary\n"
+        "rho, sing = spectrum_summary(['a', 'b'], [('a', 'b', 0.5), ('b', 'a', 0.5)])\n"
+        "assert abs(rho - 0.5) < 1e-12 and not sing\n"
+        "assert 'numpy' not in sys.modules, 'numpy imported'\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_spectrum_near_one_still_detects_a_singular_block() -> None:
+    rho, singular = spectrum_summary(["a", "b"], [("a", "b", 1.0), ("b", "a", 1.0)])
+    assert rho == pytest.approx(1.0) and singular
+
+
+# --------------------------------------------------------------------------- registry
+def test_registering_a_type_twice_is_an_error() -> None:
+    class First(RuntimeModule):
+        pass
+
+    class Second(RuntimeModule):
+        pass
+
+    registry.add("test.twice", First)
+    try:
+        with pytest.raises(RegistryError, match="registered twice"):
+            registry.add("test.twice", Second)
+        with pytest.raises(RegistryError, match="registered twice"):
+            registry.register("test.twice")(Second)
+        assert registry.get("test.twice") is First
+    finally:
+        registry.unregister("test.twice")
+
+
+def test_a_plugin_cannot_take_a_built_in_type_key() -> None:
+    class Impostor(RuntimeModule):
+        pass
+
+    with pytest.raises(RegistryError, match="'sensor.imu' is registered twice"):
+        registry.add("sensor.imu", Impostor)
+    assert registry.get("sensor.imu") is Imu
