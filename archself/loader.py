@@ -442,8 +442,8 @@ def _schema_keys(schema: dict[str, Any], path: Path_) -> set[str]:
         if "$ref" in s:
             return resolve(defs[s["$ref"].split("/")[-1]])
         alts = s.get("anyOf") or s.get("oneOf")
-        if alts:
-            return [r for a in alts for r in resolve(a)]
+        if alts:  # a union, or a model with alternative constraints beside its properties
+            return [s, *(r for a in alts for r in resolve(a))]
         return [s]
 
     nodes = resolve(schema)

@@ -26,7 +26,7 @@ Algorithm 1 settings      ``runtime``
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -49,6 +49,23 @@ ParamValue = Union[bool, Finite, str, list[Finite], list[list[Finite]]]  # noqa:
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True, frozen=False)
+
+
+_STRUCTURAL = ["substitute", "activate", "deactivate", "rewire"]
+_SELECTORS = ("threshold", "top_k", "hysteresis")
+
+# What the model validators below enforce, stated for other JSON Schema validators too.
+_ACTION_RULES: dict[str, Any] = {
+    "if": {"properties": {"kind": {"enum": _STRUCTURAL}}, "required": ["kind"]},
+    "then": {"required": ["to"], "properties": {"to": {"type": "string"}}},
+    "else": {"required": ["set"], "properties": {"set": {"type": "object", "minProperties": 1},
+                                                  "to": {"type": "null"}}},
+}
+_ONE_SELECTOR: dict[str, Any] = {
+    "oneOf": [
+        {"required": [k], "properties": {k: {"not": {"type": "null"}}}} for k in _SELECTORS
+    ]
+}
 
 
 # --------------------------------------------------------------------------- modules
@@ -177,6 +194,8 @@ class Action(_Strict):
     between the current configuration and ``to``.
     """
 
+    model_config = ConfigDict(json_schema_extra=_ACTION_RULES)
+
     id: Name
     module: Name = Field(description="m_i: the module whose degradation this action addresses.")
     kind: Literal["parameter_update", "substitute", "activate", "deactivate", "rewire"]
@@ -287,7 +306,9 @@ class Objective(_Strict):
 
 
 class Runtime(_Strict):
-    """Settings of Algorithm 1 and of the simulation clock."""
+    """Settings of Algorithm 1 and of the simulation clock; one selector: τ, top-k or hysteresis."""
+
+    model_config = ConfigDict(json_schema_extra=_ONE_SELECTOR)
 
     step_s: Positive = Field(description="Simulation step.")
     period_s: Positive = Field(description="Period of one MAPE-K cycle.")

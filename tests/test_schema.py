@@ -23,6 +23,7 @@ ARCHITECTURES = sorted((ROOT / "architectures").glob("*.yaml"))
 STRUCTURAL = [
     "bad_kind", "wrong_type", "unknown_field", "missing_key", "not_mapping",
     "bad_improvement_method", "control_char_name",
+    "two_selectors", "action_without_target",  # oneOf and if/then from json_schema_extra
 ]
 
 
@@ -94,3 +95,19 @@ def test_docs_check_command(tmp_path: Path) -> None:
     assert runner.invoke(app, ["docs", "--check", str(ROOT / "docs")]).exit_code == 0
     result = runner.invoke(app, ["docs", "--check", str(tmp_path)])
     assert result.exit_code == 1
+
+
+def test_schema_states_the_cross_field_rules() -> None:
+    defs = json.loads(SCHEMA.read_text())["$defs"]
+    selectors = [b["required"] for b in defs["Runtime"]["oneOf"]]
+    assert selectors == [["threshold"], ["top_k"], ["hysteresis"]]
+    assert defs["Action"]["then"]["required"] == ["to"]
+    assert defs["Action"]["else"]["required"] == ["set"]
+
+
+def test_independent_validator_accepts_a_null_second_selector(tmp_path: Path) -> None:
+    text = (FIXTURES / "valid" / "minimal.yaml").read_text(encoding="utf-8")
+    path = tmp_path / "null_top_k.yaml"
+    path.write_text(text.replace("  threshold: 0.5\n", "  threshold: 0.5\n  top_k: null\n"))
+    proc = subprocess.run([*_check_jsonschema(), str(path)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
