@@ -272,7 +272,7 @@ def simulate(
         bool, typer.Option("--compare", help="Run the fixed baseline beside the adaptive run.")
     ] = False,
     seed: Annotated[
-        int | None, typer.Option("--seed", help="Seed (default: the scenario's).")
+        int | None, typer.Option("--seed", min=0, help="Seed ≥ 0 (default: the scenario's).")
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     trace: Annotated[

@@ -103,3 +103,10 @@ def test_ci_runs_the_readme_test_command() -> None:
     assert "archself simulate" in install_and_run and "pytest" in install_and_test
     assert install_and_test in ci
     assert install_and_run in ci
+
+
+def test_negative_seed_is_a_usage_error() -> None:
+    result = CliRunner().invoke(app, ["simulate", str(DIFFDRIVE), "--seed", "-3"])
+    assert result.exit_code == 2
+    assert "--seed" in result.stderr and "greater than or equal to 0" in result.stderr
+    assert "Traceback" not in result.stderr
