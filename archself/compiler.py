@@ -140,7 +140,7 @@ def compile_system(
                     f"fault {i}: module {f.module!r} has no output {signal!r} "
                     f"(outputs: {', '.join(cls.outputs)})"
                 )
-            base = getattr(probe, "noise_levels", {}).get(signal)
+            base = (getattr(probe, "noise_levels", None) or {}).get(signal)
             inj = FaultInjector(
                 f.kind,
                 onset_s=f.onset_s,

@@ -73,6 +73,11 @@ class RuntimeModule:
     direct_feedthrough: ClassVar[bool] = True
     required_params: ClassVar[tuple[str, ...]] = ()
     optional_params: ClassVar[tuple[str, ...] | None] = None  # None: parameters not checked
+    #: Nominal noise level per output signal (instance attribute of sensors): a noisy
+    #: signal repeating itself bit for bit is stale (see :mod:`archself.system`).
+    noise_levels: dict[str, float] | None = None
+    #: Longest time without a published value before the module counts as silent (s).
+    max_silence_s: float | None = None
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         self.name = name

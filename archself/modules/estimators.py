@@ -110,8 +110,12 @@ class Odometry(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
-    optional_params = ("heading_noise_rad", "encoder_noise_rad_s", "innovation_window_s",
-                       "initial_pose")
+    optional_params = (
+        "heading_noise_rad",
+        "encoder_noise_rad_s",
+        "innovation_window_s",
+        "initial_pose",
+    )
     role = "estimator"
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
@@ -218,10 +222,19 @@ class Ekf(RuntimeModule):
     ``x``/``P`` give the full state and covariance (filterpy's names).
     """
 
-    optional_params = ("q_position_m", "q_heading_rad", "q_bias_rad", "r_gps_m", "r_heading_rad",
-                       "encoder_noise_rad_s", "initial_position_std_m",
-                       "initial_heading_std_rad", "initial_bias_std_rad",
-                       "innovation_window_s", "initial_pose")
+    optional_params = (
+        "q_position_m",
+        "q_heading_rad",
+        "q_bias_rad",
+        "r_gps_m",
+        "r_heading_rad",
+        "encoder_noise_rad_s",
+        "initial_position_std_m",
+        "initial_heading_std_rad",
+        "initial_bias_std_rad",
+        "innovation_window_s",
+        "initial_pose",
+    )
     role = "estimator"
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
@@ -302,11 +315,16 @@ class Ekf(RuntimeModule):
         q11 = q[1] * dt + 2 * sig2 * u1 * u1
         q22 = q[2] * dt + 2 * sig2 * k * k
         q33 = q[3] * dt
-        (p00, p01, p02, p03), (p10, p11, p12, p13), (p20, p21, p22, p23), (
-            p30,
-            p31,
-            p32,
-            p33,
+        (
+            (p00, p01, p02, p03),
+            (p10, p11, p12, p13),
+            (p20, p21, p22, p23),
+            (
+                p30,
+                p31,
+                p32,
+                p33,
+            ),
         ) = kf.P.tolist()
         # F P: rows 0 and 1 gain f0, f1 times row 2
         a00, a01, a02, a03 = p00 + f0 * p20, p01 + f0 * p21, p02 + f0 * p22, p03 + f0 * p23
@@ -332,22 +350,62 @@ class Ekf(RuntimeModule):
         """
         kf = self.kf
         x0, x1, x2, x3 = kf.x.tolist()
-        P = kf.P.tolist()
+        (
+            (p00, p01, p02, p03),
+            (p10, p11, p12, p13),
+            (p20, p21, p22, p23),
+            (
+                p30,
+                p31,
+                p32,
+                p33,
+            ),
+        ) = kf.P.tolist()
         r2 = self.r_head**2
         y = (float(heading) - (x2 + x3) + math.pi) % (2 * math.pi) - math.pi
-        ph = [row[2] + row[3] for row in P]  # P Hᵀ
-        S = (ph[2] + ph[3]) + r2
-        K = [v / S for v in ph]
-        hp = [P[2][j] + P[3][j] for j in range(4)]  # H P
-        # A = (I − K H) P, then A (I − K H)ᵀ = A − (A Hᵀ) Kᵀ, then + r² K Kᵀ
-        A = [[P[i][j] - K[i] * hp[j] for j in range(4)] for i in range(4)]
-        ah = [row[2] + row[3] for row in A]
+        # P Hᵀ, S, K = P Hᵀ / S and H P
+        ph0, ph1, ph2, ph3 = p02 + p03, p12 + p13, p22 + p23, p32 + p33
+        S = (ph2 + ph3) + r2
+        k0, k1, k2, k3 = ph0 / S, ph1 / S, ph2 / S, ph3 / S
+        h0, h1, h2, h3 = p20 + p30, p21 + p31, p22 + p32, p23 + p33
+        # A = (I − K H) P
+        a00, a01, a02, a03 = p00 - k0 * h0, p01 - k0 * h1, p02 - k0 * h2, p03 - k0 * h3
+        a10, a11, a12, a13 = p10 - k1 * h0, p11 - k1 * h1, p12 - k1 * h2, p13 - k1 * h3
+        a20, a21, a22, a23 = p20 - k2 * h0, p21 - k2 * h1, p22 - k2 * h2, p23 - k2 * h3
+        a30, a31, a32, a33 = p30 - k3 * h0, p31 - k3 * h1, p32 - k3 * h2, p33 - k3 * h3
+        # A (I − K H)ᵀ = A − (A Hᵀ) Kᵀ, then + r² K Kᵀ
+        c0, c1, c2, c3 = a02 + a03, a12 + a13, a22 + a23, a32 + a33
         kf.P = np.array(
-            [[A[i][j] - ah[i] * K[j] + r2 * K[i] * K[j] for j in range(4)] for i in range(4)]
+            [
+                [
+                    a00 - c0 * k0 + r2 * k0 * k0,
+                    a01 - c0 * k1 + r2 * k0 * k1,
+                    a02 - c0 * k2 + r2 * k0 * k2,
+                    a03 - c0 * k3 + r2 * k0 * k3,
+                ],
+                [
+                    a10 - c1 * k0 + r2 * k1 * k0,
+                    a11 - c1 * k1 + r2 * k1 * k1,
+                    a12 - c1 * k2 + r2 * k1 * k2,
+                    a13 - c1 * k3 + r2 * k1 * k3,
+                ],
+                [
+                    a20 - c2 * k0 + r2 * k2 * k0,
+                    a21 - c2 * k1 + r2 * k2 * k1,
+                    a22 - c2 * k2 + r2 * k2 * k2,
+                    a23 - c2 * k3 + r2 * k2 * k3,
+                ],
+                [
+                    a30 - c3 * k0 + r2 * k3 * k0,
+                    a31 - c3 * k1 + r2 * k3 * k1,
+                    a32 - c3 * k2 + r2 * k3 * k2,
+                    a33 - c3 * k3 + r2 * k3 * k3,
+                ],
+            ]
         )
-        th = x2 + K[2] * y
+        th = x2 + k2 * y
         kf.x = np.array(
-            [x0 + K[0] * y, x1 + K[1] * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + K[3] * y]
+            [x0 + k0 * y, x1 + k1 * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + k3 * y]
         )
 
     def update_position(self, pos) -> tuple[float, float]:
