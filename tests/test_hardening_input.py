@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -15,7 +17,7 @@ from archself.check import check, has_errors
 from archself.cli import app
 from archself.errors import OutputError
 from archself.generate import generate_architecture
-from archself.loader import load_text
+from archself.loader import MAX_FILE_BYTES, load_text
 
 from conftest import FIXTURES
 
@@ -89,6 +91,65 @@ def test_read_only_folder(tmp_path: Path) -> None:
             write_text(ro / "x.json", "{}")
     finally:
         ro.chmod(0o700)
+
+
+def _denied(*args, **kwargs):
+    raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+
+
+OUTPUT_COMMANDS = {
+    "schema": lambda out: ["schema", "-o", str(out)],
+    "simulate --trace": lambda out: [
+        "simulate",
+        str(MINIMAL),
+        "-s",
+        "calm",
+        "--fixed",
+        "--trace",
+        str(out),
+    ],
+}
+
+
+@pytest.mark.parametrize("where", ["mkstemp", "replace"])
+@pytest.mark.parametrize("command", sorted(OUTPUT_COMMANDS))
+def test_unwritable_output_through_the_cli(tmp_path: Path, monkeypatch, command, where) -> None:
+    """What test_read_only_folder checks, also as root (CI): the folder refuses the write.
+
+    The temporary file cannot be created (``mkstemp``) or cannot be renamed over the
+    target (``os.replace``): one line on stderr, exit 1, no traceback, the good file kept
+    and no temporary file left behind.
+    """
+    from archself import atomic
+
+    target = tmp_path / "out.json"
+    target.write_text("good")
+    if where == "mkstemp":
+        monkeypatch.setattr(atomic, "tempfile", SimpleNamespace(mkstemp=_denied))
+    else:
+        monkeypatch.setattr(atomic.os, "replace", _denied)
+    result = CliRunner().invoke(app, OUTPUT_COMMANDS[command](target))
+    assert result.exit_code == 1, result.output
+    assert result.stderr == f"{target}: cannot write: Permission denied\n"
+    assert "Traceback" not in result.output
+    assert isinstance(result.exception, SystemExit)  # handled, not a PermissionError
+    assert target.read_text() == "good"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.json"], "temporary file removed"
+
+
+def test_oversized_file_through_the_cli(tmp_path: Path) -> None:
+    """``archself validate`` of a file over the loader's size cap: refused before reading."""
+    big = tmp_path / "big.yaml"
+    with big.open("wb") as fh:  # sparse: the size is checked with stat(), nothing is read
+        fh.truncate(MAX_FILE_BYTES + 1)
+    result = CliRunner().invoke(app, ["validate", str(big)])
+    assert result.exit_code == 1
+    assert result.stderr == (
+        f"{big}: error: file is {MAX_FILE_BYTES + 1} bytes, "
+        f"larger than the {MAX_FILE_BYTES}-byte cap\n"
+    )
+    assert "Traceback" not in result.output
+    assert result.stdout == ""
 
 
 def test_output_path_that_is_a_folder(tmp_path: Path) -> None:
