@@ -341,3 +341,25 @@ def test_report_modules_do_not_import_matplotlib_at_start_up() -> None:
             "assert 'matplotlib' not in sys.modules, 'matplotlib imported'")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        "{{ ''.__class__.__mro__[1].__subclasses__() }}",
+        "{{ ''.__class__ }}",
+        "{{ cycler.__init__.__globals__ }}",
+    ],
+)
+def test_templates_render_in_a_sandbox(payload: str) -> None:
+    """Issue 7 item 5: a template cannot reach Python internals through attributes."""
+    from jinja2.exceptions import SecurityError
+    from jinja2.sandbox import SandboxedEnvironment
+
+    from archself.reports.render import environment
+
+    env = environment()
+    assert isinstance(env, SandboxedEnvironment)
+    template = env.from_string(payload)
+    with pytest.raises(SecurityError):
+        template.render()
