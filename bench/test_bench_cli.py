@@ -39,3 +39,24 @@ def file_10k(tmp_path_factory) -> Path:
 
 def test_validate_10k(benchmark, file_10k: Path) -> None:
     benchmark.pedantic(_run, args=("validate", str(file_10k)), rounds=3, iterations=1)
+
+
+def test_load_10k_in_process(benchmark, file_10k: Path) -> None:
+    """YAML compose + conversion + schema of the 10,000-module file, without start-up."""
+    from archself.loader import load_architecture
+
+    loaded = benchmark.pedantic(load_architecture, args=(file_10k,), rounds=3, iterations=1)
+    assert len(loaded.arch.modules) == 10_000
+    assert loaded.source.locate(("modules", "m9999", "type")) > (10_000, 1)
+
+
+def test_convert_10k_nodes(benchmark, file_10k: Path) -> None:
+    """The node graph → data conversion alone (the part archself owns; compose is libyaml's)."""
+    from archself.loader import _Converter, _parse
+
+    text = file_10k.read_text(encoding="utf-8")
+    node = _parse(text, str(file_10k))
+    data = benchmark.pedantic(
+        lambda: _Converter(str(file_10k)).convert(node), rounds=3, iterations=1
+    )
+    assert len(data["modules"]) == 10_000
