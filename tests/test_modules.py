@@ -15,7 +15,7 @@ from archself import registry
 from archself.kinematics import error_dynamics
 from archself.modules.controllers import AsymLqrController, LqrController, lqr_gain
 from archself.modules.estimators import Ekf, InnovationWindow, Odometry
-from archself.modules.models import Kinematics
+from archself.modules.models import Dynamics, Kinematics
 from archself.modules.physical import DiffDrivePlant, Gps, WheelActuator
 from archself.modules.planner import SplinePlanner
 from archself.sim.faults import FAULT_KINDS, FaultInjector
@@ -105,6 +105,33 @@ def test_lqr_linearization_is_stable_and_updates():
     c.set_params({"q_lateral": 0.01})
     assert c.K[1, 1] == pytest.approx(math.sqrt(0.01))
     assert c.K[1, 1] > k_before
+
+
+def test_lqr_linearization_includes_the_wheel_lag_of_the_dynamic_model():
+    weights = {"q_along": 1.0, "q_lateral": 0.001, "q_heading": 0.05}
+    c = LqrController("lqr", weights, rng())
+    A0, B0 = error_dynamics(0.5)
+    ref = np.array([0.0, 0.0, 0.0, 0.5, 0.0])
+    c.step(0.0, 0.05, {"reference": ref, "pose_estimate": ref[:3],
+                       "dynamics": Dynamics(wheel_time_constant_s=0.2)})
+    A = c.linearization()
+    assert A.shape == (5, 5)
+    assert_allclose(A[:3, :3], A0)
+    assert_allclose(A[:3, 3:], B0)
+    assert_allclose(A[3:, :3], -c.K / 0.2)
+    assert_allclose(A[3:, 3:], -np.eye(2) / 0.2)
+    assert np.linalg.eigvals(A).real.max() < -0.001
+    # a fast actuator leaves the slow closed-loop poles of A − B K (singular perturbation)
+    c.dynamics = Dynamics(wheel_time_constant_s=1e-4)
+    slow = np.sort_complex(np.linalg.eigvals(c.linearization()))[-3:]
+    assert_allclose(slow, np.sort_complex(np.linalg.eigvals(A0 - B0 @ c.K)), rtol=1e-2)
+    # a lag far slower than the loop destabilizes it: the filter must see that
+    c.dynamics = Dynamics(wheel_time_constant_s=50.0)
+    assert np.linalg.eigvals(c.linearization()).real.max() > 0
+    # the hand-over carries the model to the successor controller
+    a = AsymLqrController("asym", weights, rng())
+    a.import_state(c.export_state())
+    assert a.linearization().shape == (5, 5)
 
 
 def test_lqr_command_feedforward_on_the_reference():

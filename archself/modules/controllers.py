@@ -20,7 +20,7 @@ import numpy as np
 
 from archself.kinematics import error_dynamics, tracking_error
 from archself.modules.base import RuntimeModule
-from archself.modules.models import Actuation, Kinematics
+from archself.modules.models import Actuation, Dynamics, Kinematics
 from archself.registry import register
 
 __all__ = ["lqr_gain", "LqrController", "AsymLqrController"]
@@ -74,7 +74,8 @@ class LqrController(RuntimeModule):
         (default 0.5).
 
     Inputs ``reference``, ``pose_estimate``, ``kinematics``; optional
-    ``dynamics`` (unused), ``actuation`` (wheel-speed limit). Output
+    ``dynamics`` (the wheel-speed lag, used by :meth:`linearization`), ``actuation``
+    (wheel-speed limit). Output
     ``wheel_cmd`` ``[l, r]`` (rad/s). Residual signal ``tracking_error``:
     |estimate − reference| position (m).
     """
@@ -95,6 +96,7 @@ class LqrController(RuntimeModule):
         self.K = self.gain(self.v_ref)
         self.signals = {"tracking_error": math.nan}
         self.last_cmd: np.ndarray | None = None
+        self.dynamics: Dynamics | None = None  # the dynamic model, once an edge delivers it
 
     # gains -------------------------------------------------------------------
     def _weights(self) -> tuple[tuple[float, float, float], tuple[float, float]]:
@@ -122,9 +124,37 @@ class LqrController(RuntimeModule):
         self.K = self.gain(self.v_ref)
 
     def linearization(self) -> np.ndarray:
-        """Closed-loop ``A − B K`` of the error dynamics at the current reference speed."""
+        """Closed-loop matrix of the error dynamics at the current reference speed (Eq. 20).
+
+        Without a dynamic model it is ``A − B K`` (3×3). With the ``dynamics`` input
+        (the wheel-speed lag τ of :class:`~archself.modules.models.Dynamics`) the
+        realised body speeds ``δu_a`` lag the commanded ``−K e`` by a first-order
+        lag and the closed loop is the 5×5 matrix::
+
+            [ė  ]   [  A     B  ] [e  ]
+            [δu̇_a] = [−K/τ  −I/τ] [δu_a]
+
+        so the eigenvalue test of the stability filter (Eq. 21) sees the actuator
+        lag the controller cannot remove.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from archself.modules.models import Dynamics
+        >>> c = LqrController("c", {}, np.random.default_rng(0))
+        >>> c.linearization().shape
+        (3, 3)
+        >>> c.dynamics = Dynamics(wheel_time_constant_s=0.1)
+        >>> A = c.linearization()
+        >>> A.shape, bool(np.linalg.eigvals(A).real.max() < 0)
+        ((5, 5), True)
+        """
         A, B = error_dynamics(max(self.v_ref, _MIN_DESIGN_SPEED))
-        return A - B @ self.gain(self.v_ref)
+        K = self.gain(self.v_ref)
+        tau = self.dynamics.wheel_time_constant_s if self.dynamics is not None else 0.0
+        if tau <= 0:
+            return A - B @ K
+        return np.block([[A, B], [-K / tau, -np.eye(2) / tau]])
 
     # data flow ---------------------------------------------------------------
     def body_command(self, ref, est) -> tuple[float, float]:
@@ -163,6 +193,7 @@ class LqrController(RuntimeModule):
         return self._limit(*self._wheel_speeds(v, w, inputs), inputs)
 
     def step(self, t, dt, inputs):
+        self.dynamics = inputs.get("dynamics") or self.dynamics
         ref = inputs.get("reference")
         est = inputs.get("pose_estimate")
         if ref is None or est is None:
@@ -173,12 +204,14 @@ class LqrController(RuntimeModule):
         return {"wheel_cmd": cmd}
 
     def export_state(self):
-        return {"v_ref": self.v_ref}
+        return {"v_ref": self.v_ref, "dynamics": self.dynamics}
 
     def import_state(self, state):
         if "v_ref" in state:
             self.v_ref = float(state["v_ref"])
             self.K = self.gain(self.v_ref)
+        if state.get("dynamics") is not None:
+            self.dynamics = state["dynamics"]
 
 
 @register("controller.asym_lqr")
@@ -223,6 +256,7 @@ class AsymLqrController(LqrController):
         self._eff = [float(v) for v in np.asarray(value, dtype=float).ravel()[:2]]
 
     def step(self, t, dt, inputs):
+        self.dynamics = inputs.get("dynamics") or self.dynamics
         enc = inputs.get("encoder_speeds")
         if enc is not None and self._sent is not None:
             tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
