@@ -257,6 +257,7 @@ class StatusMap(Mapping[str, ModuleStatus]):
         self._reasons = reasons
         self._finding = finding
         self._built: dict[str, ModuleStatus] = {}
+        self._down: set[str] | None = None
 
     def __getitem__(self, name: str) -> ModuleStatus:
         status = self._built.get(name)
@@ -293,8 +294,10 @@ class StatusMap(Mapping[str, ModuleStatus]):
 
     def unavailable(self) -> set[str]:
         """Names of the modules the system reports unavailable (active or not)."""
-        names = self._names
-        return {names[k] for k in np.flatnonzero(~self._available).tolist()}
+        if self._down is None:
+            names = self._names
+            self._down = {names[k] for k in np.flatnonzero(~self._available).tolist()}
+        return self._down
 
 
 @dataclass
@@ -373,12 +376,18 @@ def _limit_violations(limits: Mapping[str, Any], local: Mapping[str, Any]) -> li
 
 
 class _Layout:
-    """What the Monitor precomputes for one set of active modules."""
+    """What the Monitor precomputes for one set of active modules, and its filter state.
+
+    The residual filters of the active modules are held here in compact arrays
+    (one entry per active module with a ``residual`` block), replaced by new
+    arrays at every update so that an :class:`Observation` can keep them.
+    """
 
     def __init__(self, monitor: Monitor, active: frozenset[str]) -> None:
         names = monitor.names
+        n = len(names)
         self.key = active
-        self.active = np.fromiter((n in active for n in names), dtype=bool, count=len(names))
+        self.active = np.fromiter((m in active for m in names), dtype=bool, count=n)
         on = self.active[monitor.res_pos]
         self.res_on = np.flatnonzero(on)  # residual slots of the active modules
         self.res_off = np.flatnonzero(~on)
@@ -388,6 +397,31 @@ class _Layout:
             (names[k], monitor.res_signal[j])
             for j, k in zip(self.res_on.tolist(), self.on_pos.tolist(), strict=True)
         ]
+        self.sensitivity = monitor.sensitivity[self.res_on]
+        self.nominal = monitor.nominal[self.res_on]
+        self.time_constant = monitor.time_constant[self.res_on]
+        self.instant = self.time_constant <= 0
+        self.any_instant = bool(self.instant.any())
+        self.tc_slot = monitor.tc_slot[self.res_on]
+        self.all_ok = np.ones(self.res_on.size, dtype=bool)  # shared, never written
+        self.pos_list: list[int] = self.on_pos.tolist()
+        self.sens_list: list[float] = self.sensitivity.tolist()
+        self.nom_list: list[float] = self.nominal.tolist()
+        self.tc_list: list[float] = self.time_constant.tolist()
+        # position in names -> -1 (no residual block), -2 (inactive), else compact slot
+        self.slot = np.full(n, -1, dtype=np.intp)
+        self.slot[monitor.res_pos] = -2
+        self.slot[self.on_pos] = np.arange(self.res_on.size, dtype=np.intp)
+        # filter state: the inactive filters restart from 0 (a reset), the others go on
+        monitor.value[self.res_off] = 0.0
+        monitor.valid_time[self.res_off] = 0.0
+        monitor.samples[self.res_off] = 0
+        self.value = monitor.value[self.res_on]
+        self.valid_time = monitor.valid_time[self.res_on]
+        self.samples = monitor.samples[self.res_on]
+        self._gain_dt: float | None = None
+        self._gain = np.ones(self.res_on.size)
+        self._gains: list[float] = self._gain.tolist()
         # requires/excludes depend on the active set only; limits are read every cycle
         self.constrained: list[tuple[int, str, list[str], Mapping[str, Any]]] = []
         for k, name in monitor.constrained:
@@ -397,6 +431,26 @@ class _Layout:
             fixed = [f"requires {m} (inactive)" for m in cons.requires if m not in active]
             fixed += [f"excludes {m} (active)" for m in cons.excludes if m in active]
             self.constrained.append((k, name, fixed, cons.limits))
+
+    def store(self, monitor: Monitor) -> None:
+        """Write the filter state back to the Monitor's arrays (before a new layout)."""
+        monitor.value[self.res_on] = self.value
+        monitor.valid_time[self.res_on] = self.valid_time
+        monitor.samples[self.res_on] = self.samples
+
+    def gains(self, monitor: Monitor, dt: float) -> np.ndarray:
+        """:func:`filter_gain` of every active filter for the sampling interval ``dt``."""
+        if dt != self._gain_dt:
+            per_tc = np.array([filter_gain(dt, tc) for tc in monitor.tc_values], dtype=float)
+            self._gain = per_tc[self.tc_slot] if per_tc.size else np.ones(0)
+            self._gains = self._gain.tolist()
+            self._gain_dt = dt
+        return self._gain
+
+    def gain_list(self, monitor: Monitor, dt: float) -> list[float]:
+        """:meth:`gains` as a list."""
+        self.gains(monitor, dt)
+        return self._gains
 
 
 class Monitor:
@@ -415,11 +469,19 @@ class Monitor:
         The architecture (reads ``modules.*.residual``, ``runtime``).
     names : list of str
         Index order of the residual vector.
+    vector_min : int, optional
+        Number of active residual modules from which the filters are updated as
+        numpy arrays (default :attr:`VECTOR_MIN`); below it, module by module,
+        which costs less than numpy's per-call overhead. Both give the same numbers.
     """
 
-    def __init__(self, arch: Architecture, names: list[str]) -> None:
+    #: From this many active residual modules on, the filters are updated with numpy.
+    VECTOR_MIN = 48
+
+    def __init__(self, arch: Architecture, names: list[str], vector_min: int | None = None) -> None:
         self.arch = arch
         self.names = list(names)
+        self.vector_min = self.VECTOR_MIN if vector_min is None else int(vector_min)
         self.index = {n: k for k, n in enumerate(self.names)}
         self.normalization = arch.runtime.normalization
         res = [
@@ -432,12 +494,9 @@ class Monitor:
         self.time_constant = np.array([float(spec.smoothing_s) for _, spec in res], dtype=float)
         self.sensitivity = np.array([float(spec.sensitivity) for _, spec in res], dtype=float)
         self.nominal = np.array([float(spec.nominal) for _, spec in res], dtype=float)
-        self._instant = self.time_constant <= 0
-        self._tc_values, self._tc_slot = np.unique(self.time_constant, return_inverse=True)
-        self._tc_list = self._tc_values.tolist()
-        self._res_slot = np.full(len(self.names), -1, dtype=np.intp)
-        self._res_slot[self.res_pos] = np.arange(len(res), dtype=np.intp)
-        # filter state, one entry per residual-carrying module
+        tc_values, self.tc_slot = np.unique(self.time_constant, return_inverse=True)
+        self.tc_values: list[float] = tc_values.tolist()
+        # filter state of every residual-carrying module (see _Layout for the active ones)
         self.value = np.zeros(len(res))
         self.valid_time = np.zeros(len(res))
         self.samples = np.zeros(len(res), dtype=np.int64)
@@ -446,26 +505,19 @@ class Monitor:
             for k, n in enumerate(self.names)
             if (c := arch.modules[n].constraints).requires or c.excludes or c.limits
         ]
+        self._true = np.ones(len(self.names), dtype=bool)  # shared, never written
         self._layout: _Layout | None = None
-        self._gain_dt: float | None = None
-        self._gain = np.ones(len(res))
         self._t_prev: float | None = None
         self.r_sat = unavailable_residual(arch.runtime)
 
     def layout(self, active: frozenset[str]) -> _Layout:
-        """The precomputed layout of ``active`` (rebuilt when the active set changes)."""
+        """The layout of ``active`` (rebuilt, carrying the filter state, when the set changes)."""
         lay = self._layout
         if lay is None or (lay.key is not active and lay.key != active):
+            if lay is not None:
+                lay.store(self)
             lay = self._layout = _Layout(self, frozenset(active))
         return lay
-
-    def gains(self, dt: float) -> np.ndarray:
-        """:func:`filter_gain` of every residual filter for the sampling interval ``dt``."""
-        if dt != self._gain_dt:
-            per_tc = np.array([filter_gain(dt, tc) for tc in self._tc_list], dtype=float)
-            self._gain = per_tc[self._tc_slot] if per_tc.size else np.ones(0)
-            self._gain_dt = dt
-        return self._gain
 
     def observe(self, system: Any, active: frozenset[str]) -> Observation:
         """Sample the system once (Algorithm 1, steps 1–2); never raises on bad signals."""
@@ -497,10 +549,12 @@ class Monitor:
         r = np.zeros(n)
 
         # availability (κ) and the saturated residual of own failures
-        available = np.ones(n, dtype=bool)
+        available = self._true
         reasons: dict[str, str | None] = {}
-        if not all(avail.values()):
+        any_down = not all(avail.values())
+        if any_down:
             down = [index[m] for m, ok in avail.items() if not ok and m in index]
+            available = self._true.copy()
             available[down] = False
             down_active = sorted(k for k in down if lay.active[k])
             if down_active:
@@ -524,44 +578,35 @@ class Monitor:
             if found:
                 violations[name] = found
 
-        # residual filters: reset the inactive ones, update the active ones
-        if lay.res_off.size:
-            self.value[lay.res_off] = 0.0
-            self.valid_time[lay.res_off] = 0.0
-            self.samples[lay.res_off] = 0
-        residual_ok = np.ones(n, dtype=bool)
-        on = lay.res_on
-        ok = np.zeros(on.size, dtype=bool)
-        if on.size:
-            x = _floats(_samples(local, lay))
-            with np.errstate(all="ignore"):
-                ok = np.isfinite(x) & available[lay.on_pos]
+        # residual filters of the active modules: y ← y + g·(s − y) where the sample is usable
+        residual_ok = self._true
+        ok = lay.all_ok
+        if lay.pairs:
+            raw = _samples(local, lay)
+            avail_on = available[lay.on_pos] if any_down else None
+            if len(raw) < self.vector_min:
+                ok = self._update_scalar(lay, raw, avail_on, dt, r)
+            else:
+                ok = self._update_vector(lay, raw, avail_on, dt, r)
+            if ok is not lay.all_ok:
+                residual_ok = self._true.copy()
                 residual_ok[lay.on_pos] = ok
-                upd = on[ok]
-                if upd.size:
-                    s = x[ok]
-                    v = self.value[upd]
-                    new = v + self.gains(dt)[upd] * (s - v)
-                    first = self._instant[upd] & (self.samples[upd] == 0)
-                    if first.any():
-                        new = np.where(first, s, new)  # T = 0: the first sample as is
-                    self.value[upd] = new
-                    self.samples[upd] += 1
-                    self.valid_time[upd] += max(dt, 0.0)
-                    r[lay.on_pos[ok]] = self._residuals(upd, new)
 
-        finding = ~available | ~residual_ok
-        if violations:
-            finding[[k for k, name, *_ in lay.constrained if name in violations]] = True
-        finding &= lay.active
+        if any_down or residual_ok is not self._true or violations:
+            finding = ~available | ~residual_ok
+            if violations:
+                finding[[k for k, name, *_ in lay.constrained if name in violations]] = True
+            finding &= lay.active
+            flagged = finding.nonzero()[0]
+        else:
+            flagged = np.zeros(0, dtype=np.intp)
 
-        samples, valid_time, tc = self.samples.copy(), self.valid_time.copy(), self.time_constant
-        slot = self._res_slot
+        samples, valid_time, tc, slot = lay.samples, lay.valid_time, lay.time_constant, lay.slot
 
         def confidence(k: int) -> float:
             j = int(slot[k])
             if j < 0:
-                return 1.0
+                return 1.0 if j == -1 else 0.0  # no residual block / filter reset
             return _confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
 
         kappa = StatusMap(
@@ -573,30 +618,90 @@ class Monitor:
             confidence,
             violations,
             reasons,
-            np.flatnonzero(finding),
+            flagged,
         )
-        return Observation(
-            t,
-            j_obs,
-            j_ref,
-            r_global,
-            r,
-            kappa,
-            lay.on_names,
-            self.value[on] if on.size else np.zeros(0),
-            ok,
-        )
+        return Observation(t, j_obs, j_ref, r_global, r, kappa, lay.on_names, lay.value, ok)
 
-    def _residuals(self, slots: np.ndarray, value: np.ndarray) -> np.ndarray:
-        """:func:`module_residual` of the filtered values of the given residual slots."""
-        sens = self.sensitivity[slots]
-        fin = np.isfinite(value)
+    def _update_scalar(
+        self, lay: _Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray
+    ) -> np.ndarray:
+        """Filter update and r_i module by module (few modules: cheaper than numpy calls).
+
+        Returns the usable-sample mask (``lay.all_ok`` when every sample was usable).
+        """
+        gains = lay.gain_list(self, dt)
+        values = lay.value.tolist()
+        counts = lay.samples.tolist()
+        valid = lay.valid_time.tolist()
+        usable = avail_on.tolist() if avail_on is not None else None
+        step = max(dt, 0.0)
+        oks = []
+        for j, item in enumerate(raw):
+            sample = _finite(item)
+            good = math.isfinite(sample) and (usable is None or usable[j])
+            oks.append(good)
+            if not good:
+                continue
+            if counts[j] == 0 and lay.tc_list[j] <= 0:
+                value = sample
+            else:
+                value = values[j] + gains[j] * (sample - values[j])
+            values[j] = value
+            counts[j] += 1
+            valid[j] += step
+            r[lay.pos_list[j]] = module_residual(
+                value, lay.sens_list[j], lay.nom_list[j], self.normalization
+            )
+        lay.value = np.array(values, dtype=float)
+        lay.samples = np.array(counts, dtype=np.int64)
+        lay.valid_time = np.array(valid, dtype=float)
+        return lay.all_ok if all(oks) else np.array(oks, dtype=bool)
+
+    def _update_vector(
+        self, lay: _Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`_update_scalar` on arrays (same operations, elementwise)."""
+        x = _floats(raw)
+        with np.errstate(all="ignore"):
+            ok = np.isfinite(x)
+            if avail_on is not None:
+                ok &= avail_on
+            gain = lay.gains(self, dt)
+            upd: Any
+            if ok.all():
+                upd, s, ok = slice(None), x, lay.all_ok
+            else:
+                upd = ok.nonzero()[0]
+                s = x[upd]
+            if not s.size:
+                return ok
+            v = lay.value[upd]
+            new = v + gain[upd] * (s - v)
+            if lay.any_instant:  # T = 0: the first sample is taken as is
+                first = lay.instant[upd] & (lay.samples[upd] == 0)
+                if first.any():
+                    new = np.where(first, s, new)
+            if isinstance(upd, slice):
+                lay.value = new
+                lay.samples = lay.samples + 1
+                lay.valid_time = lay.valid_time + max(dt, 0.0)
+            else:  # new arrays, so that earlier observations keep theirs
+                lay.value = lay.value.copy()
+                lay.value[upd] = new
+                lay.samples = lay.samples.copy()
+                lay.samples[upd] += 1
+                lay.valid_time = lay.valid_time.copy()
+                lay.valid_time[upd] += max(dt, 0.0)
+            r[lay.on_pos[upd]] = self._residuals(new, lay.sensitivity[upd], lay.nominal[upd])
+        return ok
+
+    def _residuals(self, value: np.ndarray, sens: np.ndarray, nom: np.ndarray) -> np.ndarray:
+        """:func:`module_residual` of filtered values, elementwise."""
         if self.normalization == "none":
             out = sens * np.abs(value)
-        else:
-            nom = self.nominal[slots]
-            excess = np.abs(value) - nom
-            out = sens * np.where(excess > 0.0, excess, 0.0) / nom
+        else:  # max(0, |s̄| − nominal); never −0.0 since nominal > 0
+            out = sens * np.maximum(np.abs(value) - nom, 0.0) / nom
+        fin = np.isfinite(value)
         return out if fin.all() else np.where(fin, out, 0.0)
 
     def _violations(self, name: str, active: frozenset[str], local: dict) -> list[str]:
