@@ -81,7 +81,12 @@ class LqrController(RuntimeModule):
     """
 
     optional_params: ClassVar[tuple[str, ...] | None] = (
-        "q_along", "q_lateral", "q_heading", "r_speed", "r_turn", "design_speed_mps"
+        "q_along",
+        "q_lateral",
+        "q_heading",
+        "r_speed",
+        "r_turn",
+        "design_speed_mps",
     )
     role = "controller"
     inputs: ClassVar[tuple[str, ...]] = ("reference", "pose_estimate", "kinematics")
@@ -235,8 +240,11 @@ class AsymLqrController(LqrController):
     Inputs as :class:`LqrController` plus ``encoder_speeds``.
     """
 
-    optional_params = (*(LqrController.optional_params or ()), "adaptation_time_s",
-                       "min_effectiveness")
+    optional_params = (
+        *(LqrController.optional_params or ()),
+        "adaptation_time_s",
+        "min_effectiveness",
+    )
     inputs = ("reference", "pose_estimate", "kinematics", "encoder_speeds")
 
     def __init__(self, name, params, rng):

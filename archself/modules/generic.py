@@ -27,8 +27,9 @@ class Relay(RuntimeModule):
     optional_inputs = ("signal",)
     outputs = ("signal",)
     residual_signals = ("deviation",)
-    fault_kinds = frozenset({"bias", "bias_drift", "effectiveness_loss", "noise_increase",
-                             "dropout", "stuck"})
+    fault_kinds = frozenset(
+        {"bias", "bias_drift", "effectiveness_loss", "noise_increase", "dropout", "stuck"}
+    )
 
     direct_feedthrough = False
 

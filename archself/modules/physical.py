@@ -52,8 +52,14 @@ class DiffDrivePlant(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
-    optional_params = ("wheel_base_m", "wheel_radius_m", "max_wheel_speed_rad_s", "initial_pose",
-                       "wheel_time_constant_s", "effectiveness")
+    optional_params = (
+        "wheel_base_m",
+        "wheel_radius_m",
+        "max_wheel_speed_rad_s",
+        "initial_pose",
+        "wheel_time_constant_s",
+        "effectiveness",
+    )
     role = "plant"
     inputs = ("wheel_speed_left", "wheel_speed_right")
     outputs = ("pose", "wheel_speeds")

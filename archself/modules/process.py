@@ -474,8 +474,13 @@ class LevelObserver(RuntimeModule):
     (1.0, 0.0)
     """
 
-    optional_params = ("initial_level_m", "correction_gain", "innovation_window_s",
-                       "handover_gain", "handover_s")
+    optional_params = (
+        "initial_level_m",
+        "correction_gain",
+        "innovation_window_s",
+        "handover_gain",
+        "handover_s",
+    )
     role = "estimator"
     inputs = ("level_measured", "flow_measured", "tank_model")
     outputs = ("level_estimate",)
@@ -674,8 +679,11 @@ class PiFeedforwardController(PiController):
     Inputs ``setpoint``, ``level_estimate``, ``flow_measured``, ``tank_model``.
     """
 
-    optional_params = (*(PiController.optional_params or ()), "adaptation_time_s",
-                       "min_effectiveness")
+    optional_params = (
+        *(PiController.optional_params or ()),
+        "adaptation_time_s",
+        "min_effectiveness",
+    )
     inputs = ("setpoint", "level_estimate", "flow_measured", "tank_model")
     optional_inputs = ()
 

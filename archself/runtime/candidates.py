@@ -45,13 +45,18 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
     return sorted(names, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
 
 
-def _where(z: Mapping[str, float], mask: np.ndarray) -> list[str]:
-    """Keys of ``z`` (in order) where ``mask``, a boolean array over its values, is True."""
-    hits = np.flatnonzero(mask).tolist()
-    if not hits:
+def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
+    """:func:`_ranked` of the keys of ``z`` where ``mask`` (over ``values``) is True."""
+    hits = mask.nonzero()[0]
+    if not hits.size:
         return []
     keys = list(z)
-    return [keys[i] for i in hits]
+    names = [keys[i] for i in hits.tolist()]
+    if len(names) == 1:
+        return names
+    mags = np.abs(values[hits]).tolist()
+    order = sorted(zip(mags, names, strict=True), key=lambda p: (-float(f"{p[0]:.12g}"), p[1]))
+    return [n for _, n in order]
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
@@ -104,7 +109,7 @@ class ThresholdSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return threshold_candidates(z, self.tau)
-        return _ranked(z, _where(z, np.abs(values) >= self.tau))
+        return _ranked_where(z, values, np.abs(values) >= self.tau)
 
     def describe(self) -> str:
         return f"|z| >= {self.tau:g}"
@@ -119,7 +124,7 @@ class TopKSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return top_k_candidates(z, self.k)
-        return _ranked(z, _where(z, values != 0.0))[: self.k]
+        return _ranked_where(z, values, values != 0.0)[: self.k]
 
     def describe(self) -> str:
         return f"top {self.k} by |z|"
@@ -158,7 +163,8 @@ class HysteresisSelector(CandidateSelector):
         if values is None:
             enter = {n for n, v in z.items() if abs(v) >= self.on}
         else:
-            enter = set(_where(z, np.abs(values) >= self.on))
+            keys = list(z)
+            enter = {keys[i] for i in (np.abs(values) >= self.on).nonzero()[0].tolist()}
         self.members = keep | enter
         return _ranked(z, self.members)
 

@@ -106,6 +106,10 @@ class ValueMap(Mapping[str, float]):
     def __contains__(self, name: object) -> bool:
         return name in self._index
 
+    def get(self, name: str, default: Any = None) -> Any:
+        i = self._index.get(name)
+        return default if i is None else float(self._values[i])
+
     def __iter__(self) -> Iterator[str]:
         return iter(self._names)
 
