@@ -233,6 +233,8 @@ class StatusMap(Mapping[str, ModuleStatus]):
     finding : numpy.ndarray of int
         Positions of the active modules that are unavailable, have an unusable
         residual signal or violate a constraint, ascending.
+    unavailable : set of str, optional
+        The names where ``available`` is False, if the caller knows them.
     """
 
     def __init__(
@@ -246,6 +248,7 @@ class StatusMap(Mapping[str, ModuleStatus]):
         violations: dict[str, list[str]],
         reasons: dict[str, str | None],
         finding: np.ndarray,
+        unavailable: set[str] | None = None,
     ) -> None:
         self._names = names
         self._index = index
@@ -257,7 +260,7 @@ class StatusMap(Mapping[str, ModuleStatus]):
         self._reasons = reasons
         self._finding = finding
         self._built: dict[str, ModuleStatus] = {}
-        self._down: set[str] | None = None
+        self._down = unavailable
 
     def __getitem__(self, name: str) -> ModuleStatus:
         status = self._built.get(name)
@@ -296,7 +299,7 @@ class StatusMap(Mapping[str, ModuleStatus]):
         """Names of the modules the system reports unavailable (active or not)."""
         if self._down is None:
             names = self._names
-            self._down = {names[k] for k in np.flatnonzero(~self._available).tolist()}
+            self._down = {names[k] for k in (~self._available).nonzero()[0].tolist()}
         return self._down
 
 
@@ -552,8 +555,10 @@ class Monitor:
         available = self._true
         reasons: dict[str, str | None] = {}
         any_down = not all(avail.values())
+        down_names: set[str] = set()
         if any_down:
-            down = [index[m] for m, ok in avail.items() if not ok and m in index]
+            down_names = {m for m, ok in avail.items() if not ok and m in index}
+            down = [index[m] for m in down_names]
             available = self._true.copy()
             available[down] = False
             down_active = sorted(k for k in down if lay.active[k])
@@ -619,6 +624,7 @@ class Monitor:
             violations,
             reasons,
             flagged,
+            down_names,
         )
         return Observation(t, j_obs, j_ref, r_global, r, kappa, lay.on_names, lay.value, ok)
 

@@ -311,9 +311,12 @@ class Planner:
         chosen: Action | None = None
         chosen_eval: ActionEvaluation | None = None
         for module in candidates:
+            actions = self.by_module.get(module)
+            if not actions:
+                continue
             z_i = abs(float(state.z.get(module, 0.0)))
             r_i = abs(float(state.r.get(module, 0.0)))
-            for order, a in self.by_module.get(module, []):
+            for order, a in actions:
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
                 dest = state.configuration if a.kind == "parameter_update" else a.to
