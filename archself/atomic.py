@@ -33,7 +33,7 @@ def write_bytes(path: str | Path, data: bytes) -> None:
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
     except OSError as exc:
-        raise OutputError(f"{p}: cannot write: {exc.strerror}") from None
+        raise OutputError(f"{p}: cannot write: {exc.strerror or exc}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -47,7 +47,7 @@ def write_bytes(path: str | Path, data: bytes) -> None:
         except OSError:
             pass
         if isinstance(exc, OSError):
-            raise OutputError(f"{p}: cannot write: {exc.strerror}") from None
+            raise OutputError(f"{p}: cannot write: {exc.strerror or exc}") from None
         raise
 
 
