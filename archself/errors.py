@@ -60,7 +60,7 @@ class LoadError(ArchselfError):
         super().__init__(self.__str__())
 
     def __str__(self) -> str:
-        return located(self.file, self.line, self.col, self.path, self.message)
+        return located(self.file, self.line, self.col, self.path, self.message, "error")
 
 
 class RegistryError(ArchselfError):
