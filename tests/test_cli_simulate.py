@@ -111,3 +111,11 @@ def test_plugin_type_runs_in_a_simulation(tmp_path: Path) -> None:
     assert CliRunner().invoke(app, ["validate", str(arch)]).exit_code == 0
     out = _json([str(arch), "--scenario", "calm", "--fixed"])
     assert out["metrics"]["max_error_m"] < 0.5
+
+
+@pytest.mark.parametrize("command", [["simulate", "-s", "calm"], ["report", "-o", "out"]])
+def test_missing_architecture_is_one_located_error(command: list[str], tmp_path: Path) -> None:
+    missing = str(tmp_path / "nope.yaml")
+    result = CliRunner().invoke(app, [command[0], missing, *command[1:]])
+    assert result.exit_code == 1
+    assert result.stderr == f"{missing}: error: no such file\n"
