@@ -41,8 +41,9 @@ declared sensitivity.
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -215,12 +216,18 @@ class Planner:
 
     # ------------------------------------------------------------------ checks
     def _admissible(
-        self, a: Action, s: PlanState, deps: Mapping[str, Iterable[str]] | None = None
+        self,
+        a: Action,
+        s: PlanState,
+        deps: Mapping[str, Iterable[str]]
+        | Callable[[], Mapping[str, Iterable[str]] | None]
+        | None = None,
     ) -> tuple[str | None, str, list[str]]:
         """(rejection, detail, target modules) of the cheap checks 1–4.
 
         ``deps`` is the target configuration's dependency map (module -> modules
-        it needs), or None for the strict rule (every target module available).
+        it needs), or None for the strict rule (every target module available);
+        or a function giving it, called only when a target module is unavailable.
         """
         if a.applies_in is not None and s.configuration not in a.applies_in:
             return "not applicable", f"only in {', '.join(a.applies_in)}", []
@@ -243,7 +250,10 @@ class Planner:
             down = [m for m in target if m in off] if off else []
         else:
             down = [m for m in target if m in kappa and not kappa[m].available]
+        if down and callable(deps):
+            deps = deps()
         if down and deps is not None:
+            assert not callable(deps)
             dead = set(down)
             needed = {
                 u: sorted(m for m in target if m not in dead and u in set(deps.get(m, ())))
@@ -320,8 +330,9 @@ class Planner:
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
                 dest = state.configuration if a.kind == "parameter_update" else a.to
-                deps = self.dependencies(system, dest) if dest else None
-                reason, detail, _ = self._admissible(a, state, deps)
+                reason, detail, _ = self._admissible(
+                    a, state, functools.partial(self.dependencies, system, dest) if dest else None
+                )
                 if reason is not None:
                     ev.rejected, ev.detail = reason, detail
                     continue
