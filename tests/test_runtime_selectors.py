@@ -42,3 +42,13 @@ def test_select_with_values_matches_mapping(make) -> None:
         assert repr(list(as_map.items())) == repr(list(as_dict.items()))  # NaN != NaN
         assert as_map.get("x", 1) == 1 and repr(as_map.get("m3")) == repr(as_dict["m3"])
         assert fast.select(as_map, z) == plain.select(as_dict)
+
+
+def test_value_map_pickles_and_copies() -> None:
+    import copy
+    import pickle
+
+    m = ValueMap(["a", "b"], {"a": 0, "b": 1}, np.array([0.25, -1.5]))
+    for back in (pickle.loads(pickle.dumps(m)), copy.deepcopy(m)):
+        assert isinstance(back, ValueMap) and back == {"a": 0.25, "b": -1.5}
+        assert list(back.items()) == [("a", 0.25), ("b", -1.5)]
