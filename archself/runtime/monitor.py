@@ -30,6 +30,13 @@
 - Status indicators κ_i (:class:`ModuleStatus`): availability as the system
   reports it, whether the residual signal was usable, a confidence in [0, 1]
   (how settled the residual filter is) and violated module constraints.
+- Cost per cycle (10^4 modules in a few ms): the residual filters live in arrays
+  over the residual-carrying modules, updated module by module when few are
+  active and with numpy when many are; κ_i is a :class:`StatusMap` that builds a
+  :class:`ModuleStatus` only when one is looked up (the decision log looks up the
+  modules with a finding); what depends only on the active set is computed once
+  per set. Both paths give the numbers of :class:`ResidualFilter` and
+  :func:`module_residual` exactly (tests/test_runtime_monitor.py).
 """
 
 from __future__ import annotations
@@ -709,10 +716,3 @@ class Monitor:
             out = sens * np.maximum(np.abs(value) - nom, 0.0) / nom
         fin = np.isfinite(value)
         return out if fin.all() else np.where(fin, out, 0.0)
-
-    def _violations(self, name: str, active: frozenset[str], local: dict) -> list[str]:
-        """Constraint violations of k_i: requires/excludes and declared limits."""
-        cons = self.arch.modules[name].constraints
-        out = [f"requires {m} (inactive)" for m in cons.requires if m not in active]
-        out += [f"excludes {m} (active)" for m in cons.excludes if m in active]
-        return out + _limit_violations(cons.limits, local)
