@@ -261,7 +261,7 @@ class Planner:
             }
             down = [f"{u} (needed by {', '.join(by)})" for u, by in needed.items() if by]
         if down:
-            return "unavailable", "unavailable: " + ", ".join(down), target
+            return "unavailable", ", ".join(down), target
         reason, detail = self._constraints(target)
         if reason is not None:
             return reason, detail, target
