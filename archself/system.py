@@ -62,6 +62,7 @@ from archself.modules.base import RuntimeModule
 __all__ = ["LiveSystem", "STALE_REPEATS", "stable_hash", "module_rng"]
 
 _isfinite = math.isfinite
+_NOT_NUMERIC: set[type] = {str, bool, type(None)}  # output types _is_bad never flags
 
 #: A noisy signal repeating the same value this many times in a row is stale.
 STALE_REPEATS = 3
@@ -116,6 +117,14 @@ class _Plan:
         self.routes = routes
         self.required = required
         self.edges = edges
+        # (signal, source) pairs of the modules whose inputs pass unchanged (no edge
+        # latency or noise): the step gathers them without the general path
+        self.direct: dict[str, tuple[tuple[str, str], ...] | None] = {
+            n: None
+            if any(unc or delay for *_, unc, delay in r)
+            else tuple((carries, src) for carries, src, *_ in r)
+            for n, r in routes.items()
+        }
 
 
 def _is_bad(value: Any) -> bool:
@@ -276,6 +285,14 @@ class LiveSystem:
     def _gather(self, name: str) -> dict[str, Any]:
         outs = self.outputs
         inputs: dict[str, Any] = {}
+        direct = self._plan.direct[name]
+        if direct is not None:
+            for carries, src in direct:
+                src_out = outs.get(src)
+                val = src_out.get(carries) if src_out is not None else None
+                if val is not None or carries not in inputs:
+                    inputs[carries] = val
+            return inputs
         for carries, src, idx, unc, delay in self._plan.routes[name]:
             src_out = outs.get(src)
             val = src_out.get(carries) if src_out is not None else None
@@ -322,10 +339,16 @@ class LiveSystem:
             tp = type(v)
             if tp is float:  # inlined _is_bad for the common types (a hot loop)
                 bad = not _isfinite(v)
-            elif tp is np.ndarray and v.ndim == 1:
-                bad = v.dtype.kind == "f" and not _isfinite(sum(v.tolist()))
+            elif tp is np.ndarray:
+                bad = v.dtype.kind == "f" and not _isfinite(
+                    sum(v.tolist() if v.ndim == 1 else v.ravel().tolist())
+                )
+            elif tp in _NOT_NUMERIC:  # model objects, strings: nothing to check
+                bad = False
             else:
                 bad = _is_bad(v)
+                if not bad and not isinstance(v, (float, int, np.number)):
+                    _NOT_NUMERIC.add(tp)
             if bad:
                 self._broken.add(name)
                 return "non-finite output"
