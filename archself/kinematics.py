@@ -182,12 +182,23 @@ def tracking_error(pose, reference) -> np.ndarray:
     >>> tracking_error([1.0, 2.0, 0.1], [1.0, 0.0, np.pi / 2]).round(4)
     array([ 2.    ,  0.    , -1.4708])
     """
+    return np.array(tracking_error_floats(pose, reference))
+
+
+def tracking_error_floats(pose, reference) -> tuple[float, float, float]:
+    """:func:`tracking_error` as a tuple of floats (for per-step controller code).
+
+    Examples
+    --------
+    >>> tuple(round(e, 4) for e in tracking_error_floats([1.0, 2.0, 0.1], [1.0, 0.0, 0.0]))
+    (0.0, 2.0, 0.1)
+    """
     dx = float(pose[0]) - float(reference[0])
     dy = float(pose[1]) - float(reference[1])
     thr = float(reference[2])
     c, s = math.cos(thr), math.sin(thr)
     dth = (float(pose[2]) - thr + math.pi) % (2.0 * math.pi) - math.pi
-    return np.array([c * dx + s * dy, -s * dx + c * dy, dth])
+    return c * dx + s * dy, -s * dx + c * dy, dth
 
 
 def error_dynamics(v: float, omega: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

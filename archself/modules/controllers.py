@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from archself.kinematics import error_dynamics, tracking_error
+from archself.kinematics import error_dynamics, tracking_error_floats
 from archself.modules.base import RuntimeModule
 from archself.modules.models import Actuation, Dynamics, Kinematics
 from archself.registry import register
@@ -98,6 +98,8 @@ class LqrController(RuntimeModule):
         super().__init__(name, params, rng)
         self.v_ref = float(params.get("design_speed_mps", 0.5))
         self._gains: dict[float, np.ndarray] = {}
+        self._k_of: np.ndarray | None = None  # the gain whose rows are in _k
+        self._k: list[list[float]] = []
         self.K = self.gain(self.v_ref)
         self.signals = {"tracking_error": math.nan}
         self.last_cmd: np.ndarray | None = None
@@ -168,8 +170,11 @@ class LqrController(RuntimeModule):
         if abs(v_ref - self.v_ref) > 0.005:
             self.v_ref = v_ref
             self.K = self.gain(v_ref)
-        e0, e1, e2 = tracking_error(est, ref).tolist()
-        (k00, k01, k02), (k10, k11, k12) = self.K.tolist()
+        e0, e1, e2 = tracking_error_floats(est, ref)
+        K = self.K
+        if K is not self._k_of:  # the gain changed: refresh its float copy
+            self._k_of, self._k = K, K.tolist()
+        (k00, k01, k02), (k10, k11, k12) = self._k
         du0 = k00 * e0 + k01 * e1 + k02 * e2
         du1 = k10 * e0 + k11 * e1 + k12 * e2
         self.signals["tracking_error"] = math.hypot(
@@ -253,6 +258,8 @@ class AsymLqrController(LqrController):
         self._num = [0.0, 0.0]
         self._den = [0.0, 0.0]
         self._sent: np.ndarray | None = None
+        self._lam_of: tuple[float, float] | None = None  # (dt, τ) of the forgetting factor
+        self._lam = 1.0
 
     @property
     def effectiveness(self) -> np.ndarray:
@@ -268,7 +275,9 @@ class AsymLqrController(LqrController):
         enc = inputs.get("encoder_speeds")
         if enc is not None and self._sent is not None:
             tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
-            lam = math.exp(-dt / tau)
+            if self._lam_of != (dt, tau):
+                self._lam_of, self._lam = (dt, tau), math.exp(-dt / tau)
+            lam = self._lam
             emin = float(self.params.get("min_effectiveness", 0.3))
             num, den, eff = self._num, self._den, self._eff
             sent = self._sent.tolist()
