@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -216,14 +216,22 @@ def _run(
         adapt = MapeK(arch)
     if not show_progress:
         return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt)
+    from contextlib import ExitStack
+
     label = f"{scenario} ({'adaptive' if adaptive else 'fixed'})"
-    with typer.progressbar(length=100, label=label, file=sys.stderr) as bar:
-        state = {"done": 0}
+    with ExitStack() as stack:
+        state: dict[str, Any] = {"done": 0, "bar": None}
 
         def progress(done: int, total: int) -> None:
+            # the bar starts with the first simulated step, not before the imports and
+            # the build, so that its time estimate is that of the simulation
+            if state["bar"] is None:
+                state["bar"] = stack.enter_context(
+                    typer.progressbar(length=100, label=label, file=sys.stderr)
+                )
             pct = int(100 * done / max(total, 1))
             if pct > state["done"]:
-                bar.update(pct - state["done"])
+                state["bar"].update(pct - state["done"])
                 state["done"] = pct
 
         return run_simulation(

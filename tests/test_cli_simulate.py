@@ -119,3 +119,38 @@ def test_missing_architecture_is_one_located_error(command: list[str], tmp_path:
     result = CliRunner().invoke(app, [command[0], missing, *command[1:]])
     assert result.exit_code == 1
     assert result.stderr == f"{missing}: error: no such file\n"
+
+
+def test_progress_bar_starts_with_the_first_step(monkeypatch) -> None:
+    """The bar is created after the build, so its time estimate is the simulation's."""
+    import contextlib
+
+    import typer
+
+    import archself.cli as cli
+    import archself.sim.run as run
+    from archself.loader import load_architecture
+
+    events: list[str] = []
+    real_compile = run.compile_system
+
+    def compile_system(*args, **kwargs):
+        events.append("build")
+        return real_compile(*args, **kwargs)
+
+    @contextlib.contextmanager
+    def progressbar(**kwargs):
+        events.append("bar")
+
+        class Bar:
+            def update(self, n: int) -> None:
+                events.append(f"+{n}")
+
+        yield Bar()
+
+    monkeypatch.setattr(run, "compile_system", compile_system)
+    monkeypatch.setattr(typer, "progressbar", progressbar)
+    arch = load_architecture(MINIMAL).arch
+    cli._run(arch, "calm", None, 1, False, True)
+    assert events[:2] == ["build", "bar"]
+    assert sum(int(e[1:]) for e in events if e.startswith("+")) == 100
