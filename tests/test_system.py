@@ -6,7 +6,6 @@ import json
 import math
 import subprocess
 import sys
-import time
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -228,13 +227,11 @@ def test_compile_errors(arch):
 
 
 # ---------------------------------------------------------------- simulation
-def test_simulate_is_deterministic_and_fast(arch, tmp_path):
-    t0 = time.perf_counter()
+def test_simulate_is_deterministic(arch, tmp_path):
+    # speed is measured by bench/test_bench_sim.py, not asserted here
     a = simulate(arch, "actuator_fault", configuration="a1", seed=5)
-    elapsed = time.perf_counter() - t0
     b = simulate(arch, "actuator_fault", configuration="a1", seed=5)
     c = simulate(arch, "actuator_fault", configuration="a1", seed=6)
-    assert elapsed < 6.0  # ~1 s on an idle machine; generous for loaded CI
     assert_array_equal(a.series["J"], b.series["J"])
     assert not np.array_equal(a.series["J"], c.series["J"])
     p1, p2 = tmp_path / "a.json", tmp_path / "b.json"

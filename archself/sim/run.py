@@ -273,25 +273,29 @@ def simulate(
     switches: list[dict[str, Any]] = []
     est = ctl = None
     cur_conf = None
+    conf_from: list[tuple[int, int]] = []  # (step, configuration index) at every change
+    res_rows: list[list[float]] = []
+    nan_row = [math.nan] * len(res_mods)
     outputs = system.outputs
     for i in range(n):
         system.step()
         if system.configuration != cur_conf:
             cur_conf = system.configuration
+            conf_from.append((i, conf_index.get(cur_conf, -1)))
             est = _first_output(system, "estimator")
             ctl = _first_output(system, "controller")
             active = system.active
             modules = system.modules
             res_idx = [(j, modules[m], s) for j, (m, s) in enumerate(res_mods) if m in active]
         t_arr[i] = system.t
-        conf_arr[i] = conf_index.get(cur_conf, -1)
         a = outputs.get(act_mod, {}).get(act_sig)
         r = outputs.get(ref_mod, {}).get(ref_sig)
         if a is not None and r is not None:
             if type(a) is np.ndarray and type(r) is np.ndarray:  # the fast, common case
+                al, rl = a.tolist(), r.tolist()
                 s2 = 0.0
                 for c in comps:
-                    d = float(a[c]) - float(r[c])
+                    d = al[c] - rl[c]
                     s2 += d * d
                 J[i] = math.sqrt(s2)
             else:
@@ -302,12 +306,14 @@ def simulate(
             put("estimate", i, outputs.get(est[0], {}).get(est[1]))
         if ctl is not None:
             put("command", i, outputs.get(ctl[0], {}).get(ctl[1]))
+        row = nan_row.copy()
         for j, mod, s in res_idx:
             sigs = getattr(mod, "signals", None)
             v = sigs.get(s) if sigs is not None else None
             if v is None:
                 v = mod.local_signals().get(s, math.nan)
-            res[i, j] = v
+            row[j] = v
+        res_rows.append(row)
         if adapt is not None and (i + 1) % per == 0:
             out = adapt(system)
             if out:
@@ -315,6 +321,10 @@ def simulate(
         if progress is not None and ((i + 1) % every == 0 or i + 1 == n):
             progress(i + 1, n)
 
+    for k, (first, index) in enumerate(conf_from):
+        conf_arr[first : conf_from[k + 1][0] if k + 1 < len(conf_from) else n] = index
+    if res_rows and res_mods:
+        res[:] = np.array(res_rows, dtype=float)
     series: dict[str, np.ndarray] = {"t": t_arr, "J": J}
     for key in ("reference", "actual", "estimate", "command"):
         if key in cols:
