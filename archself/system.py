@@ -509,8 +509,8 @@ class LiveSystem:
         n = len(self._obj_comp)
         if a is None or r is None:
             return np.full(n, np.nan)
-        a = np.asarray(a, dtype=float)
-        r = np.asarray(r, dtype=float)
+        a = np.atleast_1d(np.asarray(a, dtype=float))  # a scalar signal is a 1-vector
+        r = np.atleast_1d(np.asarray(r, dtype=float))
         c = self._obj_comp
         return a[c] - r[c]
 
