@@ -358,7 +358,8 @@ class LiveSystem:
         levels = getattr(mod, "noise_levels", None)
         if heard:
             self._heard[name] = t
-            self._broken.discard(name)
+            if self._broken:
+                self._broken.discard(name)
             if levels:
                 stale = self._count_repeats(name, levels, out)
                 if stale is not None:
@@ -415,7 +416,8 @@ class LiveSystem:
                 reason = f"raised {type(exc).__name__}"
             if reason is None:
                 ok[name] = True
-                why.pop(name, None)
+                if why:
+                    why.pop(name, None)
             else:
                 ok[name] = False
                 why[name] = reason
@@ -432,7 +434,8 @@ class LiveSystem:
                         break
             if reason is None:
                 ok[name] = True
-                why.pop(name, None)
+                if why:
+                    why.pop(name, None)
             else:
                 ok[name] = False
                 why[name] = reason
