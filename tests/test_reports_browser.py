@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from archself.cli import app
 
-from conftest import FIXTURES
+from conftest import FIXTURES, ROOT
 
 CHROMIUM = Path("/usr/bin/chromium")
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed")
@@ -30,7 +30,12 @@ def pages(tmp_path_factory) -> list[Path]:
     res = runner.invoke(app, ["simulate", str(HOSTILE), "-s", "drift <script>", "--compare",
                               "--report", str(root / "run")])
     assert res.exit_code == 0, res.output
-    return sorted((root / "arch").glob("*.html")) + [root / "run" / "index.html"]
+    results = ROOT / "docs" / "campaign" / "campaign.parquet"
+    res = runner.invoke(app, ["campaign-report", str(results), "-o", str(root / "campaign"),
+                              "--expect", "imu_drift=a2"])
+    assert res.exit_code == 0, res.output
+    return sorted((root / "arch").glob("*.html")) + [root / "run" / "index.html",
+                                                     root / "campaign" / "index.html"]
 
 
 def _screenshot(page: Path, tmp: Path) -> tuple[Path, str]:
@@ -45,7 +50,7 @@ def _screenshot(page: Path, tmp: Path) -> tuple[Path, str]:
 
 
 def test_pages_render_without_console_errors(pages, tmp_path) -> None:
-    assert len(pages) == 5
+    assert len(pages) == 6
     for page in pages:
         shot, log = _screenshot(page, tmp_path)
         assert shot.is_file() and shot.stat().st_size > 5000, page
