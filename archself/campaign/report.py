@@ -460,21 +460,17 @@ def _fig_tau(tau: Mapping[str, Any], path: Path) -> bool:
                     alpha=0.35,
                     lw=1,
                 )
-                ends = (0, len(ok) - 1)
-                # both ends on one spot (e.g. every τ detects in the first cycle): one label
+                # the ends of the curve are labelled; when both sit on one spot (every τ
+                # detects in the first cycle, say) one label gives the range
                 together = len(ok) > 1 and x[0] == x[-1] and abs(y[0] - y[-1]) < 1.0
-                if k == 0 and together:
+                label = None
+                if together and k == 0:
+                    label = f"τ={ok[0]['value']:g}…{ok[-1]['value']:g}"
+                elif not together and k in (0, len(ok) - 1):
+                    label = f"τ={p['value']:g}"
+                if label is not None:
                     ax.annotate(
-                        f"τ={ok[0]['value']:g}…{ok[-1]['value']:g}",
-                        (xi, yi),
-                        textcoords="offset points",
-                        xytext=(6, 2),
-                        fontsize=7,
-                        color=color,
-                    )
-                elif k in ends and not together:
-                    ax.annotate(
-                        f"τ={p['value']:g}",
+                        label,
                         (xi, yi),
                         textcoords="offset points",
                         xytext=(6, 2),

@@ -75,6 +75,11 @@ class InnovationWindow:
         self.start = None
 
 
+def _flat(P: np.ndarray) -> list[float]:
+    """The 16 entries of a 4×4 matrix, row by row, as floats."""
+    return P.ravel().tolist()
+
+
 def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
     wl, wr = float(enc[0]), float(enc[1])
     r = kin.wheel_radius_m
@@ -315,17 +320,7 @@ class Ekf(RuntimeModule):
         q11 = q[1] * dt + 2 * sig2 * u1 * u1
         q22 = q[2] * dt + 2 * sig2 * k * k
         q33 = q[3] * dt
-        (
-            (p00, p01, p02, p03),
-            (p10, p11, p12, p13),
-            (p20, p21, p22, p23),
-            (
-                p30,
-                p31,
-                p32,
-                p33,
-            ),
-        ) = kf.P.tolist()
+        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = _flat(kf.P)
         # F P: rows 0 and 1 gain f0, f1 times row 2
         a00, a01, a02, a03 = p00 + f0 * p20, p01 + f0 * p21, p02 + f0 * p22, p03 + f0 * p23
         a10, a11, a12, a13 = p10 + f1 * p20, p11 + f1 * p21, p12 + f1 * p22, p13 + f1 * p23
@@ -350,17 +345,7 @@ class Ekf(RuntimeModule):
         """
         kf = self.kf
         x0, x1, x2, x3 = kf.x.tolist()
-        (
-            (p00, p01, p02, p03),
-            (p10, p11, p12, p13),
-            (p20, p21, p22, p23),
-            (
-                p30,
-                p31,
-                p32,
-                p33,
-            ),
-        ) = kf.P.tolist()
+        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = _flat(kf.P)
         r2 = self.r_head**2
         y = (float(heading) - (x2 + x3) + math.pi) % (2 * math.pi) - math.pi
         # P Hᵀ, S, K = P Hᵀ / S and H P
