@@ -117,6 +117,8 @@ class _Plan:
         self.routes = routes
         self.required = required
         self.edges = edges
+        # (module, whether it steps) of the publishing phases of a step
+        self.publishing = [(n, False) for n in nonft] + [(n, True) for n in order]
         # (signal, source) pairs of the modules whose inputs pass unchanged (no edge
         # latency or noise): the step gathers them without the general path
         self.direct: dict[str, tuple[tuple[str, str], ...] | None] = {
@@ -409,25 +411,15 @@ class LiveSystem:
         why = self._why
         publish = self._publish
         gather = self._gather
-        for name in plan.nonft:
+        # phases 1 and 2: the state-only outputs, then the feedthrough modules in order
+        for name, stepped in plan.publishing:
+            inputs = gather(name) if stepped else None
             try:
-                reason = publish(name, pool[name].output(t), t)
+                out = pool[name].step(t, dt, inputs) if stepped else pool[name].output(t)
+                reason = publish(name, out, t)
             except Exception as exc:  # noqa: BLE001 - a failing module must not stop the run
                 reason = f"raised {type(exc).__name__}"
-            if reason is None:
-                ok[name] = True
-                if why:
-                    why.pop(name, None)
-            else:
-                ok[name] = False
-                why[name] = reason
-        for name in plan.order:
-            inputs = gather(name)
-            try:
-                reason = publish(name, pool[name].step(t, dt, inputs), t)
-            except Exception as exc:  # noqa: BLE001
-                reason = f"raised {type(exc).__name__}"
-            if reason is None:
+            if reason is None and inputs is not None:
                 for s in req[name]:
                     if inputs.get(s) is None:
                         reason = f"lost input {s}"
@@ -439,6 +431,7 @@ class LiveSystem:
             else:
                 ok[name] = False
                 why[name] = reason
+        # phase 3: the state-only modules advance to t + dt
         for name in plan.nonft:
             inputs = gather(name)
             try:
