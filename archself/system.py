@@ -415,7 +415,8 @@ class LiveSystem:
         for name, stepped in plan.publishing:
             inputs = gather(name) if stepped else None
             try:
-                out = pool[name].step(t, dt, inputs) if stepped else pool[name].output(t)
+                mod = pool[name]
+                out = mod.output(t) if inputs is None else mod.step(t, dt, inputs)
                 reason = publish(name, out, t)
             except Exception as exc:  # noqa: BLE001 - a failing module must not stop the run
                 reason = f"raised {type(exc).__name__}"
