@@ -58,6 +58,7 @@ import numpy as np
 from archself.errors import CompileError, SimulationError
 from archself.model import Architecture
 from archself.modules.base import RuntimeModule
+from archself.objective import objective_norm
 
 __all__ = ["LiveSystem", "STALE_REPEATS", "stable_hash", "module_rng"]
 
@@ -512,8 +513,13 @@ class LiveSystem:
         return a[c] - r[c]
 
     def objective_error(self) -> float:
-        """J_obs: norm of :meth:`state_error` (NaN before the first step)."""
-        return float(np.linalg.norm(self.state_error()))
+        """J_obs: norm of :meth:`state_error` (NaN before the first step).
+
+        The same number as the run's J series at this step (:func:`objective_norm`).
+        """
+        return objective_norm(
+            self.signal(self._obj_actual), self.signal(self._obj_ref), self._obj_comp
+        )
 
     # ------------------------------------------------------------------ changes
     def apply_configuration(self, name: str) -> None:

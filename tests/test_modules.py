@@ -195,7 +195,7 @@ def test_ekf_nees_consistency():
             ]
         )
         truth = x0.copy()
-        f.kf.x = np.zeros(4)
+        f.x = np.zeros(4)
         f.started = True
         for k in range(n_steps):
             t = k * dt

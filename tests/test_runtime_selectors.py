@@ -52,3 +52,26 @@ def test_value_map_pickles_and_copies() -> None:
     for back in (pickle.loads(pickle.dumps(m)), copy.deepcopy(m)):
         assert isinstance(back, ValueMap) and back == {"a": 0.25, "b": -1.5}
         assert list(back.items()) == [("a", 0.25), ("b", -1.5)]
+
+
+def _ranked_by_rounded_key(z: dict[str, float], tau: float) -> list[str]:
+    """The ranking rule written plainly: |z| to 12 digits, descending, then the name."""
+    hits = [n for n, v in z.items() if abs(v) >= tau]
+    return sorted(hits, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_ranking_ties_to_twelve_digits_by_name(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = 30
+    base = rng.choice([0.7, 1.3, 2.832840213394304, 5.5], n)
+    # exact ties, ties in the last bits (a different BLAS), and clearly distinct values
+    noise = rng.choice([0.0, 1.0, -1.0, 1e3], n) * np.spacing(base) * rng.integers(1, 8, n)
+    names = [f"m{i:02d}" for i in rng.permutation(n)]
+    z = dict(zip(names, (base + noise) * rng.choice([1, -1], n), strict=True))
+    values = np.array(list(z.values()))
+    expected = _ranked_by_rounded_key(z, 0.55)
+    assert ThresholdSelector(0.55).select(z) == expected
+    assert ThresholdSelector(0.55).select(z, values) == expected
+    z2 = {k: v * (1 + 1e-15) for k, v in z.items()}  # the last bits of another build
+    assert ThresholdSelector(0.55).select(z2) == _ranked_by_rounded_key(z2, 0.55)

@@ -190,17 +190,17 @@ class LqrController(RuntimeModule):
         return (v - half) / r, (v + half) / r
 
     @staticmethod
-    def _limit(left: float, right: float, inputs) -> np.ndarray:
+    def _limit(left: float, right: float, inputs) -> tuple[float, float]:
         act: Actuation | None = inputs.get("actuation")
         if act is not None:
             lim = act.max_wheel_speed_rad_s
             left = min(max(left, -lim), lim)
             right = min(max(right, -lim), lim)
-        return np.array([left, right])
+        return left, right
 
     def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:
         """Wheel speeds ``[l, r]`` (rad/s) realising ``(v, ω)``, within the actuation limit."""
-        return self._limit(*self._wheel_speeds(v, w, inputs), inputs)
+        return np.array(self._limit(*self._wheel_speeds(v, w, inputs), inputs))
 
     def step(self, t, dt, inputs):
         self.dynamics = inputs.get("dynamics") or self.dynamics
@@ -257,9 +257,19 @@ class AsymLqrController(LqrController):
         self._eff = [1.0, 1.0]
         self._num = [0.0, 0.0]
         self._den = [0.0, 0.0]
-        self._sent: np.ndarray | None = None
-        self._lam_of: tuple[float, float] | None = None  # (dt, τ) of the forgetting factor
+        self._sent: tuple[float, float] | None = None  # the last command sent, as floats
+        self._lam_of: float | None = None  # the dt of the forgetting factor
         self._lam = 1.0
+        self._configure_adaptation()
+
+    def _configure_adaptation(self) -> None:
+        self._tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
+        self._emin = float(self.params.get("min_effectiveness", 0.3))
+        self._lam_of = None
+
+    def set_params(self, values: dict[str, Any]) -> None:
+        super().set_params(values)
+        self._configure_adaptation()
 
     @property
     def effectiveness(self) -> np.ndarray:
@@ -270,34 +280,37 @@ class AsymLqrController(LqrController):
     def effectiveness(self, value) -> None:
         self._eff = [float(v) for v in np.asarray(value, dtype=float).ravel()[:2]]
 
+    def _adapt(self, dt: float, enc, sent: tuple[float, float]) -> None:
+        """One recursive least-squares step of the effectiveness estimate.
+
+        ``enc`` are the measured wheel speeds, ``sent`` the command of the last step.
+        """
+        if self._lam_of != dt:
+            self._lam_of, self._lam = dt, math.exp(-dt / self._tau)
+        lam, emin = self._lam, self._emin
+        num, den, eff = self._num, self._den, self._eff
+        measured = enc.tolist() if type(enc) is np.ndarray else [float(x) for x in enc]
+        for i, c in enumerate(sent):
+            num[i] = lam * num[i] + c * float(measured[i])
+            den[i] = lam * den[i] + c * c
+            est = num[i] / den[i] if den[i] > 1e-3 else 1.0
+            eff[i] = min(max(est, emin), 1.0)
+
     def step(self, t, dt, inputs):
         self.dynamics = inputs.get("dynamics") or self.dynamics
         enc = inputs.get("encoder_speeds")
         if enc is not None and self._sent is not None:
-            tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
-            if self._lam_of != (dt, tau):
-                self._lam_of, self._lam = (dt, tau), math.exp(-dt / tau)
-            lam = self._lam
-            emin = float(self.params.get("min_effectiveness", 0.3))
-            num, den, eff = self._num, self._den, self._eff
-            sent = self._sent.tolist()
-            measured = enc.tolist() if isinstance(enc, np.ndarray) else [float(x) for x in enc]
-            for i in (0, 1):
-                c = float(sent[i])
-                num[i] = lam * num[i] + c * float(measured[i])
-                den[i] = lam * den[i] + c * c
-                est = num[i] / den[i] if den[i] > 1e-3 else 1.0
-                eff[i] = min(max(est, emin), 1.0)
+            self._adapt(dt, enc, self._sent)
         ref = inputs.get("reference")
         pose = inputs.get("pose_estimate")
         if ref is None or pose is None:
-            self._sent = self.last_cmd
-            return {"wheel_cmd": self.last_cmd}
+            last = self.last_cmd
+            self._sent = None if last is None else (float(last[0]), float(last[1]))
+            return {"wheel_cmd": last}
         v, w = self.body_command(ref, pose)
         left, right = self._wheel_speeds(v, w, inputs)
-        cmd = self._limit(left / self._eff[0], right / self._eff[1], inputs)
-        self.last_cmd = cmd
-        self._sent = cmd
+        self._sent = self._limit(left / self._eff[0], right / self._eff[1], inputs)
+        cmd = self.last_cmd = np.array(self._sent)
         return {"wheel_cmd": cmd}
 
     def export_state(self):

@@ -75,11 +75,6 @@ class InnovationWindow:
         self.start = None
 
 
-def _flat(P: np.ndarray) -> list[float]:
-    """The 16 entries of a 4×4 matrix, row by row, as floats."""
-    return P.ravel().tolist()
-
-
 def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
     wl, wr = float(enc[0]), float(enc[1])
     r = kin.wheel_radius_m
@@ -252,11 +247,12 @@ class Ekf(RuntimeModule):
         super().__init__(name, params, rng)
         from filterpy.kalman import ExtendedKalmanFilter
 
-        self.kf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
+        self._kf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
+        self._kf_live = False  # True while filterpy's copy may be newer than the floats
         self._configure()
         pose = params.get("initial_pose", [0.0, 0.0, 0.0])
-        self.kf.x = np.array([*map(float, pose), 0.0])
-        self.kf.P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
+        self.x = np.array([*map(float, pose), 0.0])
+        self.P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
         self.started = False
         self.monitor = InnovationWindow(self.window_s)
         self.signals = {"innovation": math.nan}
@@ -282,15 +278,47 @@ class Ekf(RuntimeModule):
         self.monitor.window_s = self.window_s
 
     # filterpy-style API ------------------------------------------------------
+    # The state and covariance live as plain floats (``_xs``, 4; ``_ps``, 16 row by
+    # row), on which the per-step predict and heading update run; filterpy's filter
+    # ``kf`` is brought up to date whenever it is asked for (the GPS update, or a
+    # caller), and read back before the next float update.
+    @property
+    def kf(self):
+        """The filterpy ``ExtendedKalmanFilter``, in sync with the state (may be modified)."""
+        self._pull()
+        kf = self._kf
+        kf.x = np.array(self._xs)
+        kf.P = np.array(self._ps).reshape(4, 4)
+        self._kf_live = True
+        return kf
+
+    def _pull(self) -> None:
+        if self._kf_live:
+            self._kf_live = False
+            self._xs = np.asarray(self._kf.x, dtype=float).ravel().tolist()
+            self._ps = np.asarray(self._kf.P, dtype=float).ravel().tolist()
+
     @property
     def x(self) -> np.ndarray:
-        """State ``[x, y, θ, b]``."""
-        return self.kf.x
+        """State ``[x, y, θ, b]`` (a copy; assign to change it)."""
+        self._pull()
+        return np.array(self._xs)
+
+    @x.setter
+    def x(self, value) -> None:
+        self._pull()
+        self._xs = np.asarray(value, dtype=float).ravel()[:4].tolist()
 
     @property
     def P(self) -> np.ndarray:
-        """State covariance (4×4)."""
-        return self.kf.P
+        """State covariance (4×4; a copy; assign to change it)."""
+        self._pull()
+        return np.array(self._ps).reshape(4, 4)
+
+    @P.setter
+    def P(self, value) -> None:
+        self._pull()
+        self._ps = np.asarray(value, dtype=float).reshape(4, 4).ravel().tolist()
 
     def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
         """Propagate state and covariance over ``dt`` with encoder speeds ``enc``.
@@ -302,8 +330,8 @@ class Ekf(RuntimeModule):
         same equations as ``ExtendedKalmanFilter.predict``, without 4×4 matrix
         products at every step; also free of the BLAS build's rounding).
         """
-        kf = self.kf
-        x0, x1, th, x3 = kf.x.tolist()
+        self._pull()
+        x0, x1, th, x3 = self._xs
         r, b = kin.wheel_radius_m, kin.wheel_base_m
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
         mid = th + 0.5 * w * dt
@@ -320,20 +348,18 @@ class Ekf(RuntimeModule):
         q11 = q[1] * dt + 2 * sig2 * u1 * u1
         q22 = q[2] * dt + 2 * sig2 * k * k
         q33 = q[3] * dt
-        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = _flat(kf.P)
+        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = self._ps
         # F P: rows 0 and 1 gain f0, f1 times row 2
         a00, a01, a02, a03 = p00 + f0 * p20, p01 + f0 * p21, p02 + f0 * p22, p03 + f0 * p23
         a10, a11, a12, a13 = p10 + f1 * p20, p11 + f1 * p21, p12 + f1 * p22, p13 + f1 * p23
         # (F P) Fᵀ: columns 0 and 1 gain f0, f1 times column 2; then + Q
-        kf.P = np.array(
-            [
-                [a00 + f0 * a02 + q00, a01 + f1 * a02 + q01, a02, a03],
-                [a10 + f0 * a12 + q01, a11 + f1 * a12 + q11, a12, a13],
-                [p20 + f0 * p22, p21 + f1 * p22, p22 + q22, p23],
-                [p30 + f0 * p32, p31 + f1 * p32, p32, p33 + q33],
-            ]
-        )
-        kf.x = np.array([x0 + v * dt * c, x1 + v * dt * s, th + w * dt, x3])
+        self._ps = [
+            *(a00 + f0 * a02 + q00, a01 + f1 * a02 + q01, a02, a03),
+            *(a10 + f0 * a12 + q01, a11 + f1 * a12 + q11, a12, a13),
+            *(p20 + f0 * p22, p21 + f1 * p22, p22 + q22, p23),
+            *(p30 + f0 * p32, p31 + f1 * p32, p32, p33 + q33),
+        ]
+        self._xs = [x0 + v * dt * c, x1 + v * dt * s, th + w * dt, x3]
 
     def update_heading(self, heading: float) -> None:
         """Update with an IMU heading ``h = θ + b`` (angle residual wrapped).
@@ -343,9 +369,9 @@ class Ekf(RuntimeModule):
         ``ExtendedKalmanFilter.update`` with ``H = [0, 0, 1, 1]``, Joseph form
         ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``); the GPS update goes through filterpy.
         """
-        kf = self.kf
-        x0, x1, x2, x3 = kf.x.tolist()
-        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = _flat(kf.P)
+        self._pull()
+        x0, x1, x2, x3 = self._xs
+        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = self._ps
         r2 = self.r_head**2
         y = (float(heading) - (x2 + x3) + math.pi) % (2 * math.pi) - math.pi
         # P Hᵀ, S, K = P Hᵀ / S and H P
@@ -360,44 +386,26 @@ class Ekf(RuntimeModule):
         a30, a31, a32, a33 = p30 - k3 * h0, p31 - k3 * h1, p32 - k3 * h2, p33 - k3 * h3
         # A (I − K H)ᵀ = A − (A Hᵀ) Kᵀ, then + r² K Kᵀ
         c0, c1, c2, c3 = a02 + a03, a12 + a13, a22 + a23, a32 + a33
-        kf.P = np.array(
-            [
-                [
-                    a00 - c0 * k0 + r2 * k0 * k0,
-                    a01 - c0 * k1 + r2 * k0 * k1,
-                    a02 - c0 * k2 + r2 * k0 * k2,
-                    a03 - c0 * k3 + r2 * k0 * k3,
-                ],
-                [
-                    a10 - c1 * k0 + r2 * k1 * k0,
-                    a11 - c1 * k1 + r2 * k1 * k1,
-                    a12 - c1 * k2 + r2 * k1 * k2,
-                    a13 - c1 * k3 + r2 * k1 * k3,
-                ],
-                [
-                    a20 - c2 * k0 + r2 * k2 * k0,
-                    a21 - c2 * k1 + r2 * k2 * k1,
-                    a22 - c2 * k2 + r2 * k2 * k2,
-                    a23 - c2 * k3 + r2 * k2 * k3,
-                ],
-                [
-                    a30 - c3 * k0 + r2 * k3 * k0,
-                    a31 - c3 * k1 + r2 * k3 * k1,
-                    a32 - c3 * k2 + r2 * k3 * k2,
-                    a33 - c3 * k3 + r2 * k3 * k3,
-                ],
-            ]
-        )
+        self._ps = [
+            *(a00 - c0 * k0 + r2 * k0 * k0, a01 - c0 * k1 + r2 * k0 * k1),
+            *(a02 - c0 * k2 + r2 * k0 * k2, a03 - c0 * k3 + r2 * k0 * k3),
+            *(a10 - c1 * k0 + r2 * k1 * k0, a11 - c1 * k1 + r2 * k1 * k1),
+            *(a12 - c1 * k2 + r2 * k1 * k2, a13 - c1 * k3 + r2 * k1 * k3),
+            *(a20 - c2 * k0 + r2 * k2 * k0, a21 - c2 * k1 + r2 * k2 * k1),
+            *(a22 - c2 * k2 + r2 * k2 * k2, a23 - c2 * k3 + r2 * k2 * k3),
+            *(a30 - c3 * k0 + r2 * k3 * k0, a31 - c3 * k1 + r2 * k3 * k1),
+            *(a32 - c3 * k2 + r2 * k3 * k2, a33 - c3 * k3 + r2 * k3 * k3),
+        ]
         th = x2 + k2 * y
-        kf.x = np.array(
-            [x0 + k0 * y, x1 + k1 * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + k3 * y]
-        )
+        self._xs = [x0 + k0 * y, x1 + k1 * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + k3 * y]
 
     def update_position(self, pos) -> tuple[float, float]:
         """Update with a GPS fix; returns the innovation ``z − Hx``."""
-        ex = float(pos[0]) - float(self.kf.x[0])
-        ey = float(pos[1]) - float(self.kf.x[1])
+        self._pull()
+        ex = float(pos[0]) - self._xs[0]
+        ey = float(pos[1]) - self._xs[1]
         self.kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
+        self._pull()
         return ex, ey
 
     # data flow ---------------------------------------------------------------
@@ -407,7 +415,8 @@ class Ekf(RuntimeModule):
         if self.started:
             self.predict(dt, inputs.get("encoder_speeds"), kin)
         elif heading is not None:
-            self.kf.x[2] = float(heading) - self.kf.x[3]
+            self._pull()
+            self._xs[2] = float(heading) - self._xs[3]
         self.started = True
         if heading is not None:
             self.update_heading(heading)
@@ -416,26 +425,29 @@ class Ekf(RuntimeModule):
             ex, ey = self.update_position(pos)
             self.monitor.add(t, ex, ey)
             self.signals["innovation"] = self.monitor.value()
-        x = self.kf.x
-        return {"pose_estimate": np.array([x[0], x[1], x[2]]), "covariance": self.kf.P[:3, :3]}
+        return {"pose_estimate": np.array(self._xs[:3]), "covariance": self._pose_covariance()}
+
+    def _pose_covariance(self) -> np.ndarray:
+        p = self._ps
+        return np.array([p[0:3], p[4:7], p[8:11]])
 
     def export_state(self):
-        x = self.kf.x
+        self._pull()
         return {
-            "pose": np.array([x[0], x[1], x[2]]),
-            "covariance": self.kf.P[:3, :3].copy(),
-            "imu_bias": float(x[3]),
+            "pose": np.array(self._xs[:3]),
+            "covariance": self._pose_covariance(),
+            "imu_bias": self._xs[3],
         }
 
     def import_state(self, state):
         if "pose" in state:
             pose = np.asarray(state["pose"], dtype=float)[:3]
-            self.kf.x = np.array([pose[0], pose[1], pose[2], float(state.get("imu_bias", 0.0))])
+            self.x = np.array([pose[0], pose[1], pose[2], float(state.get("imu_bias", 0.0))])
             self.started = True
         P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
         if "covariance" in state:
             P[:3, :3] += np.asarray(state["covariance"], dtype=float)[:3, :3]
-        self.kf.P = P
+        self.P = P
         self.monitor.clear()
         self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 

@@ -16,6 +16,7 @@ magnitudes by name. ``select(z, values)`` may be given ``values``, the array of
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -42,7 +43,19 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
     names = list(names)
     if len(names) < 2:
         return names
-    return sorted(names, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
+    return _by_magnitude([abs(z[n]) for n in names], names)
+
+
+def _by_magnitude(mags: list[float], names: list[str]) -> list[str]:
+    """``names`` by decreasing magnitude, magnitudes equal to 12 digits by name."""
+    pairs = sorted(zip([-m for m in mags], names, strict=True))
+    # Exact ties are already in name order. Magnitudes that differ only beyond the
+    # 12th digit are adjacent after the sort; only then is the rounded key needed.
+    for (a, _), (b, _) in itertools.pairwise(pairs):
+        if a != b and b - a <= 1e-11 * -a:
+            pairs.sort(key=lambda p: (float(f"{p[0]:.12g}"), p[1]))
+            break
+    return [n for _, n in pairs]
 
 
 def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
@@ -54,9 +67,7 @@ def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) 
     names = [keys[i] for i in hits.tolist()]
     if len(names) == 1:
         return names
-    mags = np.abs(values[hits]).tolist()
-    order = sorted(zip(mags, names, strict=True), key=lambda p: (-float(f"{p[0]:.12g}"), p[1]))
-    return [n for _, n in order]
+    return _by_magnitude(np.abs(values[hits]).tolist(), names)
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:

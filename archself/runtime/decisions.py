@@ -134,7 +134,7 @@ def _value_map(names: Sequence[str], index: Mapping[str, int], values: list[floa
     return ValueMap(names, index, np.array(values, dtype=float))
 
 
-@dataclass
+@dataclass(slots=True)
 class ActionEvaluation:
     """One action considered in the Plan stage."""
 

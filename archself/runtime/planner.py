@@ -192,6 +192,12 @@ class Planner:
         self.by_module: dict[str, list[tuple[int, Action]]] = {}
         for k, a in enumerate(arch.actions):
             self.by_module.setdefault(a.module, []).append((k, a))
+        # the configurations each action applies in, and the rejection detail elsewhere
+        self._applies: dict[int, tuple[frozenset[str], str]] = {
+            k: (frozenset(a.applies_in), f"only in {', '.join(a.applies_in)}")
+            for k, a in enumerate(arch.actions)
+            if a.applies_in is not None
+        }
         rt = arch.runtime
         self.cost_weight = rt.cost_weight
         self.dwell_s = rt.dwell_s
@@ -329,6 +335,10 @@ class Planner:
             for order, a in actions:
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
+                applies = self._applies.get(order)
+                if applies is not None and state.configuration not in applies[0]:
+                    ev.rejected, ev.detail = "not applicable", applies[1]  # check 1, cheaply
+                    continue
                 dest = state.configuration if a.kind == "parameter_update" else a.to
                 reason, detail, _ = self._admissible(
                     a, state, functools.partial(self.dependencies, system, dest) if dest else None

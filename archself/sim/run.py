@@ -30,7 +30,7 @@ import numpy as np
 from archself.compiler import compile_system
 from archself.errors import SimulationError
 from archself.model import Architecture
-from archself.objective import component_error
+from archself.objective import objective_norm
 
 __all__ = ["RunResult", "simulate", "error_metrics"]
 
@@ -290,16 +290,7 @@ def simulate(
         t_arr[i] = system.t
         a = outputs.get(act_mod, {}).get(act_sig)
         r = outputs.get(ref_mod, {}).get(ref_sig)
-        if a is not None and r is not None:
-            if type(a) is np.ndarray and type(r) is np.ndarray:  # the fast, common case
-                al, rl = a.tolist(), r.tolist()
-                s2 = 0.0
-                for c in comps:
-                    d = al[c] - rl[c]
-                    s2 += d * d
-                J[i] = math.sqrt(s2)
-            else:
-                J[i] = float(np.linalg.norm(component_error(a, r, comps)))
+        J[i] = objective_norm(a, r, comps)
         put("reference", i, r)
         put("actual", i, a)
         if est is not None:
