@@ -16,7 +16,6 @@ magnitudes by name. ``select(z, values)`` may be given ``values``, the array of
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -47,15 +46,30 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
 
 
 def _by_magnitude(mags: list[float], names: list[str]) -> list[str]:
-    """``names`` by decreasing magnitude, magnitudes equal to 12 digits by name."""
+    """``names`` by decreasing magnitude, magnitudes equal to 12 digits by name.
+
+    Sorted exactly first (exact ties are then in name order). Magnitudes equal to
+    12 digits lie within 1e-11 of each other, so they are neighbours in a run of
+    near-equal values; only such runs are re-sorted by the rounded key (rounding is
+    monotone, so the order between runs is already that of the rounded key).
+    """
     pairs = sorted(zip([-m for m in mags], names, strict=True))
-    # Exact ties are already in name order. Magnitudes that differ only beyond the
-    # 12th digit are adjacent after the sort; only then is the rounded key needed.
-    for (a, _), (b, _) in itertools.pairwise(pairs):
-        if a != b and b - a <= 1e-11 * -a:
-            pairs.sort(key=lambda p: (float(f"{p[0]:.12g}"), p[1]))
-            break
+    n = len(pairs)
+    i = 0
+    while i < n - 1:
+        j = i
+        mixed = False
+        while j < n - 1 and pairs[j + 1][0] - pairs[j][0] <= 1e-11 * -pairs[j][0]:
+            mixed = mixed or pairs[j + 1][0] != pairs[j][0]
+            j += 1
+        if mixed:
+            pairs[i : j + 1] = sorted(pairs[i : j + 1], key=_rounded_key)
+        i = j + 1
     return [n for _, n in pairs]
+
+
+def _rounded_key(pair: tuple[float, str]) -> tuple[float, str]:
+    return float(f"{pair[0]:.12g}"), pair[1]
 
 
 def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
