@@ -576,6 +576,9 @@ def generate(
 
 def main() -> None:
     """Entry point of the ``archself`` script."""
+    from archself.campaign.executors import single_thread_blas
+
+    single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
     try:
         app()
     except KeyboardInterrupt:

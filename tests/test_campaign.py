@@ -8,6 +8,7 @@ copy of the diffdrive ``actuator_fault`` scenario (the adaptive run switches at
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -20,6 +21,11 @@ from archself.campaign.driver import (
     plan_campaign,
     run_campaign,
     run_seeds,
+)
+from archself.campaign.executors import (
+    BLAS_THREAD_VARIABLES,
+    LocalExecutor,
+    single_thread_blas,
 )
 from archself.campaign.results import read_results
 from archself.campaign.sweep import (
@@ -525,3 +531,18 @@ def test_worker_parses_the_file_once_per_process(monkeypatch: pytest.MonkeyPatch
     assert all(r["error"] is None for r in rows)
     assert len(calls) == 1  # 8 runs, 2 sweep points: parsed once, validated once per point
     assert len(worker._ARCHS) == 2
+
+
+def test_single_thread_blas_keeps_a_users_choice() -> None:
+    env = {"OMP_NUM_THREADS": "4"}
+    single_thread_blas(env)
+    assert env == {"OMP_NUM_THREADS": "4", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def test_local_workers_run_single_threaded_blas() -> None:
+    # idle OpenBLAS threads spin: two workers with two threads each slowed each other
+    # by 16 %; the workers inherit the setting from the process that starts them
+    with LocalExecutor(workers=1) as ex:
+        seen = {v: ex.submit(os.getenv, v).result() for v in BLAS_THREAD_VARIABLES}
+    assert seen == {v: os.environ[v] for v in BLAS_THREAD_VARIABLES}
+    assert "1" in seen.values()
