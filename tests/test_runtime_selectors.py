@@ -32,11 +32,12 @@ def _cycles(seed: int, n: int = 40, cycles: int = 30) -> list[np.ndarray]:
         lambda: HysteresisSelector(on=0.6, off=0.3),
     ],
 )
-def test_select_with_values_matches_mapping(make) -> None:
-    names = [f"m{i}" for i in range(40)]
+@pytest.mark.parametrize("n", [12, 40, 120])  # the list path below VECTOR_MIN, numpy above
+def test_select_with_values_matches_mapping(make, n: int) -> None:
+    names = [f"m{i}" for i in range(n)]
     index = {n: i for i, n in enumerate(names)}
     plain, fast = make(), make()
-    for z in _cycles(4):
+    for z in _cycles(4, n):
         as_dict = dict(zip(names, z.tolist(), strict=True))
         as_map = ValueMap(names, index, z)
         assert repr(list(as_map.items())) == repr(list(as_dict.items()))  # NaN != NaN

@@ -17,6 +17,7 @@ magnitudes by name. ``select(z, values)`` may be given ``values``, the array of
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -72,16 +73,30 @@ def _rounded_key(pair: tuple[float, str]) -> tuple[float, str]:
     return float(f"{pair[0]:.12g}"), pair[1]
 
 
-def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
-    """:func:`_ranked` of the keys of ``z`` where ``mask`` (over ``values``) is True."""
-    hits = mask.nonzero()[0]
-    if not hits.size:
-        return []
+#: From this many modules on, the selectors test |z| with numpy; below, on a list.
+VECTOR_MIN = 48
+
+
+def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: Any) -> list[str]:
+    """:func:`_ranked` of the keys of ``z`` where ``mask`` holds.
+
+    ``mask`` is a boolean array over ``values``, or for fewer than
+    :data:`VECTOR_MIN` values a predicate on one float (numpy's per-call overhead
+    costs more than a list at that size).
+    """
     keys = list(z)
-    names = [keys[i] for i in hits.tolist()]
+    if callable(mask):
+        hits = [(v, k) for v, k in zip(values.tolist(), keys, strict=True) if mask(v)]
+        if len(hits) < 2:
+            return [k for _, k in hits]
+        return _by_magnitude([abs(v) for v, _ in hits], [k for _, k in hits])
+    index = mask.nonzero()[0]
+    if not index.size:
+        return []
+    names = [keys[i] for i in index.tolist()]
     if len(names) == 1:
         return names
-    return _by_magnitude(np.abs(values[hits]).tolist(), names)
+    return _by_magnitude(np.abs(values[index]).tolist(), names)
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
@@ -134,7 +149,10 @@ class ThresholdSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return threshold_candidates(z, self.tau)
-        return _ranked_where(z, values, np.abs(values) >= self.tau)
+        tau = self.tau
+        if len(values) < VECTOR_MIN:
+            return _ranked_where(z, values, lambda v: abs(v) >= tau)
+        return _ranked_where(z, values, np.abs(values) >= tau)
 
     def describe(self) -> str:
         return f"|z| >= {self.tau:g}"
@@ -149,6 +167,8 @@ class TopKSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return top_k_candidates(z, self.k)
+        if len(values) < VECTOR_MIN:
+            return _ranked_where(z, values, lambda v: v != 0.0)[: self.k]
         return _ranked_where(z, values, values != 0.0)[: self.k]
 
     def describe(self) -> str:
