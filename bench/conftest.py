@@ -10,8 +10,12 @@ import functools
 import re
 from pathlib import Path
 
-import numpy as np
-import pytest
+from archself.campaign.executors import single_thread_blas
+
+single_thread_blas()  # as the archself command does, before numpy loads
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"

@@ -19,7 +19,7 @@ def test_simulate_400s(benchmark, diffdrive, scenario: str, mode: str) -> None:
         adapt = MapeK(diffdrive) if mode == "adaptive" else None
         return simulate(diffdrive, scenario, adapt=adapt)
 
-    res = benchmark.pedantic(run, rounds=3, iterations=1)
+    res = benchmark.pedantic(run, rounds=7, iterations=1)
     steps = len(res.series["t"])
     benchmark.extra_info["steps"] = steps
     benchmark.extra_info["steps_per_s"] = steps / benchmark.stats.stats.mean
@@ -51,7 +51,7 @@ def test_replay_of_the_adaptive_schedule(benchmark, diffdrive, scenario: str) ->
     adaptive = simulate(diffdrive, scenario, adapt=MapeK(diffdrive))
     res = benchmark.pedantic(
         lambda: simulate(diffdrive, scenario, adapt=_Replay(adaptive.switches)),
-        rounds=3,
+        rounds=7,
         iterations=1,
     )
     assert res.final_configuration == adaptive.final_configuration

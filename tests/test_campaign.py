@@ -534,7 +534,7 @@ def test_worker_parses_the_file_once_per_process(monkeypatch: pytest.MonkeyPatch
 
 
 def test_single_thread_blas_keeps_a_users_choice() -> None:
-    env = {"OMP_NUM_THREADS": "4"}
+    env = {"OMP_NUM_THREADS": "4", "MKL_NUM_THREADS": ""}
     single_thread_blas(env)
     assert env == {"OMP_NUM_THREADS": "4", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 

@@ -209,6 +209,7 @@ class Planner:
         self._deps: dict[str, Mapping[str, Iterable[str]] | None] = {}
         # C(a) of a module set depends on the file only: computed once per set
         self._static: dict[tuple[str, ...], tuple[str | None, str]] = {}
+        self._conf_modules: dict[str, tuple[str, ...]] = {}
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
@@ -228,7 +229,7 @@ class Planner:
         deps: Mapping[str, Iterable[str]]
         | Callable[[], Mapping[str, Iterable[str]] | None]
         | None = None,
-    ) -> tuple[str | None, str, list[str]]:
+    ) -> tuple[str | None, str, tuple[str, ...]]:
         """(rejection, detail, target modules) of the cheap checks 1–4.
 
         ``deps`` is the target configuration's dependency map (module -> modules
@@ -236,20 +237,20 @@ class Planner:
         or a function giving it, called only when a target module is unavailable.
         """
         if a.applies_in is not None and s.configuration not in a.applies_in:
-            return "not applicable", f"only in {', '.join(a.applies_in)}", []
+            return "not applicable", f"only in {', '.join(a.applies_in)}", ()
         if a.kind == "parameter_update":
             if a.module not in s.active:
-                return "not applicable", f"{a.module} is not active", []
+                return "not applicable", f"{a.module} is not active", ()
             current = s.params.get(a.module, {})
             if all(current.get(k) == v for k, v in (a.set or {}).items()):
-                return "no change", "parameters already set", []
-            target = sorted(s.active)
+                return "no change", "parameters already set", ()
+            target = tuple(sorted(s.active))
         else:
             if a.to == s.configuration:
-                return "not applicable", f"already in {a.to}", []
+                return "not applicable", f"already in {a.to}", ()
             if a.to not in self.arch.configurations:
-                return "not applicable", f"unknown configuration {a.to}", []
-            target = list(self.arch.configurations[a.to].modules)
+                return "not applicable", f"unknown configuration {a.to}", ()
+            target = self._modules_of(a.to)
         kappa = s.kappa
         if isinstance(kappa, StatusMap):  # no κ object built for the available modules
             off = kappa.unavailable()
@@ -281,9 +282,18 @@ class Planner:
             )
         return None, "", target
 
-    def _constraints(self, target: list[str]) -> tuple[str | None, str]:
+    def _modules_of(self, configuration: str) -> tuple[str, ...]:
+        """The modules of a declared configuration (cached: the file does not change)."""
+        found = self._conf_modules.get(configuration)
+        if found is None:
+            found = self._conf_modules[configuration] = tuple(
+                self.arch.configurations[configuration].modules
+            )
+        return found
+
+    def _constraints(self, target: tuple[str, ...]) -> tuple[str | None, str]:
         """(``"constraint"``/``"budget"``/None, detail) of a module set, cached per set."""
-        key = tuple(target)
+        key = target
         found = self._static.get(key)
         if found is None:
             bad = constraint_violations(self.arch, target)
