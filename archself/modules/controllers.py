@@ -290,8 +290,9 @@ class AsymLqrController(LqrController):
         lam, emin = self._lam, self._emin
         num, den, eff = self._num, self._den, self._eff
         measured = enc.tolist() if type(enc) is np.ndarray else [float(x) for x in enc]
-        for i, c in enumerate(sent):
-            num[i] = lam * num[i] + c * float(measured[i])
+        for i in (0, 1):
+            c = sent[i]
+            num[i] = lam * num[i] + c * measured[i]
             den[i] = lam * den[i] + c * c
             est = num[i] / den[i] if den[i] > 1e-3 else 1.0
             eff[i] = min(max(est, emin), 1.0)
