@@ -64,7 +64,11 @@ def _by_magnitude(mags: list[float], names: list[str]) -> list[str]:
             mixed = mixed or pairs[j + 1][0] != pairs[j][0]
             j += 1
         if mixed:
-            pairs[i : j + 1] = sorted(pairs[i : j + 1], key=_rounded_key)
+            run = pairs[i : j + 1]
+            if _rounded_key(run[0])[0] == _rounded_key(run[-1])[0]:  # one bucket: by name
+                pairs[i : j + 1] = sorted(run, key=lambda p: p[1])
+            else:
+                pairs[i : j + 1] = sorted(run, key=_rounded_key)
         i = j + 1
     return [n for _, n in pairs]
 
