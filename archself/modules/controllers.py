@@ -258,14 +258,13 @@ class AsymLqrController(LqrController):
         self._num = [0.0, 0.0]
         self._den = [0.0, 0.0]
         self._sent: tuple[float, float] | None = None  # the last command sent, as floats
-        self._lam_of: float | None = None  # the dt of the forgetting factor
-        self._lam = 1.0
+        self._lam = 1.0  # forgetting factor for the step _lam_of (set by _configure_adaptation)
         self._configure_adaptation()
 
     def _configure_adaptation(self) -> None:
         self._tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
         self._emin = float(self.params.get("min_effectiveness", 0.3))
-        self._lam_of = None
+        self._lam_of: float | None = None  # the dt of _lam
 
     def set_params(self, values: dict[str, Any]) -> None:
         super().set_params(values)

@@ -41,9 +41,8 @@ declared sensitivity.
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -193,9 +192,9 @@ class Planner:
         for k, a in enumerate(arch.actions):
             self.by_module.setdefault(a.module, []).append((k, a))
         # the configurations each action applies in, and the rejection detail elsewhere
-        self._applies: dict[int, tuple[frozenset[str], str]] = {
-            k: (frozenset(a.applies_in), f"only in {', '.join(a.applies_in)}")
-            for k, a in enumerate(arch.actions)
+        self._applies: dict[str, tuple[frozenset[str], str]] = {
+            a.id: (frozenset(a.applies_in), f"only in {', '.join(a.applies_in)}")
+            for a in arch.actions
             if a.applies_in is not None
         }
         rt = arch.runtime
@@ -223,21 +222,18 @@ class Planner:
 
     # ------------------------------------------------------------------ checks
     def _admissible(
-        self,
-        a: Action,
-        s: PlanState,
-        deps: Mapping[str, Iterable[str]]
-        | Callable[[], Mapping[str, Iterable[str]] | None]
-        | None = None,
+        self, a: Action, s: PlanState, system: Any = None
     ) -> tuple[str | None, str, tuple[str, ...]]:
         """(rejection, detail, target modules) of the cheap checks 1–4.
 
-        ``deps`` is the target configuration's dependency map (module -> modules
-        it needs), or None for the strict rule (every target module available);
-        or a function giving it, called only when a target module is unavailable.
+        ``system`` gives the target configuration's dependency map (module ->
+        modules it needs, :meth:`dependencies`), asked for only when a target
+        module is unavailable; without it (or when it has none) the strict rule
+        holds: every target module must be available.
         """
-        if a.applies_in is not None and s.configuration not in a.applies_in:
-            return "not applicable", f"only in {', '.join(a.applies_in)}", ()
+        applies = self._applies.get(a.id)
+        if applies is not None and s.configuration not in applies[0]:
+            return "not applicable", applies[1], ()
         if a.kind == "parameter_update":
             if a.module not in s.active:
                 return "not applicable", f"{a.module} is not active", ()
@@ -257,10 +253,11 @@ class Planner:
             down = [m for m in target if m in off] if off else []
         else:
             down = [m for m in target if m in kappa and not kappa[m].available]
-        if down and callable(deps):
-            deps = deps()
+        deps = None
+        if down and system is not None:
+            dest = s.configuration if a.kind == "parameter_update" else a.to
+            deps = self.dependencies(system, dest) if dest else None
         if down and deps is not None:
-            assert not callable(deps)
             dead = set(down)
             needed = {
                 u: sorted(m for m in target if m not in dead and u in set(deps.get(m, ())))
@@ -345,14 +342,7 @@ class Planner:
             for order, a in actions:
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
-                applies = self._applies.get(order)
-                if applies is not None and state.configuration not in applies[0]:
-                    ev.rejected, ev.detail = "not applicable", applies[1]  # check 1, cheaply
-                    continue
-                dest = state.configuration if a.kind == "parameter_update" else a.to
-                reason, detail, _ = self._admissible(
-                    a, state, functools.partial(self.dependencies, system, dest) if dest else None
-                )
+                reason, detail, _ = self._admissible(a, state, system)
                 if reason is not None:
                     ev.rejected, ev.detail = reason, detail
                     continue
