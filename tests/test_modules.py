@@ -112,8 +112,15 @@ def test_lqr_linearization_includes_the_wheel_lag_of_the_dynamic_model():
     c = LqrController("lqr", weights, rng())
     A0, B0 = error_dynamics(0.5)
     ref = np.array([0.0, 0.0, 0.0, 0.5, 0.0])
-    c.step(0.0, 0.05, {"reference": ref, "pose_estimate": ref[:3],
-                       "dynamics": Dynamics(wheel_time_constant_s=0.2)})
+    c.step(
+        0.0,
+        0.05,
+        {
+            "reference": ref,
+            "pose_estimate": ref[:3],
+            "dynamics": Dynamics(wheel_time_constant_s=0.2),
+        },
+    )
     A = c.linearization()
     assert A.shape == (5, 5)
     assert_allclose(A[:3, :3], A0)
@@ -220,6 +227,62 @@ def test_ekf_nees_consistency():
     inside = np.mean((anees >= lo) & (anees <= hi))
     assert inside > 0.9, f"ANEES inside [{lo:.2f}, {hi:.2f}] only {inside:.0%} of the time"
     assert 3.3 < anees.mean() < 4.7
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
+    """The per-step predict and heading update written on floats are filterpy's own
+    ``predict`` (P ← F P Fᵀ + Q) and ``update`` (Joseph form) with explicit matrices."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    g = np.random.default_rng(seed)
+    kin = Kinematics()
+    f = Ekf("ekf", {"r_heading_rad": 0.01, "encoder_noise_rad_s": 0.07}, g)
+    L = g.normal(size=(4, 4))
+    P0 = L @ L.T + 0.1 * np.eye(4)  # a dense covariance
+    x0 = g.normal(size=4)
+    f.x, f.P = x0, P0
+    dt, enc = 0.05, np.array([4.0, 5.5]) + g.normal(size=2)
+    f.predict(dt, enc, kin)
+
+    r, b = kin.wheel_radius_m, kin.wheel_base_m
+    v, w = r * (enc[0] + enc[1]) / 2, r * (enc[1] - enc[0]) / b
+    mid = x0[2] + 0.5 * w * dt
+    F = np.eye(4)
+    F[0, 2], F[1, 2] = -v * dt * math.sin(mid), v * dt * math.cos(mid)
+    G = np.array(  # motion's Jacobian with respect to the two wheel speeds
+        [
+            [0.5 * r * dt * math.cos(mid)] * 2,
+            [0.5 * r * dt * math.sin(mid)] * 2,
+            [-r * dt / b, r * dt / b],
+            [0.0, 0.0],
+        ]
+    )
+    ref = ExtendedKalmanFilter(dim_x=4, dim_z=1)
+    ref.x, ref.P, ref.F = x0.copy(), P0.copy(), F
+    ref.Q = 0.07**2 * G @ G.T + np.diag(f._q2) * dt
+    ref.predict()
+    assert_allclose(f.P, ref.P, rtol=1e-12, atol=1e-14)
+    assert_allclose(f.P, f.P.T, rtol=0, atol=0)  # exactly symmetric
+    assert_allclose(
+        f.x,
+        [x0[0] + v * dt * math.cos(mid), x0[1] + v * dt * math.sin(mid), x0[2] + w * dt, x0[3]],
+        rtol=1e-13,
+    )
+
+    heading = float(f.x[2] + f.x[3] + 0.02)
+    ref.x = f.x.reshape(4, 1)
+    ref.P = f.P
+    ref.update(
+        np.array([heading]),
+        lambda x: np.array([[0.0, 0.0, 1.0, 1.0]]),
+        lambda x: np.array([x[2] + x[3]]).reshape(1, 1),
+        R=np.array([[0.01**2]]),
+    )
+    f.update_heading(heading)
+    assert_allclose(f.P, ref.P, rtol=1e-10, atol=1e-14)
+    assert_allclose(f.P, f.P.T, rtol=0, atol=0)
+    assert_allclose(f.x, ref.x.ravel(), rtol=1e-12)
 
 
 def test_ekf_handover_from_odometry():

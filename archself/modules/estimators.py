@@ -348,16 +348,19 @@ class Ekf(RuntimeModule):
         q11 = q[1] * dt + 2 * sig2 * u1 * u1
         q22 = q[2] * dt + 2 * sig2 * k * k
         q33 = q[3] * dt
-        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = self._ps
-        # F P: rows 0 and 1 gain f0, f1 times row 2
-        a00, a01, a02, a03 = p00 + f0 * p20, p01 + f0 * p21, p02 + f0 * p22, p03 + f0 * p23
-        a10, a11, a12, a13 = p10 + f1 * p20, p11 + f1 * p21, p12 + f1 * p22, p13 + f1 * p23
+        # P is symmetric: its upper triangle is read and the result's is mirrored
+        p00, p01, p02, p03, _, p11, p12, p13, _, _, p22, p23, _, _, _, p33 = self._ps
+        # F P: rows 0 and 1 gain f0, f1 times row 2 (upper part and column 2)
+        a00, a01, a02, a03 = p00 + f0 * p02, p01 + f0 * p12, p02 + f0 * p22, p03 + f0 * p23
+        a11, a12, a13 = p11 + f1 * p12, p12 + f1 * p22, p13 + f1 * p23
         # (F P) Fᵀ: columns 0 and 1 gain f0, f1 times column 2; then + Q
+        n00, n01, n11 = a00 + f0 * a02 + q00, a01 + f1 * a02 + q01, a11 + f1 * a12 + q11
+        n22, n33 = p22 + q22, p33 + q33
         self._ps = [
-            *(a00 + f0 * a02 + q00, a01 + f1 * a02 + q01, a02, a03),
-            *(a10 + f0 * a12 + q01, a11 + f1 * a12 + q11, a12, a13),
-            *(p20 + f0 * p22, p21 + f1 * p22, p22 + q22, p23),
-            *(p30 + f0 * p32, p31 + f1 * p32, p32, p33 + q33),
+            *(n00, n01, a02, a03),
+            *(n01, n11, a12, a13),
+            *(a02, a12, n22, p23),
+            *(a03, a13, p23, n33),
         ]
         self._xs = [x0 + v * dt * c, x1 + v * dt * s, th + w * dt, x3]
 
@@ -367,34 +370,34 @@ class Ekf(RuntimeModule):
         The scalar measurement runs at every step, so it is written out in
         closed form on plain floats (the same equations as
         ``ExtendedKalmanFilter.update`` with ``H = [0, 0, 1, 1]``, Joseph form
-        ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``); the GPS update goes through filterpy.
+        ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, upper triangle mirrored); the GPS
+        update goes through filterpy.
         """
         self._pull()
         x0, x1, x2, x3 = self._xs
-        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = self._ps
+        p00, p01, p02, p03, _, p11, p12, p13, _, _, p22, p23, _, _, _, p33 = self._ps  # symmetric
         r2 = self.r_head**2
         y = (float(heading) - (x2 + x3) + math.pi) % (2 * math.pi) - math.pi
-        # P Hᵀ, S, K = P Hᵀ / S and H P
-        ph0, ph1, ph2, ph3 = p02 + p03, p12 + p13, p22 + p23, p32 + p33
-        S = (ph2 + ph3) + r2
-        k0, k1, k2, k3 = ph0 / S, ph1 / S, ph2 / S, ph3 / S
-        h0, h1, h2, h3 = p20 + p30, p21 + p31, p22 + p32, p23 + p33
-        # A = (I − K H) P
+        # P Hᵀ (= (H P)ᵀ, P symmetric), S and K = P Hᵀ / S
+        h0, h1, h2, h3 = p02 + p03, p12 + p13, p22 + p23, p23 + p33
+        S = (h2 + h3) + r2
+        k0, k1, k2, k3 = h0 / S, h1 / S, h2 / S, h3 / S
+        # A = (I − K H) P: the upper triangle, and a32 for A Hᵀ
         a00, a01, a02, a03 = p00 - k0 * h0, p01 - k0 * h1, p02 - k0 * h2, p03 - k0 * h3
-        a10, a11, a12, a13 = p10 - k1 * h0, p11 - k1 * h1, p12 - k1 * h2, p13 - k1 * h3
-        a20, a21, a22, a23 = p20 - k2 * h0, p21 - k2 * h1, p22 - k2 * h2, p23 - k2 * h3
-        a30, a31, a32, a33 = p30 - k3 * h0, p31 - k3 * h1, p32 - k3 * h2, p33 - k3 * h3
-        # A (I − K H)ᵀ = A − (A Hᵀ) Kᵀ, then + r² K Kᵀ
+        a11, a12, a13 = p11 - k1 * h1, p12 - k1 * h2, p13 - k1 * h3
+        a22, a23, a32, a33 = p22 - k2 * h2, p23 - k2 * h3, p23 - k3 * h2, p33 - k3 * h3
+        # A (I − K H)ᵀ = A − (A Hᵀ) Kᵀ, then + r² K Kᵀ (symmetric: upper triangle mirrored)
         c0, c1, c2, c3 = a02 + a03, a12 + a13, a22 + a23, a32 + a33
+        n00, n01 = a00 - c0 * k0 + r2 * k0 * k0, a01 - c0 * k1 + r2 * k0 * k1
+        n02, n03 = a02 - c0 * k2 + r2 * k0 * k2, a03 - c0 * k3 + r2 * k0 * k3
+        n11, n12 = a11 - c1 * k1 + r2 * k1 * k1, a12 - c1 * k2 + r2 * k1 * k2
+        n13, n22 = a13 - c1 * k3 + r2 * k1 * k3, a22 - c2 * k2 + r2 * k2 * k2
+        n23, n33 = a23 - c2 * k3 + r2 * k2 * k3, a33 - c3 * k3 + r2 * k3 * k3
         self._ps = [
-            *(a00 - c0 * k0 + r2 * k0 * k0, a01 - c0 * k1 + r2 * k0 * k1),
-            *(a02 - c0 * k2 + r2 * k0 * k2, a03 - c0 * k3 + r2 * k0 * k3),
-            *(a10 - c1 * k0 + r2 * k1 * k0, a11 - c1 * k1 + r2 * k1 * k1),
-            *(a12 - c1 * k2 + r2 * k1 * k2, a13 - c1 * k3 + r2 * k1 * k3),
-            *(a20 - c2 * k0 + r2 * k2 * k0, a21 - c2 * k1 + r2 * k2 * k1),
-            *(a22 - c2 * k2 + r2 * k2 * k2, a23 - c2 * k3 + r2 * k2 * k3),
-            *(a30 - c3 * k0 + r2 * k3 * k0, a31 - c3 * k1 + r2 * k3 * k1),
-            *(a32 - c3 * k2 + r2 * k3 * k2, a33 - c3 * k3 + r2 * k3 * k3),
+            *(n00, n01, n02, n03),
+            *(n01, n11, n12, n13),
+            *(n02, n12, n22, n23),
+            *(n03, n13, n23, n33),
         ]
         th = x2 + k2 * y
         self._xs = [x0 + k0 * y, x1 + k1 * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + k3 * y]
