@@ -1,18 +1,17 @@
 """The module-type registry: ``type`` strings of a file → runtime classes.
 
-Built-in types register with the :func:`register` decorator when
-:mod:`archself.modules` is imported; third-party types come from the
-``archself.modules`` entry-point group (name = type key, value =
-``package.module:Class``). A type resolves only through this registry: a
-file never names a Python object to import.
-
-Importing this module and the built-in library is cheap: module classes import
-python-control and filterpy lazily, when they are instantiated.
+Every type comes from the ``archself.modules`` entry-point group (name = type
+key, value = ``package.module:Class``): the packs shipped with archself
+(``packs/``) and third-party plugins register the same way, and the core imports
+none of them. An entry point is loaded when its type is first asked for, so
+``archself validate`` imports only the types a file uses. :func:`register`
+adds a class by hand (tests, interactive use). A type resolves only through this
+registry: a file never names a Python object to import.
 """
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING
 
 from archself.errors import RegistryError
@@ -23,7 +22,7 @@ if TYPE_CHECKING:
 ENTRY_POINT_GROUP = "archself.modules"
 
 _TYPES: dict[str, type[RuntimeModule]] = {}
-_loaded = False
+_POINTS: dict[str, EntryPoint] | None = None
 
 
 def register(key: str):
@@ -53,45 +52,73 @@ def register(key: str):
 
 
 def add(key: str, cls: type[RuntimeModule]) -> None:
-    """Register ``cls`` under ``key``; registering a key twice is an error."""
-    if key in _TYPES and _TYPES[key] is not cls:
+    """Register ``cls`` under ``key``; a key taken by another class is an error."""
+    other = _TYPES.get(key)
+    if other is None and key in _points() and _points()[key].value != _qualname(cls):
+        other_name = _points()[key].value
+    elif other is not None and other is not cls:
+        other_name = _qualname(other)
+    else:
+        other_name = None
+    if other_name is not None:
         raise RegistryError(
-            f"module type {key!r} is registered twice "
-            f"({_TYPES[key].__module__}.{_TYPES[key].__qualname__} and "
-            f"{cls.__module__}.{cls.__qualname__})"
+            f"module type {key!r} is registered twice ({other_name} and {_qualname(cls)})"
         )
     cls.type_key = key
     _TYPES[key] = cls
 
 
 def unregister(key: str) -> None:
-    """Remove a type (for tests and interactive use)."""
+    """Remove a type added by hand (for tests and interactive use)."""
     _TYPES.pop(key, None)
 
 
-def _load() -> None:
-    global _loaded
-    if _loaded:
-        return
-    _loaded = True
-    import archself.modules  # noqa: F401  (registers the built-ins)
+def _qualname(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
 
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name in _TYPES:
-            raise RegistryError(
-                f"module type {ep.name!r} from entry point {ep.value!r} is registered twice"
-            )
-        try:
-            cls = ep.load()
-        except Exception as exc:  # a broken plugin must not take the tool down
-            raise RegistryError(f"plugin {ep.name!r} ({ep.value}) failed to load: {exc}") from exc
-        add(ep.name, cls)
+
+def _points() -> dict[str, EntryPoint]:
+    """Entry points by type key (read once; names only, nothing imported)."""
+    global _POINTS
+    if _POINTS is None:
+        points: dict[str, EntryPoint] = {}
+        for ep in entry_points(group=ENTRY_POINT_GROUP):
+            if ep.name in points and points[ep.name].value != ep.value:
+                raise RegistryError(
+                    f"module type {ep.name!r} is registered twice "
+                    f"({points[ep.name].value} and {ep.value})"
+                )
+            points[ep.name] = ep
+        _POINTS = points
+    return _POINTS
 
 
 def known_types() -> list[str]:
-    """Sorted keys of every registered type, built-in and plugin."""
-    _load()
-    return sorted(_TYPES)
+    """Sorted keys of every registered type (entry points and hand-registered)."""
+    return sorted(set(_points()) | set(_TYPES))
+
+
+def lookup(key: str) -> type[RuntimeModule] | None:
+    """The class registered under ``key``, or None; loads its entry point once.
+
+    Raises
+    ------
+    RegistryError
+        If the entry point fails to import (a broken plugin gets a message, not a traceback).
+    """
+    cls = _TYPES.get(key)
+    if cls is not None:
+        return cls
+    ep = _points().get(key)
+    if ep is None:
+        return None
+    try:
+        cls = ep.load()
+    except Exception as exc:  # a broken plugin must not take the tool down
+        raise RegistryError(f"plugin {key!r} ({ep.value}) failed to load: {exc}") from exc
+    cls.type_key = key
+    _TYPES[key] = cls
+    return cls
 
 
 def get(key: str) -> type[RuntimeModule]:
@@ -102,16 +129,7 @@ def get(key: str) -> type[RuntimeModule]:
     RegistryError
         If no type has that key; the message lists the known types.
     """
-    _load()
-    try:
-        return _TYPES[key]
-    except KeyError:
-        raise RegistryError(
-            f"unknown module type {key!r}; known types: {', '.join(sorted(_TYPES))}"
-        ) from None
-
-
-def lookup(key: str) -> type[RuntimeModule] | None:
-    """The class registered under ``key``, or None."""
-    _load()
-    return _TYPES.get(key)
+    cls = lookup(key)
+    if cls is None:
+        raise RegistryError(f"unknown module type {key!r}; known types: {', '.join(known_types())}")
+    return cls

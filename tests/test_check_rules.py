@@ -13,7 +13,7 @@ from archself.check import check, perron_root, spectrum_summary
 from archself.errors import RegistryError
 from archself.loader import load_text
 from archself.modules.base import RuntimeModule
-from archself.modules.physical import Imu
+from archself_diffdrive.physical import Imu
 
 from conftest import DIFFDRIVE, FIXTURES
 

@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 
-from archself.kinematics import (
+from archself_diffdrive.kinematics import (
     body_to_wheels,
     error_dynamics,
     integrate_pose,

@@ -12,13 +12,13 @@ from numpy.testing import assert_allclose
 from scipy.stats import chi2
 
 from archself import registry
-from archself.kinematics import error_dynamics
-from archself.modules.controllers import AsymLqrController, LqrController, lqr_gain
-from archself.modules.estimators import Ekf, InnovationWindow, Odometry
-from archself.modules.models import Dynamics, Kinematics
-from archself.modules.physical import DiffDrivePlant, Gps, WheelActuator
-from archself.modules.planner import SplinePlanner
 from archself.sim.faults import FAULT_KINDS, FaultInjector
+from archself_diffdrive.controllers import AsymLqrController, LqrController, lqr_gain
+from archself_diffdrive.estimators import Ekf, InnovationWindow, Odometry
+from archself_diffdrive.kinematics import error_dynamics
+from archself_diffdrive.models import Dynamics, Kinematics
+from archself_diffdrive.physical import DiffDrivePlant, Gps, WheelActuator
+from archself_diffdrive.planner import SplinePlanner
 
 KEYS = [
     "plant.diffdrive",

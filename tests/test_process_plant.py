@@ -19,10 +19,10 @@ import pytest
 
 from archself.check import check
 from archself.loader import load_architecture
-from archself.modules import process
 from archself.resources import data_dir, schema_path
 from archself.runtime import MapeK
 from archself.sim.run import simulate
+from archself_process import control, tank
 
 ROOT = Path(__file__).resolve().parents[1]
 ARCH_PATH = data_dir("architectures") / "process_plant.yaml"
@@ -161,9 +161,9 @@ def test_cli_compare_json(arch):
 # ------------------------------------------------------------------ module types
 def test_observer_innovation_shows_a_bias_not_noise():
     rng = np.random.default_rng(0)
-    model = process.TankModel()
-    healthy = process.LevelObserver("o", {"correction_gain": 0.02}, np.random.default_rng(1))
-    biased = process.LevelObserver("o", {"correction_gain": 0.02}, np.random.default_rng(1))
+    model = tank.TankModel()
+    healthy = control.LevelObserver("o", {"correction_gain": 0.02}, np.random.default_rng(1))
+    biased = control.LevelObserver("o", {"correction_gain": 0.02}, np.random.default_rng(1))
     for k in range(600):
         y = 1.0 + 0.005 * rng.standard_normal()
         inputs = {"flow_measured": 0.01, "tank_model": model}
@@ -174,8 +174,8 @@ def test_observer_innovation_shows_a_bias_not_noise():
 
 
 def test_feedforward_controller_estimates_valve_effectiveness():
-    ctl = process.PiFeedforwardController("c", {"kp": 3.0, "ki": 0.128}, np.random.default_rng(0))
-    model = process.TankModel()
+    ctl = control.PiFeedforwardController("c", {"kp": 3.0, "ki": 0.128}, np.random.default_rng(0))
+    model = tank.TankModel()
     q = None
     for k in range(100):
         inputs = {
@@ -191,7 +191,7 @@ def test_feedforward_controller_estimates_valve_effectiveness():
 
 
 def test_setpoint_profile_is_rate_limited():
-    sp = process.SetpointPlanner(
+    sp = control.SetpointPlanner(
         "s",
         {"steps": [[0, 1.0], [200, 1.3], [420, 1.1]], "max_rate_m_s": 0.005},
         np.random.default_rng(0),

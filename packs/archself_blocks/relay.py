@@ -10,10 +10,8 @@ from __future__ import annotations
 from typing import Any
 
 from archself.modules.base import RuntimeModule
-from archself.registry import register
 
 
-@register("generic.relay")
 class Relay(RuntimeModule):
     """A unit delay: publish ``gain`` times last step's ``signal`` input, plus noise.
 

@@ -1,9 +1,9 @@
 """Controllers: LQR on the tracking-error dynamics, and an asymmetric LQR.
 
 Both regulate ``e = [e_along, e_lateral, e_heading]`` (see
-:func:`archself.kinematics.tracking_error`) with the gain of
+:func:`archself_diffdrive.kinematics.tracking_error`) with the gain of
 ``control.lqr`` on the linearized error dynamics at the reference speed
-(:func:`archself.kinematics.error_dynamics`, straight-line point), plus
+(:func:`archself_diffdrive.kinematics.error_dynamics`, straight-line point), plus
 feed-forward of the reference speed and yaw rate:
 
     [v, ω] = [v_ref, ω_ref] − K e,   wheel_cmd = body_to_wheels(v, ω).
@@ -18,10 +18,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from archself.kinematics import error_dynamics, tracking_error_floats
 from archself.modules.base import RuntimeModule
-from archself.modules.models import Actuation, Dynamics, Kinematics
-from archself.registry import register
+from archself_diffdrive.kinematics import error_dynamics, tracking_error_floats
+from archself_diffdrive.models import Actuation, Dynamics, Kinematics
 
 __all__ = ["lqr_gain", "LqrController", "AsymLqrController"]
 
@@ -59,7 +58,6 @@ def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) ->
     return np.asarray(K, dtype=float)
 
 
-@register("controller.lqr")
 class LqrController(RuntimeModule):
     """LQR trajectory-tracking controller assuming symmetric, healthy wheels.
 
@@ -134,7 +132,7 @@ class LqrController(RuntimeModule):
         """Closed-loop matrix of the error dynamics at the current reference speed (Eq. 20).
 
         Without a dynamic model it is ``A − B K`` (3×3). With the ``dynamics`` input
-        (the wheel-speed lag τ of :class:`~archself.modules.models.Dynamics`) the
+        (the wheel-speed lag τ of :class:`~archself_diffdrive.models.Dynamics`) the
         realised body speeds ``δu_a`` lag the commanded ``−K e`` by a first-order
         lag and the closed loop is the 5×5 matrix::
 
@@ -147,7 +145,7 @@ class LqrController(RuntimeModule):
         Examples
         --------
         >>> import numpy as np
-        >>> from archself.modules.models import Dynamics
+        >>> from archself_diffdrive.models import Dynamics
         >>> c = LqrController("c", {}, np.random.default_rng(0))
         >>> c.linearization().shape
         (3, 3)
@@ -224,7 +222,6 @@ class LqrController(RuntimeModule):
             self.dynamics = state["dynamics"]
 
 
-@register("controller.asym_lqr")
 class AsymLqrController(LqrController):
     """LQR that estimates each wheel's effectiveness online and pre-compensates it.
 

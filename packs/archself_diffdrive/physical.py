@@ -12,16 +12,14 @@ import math
 
 import numpy as np
 
-from archself.kinematics import integrate_pose
 from archself.modules.base import RuntimeModule
-from archself.registry import register
+from archself_diffdrive.kinematics import integrate_pose
 
 __all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
 
 _SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "stuck", "nan"})
 
 
-@register("plant.diffdrive")
 class DiffDrivePlant(RuntimeModule):
     """Differential-drive chassis with first-order wheel-speed lag and speed limits.
 
@@ -119,7 +117,6 @@ class DiffDrivePlant(RuntimeModule):
             self.wl, self.wr = (float(w) for w in state["wheel_speeds"])
 
 
-@register("actuator.wheel")
 class WheelActuator(RuntimeModule):
     """One wheel's motor and driver: drives its side of the controller's ``wheel_cmd``.
 
@@ -179,7 +176,6 @@ class WheelActuator(RuntimeModule):
         return {self.main_output: c}
 
 
-@register("sensor.encoders")
 class WheelEncoders(RuntimeModule):
     """Wheel encoders: the real wheel speeds plus Gaussian noise.
 
@@ -214,7 +210,6 @@ class WheelEncoders(RuntimeModule):
         return {"encoder_speeds": ws + self.noise * self.rng.standard_normal(2)}
 
 
-@register("sensor.imu")
 class Imu(RuntimeModule):
     """IMU heading (integrated gyro): true heading + bias + Gaussian noise, wrapped to [-π, π).
 
@@ -256,7 +251,6 @@ class Imu(RuntimeModule):
         return {"heading": (h + math.pi) % (2.0 * math.pi) - math.pi}
 
 
-@register("sensor.gps")
 class Gps(RuntimeModule):
     """GNSS receiver: position fixes ``[x, y]`` at ``rate_hz``, None between fixes.
 

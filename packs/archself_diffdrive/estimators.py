@@ -15,8 +15,7 @@ from collections import deque
 import numpy as np
 
 from archself.modules.base import RuntimeModule
-from archself.modules.models import Kinematics
-from archself.registry import register
+from archself_diffdrive.models import Kinematics
 
 __all__ = ["InnovationWindow", "Odometry", "Ekf"]
 
@@ -81,7 +80,6 @@ def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
     return r * (wl + wr) / 2.0, r * (wr - wl) / kin.wheel_base_m
 
 
-@register("estimator.odometry")
 class Odometry(RuntimeModule):
     """Dead reckoning: encoder speeds for the distance, IMU heading for the direction.
 
@@ -194,7 +192,6 @@ class Odometry(RuntimeModule):
         self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 
 
-@register("estimator.ekf")
 class Ekf(RuntimeModule):
     """Extended Kalman filter (filterpy) on ``[x, y, θ, b]`` with the IMU bias ``b`` as a state.
 

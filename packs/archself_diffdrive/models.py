@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.modules.base import RuntimeModule
-from archself.registry import register
 
 __all__ = [
     "Kinematics",
@@ -83,7 +82,6 @@ class _ModelNode(RuntimeModule):
         self._build()
 
 
-@register("model.diffdrive_kinematics")
 class DiffDriveKinematicsModel(_ModelNode):
     """Unicycle kinematics (``wheel_base_m``, ``wheel_radius_m``) → output ``kinematics``."""
 
@@ -93,7 +91,6 @@ class DiffDriveKinematicsModel(_ModelNode):
     _key = "kinematics"
 
 
-@register("model.diffdrive_dynamics")
 class DiffDriveDynamicsModel(_ModelNode):
     """Dynamics (``mass_kg``, ``inertia_kg_m2``, ``wheel_time_constant_s``) → ``dynamics``."""
 
@@ -103,7 +100,6 @@ class DiffDriveDynamicsModel(_ModelNode):
     _key = "dynamics"
 
 
-@register("model.actuator")
 class ActuatorModel(_ModelNode):
     """Actuator limits (``max_wheel_speed_rad_s``, ``effectiveness``) → ``actuation``."""
 

@@ -7,7 +7,6 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import RuntimeModule
-from archself.registry import register
 
 __all__ = ["SplinePlanner", "spline_path"]
 
@@ -84,7 +83,6 @@ class _Table:
         return self
 
 
-@register("planner.spline")
 class SplinePlanner(RuntimeModule):
     """Smooth cubic-spline reference through ``waypoints`` at ``speed_mps``.
 
