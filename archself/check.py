@@ -20,7 +20,7 @@ offending node. The rules:
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
 * ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
 * ``parameter``: required parameters are given, every parameter is one the type
-  declares (when it declares them: ``required_params`` + ``optional_params``), and
+  declares (when it declares them: ``RuntimeModule.parameters``), and
   nominal values lie inside their spaces;
 * ``fault``: faults target modules whose type accepts that fault kind and signal;
 * ``action``: actions lead to declared configurations, their kind matches the
@@ -120,13 +120,14 @@ def _types(ctx: _Ctx) -> None:
                 ("modules", name, "type"),
             )
             continue
-        for pname in cls.required_params:
-            if pname not in mod.params:
-                ctx.add("error", "parameter",
-                        f"type '{mod.type}' needs parameter '{pname}'", ("modules", name),
-                        key=True)
-        if cls.optional_params is not None:
-            takes = (*cls.required_params, *cls.optional_params)
+        declared = cls.parameters
+        if declared is not None:
+            for pname, spec in declared.items():
+                if spec.required and pname not in mod.params:
+                    ctx.add("error", "parameter",
+                            f"type '{mod.type}' needs parameter '{pname}'", ("modules", name),
+                            key=True)
+            takes = tuple(declared)
             for pname in mod.params:
                 if pname in takes:
                     continue

@@ -22,9 +22,51 @@ modules must tolerate missing inputs.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
+
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Any = _Required()  #: the default of a parameter the file must give
+
+
+@dataclasses.dataclass(frozen=True)
+class Param:
+    """A parameter a module type declares: its default and unit, written once.
+
+    Parameters
+    ----------
+    default : object, optional
+        Value used when the file does not give one; leave it out for a parameter
+        the file must give.
+    unit : str, optional
+        Unit of the value (documentation and reports).
+    doc : str, optional
+        One line on what it sets.
+
+    Examples
+    --------
+    >>> Param(0.2, "m").required, Param().required
+    (False, True)
+    """
+
+    default: Any = REQUIRED
+    unit: str = ""
+    doc: str = ""
+
+    @property
+    def required(self) -> bool:
+        """True when the file must give the value."""
+        return self.default is REQUIRED
 
 
 class RuntimeModule:
@@ -59,8 +101,11 @@ class RuntimeModule:
         Fault kinds a scenario may inject into this module's outputs.
     direct_feedthrough : bool
         False when outputs depend only on the state (plants).
-    required_params : tuple of str
-        Parameters the file must give (the others have defaults in the class).
+    parameters : mapping of str to Param, or None
+        Every parameter the type reads, with its default and unit: the one place a
+        parameter is named. ``self.params`` holds the defaults overlaid with the
+        file's values; ``archself validate`` reports missing required and unknown
+        parameters. None (the default for plugins that predate it): not checked.
     """
 
     type_key: ClassVar[str] = ""
@@ -71,8 +116,7 @@ class RuntimeModule:
     residual_signals: ClassVar[tuple[str, ...]] = ()
     fault_kinds: ClassVar[frozenset[str]] = frozenset()
     direct_feedthrough: ClassVar[bool] = True
-    required_params: ClassVar[tuple[str, ...]] = ()
-    optional_params: ClassVar[tuple[str, ...] | None] = None  # None: parameters not checked
+    parameters: ClassVar[Mapping[str, Param] | None] = None
     #: Nominal noise level per output signal (instance attribute of sensors): a noisy
     #: signal repeating itself bit for bit is stale (see :mod:`archself.system`).
     noise_levels: dict[str, float] | None = None
@@ -81,9 +125,24 @@ class RuntimeModule:
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         self.name = name
-        self.params = dict(params)
+        self.params = self.default_params()
+        self.params.update(params)
         self.rng = rng
         self.signals: dict[str, float] = {}
+        self.configure()
+
+    @classmethod
+    def default_params(cls) -> dict[str, Any]:
+        """The declared defaults (fresh copies: a module may change its own)."""
+        return {k: copy.deepcopy(p.default) for k, p in (cls.parameters or {}).items()
+                if not p.required}
+
+    def configure(self) -> None:
+        """Derive working values from ``self.params``.
+
+        Called at the end of construction and after every :meth:`set_params`, so a
+        type that caches anything computed from its parameters does it here, once.
+        """
 
     # ----------------------------------------------------------------- data flow
     def output(self, t: float) -> dict[str, Any]:
@@ -112,5 +171,6 @@ class RuntimeModule:
         """Start from a predecessor's :meth:`export_state` (keys it does not know are ignored)."""
 
     def set_params(self, values: dict[str, Any]) -> None:
-        """Apply a parameter update at run time (``parameter_update`` action)."""
+        """Apply a parameter update at run time (``parameter_update`` action) and re-configure."""
         self.params.update(values)
+        self.configure()

@@ -9,18 +9,20 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 
 
 class Relay(RuntimeModule):
     """A unit delay: publish ``gain`` times last step's ``signal`` input, plus noise.
 
-    Parameters (``params``): ``gain`` (default 1.0), ``noise`` (default 0.0).
     Local signal ``deviation``: |output − gain·input|, the injected disturbance.
     Having no direct feedthrough, relays can form feedback loops.
     """
 
-    optional_params = ("gain", "noise")
+    parameters = {
+        "gain": Param(1.0, "", "factor on last step's input"),
+        "noise": Param(0.0, "", "standard deviation of the added white noise"),
+    }
     role = "relay"
     optional_inputs = ("signal",)
     outputs = ("signal",)
@@ -41,10 +43,10 @@ class Relay(RuntimeModule):
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         x = inputs.get("signal")
         try:
-            base = float(self.params.get("gain", 1.0)) * float(x if x is not None else 0.0)
+            base = float(self.params["gain"]) * float(x if x is not None else 0.0)
         except (TypeError, ValueError):  # a vector or junk on the wire: hold the state
             base = self.state
-        noise = float(self.params.get("noise", 0.0))
+        noise = float(self.params["noise"])
         self.state = base + (noise * float(self.rng.standard_normal()) if noise else 0.0)
         self.signals["deviation"] = abs(self.state - base)
         return {}
