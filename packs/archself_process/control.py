@@ -10,7 +10,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 from archself_process.tank import (
     _DEFAULT_MODEL,
     MeanWindow,
@@ -31,23 +31,11 @@ class LevelObserver(RuntimeModule):
 
         ĥ⁻ = ĥ + dt·(q_meas − k·sqrt(ĥ))/A,   ν = y − ĥ⁻,   ĥ = ĥ⁻ + L·dt·ν
 
-    A small gain ``L`` trusts the model: noise is filtered, and a sensor that
-    drifts away from what the flows say shows as a persistent innovation.
-
-    Parameters (``params``)
-    -----------------------
-    correction_gain : float
-        L (1/s).
-    innovation_window_s : float, optional
-        Window of the innovation monitor (default 20 s).
-    initial_level_m : float, optional
-        Start estimate; by default the first measurement.
-    handover_gain : float, optional
-        L used for ``handover_s`` seconds after the start and after a hand-over
-        (default 5·L), so the estimate converges fast to the own sensor; the
-        innovation monitor ignores these seconds.
-    handover_s : float, optional
-        Length of that boost (default 15 s).
+    A small gain ``L`` (``correction_gain``) trusts the model: noise is filtered,
+    and a sensor that drifts away from what the flows say shows as a persistent
+    innovation. For ``handover_s`` seconds after the start and after a hand-over the
+    gain is ``handover_gain``, so the estimate converges fast to the own sensor; the
+    innovation monitor ignores these seconds.
 
     Inputs ``level_measured``, ``flow_measured``, ``tank_model``. Output
     ``level_estimate`` (m). Residual signal ``innovation``: |window mean of ν| (m);
@@ -64,39 +52,34 @@ class LevelObserver(RuntimeModule):
     (1.0, 0.0)
     """
 
-    optional_params = (
-        "initial_level_m",
-        "correction_gain",
-        "innovation_window_s",
-        "handover_gain",
-        "handover_s",
-    )
+    parameters = {
+        "correction_gain": Param(0.02, "1/s", "L"),
+        "innovation_window_s": Param(20.0, "s", "window of the innovation monitor"),
+        "initial_level_m": Param(None, "m", "start estimate; None: the first measurement"),
+        "handover_gain": Param(None, "1/s", "L after a start or hand-over; None: 5·L"),
+        "handover_s": Param(15.0, "s", "length of that boost"),
+    }
     role = "estimator"
     inputs = ("level_measured", "flow_measured", "tank_model")
     outputs = ("level_estimate",)
     residual_signals = ("innovation",)
 
     def __init__(self, name, params, rng):
+        self.monitor = MeanWindow(math.nan)  # configure() sets its window
         super().__init__(name, params, rng)
-        h0 = params.get("initial_level_m")
+        h0 = self.params["initial_level_m"]
         self.h: float | None = None if h0 is None else float(h0)
         self.boost_until = -math.inf
         self._boost_pending = False
-        self._configure()
-        self.monitor = MeanWindow(self.window_s)
         self.signals = {"innovation": math.nan}
 
-    def _configure(self) -> None:
+    def configure(self) -> None:
         p = self.params
-        self.gain = float(p.get("correction_gain", 0.02))
-        self.window_s = float(p.get("innovation_window_s", 20.0))
-        self.handover_gain = float(p.get("handover_gain", 5.0 * self.gain))
-        self.handover_s = float(p.get("handover_s", 15.0))
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
-        self.monitor.window_s = self.window_s
+        self.gain = float(p["correction_gain"])
+        self.monitor.window_s = float(p["innovation_window_s"])
+        boost = p["handover_gain"]
+        self.handover_gain = 5.0 * self.gain if boost is None else float(boost)
+        self.handover_s = float(p["handover_s"])
 
     def step(self, t, dt, inputs):
         y = _f(inputs.get("level_measured"))
@@ -142,17 +125,8 @@ class PiController(RuntimeModule):
 
     ``u = kp·e + ki·∫e dt`` with ``e = h_ref − ĥ``, clipped to [0, 1]; the
     integrator is frozen while the output saturates in the direction of the error.
-    It assumes the valve delivers what it is told.
-
-    Parameters (``params``)
-    -----------------------
-    kp : float
-        Proportional gain (1/m).
-    ki : float
-        Integral gain (1/(m·s)).
-    initial_output : float, optional
-        Initial integrator value as a valve opening (default 0.4, the opening
-        that holds 1 m in the reference plant).
+    It assumes the valve delivers what it is told. The integrator starts at
+    ``initial_output``, by default the opening that holds 1 m in the reference plant.
 
     Inputs ``setpoint``, ``level_estimate``; optional ``tank_model`` (for
     :meth:`linearization`). Output ``valve_cmd``. Residual signal
@@ -167,7 +141,11 @@ class PiController(RuntimeModule):
     0.22
     """
 
-    optional_params: ClassVar[tuple[str, ...] | None] = ("kp", "ki", "initial_output")
+    parameters: ClassVar[dict[str, Param]] = {
+        "kp": Param(1.4, "1/m", "proportional gain"),
+        "ki": Param(0.05, "1/(m·s)", "integral gain"),
+        "initial_output": Param(0.4, "", "initial integrator value as a valve opening"),
+    }
     role = "controller"
     inputs: ClassVar[tuple[str, ...]] = ("setpoint", "level_estimate")
     optional_inputs: ClassVar[tuple[str, ...]] = ("tank_model",)
@@ -180,17 +158,12 @@ class PiController(RuntimeModule):
         self.h_op = 1.0
         self.last_cmd: float | None = None
         self.signals = {"tracking_error": math.nan}
-        self._configure()
-        u0 = float(params.get("initial_output", 0.4))
+        u0 = float(self.params["initial_output"])
         self.integral = u0 / self.ki if self.ki > 0 else 0.0
 
-    def _configure(self) -> None:
-        self.kp = float(self.params.get("kp", 1.4))
-        self.ki = float(self.params.get("ki", 0.05))
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
+    def configure(self) -> None:
+        self.kp = float(self.params["kp"])
+        self.ki = float(self.params["ki"])
 
     def effectiveness(self) -> float:
         """The valve effectiveness the controller assumes (1: healthy)."""
@@ -253,25 +226,17 @@ class PiFeedforwardController(PiController):
     weighted least-squares ratio of measured to commanded inflow (time constant
     ``adaptation_time_s``), clipped to ``[min_effectiveness, 1]``. A valve that
     lost part of its effectiveness is thereby seen through its flow measurements
-    and compensated, and the loop gain stays at its design value.
-
-    Parameters (``params``)
-    -----------------------
-    kp, ki : float
-        As :class:`PiController` (the integrator only trims the feed-forward).
-    adaptation_time_s : float
-        Time constant of the effectiveness estimate (s).
-    min_effectiveness : float
-        Lower clip of η̂.
+    and compensated, and the loop gain stays at its design value. ``kp`` and ``ki``
+    are as in :class:`PiController`; the integrator only trims the feed-forward.
 
     Inputs ``setpoint``, ``level_estimate``, ``flow_measured``, ``tank_model``.
     """
 
-    optional_params = (
-        *(PiController.optional_params or ()),
-        "adaptation_time_s",
-        "min_effectiveness",
-    )
+    parameters = {
+        **PiController.parameters,
+        "adaptation_time_s": Param(5.0, "s", "time constant of the effectiveness estimate"),
+        "min_effectiveness": Param(0.3, "", "lower clip of η̂"),
+    }
     inputs = ("setpoint", "level_estimate", "flow_measured", "tank_model")
     optional_inputs = ()
 
@@ -283,6 +248,11 @@ class PiFeedforwardController(PiController):
         self._sent: float | None = None
         self._ff = 0.0
         self.integral = 0.0  # the feed-forward gives the operating opening
+
+    def configure(self) -> None:
+        super().configure()
+        self.adaptation_time_s = max(float(self.params["adaptation_time_s"]), 1e-6)
+        self.min_effectiveness = float(self.params["min_effectiveness"])
 
     def effectiveness(self) -> float:
         return self.eta
@@ -305,13 +275,12 @@ class PiFeedforwardController(PiController):
         if m is not None:
             self.model = m
         if q is not None and self._sent is not None:
-            lam = math.exp(-dt / max(float(self.params.get("adaptation_time_s", 5.0)), 1e-6))
+            lam = math.exp(-dt / self.adaptation_time_s)
             sent = self._sent * self.model.max_flow_m3_s
             self._num = lam * self._num + sent * q
             self._den = lam * self._den + sent * sent
             if self._den > 1e-9:
-                emin = float(self.params.get("min_effectiveness", 0.3))
-                self.eta = min(max(self._num / self._den, emin), 1.0)
+                self.eta = min(max(self._num / self._den, self.min_effectiveness), 1.0)
         out = super().step(t, dt, inputs)
         self._sent = out["valve_cmd"]
         return out
@@ -341,15 +310,8 @@ class PiFeedforwardController(PiController):
 class SetpointPlanner(RuntimeModule):
     """Level setpoint: piecewise-constant targets approached at a limited rate.
 
-    Parameters (``params``)
-    -----------------------
-    steps : list of [t_s, level_m]
-        From time ``t_s`` on, the target is ``level_m`` (the first entry gives the
-        start value).
-    max_rate_m_s : float
-        Rate limit of the setpoint (m/s); 0 = steps.
-
-    Output ``setpoint`` ``[h_ref, dh_ref/dt]``.
+    ``steps`` is a list of ``[t_s, level_m]``: from time ``t_s`` on, the target is
+    ``level_m`` (the first entry gives the start value). Output ``setpoint`` ``[h_ref, dh_ref/dt]``.
 
     Examples
     --------
@@ -359,23 +321,16 @@ class SetpointPlanner(RuntimeModule):
     [1.0, 1.05, 1.2]
     """
 
-    optional_params = ("steps", "max_rate_m_s")
+    parameters = {
+        "steps": Param([[0.0, 1.0]], "[s, m]", "targets: [t_s, level_m] each"),
+        "max_rate_m_s": Param(0.0, "m/s", "rate limit of the setpoint; 0: steps"),
+    }
     role = "planner"
     outputs = ("setpoint",)
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._configure()
-
-    def _configure(self) -> None:
-        steps = [(float(t), float(h)) for t, h in self.params.get("steps", [[0.0, 1.0]])]
-        steps.sort()
-        self.steps = steps
-        self.rate = float(self.params.get("max_rate_m_s", 0.0))
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
+    def configure(self) -> None:
+        self.steps = sorted((float(t), float(h)) for t, h in self.params["steps"])
+        self.rate = float(self.params["max_rate_m_s"])
 
     def reference(self, t: float) -> np.ndarray:
         """``[h_ref, dh_ref/dt]`` at time ``t`` (closed form of the rate-limited steps)."""

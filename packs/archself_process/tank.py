@@ -50,15 +50,16 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 
 __all__ = [
     "TankModel",
+    "MODEL_PARAMETERS",
     "TankPlant",
     "ControlValve",
     "FlowMeter",
@@ -87,12 +88,20 @@ class TankModel:
         Inflow of the fully open healthy valve, q_max (m³/s).
     max_level_m : float
         Height of the tank (overflow above it).
+
+    Each field's default and unit are also the parameters of ``model.tank``.
     """
 
-    area_m2: float = 0.5
-    outflow_coeff: float = 0.01
-    max_flow_m3_s: float = 0.025
-    max_level_m: float = 2.5
+    area_m2: float = field(default=0.5, metadata={"unit": "m²", "doc": "cross-section A"})
+    outflow_coeff: float = field(
+        default=0.01, metadata={"unit": "m^2.5/s", "doc": "k of q_out = k·sqrt(h)"}
+    )
+    max_flow_m3_s: float = field(
+        default=0.025, metadata={"unit": "m³/s", "doc": "inflow of the fully open healthy valve"}
+    )
+    max_level_m: float = field(
+        default=2.5, metadata={"unit": "m", "doc": "tank height (overflow above it)"}
+    )
 
     def equilibrium_inflow(self, h: float) -> float:
         """Inflow that holds the level at ``h``: ``k·sqrt(h)`` (m³/s)."""
@@ -113,6 +122,11 @@ class TankModel:
 
 
 _DEFAULT_MODEL = TankModel()
+
+#: The fields of :class:`TankModel` as declared parameters (name, default, unit: written once).
+MODEL_PARAMETERS: dict[str, Param] = {
+    f.name: Param(f.default, f.metadata["unit"], f.metadata["doc"]) for f in fields(TankModel)
+}
 
 
 def tank_derivative(h: float, q_in: float, area: float, k: float) -> float:
@@ -200,25 +214,19 @@ def _f(x: Any) -> float | None:
 class TankPlant(RuntimeModule):
     """Open tank with a free drain: ``A dh/dt = q_in − k sqrt(h)``, level in ``[0, h_max]``.
 
-    Parameters (``params``)
-    -----------------------
-    area_m2 : float
-        Cross-section A (m²).
-    outflow_coeff : float
-        k (m^2.5/s).
-    max_level_m : float, optional
-        Tank height; above it the tank overflows (default 2.5 m).
-    initial_level_m : float, optional
-        Level at t = 0 (default 1.0 m).
-    substeps : int, optional
-        Euler sub-steps per step (default 4).
+    Parameters: :data:`MODEL_PARAMETERS` but the valve's ``max_flow_m3_s``, the
+    start level and the Euler sub-steps (see :attr:`parameters`).
 
     Input ``inflow`` (m³/s; None = valve closed). Outputs the true ``level``
     ``[h]`` (m) and ``inflow``: the inflow that entered during the last step
     (what a flow meter in the inlet line sees).
     """
 
-    optional_params = ("initial_level_m", "area_m2", "outflow_coeff", "max_level_m", "substeps")
+    parameters = {
+        **{k: v for k, v in MODEL_PARAMETERS.items() if k != "max_flow_m3_s"},
+        "initial_level_m": Param(1.0, "m", "level at t = 0"),
+        "substeps": Param(4, "", "Euler sub-steps per step"),
+    }
     role = "plant"
     inputs = ("inflow",)
     outputs = ("level", "inflow")
@@ -226,20 +234,15 @@ class TankPlant(RuntimeModule):
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
-        self._configure()
-        self.h = float(params.get("initial_level_m", 1.0))
+        self.h = float(self.params["initial_level_m"])
         self.q_in = self.k * math.sqrt(max(self.h, 0.0))
 
-    def _configure(self) -> None:
+    def configure(self) -> None:
         p = self.params
-        self.area = float(p.get("area_m2", 0.5))
-        self.k = float(p.get("outflow_coeff", 0.01))
-        self.h_max = float(p.get("max_level_m", 2.5))
-        self.substeps = max(1, int(p.get("substeps", 4)))
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
+        self.area = float(p["area_m2"])
+        self.k = float(p["outflow_coeff"])
+        self.h_max = float(p["max_level_m"])
+        self.substeps = max(1, int(p["substeps"]))
 
     def output(self, t):
         return {"level": np.array([self.h]), "inflow": self.q_in}
@@ -266,10 +269,7 @@ class TankPlant(RuntimeModule):
 class ControlValve(RuntimeModule):
     """Inlet control valve: ``inflow = q_max · clip(valve_cmd, 0, 1)``.
 
-    Parameters (``params``)
-    -----------------------
-    max_flow_m3_s : float
-        Inflow when fully open (m³/s).
+    Parameter ``max_flow_m3_s``: q_max, the inflow when fully open (m³/s).
 
     Input ``valve_cmd`` (0..1); optional ``flow_measured`` (m³/s, from a flow
     meter). Output ``inflow``. Residual signal ``command_error`` = |q_max·u_prev −
@@ -287,7 +287,7 @@ class ControlValve(RuntimeModule):
     0.004
     """
 
-    optional_params = ("max_flow_m3_s",)
+    parameters = {"max_flow_m3_s": MODEL_PARAMETERS["max_flow_m3_s"]}
     role = "actuator"
     inputs = ("valve_cmd",)
     optional_inputs = ("flow_measured",)
@@ -300,13 +300,11 @@ class ControlValve(RuntimeModule):
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
-        self.q_max = float(params.get("max_flow_m3_s", 0.025))
         self.prev_flow: float | None = None
         self.signals = {"command_error": math.nan}
 
-    def set_params(self, values):
-        super().set_params(values)
-        self.q_max = float(self.params.get("max_flow_m3_s", 0.025))
+    def configure(self) -> None:
+        self.q_max = float(self.params["max_flow_m3_s"])
 
     def step(self, t, dt, inputs):
         meas = _f(inputs.get("flow_measured"))
@@ -324,27 +322,18 @@ class ControlValve(RuntimeModule):
 class FlowMeter(RuntimeModule):
     """Inlet flow meter (e.g. magnetic-inductive): true inflow + Gaussian noise.
 
-    Parameters (``params``): ``noise_m3_s`` (standard deviation, m³/s).
     Input ``inflow`` (true, from the plant); output ``flow_measured``.
     """
 
-    optional_params = ("noise_m3_s",)
+    parameters = {"noise_m3_s": Param(2e-4, "m³/s", "standard deviation of the noise")}
     role = "sensor"
     inputs = ("inflow",)
     outputs = ("flow_measured",)
     fault_kinds = _SENSOR_FAULTS
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._configure()
-
-    def _configure(self):
-        self.noise = float(self.params.get("noise_m3_s", 2e-4))
+    def configure(self) -> None:
+        self.noise = float(self.params["noise_m3_s"])
         self.noise_levels = {"flow_measured": self.noise}
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
 
     def step(self, t, dt, inputs):
         q = _f(inputs.get("inflow"))
@@ -356,35 +345,24 @@ class FlowMeter(RuntimeModule):
 class LevelSensor(RuntimeModule):
     """Level transmitter (radar/ultrasonic): true level + bias + Gaussian noise.
 
-    Parameters (``params``)
-    -----------------------
-    noise_m : float
-        Standard deviation of the noise (m).
-    bias_m : float, optional
-        Built-in calibration offset (default 0); a drifting bias comes from a
-        scenario's ``bias_drift`` fault.
-
-    Input ``level`` (true); output ``level_measured`` (m).
+    ``bias_m`` is a built-in calibration offset; a drifting bias comes from a
+    scenario's ``bias_drift`` fault. Input ``level`` (true); output
+    ``level_measured`` (m).
     """
 
-    optional_params = ("noise_m", "bias_m")
+    parameters = {
+        "noise_m": Param(0.005, "m", "standard deviation of the noise"),
+        "bias_m": Param(0.0, "m", "built-in calibration offset"),
+    }
     role = "sensor"
     inputs = ("level",)
     outputs = ("level_measured",)
     fault_kinds = _SENSOR_FAULTS
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._configure()
-
-    def _configure(self):
-        self.noise = float(self.params.get("noise_m", 0.005))
-        self.bias = float(self.params.get("bias_m", 0.0))
+    def configure(self) -> None:
+        self.noise = float(self.params["noise_m"])
+        self.bias = float(self.params["bias_m"])
         self.noise_levels = {"level_measured": self.noise}
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
 
     def step(self, t, dt, inputs):
         h = _f(inputs.get("level"))
@@ -397,26 +375,23 @@ class LevelSensor(RuntimeModule):
 class TankModelNode(RuntimeModule):
     """The tank model as a node: publishes a :class:`TankModel` as ``tank_model``.
 
-    Parameters: ``area_m2``, ``outflow_coeff``, ``max_flow_m3_s``, ``max_level_m``.
+    Parameters: the fields of :class:`TankModel` (:data:`MODEL_PARAMETERS`).
+
+    Examples
+    --------
+    >>> node = TankModelNode("m", {"area_m2": 0.4}, np.random.default_rng(0))
+    >>> node.output(0.0)["tank_model"]
+    TankModel(area_m2=0.4, outflow_coeff=0.01, max_flow_m3_s=0.025, max_level_m=2.5)
     """
 
-    optional_params = tuple(TankModel.__dataclass_fields__)
+    parameters = MODEL_PARAMETERS
     role = "model"
     outputs = ("tank_model",)
     direct_feedthrough = False
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._build()
-
-    def _build(self) -> None:
-        fields = TankModel.__dataclass_fields__
-        kw = {k: float(v) for k, v in self.params.items() if k in fields}
+    def configure(self) -> None:
+        kw = {k: float(self.params[k]) for k in MODEL_PARAMETERS}
         self._out = {"tank_model": TankModel(**kw)}
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._build()
 
     def output(self, t):
         return self._out
