@@ -12,8 +12,14 @@ An action ``a_k`` is admissible only if the closed loop it leads to is stable:
   system the action is applied and the system stepped
   ``runtime.stability.horizon_steps`` times, recording
   ``V_t = ‖x_t − x_ref‖²`` from ``system.state_error()``. The mean one-step
-  change ``E[ΔV | a_k] ≈ (V_H − V_0)/H`` must satisfy
+  change ``E[ΔV | a_k]`` is estimated from *every* step of the rollout, as the
+  least-squares slope of ``V_t`` over ``t = 0 … H``, and must satisfy
   ``E[ΔV | a_k] ≤ −α‖x_0 − x_ref‖² = −α V_0`` (:func:`lyapunov_decrease`).
+  Two conditions on the second half of the rollout make the test sound against
+  trajectories that a two-point estimate ``(V_H − V_0)/H`` lets through: V must
+  not rise above ``V_0`` there (a diverging oscillation that happens to pass
+  near zero at step H), and V must not grow there (slope ≤ ``α V_0``; a
+  trajectory that turns back up late).
 
   *Near the reference* the condition cannot hold: with ``V_0 ≈ 0`` noise alone
   makes ΔV positive as often as negative, so a literal test would reject every
@@ -105,8 +111,20 @@ def eigenvalue_margin(A: Any, margin: float) -> StabilityVerdict:
     )
 
 
+def _slope(v: np.ndarray) -> float:
+    """Least-squares slope of ``v`` against its index (mean ΔV per step)."""
+    t = np.arange(v.size, dtype=float)
+    t -= t.mean()
+    return float(t @ (v - v.mean()) / (t @ t))
+
+
 def lyapunov_decrease(v: Any, alpha: float, floor: float) -> StabilityVerdict:
-    """Eq. 22–24 on a sampled ``V_0 … V_H``: ``mean ΔV ≤ −α V_0`` or ``max V ≤ floor``.
+    """Eq. 22–24 on a sampled ``V_0 … V_H``, over the whole horizon.
+
+    Accepted when ``max V ≤ floor`` (near the reference), or when all of these hold:
+    the least-squares slope of V over the rollout is ``≤ −α V_0`` (Eq. 24 with
+    every step counted); V stays ``≤ V_0`` over the second half; and V does not
+    grow over the second half (its slope there ``≤ α V_0``).
 
     Parameters
     ----------
@@ -125,16 +143,19 @@ def lyapunov_decrease(v: Any, alpha: float, floor: float) -> StabilityVerdict:
     False
     >>> lyapunov_decrease([1e-4, 2e-4, 1e-4], alpha=0.01, floor=0.25).method
     'lyapunov-floor'
+
+    A diverging period-2 oscillation that is back at zero on the last step
+    (the two-point estimate ``(V_H − V_0)/H`` would be ``−0.5``):
+
+    >>> lyapunov_decrease([4, 3, 2, 1, 0, 3, 0, 5, 0], alpha=0.01, floor=1e-6).reason
+    'V rises to 5 > V_0 = 4 in the second half of the rollout'
     """
     v = np.asarray(v, dtype=float).ravel()
     if v.size < 2 or not np.all(np.isfinite(v)):
         return StabilityVerdict(False, "error", None, None, "Lyapunov rollout gave no finite V")
-    mean_dv = float((v[-1] - v[0]) / (v.size - 1))
-    bound = -alpha * float(v[0])
-    if mean_dv <= bound:
-        return StabilityVerdict(
-            True, "lyapunov", mean_dv, bound, f"E[ΔV|a_k] = {mean_dv:.4g} ≤ −α‖x‖² = {bound:.4g}"
-        )
+    v0 = float(v[0])
+    mean_dv = _slope(v)
+    bound = -alpha * v0
     vmax = float(v.max())
     if vmax <= floor:
         return StabilityVerdict(
@@ -144,9 +165,20 @@ def lyapunov_decrease(v: Any, alpha: float, floor: float) -> StabilityVerdict:
             bound,
             f"V stays ≤ {floor:.4g} (near the reference; max V = {vmax:.4g})",
         )
-    return StabilityVerdict(
-        False, "lyapunov", mean_dv, bound, f"E[ΔV|a_k] = {mean_dv:.4g} > −α‖x‖² = {bound:.4g}"
-    )
+    tail = v[v.size // 2:]
+    tail_max = float(tail.max())
+    tail_slope = _slope(tail) if tail.size >= 2 else 0.0
+    if mean_dv > bound:
+        why = f"E[ΔV|a_k] = {mean_dv:.4g} > −α‖x‖² = {bound:.4g}"
+    elif tail_max > v0:
+        why = f"V rises to {tail_max:.4g} > V_0 = {v0:.4g} in the second half of the rollout"
+    elif tail_slope > alpha * v0:
+        why = f"V grows in the second half of the rollout (slope {tail_slope:.4g} per step)"
+    else:
+        return StabilityVerdict(
+            True, "lyapunov", mean_dv, bound, f"E[ΔV|a_k] = {mean_dv:.4g} ≤ −α‖x‖² = {bound:.4g}"
+        )
+    return StabilityVerdict(False, "lyapunov", mean_dv, bound, why)
 
 
 def _apply(system: Any, action: Any) -> None:
