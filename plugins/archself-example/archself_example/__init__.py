@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 from archself_example.level import ProportionalLevel
 
 __all__ = ["Magnetometer", "ProportionalLevel"]
@@ -18,17 +18,13 @@ __all__ = ["Magnetometer", "ProportionalLevel"]
 class Magnetometer(RuntimeModule):
     """Absolute heading from the Earth's field: noisy but free of drift.
 
-    Parameters (``params`` in the file)
-    -----------------------------------
-    noise_rad : float
-        Standard deviation of the heading noise (rad), default 0.02.
-    offset_rad : float
-        Constant hard-iron offset (rad), default 0.
-
     Inputs ``pose`` [x, y, θ]; output ``heading`` (rad).
     """
 
-    optional_params = ("noise_rad", "offset_rad")
+    parameters = {
+        "noise_rad": Param(0.02, "rad", "standard deviation of the heading noise"),
+        "offset_rad": Param(0.0, "rad", "constant hard-iron offset"),
+    }
     role = "sensor"
     inputs = ("pose",)
     outputs = ("heading",)
@@ -38,6 +34,6 @@ class Magnetometer(RuntimeModule):
         pose = inputs.get("pose")
         if pose is None:
             return {"heading": None}
-        noise = float(self.params.get("noise_rad", 0.02))
-        offset = float(self.params.get("offset_rad", 0.0))
+        noise = float(self.params["noise_rad"])
+        offset = float(self.params["offset_rad"])
         return {"heading": float(pose[2]) + offset + noise * float(self.rng.standard_normal())}

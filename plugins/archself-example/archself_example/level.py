@@ -12,23 +12,18 @@ from typing import Any
 
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 
 
 class ProportionalLevel(RuntimeModule):
     """``u = u_ff(h_ref) + kp·(h_ref − ĥ)``, clipped to a valve opening in [0, 1].
-
-    Parameters (``params`` in the file)
-    -----------------------------------
-    kp : float
-        Proportional gain (1/m), default 3.
 
     Inputs ``setpoint`` ([h_ref, ...]) and ``level_estimate``; optional ``tank_model``
     (the model node's object with ``equilibrium_inflow(h)``, ``linear(h)`` and
     ``max_flow_m3_s``). Output ``valve_cmd``. Residual signal ``tracking_error``.
     """
 
-    optional_params = ("kp",)
+    parameters = {"kp": Param(3.0, "1/m", "proportional gain")}
     role = "controller"
     inputs = ("setpoint", "level_estimate")
     optional_inputs = ("tank_model",)
@@ -41,6 +36,9 @@ class ProportionalLevel(RuntimeModule):
         self.h_op = 1.0
         self.signals = {"tracking_error": math.nan}
 
+    def configure(self) -> None:
+        self.kp = float(self.params["kp"])  # after construction and every set_params
+
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         self.model = inputs.get("tank_model", self.model)
         ref, est = inputs.get("setpoint"), inputs.get("level_estimate")
@@ -51,7 +49,7 @@ class ProportionalLevel(RuntimeModule):
         self.h_op = h_ref
         self.signals["tracking_error"] = abs(error)
         u_ff = self.model.equilibrium_inflow(h_ref) / self.model.max_flow_m3_s
-        u = u_ff + float(self.params.get("kp", 3.0)) * error
+        u = u_ff + self.kp * error
         return {"valve_cmd": min(max(u, 0.0), 1.0)}
 
     def linearization(self) -> np.ndarray | None:
@@ -59,4 +57,4 @@ class ProportionalLevel(RuntimeModule):
         if self.model is None:
             return None
         a, b = self.model.linear(self.h_op)
-        return np.array([[-a - b * float(self.params.get("kp", 3.0))]])
+        return np.array([[-a - b * self.kp]])
