@@ -12,8 +12,9 @@ from archself import registry
 from archself.check import check, perron_root, spectrum_summary
 from archself.errors import RegistryError
 from archself.loader import load_text
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.physical import Imu
+from archself_process.control import LevelObserver
 
 from conftest import DIFFDRIVE, FIXTURES
 
@@ -39,15 +40,41 @@ def test_unknown_parameter_without_a_close_match_lists_what_the_type_takes() -> 
 
 
 def test_every_built_in_type_declares_its_parameters() -> None:
-    for key in registry.known_types():
-        cls = registry.get(key)
-        if cls.__module__.startswith("archself."):
-            assert cls.optional_params is not None, key
+    shipped = [key for key in registry.known_types()
+               if registry.get(key).__module__.startswith("archself_")]
+    assert {"generic.relay", "plant.tank", "sensor.imu"} <= set(shipped)
+    undeclared = [key for key in shipped if registry.get(key).parameters is None]
+    assert undeclared == []
+
+
+def test_a_missing_required_parameter_is_a_located_error() -> None:
+    class NeedyImu(Imu):
+        parameters = {"noise_rad": Param(unit="rad", doc="noise"), "bias_rad": Param(0.0)}
+
+    registry.add("test.needy_imu", NeedyImu)
+    try:
+        text = MINIMAL.replace("type: sensor.imu}", "type: test.needy_imu}")
+        (msg,) = _findings(text, "parameter")
+        assert msg.startswith("t.yaml:10:") and ": error: modules.compass" in msg
+        assert "type 'test.needy_imu' needs parameter 'noise_rad'" in msg
+        given = text.replace("type: test.needy_imu}",
+                             "type: test.needy_imu, params: {noise_rad: {value: 0.01}}}")
+        assert _findings(given, "parameter") == []
+    finally:
+        registry.unregister("test.needy_imu")
+
+
+def test_set_params_re_runs_configure() -> None:
+    obs = LevelObserver("o", {"correction_gain": 0.02}, np.random.default_rng(0))
+    assert (obs.handover_gain, obs.monitor.window_s) == (pytest.approx(0.1), 20.0)
+    obs.set_params({"correction_gain": 0.04, "innovation_window_s": 30.0})
+    assert obs.params["correction_gain"] == 0.04
+    assert (obs.handover_gain, obs.monitor.window_s) == (pytest.approx(0.2), 30.0)
 
 
 def test_a_type_that_declares_nothing_is_not_checked() -> None:
     class Undeclared(Imu):
-        optional_params = None
+        parameters = None
 
     registry.add("test.undeclared_imu", Undeclared)
     try:
