@@ -15,6 +15,8 @@ offending node. The rules:
   required inputs over active edges, the active modules are connected, and the
   modules ``runtime.objective`` reads are active; a configuration that fills
   none of the roles the initial configuration fills gets a warning;
+* ``double-input``: no module receives the same signal over two active edges
+  of one configuration (the executor would keep only one of them);
 * ``algebraic-loop``: every cycle of active edges passes through a module
   without direct feedthrough (a plant, a delay), so the data flow can be ordered;
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
@@ -370,9 +372,15 @@ def _configurations(ctx: _Ctx) -> None:
                         (*base, "disabled_edges", i))
         active = set(names)
         edges = _active_edges(arch, cname)
-        delivered: dict[str, set[str]] = {m: set() for m in active}
-        for _, e in edges:
-            delivered[e.target].add(e.carries)
+        delivered: dict[str, dict[str, int]] = {m: {} for m in active}
+        for i, e in edges:
+            first_edge = delivered[e.target].setdefault(e.carries, i)
+            if first_edge != i:
+                other = arch.edges[first_edge].source
+                ctx.add("error", "double-input",
+                        f"configuration '{cname}': '{e.target}' receives '{e.carries}' from both "
+                        f"'{other}' and '{e.source}'; one would overwrite the other (split the "
+                        "configuration, or disable one edge with disabled_edges)", ("edges", i))
         for m in names:
             cls = ctx.types.get(m)
             if cls is None:
@@ -552,3 +560,13 @@ def _objective(ctx: _Ctx) -> None:
                 ctx.add("error", "reference",
                         f"'{mod}' has no output '{sig}' (it outputs: {', '.join(cls.outputs)})",
                         path)
+                continue
+            size = cls.output_sizes.get(sig) if cls is not None else None
+            for j, c in enumerate(obj.components):
+                if c < 0 and key == "actual":
+                    ctx.add("error", "objective", f"component {c} is negative; indices start at 0",
+                            ("runtime", "objective", "components", j))
+                elif size is not None and c >= size:
+                    ctx.add("error", "objective",
+                            f"component {c} is out of range: '{ref}' has {size} component(s) "
+                            f"(indices 0..{size - 1})", ("runtime", "objective", "components", j))

@@ -113,6 +113,9 @@ class RuntimeModule:
     inputs: ClassVar[tuple[str, ...]] = ()
     optional_inputs: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[tuple[str, ...]] = ()
+    #: Length of each vector output (a scalar is 1); lets ``validate`` check the
+    #: objective's component indices. Signals not listed are not checked.
+    output_sizes: ClassVar[Mapping[str, int]] = {}
     residual_signals: ClassVar[tuple[str, ...]] = ()
     fault_kinds: ClassVar[frozenset[str]] = frozenset()
     direct_feedthrough: ClassVar[bool] = True
