@@ -118,7 +118,7 @@ def docs(
     """Regenerate the reference pages (format.md from the schema, cli.md from this CLI)."""
     from archself.docgen import reference_pages
 
-    for name, text in reference_pages().items():
+    for name, text in reference_pages(app).items():  # docgen never imports this module
         target = folder / name
         if check:
             _write_or_check({name: text}, None, target, f"archself docs {folder}")

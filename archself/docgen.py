@@ -1,4 +1,8 @@
-"""Reference documentation generated from the schema, so that it cannot drift."""
+"""Reference pages generated from the schema and the command line, so that they cannot drift.
+
+This module imports neither :mod:`archself.cli` nor typer at import time: the command
+line passes its app to :func:`reference_pages` (``archself docs``).
+"""
 
 from __future__ import annotations
 
@@ -69,14 +73,18 @@ def format_reference() -> str:
     return render("format.md.j2", sections=sections)
 
 
-def cli_reference() -> str:
-    """Markdown reference of every ``archself`` command, from the typer app's own help."""
+def cli_reference(cli: Any) -> str:
+    """Markdown reference of every command of ``cli``, from the command line's own help.
+
+    ``cli`` is the typer app (or its click group) of :mod:`archself.cli`, passed in by
+    the caller: this module does not import the command line, which imports it.
+    """
+    import typer
     import typer.main
 
-    from archself.cli import app
     from archself.reports.render import render
 
-    group: Any = typer.main.get_command(app)
+    group: Any = typer.main.get_command(cli) if isinstance(cli, typer.Typer) else cli
     ctx = group.make_context("archself", [], resilient_parsing=True)
     ctx.max_content_width = ctx.terminal_width = 100
     commands = []
@@ -91,6 +99,13 @@ def cli_reference() -> str:
     return render("cli.md.j2", overview=group.get_help(ctx).rstrip(), commands=commands)
 
 
-def reference_pages() -> dict[str, str]:
-    """File name → content of every generated reference page in ``docs/``."""
-    return {"format.md": format_reference(), "cli.md": cli_reference()}
+def reference_pages(cli: Any = None) -> dict[str, str]:
+    """File name → content of the generated reference pages in ``docs/``.
+
+    ``format.md`` always; ``cli.md`` when the command line ``cli`` (the typer app of
+    :mod:`archself.cli`) is given: ``archself docs`` passes its own app.
+    """
+    pages = {"format.md": format_reference()}
+    if cli is not None:
+        pages["cli.md"] = cli_reference(cli)
+    return pages

@@ -110,3 +110,22 @@ def test_negative_seed_is_a_usage_error() -> None:
     assert result.exit_code == 2
     assert "--seed" in result.stderr and "greater than or equal to 0" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_docgen_does_not_import_the_command_line() -> None:
+    """cli imports docgen (``archself docs``); docgen gets the app passed, never imports cli."""
+    code = (
+        "import sys\n"
+        "from archself.docgen import reference_pages\n"
+        "assert set(reference_pages()) == {'format.md'}\n"
+        "assert 'archself.cli' not in sys.modules, 'docgen imported archself.cli'\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_cli_reference_page_is_current() -> None:
+    from archself.docgen import reference_pages
+
+    pages = reference_pages(app)
+    assert (ROOT / "docs" / "cli.md").read_text(encoding="utf-8") == pages["cli.md"]
