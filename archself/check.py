@@ -375,7 +375,9 @@ def _configurations(ctx: _Ctx) -> None:
         delivered: dict[str, dict[str, int]] = {m: {} for m in active}
         for i, e in edges:
             first_edge = delivered[e.target].setdefault(e.carries, i)
-            if first_edge != i:
+            target_cls = ctx.types.get(e.target)
+            many = target_cls is not None and e.carries in target_cls.multi_inputs
+            if first_edge != i and not many:
                 other = arch.edges[first_edge].source
                 ctx.add("error", "double-input",
                         f"configuration '{cname}': '{e.target}' receives '{e.carries}' from both "

@@ -109,6 +109,7 @@ class _Plan:
         routes: dict[str, list[tuple[str, str, int, float, int]]],
         required: dict[str, tuple[str, ...]],
         edges: list[int],
+        multi: dict[str, frozenset[str]],
     ) -> None:
         self.name = name
         self.active = active
@@ -124,10 +125,12 @@ class _Plan:
         # latency or noise): the step gathers them without the general path
         self.direct: dict[str, tuple[tuple[str, str], ...] | None] = {
             n: None
-            if any(unc or delay for *_, unc, delay in r)
+            if n in multi or any(unc or delay for *_, unc, delay in r)
             else tuple((carries, src) for carries, src, *_ in r)
             for n, r in routes.items()
         }
+        # module -> its inputs that collect a list, one value per active edge
+        self.multi = multi
 
 
 def _is_bad(value: Any) -> bool:
@@ -260,7 +263,8 @@ class LiveSystem:
             ) from None
         order = [n for n in order if n not in nonft_set]
         required = {n: tuple(classes[n].inputs) for n in active}
-        plan = _Plan(configuration, active, nonft, order, routes, required, edges)
+        multi = {n: frozenset(classes[n].multi_inputs) for n in active if classes[n].multi_inputs}
+        plan = _Plan(configuration, active, nonft, order, routes, required, edges, multi)
         self._plans[configuration] = plan
         return plan
 
@@ -296,6 +300,7 @@ class LiveSystem:
                 if val is not None or carries not in inputs:
                     inputs[carries] = val
             return inputs
+        multi = self._plan.multi.get(name, ())
         for carries, src, idx, unc, delay in self._plan.routes[name]:
             src_out = outs.get(src)
             val = src_out.get(carries) if src_out is not None else None
@@ -316,7 +321,9 @@ class LiveSystem:
                     val = val + unc * rng.standard_normal(val.shape)
                 else:
                     val = val + unc * float(rng.standard_normal())
-            if val is not None or carries not in inputs:
+            if carries in multi:
+                inputs.setdefault(carries, []).append(val)
+            elif val is not None or carries not in inputs:
                 inputs[carries] = val
         return inputs
 

@@ -93,6 +93,11 @@ class RuntimeModule:
         has no active edge delivering it.
     optional_inputs : tuple of str
         Signals the module uses when present.
+    multi_inputs : tuple of str
+        Inputs (among the two above) that may arrive over several active edges:
+        the module receives a list with one value per edge (in file order; None
+        where a source has nothing this step). Any other signal delivered by two
+        active edges is a validation error.
     outputs : tuple of str
         Signals the module publishes.
     residual_signals : tuple of str
@@ -112,6 +117,7 @@ class RuntimeModule:
     role: ClassVar[str] = "module"
     inputs: ClassVar[tuple[str, ...]] = ()
     optional_inputs: ClassVar[tuple[str, ...]] = ()
+    multi_inputs: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[tuple[str, ...]] = ()
     #: Length of each vector output (a scalar is 1); lets ``validate`` check the
     #: objective's component indices. Signals not listed are not checked.

@@ -13,9 +13,11 @@ from archself.modules.base import Param, RuntimeModule
 
 
 class Relay(RuntimeModule):
-    """A unit delay: publish ``gain`` times last step's ``signal`` input, plus noise.
+    """A unit delay: publish ``gain`` times the mean of last step's ``signal`` inputs, plus noise.
 
-    Local signal ``deviation``: |output − gain·input|, the injected disturbance.
+    ``signal`` may arrive over any number of edges (``multi_inputs``); sources
+    with nothing this step are left out of the mean (none: the input is 0), and
+    a value that is not a number makes the relay hold its state. Local signal ``deviation``: |output − gain·input|, the injected disturbance.
     Having no direct feedthrough, relays can form feedback loops.
     """
 
@@ -25,6 +27,7 @@ class Relay(RuntimeModule):
     }
     role = "relay"
     optional_inputs = ("signal",)
+    multi_inputs = ("signal",)
     outputs = ("signal",)
     residual_signals = ("deviation",)
     fault_kinds = frozenset(
@@ -41,9 +44,10 @@ class Relay(RuntimeModule):
         return {"signal": self.state}
 
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
-        x = inputs.get("signal")
+        values = [x for x in inputs.get("signal") or () if x is not None]
         try:
-            base = float(self.params["gain"]) * float(x if x is not None else 0.0)
+            mean = sum(float(x) for x in values) / len(values) if values else 0.0
+            base = float(self.params["gain"]) * mean
         except (TypeError, ValueError):  # a vector or junk on the wire: hold the state
             base = self.state
         noise = float(self.params["noise"])
