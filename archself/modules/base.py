@@ -30,7 +30,6 @@ from typing import Any, ClassVar
 import numpy as np
 
 
-
 class _Required:
     def __repr__(self) -> str:
         return "REQUIRED"

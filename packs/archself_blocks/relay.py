@@ -17,7 +17,8 @@ class Relay(RuntimeModule):
 
     ``signal`` may arrive over any number of edges (``multi_inputs``); sources
     with nothing this step are left out of the mean (none: the input is 0), and
-    a value that is not a number makes the relay hold its state. Local signal ``deviation``: |output − gain·input|, the injected disturbance.
+    a value that is not a number makes the relay hold its state. Local signal
+    ``deviation``: |output − gain·input|, the injected disturbance.
     Having no direct feedthrough, relays can form feedback loops.
     """
 
