@@ -30,13 +30,13 @@
 - Status indicators κ_i (:class:`ModuleStatus`): availability as the system
   reports it, whether the residual signal was usable, a confidence in [0, 1]
   (how settled the residual filter is) and violated module constraints.
-- Cost per cycle (10^4 modules in a few ms): the residual filters live in arrays
-  over the residual-carrying modules, updated module by module when few are
-  active and with numpy when many are; κ_i is a :class:`StatusMap` that builds a
-  :class:`ModuleStatus` only when one is looked up (the decision log looks up the
-  modules with a finding); what depends only on the active set is computed once
-  per set. Both paths give the numbers of :class:`ResidualFilter` and
-  :func:`module_residual` exactly (tests/test_runtime_monitor.py).
+- Cost per cycle (10^4 modules in a few ms): the residual filters live in numpy
+  arrays over the residual-carrying modules and are updated together; κ_i is a
+  :class:`StatusMap` that builds a :class:`ModuleStatus` only when one is looked
+  up (the decision log looks up the modules with a finding); what depends only on
+  the active set is computed once per set. The numbers are those of
+  :class:`ResidualFilter` and :func:`module_residual` exactly
+  (tests/test_runtime_monitor.py).
 """
 
 from __future__ import annotations
@@ -414,10 +414,6 @@ class _Layout:
         self.any_instant = bool(self.instant.any())
         self.tc_slot = monitor.tc_slot[self.res_on]
         self.all_ok = np.ones(self.res_on.size, dtype=bool)  # shared, never written
-        self.pos_list: list[int] = self.on_pos.tolist()
-        self.sens_list: list[float] = self.sensitivity.tolist()
-        self.nom_list: list[float] = self.nominal.tolist()
-        self.tc_list: list[float] = self.time_constant.tolist()
         # position in names -> -1 (no residual block), -2 (inactive), else compact slot
         self.slot = np.full(n, -1, dtype=np.intp)
         self.slot[monitor.res_pos] = -2
@@ -431,7 +427,6 @@ class _Layout:
         self.samples = monitor.samples[self.res_on]
         self._gain_dt: float | None = None
         self._gain = np.ones(self.res_on.size)
-        self._gains: list[float] = self._gain.tolist()
         # requires/excludes depend on the active set only; limits are read every cycle
         self.constrained: list[tuple[int, str, list[str], Mapping[str, Any]]] = []
         for k, name in monitor.constrained:
@@ -453,14 +448,8 @@ class _Layout:
         if dt != self._gain_dt:
             per_tc = np.array([filter_gain(dt, tc) for tc in monitor.tc_values], dtype=float)
             self._gain = per_tc[self.tc_slot] if per_tc.size else np.ones(0)
-            self._gains = self._gain.tolist()
             self._gain_dt = dt
         return self._gain
-
-    def gain_list(self, monitor: Monitor, dt: float) -> list[float]:
-        """:meth:`gains` as a list."""
-        self.gains(monitor, dt)
-        return self._gains
 
 
 class Monitor:
@@ -479,19 +468,11 @@ class Monitor:
         The architecture (reads ``modules.*.residual``, ``runtime``).
     names : list of str
         Index order of the residual vector.
-    vector_min : int, optional
-        Number of active residual modules from which the filters are updated as
-        numpy arrays (default :attr:`VECTOR_MIN`); below it, module by module,
-        which costs less than numpy's per-call overhead. Both give the same numbers.
     """
 
-    #: From this many active residual modules on, the filters are updated with numpy.
-    VECTOR_MIN = 48
-
-    def __init__(self, arch: Architecture, names: list[str], vector_min: int | None = None) -> None:
+    def __init__(self, arch: Architecture, names: list[str]) -> None:
         self.arch = arch
         self.names = list(names)
-        self.vector_min = self.VECTOR_MIN if vector_min is None else int(vector_min)
         self.index = {n: k for k, n in enumerate(self.names)}
         self.normalization = arch.runtime.normalization
         res = [
@@ -596,10 +577,7 @@ class Monitor:
         if lay.pairs:
             raw = _samples(local, lay)
             avail_on = available[lay.on_pos] if any_down else None
-            if len(raw) < self.vector_min:
-                ok = self._update_scalar(lay, raw, avail_on, dt, r)
-            else:
-                ok = self._update_vector(lay, raw, avail_on, dt, r)
+            ok = self._update(lay, raw, avail_on, dt, r)
             if ok is not lay.all_ok:
                 residual_ok = self._true.copy()
                 residual_ok[lay.on_pos] = ok
@@ -635,45 +613,15 @@ class Monitor:
         )
         return Observation(t, j_obs, j_ref, r_global, r, kappa, lay.on_names, lay.value, ok)
 
-    def _update_scalar(
+    def _update(
         self, lay: _Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray
     ) -> np.ndarray:
-        """Filter update and r_i module by module (few modules: cheaper than numpy calls).
+        """Filter update ``y ← y + g·(s − y)`` and r_i of the active residual modules.
 
-        Returns the usable-sample mask (``lay.all_ok`` when every sample was usable).
+        The operations of :class:`ResidualFilter` and :func:`module_residual`,
+        elementwise. Returns the usable-sample mask (``lay.all_ok`` when every
+        sample was usable).
         """
-        gains = lay.gain_list(self, dt)
-        values = lay.value.tolist()
-        counts = lay.samples.tolist()
-        valid = lay.valid_time.tolist()
-        usable = avail_on.tolist() if avail_on is not None else None
-        step = max(dt, 0.0)
-        oks = []
-        for j, item in enumerate(raw):
-            sample = _finite(item)
-            good = math.isfinite(sample) and (usable is None or usable[j])
-            oks.append(good)
-            if not good:
-                continue
-            if counts[j] == 0 and lay.tc_list[j] <= 0:
-                value = sample
-            else:
-                value = values[j] + gains[j] * (sample - values[j])
-            values[j] = value
-            counts[j] += 1
-            valid[j] += step
-            r[lay.pos_list[j]] = module_residual(
-                value, lay.sens_list[j], lay.nom_list[j], self.normalization
-            )
-        lay.value = np.array(values, dtype=float)
-        lay.samples = np.array(counts, dtype=np.int64)
-        lay.valid_time = np.array(valid, dtype=float)
-        return lay.all_ok if all(oks) else np.array(oks, dtype=bool)
-
-    def _update_vector(
-        self, lay: _Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray
-    ) -> np.ndarray:
-        """:meth:`_update_scalar` on arrays (same operations, elementwise)."""
         x = _floats(raw)
         with np.errstate(all="ignore"):
             ok = np.isfinite(x)
