@@ -32,7 +32,7 @@ def _cycles(seed: int, n: int = 40, cycles: int = 30) -> list[np.ndarray]:
         lambda: HysteresisSelector(on=0.6, off=0.3),
     ],
 )
-@pytest.mark.parametrize("n", [12, 40, 120])  # the list path below VECTOR_MIN, numpy above
+@pytest.mark.parametrize("n", [12, 40, 120])
 def test_select_with_values_matches_mapping(make, n: int) -> None:
     names = [f"m{i}" for i in range(n)]
     index = {n: i for i, n in enumerate(names)}
@@ -76,3 +76,12 @@ def test_ranking_ties_to_twelve_digits_by_name(seed: int) -> None:
     assert ThresholdSelector(0.55).select(z, values) == expected
     z2 = {k: v * (1 + 1e-15) for k, v in z.items()}  # the last bits of another build
     assert ThresholdSelector(0.55).select(z2) == _ranked_by_rounded_key(z2, 0.55)
+
+
+def test_ranking_by_hand() -> None:
+    # b and a differ in the last bit only (a tie, by name); d is 1e-9 smaller (not a tie)
+    z = {"b": 1.0, "a": 1.0 + 2**-52, "c": -2.0, "d": 1.0 - 1e-9, "e": 0.1}
+    expected = ["c", "a", "b", "d"]
+    assert ThresholdSelector(0.5).select(z) == expected
+    assert ThresholdSelector(0.5).select(z, np.array(list(z.values()))) == expected
+    assert TopKSelector(4).select(z, np.array(list(z.values()))) == expected

@@ -17,7 +17,6 @@ magnitudes by name. ``select(z, values)`` may be given ``values``, the array of
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from typing import Any
 
 import numpy as np
 
@@ -40,67 +39,18 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
     Comparing rounded magnitudes keeps the order of equal channels fixed when the
     last bits of z change with the BLAS or SuperLU build.
     """
-    names = list(names)
-    if len(names) < 2:
-        return names
-    return _by_magnitude([abs(z[n]) for n in names], names)
+    return sorted(names, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
 
 
-def _by_magnitude(mags: list[float], names: list[str]) -> list[str]:
-    """``names`` by decreasing magnitude, magnitudes equal to 12 digits by name.
-
-    Sorted exactly first (exact ties are then in name order). Magnitudes equal to
-    12 digits lie within 1e-11 of each other, so they are neighbours in a run of
-    near-equal values; only such runs are re-sorted by the rounded key (rounding is
-    monotone, so the order between runs is already that of the rounded key).
-    """
-    pairs = sorted(zip([-m for m in mags], names, strict=True))
-    n = len(pairs)
-    i = 0
-    while i < n - 1:
-        j = i
-        mixed = False
-        while j < n - 1 and pairs[j + 1][0] - pairs[j][0] <= 1e-11 * -pairs[j][0]:
-            mixed = mixed or pairs[j + 1][0] != pairs[j][0]
-            j += 1
-        if mixed:
-            run = pairs[i : j + 1]
-            if _rounded_key(run[0])[0] == _rounded_key(run[-1])[0]:  # one bucket: by name
-                pairs[i : j + 1] = sorted(run, key=lambda p: p[1])
-            else:
-                pairs[i : j + 1] = sorted(run, key=_rounded_key)
-        i = j + 1
-    return [n for _, n in pairs]
-
-
-def _rounded_key(pair: tuple[float, str]) -> tuple[float, str]:
-    return float(f"{pair[0]:.12g}"), pair[1]
-
-
-#: From this many modules on, the selectors test |z| with numpy; below, on a list.
-VECTOR_MIN = 48
-
-
-def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: Any) -> list[str]:
-    """:func:`_ranked` of the keys of ``z`` where ``mask`` holds.
-
-    ``mask`` is a boolean array over ``values``, or for fewer than
-    :data:`VECTOR_MIN` values a predicate on one float (numpy's per-call overhead
-    costs more than a list at that size).
-    """
+def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
+    """:func:`_ranked` of the keys of ``z`` where the boolean array ``mask`` holds."""
     keys = list(z)
-    if callable(mask):
-        hits = [(v, k) for v, k in zip(values.tolist(), keys, strict=True) if mask(v)]
-        if len(hits) < 2:
-            return [k for _, k in hits]
-        return _by_magnitude([abs(v) for v, _ in hits], [k for _, k in hits])
-    index = mask.nonzero()[0]
-    if not index.size:
-        return []
-    names = [keys[i] for i in index.tolist()]
-    if len(names) == 1:
-        return names
-    return _by_magnitude(np.abs(values[index]).tolist(), names)
+    index = mask.nonzero()[0].tolist()
+    keyed = [
+        (-float(f"{m:.12g}"), keys[i])
+        for m, i in zip(np.abs(values[index]).tolist(), index, strict=True)
+    ]
+    return [n for _, n in sorted(keyed)]
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
@@ -153,10 +103,7 @@ class ThresholdSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return threshold_candidates(z, self.tau)
-        tau = self.tau
-        if len(values) < VECTOR_MIN:
-            return _ranked_where(z, values, lambda v: abs(v) >= tau)
-        return _ranked_where(z, values, np.abs(values) >= tau)
+        return _ranked_where(z, values, np.abs(values) >= self.tau)
 
     def describe(self) -> str:
         return f"|z| >= {self.tau:g}"
@@ -171,8 +118,6 @@ class TopKSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return top_k_candidates(z, self.k)
-        if len(values) < VECTOR_MIN:
-            return _ranked_where(z, values, lambda v: v != 0.0)[: self.k]
         return _ranked_where(z, values, values != 0.0)[: self.k]
 
     def describe(self) -> str:
