@@ -14,11 +14,11 @@ python-control is imported when a gain is first computed, not at import time.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.kinematics import error_dynamics, tracking_error_floats
 from archself_diffdrive.models import Actuation, Dynamics, Kinematics
 
@@ -61,15 +61,9 @@ def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) ->
 class LqrController(RuntimeModule):
     """LQR trajectory-tracking controller assuming symmetric, healthy wheels.
 
-    Parameters (``params``)
-    -----------------------
-    q_along, q_lateral, q_heading : float
-        State weights (a small ``q_lateral`` gives a deliberately soft lateral loop).
-    r_speed, r_turn : float
-        Input weights on δv and δω.
-    design_speed_mps : float, optional
-        Speed used for :meth:`linearization` before a reference has been seen
-        (default 0.5).
+    The weights are those of :func:`lqr_gain` (a small ``q_lateral`` gives a
+    deliberately soft lateral loop); ``design_speed_mps`` is the speed used for
+    :meth:`linearization` before a reference has been seen.
 
     Inputs ``reference``, ``pose_estimate``, ``kinematics``; optional
     ``dynamics`` (the wheel-speed lag, used by :meth:`linearization`), ``actuation``
@@ -78,14 +72,14 @@ class LqrController(RuntimeModule):
     |estimate − reference| position (m).
     """
 
-    optional_params: ClassVar[tuple[str, ...] | None] = (
-        "q_along",
-        "q_lateral",
-        "q_heading",
-        "r_speed",
-        "r_turn",
-        "design_speed_mps",
-    )
+    parameters: ClassVar[dict[str, Param]] = {
+        "q_along": Param(1.0, "", "weight of the along-track error"),
+        "q_lateral": Param(1.0, "", "weight of the lateral error"),
+        "q_heading": Param(1.0, "", "weight of the heading error"),
+        "r_speed": Param(1.0, "", "weight of δv"),
+        "r_turn": Param(1.0, "", "weight of δω"),
+        "design_speed_mps": Param(0.5, "m/s", "linearization speed before a reference"),
+    }
     role = "controller"
     inputs: ClassVar[tuple[str, ...]] = ("reference", "pose_estimate", "kinematics")
     optional_inputs = ("dynamics", "actuation")
@@ -93,25 +87,27 @@ class LqrController(RuntimeModule):
     residual_signals = ("tracking_error",)
 
     def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self.v_ref = float(params.get("design_speed_mps", 0.5))
         self._gains: dict[float, np.ndarray] = {}
+        self.v_ref = math.nan  # the design speed until a reference is seen (see configure)
+        super().__init__(name, params, rng)
         self._k_of: np.ndarray | None = None  # the gain whose rows are in _k
         self._k: list[list[float]] = []
-        self.K = self.gain(self.v_ref)
         self.signals = {"tracking_error": math.nan}
         self.last_cmd: np.ndarray | None = None
         self.dynamics: Dynamics | None = None  # the dynamic model, once an edge delivers it
 
+    def configure(self) -> None:
+        """New weights: forget the cached gains and recompute the current one."""
+        if math.isnan(self.v_ref):
+            self.v_ref = float(self.params["design_speed_mps"])
+        self._gains.clear()
+        self.K = self.gain(self.v_ref)
+
     # gains -------------------------------------------------------------------
     def _weights(self) -> tuple[tuple[float, float, float], tuple[float, float]]:
         p = self.params
-        q = (
-            float(p.get("q_along", 1.0)),
-            float(p.get("q_lateral", 1.0)),
-            float(p.get("q_heading", 1.0)),
-        )
-        r = (float(p.get("r_speed", 1.0)), float(p.get("r_turn", 1.0)))
+        q = (float(p["q_along"]), float(p["q_lateral"]), float(p["q_heading"]))
+        r = (float(p["r_speed"]), float(p["r_turn"]))
         return q, r
 
     def gain(self, v: float) -> np.ndarray:
@@ -122,11 +118,6 @@ class LqrController(RuntimeModule):
             K = lqr_gain(key, *self._weights())
             self._gains[key] = K
         return K
-
-    def set_params(self, values: dict[str, Any]) -> None:
-        super().set_params(values)
-        self._gains.clear()
-        self.K = self.gain(self.v_ref)
 
     def linearization(self) -> np.ndarray:
         """Closed-loop matrix of the error dynamics at the current reference speed (Eq. 20).
@@ -230,23 +221,15 @@ class AsymLqrController(LqrController):
     constant ``adaptation_time_s``, clipped to ``[min_effectiveness, 1]``; the
     command sent is the LQR command divided by ``e_i``.
 
-    Parameters (``params``)
-    -----------------------
-    q_along, q_lateral, q_heading, r_speed, r_turn : float
-        As :class:`LqrController`.
-    adaptation_time_s : float
-        Time constant of the effectiveness estimate (s).
-    min_effectiveness : float
-        Lower clip of the estimate.
-
-    Inputs as :class:`LqrController` plus ``encoder_speeds``.
+    Parameters: those of :class:`LqrController` and the two above. Inputs as
+    :class:`LqrController` plus ``encoder_speeds``.
     """
 
-    optional_params = (
-        *(LqrController.optional_params or ()),
-        "adaptation_time_s",
-        "min_effectiveness",
-    )
+    parameters = {
+        **LqrController.parameters,
+        "adaptation_time_s": Param(3.0, "s", "time constant of the effectiveness estimate"),
+        "min_effectiveness": Param(0.3, "", "lower clip of the effectiveness estimate"),
+    }
     inputs = ("reference", "pose_estimate", "kinematics", "encoder_speeds")
 
     def __init__(self, name, params, rng):
@@ -255,17 +238,13 @@ class AsymLqrController(LqrController):
         self._num = [0.0, 0.0]
         self._den = [0.0, 0.0]
         self._sent: tuple[float, float] | None = None  # the last command sent, as floats
-        self._lam = 1.0  # forgetting factor for the step _lam_of (set by _configure_adaptation)
-        self._configure_adaptation()
+        self._lam = 1.0  # forgetting factor for the step _lam_of (set in _adapt)
 
-    def _configure_adaptation(self) -> None:
-        self._tau = max(float(self.params.get("adaptation_time_s", 3.0)), 1e-6)
-        self._emin = float(self.params.get("min_effectiveness", 0.3))
+    def configure(self) -> None:
+        super().configure()
+        self._tau = max(float(self.params["adaptation_time_s"]), 1e-6)
+        self._emin = float(self.params["min_effectiveness"])
         self._lam_of: float | None = None  # the dt of _lam
-
-    def set_params(self, values: dict[str, Any]) -> None:
-        super().set_params(values)
-        self._configure_adaptation()
 
     @property
     def effectiveness(self) -> np.ndarray:

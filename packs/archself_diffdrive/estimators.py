@@ -14,12 +14,18 @@ from collections import deque
 
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.models import Kinematics
 
 __all__ = ["InnovationWindow", "Odometry", "Ekf"]
 
 _DEFAULT_KIN = Kinematics()
+#: Parameters both estimators take.
+_COMMON = {
+    "encoder_noise_rad_s": Param(0.05, "rad/s", "assumed encoder noise, propagated"),
+    "innovation_window_s": Param(20.0, "s", "window of the GPS innovation monitor"),
+    "initial_pose": Param([0.0, 0.0, 0.0], "m, m, rad", "start pose [x, y, θ]"),
+}
 
 
 class InnovationWindow:
@@ -83,16 +89,8 @@ def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
 class Odometry(RuntimeModule):
     """Dead reckoning: encoder speeds for the distance, IMU heading for the direction.
 
-    Parameters (``params``, all optional)
-    -------------------------------------
-    heading_noise_rad : float
-        Assumed IMU heading noise for the covariance (default 0.005 rad).
-    encoder_noise_rad_s : float
-        Assumed encoder noise for the covariance (default 0.05 rad/s).
-    innovation_window_s : float
-        Window of the GPS innovation monitor (default 20 s).
-    initial_pose : list of 3 float
-        Start pose (default zeros).
+    The assumed sensor noises (``heading_noise_rad``, ``encoder_noise_rad_s``)
+    set the covariance only.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
     (GPS) used only for the ``innovation`` residual, never for the estimate.
@@ -108,12 +106,10 @@ class Odometry(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
-    optional_params = (
-        "heading_noise_rad",
-        "encoder_noise_rad_s",
-        "innovation_window_s",
-        "initial_pose",
-    )
+    parameters = {
+        "heading_noise_rad": Param(0.005, "rad", "assumed IMU heading noise"),
+        **_COMMON,
+    }
     role = "estimator"
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
@@ -121,26 +117,18 @@ class Odometry(RuntimeModule):
     residual_signals = ("innovation",)
 
     def __init__(self, name, params, rng):
+        self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
         super().__init__(name, params, rng)
-        self.x, self.y, self.th = (float(v) for v in params.get("initial_pose", [0, 0, 0]))
+        self.x, self.y, self.th = (float(v) for v in self.params["initial_pose"])
         self.var_pos = 0.01
-        self.var_th = 0.0
         self.started = False
-        self._configure()
-        self.monitor = InnovationWindow(self.window_s)
         self.signals = {"innovation": math.nan}
 
-    def _configure(self) -> None:
+    def configure(self) -> None:
         p = self.params
-        self.sig_h = float(p.get("heading_noise_rad", 0.005))
-        self.sig_enc = float(p.get("encoder_noise_rad_s", 0.05))
-        self.window_s = float(p.get("innovation_window_s", 20.0))
-        self.var_th = self.sig_h**2
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
-        self.monitor.window_s = self.window_s
+        self.sig_enc = float(p["encoder_noise_rad_s"])
+        self.var_th = float(p["heading_noise_rad"]) ** 2
+        self.monitor.window_s = float(p["innovation_window_s"])
 
     def step(self, t, dt, inputs):
         kin = inputs.get("kinematics") or _DEFAULT_KIN
@@ -200,38 +188,26 @@ class Ekf(RuntimeModule):
     GPS position whenever a fix arrives. A drifting IMU bias is thereby
     estimated and removed from the heading.
 
-    Parameters (``params``)
-    -----------------------
-    q_position_m, q_heading_rad, q_bias_rad : float
-        Additive process noise densities (per √s) of position, heading and bias.
-    r_gps_m, r_heading_rad : float
-        Measurement noise standard deviations.
-    encoder_noise_rad_s : float, optional
-        Encoder noise propagated into Q (default 0.05 rad/s).
-    initial_position_std_m, initial_heading_std_rad, initial_bias_std_rad : float, optional
-        Initial uncertainty, and the inflation added to a handed-over covariance
-        (defaults 0.5 m, 0.05 rad, 0.05 rad).
-    innovation_window_s : float, optional
-        Window of the GPS innovation monitor (default 20 s).
+    The ``q_*`` parameters are additive process-noise densities, the ``r_*``
+    measurement-noise standard deviations, the ``initial_*_std_*`` the initial
+    uncertainty and the inflation added to a handed-over covariance.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``.
     Outputs ``pose_estimate`` and ``covariance`` (3×3 pose block). Attributes
     ``x``/``P`` give the full state and covariance (filterpy's names).
     """
 
-    optional_params = (
-        "q_position_m",
-        "q_heading_rad",
-        "q_bias_rad",
-        "r_gps_m",
-        "r_heading_rad",
-        "encoder_noise_rad_s",
-        "initial_position_std_m",
-        "initial_heading_std_rad",
-        "initial_bias_std_rad",
-        "innovation_window_s",
-        "initial_pose",
-    )
+    parameters = {
+        "q_position_m": Param(0.02, "m/√s", "process noise density of the position"),
+        "q_heading_rad": Param(0.01, "rad/√s", "process noise density of the heading"),
+        "q_bias_rad": Param(0.002, "rad/√s", "process noise density of the IMU bias"),
+        "r_gps_m": Param(0.3, "m", "GPS noise (standard deviation per coordinate)"),
+        "r_heading_rad": Param(0.005, "rad", "IMU heading noise (standard deviation)"),
+        "initial_position_std_m": Param(0.5, "m", "initial position uncertainty"),
+        "initial_heading_std_rad": Param(0.05, "rad", "initial heading uncertainty"),
+        "initial_bias_std_rad": Param(0.05, "rad", "initial IMU-bias uncertainty"),
+        **_COMMON,
+    }
     role = "estimator"
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
@@ -240,81 +216,48 @@ class Ekf(RuntimeModule):
 
     _H_GPS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
+    # The state and covariance are plain floats (``_xs``, 4; ``_ps``, 16 row by row):
+    # the per-step predict and heading update run on them in closed form; the GPS
+    # update loads them into a filterpy ``ExtendedKalmanFilter`` and reads its result.
     def __init__(self, name, params, rng):
+        self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
         super().__init__(name, params, rng)
-        from filterpy.kalman import ExtendedKalmanFilter
-
-        self._kf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
-        self._kf_live = False  # True while filterpy's copy may be newer than the floats
-        self._configure()
-        pose = params.get("initial_pose", [0.0, 0.0, 0.0])
-        self.x = np.array([*map(float, pose), 0.0])
-        self.P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
+        self.x = np.array([*map(float, self.params["initial_pose"]), 0.0])
+        self.P = self._initial_covariance()
         self.started = False
-        self.monitor = InnovationWindow(self.window_s)
         self.signals = {"innovation": math.nan}
 
-    def _configure(self) -> None:
+    def configure(self) -> None:
         p = self.params
-        self.q_pos = float(p.get("q_position_m", 0.02))
-        self.q_th = float(p.get("q_heading_rad", 0.01))
-        self.q_b = float(p.get("q_bias_rad", 0.002))
-        self.r_gps = float(p.get("r_gps_m", 0.3))
-        self.r_head = float(p.get("r_heading_rad", 0.005))
-        self.sig_enc = float(p.get("encoder_noise_rad_s", 0.05))
-        self.p0_pos = float(p.get("initial_position_std_m", 0.5))
-        self.p0_th = float(p.get("initial_heading_std_rad", 0.05))
-        self.p0_b = float(p.get("initial_bias_std_rad", 0.05))
-        self.window_s = float(p.get("innovation_window_s", 20.0))
-        self.R_gps = np.eye(2) * self.r_gps**2
-        self._q2 = (self.q_pos**2, self.q_pos**2, self.q_th**2, self.q_b**2)
+        self.r_head = float(p["r_heading_rad"])
+        self.sig_enc = float(p["encoder_noise_rad_s"])
+        self.R_gps = np.eye(2) * float(p["r_gps_m"]) ** 2
+        q_pos, q_th, q_b = (float(p[k]) for k in ("q_position_m", "q_heading_rad", "q_bias_rad"))
+        self._q2 = (q_pos**2, q_pos**2, q_th**2, q_b**2)
+        sd = ("initial_position_std_m", "initial_heading_std_rad", "initial_bias_std_rad")
+        self._p0 = tuple(float(p[k]) for k in sd)
+        self.monitor.window_s = float(p["innovation_window_s"])
 
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
-        self.monitor.window_s = self.window_s
-
-    # filterpy-style API ------------------------------------------------------
-    # The state and covariance live as plain floats (``_xs``, 4; ``_ps``, 16 row by
-    # row), on which the per-step predict and heading update run; filterpy's filter
-    # ``kf`` is brought up to date whenever it is asked for (the GPS update, or a
-    # caller), and read back before the next float update.
-    @property
-    def kf(self):
-        """The filterpy ``ExtendedKalmanFilter``, in sync with the state (may be modified)."""
-        self._pull()
-        kf = self._kf
-        kf.x = np.array(self._xs)
-        kf.P = np.array(self._ps).reshape(4, 4)
-        self._kf_live = True
-        return kf
-
-    def _pull(self) -> None:
-        if self._kf_live:
-            self._kf_live = False
-            self._xs = np.asarray(self._kf.x, dtype=float).ravel().tolist()
-            self._ps = np.asarray(self._kf.P, dtype=float).ravel().tolist()
+    def _initial_covariance(self) -> np.ndarray:
+        pos, th, b = self._p0
+        return np.diag([pos**2, pos**2, th**2, b**2])
 
     @property
     def x(self) -> np.ndarray:
         """State ``[x, y, θ, b]`` (a copy; assign to change it)."""
-        self._pull()
         return np.array(self._xs)
 
     @x.setter
     def x(self, value) -> None:
-        self._pull()
         self._xs = np.asarray(value, dtype=float).ravel()[:4].tolist()
 
     @property
     def P(self) -> np.ndarray:
         """State covariance (4×4; a copy; assign to change it)."""
-        self._pull()
         return np.array(self._ps).reshape(4, 4)
 
     @P.setter
     def P(self, value) -> None:
-        self._pull()
         self._ps = np.asarray(value, dtype=float).reshape(4, 4).ravel().tolist()
 
     def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
@@ -327,7 +270,6 @@ class Ekf(RuntimeModule):
         same equations as ``ExtendedKalmanFilter.predict``, without 4×4 matrix
         products at every step; also free of the BLAS build's rounding).
         """
-        self._pull()
         x0, x1, th, x3 = self._xs
         r, b = kin.wheel_radius_m, kin.wheel_base_m
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
@@ -370,7 +312,6 @@ class Ekf(RuntimeModule):
         ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, upper triangle mirrored); the GPS
         update goes through filterpy.
         """
-        self._pull()
         x0, x1, x2, x3 = self._xs
         p00, p01, p02, p03, _, p11, p12, p13, _, _, p22, p23, _, _, _, p33 = self._ps  # symmetric
         r2 = self.r_head**2
@@ -400,12 +341,20 @@ class Ekf(RuntimeModule):
         self._xs = [x0 + k0 * y, x1 + k1 * y, (th + math.pi) % (2 * math.pi) - math.pi, x3 + k3 * y]
 
     def update_position(self, pos) -> tuple[float, float]:
-        """Update with a GPS fix; returns the innovation ``z − Hx``."""
-        self._pull()
+        """Update with a GPS fix (filterpy's ``ExtendedKalmanFilter.update``).
+
+        Returns the innovation ``z − Hx``.
+        """
+        from filterpy.kalman import ExtendedKalmanFilter
+
         ex = float(pos[0]) - self._xs[0]
         ey = float(pos[1]) - self._xs[1]
-        self.kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
-        self._pull()
+        kf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
+        kf.x = np.array(self._xs)
+        kf.P = np.array(self._ps).reshape(4, 4)
+        kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
+        self._xs = kf.x.tolist()
+        self._ps = kf.P.ravel().tolist()
         return ex, ey
 
     # data flow ---------------------------------------------------------------
@@ -415,7 +364,6 @@ class Ekf(RuntimeModule):
         if self.started:
             self.predict(dt, inputs.get("encoder_speeds"), kin)
         elif heading is not None:
-            self._pull()
             self._xs[2] = float(heading) - self._xs[3]
         self.started = True
         if heading is not None:
@@ -432,7 +380,6 @@ class Ekf(RuntimeModule):
         return np.array(p[0:3] + p[4:7] + p[8:11]).reshape(3, 3)  # one flat array: cheaper
 
     def export_state(self):
-        self._pull()
         return {
             "pose": np.array(self._xs[:3]),
             "covariance": self._pose_covariance(),
@@ -444,7 +391,7 @@ class Ekf(RuntimeModule):
             pose = np.asarray(state["pose"], dtype=float)[:3]
             self.x = np.array([pose[0], pose[1], pose[2], float(state.get("imu_bias", 0.0))])
             self.started = True
-        P = np.diag([self.p0_pos**2, self.p0_pos**2, self.p0_th**2, self.p0_b**2])
+        P = self._initial_covariance()
         if "covariance" in state:
             P[:3, :3] += np.asarray(state["covariance"], dtype=float)[:3, :3]
         self.P = P

@@ -18,10 +18,10 @@ Kinematics(wheel_base_m=0.5, wheel_radius_m=0.1)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 
 __all__ = [
     "Kinematics",
@@ -30,80 +30,90 @@ __all__ = [
     "DiffDriveKinematicsModel",
     "DiffDriveDynamicsModel",
     "ActuatorModel",
+    "parameters_of",
 ]
+
+
+def _field(default: float, unit: str, doc: str) -> Any:
+    return field(default=default, metadata={"unit": unit, "doc": doc})
 
 
 @dataclass(frozen=True)
 class Kinematics:
     """Kinematic model of a differential drive: wheel base and wheel radius (m)."""
 
-    wheel_base_m: float = 0.5
-    wheel_radius_m: float = 0.1
+    wheel_base_m: float = _field(0.5, "m", "distance between the wheels")
+    wheel_radius_m: float = _field(0.1, "m", "wheel radius")
 
 
 @dataclass(frozen=True)
 class Dynamics:
     """Rigid-body and wheel-speed dynamics: mass, yaw inertia, wheel-speed lag."""
 
-    mass_kg: float = 12.0
-    inertia_kg_m2: float = 0.6
-    wheel_time_constant_s: float = 0.1
+    mass_kg: float = _field(12.0, "kg", "mass")
+    inertia_kg_m2: float = _field(0.6, "kg·m²", "yaw moment of inertia")
+    wheel_time_constant_s: float = _field(0.1, "s", "lag of the wheel speeds behind the commands")
 
 
 @dataclass(frozen=True)
 class Actuation:
     """Actuator model: symmetric wheel-speed limit (rad/s) and nominal effectiveness."""
 
-    max_wheel_speed_rad_s: float = 12.0
-    effectiveness: float = 1.0
+    max_wheel_speed_rad_s: float = _field(12.0, "rad/s", "symmetric wheel-speed limit")
+    effectiveness: float = _field(1.0, "", "nominal effectiveness of the wheels")
+
+
+def parameters_of(cls: type) -> dict[str, Param]:
+    """The fields of the model dataclass ``cls`` as declared parameters (written once).
+
+    Examples
+    --------
+    >>> parameters_of(Kinematics)["wheel_base_m"]
+    Param(default=0.5, unit='m', doc='distance between the wheels')
+    """
+    return {
+        f.name: Param(f.default, f.metadata.get("unit", ""), f.metadata.get("doc", ""))
+        for f in fields(cls)
+    }
 
 
 class _ModelNode(RuntimeModule):
     role = "model"
     direct_feedthrough = False
-    _cls: type = object
-    _key = ""
+    _cls: ClassVar[type] = object
+    _key: ClassVar[str] = ""
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._build()
-
-    def _build(self) -> None:
-        fields = self._cls.__dataclass_fields__  # type: ignore[attr-defined]
-        kw = {k: float(v) for k, v in self.params.items() if k in fields}
-        self._obj = self._cls(**kw)
+    def configure(self) -> None:
+        names = self.parameters or {}
+        self._obj = self._cls(**{k: float(v) for k, v in self.params.items() if k in names})
         self._out = {self._key: self._obj}
 
     def output(self, t: float) -> dict[str, Any]:
         return self._out
 
-    def set_params(self, values: dict[str, Any]) -> None:
-        super().set_params(values)
-        self._build()
-
 
 class DiffDriveKinematicsModel(_ModelNode):
-    """Unicycle kinematics (``wheel_base_m``, ``wheel_radius_m``) → output ``kinematics``."""
+    """Unicycle kinematics (the fields of :class:`Kinematics`) → output ``kinematics``."""
 
-    optional_params = tuple(Kinematics.__dataclass_fields__)
+    parameters = parameters_of(Kinematics)
     outputs = ("kinematics",)
     _cls = Kinematics
     _key = "kinematics"
 
 
 class DiffDriveDynamicsModel(_ModelNode):
-    """Dynamics (``mass_kg``, ``inertia_kg_m2``, ``wheel_time_constant_s``) → ``dynamics``."""
+    """Dynamics (the fields of :class:`Dynamics`) → output ``dynamics``."""
 
-    optional_params = tuple(Dynamics.__dataclass_fields__)
+    parameters = parameters_of(Dynamics)
     outputs = ("dynamics",)
     _cls = Dynamics
     _key = "dynamics"
 
 
 class ActuatorModel(_ModelNode):
-    """Actuator limits (``max_wheel_speed_rad_s``, ``effectiveness``) → ``actuation``."""
+    """Actuator limits (the fields of :class:`Actuation`) → output ``actuation``."""
 
-    optional_params = tuple(Actuation.__dataclass_fields__)
+    parameters = parameters_of(Actuation)
     outputs = ("actuation",)
     _cls = Actuation
     _key = "actuation"

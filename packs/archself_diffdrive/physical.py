@@ -12,8 +12,9 @@ import math
 
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.kinematics import integrate_pose
+from archself_diffdrive.models import Dynamics, Kinematics, parameters_of
 
 __all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
 
@@ -23,19 +24,10 @@ _SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "
 class DiffDrivePlant(RuntimeModule):
     """Differential-drive chassis with first-order wheel-speed lag and speed limits.
 
-    Parameters (``params``)
-    -----------------------
-    wheel_base_m, wheel_radius_m : float
-        True geometry.
-    max_wheel_speed_rad_s : float
-        Per-wheel speed limit (the driven speed is clipped to ±limit).
-    initial_pose : list of 3 float, optional
-        ``[x, y, θ]`` at t = 0 (default zeros).
-    wheel_time_constant_s : float, optional
-        Lag of the wheel speeds behind the actuators' speeds (default 0.1 s).
-    effectiveness : list of 2 float, optional
-        Built-in per-wheel effectiveness (default ``[1, 1]``); scenario faults act
-        on the actuators instead.
+    Parameters (``params``): see :attr:`parameters`. The wheel speeds are clipped
+    to ±``max_wheel_speed_rad_s`` and lag the actuators' speeds with
+    ``wheel_time_constant_s`` (0: no lag); ``effectiveness`` is the built-in
+    per-wheel effectiveness (scenario faults act on the actuators instead).
 
     Inputs ``wheel_speed_left``, ``wheel_speed_right`` (rad/s; None = motor off);
     outputs the true ``pose`` ``[x, y, θ]`` and ``wheel_speeds`` ``[l, r]``.
@@ -50,14 +42,13 @@ class DiffDrivePlant(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
-    optional_params = (
-        "wheel_base_m",
-        "wheel_radius_m",
-        "max_wheel_speed_rad_s",
-        "initial_pose",
-        "wheel_time_constant_s",
-        "effectiveness",
-    )
+    parameters = {
+        **parameters_of(Kinematics),  # the true geometry
+        "max_wheel_speed_rad_s": Param(math.inf, "rad/s", "per-wheel speed limit"),
+        "initial_pose": Param([0.0, 0.0, 0.0], "m, m, rad", "[x, y, θ] at t = 0"),
+        "wheel_time_constant_s": parameters_of(Dynamics)["wheel_time_constant_s"],
+        "effectiveness": Param([1.0, 1.0], "", "built-in per-wheel effectiveness [l, r]"),
+    }
     role = "plant"
     inputs = ("wheel_speed_left", "wheel_speed_right")
     outputs = ("pose", "wheel_speeds")
@@ -65,26 +56,20 @@ class DiffDrivePlant(RuntimeModule):
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
-        pose = params.get("initial_pose", [0.0, 0.0, 0.0])
-        self.pose = np.array(pose, dtype=float)
+        self.pose = np.array(self.params["initial_pose"], dtype=float)
         self.wl = 0.0
         self.wr = 0.0
-        self._configure()
 
-    def _configure(self) -> None:
+    def configure(self) -> None:
         p = self.params
-        self.tau = float(p.get("wheel_time_constant_s", 0.1))
-        self.limit = float(p.get("max_wheel_speed_rad_s", np.inf))
+        self.tau = float(p["wheel_time_constant_s"])
+        self.limit = float(p["max_wheel_speed_rad_s"])
         self._kp = {
             "dt": 0.0,
-            "wheel_radius_m": float(p.get("wheel_radius_m", 0.1)),
-            "wheel_base_m": float(p.get("wheel_base_m", 0.5)),
-            "effectiveness": [float(e) for e in p.get("effectiveness", [1.0, 1.0])],
+            "wheel_radius_m": float(p["wheel_radius_m"]),
+            "wheel_base_m": float(p["wheel_base_m"]),
+            "effectiveness": [float(e) for e in p["effectiveness"]],
         }
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
 
     def output(self, t):
         return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
@@ -120,12 +105,8 @@ class DiffDrivePlant(RuntimeModule):
 class WheelActuator(RuntimeModule):
     """One wheel's motor and driver: drives its side of the controller's ``wheel_cmd``.
 
-    Parameters (``params``)
-    -----------------------
-    side : {"left", "right"}
-        Which entry of ``wheel_cmd`` ``[l, r]`` this wheel takes.
-
-    Inputs ``wheel_cmd`` (rad/s, from a controller) and optionally
+    Parameter ``side`` (``"left"`` or ``"right"``): which entry of ``wheel_cmd``
+    ``[l, r]`` this wheel takes. Inputs ``wheel_cmd`` (rad/s, from a controller) and optionally
     ``encoder_speeds``; output ``wheel_speed_<side>``: the speed it drives.
     Residual signal ``command_error`` = |previous command − measured encoder
     speed| (rad/s): near the encoder noise when healthy, a sizeable fraction of
@@ -142,7 +123,7 @@ class WheelActuator(RuntimeModule):
     0.8
     """
 
-    optional_params = ("side",)
+    parameters = {"side": Param("left", "", "'left' or 'right': the entry of wheel_cmd taken")}
     role = "actuator"
     inputs = ("wheel_cmd",)
     optional_inputs = ("encoder_speeds",)
@@ -155,13 +136,15 @@ class WheelActuator(RuntimeModule):
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
-        side = params.get("side", "left")
+        self.prev_cmd: float | None = None
+        self.signals = {"command_error": math.nan}
+
+    def configure(self) -> None:
+        side = self.params["side"]
         if side not in ("left", "right"):
             raise ValueError(f"side must be 'left' or 'right', not {side!r}")
         self.index = 0 if side == "left" else 1
         self.main_output = f"wheel_speed_{side}"
-        self.prev_cmd: float | None = None
-        self.signals = {"command_error": math.nan}
 
     def step(self, t, dt, inputs):
         enc = inputs.get("encoder_speeds")
@@ -179,28 +162,17 @@ class WheelActuator(RuntimeModule):
 class WheelEncoders(RuntimeModule):
     """Wheel encoders: the real wheel speeds plus Gaussian noise.
 
-    Parameters (``params``)
-    -----------------------
-    noise_rad_s : float
-        Standard deviation of the speed noise (rad/s).
-
     Input ``wheel_speeds`` (true, from the plant); output ``encoder_speeds`` ``[l, r]``.
     """
 
-    optional_params = ("noise_rad_s",)
+    parameters = {"noise_rad_s": Param(0.05, "rad/s", "standard deviation of the speed noise")}
     role = "sensor"
     inputs = ("wheel_speeds",)
     outputs = ("encoder_speeds",)
     fault_kinds = _SENSOR_FAULTS | {"effectiveness_loss"}
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self.noise = float(params.get("noise_rad_s", 0.05))
-        self.noise_levels = {"encoder_speeds": self.noise}
-
-    def set_params(self, values):
-        super().set_params(values)
-        self.noise = float(self.params.get("noise_rad_s", 0.05))
+    def configure(self) -> None:
+        self.noise = float(self.params["noise_rad_s"])
         self.noise_levels = {"encoder_speeds": self.noise}
 
     def step(self, t, dt, inputs):
@@ -213,35 +185,24 @@ class WheelEncoders(RuntimeModule):
 class Imu(RuntimeModule):
     """IMU heading (integrated gyro): true heading + bias + Gaussian noise, wrapped to [-π, π).
 
-    Parameters (``params``)
-    -----------------------
-    noise_rad : float
-        Standard deviation of the heading noise (rad).
-    bias_rad : float, optional
-        Constant built-in bias (default 0); a drifting bias comes from a
-        ``bias_drift`` fault of the scenario.
-
-    Input ``pose`` (true); output ``heading`` (rad).
+    ``bias_rad`` is a constant built-in bias; a drifting bias comes from a
+    ``bias_drift`` fault of the scenario. Input ``pose`` (true); output
+    ``heading`` (rad).
     """
 
-    optional_params = ("noise_rad", "bias_rad")
+    parameters = {
+        "noise_rad": Param(0.005, "rad", "standard deviation of the heading noise"),
+        "bias_rad": Param(0.0, "rad", "constant built-in bias"),
+    }
     role = "sensor"
     inputs = ("pose",)
     outputs = ("heading",)
     fault_kinds = _SENSOR_FAULTS
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._configure()
-
-    def _configure(self):
-        self.noise = float(self.params.get("noise_rad", 0.005))
-        self.bias = float(self.params.get("bias_rad", 0.0))
+    def configure(self) -> None:
+        self.noise = float(self.params["noise_rad"])
+        self.bias = float(self.params["bias_rad"])
         self.noise_levels = {"heading": self.noise}
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
 
     def step(self, t, dt, inputs):
         pose = inputs.get("pose")
@@ -254,18 +215,15 @@ class Imu(RuntimeModule):
 class Gps(RuntimeModule):
     """GNSS receiver: position fixes ``[x, y]`` at ``rate_hz``, None between fixes.
 
-    Parameters (``params``)
-    -----------------------
-    rate_hz : float
-        Fix rate; the first fix is at t = 0.
-    noise_m : float
-        Standard deviation of each coordinate (m).
-
-    Input ``pose`` (true); output ``position``. ``max_silence_s`` (2.5 fix
-    periods) tells the system when a receiver without fixes is in dropout.
+    The first fix is at t = 0. Input ``pose`` (true); output ``position``.
+    ``max_silence_s`` (2.5 fix periods) tells the system when a receiver without
+    fixes is in dropout.
     """
 
-    optional_params = ("rate_hz", "noise_m")
+    parameters = {
+        "rate_hz": Param(1.0, "Hz", "fix rate"),
+        "noise_m": Param(0.3, "m", "standard deviation of each coordinate"),
+    }
     role = "sensor"
     inputs = ("pose",)
     outputs = ("position",)
@@ -274,17 +232,12 @@ class Gps(RuntimeModule):
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
         self.next_fix = 0.0
-        self._configure()
 
-    def _configure(self):
-        self.period = 1.0 / float(self.params.get("rate_hz", 1.0))
-        self.noise = float(self.params.get("noise_m", 0.3))
+    def configure(self) -> None:
+        self.period = 1.0 / float(self.params["rate_hz"])
+        self.noise = float(self.params["noise_m"])
         self.noise_levels = {"position": self.noise}
         self.max_silence_s = 2.5 * self.period
-
-    def set_params(self, values):
-        super().set_params(values)
-        self._configure()
 
     def step(self, t, dt, inputs):
         pose = inputs.get("pose")

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from archself.modules.base import RuntimeModule
+from archself.modules.base import Param, RuntimeModule
 
 __all__ = ["SplinePlanner", "spline_path"]
 
@@ -90,13 +88,6 @@ class SplinePlanner(RuntimeModule):
     tangent heading, the speed and the yaw rate ``ω = κ(s) · speed``; after the
     end of the path it stops there (v = ω = 0).
 
-    Parameters (``params``)
-    -----------------------
-    waypoints : list of [x, y]
-    speed_mps : float
-    resolution_m : float, optional
-        Arc-length step of the lookup table (default 0.02 m).
-
     Optional input ``kinematics`` (unused; the path is kinematically smooth);
     output ``reference`` ``[x, y, θ, v, ω]``.
 
@@ -108,27 +99,22 @@ class SplinePlanner(RuntimeModule):
     array([1. , 0. , 0. , 0.5, 0. ])
     """
 
-    optional_params = ("speed_mps", "resolution_m")
+    parameters = {
+        "waypoints": Param(unit="m", doc="list of at least two [x, y] points"),
+        "speed_mps": Param(0.5, "m/s", "speed along the path"),
+        "resolution_m": Param(0.02, "m", "arc-length step of the lookup table"),
+    }
     role = "planner"
-    required_params = ("waypoints",)
     optional_inputs = ("kinematics",)
     outputs = ("reference",)
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self._configure()
-
-    def _configure(self) -> None:
-        self.speed = float(self.params.get("speed_mps", 0.5))
-        self.ds = float(self.params.get("resolution_m", 0.02))
+    def configure(self) -> None:
+        self.speed = float(self.params["speed_mps"])
+        self.ds = float(self.params["resolution_m"])
         path = spline_path(self.params["waypoints"], self.ds)
         self.length = path["length"]
         self._table = _Table(path)
         self._n = len(path["x"])
-
-    def set_params(self, values: dict[str, Any]) -> None:
-        super().set_params(values)
-        self._configure()
 
     @property
     def duration_s(self) -> float:
