@@ -46,10 +46,6 @@ __all__ = [
 
 #: Graphs with at most this many modules are handled with dense linear algebra.
 DENSE_MAX = 400
-#: Up to this many modules the solver keeps the explicit inverse of I − Wᵀ (computed
-#: from the LU factors once per matrix): a matrix-vector product is cheaper than a
-#: LAPACK call at this size.
-INVERSE_MAX = 64
 
 
 def weight_matrix(
@@ -225,11 +221,7 @@ class InfluenceSolver:
     dense_max : int, optional
         Graphs with at most this many nodes use dense LU
         (:func:`scipy.linalg.lu_factor`); larger ones sparse LU
-        (:func:`scipy.sparse.linalg.splu`). Up to :data:`INVERSE_MAX` nodes the
-        inverse is formed from the LU factors once per matrix and ``z`` is a
-        matrix-vector product.
-    inverse_max : int, optional
-        Largest graph solved with the explicit inverse (default :data:`INVERSE_MAX`).
+        (:func:`scipy.sparse.linalg.splu`).
 
     Attributes
     ----------
@@ -249,9 +241,8 @@ class InfluenceSolver:
     [1.0, 0.5, 0.2]
     """
 
-    def __init__(self, dense_max: int = DENSE_MAX, inverse_max: int = INVERSE_MAX) -> None:
+    def __init__(self, dense_max: int = DENSE_MAX) -> None:
         self.dense_max = dense_max
-        self.inverse_max = inverse_max
         self.factorizations = 0
         self.key: Hashable | None = None
         self.n = 0
@@ -259,7 +250,6 @@ class InfluenceSolver:
         self._sparse: Any = None
         self._order: np.ndarray | None = None
         self._getrs: Any = None
-        self._inverse: np.ndarray | None = None
 
     def set_matrix(self, W: Any, key: Hashable | None = None) -> bool:
         """Use ``W``; refactorize only if its key differs from the current one.
@@ -302,9 +292,6 @@ class InfluenceSolver:
                 self._dense = (lu, piv)
                 # LAPACK getrs, the routine lu_solve calls, without its per-call checks
                 (self._getrs,) = scipy.linalg.get_lapack_funcs(("getrs",), (lu,))
-            self._inverse = (
-                scipy.linalg.lu_solve(self._dense, np.eye(n)) if 0 < n <= self.inverse_max else None
-            )
             self._sparse = None
         else:
             S = scipy.sparse.csc_matrix(W, dtype=float)
@@ -326,7 +313,6 @@ class InfluenceSolver:
                 raise np.linalg.LinAlgError(f"I - W^T is singular: {exc}") from exc
             self._order = order
             self._dense = None
-            self._inverse = None
         self.key = key
         self.n = n
         self.factorizations += 1
@@ -355,8 +341,6 @@ class InfluenceSolver:
         if self._dense is not None:
             if not math.isfinite(sum(r.tolist())):  # what lu_solve's check_finite reports
                 raise ValueError("array must not contain infs or NaNs")
-            if self._inverse is not None:
-                return self._inverse @ r
             lu, piv = self._dense
             z, info = self._getrs(lu, piv, r, trans=0, overwrite_b=False)
             if info != 0:
