@@ -1,0 +1,115 @@
+"""``archself export``: other tools read what it writes."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import networkx as nx
+import numpy as np
+import pytest
+from ruamel.yaml import YAML
+from typer.testing import CliRunner
+
+from archself.cli import app
+from archself.export import FORMATS, export, ros2_modes
+from archself.loader import load_architecture
+from archself.resources import data_dir
+from archself.runtime.influence import weight_matrix
+
+ARCHS = sorted(data_dir("architectures").glob("*.yaml"))
+
+
+@pytest.fixture(scope="module", params=ARCHS, ids=lambda p: p.stem)
+def arch(request):
+    return load_architecture(request.param).arch
+
+
+def test_graphml_loads_in_networkx_with_the_same_graph(arch, tmp_path) -> None:
+    path = tmp_path / "g.graphml"
+    path.write_text(export(arch, "graphml"), encoding="utf-8")
+    g = nx.read_graphml(path)
+    assert sorted(g.nodes) == sorted(arch.modules)
+    assert g.number_of_edges() == len(arch.edges)
+    for e in arch.edges:
+        assert g.edges[e.source, e.target]["weight"] == pytest.approx(e.weight)
+        assert g.edges[e.source, e.target]["carries"] == e.carries
+    first = arch.initial_configuration()
+    for m in arch.modules:
+        assert g.nodes[m][f"in_{first}"] == (m in arch.configurations[first].modules)
+    # W rebuilt from the export is the runtime's W
+    names = list(arch.modules)
+    w = nx.to_numpy_array(g, nodelist=names, weight="weight")
+    declared = weight_matrix(names, [(e.source, e.target, e.weight) for e in arch.edges])
+    np.testing.assert_allclose(w, declared.toarray())
+
+
+def test_node_link_round_trips(arch) -> None:
+    g = nx.node_link_graph(json.loads(export(arch, "node-link")), edges="links")
+    assert sorted(g.nodes) == sorted(arch.modules)
+    assert {(e.source, e.target) for e in arch.edges} == set(g.edges)
+
+
+def test_edges_csv_has_a_row_per_edge(arch) -> None:
+    rows = list(csv.DictReader(io.StringIO(export(arch, "edges-csv"))))
+    assert len(rows) == len(arch.edges)
+    for row, e in zip(rows, arch.edges, strict=True):
+        assert (row["source"], row["target"], float(row["weight"])) == (e.source, e.target,
+                                                                      e.weight)
+        for c in row["active_in"].split():
+            assert {e.source, e.target} <= set(arch.configurations[c].modules)
+
+
+def test_ros2_modes_file_has_the_system_modes_structure(arch) -> None:
+    doc = YAML(typ="safe").load(export(arch, "ros2-modes"))
+    assert doc == json.loads(json.dumps(ros2_modes(arch)))
+    system = doc[arch.name.lower()]["ros__parameters"]
+    assert system["type"] == "system"
+    assert system["parts"].split() == list(arch.modules)
+    modes = system["modes"]
+    assert set(modes) == {"__DEFAULT__", *(c.upper() for c in arch.configurations)}
+    first = arch.initial_configuration()
+    assert modes["__DEFAULT__"] == modes[first.upper()]
+    for c, conf in arch.configurations.items():
+        on = {m for m, state in modes[c.upper()].items() if state == "active"}
+        assert on == set(conf.modules)
+        assert set(modes[c.upper()].values()) <= {"active", "inactive"}
+    for m, mod in arch.modules.items():
+        node = doc[m]["ros__parameters"]
+        assert node["type"] == "node"
+        assert set(node["modes"]["__DEFAULT__"]["ros__parameters"]) == set(mod.params)
+    for a in arch.actions:
+        if a.kind == "parameter_update":
+            mode = doc[a.module]["ros__parameters"]["modes"][a.id.upper()]
+            assert mode["ros__parameters"] == dict(a.set)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_cli_export_writes_each_format(fmt, tmp_path) -> None:
+    src = data_dir("architectures") / "process_plant.yaml"
+    out = tmp_path / f"out.{fmt}"
+    res = CliRunner().invoke(app, ["export", str(src), "--to", fmt, "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert out.read_text(encoding="utf-8") == export(load_architecture(src).arch, fmt)
+    res = CliRunner().invoke(app, ["export", str(src), "--to", fmt])
+    assert res.exit_code == 0 and res.stdout == out.read_text(encoding="utf-8")
+
+
+def test_cli_export_rejects_an_unknown_format() -> None:
+    src = data_dir("architectures") / "process_plant.yaml"
+    res = CliRunner().invoke(app, ["export", str(src), "--to", "dot"])
+    assert res.exit_code == 2
+
+
+def test_info_lists_what_the_file_holds() -> None:
+    src = data_dir("architectures") / "diffdrive.yaml"
+    res = CliRunner().invoke(app, ["info", str(src), "--json"])
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.stdout)
+    arch = load_architecture(src).arch
+    assert [m["name"] for m in data["modules"]] == list(arch.modules)
+    assert [c["name"] for c in data["configurations"] if c["initial"]] == ["a1"]
+    assert {a["id"] for a in data["actions"]} == {a.id for a in arch.actions}
+    text = CliRunner().invoke(app, ["info", str(src)]).stdout
+    assert "use_ekf_gps: substitute on odometry → a2 (cost 0.2)" in text
