@@ -84,8 +84,9 @@ def edges_csv(arch: Architecture) -> str:
     >>> from archself.loader import load_architecture
     >>> from archself.resources import data_dir
     >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
-    >>> edges_csv(arch).splitlines()[:2]
-    ['source,target,weight,carries,latency_s,uncertainty,active_in', 'lqr,wheel_left,0.3,wheel_cmd,0.0,0.0,a1 a2']
+    >>> print("\n".join(edges_csv(arch).splitlines()[:2]))
+    source,target,weight,carries,latency_s,uncertainty,active_in
+    lqr,wheel_left,0.3,wheel_cmd,0.0,0.0,a1 a2
     """
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
