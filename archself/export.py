@@ -84,7 +84,8 @@ def edges_csv(arch: Architecture) -> str:
     >>> from archself.loader import load_architecture
     >>> from archself.resources import data_dir
     >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
-    >>> print("\n".join(edges_csv(arch).splitlines()[:2]))
+    >>> for line in edges_csv(arch).splitlines()[:2]:
+    ...     print(line)
     source,target,weight,carries,latency_s,uncertainty,active_in
     lqr,wheel_left,0.3,wheel_cmd,0.0,0.0,a1 a2
     """
