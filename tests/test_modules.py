@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import subprocess
 import sys
@@ -16,8 +17,15 @@ from archself.sim.faults import FAULT_KINDS, FaultInjector
 from archself_diffdrive.controllers import AsymLqrController, LqrController, lqr_gain
 from archself_diffdrive.estimators import Ekf, InnovationWindow, Odometry
 from archself_diffdrive.kinematics import error_dynamics
-from archself_diffdrive.models import Dynamics, Kinematics
-from archself_diffdrive.physical import DiffDrivePlant, Gps, WheelActuator
+from archself_diffdrive.models import (
+    Actuation,
+    ActuatorModel,
+    DiffDriveDynamicsModel,
+    DiffDriveKinematicsModel,
+    Dynamics,
+    Kinematics,
+)
+from archself_diffdrive.physical import DiffDrivePlant, Gps, Imu, WheelActuator, WheelEncoders
 from archself_diffdrive.planner import SplinePlanner
 
 KEYS = [
@@ -59,6 +67,69 @@ def test_declarations(key):
     assert not set(cls.inputs) & set(cls.optional_inputs)
     if cls.role == "model":
         assert cls.direct_feedthrough is False and not cls.inputs
+
+
+@pytest.mark.parametrize("key", KEYS)
+def test_parameters_declared_once(key):
+    """Every type declares each parameter it reads (default, unit, doc); a module built
+    from the required ones alone holds exactly the declared names, defaults filled in."""
+    cls = registry.get(key)
+    assert cls.parameters, key
+    for name, p in cls.parameters.items():
+        assert p.doc, (key, name)
+        assert isinstance(p.unit, str)
+    required = {k: [[0, 0], [10, 0]] for k, p in cls.parameters.items() if p.required}
+    m = cls("m", required, rng())
+    assert set(m.params) == set(cls.parameters)
+    for name, p in cls.parameters.items():
+        if not p.required:
+            assert m.params[name] == p.default, (key, name)
+
+
+@pytest.mark.parametrize(
+    "node, model", [(DiffDriveKinematicsModel, Kinematics), (DiffDriveDynamicsModel, Dynamics),
+                    (ActuatorModel, Actuation)]
+)
+def test_model_parameters_are_the_dataclass_fields(node, model):
+    fields = dataclasses.fields(model)
+    assert list(node.parameters) == [f.name for f in fields]
+    assert all(node.parameters[f.name].default == f.default for f in fields)
+    assert all(node.parameters[f.name].unit == f.metadata["unit"] for f in fields)
+    m = node("m", {}, rng())
+    (obj,) = m.output(0.0).values()
+    assert obj == model()
+    first = fields[0].name
+    m.set_params({first: 7.0})
+    (obj,) = m.output(0.0).values()
+    assert getattr(obj, first) == 7.0 and obj == dataclasses.replace(model(), **{first: 7.0})
+
+
+def test_set_params_reconfigures_sensors_and_estimators():
+    gps = Gps("gps", {"rate_hz": 1.0, "noise_m": 0.0}, rng())
+    pose = {"pose": np.array([1.0, 2.0, 0.0])}
+    n1 = sum(gps.step(k * 0.05, 0.05, pose)["position"] is not None for k in range(200))
+    gps.set_params({"rate_hz": 4.0, "noise_m": 0.2})
+    n4 = sum(gps.step(10 + k * 0.05, 0.05, pose)["position"] is not None for k in range(200))
+    assert (n1, n4) == (10, 40)
+    assert gps.noise_levels == {"position": 0.2} and gps.max_silence_s == pytest.approx(0.625)
+    enc = WheelEncoders("enc", {}, rng())
+    enc.set_params({"noise_rad_s": 0.0})
+    assert_allclose(enc.step(0.0, 0.05, {"wheel_speeds": np.array([1.0, 2.0])})["encoder_speeds"],
+                    [1.0, 2.0], rtol=0, atol=0)
+    imu = Imu("imu", {"noise_rad": 0.0}, rng())
+    imu.set_params({"bias_rad": 0.1})
+    assert imu.step(0.0, 0.05, {"pose": np.zeros(3)})["heading"] == pytest.approx(0.1)
+    plant = DiffDrivePlant("c", {"wheel_time_constant_s": 0.0}, rng())
+    plant.set_params({"wheel_radius_m": 0.2})
+    plant.step(0.0, 1.0, {"wheel_speed_left": 5.0, "wheel_speed_right": 5.0})
+    assert_allclose(plant.output(1.0)["pose"], [1.0, 0.0, 0.0], atol=1e-12)  # 0.2 m × 5 rad/s
+    for est in (Odometry("o", {}, rng()), Ekf("e", {}, rng())):
+        assert est.monitor.window_s == 20.0
+        est.set_params({"innovation_window_s": 5.0})
+        assert est.monitor.window_s == 5.0
+    w = WheelActuator("w", {"side": "left"}, rng())
+    w.set_params({"side": "right"})
+    assert w.step(0.0, 0.05, {"wheel_cmd": np.array([1.0, 2.0])}) == {"wheel_speed_right": 2.0}
 
 
 def test_residual_signals_are_published():
@@ -150,6 +221,24 @@ def test_lqr_command_feedforward_on_the_reference():
     # on the reference: pure feed-forward v = 0.5, ω = 0.1
     assert_allclose(out["wheel_cmd"], [(0.5 - 0.025) / 0.1, (0.5 + 0.025) / 0.1])
     assert c.local_signals()["tracking_error"] == 0.0
+
+
+def test_lqr_set_params_keeps_the_reference_speed():
+    c = AsymLqrController("a", {"design_speed_mps": 0.3}, rng())
+    assert c.v_ref == 0.3
+    assert_allclose(c.K, lqr_gain(0.3, (1.0, 1.0, 1.0), (1.0, 1.0)))
+    ref = np.array([0.0, 0.0, 0.0, 1.2, 0.0])
+    enc = None
+    for k in range(100):
+        out = c.step(0.05 * k, 0.05, {"reference": ref, "pose_estimate": ref[:3],
+                                      "encoder_speeds": enc})
+        enc = 0.2 * out["wheel_cmd"]
+        if k == 0:
+            assert c.v_ref == 1.2
+            c.set_params({"q_lateral": 0.5, "min_effectiveness": 0.6})
+    assert c.v_ref == 1.2  # the speed of the reference, not the design speed
+    assert_allclose(c.K, lqr_gain(1.2, (1.0, 0.5, 1.0), (1.0, 1.0)))
+    assert_allclose(c.effectiveness, [0.6, 0.6])  # the new lower clip
 
 
 def test_asym_lqr_learns_effectiveness():
@@ -283,6 +372,30 @@ def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
     assert_allclose(f.P, ref.P, rtol=1e-10, atol=1e-14)
     assert_allclose(f.P, f.P.T, rtol=0, atol=0)
     assert_allclose(f.x, ref.x.ravel(), rtol=1e-12)
+
+
+def test_ekf_gps_update_is_the_kalman_update_and_the_state_is_kept_once():
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    g = np.random.default_rng(7)
+    f = Ekf("ekf", {"r_gps_m": 0.4}, g)
+    L = g.normal(size=(4, 4))
+    P0 = L @ L.T + 0.1 * np.eye(4)
+    x0 = g.normal(size=4)
+    f.x, f.P = x0, P0
+    z = x0[:2] + np.array([0.3, -0.2])
+    innovation = f.update_position(z)
+    H = np.eye(2, 4)
+    R = 0.4**2 * np.eye(2)
+    K = P0 @ H.T @ np.linalg.inv(H @ P0 @ H.T + R)
+    I_KH = np.eye(4) - K @ H
+    assert_allclose(innovation, [0.3, -0.2], rtol=1e-12)
+    assert_allclose(f.x, x0 + K @ (z - x0[:2]), rtol=1e-12)
+    assert_allclose(f.P, I_KH @ P0 @ I_KH.T + K @ R @ K.T, rtol=1e-10, atol=1e-14)
+    # one copy of the state: no filterpy filter is kept between GPS updates
+    assert not any(isinstance(v, ExtendedKalmanFilter) for v in vars(f).values())
+    f.predict(0.05, np.array([5.0, 5.0]))
+    assert f.export_state()["pose"][0] == pytest.approx(f.x[0])
 
 
 def test_ekf_handover_from_odometry():
