@@ -84,6 +84,7 @@ class LqrController(RuntimeModule):
     inputs: ClassVar[tuple[str, ...]] = ("reference", "pose_estimate", "kinematics")
     optional_inputs = ("dynamics", "actuation")
     outputs = ("wheel_cmd",)
+    output_sizes = {"wheel_cmd": 2}
     residual_signals = ("tracking_error",)
 
     def __init__(self, name, params, rng):

@@ -114,6 +114,7 @@ class Odometry(RuntimeModule):
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
     outputs = ("pose_estimate", "covariance")
+    output_sizes = {"pose_estimate": 3}
     residual_signals = ("innovation",)
 
     def __init__(self, name, params, rng):
@@ -212,6 +213,7 @@ class Ekf(RuntimeModule):
     inputs = ("encoder_speeds", "heading", "kinematics")
     optional_inputs = ("position",)
     outputs = ("pose_estimate", "covariance")
+    output_sizes = {"pose_estimate": 3}
     residual_signals = ("innovation",)
 
     _H_GPS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])

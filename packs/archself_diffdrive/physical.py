@@ -52,6 +52,7 @@ class DiffDrivePlant(RuntimeModule):
     role = "plant"
     inputs = ("wheel_speed_left", "wheel_speed_right")
     outputs = ("pose", "wheel_speeds")
+    output_sizes = {"pose": 3, "wheel_speeds": 2}
     direct_feedthrough = False
 
     def __init__(self, name, params, rng):
@@ -169,6 +170,7 @@ class WheelEncoders(RuntimeModule):
     role = "sensor"
     inputs = ("wheel_speeds",)
     outputs = ("encoder_speeds",)
+    output_sizes = {"encoder_speeds": 2}
     fault_kinds = _SENSOR_FAULTS | {"effectiveness_loss"}
 
     def configure(self) -> None:
@@ -227,6 +229,7 @@ class Gps(RuntimeModule):
     role = "sensor"
     inputs = ("pose",)
     outputs = ("position",)
+    output_sizes = {"position": 2}
     fault_kinds = _SENSOR_FAULTS
 
     def __init__(self, name, params, rng):

@@ -107,6 +107,7 @@ class SplinePlanner(RuntimeModule):
     role = "planner"
     optional_inputs = ("kinematics",)
     outputs = ("reference",)
+    output_sizes = {"reference": 5}  # x, y, θ, v, ω
 
     def configure(self) -> None:
         self.speed = float(self.params["speed_mps"])

@@ -327,6 +327,7 @@ class SetpointPlanner(RuntimeModule):
     }
     role = "planner"
     outputs = ("setpoint",)
+    output_sizes = {"setpoint": 2}  # h_ref, dh_ref/dt
 
     def configure(self) -> None:
         self.steps = sorted((float(t), float(h)) for t, h in self.params["steps"])

@@ -230,6 +230,7 @@ class TankPlant(RuntimeModule):
     role = "plant"
     inputs = ("inflow",)
     outputs = ("level", "inflow")
+    output_sizes = {"level": 1, "inflow": 1}
     direct_feedthrough = False
 
     def __init__(self, name, params, rng):
