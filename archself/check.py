@@ -184,22 +184,17 @@ def _edges(ctx: _Ctx) -> None:
                         ("edges", i, "carries"))
 
 
-def spectral_radius(names: list[str], edges: list[tuple[str, str, float]]) -> float:
-    """ρ(W); see :func:`spectrum_summary`."""
-    return spectrum_summary(names, edges)[0]
-
-
 def spectrum_summary(
     names: list[str], edges: list[tuple[str, str, float]]
 ) -> tuple[float, bool]:
-    """ρ(W) of a weighted digraph, computed per strongly connected component.
+    """ρ(W) of a weighted digraph, and whether ``I − Wᵀ`` is singular.
 
-    The spectrum of W is the union of the spectra of its strongly connected
-    blocks, so ρ(W) is 0 for a DAG and otherwise the largest radius of a
-    (typically small) cyclic block; this scales to large graphs. A small block
-    with weights ≥ 0 is solved in plain Python (:func:`perron_root`); numpy's
-    eigenvalues are used (and imported) only for large or negative blocks and
-    when ρ comes near 1, where the singularity of I − Wᵀ must be told apart.
+    ρ is :func:`archself.runtime.influence.spectral_radius` (the runtime's: dense
+    eigenvalues up to 400 modules, per strongly connected component and ARPACK
+    beyond). Self-loops are left out (the ``self-loop`` rule reports them). W has
+    the eigenvalue 1 only if ρ ≥ 1; then the LU factorization the runtime would
+    use (:class:`~archself.runtime.influence.InfluenceSolver`) tells whether
+    ``I − Wᵀ`` is singular.
 
     Returns
     -------
@@ -210,91 +205,24 @@ def spectrum_summary(
 
     Examples
     --------
-    >>> spectrum_summary(["a", "b", "c"], [("a", "b", 0.5), ("b", "a", 0.5), ("b", "c", 2.0)])
+    >>> rho, singular = spectrum_summary(
+    ...     ["a", "b", "c"], [("a", "b", 0.5), ("b", "a", 0.5), ("b", "c", 2.0)])
+    >>> round(rho, 12), singular
     (0.5, False)
     """
-    from archself.graphs import strongly_connected_components
+    import numpy as np
 
-    known = set(names)
-    weight: dict[tuple[str, str], float] = {}
-    succ: dict[str, list[str]] = {n: [] for n in names}
-    for s, t, omega in edges:
-        if s in known and t in known and s != t:
-            if (s, t) not in weight:
-                succ[s].append(t)
-            weight[(s, t)] = weight.get((s, t), 0.0) + omega  # parallel edges add up
-    rho, singular = 0.0, False
-    for comp in strongly_connected_components(succ):
-        if len(comp) < 2:
-            continue
-        pos = {n: i for i, n in enumerate(comp)}
-        w = [[0.0] * len(comp) for _ in comp]
-        for s in comp:
-            for t in succ[s]:
-                if t in pos:
-                    w[pos[s]][pos[t]] = weight[(s, t)]
-        r = perron_root(w) if len(comp) <= _PLAIN_MAX else None
-        if r is not None and r < 1.0 - 1e-6:
-            rho = max(rho, r)  # every |λ| ≤ ρ < 1: the eigenvalue 1 is impossible
-            continue
-        import numpy as np
+    from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 
-        lam = np.linalg.eigvals(np.array(w))
-        rho = max(rho, float(np.max(np.abs(lam))))
-        singular |= bool(np.any(np.abs(lam - 1.0) < 1e-9))
+    W = weight_matrix(names, [e for e in edges if e[0] != e[1]], allow_negative=True)
+    rho = spectral_radius(W)
+    singular = False
+    if rho >= 1.0 - 1e-9:
+        try:
+            InfluenceSolver().set_matrix(W, key=0)
+        except np.linalg.LinAlgError:
+            singular = True
     return rho, singular
-
-
-_PLAIN_MAX = 16  # blocks up to this size are solved without numpy
-
-
-def perron_root(w: list[list[float]]) -> float | None:
-    """ρ(W) of a small matrix with entries ≥ 0 (the Perron root), or None if one is < 0.
-
-    For W ≥ 0 the matrix λI − W is a nonsingular M-matrix exactly when λ > ρ(W),
-    i.e. when Gaussian elimination without pivoting meets only positive pivots;
-    ρ is found by bisection on that test between 0 and the largest row sum.
-
-    Examples
-    --------
-    >>> round(perron_root([[0.0, 0.5], [0.5, 0.0]]), 12)
-    0.5
-    >>> round(perron_root([[0.0, 1.0], [0.0, 0.0]]), 12)  # nilpotent
-    0.0
-    >>> perron_root([[0.0, -1.0], [1.0, 0.0]]) is None
-    True
-    """
-    if any(x < 0.0 for row in w for x in row):
-        return None
-    hi = max((sum(row) for row in w), default=0.0)  # ρ ≤ the largest row sum
-    if not hi > 0.0:
-        return 0.0
-    lo, tol = 0.0, 1e-14 * hi
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        if _above(w, mid):
-            hi = mid
-        else:
-            lo = mid
-    return hi
-
-
-def _above(w: list[list[float]], lam: float) -> bool:
-    """True when λ > ρ(W) for W ≥ 0: all pivots of λI − W (no pivoting) are > 0."""
-    n = len(w)
-    a = [[(lam if i == j else 0.0) - w[i][j] for j in range(n)] for i in range(n)]
-    for k in range(n):
-        piv = a[k][k]
-        if not piv > 0.0:
-            return False
-        rowk = a[k]
-        for i in range(k + 1, n):
-            f = a[i][k] / piv
-            if f:
-                rowi = a[i]
-                for j in range(k + 1, n):
-                    rowi[j] -= f * rowk[j]
-    return True
 
 
 def _weights(ctx: _Ctx) -> None:
@@ -328,7 +256,10 @@ def _active_edges(arch: Architecture, conf_name: str) -> list[tuple[int, Any]]:
 
 
 def _configurations(ctx: _Ctx) -> None:
-    from archself.graphs import find_cycle, weakly_connected_components
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    from archself.system import algebraic_loop
 
     arch = ctx.arch
     initial = [n for n, c in arch.configurations.items() if c.initial]
@@ -403,12 +334,12 @@ def _configurations(ctx: _Ctx) -> None:
                     ctx.add("error", "module-constraint",
                             f"configuration '{cname}': '{m}' excludes '{x}', which is active",
                             (*base, "modules"))
-        flow: dict[str, list[str]] = {}
-        for _, e in edges:
-            cls = ctx.types.get(e.target)
-            if cls is not None and cls.direct_feedthrough and e.source != e.target:
-                flow.setdefault(e.source, []).append(e.target)
-        loop = find_cycle(flow)
+        flow = [
+            (e.source, e.target) for _, e in edges
+            if (cls := ctx.types.get(e.target)) is not None and cls.direct_feedthrough
+            and e.source != e.target
+        ]
+        loop = algebraic_loop(flow)
         if loop:
             path = " -> ".join([*loop, loop[0]])
             ctx.add("error", "algebraic-loop",
@@ -416,12 +347,19 @@ def _configurations(ctx: _Ctx) -> None:
                     "module whose outputs depend on its state only (direct_feedthrough = False)",
                     (*base, "modules"))
         if len(active) > 1:
-            parts: list[list[str]] = weakly_connected_components(
-                sorted(active), [(e.source, e.target) for _, e in edges]
+            nodes = sorted(active)
+            pos = {m: k for k, m in enumerate(nodes)}
+            links = scipy.sparse.coo_matrix(
+                ([1.0] * len(edges),
+                 ([pos[e.source] for _, e in edges], [pos[e.target] for _, e in edges])),
+                shape=(len(nodes), len(nodes)),
             )
-            if len(parts) > 1:
-                smallest = min(parts, key=len)
-                lonely = sorted(smallest)
+            ncomp, labels = scipy.sparse.csgraph.connected_components(links, directed=False)
+            if ncomp > 1:
+                parts: dict[int, list[str]] = {}  # in the order of their first module
+                for m, label in zip(nodes, labels.tolist(), strict=True):
+                    parts.setdefault(label, []).append(m)
+                lonely = min(parts.values(), key=len)
                 ctx.add("error", "incomplete",
                         f"configuration '{cname}' is not connected: {', '.join(lonely)} "
                         "has no active edge to the rest", (*base, "modules"))

@@ -48,9 +48,10 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import heapq
 import math
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -60,10 +61,10 @@ from archself.model import Architecture
 from archself.modules.base import RuntimeModule
 from archself.objective import objective_norm
 
-__all__ = ["LiveSystem", "STALE_REPEATS", "stable_hash", "module_rng"]
+__all__ = ["LiveSystem", "STALE_REPEATS", "algebraic_loop", "stable_hash", "module_rng"]
 
 _isfinite = math.isfinite
-_NOT_NUMERIC: set[type] = {str, bool, type(None)}  # output types _is_bad never flags
+_NOT_NUMERIC: frozenset[type] = frozenset({str, bool, type(None)})  # never numbers
 
 #: A noisy signal repeating the same value this many times in a row is stale.
 STALE_REPEATS = 3
@@ -83,6 +84,84 @@ def stable_hash(text: str) -> int:
 def module_rng(seed: int, name: str) -> np.random.Generator:
     """The deterministic random stream of module (or edge, fault) ``name`` for ``seed``."""
     return np.random.default_rng([int(seed), stable_hash(name)])
+
+
+def algebraic_loop(flow: Sequence[tuple[str, str]]) -> list[str] | None:
+    """One cycle of the data flow ``flow`` (pairs source → target), or None if it has none.
+
+    The data flow of a step runs along the active edges into modules with direct
+    feedthrough; a cycle of it is an algebraic loop, and the step cannot be
+    ordered. This is the one check of it, used by the executor
+    (:class:`LiveSystem`) and by ``archself validate`` (:mod:`archself.check`).
+    The strong components come from :mod:`scipy.sparse.csgraph`. The cycle
+    returned is a self-loop if there is one, else it starts at the module that
+    is first a source in ``flow`` among those on a cycle and follows, from each
+    module, its first edge that stays in the strong component.
+
+    Examples
+    --------
+    >>> algebraic_loop([("a", "b"), ("b", "c"), ("c", "b")])
+    ['b', 'c']
+    >>> algebraic_loop([("a", "b"), ("a", "c")]) is None
+    True
+    """
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    for s, t in flow:
+        if s == t:
+            return [s]
+    index: dict[str, int] = {}
+    for s, _ in flow:
+        index.setdefault(s, len(index))
+    for _, t in flow:
+        index.setdefault(t, len(index))
+    n = len(index)
+    rows = [index[s] for s, _ in flow]
+    cols = [index[t] for _, t in flow]
+    graph = scipy.sparse.coo_matrix((np.ones(len(flow)), (rows, cols)), shape=(n, n))
+    ncomp, labels = scipy.sparse.csgraph.connected_components(
+        graph, directed=True, connection="strong"
+    )
+    if ncomp == n:
+        return None
+    on_cycle = np.bincount(labels)[labels] > 1
+    names = list(index)
+    start = names[int(np.flatnonzero(on_cycle)[0])]
+    comp = labels[index[start]]
+    succ: dict[str, list[str]] = {}
+    for s, t in flow:
+        if labels[index[t]] == comp:
+            succ.setdefault(s, []).append(t)
+    path, seen = [start], {start: 0}
+    while True:
+        nxt = succ[path[-1]][0]
+        if nxt in seen:
+            return path[seen[nxt] :]
+        seen[nxt] = len(path)
+        path.append(nxt)
+
+
+def _topological_order(
+    nodes: Sequence[str], flow: Sequence[tuple[str, str]], rank: dict[str, int]
+) -> list[str]:
+    """``nodes`` in topological order of the acyclic ``flow``, ties by ``rank`` (Kahn)."""
+    succ: dict[str, list[str]] = {n: [] for n in nodes}
+    indegree = dict.fromkeys(nodes, 0)
+    for s, t in flow:
+        succ[s].append(t)
+        indegree[t] += 1
+    ready = [(rank[n], n) for n in nodes if indegree[n] == 0]
+    heapq.heapify(ready)
+    order = []
+    while ready:
+        _, n = heapq.heappop(ready)
+        order.append(n)
+        for t in succ[n]:
+            indegree[t] -= 1
+            if indegree[t] == 0:
+                heapq.heappush(ready, (rank[t], t))
+    return order
 
 
 class _Shared:
@@ -197,6 +276,8 @@ class LiveSystem:
         self._last: dict[tuple[str, str], Any] = {}  # (module, signal) -> last value
         self._repeats: dict[tuple[str, str], int] = {}
         self._broken: set[str] = set()  # modules whose last value was not finite
+        # output types found not to be numbers (model objects): this system skips them
+        self._not_numeric: set[type] = set(_NOT_NUMERIC)
         self.history: list[dict[str, Any]] = []
         obj = arch.runtime.objective
         self._obj_actual = obj.actual
@@ -221,8 +302,6 @@ class LiveSystem:
         cached = self._plans.get(configuration)
         if cached is not None:
             return cached
-        import networkx as nx
-
         arch = self.arch
         conf = arch.configurations.get(configuration)
         if conf is None:
@@ -241,8 +320,7 @@ class LiveSystem:
         nonft = [n for n in active if not classes[n].direct_feedthrough]
         nonft_set = set(nonft)
         routes: dict[str, list[tuple[str, str, int, float, int]]] = {n: [] for n in active}
-        g = nx.DiGraph()
-        g.add_nodes_from(active)
+        flow: list[tuple[str, str]] = []  # the data flow of a step: edges into feedthrough
         edges: list[int] = []
         for i, e in enumerate(arch.edges):
             if e.source not in act or e.target not in act or (e.source, e.target) in disabled:
@@ -251,16 +329,15 @@ class LiveSystem:
             delay = int(round(e.latency_s / self.dt)) if e.latency_s > 0 else 0
             routes[e.target].append((e.carries, e.source, i, float(e.uncertainty), delay))
             if e.target not in nonft_set:
-                g.add_edge(e.source, e.target)
-        try:
-            order = list(nx.lexicographical_topological_sort(g, key=index.__getitem__))
-        except nx.NetworkXUnfeasible:
-            cycle = nx.find_cycle(g)
-            path = " -> ".join([u for u, _ in cycle] + [cycle[0][0]])
+                flow.append((e.source, e.target))
+        loop = algebraic_loop(flow)
+        if loop is not None:
+            path = " -> ".join([*loop, loop[0]])
             raise CompileError(
                 f"configuration {configuration!r} has an algebraic loop: {path} "
                 "(a loop needs a module with direct_feedthrough = False)"
-            ) from None
+            )
+        order = _topological_order(active, flow, index)
         order = [n for n in order if n not in nonft_set]
         required = {n: tuple(classes[n].inputs) for n in active}
         multi = {n: frozenset(classes[n].multi_inputs) for n in active if classes[n].multi_inputs}
@@ -353,12 +430,12 @@ class LiveSystem:
                 bad = v.dtype.kind == "f" and not _isfinite(
                     sum(v.tolist() if v.ndim == 1 else v.ravel().tolist())
                 )
-            elif tp in _NOT_NUMERIC:  # model objects, strings: nothing to check
+            elif tp in self._not_numeric:  # model objects, strings: nothing to check
                 bad = False
             else:
                 bad = _is_bad(v)
                 if not bad and not isinstance(v, (float, int, np.number)):
-                    _NOT_NUMERIC.add(tp)
+                    self._not_numeric.add(tp)
             if bad:
                 self._broken.add(name)
                 return "non-finite output"
@@ -613,8 +690,3 @@ class LiveSystem:
     def pool(self) -> dict[str, RuntimeModule]:
         """Every module instantiated so far (active or not)."""
         return dict(self._pool)
-
-    def modules_with_role(self, role: str, names: Iterable[str] | None = None) -> list[str]:
-        """Active modules (or ``names``) whose role is ``role``, in file order."""
-        names = self._plan.active if names is None else list(names)
-        return [n for n in names if self._module(n).role == role]

@@ -1,4 +1,4 @@
-"""The checker's small graph algorithms agree with networkx."""
+"""The data-flow graph algorithms (scipy.sparse.csgraph based) agree with networkx."""
 
 from __future__ import annotations
 
@@ -6,31 +6,33 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from archself.graphs import find_cycle, strongly_connected_components, weakly_connected_components
+from archself.system import _topological_order, algebraic_loop
 
+NODES = [f"n{i:02d}" for i in range(13)]
 edges_st = st.lists(st.tuples(st.integers(0, 12), st.integers(0, 12)), max_size=40)
-
-
-def _succ(edges: list[tuple[int, int]]) -> dict[int, list[int]]:
-    succ: dict[int, list[int]] = {n: [] for n in range(13)}
-    for a, b in edges:
-        if b not in succ[a]:
-            succ[a].append(b)
-    return succ
 
 
 @settings(max_examples=200, deadline=None)
 @given(edges_st)
-def test_components_and_cycles_match_networkx(edges: list[tuple[int, int]]) -> None:
+def test_algebraic_loop_and_order_match_networkx(pairs: list[tuple[int, int]]) -> None:
+    flow = [(NODES[a], NODES[b]) for a, b in pairs]
     g = nx.DiGraph()
-    g.add_nodes_from(range(13))
-    g.add_edges_from(edges)
-    ours = {frozenset(c) for c in strongly_connected_components(_succ(edges))}
-    assert ours == {frozenset(c) for c in nx.strongly_connected_components(g)}
-    weak = {frozenset(c) for c in weakly_connected_components(range(13), edges)}
-    assert weak == {frozenset(c) for c in nx.weakly_connected_components(g)}
-    cycle = find_cycle(_succ(edges))
-    assert (cycle is None) == nx.is_directed_acyclic_graph(g)
-    if cycle is not None:
-        ring = list(zip(cycle, cycle[1:] + cycle[:1], strict=True))
+    g.add_nodes_from(NODES)
+    g.add_edges_from(flow)
+    loop = algebraic_loop(flow)
+    assert (loop is None) == nx.is_directed_acyclic_graph(g)
+    if loop is not None:
+        ring = list(zip(loop, loop[1:] + loop[:1], strict=True))
         assert all(g.has_edge(a, b) for a, b in ring)
+        assert len(set(loop)) == len(loop)
+        return
+    rank = {n: -k for k, n in enumerate(NODES)}  # ties by a rank that is not the name order
+    expected = list(nx.lexicographical_topological_sort(g, key=rank.__getitem__))
+    assert _topological_order(NODES, flow, rank) == expected
+
+
+def test_loop_starts_at_the_first_source_and_follows_first_edges() -> None:
+    flow = [("x", "a"), ("c", "a"), ("a", "b"), ("b", "c"), ("b", "a")]
+    assert algebraic_loop(flow) == ["c", "a", "b"]  # c is the first source on a cycle
+    assert algebraic_loop([("a", "b"), ("b", "b")]) == ["b"]
+    assert algebraic_loop([]) is None

@@ -53,6 +53,7 @@ def weight_matrix(
     edges: Iterable[tuple[str, str, float]],
     *,
     scale: float = 1.0,
+    allow_negative: bool = False,
 ) -> scipy.sparse.csr_matrix:
     """Weighted adjacency matrix W of Eq. 13 as a sparse CSR matrix.
 
@@ -65,6 +66,9 @@ def weight_matrix(
         ends are not in ``names`` are ignored; parallel edges add up.
     scale : float, optional
         Factor applied to every weight (used to normalize ``ρ(W) < 1``).
+    allow_negative : bool, optional
+        Keep negative weights instead of raising (``archself validate`` measures
+        ρ(W) of a file whose negative weight it reports).
 
     Returns
     -------
@@ -74,7 +78,7 @@ def weight_matrix(
     Raises
     ------
     ValueError
-        If a weight is negative or not finite.
+        If a weight is not finite, or negative (unless ``allow_negative``).
 
     Examples
     --------
@@ -89,7 +93,7 @@ def weight_matrix(
     data: list[float] = []
     for source, target, weight in edges:
         w = float(weight)
-        if not np.isfinite(w) or w < 0:
+        if not np.isfinite(w) or (w < 0 and not allow_negative):
             raise ValueError(f"edge {source} -> {target}: weight must be finite and >= 0, got {w}")
         if source in index and target in index:
             rows.append(index[source])
