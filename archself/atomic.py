@@ -1,12 +1,16 @@
 """Atomic file output: write a temporary file beside the target, then rename.
 
-An interrupted or failed write never leaves a half-written file over a good one.
+An interrupted or failed write never leaves a half-written file over a good one,
+and never replaces a file registered with :func:`protect` (the inputs of the
+running command): ``--force`` allows replacing an old output, never an input.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from archself.errors import OutputError
@@ -18,15 +22,67 @@ def _umask() -> int:
     return mask
 
 
+#: ``(st_dev, st_ino)`` of the files no write may replace (see :func:`protect`).
+_PROTECTED: dict[tuple[int, int], str] = {}
+
+
+@contextmanager
+def protect(paths: Iterable[str | Path]) -> Iterator[None]:
+    """While in the block, no :func:`write_bytes` replaces one of ``paths`` (same inode).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "in.yaml"
+    >>> write_text(f, "a: 1")
+    >>> with protect([f]):
+    ...     try:
+    ...         write_text(f, "trace")
+    ...     except OutputError as err:
+    ...         print("refused")
+    refused
+    >>> f.read_text()
+    'a: 1'
+    """
+    from archself.outputs import file_ids
+
+    added = []
+    for p in paths:
+        for fid in file_ids(p):
+            if fid not in _PROTECTED:
+                _PROTECTED[fid] = str(p)
+                added.append(fid)
+    try:
+        yield
+    finally:
+        for fid in added:
+            _PROTECTED.pop(fid, None)
+
+
+def refuse_protected(path: str | Path) -> None:
+    """Raise :class:`OutputError` if ``path`` is a file registered with :func:`protect`."""
+    if not _PROTECTED:
+        return
+    from archself.outputs import file_ids
+
+    for fid in file_ids(path):
+        if fid in _PROTECTED:
+            raise OutputError(
+                f"{path}: error: is the input file {Path(_PROTECTED[fid]).name}; "
+                "refusing to write over it (even with --force)"
+            )
+
+
 def write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (same-directory temp file + ``os.replace``).
 
     Raises
     ------
     OutputError
-        If the folder does not exist or cannot be written.
+        If the folder does not exist or cannot be written, or ``path`` is protected.
     """
     p = Path(path)
+    refuse_protected(p)
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"{p}: cannot write: folder {folder} does not exist")

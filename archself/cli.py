@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -24,7 +26,26 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
+
+
+def _version(value: bool) -> None:
+    if value:
+        from archself import __version__
+
+        typer.echo(f"archself {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", "-V", callback=_version, is_eager=True,
+                           help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K)."""
 
 
 def _fail(msg: str, code: int = 1) -> typer.Exit:
@@ -35,6 +56,87 @@ def _fail(msg: str, code: int = 1) -> typer.Exit:
 def _die(err: ArchselfError) -> typer.Exit:
     typer.echo(str(err), err=True)
     return typer.Exit(err.exit_code)
+
+
+#: Files ``simulate --report DIR`` writes that an input could be named like.
+_RUN_REPORT_FILES = ("index.html", "summary.json")
+#: ``simulate`` refuses more steps than this (runs × duration / step) without --yes.
+SIM_MAX_STEPS = 5_000_000
+#: and an estimated memory above this (bytes).
+SIM_MAX_BYTES = 2 * 1024**3
+
+
+def _inputs(*paths: Path, what: str = "an architecture file") -> None:
+    """Every input must be a regular file (or a pipe): not missing, a folder or a device."""
+    from archself.outputs import check_input
+
+    for p in paths:
+        check_input(p, what)
+
+
+def _simulation_estimate(arch: Any, scenario: str, runs: int) -> tuple[int, int]:
+    """``(steps, bytes)`` of ``runs`` runs of ``scenario`` (0, 0 for an unknown scenario)."""
+    sc = arch.scenarios.get(scenario)
+    if sc is None:
+        return 0, 0
+    steps = runs * round(float(sc.duration_s) / float(arch.runtime.step_s))
+    n_res = sum(1 for m in arch.modules.values() if m.residual)
+    # recorded per step: time, J, configuration, 4 series of ~3 floats, residual rows
+    return steps, steps * (250 + 40 * n_res)
+
+
+def _check_simulation_size(arch: Any, scenario: str, runs: int, yes: bool) -> None:
+    steps, size = _simulation_estimate(arch, scenario, runs)
+    if yes or (steps <= SIM_MAX_STEPS and size <= SIM_MAX_BYTES):
+        return
+    raise _fail(
+        f"error: {runs} run{'s' * (runs != 1)} of {scenario} = {steps:,} steps, about "
+        f"{size / 1024**2:,.0f} MB of series: more than the cap ({SIM_MAX_STEPS:,} steps, "
+        f"{SIM_MAX_BYTES // 1024**3} GB); shorten duration_s or raise step_s, or pass --yes"
+    )
+
+
+@contextmanager
+def _numeric(path: Path) -> Iterator[None]:
+    """Numeric trouble of the libraries as located one-line messages.
+
+    Warnings of numpy/scipy (overflow, singular matrix, ...) are collected and
+    printed once each after the command's own output, as ``PATH: warning: ...``;
+    an OverflowError or FloatingPointError (a value of the file out of the range of
+    a float, e.g. ``acceptable: 1e308`` squared) is a one-line error, exit 1.
+    """
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        try:
+            yield
+        except (OverflowError, FloatingPointError) as exc:
+            detail = str(exc.args[-1]) if exc.args else type(exc).__name__
+            raise _fail(
+                f"{path}: error: a value of the file is out of the range of the computation "
+                f"({type(exc).__name__}: {detail}); use smaller magnitudes"
+            ) from None
+        finally:
+            seen: set[str] = set()
+            for w in caught:
+                if not _numeric_warning(w):
+                    continue
+                text = str(w.message).splitlines()[0] if str(w.message) else ""
+                where = Path(w.filename).name
+                line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
+                if line not in seen and len(seen) < 5:
+                    seen.add(line)
+                    typer.echo(line, err=True)
+
+
+def _numeric_warning(w: Any) -> bool:
+    """A warning worth showing: from numpy/scipy/the runtime, not a library's deprecation."""
+    if issubclass(w.category, DeprecationWarning | PendingDeprecationWarning):
+        return False
+    return issubclass(w.category, RuntimeWarning) or "numpy" in w.category.__module__ or (
+        "scipy" in w.category.__module__
+    )
 
 
 # --------------------------------------------------------------------------- validate
@@ -248,21 +350,19 @@ def _switches_text(switches: list[dict]) -> str:
 
 
 def _summary(results: list) -> str:
-    rows = [
-        ("max error [m]", "max_error_m", "{:.3f}"),
-        ("final error [m]", "final_error_m", "{:.3f}"),
-        ("RMS error [m]", "rms_error_m", "{:.3f}"),
-        ("peak time [s]", "peak_time_s", "{:.1f}"),
-    ]
+    from archself.sim.run import metric_rows
+
+    rows = metric_rows(results[0].unit)  # labels carry the unit of runtime.objective
     first = results[0]
     head = f"scenario {first.scenario} · seed {first.seed} · start {first.configuration}"
     lines = [head]
     names = [f"{r.mode} (→ {r.final_configuration})" for r in results]
     width = max(16, *(len(n) + 2 for n in names))
-    lines.append(" " * 18 + "".join(n.rjust(width) for n in names))
-    for label, key, fmt in rows:
-        vals = "".join(fmt.format(r.metrics[key]).rjust(width) for r in results)
-        lines.append(label.ljust(18) + vals)
+    left = max(18, *(len(label) + 2 for label, _, _ in rows))
+    lines.append(" " * left + "".join(n.rjust(width) for n in names))
+    for label, key, decimals in rows:
+        vals = "".join(f"{r.metrics[key]:.{decimals}f}".rjust(width) for r in results)
+        lines.append(label.ljust(left) + vals)
     for r in results:
         lines.append(f"switches ({r.mode}): {_switches_text(r.switches)}")
     return "\n".join(lines)
@@ -295,6 +395,9 @@ def simulate(
             help="Write an HTML run report with the paper's figures to DIR.",
         ),
     ] = None,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
+    ] = False,
 ) -> None:
     """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
 
@@ -305,25 +408,38 @@ def simulate(
         raise _fail("--fixed and --compare exclude each other", 2)
     if trace is not None and not (trace.parent if str(trace.parent) else Path(".")).is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
-    try:
-        arch = _load(arch_path)
-        if config is not None and config not in arch.configurations:
-            known = ", ".join(arch.configurations)
-            raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
-        show = sys.stderr.isatty() and not json_out
-        modes = [False, True] if compare else [not fixed]
-        results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
-        if trace is not None:
-            for r in results:
-                target = trace
-                if compare and r.mode == "fixed":
-                    target = trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
-                r.write_trace(target)
-        if report is not None:
-            from archself.reports.run_report import write_run_report
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
 
-            write_run_report(arch, results, report)
-            typer.echo(f"report: {report / 'index.html'}", err=True)
+    fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
+    try:
+        _inputs(arch_path)
+        for target, what in ((trace, "--trace"), (fixed_trace if compare else None, "--trace")):
+            if target is not None:
+                refuse_same_file([arch_path], target, what)
+        if report is not None:
+            for name in _RUN_REPORT_FILES:
+                refuse_same_file([arch_path], report / name, "--report")
+        with protect([arch_path]), _numeric(arch_path):
+            arch = _load(arch_path)
+            if config is not None and config not in arch.configurations:
+                known = ", ".join(arch.configurations)
+                raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
+            _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
+            show = sys.stderr.isatty() and not json_out
+            modes = [False, True] if compare else [not fixed]
+            results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
+            if trace is not None:
+                for r in results:
+                    target = trace
+                    if compare and r.mode == "fixed" and fixed_trace is not None:
+                        target = fixed_trace
+                    r.write_trace(target)
+            if report is not None:
+                from archself.reports.run_report import write_run_report
+
+                write_run_report(arch, results, report)
+                typer.echo(f"report: {report / 'index.html'}", err=True)
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
@@ -346,16 +462,45 @@ def report(
     no_render: Annotated[
         bool, typer.Option("--no-render", help="DOT sources only, even if `dot` is installed.")
     ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace the report in an existing, non-empty DIR.")
+    ] = False,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Write even past the cap on the number of files.")
+    ] = False,
 ) -> None:
     """Architecture report: DSMs (HTML, Markdown, CSV), Fig. 1 graphs and configuration diffs.
 
     Graphs are rendered to SVG and PNG when Graphviz `dot` is on PATH; index.html links all.
+    The report is written beside DIR and swapped in when complete (no half report,
+    no stale files); a non-empty DIR is replaced only with --force.
     """
-    try:
-        arch = _load(arch_path)
-        from archself.reports.architecture import write_architecture_report
+    from archself.atomic import protect
+    from archself.outputs import refuse_input_inside
 
-        rep = write_architecture_report(arch, output, dot=not no_render)
+    try:
+        _inputs(arch_path)
+        refuse_input_inside([arch_path], output, "-o")
+        with protect([arch_path]), _numeric(arch_path):
+            arch = _load(arch_path)
+            import shutil
+
+            from archself.reports.architecture import (
+                MAX_FILES,
+                count_report_files,
+                write_architecture_report,
+            )
+
+            files = count_report_files(arch, not no_render and shutil.which("dot") is not None)
+            if files > MAX_FILES and not yes:
+                raise _fail(
+                    f"{arch_path}: error: the report would be {files:,} files "
+                    f"({len(arch.configurations):,} configurations), more than the cap of "
+                    f"{MAX_FILES:,}; pass --yes to write them"
+                )
+            if files > MAX_FILES:
+                typer.echo(f"writing {files:,} files into {output}", err=True)
+            rep = write_architecture_report(arch, output, dot=not no_render, force=force)
     except ArchselfError as exc:
         raise _die(exc) from None
     if rep.note and not no_render:
@@ -425,14 +570,20 @@ def campaign(
     traces: Annotated[
         Path | None, typer.Option("--traces", metavar="DIR", help="Write every run's trace here.")
     ] = None,
-    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    root_seed: Annotated[
+        int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
+    ] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the outcome as JSON.")] = False,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
+    ] = False,
 ) -> None:
     """Run a Monte Carlo campaign: scenarios x sweep values x seeds, fixed and adaptive.
 
     One Parquet row per run, written as runs finish; Ctrl-C keeps the finished
-    runs (exit 130) and --resume continues. The same command gives the same
-    table whatever the number of workers.
+    runs (exit 130; SIGTERM: 143) and --resume continues. The same command gives
+    the same table whatever the number of workers. A campaign larger than the cap
+    (runs, steps) needs --yes; --out is never the architecture file.
     """
     from archself.campaign.driver import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
@@ -444,44 +595,55 @@ def campaign(
         raise _fail(f"--executor {executor}: expected local or dask", 2)
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
+
     try:
+        _inputs(arch_path)
+        refuse_same_file([arch_path], out, "--out")
         sweeps = [parse_sweep(s) for s in sweep or []]
-        jobs, meta = plan_campaign(
-            arch_path,
-            scenarios,
-            seeds,
-            sweeps,
-            modes=modes[mode],
-            root_seed=root_seed,
-            traces=traces,
-        )
-        show = sys.stderr.isatty() and not json_out
-        bar = None
-        state = {"done": 0}
-
-        def progress(done: int, total: int) -> None:
-            nonlocal bar
-            if bar is None:
-                bar = typer.progressbar(length=total, label=f"{total} runs", file=sys.stderr)
-                bar.__enter__()
-            bar.update(done - state["done"])
-            state["done"] = done
-
-        try:
-            outcome = run_campaign(
-                jobs,
-                meta,
-                out,
-                executor=executor,
-                workers=workers,
-                address=address,
-                resume=resume,
-                force=force,
-                progress=progress if show else None,
+        with protect([arch_path]), _numeric(arch_path):
+            jobs, meta = plan_campaign(
+                arch_path,
+                scenarios,
+                seeds,
+                sweeps,
+                modes=modes[mode],
+                root_seed=root_seed,
+                traces=traces,
+                yes=yes,
             )
-        finally:
-            if bar is not None:
-                bar.__exit__(None, None, None)
+            show = sys.stderr.isatty() and not json_out
+            bar = None
+            state = {"done": 0}
+            steps = int(meta.get("steps", 0))
+
+            def progress(done: int, total: int) -> None:
+                nonlocal bar
+                if bar is None:
+                    per = steps // max(len(jobs), 1)
+                    label = f"{total:,} runs × {per:,} steps"
+                    bar = typer.progressbar(length=total, label=label, file=sys.stderr)
+                    bar.__enter__()
+                bar.update(done - state["done"])
+                state["done"] = done
+
+            try:
+                outcome = run_campaign(
+                    jobs,
+                    meta,
+                    out,
+                    executor=executor,
+                    workers=workers,
+                    address=address,
+                    resume=resume,
+                    force=force,
+                    progress=progress if show else None,
+                    notice=lambda msg: typer.echo(f"warning: {msg}", err=True),
+                )
+            finally:
+                if bar is not None:
+                    bar.__exit__(None, None, None)
     except ArchselfError as exc:
         raise _die(exc) from None
     data = {
@@ -546,7 +708,181 @@ def campaign_report_cmd(
         typer.echo(f"report: {out_dir / 'index.html'}", err=True)
 
 
+# --------------------------------------------------------------------------- export, info
+@app.command()
+def export(
+    arch: Annotated[Path, typer.Argument(metavar="FILE", help="Architecture file.")],
+    to: Annotated[
+        str,
+        typer.Option("--to", metavar="FORMAT",
+                     help="graphml, node-link, edges-csv or ros2-modes (docs/export.md)."),
+    ],
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
+    ] = None,
+) -> None:
+    """Export the architecture for other tools: GraphML, node-link JSON, edge CSV, ROS 2 modes."""
+    from archself.export import FORMATS
+
+    if to not in FORMATS:
+        raise _fail(f"error: --to: unknown format '{to}'; choose one of {', '.join(FORMATS)}", 2)
+    _inputs(arch)
+    try:
+        if output is not None and str(output) != "-":
+            from archself.outputs import refuse_same_file
+
+            refuse_same_file([arch], output, "--output")
+        from archself.export import export as export_text
+
+        text = export_text(_load(arch), to)
+        if output is None or str(output) == "-":
+            sys.stdout.write(text)
+            return
+        from archself.atomic import write_text
+
+        write_text(output, text)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(f"{output}: {to}", err=True)
+
+
+@app.command()
+def info(
+    arch: Annotated[Path, typer.Argument(metavar="FILE", help="Architecture file.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """What a file holds: modules, configurations, actions, scenarios and runtime settings."""
+    from archself.summary import summarize, summary_text
+
+    _inputs(arch)
+    try:
+        data = summarize(_load(arch))
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(json.dumps(data, indent=2) if as_json else summary_text(data))
+
+
+# --------------------------------------------------------------------------- calibrate
+@app.command()
+def calibrate(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    false_switch: Annotated[
+        float,
+        typer.Option("--false-switch", metavar="P", help="Target false alarms per nominal run."),
+    ] = 0.01,
+    seeds: Annotated[
+        int, typer.Option("--seeds", min=1, help="Runs per scenario and configuration.")
+    ] = 100,
+    scenarios: Annotated[
+        list[str] | None,
+        typer.Option("--scenario", "-s", help="Fault-free scenario (repeatable; default: all)."),
+    ] = None,
+    configurations: Annotated[
+        list[str] | None,
+        typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
+    ] = None,
+    verify_seeds: Annotated[
+        int, typer.Option("--verify-seeds", min=0, help="Fresh seeds to measure the new rate on.")
+    ] = 0,
+    executor: Annotated[
+        str, typer.Option("--executor", help="local (process pool) or dask.")
+    ] = "local",
+    address: Annotated[
+        str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
+    ] = None,
+    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    output: Annotated[
+        Path | None,
+        typer.Option("-o", "--output", metavar="FILE", help="Write the calibrated copy."),
+    ] = None,
+    in_place: Annotated[
+        bool, typer.Option("--in-place", help="Calibrate ARCH itself (needs --force).")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite FILE (or ARCH).")] = False,
+    report_dir: Annotated[
+        Path | None, typer.Option("--report", metavar="DIR", help="Write the HTML/Markdown report.")
+    ] = None,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print the bands and rates as JSON.")
+    ] = False,
+) -> None:
+    """Derive residual bands (residual.nominal) for a target false-switch rate from nominal runs.
+
+    Runs every fault-free scenario fixed in every configuration for --seeds seeds
+    (local pool or Dask), records the Monitor's filtered residuals and chooses the
+    bands so that at most P of the nominal runs raise a candidate (Gumbel tail of
+    the per-run maxima). docs/calibrate.md.
+    """
+    from archself.calibration.driver import calibrate as run_calibration
+    from archself.calibration.edit import check_output
+
+    if not 0.0 < false_switch < 1.0:
+        raise _fail(f"--false-switch {false_switch:g}: expected a rate between 0 and 1", 2)
+    if executor not in ("local", "dask"):
+        raise _fail(f"--executor {executor}: expected local or dask", 2)
+    if in_place and output is not None:
+        raise _fail("--in-place and --output exclude each other", 2)
+    if in_place and not force:
+        raise _fail("--in-place overwrites ARCH: pass --force as well", 2)
+    target = arch_path if in_place else output
+    try:
+        if target is not None:
+            check_output(arch_path, target, in_place=in_place, force=force)
+        show = sys.stderr.isatty() and not json_out
+        bar = None
+        state = {"done": 0}
+
+        def progress(done: int, total: int) -> None:
+            nonlocal bar
+            if done < state["done"] or bar is None:
+                if bar is not None:
+                    bar.__exit__(None, None, None)
+                bar = typer.progressbar(length=total, label=f"{total} runs", file=sys.stderr)
+                bar.__enter__()
+                state["done"] = 0
+            bar.update(done - state["done"])
+            state["done"] = done
+
+        try:
+            cal = run_calibration(
+                arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
+                configurations=configurations, root_seed=root_seed, executor=executor,
+                workers=workers, address=address, verify_seeds=verify_seeds,
+                progress=progress if show else None,
+            )
+        finally:
+            if bar is not None:
+                bar.__exit__(None, None, None)
+        if target is not None:
+            from archself.atomic import write_text
+
+            write_text(target, cal.text)
+        if report_dir is not None:
+            from archself.calibration.report import write_report
+
+            index = write_report(cal, report_dir)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if json_out:
+        typer.echo(json.dumps(cal.to_dict(), indent=2, ensure_ascii=False))
+    else:
+        from archself.calibration.report import summary_text
+
+        typer.echo(summary_text(cal))
+    if target is not None:
+        typer.echo(f"wrote {target}", err=True)
+    if report_dir is not None:
+        typer.echo(f"report: {index}", err=True)
+
+
 # --------------------------------------------------------------------------- generate
+#: ``generate`` refuses more modules than this without --yes (≈ 22 MB of YAML).
+GENERATE_MAX = 100_000
+
+
 @app.command()
 def generate(
     n: Annotated[int, typer.Argument(metavar="N", min=2, help="Number of modules.")],
@@ -558,11 +894,22 @@ def generate(
     feedback: Annotated[
         int, typer.Option("--feedback", min=0, help="Weak backward edges (cycles).")
     ] = 0,
+    yes: Annotated[
+        bool, typer.Option("--yes", help=f"Generate even more than {GENERATE_MAX:,} modules.")
+    ] = False,
 ) -> None:
     """Generate a large DAG-like architecture of N generic.relay modules (scaling studies)."""
     from archself.atomic import write_text
     from archself.generate import generate_architecture
 
+    if n > GENERATE_MAX and not yes:
+        raise _fail(
+            f"error: N = {n:,} modules is more than the cap of {GENERATE_MAX:,} (about "
+            f"{GENERATE_MAX * 230 // 1024**2} MB of YAML; the loader reads at most 20 MB); "
+            "pass --yes to generate it anyway"
+        )
+    if feedback > n * fan_in and not yes:
+        raise _fail(f"error: --feedback {feedback:,} is more than N × --fan-in edges")
     text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
     if output is None:
         sys.stdout.write(text)
@@ -579,14 +926,36 @@ def main() -> None:
     from archself.campaign.executors import single_thread_blas
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
+    import signal
+
+    from archself.errors import Terminated, raise_terminated
+
+    signal.signal(signal.SIGTERM, raise_terminated)  # the clean-up of Ctrl-C, exit 143
     try:
         app()
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        raise SystemExit(130) from None
+    except SystemExit as exc:
+        # typer turns Ctrl-C into a silent exit 130: say what happened
+        cause = exc.__context__.__cause__ if exc.__context__ is not None else None
+        if exc.code == 130 and isinstance(cause, KeyboardInterrupt):
+            terminated = isinstance(cause, Terminated)
+            typer.echo("terminated" if terminated else "interrupted", err=True)
+            raise SystemExit(143 if terminated else 130) from None
+        raise
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        typer.echo("terminated" if terminated else "interrupted", err=True)
+        raise SystemExit(143 if terminated else 130) from None
     except ArchselfError as exc:
         typer.echo(str(exc), err=True)
         raise SystemExit(exc.exit_code) from None
+    except MemoryError:
+        typer.echo("error: out of memory; the work asked for is too large for this machine",
+                   err=True)
+        raise SystemExit(1) from None
+    except OSError as exc:  # the system refused (permissions, disk full): not a bug
+        where = f"{exc.filename}: " if exc.filename else ""
+        typer.echo(f"{where}error: {exc.strerror or exc}", err=True)
+        raise SystemExit(1) from None
     except Exception as exc:  # a bug, not a user error: say so in one line
         import os
 

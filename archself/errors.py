@@ -77,3 +77,27 @@ class SimulationError(ArchselfError):
 
 class OutputError(ArchselfError):
     """An output file or folder cannot be written."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C would be so that the same clean-up runs; exit code 143.
+
+    A subclass of :class:`KeyboardInterrupt` (not of :class:`Exception`): code that
+    catches ``Exception`` (a module's failure, a failed run) does not swallow it.
+    """
+
+
+def raise_terminated(signum: int, frame: object) -> None:
+    """A SIGTERM handler: raise :class:`Terminated` in the main thread."""
+    raise Terminated()
+
+
+#: Exit codes of the command line (docs/hardening.md).
+EXIT_CODES = {
+    0: "success",
+    1: "findings, or a user error (bad file, bad value, output refused, work too large)",
+    2: "usage error (an option or argument the command does not accept)",
+    3: "internal error: a bug of archself (ARCHSELF_DEBUG=1 shows the traceback)",
+    130: "interrupted (SIGINT, Ctrl-C); a campaign keeps its finished runs",
+    143: "terminated (SIGTERM); a campaign keeps its finished runs",
+}

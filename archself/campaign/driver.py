@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -25,15 +27,27 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError, Sweep, apply_values, sweep_points
 from archself.campaign.worker import Job, run_job, trace_name
-from archself.errors import ArchselfError
+from archself.errors import ArchselfError, OutputError
 
-__all__ = ["CampaignInterrupted", "CampaignOutcome", "plan_campaign", "run_campaign", "run_seeds"]
+__all__ = [
+    "CampaignEstimate",
+    "CampaignInterrupted",
+    "CampaignOutcome",
+    "estimate_campaign",
+    "plan_campaign",
+    "run_campaign",
+    "run_seeds",
+]
 
 MODES = ("fixed", "adaptive")
+#: A run that was on a worker when it died this many times becomes a failed row.
+MAX_ATTEMPTS = 3
+#: A campaign restarts its local pool at most this many times, then stops (--resume).
+MAX_POOL_RESTARTS = 5
 
 
 class CampaignInterrupted(ArchselfError):
-    """Ctrl-C: the finished runs are saved; exit code 130."""
+    """Ctrl-C (exit code 130) or SIGTERM (143): the finished runs are saved."""
 
     exit_code = 130
 
@@ -91,11 +105,15 @@ def plan_campaign(
     modes: Sequence[str] = MODES,
     root_seed: int = 0,
     traces: str | Path | None = None,
+    yes: bool = False,
 ) -> tuple[list[Job], dict[str, Any]]:
     """Validate a campaign and list its jobs (and the metadata of its results file).
 
     The file is loaded and checked once here, and every sweep point is applied
     and validated, so user errors are one-line errors before any run starts.
+    The size (:func:`estimate_campaign`) is checked against :data:`MAX_RUNS` and
+    :data:`MAX_STEPS` (lifted by ``yes``) and against the memory (never lifted)
+    before anything is built.
 
     Raises
     ------
@@ -117,6 +135,8 @@ def plan_campaign(
         raise CampaignError(
             f"unknown mode {bad_modes[0] if bad_modes else ''!r}; known: " + ", ".join(MODES)
         )
+    if root_seed < 0:
+        raise CampaignError(f"--root-seed must be at least 0, not {root_seed}")
     text = read_text(arch_path)
     loaded = load_text(text, file)
     _no_errors(check(loaded), has_errors, "")
@@ -125,6 +145,8 @@ def plan_campaign(
     if missing:
         known = ", ".join(arch.scenarios) or "none"
         raise CampaignError(f"{file}: unknown scenario {missing[0]!r}; known: {known}")
+    est = estimate_campaign(arch, scenarios, sweeps, seeds, modes)
+    est.check(yes)
     points = sweep_points(sweeps)
     for point in points if sweeps else []:
         swept = apply_values(loaded.data, sweeps, point, file)
@@ -165,8 +187,68 @@ def plan_campaign(
         "sweeps": [s.path for s in sweeps],
         "fault_free": sorted(name for name, s in arch.scenarios.items() if not s.faults),
         "thresholds": _threshold_paths(sweeps),
+        "steps": est.steps,
     }
     return jobs, meta
+
+
+#: Caps of a campaign without ``--yes`` (runs, simulated steps) and in any case (memory).
+MAX_RUNS = 100_000
+MAX_STEPS = 1_000_000_000
+#: Bytes the driver holds per run (the job, its row, the futures) — measured ≈ 1.2 KB.
+BYTES_PER_RUN = 2048
+
+
+@dataclass(frozen=True)
+class CampaignEstimate:
+    """The size of a campaign, known before any run starts."""
+
+    runs: int
+    steps: int
+    memory_bytes: int
+
+    def text(self) -> str:
+        """``1,200 runs × 8,000 steps ≈ 9.6e+06 steps, ~2 MB``."""
+        per = self.steps // max(self.runs, 1)
+        return (
+            f"{self.runs:,} runs × {per:,} steps = {self.steps:.3g} steps, "
+            f"~{self.memory_bytes / 1024**2:,.0f} MB"
+        )
+
+    def check(self, yes: bool) -> None:
+        """Refuse past the caps: runs and steps unless ``yes``; memory always."""
+        avail = _memory_bytes()
+        if avail and self.memory_bytes > avail // 2:
+            raise CampaignError(
+                f"the campaign is {self.text()}: more than half of this machine's memory "
+                f"({avail / 1024**3:.1f} GB); use fewer --seeds or sweep values, or split it"
+            )
+        if yes:
+            return
+        if self.runs > MAX_RUNS or self.steps > MAX_STEPS:
+            raise CampaignError(
+                f"the campaign is {self.text()}: more than the cap ({MAX_RUNS:,} runs, "
+                f"{MAX_STEPS:.0e} steps); pass --yes to run it anyway"
+            )
+
+
+def _memory_bytes() -> int:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def estimate_campaign(
+    arch: Any, scenarios: Sequence[str], sweeps: Sequence[Sweep], seeds: int, modes: Sequence[str]
+) -> CampaignEstimate:
+    """Runs, simulated steps and driver memory of a campaign, without building it."""
+    n_points = math.prod(len(s.values) for s in sweeps)
+    per_cell = n_points * int(seeds) * len(modes)
+    dt = float(arch.runtime.step_s)
+    steps = sum(per_cell * round(float(arch.scenarios[s].duration_s) / dt) for s in scenarios)
+    runs = per_cell * len(scenarios)
+    return CampaignEstimate(runs, steps, runs * BYTES_PER_RUN)
 
 
 def _threshold_paths(sweeps: Sequence[Sweep]) -> list[str]:
@@ -200,6 +282,46 @@ def _existing(out: Path, meta: dict[str, Any]) -> list[dict[str, Any]]:
     return [r for r in table.to_pylist() if r.get("error") is None]
 
 
+def _check_outputs(jobs: Sequence[Job], out: Path) -> None:
+    """Refuse ``--out`` or a trace file that is an input; make and probe the traces folder."""
+    import tempfile
+
+    from archself.outputs import file_ids, refuse_same_file
+
+    inputs = sorted({j.file for j in jobs})
+    refuse_same_file(inputs, out, "--out")
+    folders = sorted({str(Path(j.trace).parent) for j in jobs if j.trace is not None})
+    for folder in folders:
+        d = Path(folder)
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            fd, probe = tempfile.mkstemp(prefix=".archself-probe.", dir=d)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise OutputError(
+                f"{d}: error: --traces folder cannot be written: {exc.strerror or exc}"
+            ) from None
+        ids = set().union(*(file_ids(i) for i in inputs))
+        if ids & file_ids(d):
+            continue
+        names = {Path(j.trace).name for j in jobs if j.trace is not None}
+        for inp in inputs:
+            cand = d / Path(inp).name
+            if Path(inp).name in names and file_ids(cand) & file_ids(inp):
+                raise OutputError(
+                    f"{cand}: error: a trace would overwrite the input file; "
+                    "choose another --traces folder"
+                )
+
+
+def _worker_died(exc: BaseException) -> bool:
+    """A worker process of the pool died (killed, out of memory, a crash in C code)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    return isinstance(exc, BrokenProcessPool) or type(exc).__name__ == "KilledWorker"
+
+
 def run_campaign(
     jobs: Sequence[Job],
     meta: dict[str, Any],
@@ -212,6 +334,7 @@ def run_campaign(
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
     flush_s: float = 2.0,
+    notice: Callable[[str], None] | None = None,
 ) -> CampaignOutcome:
     """Run the jobs on an executor and write the results table to ``out``.
 
@@ -229,16 +352,29 @@ def run_campaign(
     resume : bool
         Keep the rows of an existing ``out`` and run only the missing runs.
     force : bool
-        Overwrite an existing ``out``.
+        Overwrite an existing ``out`` (never the architecture file: refused).
     progress : callable, optional
         ``progress(done, total)`` after every finished run.
+    notice : callable, optional
+        Called with a one-line message when a worker died and the pool is
+        restarted (default: printed to stderr).
+
+    A local worker that dies (killed, out of memory, a crash in C code) breaks the
+    pool: the pool is started again and the unfinished runs are submitted again.
+    The runs that were on a worker when it died count an attempt; a run that was
+    there :data:`MAX_ATTEMPTS` times becomes a failed row (``--resume`` retries
+    failed rows). After :data:`MAX_POOL_RESTARTS` restarts the campaign stops with
+    a message naming ``--resume``; the finished rows are saved.
 
     Raises
     ------
     CampaignInterrupted
-        On Ctrl-C, after saving the finished runs.
+        On Ctrl-C (exit 130) or SIGTERM (exit 143), after saving the finished runs.
     CampaignError
-        ``out`` exists (without resume or force), or belongs to another campaign.
+        ``out`` exists (without resume or force), or belongs to another campaign;
+        the pool cannot start, or its workers keep dying.
+    OutputError
+        ``out`` or a trace is an input file; the traces folder cannot be written.
     """
     from archself.campaign.executors import make_executor
     from archself.campaign.results import write_results
@@ -247,6 +383,8 @@ def run_campaign(
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise CampaignError(f"{out}: cannot write: folder {folder} does not exist")
+    say = notice or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    _check_outputs(jobs, out)
     rows: list[dict[str, Any]] = []
     if out.exists() and resume:
         rows = _existing(out, meta)
@@ -255,9 +393,6 @@ def run_campaign(
     done_ids = {r["run_id"] for r in rows}
     # replicate-major submission: an interrupted campaign has seeds of every cell
     todo = sorted((j for j in jobs if j.run_id not in done_ids), key=lambda j: j.replicate)
-    for j in todo:
-        if j.trace is not None:
-            Path(j.trace).parent.mkdir(parents=True, exist_ok=True)
     sweep_paths = list(meta.get("sweeps", []))
     t0 = time.perf_counter()
     ran = failed = 0
@@ -269,45 +404,109 @@ def run_campaign(
     if not todo:
         flush()
         return CampaignOutcome(out, len(jobs), len(jobs), 0, 0, len(rows), 0, executor, 0.0)
-    ex = make_executor(
-        executor, workers=workers, address=address, preload=["archself.campaign.worker"]
-    )
-    futures: list[Any] = []
+
+    # no more local processes than runs (--workers 100000 on 2 runs starts 2)
+    n_start = None if workers is None else max(1, min(int(workers), len(todo)))
+
+    def start() -> Any:
+        try:
+            return make_executor(
+                executor, workers=n_start, address=address, preload=["archself.campaign.worker"]
+            )
+        except (OSError, RuntimeError) as exc:
+            raise CampaignError(f"cannot start the {executor} workers: {exc}") from None
+
+    def keep(row: dict[str, Any]) -> None:
+        nonlocal ran, failed
+        rows.append(row)
+        ran += 1
+        if row.get("error"):
+            failed += 1
+            if len(errors) < 5:
+                errors.append(f"{row['run_id']}: {row['error']}")
+        if progress is not None:
+            progress(ran, len(todo))
+
+    pending: dict[str, Job] = {j.run_id: j for j in todo}  # in submission order
+    attempts: dict[str, int] = {}
+    restarts = 0
+    ex = start()
+    n_workers = ex.workers
+    futures: dict[Any, Job] = {}
     try:
-        futures = [ex.submit(run_job, j) for j in todo]
-        last = time.perf_counter()
         if progress is not None:
             progress(0, len(todo))
-        for fut in ex.as_completed(futures):
-            row = fut.result()
-            rows.append(row)
-            ran += 1
-            if row.get("error"):
-                failed += 1
-                if len(errors) < 5:
-                    errors.append(f"{row['run_id']}: {row['error']}")
-            if progress is not None:
-                progress(ran, len(todo))
-            now = time.perf_counter()
-            if now - last >= flush_s:
+        last = time.perf_counter()
+        while pending:
+            try:
+                futures = {ex.submit(run_job, j): j for j in pending.values()}
+            except Exception as exc:  # noqa: BLE001 - a pool that cannot take work
+                if not _worker_died(exc) and not isinstance(exc, OSError):
+                    raise
+                raise CampaignError(f"the {executor} workers could not start: {exc}") from None
+            died: BaseException | None = None
+            for fut in ex.as_completed(list(futures)):
+                job = futures[fut]
+                try:
+                    row = fut.result()
+                except Exception as exc:  # noqa: BLE001 - infrastructure, not the run
+                    if _worker_died(exc) and executor != "dask":
+                        died = exc
+                        break
+                    row = _failed_row(job, f"{type(exc).__name__}: {exc}")
+                pending.pop(job.run_id, None)
+                keep(row)
+                now = time.perf_counter()
+                if now - last >= flush_s:
+                    flush()
+                    last = now
+            if died is None:
+                continue
+            # a worker died: keep what finished, blame the runs that were on a worker
+            for fut, job in futures.items():
+                if job.run_id in pending and fut.done() and not fut.cancelled():
+                    if fut.exception() is None:
+                        pending.pop(job.run_id)
+                        keep(fut.result())
+            flush()
+            suspects = list(pending.values())[: n_workers]
+            for job in suspects:
+                attempts[job.run_id] = attempts.get(job.run_id, 0) + 1
+                if attempts[job.run_id] >= MAX_ATTEMPTS:
+                    pending.pop(job.run_id)
+                    keep(_failed_row(job, f"worker process died ({MAX_ATTEMPTS} attempts)"))
+            _quiet_close(ex)
+            restarts += 1
+            if restarts > MAX_POOL_RESTARTS:
                 flush()
-                last = now
+                raise CampaignError(
+                    f"worker processes died {restarts} times ({type(died).__name__}); "
+                    f"{len(rows)} run{'s' * (len(rows) != 1)} saved in {out}; "
+                    "run the same command with --resume to continue"
+                )
+            say(
+                f"a worker process died ({type(died).__name__}); restarting the pool "
+                f"({restarts}/{MAX_POOL_RESTARTS}), {len(pending)} runs to go"
+            )
+            if pending:
+                ex = start()
         flush()
-    except KeyboardInterrupt:
-        ex.cancel(futures)
+    except KeyboardInterrupt as exc:
+        from archself.errors import Terminated
+
+        _abort(ex, futures)
         flush()
-        try:
-            ex.close()
-        except KeyboardInterrupt:
-            pass
-        raise CampaignInterrupted(
-            f"interrupted: {len(rows)} run{'s' * (len(rows) != 1)} saved in {out}; "
+        terminated = isinstance(exc, Terminated)
+        err = CampaignInterrupted(
+            f"{'terminated' if terminated else 'interrupted'}: {len(rows)} "
+            f"run{'s' * (len(rows) != 1)} saved in {out}; "
             "run the same command with --resume to continue"
-        ) from None
+        )
+        err.exit_code = 143 if terminated else 130
+        raise err from None
     except BaseException:
-        ex.cancel(futures)
+        _abort(ex, futures)
         flush()
-        ex.close()
         raise
     ex.close()
     elapsed = time.perf_counter() - t0
@@ -318,11 +517,38 @@ def run_campaign(
         ran,
         failed,
         len(rows),
-        ex.workers,
+        n_workers,
         ex.name,
         elapsed,
         errors,
     )
+
+
+def _failed_row(job: Job, error: str) -> dict[str, Any]:
+    from archself.campaign.worker import _base_row
+
+    row = _base_row(job)
+    row["error"] = error[:500]
+    return row
+
+
+def _quiet_close(ex: Any) -> None:
+    try:
+        getattr(ex, "abort", ex.close)()
+    except Exception:  # noqa: BLE001 - the pool is broken already
+        pass
+
+
+def _abort(ex: Any, futures: dict[Any, Job]) -> None:
+    """Stop the executor at once (Ctrl-C, SIGTERM, an error), whatever state it is in."""
+    try:
+        ex.cancel(list(futures))
+    except BaseException:  # noqa: BLE001 - best effort
+        pass
+    try:
+        getattr(ex, "abort", ex.close)()
+    except BaseException:  # noqa: BLE001 - a second Ctrl-C, a broken pool
+        pass
 
 
 def throughput(outcome: CampaignOutcome) -> float:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 from collections.abc import Callable, Iterable, Iterator, MutableMapping
 from typing import Any, Protocol
 
@@ -104,8 +105,80 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: Set by the driver for the processes it starts: its pid (see :func:`die_with_parent`).
+DRIVER_PID_VARIABLE = "ARCHSELF_DRIVER_PID"
+#: How often a worker's watchdog checks that the driver is still there (seconds).
+WATCHDOG_PERIOD_S = 0.5
+PR_SET_PDEATHSIG = 1
+
+
+def _set_pdeathsig(sig: int) -> bool:
+    """Linux: the kernel sends ``sig`` to this process when its parent dies."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return int(libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def die_with_parent(driver_pid: int | None = None, watchdog: bool = True) -> None:
+    """Make this process exit when its parent (or the campaign driver) dies.
+
+    Two mechanisms: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux (immediate, when
+    the parent process dies), and a daemon thread that checks every
+    :data:`WATCHDOG_PERIOD_S` that the parent is the same and the driver
+    (``driver_pid``) still exists, and ends the process otherwise (every OS).
+    A pool worker's parent is the forkserver, which itself dies with the driver
+    (this function, run in the forkserver when it imports this module).
+    """
+    parent = os.getppid()
+    _set_pdeathsig(signal.SIGKILL)
+    if os.getppid() != parent or parent == 1:  # the parent died before prctl
+        os._exit(1)
+    if not watchdog:
+        return
+    import threading
+
+    def watch() -> None:
+        import time
+
+        while True:
+            time.sleep(WATCHDOG_PERIOD_S)
+            if os.getppid() != parent or (driver_pid is not None and not _alive(driver_pid)):
+                os._exit(1)
+
+    threading.Thread(target=watch, name="archself-parent-watchdog", daemon=True).start()
+
+
+def _worker_init(driver_pid: int | None = None) -> None:
+    """Initializer of a local pool worker: no SIGINT (the driver stops cleanly), dies with it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent(driver_pid)
+
+
 def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+# In the forkserver (it imports this module as a preload, its parent is the driver):
+# die with the driver. The forkserver forks the workers, so no thread is started here.
+if os.environ.get(DRIVER_PID_VARIABLE) == str(os.getppid()):
+    die_with_parent(watchdog=False)
 
 
 class LocalExecutor:
@@ -129,15 +202,22 @@ class LocalExecutor:
         if self.workers < 1:
             raise CampaignError("--workers must be at least 1")
         single_thread_blas()  # before the forkserver (and numpy in it) starts
+        os.environ[DRIVER_PID_VARIABLE] = str(os.getpid())  # the forkserver dies with us
         methods = multiprocessing.get_all_start_methods()
         method = "forkserver" if "forkserver" in methods else "spawn"
         ctx = multiprocessing.get_context(method)
         if method == "forkserver":
-            ctx.set_forkserver_preload(list(preload))
+            ctx.set_forkserver_preload([__name__, *preload])
         self._cf = concurrent.futures
-        self._pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.workers, mp_context=ctx, initializer=_ignore_sigint
-        )
+        try:
+            self._pool = concurrent.futures.ProcessPoolExecutor(
+                max_workers=self.workers,
+                mp_context=ctx,
+                initializer=_worker_init,
+                initargs=(os.getpid(),),
+            )
+        except (OSError, ValueError) as exc:
+            raise CampaignError(f"cannot start the local process pool: {exc}") from None
 
     def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
         return self._pool.submit(fn, *args)
@@ -154,6 +234,20 @@ class LocalExecutor:
 
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def abort(self) -> None:
+        """Stop at once: cancel the queue and end the workers (their runs are lost)."""
+        procs = list(getattr(self._pool, "_processes", None) or {})
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            try:
+                os.kill(p, signal.SIGTERM)
+            except OSError:
+                pass
+        try:
+            self._pool.shutdown(wait=True)
+        except Exception:  # noqa: BLE001 - a broken pool is fine here
+            pass
 
     def __enter__(self) -> LocalExecutor:
         return self
@@ -216,6 +310,11 @@ class DaskExecutor:
             self.close()
             where = address or "a LocalCluster"
             raise CampaignError(f"cannot connect to the Dask scheduler at {where}: {exc}") from None
+        except (ValueError, TypeError) as exc:  # e.g. "missing port number in address"
+            self.close()
+            raise CampaignError(
+                f"--address {address!r}: not a Dask scheduler address (tcp://HOST:PORT): {exc}"
+            ) from None
         info = self._client.scheduler_info()
         threads = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
         self.workers = max(1, threads)

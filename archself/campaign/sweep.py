@@ -53,6 +53,9 @@ __all__ = [
 
 Path_ = tuple[str | int, ...]
 
+#: A sweep has at most this many values (the product of sweeps is capped by the driver).
+MAX_VALUES = 10_000
+
 
 class CampaignError(ArchselfError):
     """A campaign was asked for something impossible (bad PATH, sweep, results file)."""
@@ -253,6 +256,11 @@ def parse_sweep(spec: str) -> Sweep:
             raise CampaignError(f"sweep {spec!r}: NUM {parts[2]!r} is not an integer") from None
         if num < 1:
             raise CampaignError(f"sweep {spec!r}: NUM must be at least 1")
+        if num > MAX_VALUES:
+            raise CampaignError(
+                f"sweep {spec!r}: NUM {num:,} is more than the {MAX_VALUES:,} values a sweep "
+                "may have"
+            )
         if num == 1:
             values: tuple[float, ...] = (start,)
         else:
@@ -263,6 +271,8 @@ def parse_sweep(spec: str) -> Sweep:
         items = [x for x in rng.split(",") if x.strip()]
         if not items:
             raise CampaignError(f"sweep {spec!r}: no values")
+        if len(items) > MAX_VALUES:
+            raise CampaignError(f"sweep {spec!r}: more than {MAX_VALUES:,} values")
         values = tuple(_number(x.strip(), "value", spec) for x in items)
     if len(set(values)) != len(values):
         raise CampaignError(f"sweep {spec!r}: repeated values")

@@ -17,12 +17,21 @@ file                                            content
 
 Everything but the SVG/PNG images is a deterministic function of the
 architecture file (no dates, fixed orderings, a fixed clustering seed).
+
+The report is written into a temporary folder beside ``out_dir`` and swapped in
+when complete (one ``renameat2(RENAME_EXCHANGE)`` on Linux, two renames
+elsewhere): an interrupted or failed report leaves the old folder as it was, and
+a new report never keeps stale files of an old one. An existing folder that is
+not empty is replaced only with ``force`` and only if it holds a report (an
+``index.html``).
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,7 +42,17 @@ from archself.reports.dsm import KIND_TITLES, KINDS, build_dsm, orderings
 from archself.reports.graph import build_graph, config_diff, diff_graph, diff_pairs
 from archself.reports.render import render, unique_slugs
 
-__all__ = ["ArchitectureReport", "render_dot", "write_architecture_report"]
+__all__ = [
+    "MAX_FILES",
+    "ArchitectureReport",
+    "count_report_files",
+    "render_dot",
+    "swap_in",
+    "write_architecture_report",
+]
+
+#: ``archself report`` refuses to write more files than this without ``--yes``.
+MAX_FILES = 2000
 
 
 @dataclass
@@ -75,10 +94,93 @@ def render_dot(dot_file: Path, fmt: str, dot: str) -> tuple[bytes | None, str]:
     return proc.stdout, ""
 
 
+def count_report_files(arch: Architecture, rendered: bool) -> int:
+    """How many files the report of ``arch`` has (the estimate shown before writing)."""
+    scopes = 1 + len(arch.configurations)
+    per_dot = 3 if rendered else 1
+    return scopes * (5 + per_dot) + len(diff_pairs(arch)) * per_dot + 1
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    rc = fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (38, 22, 95):  # ENOSYS, EINVAL, EOPNOTSUPP: the file system cannot; fall back
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def swap_in(new: Path, out: Path) -> None:
+    """Put the folder ``new`` at ``out``, replacing a folder there, then delete the old one."""
+    try:
+        if not out.exists():
+            os.rename(new, out)
+            return
+        if _exchange(new, out):
+            shutil.rmtree(new, ignore_errors=True)  # ``new`` now holds the old report
+            return
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+        os.rename(out, old / "report")
+        os.rename(new, out)
+        shutil.rmtree(old, ignore_errors=True)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot replace the folder: {exc.strerror or exc}") from None
+
+
+def _prepare(out: Path, force: bool, shown: Path) -> Path:
+    """Check ``out`` and make the temporary folder the report is written into."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{shown}: not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not force:
+            raise OutputError(
+                f"{shown}: error: exists and is not empty; pass --force to replace the report in it"
+            )
+        if not (out / "index.html").is_file():
+            raise OutputError(
+                f"{shown}: error: holds files that are not an archself report (no index.html); "
+                "even --force does not replace it: choose another folder"
+            )
+    parent = out.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{shown}: cannot create folder: {exc.strerror or exc}") from None
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o777 & ~mask)  # mkdtemp makes 0700
+    except OSError as exc:
+        raise OutputError(f"{shown}: cannot write: {exc.strerror or exc}") from None
+    return tmp
+
+
 def write_architecture_report(
-    arch: Architecture, out_dir: str | Path, *, dot: str | None | bool = True
+    arch: Architecture,
+    out_dir: str | Path,
+    *,
+    dot: str | None | bool = True,
+    force: bool = False,
 ) -> ArchitectureReport:
     """Write the architecture report of ``arch`` into ``out_dir`` (created if missing).
+
+    The files are written into a temporary folder beside ``out_dir``, which is
+    swapped in at the end (see the module's documentation).
 
     Parameters
     ----------
@@ -87,6 +189,8 @@ def write_architecture_report(
     dot : str, bool or None
         Path of Graphviz ``dot``; True (default) looks it up on PATH; False or None
         writes the DOT sources only.
+    force : bool
+        Replace an existing, non-empty report folder.
 
     Returns
     -------
@@ -95,10 +199,21 @@ def write_architecture_report(
     Raises
     ------
     OutputError
-        If a file cannot be written.
+        If a file cannot be written, or ``out_dir`` is not empty (without ``force``).
     """
-    out = Path(out_dir)
-    ensure_dir(out)
+    final = Path(os.path.abspath(out_dir))
+    tmp = _prepare(final, force, Path(out_dir))
+    try:
+        rep = _write(arch, tmp, dot)
+        swap_in(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    rep.out_dir = Path(out_dir)
+    return rep
+
+
+def _write(arch: Architecture, out: Path, dot: str | None | bool) -> ArchitectureReport:
     rep = ArchitectureReport(out)
     dot_exe = shutil.which("dot") if dot is True else (dot or None)
 

@@ -1,0 +1,128 @@
+"""The inputs and outputs of one command: inputs are files, outputs never land on an input.
+
+Every command that reads a file and writes another checks, before it starts,
+that no output is an input (the same file: same ``st_dev`` and ``st_ino``,
+whatever the path, a hard link or a symbolic link), that no input lies inside
+an output folder that is replaced as a whole, and that every input is a
+regular file (``/dev/zero`` is refused, not read until memory runs out). The
+inputs are also registered with :func:`archself.atomic.protect`, so that a write
+the up-front check could not foresee is refused at the moment it would happen.
+``--force`` never lifts these checks: it allows replacing an old *output*.
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> d = pathlib.Path(tempfile.mkdtemp())
+>>> (d / "a.yaml").write_text("x")
+1
+>>> try:
+...     refuse_same_file([d / "a.yaml"], d / "a.yaml", "--trace")
+... except OutputError as err:
+...     print(str(err).split(": ", 1)[1])
+error: --trace is the input file a.yaml; refusing to write over it (even with --force)
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Iterable
+from pathlib import Path
+
+from archself.errors import LoadError, OutputError
+
+__all__ = [
+    "check_input",
+    "file_ids",
+    "input_inside",
+    "refuse_input_inside",
+    "refuse_same_file",
+]
+
+_KINDS = (
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISDIR, "a directory"),
+)
+
+
+def check_input(path: str | Path, what: str = "file") -> None:
+    """Refuse an input that is missing or not a regular file (a FIFO is allowed).
+
+    Raises
+    ------
+    LoadError
+        ``PATH: error: no such file`` or ``... not a regular file (a character device) ...``.
+    """
+    file = str(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise LoadError("no such file", file) from None
+    except OSError as exc:
+        raise LoadError(f"cannot read: {exc.strerror or exc}", file) from None
+    for test, kind in _KINDS:
+        if test(st.st_mode):
+            raise LoadError(f"is {kind}, expected {what}", file)
+
+
+def file_ids(path: str | Path) -> set[tuple[int, int]]:
+    """``(st_dev, st_ino)`` of ``path`` and, for a symbolic link, of what it points to."""
+    out: set[tuple[int, int]] = set()
+    for fn in (os.lstat, os.stat):
+        try:
+            st = fn(path)
+        except (OSError, ValueError):
+            continue
+        out.add((st.st_dev, st.st_ino))
+    return out
+
+
+def refuse_same_file(inputs: Iterable[str | Path], target: str | Path, what: str) -> None:
+    """Raise :class:`OutputError` if ``target`` is one of ``inputs`` (same inode).
+
+    Parameters
+    ----------
+    inputs : paths
+        The files the command reads.
+    target : path
+        A file the command is about to write.
+    what : str
+        The option that names ``target`` (``--trace``, ``--out``), for the message.
+    """
+    ids = file_ids(target)
+    if not ids:
+        return
+    for inp in inputs:
+        if ids & file_ids(inp):
+            raise OutputError(
+                f"{target}: error: {what} is the input file {Path(inp).name}; "
+                "refusing to write over it (even with --force)"
+            )
+
+
+def input_inside(inputs: Iterable[str | Path], folder: str | Path) -> Path | None:
+    """The first input that lies inside ``folder`` (at any depth), or None."""
+    fids = file_ids(folder)
+    if not fids:
+        return None
+    for inp in inputs:
+        try:
+            parent = Path(os.path.realpath(inp)).parent
+        except (OSError, ValueError):
+            continue
+        for d in (parent, *parent.parents):
+            if file_ids(d) & fids:
+                return Path(inp)
+    return None
+
+
+def refuse_input_inside(inputs: Iterable[str | Path], folder: str | Path, what: str) -> None:
+    """Raise :class:`OutputError` if an input lies inside ``folder`` (replaced as a whole)."""
+    inp = input_inside(inputs, folder)
+    if inp is not None:
+        raise OutputError(
+            f"{folder}: error: {what} folder holds the input file {inp}; it would be "
+            "replaced with the folder: choose another folder (even --force does not)"
+        )
