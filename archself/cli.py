@@ -700,9 +700,9 @@ def campaign_report_cmd(
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
-        from archself.campaign.report import _jsonable
+        from archself.jsondata import jsonable
 
-        typer.echo(json.dumps(_jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
+        typer.echo(json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
     else:
         typer.echo(summary_text(summary))
         typer.echo(f"report: {out_dir / 'index.html'}", err=True)

@@ -11,12 +11,12 @@ page from ``templates/campaign_report.html.j2`` in a sandboxed Jinja environment
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from archself.campaign.aggregate import CampaignSummary, parse_expect, summarize, wilson
+from archself.jsondata import jsonable
 
 __all__ = [
     "CampaignSummary",
@@ -142,16 +142,6 @@ def campaign_report(
     write_text(out / "index.html", html)
     write_text(
         out / "summary.json",
-        json.dumps(_jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n",
+        json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n",
     )
     return summary
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj

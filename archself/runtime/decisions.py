@@ -15,50 +15,13 @@ numbers.
 
 from __future__ import annotations
 
-import math
 from collections.abc import ItemsView, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from archself.jsondata import jsonable
+
 __all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "jsonable"]
-
-REJECTIONS = (
-    "not applicable",
-    "no change",
-    "unavailable",
-    "constraint",
-    "budget",
-    "dwell",
-    "no improvement",
-    "unstable",
-)
-
-
-def jsonable(x: Any) -> Any:
-    """Convert numpy scalars/arrays, tuples, sets and non-finite floats to plain JSON.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> jsonable({"a": np.float64(1.5), "b": [np.nan, 2], "c": (1, 2)})
-    {'a': 1.5, 'b': [None, 2], 'c': [1, 2]}
-    """
-    if isinstance(x, Mapping):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, (set, frozenset)):
-        return [jsonable(v) for v in sorted(x, key=str)]
-    if isinstance(x, bool) or x is None or isinstance(x, str):
-        return x
-    if hasattr(x, "tolist") and not isinstance(x, (int, float)):
-        return jsonable(x.tolist())
-    if isinstance(x, int):
-        return int(x)
-    if isinstance(x, float) or hasattr(x, "__float__"):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    return str(x)
 
 
 class _ValueItems(ItemsView[str, float]):

@@ -207,7 +207,3 @@ class Knowledge:
         if key is not self.edges and key != self.edges:
             self.solver.set_matrix(self.weight_matrix(), key=self.edges)
         return self.solver.solve(r)
-
-    def configuration_modules(self, configuration: str) -> list[str]:
-        """Modules of a declared configuration."""
-        return list(self.arch.configurations[configuration].modules)

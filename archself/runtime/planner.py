@@ -46,8 +46,6 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from archself.model import Action, Architecture
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.monitor import ModuleStatus, StatusMap
@@ -381,8 +379,3 @@ class Planner:
             horizon_steps=self.horizon_steps,
             floor=self.v_floor,
         )
-
-
-def as_index_dict(names: Iterable[str], values: np.ndarray) -> dict[str, float]:
-    """``{name: float(value)}`` in index order."""
-    return {n: float(v) for n, v in zip(names, values, strict=True)}

@@ -29,6 +29,7 @@ import numpy as np
 
 from archself.compiler import compile_system
 from archself.errors import SimulationError
+from archself.jsondata import jsonable
 from archself.model import Architecture
 from archself.objective import objective_norm
 
@@ -108,8 +109,8 @@ class RunResult:
             "mode": self.mode,
             "configuration": self.configuration,
             "final_configuration": self.final_configuration,
-            "metrics": {k: _clean(v) for k, v in self.metrics.items()},
-            "switches": _clean(self.switches),
+            "metrics": {k: jsonable(v) for k, v in self.metrics.items()},
+            "switches": jsonable(self.switches),
         }
 
     def trace(self) -> dict[str, Any]:
@@ -117,7 +118,7 @@ class RunResult:
         meta = {**self.meta, **self.to_dict(), "configurations": list(self.configurations)}
         series = {name: _series_list(arr) for name, arr in self.series.items()}
         decisions = [_decision(d) for d in self.decisions]
-        return {"meta": meta, "series": series, "decisions": _clean(decisions)}
+        return {"meta": meta, "series": series, "decisions": jsonable(decisions)}
 
     def write_trace(self, path: str | Path) -> None:
         """Write :meth:`trace` as JSON to ``path``, atomically and deterministically.
@@ -154,26 +155,6 @@ def _decision(d: Any) -> Any:
     if dataclasses.is_dataclass(d) and not isinstance(d, type):
         return dataclasses.asdict(d)
     return d
-
-
-def _clean(obj: Any) -> Any:
-    """Plain JSON data: numpy scalars/arrays converted, NaN/inf → None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        f = float(obj)
-        return f if math.isfinite(f) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, (str, int, bool)) or obj is None:
-        return obj
-    return str(obj)
 
 
 def _first_output(system: Any, role: str) -> tuple[str, str] | None:

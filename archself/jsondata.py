@@ -1,0 +1,54 @@
+"""Plain JSON data: the one cleaner for everything archself writes as JSON.
+
+Decision records, run summaries and traces, campaign summaries: numpy scalars and
+arrays become Python numbers and lists, tuples and sets lists, mapping keys
+strings, and non-finite floats ``None`` (JSON has no NaN). It imports nothing
+heavy, so ``archself explain`` stays free of numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["jsonable"]
+
+
+def jsonable(x: Any) -> Any:
+    """``x`` as plain JSON data (dict, list, str, int, float, bool, None).
+
+    Mappings become dicts with string keys; lists and tuples lists; sets lists
+    sorted by their text; numpy arrays and scalars (anything with ``tolist``)
+    their Python values; other numbers (``__float__``) floats; non-finite floats
+    ``None``; anything else its ``str``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> jsonable({"a": np.float64(1.5), "b": [np.nan, 2], "c": (1, 2), 3: {"y", "x"}})
+    {'a': 1.5, 'b': [None, 2], 'c': [1, 2], '3': ['x', 'y']}
+    >>> jsonable([np.array([1.0, np.inf]), np.int64(4), np.bool_(True)])
+    [[1.0, None], 4, True]
+    """
+    tp = type(x)
+    if tp is float:
+        return x if math.isfinite(x) else None
+    if x is None or tp is str or tp is int or tp is bool:
+        return x
+    if isinstance(x, Mapping):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (set, frozenset)):
+        return [jsonable(v) for v in sorted(x, key=str)]
+    if isinstance(x, (bool, str)):
+        return x
+    if hasattr(x, "tolist") and not isinstance(x, (int, float)):
+        return jsonable(x.tolist())
+    if isinstance(x, int):
+        return int(x)
+    if isinstance(x, float) or hasattr(x, "__float__"):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    return str(x)
