@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 FORMAT_VERSION = 1
 
@@ -51,6 +51,8 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True, frozen=False)
 
 
+#: Series every run records (archself.sim.run); ``runtime.record`` may not reuse them.
+_SERIES = ("t", "J", "reference", "actual", "configuration")
 _STRUCTURAL = ["substitute", "activate", "deactivate", "rewire"]
 _SELECTORS = ("threshold", "top_k", "hysteresis")
 
@@ -303,6 +305,11 @@ class Objective(_Strict):
         default_factory=lambda: [0], description="Vector components compared."
     )
     acceptable: NonNeg = Field(0.0, description="J_ref: the acceptable error level.")
+    unit: str | None = Field(
+        None,
+        description="Unit of J (of the compared components), e.g. m; reports label the error "
+        "metrics with it.",
+    )
 
 
 class Runtime(_Strict):
@@ -313,6 +320,12 @@ class Runtime(_Strict):
     step_s: Positive = Field(description="Simulation step.")
     period_s: Positive = Field(description="Period of one MAPE-K cycle.")
     objective: Objective
+    record: dict[Name, Name] = Field(
+        default_factory=dict,
+        description="Series a run records besides J and the objective's signals: series name → "
+        "output signal, taken each step from the first active module (file order) whose type "
+        "publishes it.",
+    )
     threshold: Positive | None = Field(None, description="τ of Eq. 16.")
     top_k: int | None = Field(None, gt=0, description="Alternative to τ: the k largest |z_i|.")
     hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
@@ -327,6 +340,17 @@ class Runtime(_Strict):
     max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(
         0.95, description="ρ(W) must stay below this (Eq. 13)."
     )
+
+    @field_validator("record")
+    @classmethod
+    def _series_names(cls, record: dict[str, str]) -> dict[str, str]:
+        taken = [k for k in record if k in _SERIES or k.startswith("residual.")]
+        if taken:
+            raise ValueError(
+                f"series name '{taken[0]}' is taken by the run itself "
+                f"({', '.join(_SERIES)}, residual.<module>)"
+            )
+        return record
 
     @model_validator(mode="after")
     def _one_selector(self) -> Runtime:

@@ -198,10 +198,11 @@ SCHEMA = {
     "first_fault_onset_s": "double",
     "detection_delay_s": "double",
     "false_switches": "int32",
-    "max_error_m": "double",
-    "final_error_m": "double",
-    "rms_error_m": "double",
+    "max_error": "double",
+    "final_error": "double",
+    "rms_error": "double",
     "peak_time_s": "double",
+    "unit": "string",
     "trace": "string",
     "error": "string",
 }
@@ -337,7 +338,7 @@ def test_failed_run_is_a_row(tmp_path: Path) -> None:
     bad = jobs[0].__class__(**{**jobs[0].__dict__, "scenario": "storm"})
     row = run_job(bad)
     assert row["error"].startswith("SimulationError: unknown scenario 'storm'")
-    assert row["max_error_m"] != row["max_error_m"]  # NaN
+    assert row["max_error"] != row["max_error"]  # NaN
 
 
 def test_worker_imports_stay_light() -> None:
@@ -450,10 +451,11 @@ def test_report_escapes_hostile_names(tmp_path: Path) -> None:
         "first_fault_onset_s": None,
         "detection_delay_s": None,
         "false_switches": 1,
-        "max_error_m": 1.0,
-        "final_error_m": 1.0,
-        "rms_error_m": 1.0,
+        "max_error": 1.0,
+        "final_error": 1.0,
+        "rms_error": 1.0,
         "peak_time_s": 1.0,
+        "unit": "<u>",
         "trace": None,
         "error": None,
     }
@@ -469,6 +471,44 @@ def test_report_escapes_hostile_names(tmp_path: Path) -> None:
     html = (tmp_path / "rep" / "index.html").read_text(encoding="utf-8")
     assert "<script>alert" not in html and "&lt;script&gt;" in html
     assert "<i>x</i>" not in html
+    assert "RMS [&lt;u&gt;]" in html and "<u>" not in html
+
+
+def _as_old_table(path: Path) -> None:
+    """Rewrite a results file as archself wrote it before the metrics had a unit."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    old = {"max_error": "max_error_m", "final_error": "final_error_m", "rms_error": "rms_error_m"}
+    metadata = table.schema.metadata
+    table = table.drop_columns(["unit"]).rename_columns(
+        [old.get(n, n) for n in table.column_names if n != "unit"]
+    )
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+
+
+def test_old_results_are_read_reported_and_resumed(tmp_path: Path) -> None:
+    """A table with max_error_m ... (no unit column) reads as max_error ... in m, and resumes."""
+    jobs, meta = plan_campaign(MINIMAL, ["calm"], 2, modes=("fixed",))
+    out = tmp_path / "r.parquet"
+    run_campaign(jobs[:1], meta, out, executor="inline")
+    new_row = read_results(out)[0].to_pylist()[0]
+    _as_old_table(out)
+    table, _ = read_results(out)
+    assert "max_error_m" not in table.column_names
+    (row,) = table.to_pylist()
+    assert row["unit"] == "m"
+    assert {k: row[k] for k in ("max_error", "final_error", "rms_error", "peak_time_s")} == {
+        k: new_row[k] for k in ("max_error", "final_error", "rms_error", "peak_time_s")
+    }
+    again = run_campaign(jobs, meta, out, executor="inline", resume=True)
+    assert (again.skipped, again.ran, again.rows) == (1, 1, 2)
+    rows = read_results(out)[0].to_pylist()
+    assert all(r["max_error"] == r["max_error"] for r in rows)  # no metric lost (NaN)
+    assert [r["unit"] for r in rows] == ["m", None]  # minimal.yaml declares no unit
+    res = CliRunner().invoke(app, ["campaign-report", str(out), "-o", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    assert "median RMS fixed" in res.stdout
 
 
 # --------------------------------------------------------------------------- Dask

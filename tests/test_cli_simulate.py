@@ -13,8 +13,9 @@ from archself.cli import app
 from conftest import FIXTURES
 
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"
-KEYS = {"scenario", "seed", "mode", "metrics", "switches", "final_configuration"}
-METRICS = {"max_error_m", "final_error_m", "rms_error_m", "peak_time_s"}
+KEYS = {"scenario", "seed", "mode", "unit", "metrics", "switches", "final_configuration"}
+METRICS = {"max_error", "final_error", "rms_error", "peak_time_s"}
+METRE_ALIASES = {"max_error_m", "final_error_m", "rms_error_m"}  # deprecated, unit m only
 
 
 def _json(args: list[str]) -> object:
@@ -26,10 +27,36 @@ def _json(args: list[str]) -> object:
 def test_fixed_json_shape() -> None:
     out = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])
     assert KEYS <= set(out)
-    assert set(out["metrics"]) == METRICS
+    assert set(out["metrics"]) == METRICS and out["unit"] is None  # minimal.yaml: no unit
     assert out["mode"] == "fixed" and out["seed"] == 3 and out["switches"] == []
     assert out["final_configuration"] == "only"
-    assert 0 <= out["metrics"]["rms_error_m"] <= out["metrics"]["max_error_m"]
+    assert 0 <= out["metrics"]["rms_error"] <= out["metrics"]["max_error"]
+
+
+def _with_unit(tmp_path: Path, unit: str) -> Path:
+    text = MINIMAL.read_text(encoding="utf-8").replace(
+        "components: [0, 1]}", f"components: [0, 1], unit: {unit}}}", 1
+    )
+    assert f"unit: {unit}" in text
+    path = tmp_path / f"minimal_{unit}.yaml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_metric_names_and_units_come_from_the_objective(tmp_path: Path) -> None:
+    plain = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])
+    metres = _json([str(_with_unit(tmp_path, "m")), "-s", "calm", "--fixed", "--seed", "3"])
+    kelvin = _json([str(_with_unit(tmp_path, "K")), "-s", "calm", "--fixed", "--seed", "3"])
+    assert metres["unit"] == "m" and kelvin["unit"] == "K"
+    assert set(kelvin["metrics"]) == METRICS
+    # unit m: the pre-unit names stay for one release, with the same values
+    assert set(metres["metrics"]) == METRICS | METRE_ALIASES
+    for alias in METRE_ALIASES:
+        assert metres["metrics"][alias] == metres["metrics"][alias.removesuffix("_m")]
+    assert {k: metres["metrics"][k] for k in METRICS} == plain["metrics"] == kelvin["metrics"]
+    result = CliRunner().invoke(app, ["simulate", str(_with_unit(tmp_path, "K")), "-s", "calm"])
+    assert result.exit_code == 0, result.stderr
+    assert "max error [K]" in result.stdout and "RMS error [K]" in result.stdout
 
 
 def test_same_seed_same_result_different_seed_differs() -> None:
@@ -48,7 +75,8 @@ def test_compare_prints_both_modes() -> None:
 def test_readable_summary() -> None:
     result = CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--compare"])
     assert result.exit_code == 0, result.stderr
-    assert "max error [m]" in result.stdout and "switches (adaptive): none" in result.stdout
+    assert "switches (adaptive): none" in result.stdout
+    assert "max error   " in result.stdout and "[m]" not in result.stdout  # no unit declared
 
 
 def test_trace_and_explain(tmp_path: Path) -> None:
@@ -110,7 +138,7 @@ def test_plugin_type_runs_in_a_simulation(tmp_path: Path) -> None:
     arch.write_text(text)
     assert CliRunner().invoke(app, ["validate", str(arch)]).exit_code == 0
     out = _json([str(arch), "--scenario", "calm", "--fixed"])
-    assert out["metrics"]["max_error_m"] < 0.5
+    assert out["metrics"]["max_error"] < 0.5
 
 
 @pytest.mark.parametrize("command", [["simulate", "-s", "calm"], ["report", "-o", "out"]])

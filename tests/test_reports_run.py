@@ -114,3 +114,28 @@ def test_legends_cover_no_switch_label(path) -> None:
 def _switching_scenario(arch) -> str:
     """The first scenario with faults (imu_drift in diffdrive.yaml: the adaptive run switches)."""
     return next(name for name, sc in arch.scenarios.items() if sc.faults)
+
+
+def test_metric_labels_carry_the_objective_unit(tmp_path) -> None:
+    """A level in metres, a temperature in K: the report labels what the file declares."""
+    from archself.loader import load_text
+    from archself.reports import figures
+    from archself.reports.run import build_run_report
+    from archself.sim.run import simulate
+
+    text = MINIMAL.read_text(encoding="utf-8").replace("components: [0, 1]}",
+                                                       "components: [0, 1], unit: K}", 1)
+    path = tmp_path / "kelvin.yaml"
+    path.write_text(text, encoding="utf-8")
+    res = runner.invoke(app, ["simulate", str(path), "-s", "calm", "--fixed",
+                              "--report", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    html = (tmp_path / "rep" / "index.html").read_text(encoding="utf-8")
+    assert "max error [K]" in html and "RMS error [K]" in html and "[m]" not in html
+    s = json.loads((tmp_path / "rep" / "summary.json").read_text(encoding="utf-8"))
+    assert s["unit"] == "K"
+    assert set(s["runs"][0]["metrics"]) == {"max_error", "final_error", "rms_error",
+                                            "peak_time_s"}
+    arch = load_text(text, str(path)).arch
+    rep = build_run_report(arch, [simulate(arch, "calm")])
+    assert figures.plot_error(rep).axes[0].get_ylabel() == "tracking error [K]"

@@ -254,7 +254,8 @@ def test_simulate_is_deterministic(arch, tmp_path):
     d = a.to_dict()
     assert d["mode"] == "fixed" and d["switches"] == [] and d["seed"] == 5
     assert d["configuration"] == d["final_configuration"] == "a1"
-    assert set(d["metrics"]) == {"max_error_m", "final_error_m", "rms_error_m", "peak_time_s"}
+    assert set(d["metrics"]) == {"max_error", "final_error", "rms_error", "peak_time_s",
+                                 "max_error_m", "final_error_m", "rms_error_m"}  # unit m
 
 
 def test_simulate_seed_defaults_to_scenario(arch):

@@ -31,9 +31,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from archself.campaign.results import OLD_METRIC_COLUMNS
 from archself.campaign.sweep import CampaignError
 
-__all__ = ["CampaignSummary", "parse_expect", "summarize", "wilson"]
+__all__ = ["ERROR_METRICS", "CampaignSummary", "parse_expect", "summarize", "wilson"]
+
+#: The error metrics the report compares, fixed against adaptive (unit: the rows' ``unit``).
+ERROR_METRICS = ("max_error", "final_error", "rms_error")
 
 
 # --------------------------------------------------------------------------- statistics
@@ -112,12 +116,14 @@ class CampaignSummary:
     sweeps: list[dict[str, Any]]
     expect: dict[str, str]
     errors: list[str] = field(default_factory=list)
+    unit: str | None = None  # of the error metrics (the results' ``unit`` column)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "meta": self.meta,
             "runs": self.runs,
             "failed": self.failed,
+            "unit": self.unit,
             "expect": self.expect,
             "scenarios": self.scenarios,
             "tau": self.tau,
@@ -149,7 +155,7 @@ def _classify(rows: list[dict[str, Any]], sweeps: Sequence[str], expect: Mapping
             base = fixed.get(_pair_key(r, sweeps))
             better = True
             if base is not None and base.get("error") is None:
-                better = _lt(r["rms_error_m"], base["rms_error_m"])
+                better = _lt(r["rms_error"], base["rms_error"])
             r["correct"] = bool(moved and better)
 
 
@@ -180,7 +186,7 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
         block["detected"] = _rate(sum(1 for d in delays if d is not None), len(ada))
         block["delay_s"] = _quantiles([d for d in delays if d is not None])
     errors: dict[str, Any] = {}
-    for metric in ("max_error_m", "final_error_m", "rms_error_m"):
+    for metric in ERROR_METRICS:
         errors[metric] = {
             "fixed": _quantiles([r[metric] for r in fix]),
             "adaptive": _quantiles([r[metric] for r in ada]),
@@ -190,7 +196,7 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
     pairs = [(r, fixed[_pair_key(r, sweeps)]) for r in ada if _pair_key(r, sweeps) in fixed]
     if pairs:
         block["adaptive_better_rms"] = _rate(
-            sum(1 for a, f in pairs if _lt(a["rms_error_m"], f["rms_error_m"])), len(pairs)
+            sum(1 for a, f in pairs if _lt(a["rms_error"], f["rms_error"])), len(pairs)
         )
     else:
         block["adaptive_better_rms"] = None
@@ -231,7 +237,7 @@ def _by_value(path: str, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "delay_s": _quantiles(delays),
                 "false_switch": fs,
                 "false_switch_basis": fs_basis,
-                "rms_error_m": _quantiles([r["rms_error_m"] for r in g]),
+                "rms_error": _quantiles([r["rms_error"] for r in g]),
             }
         )
     return out
@@ -261,10 +267,11 @@ def summarize(
     CampaignError
         If ``tau_path`` is not a swept column.
     """
-    rows = table if isinstance(table, list) else table.to_pylist()
+    rows = [_current(r) for r in (table if isinstance(table, list) else table.to_pylist())]
     sweeps = list(meta.get("sweeps", []))
     expect = dict(expect or {})
     ok = [dict(r) for r in rows if r.get("error") is None]
+    units = {r.get("unit") for r in ok} - {None}
     failed = len(rows) - len(ok)
     errors = [f"{r['run_id']}: {r['error']}" for r in rows if r.get("error") is not None][:10]
     _classify(ok, sweeps, expect)
@@ -294,4 +301,16 @@ def summarize(
                 )
         tau = {"path": tau_path, "points": _by_value(tau_path, ok), "curves": curves}
     by_sweep = [{"path": p, "points": _by_value(p, ok)} for p in sweeps if p != tau_path]
-    return CampaignSummary(dict(meta), len(rows), failed, scenarios, tau, by_sweep, expect, errors)
+    unit = units.pop() if len(units) == 1 else None
+    return CampaignSummary(
+        dict(meta), len(rows), failed, scenarios, tau, by_sweep, expect, errors, unit
+    )
+
+
+def _current(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A row with today's metric names (a row of an old table: ``max_error_m`` ... in m)."""
+    if "max_error" in row or "max_error_m" not in row:
+        return dict(row)
+    out = {OLD_METRIC_COLUMNS.get(k, k): v for k, v in row.items()}
+    out["unit"] = "m"
+    return out

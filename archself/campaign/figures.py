@@ -63,7 +63,9 @@ def fig_delays(rows: list[dict[str, Any]], names: list[str], path: Path) -> bool
     return True
 
 
-def fig_errors(rows: list[dict[str, Any]], names: list[str], metric: str, path: Path) -> bool:
+def fig_errors(
+    rows: list[dict[str, Any]], names: list[str], metric: str, path: Path, unit: str | None = None
+) -> bool:
     fig = _figure(max(6.4, 1.6 * len(names) + 2), 3.8)
     ax = fig.add_subplot()
     data, labels, colors = [], [], []
@@ -89,9 +91,9 @@ def fig_errors(rows: list[dict[str, Any]], names: list[str], metric: str, path: 
     for patch, c in zip(parts["boxes"], colors, strict=True):
         patch.set_facecolor(c)
         patch.set_alpha(0.6)
-    ax.set_ylabel(metric.removesuffix("_m").replace("_", " ") + " [m]")
+    ax.set_ylabel(metric.replace("_", " ") + (f" [{unit}]" if unit else ""))
     ax.set_yscale("log" if min(min(d) for d in data) > 0 else "linear")
-    title = {"rms_error_m": "RMS", "max_error_m": "Maximum", "final_error_m": "Final"}[metric]
+    title = {"rms_error": "RMS", "max_error": "Maximum", "final_error": "Final"}[metric]
     ax.set_title(f"{title} error, fixed vs adaptive (paired seeds)")
     _save(fig, path)
     return True

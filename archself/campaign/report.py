@@ -44,16 +44,17 @@ def summary_text(s: CampaignSummary) -> str:
         f"{s.meta.get('architecture', '?')}: {s.runs} runs"
         + (f", {s.failed} failed" if s.failed else "")
     ]
+    unit = f" {s.unit}" if s.unit else ""
     for b in s.scenarios:
-        e = b["errors"]["rms_error_m"]
+        e = b["errors"]["rms_error"]
         head = f"  {b['scenario']}{' (fault-free)' if not b['faulted'] else ''}: "
         parts = [f"correct {_pct(b['correct'])}"]
         if b["faulted"]:
             parts.append(f"median delay {_num(b['delay_s']['median'], '{:.1f}')} s")
         parts.append(f"false switches {_pct(b['false_switch'])}")
         parts.append(
-            f"median RMS fixed {_num(e['fixed']['median'])} m"
-            f" / adaptive {_num(e['adaptive']['median'])} m"
+            f"median RMS fixed {_num(e['fixed']['median'])}{unit}"
+            f" / adaptive {_num(e['adaptive']['median'])}{unit}"
         )
         lines.append(head + ", ".join(parts))
     if s.tau:
@@ -125,9 +126,9 @@ def campaign_report(
                 rows, [b["scenario"] for b in summary.scenarios if b["faulted"]], p
             ),
         ),
-        ("rms", lambda p: fig.fig_errors(rows, names, "rms_error_m", p)),
-        ("max", lambda p: fig.fig_errors(rows, names, "max_error_m", p)),
-        ("final", lambda p: fig.fig_errors(rows, names, "final_error_m", p)),
+        ("rms", lambda p: fig.fig_errors(rows, names, "rms_error", p, summary.unit)),
+        ("max", lambda p: fig.fig_errors(rows, names, "max_error", p, summary.unit)),
+        ("final", lambda p: fig.fig_errors(rows, names, "final_error", p, summary.unit)),
         ("tau", lambda p: summary.tau is not None and fig.fig_tau(summary.tau, p)),
     ]
     for key, draw in specs:

@@ -19,10 +19,11 @@ column                    type             meaning
 ``first_fault_onset_s``   float64 (null)   earliest fault onset (null: fault-free)
 ``detection_delay_s``     float64 (null)   first switch at/after the onset − onset
 ``false_switches``        int32            switches without a fault / before the onset
-``max_error_m``           float64          objective error metrics of the run
-``final_error_m``         float64
-``rms_error_m``           float64
+``max_error``             float64          objective error J of the run: maximum,
+``final_error``           float64          at the end, RMS (in ``unit``), and when
+``rms_error``             float64          the maximum was reached
 ``peak_time_s``           float64
+``unit``                  string (null)    unit of J (``runtime.objective.unit``)
 ``trace``                 string (null)    trace file, with ``--traces``
 ``error``                 string (null)    why the run failed (metrics NaN then)
 ========================  ===============  =============================================
@@ -30,6 +31,11 @@ column                    type             meaning
 The file's schema metadata ``archself.campaign`` holds JSON describing the
 campaign (architecture name and SHA-256, root seed, sweep PATHs), which
 ``--resume`` checks before it continues a file.
+
+Tables written before the error metrics took their unit from the file have the columns
+``max_error_m``, ``final_error_m`` and ``rms_error_m`` and no ``unit``:
+:func:`read_results` renames them and sets ``unit`` to ``m``, so that such a table is
+reported and resumed like a new one.
 """
 
 from __future__ import annotations
@@ -42,7 +48,9 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError
 
-__all__ = ["META_KEY", "read_results", "results_schema", "sort_key", "write_results"]
+__all__ = [
+    "META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "sort_key", "write_results"
+]
 
 META_KEY = b"archself.campaign"
 
@@ -59,10 +67,11 @@ _AFTER = [
     ("first_fault_onset_s", "float64"),
     ("detection_delay_s", "float64"),
     ("false_switches", "int32"),
-    ("max_error_m", "float64"),
-    ("final_error_m", "float64"),
-    ("rms_error_m", "float64"),
+    ("max_error", "float64"),
+    ("final_error", "float64"),
+    ("rms_error", "float64"),
     ("peak_time_s", "float64"),
+    ("unit", "string"),
     ("trace", "string"),
     ("error", "string"),
 ]
@@ -146,4 +155,24 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
         meta = json.loads(raw)
     except ValueError:
         raise CampaignError(f"{p}: damaged campaign metadata") from None
-    return table, meta
+    return _upgrade(table), meta
+
+
+#: Columns of tables written before the metrics took their unit from the file.
+OLD_METRIC_COLUMNS = {"max_error_m": "max_error", "final_error_m": "final_error",
+                "rms_error_m": "rms_error"}
+
+
+def _upgrade(table: Any) -> Any:
+    """An old table (``max_error_m`` ... in metres, no ``unit``) with today's column names."""
+    import pyarrow as pa
+
+    names = table.column_names
+    if "unit" in names or not set(OLD_METRIC_COLUMNS) <= set(names):
+        return table
+    metadata = table.schema.metadata
+    table = table.rename_columns([OLD_METRIC_COLUMNS.get(n, n) for n in names])
+    at = names.index("peak_time_s") + 1 if "peak_time_s" in names else len(names)
+    table = table.add_column(at, pa.field("unit", pa.string()),
+                             pa.array(["m"] * table.num_rows, pa.string()))
+    return table.replace_schema_metadata(metadata)

@@ -140,10 +140,11 @@ def _base_row(job: Job) -> dict[str, Any]:
             "first_fault_onset_s": None,
             "detection_delay_s": None,
             "false_switches": 0,
-            "max_error_m": nan,
-            "final_error_m": nan,
-            "rms_error_m": nan,
+            "max_error": nan,
+            "final_error": nan,
+            "rms_error": nan,
             "peak_time_s": nan,
+            "unit": None,
             "trace": None,
             "error": None,
         }
@@ -160,6 +161,8 @@ def summarize_run(result: Any, arch: Any) -> dict[str, Any]:
       (None without faults or without such a switch).
     - ``false_switches``: every switch in a scenario without faults, or before the
       first onset in one with faults.
+    - ``max_error``, ``final_error``, ``rms_error``, ``peak_time_s``: the run's metrics;
+      ``unit``: theirs (``runtime.objective.unit``).
     """
     sc = arch.scenarios[result.scenario]
     onset = min((float(f.onset_s) for f in sc.faults), default=None)
@@ -182,10 +185,11 @@ def summarize_run(result: Any, arch: Any) -> dict[str, Any]:
         "first_fault_onset_s": onset,
         "detection_delay_s": delay,
         "false_switches": false,
-        "max_error_m": float(m["max_error_m"]),
-        "final_error_m": float(m["final_error_m"]),
-        "rms_error_m": float(m["rms_error_m"]),
+        "max_error": float(m["max_error"]),
+        "final_error": float(m["final_error"]),
+        "rms_error": float(m["rms_error"]),
         "peak_time_s": float(m["peak_time_s"]),
+        "unit": arch.runtime.objective.unit,
     }
 
 

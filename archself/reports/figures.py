@@ -157,7 +157,7 @@ def plot_error(rep: RunReport) -> Any:
     _fault_lines(ax, rep)
     _switch_lines(ax, rep)
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("tracking error [m]")
+    ax.set_ylabel("tracking error" + (f" [{_tex(rep.unit)}]" if rep.unit else ""))
     ax.set_title(_tex(f"Tracking error: {rep.scenario}"))
     ax.grid(alpha=0.3)
     _legend_below(fig, ax)

@@ -3,7 +3,8 @@
 :func:`build_run_report` takes the :class:`archself.sim.run.RunResult` of one run
 (or of a fixed and an adaptive run, ``simulate --compare``) and extracts:
 
-- a summary per run (metrics, start and final configuration, switches);
+- a summary per run (metrics, start and final configuration, switches) and the unit
+  of the error metrics (``runtime.objective.unit``);
 - the z channels per module per MAPE-K cycle from the decision records
   (``decisions[i]['z']``; NaN where a module was inactive), τ from
   ``runtime.threshold`` (or τ_on/τ_off), the warm-up (``runtime.warmup_steps``
@@ -85,6 +86,7 @@ class RunReport:
     faults: list[dict[str, Any]]
     objective: dict[str, Any]
     acceptable: float
+    unit: str | None  # of J and the error metrics (runtime.objective.unit)
     selector: str
     tau: list[tuple[str, float]]  # [("τ", 0.55)] or [("τ_on", ..), ("τ_off", ..)] or []
     period_s: float
@@ -111,6 +113,7 @@ class RunReport:
             "architecture": self.architecture,
             "scenario": self.scenario,
             "seed": self.seed,
+            "unit": self.unit,
             "faults": self.faults,
             "selector": self.selector,
             "warmup_s": self.warmup_s,
@@ -241,6 +244,7 @@ def build_run_report(arch: Architecture, results: list[Any]) -> RunReport:
         objective={"actual": rt.objective.actual, "reference": rt.objective.reference,
                    "components": list(rt.objective.components)},
         acceptable=float(rt.objective.acceptable),
+        unit=rt.objective.unit,
         selector=selector,
         tau=tau,
         period_s=float(rt.period_s),

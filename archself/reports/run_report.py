@@ -35,6 +35,7 @@ def write_run_report(arch: Architecture, results: list[Any], out_dir: str | Path
         If the folder or a file cannot be written.
     """
     from archself.reports import figures
+    from archself.sim.run import metric_rows
 
     out = Path(out_dir)
     ensure_dir(out)
@@ -62,9 +63,6 @@ def write_run_report(arch: Architecture, results: list[Any], out_dir: str | Path
     write_text(out / "index.html", render(
         "run_report.html.j2", rep=rep,
         figures=[{"file": f, "title": t, "caption": c} for f, t, c, _ in figs],
-        metric_rows=[("max error [m]", "max_error_m", "%.3f"),
-                     ("final error [m]", "final_error_m", "%.3f"),
-                     ("RMS error [m]", "rms_error_m", "%.3f"),
-                     ("peak time [s]", "peak_time_s", "%.1f")],
+        metric_rows=[(label, key, f"%.{d}f") for label, key, d in metric_rows(rep.unit)],
     ))
     return rep

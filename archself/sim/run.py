@@ -4,7 +4,9 @@
 scenario's faults, steps it for the scenario's duration at ``runtime.step_s``,
 calls the adaptation loop (if any) every ``runtime.period_s``, and returns a
 :class:`RunResult` with the recorded series and the metrics of the
-``runtime.objective`` error.
+``runtime.objective`` error J: ``max_error``, ``final_error``, ``rms_error`` (in the
+objective's ``unit``) and ``peak_time_s``. What is recorded besides J, the objective's
+signals and the residuals is the file's choice (``runtime.record``), not a role's.
 
 Examples
 --------
@@ -12,8 +14,8 @@ Examples
 >>> from archself.resources import data_dir
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> res = simulate(arch, "nominal", configuration="a1")
->>> res.metrics["max_error_m"] < 0.5
-True
+>>> res.metrics["max_error"] < 0.5, res.unit
+(True, 'm')
 """
 
 from __future__ import annotations
@@ -33,30 +35,60 @@ from archself.jsondata import jsonable
 from archself.model import Architecture
 from archself.objective import objective_norm
 
-__all__ = ["RunResult", "simulate", "error_metrics"]
+__all__ = ["METRICS", "METRE_ALIASES", "RunResult", "simulate", "error_metrics"]
+
+#: The metrics of a run's objective error J; the first three are in the objective's unit.
+METRICS = ("max_error", "final_error", "rms_error", "peak_time_s")
+#: Deprecated names (until the next release) of the first three, written beside them when
+#: the objective's unit is ``m`` (the names archself used when every objective was a distance).
+METRE_ALIASES = {"max_error_m": "max_error", "final_error_m": "final_error",
+                 "rms_error_m": "rms_error"}
 
 
-def error_metrics(t: np.ndarray, err: np.ndarray) -> dict[str, float]:
-    """``max_error_m``, ``final_error_m``, ``rms_error_m`` and ``peak_time_s`` of an error series.
+def error_metrics(t: np.ndarray, err: np.ndarray, unit: str | None = None) -> dict[str, float]:
+    """``max_error``, ``final_error``, ``rms_error`` and ``peak_time_s`` of an error series.
+
+    With ``unit="m"`` the deprecated aliases ``max_error_m``, ``final_error_m`` and
+    ``rms_error_m`` follow (:data:`METRE_ALIASES`).
 
     Examples
     --------
-    >>> error_metrics(np.array([0.0, 1.0, 2.0]), np.array([0.0, 2.0, 1.0]))["peak_time_s"]
-    1.0
+    >>> error_metrics(np.array([0.0, 1.0, 2.0]), np.array([0.0, 2.0, 1.0]))
+    {'max_error': 2.0, 'final_error': 1.0, 'rms_error': 1.2909944487358056, 'peak_time_s': 1.0}
+    >>> list(error_metrics(np.array([0.0]), np.array([0.5]), unit="m"))[4:]
+    ['max_error_m', 'final_error_m', 'rms_error_m']
     """
     err = np.asarray(err, dtype=float)
     ok = np.isfinite(err)
     if not ok.any():
-        nan = math.nan
-        return {"max_error_m": nan, "final_error_m": nan, "rms_error_m": nan, "peak_time_s": nan}
-    e = np.where(ok, err, -np.inf)
-    i = int(np.argmax(e))
-    return {
-        "max_error_m": float(err[i]),
-        "final_error_m": float(err[ok][-1]),
-        "rms_error_m": float(np.sqrt(np.mean(err[ok] ** 2))),
-        "peak_time_s": float(t[i]),
-    }
+        out = dict.fromkeys(METRICS, math.nan)
+    else:
+        e = np.where(ok, err, -np.inf)
+        i = int(np.argmax(e))
+        out = {
+            "max_error": float(err[i]),
+            "final_error": float(err[ok][-1]),
+            "rms_error": float(np.sqrt(np.mean(err[ok] ** 2))),
+            "peak_time_s": float(t[i]),
+        }
+    if unit == "m":
+        out.update({alias: out[name] for alias, name in METRE_ALIASES.items()})
+    return out
+
+
+def metric_rows(unit: str | None) -> list[tuple[str, str, int]]:
+    """``(label, metric, decimals)`` of the metrics as tables show them, unit from the file.
+
+    Examples
+    --------
+    >>> [label for label, _, _ in metric_rows("m")]
+    ['max error [m]', 'final error [m]', 'RMS error [m]', 'peak time [s]']
+    >>> metric_rows(None)[0]
+    ('max error', 'max_error', 3)
+    """
+    u = f" [{unit}]" if unit else ""
+    return [(f"max error{u}", "max_error", 3), (f"final error{u}", "final_error", 3),
+            (f"RMS error{u}", "rms_error", 3), ("peak time [s]", "peak_time_s", 1)]
 
 
 @dataclasses.dataclass
@@ -73,20 +105,25 @@ class RunResult:
         The configuration the run started in.
     final_configuration : str
     metrics : dict
-        ``max_error_m``, ``final_error_m``, ``rms_error_m``, ``peak_time_s``.
+        ``max_error``, ``final_error``, ``rms_error`` (in :attr:`unit`) and
+        ``peak_time_s`` of the objective error J; when the unit is ``m`` also the
+        deprecated ``max_error_m``, ``final_error_m``, ``rms_error_m`` (same values).
     switches : list of dict
         Architecture switches ``{t_s, from, to, action, ...}`` (empty when fixed).
     series : dict of str -> ndarray
         Recorded time series, one row per step: ``t``, ``J`` (objective error),
-        ``reference`` and ``actual`` (the objective's signals), ``estimate``
-        (first output of the active estimator), ``command`` (first output of the
-        active controller), ``configuration`` (index into :attr:`configurations`)
-        and ``residual.<module>`` (each module's declared residual signal, NaN
-        while inactive).
+        ``reference`` and ``actual`` (the objective's signals), one series per
+        entry of ``runtime.record`` (the signal of the first active module that
+        publishes it; diffdrive and the process plant record ``estimate`` and
+        ``command``), ``configuration`` (index into :attr:`configurations`) and
+        ``residual.<module>`` (each module's declared residual signal, NaN while
+        inactive).
     decisions : list
         The adaptation loop's decision log (its ``decisions`` attribute), if any.
     meta : dict
         Architecture name, step, period, duration.
+    unit : str or None
+        Unit of the error metrics: ``runtime.objective.unit`` (None if not declared).
     """
 
     scenario: str
@@ -100,6 +137,7 @@ class RunResult:
     decisions: list[Any] = dataclasses.field(default_factory=list)
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
     configurations: list[str] = dataclasses.field(default_factory=list)
+    unit: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Summary as plain data (the ``--json`` output of ``archself simulate``)."""
@@ -109,6 +147,7 @@ class RunResult:
             "mode": self.mode,
             "configuration": self.configuration,
             "final_configuration": self.final_configuration,
+            "unit": self.unit,
             "metrics": {k: jsonable(v) for k, v in self.metrics.items()},
             "switches": jsonable(self.switches),
         }
@@ -157,10 +196,11 @@ def _decision(d: Any) -> Any:
     return d
 
 
-def _first_output(system: Any, role: str) -> tuple[str, str] | None:
+def _publisher(system: Any, signal: str) -> str | None:
+    """The first active module (file order) whose type publishes ``signal``."""
     for name, mod in system.modules.items():
-        if mod.role == role and mod.outputs:
-            return name, mod.outputs[0]
+        if signal in mod.outputs:
+            return name
     return None
 
 
@@ -226,6 +266,7 @@ def simulate(
     act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
     ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
     comps = list(rt.objective.components)
+    record = list(rt.record.items())  # (series, signal)
     res_mods = [(m, spec.residual.signal) for m, spec in arch.modules.items() if spec.residual]
 
     t_arr = np.empty(n)
@@ -252,7 +293,7 @@ def simulate(
             arr[i] = v
 
     switches: list[dict[str, Any]] = []
-    est = ctl = None
+    sources: list[tuple[str, str, str]] = []  # (series, module, signal) of the configuration
     cur_conf = None
     conf_from: list[tuple[int, int]] = []  # (step, configuration index) at every change
     res_rows: list[list[float]] = []
@@ -263,8 +304,8 @@ def simulate(
         if system.configuration != cur_conf:
             cur_conf = system.configuration
             conf_from.append((i, conf_index.get(cur_conf, -1)))
-            est = _first_output(system, "estimator")
-            ctl = _first_output(system, "controller")
+            sources = [(key, src, sig) for key, sig in record
+                       if (src := _publisher(system, sig)) is not None]
             active = system.active
             modules = system.modules
             res_idx = [(j, modules[m], s) for j, (m, s) in enumerate(res_mods) if m in active]
@@ -274,10 +315,8 @@ def simulate(
         J[i] = objective_norm(a, r, comps)
         put("reference", i, r)
         put("actual", i, a)
-        if est is not None:
-            put("estimate", i, outputs.get(est[0], {}).get(est[1]))
-        if ctl is not None:
-            put("command", i, outputs.get(ctl[0], {}).get(ctl[1]))
+        for key, src, sig in sources:
+            put(key, i, outputs.get(src, {}).get(sig))
         row = nan_row.copy()
         for j, mod, s in res_idx:
             sigs = getattr(mod, "signals", None)
@@ -298,7 +337,7 @@ def simulate(
     if res_rows and res_mods:
         res[:] = np.array(res_rows, dtype=float)
     series: dict[str, np.ndarray] = {"t": t_arr, "J": J}
-    for key in ("reference", "actual", "estimate", "command"):
+    for key in ("reference", "actual", *(k for k, _ in record)):
         if key in cols:
             arr = cols[key]
             series[key] = arr[:, 0] if arr.shape[1] == 1 else arr
@@ -315,6 +354,7 @@ def simulate(
             "actual": rt.objective.actual,
             "reference": rt.objective.reference,
             "components": comps,
+            "unit": rt.objective.unit,
         },
         "residuals": {m: s for m, s in res_mods},
     }
@@ -324,10 +364,11 @@ def simulate(
         mode="fixed" if adapt is None else "adaptive",
         configuration=start,
         final_configuration=system.configuration,
-        metrics=error_metrics(t_arr, J),
+        metrics=error_metrics(t_arr, J, rt.objective.unit),
         switches=switches,
         series=series,
         decisions=decisions,
         meta=meta,
         configurations=confs,
+        unit=rt.objective.unit,
     )
