@@ -8,6 +8,7 @@ running command): ``--force`` allows replacing an old output, never an input.
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -80,9 +81,30 @@ def write_bytes(path: str | Path, data: bytes) -> None:
     ------
     OutputError
         If the folder does not exist or cannot be written, or ``path`` is protected.
+
+    A symbolic link is followed (the file it points to is replaced, the link kept);
+    a character device or a pipe (``/dev/stdout``) is written to directly, never
+    replaced by a file; a folder or another special file is refused.
     """
     p = Path(path)
     refuse_protected(p)
+    try:
+        mode: int | None = os.stat(p).st_mode  # follows a symbolic link
+    except OSError:
+        mode = None
+    if mode is not None and stat.S_ISREG(mode) and p.is_symlink():
+        p = Path(os.path.realpath(p))  # replace the file it points to; the link stays a link
+    if mode is not None and not stat.S_ISREG(mode):
+        if stat.S_ISDIR(mode):
+            raise OutputError(f"{path}: cannot write: is a folder")
+        if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):  # /dev/stdout, /dev/null, a pipe
+            try:
+                with open(p, "wb") as fh:
+                    fh.write(data)
+            except OSError as exc:
+                raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+            return
+        raise OutputError(f"{path}: cannot write: not a regular file")
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"{p}: cannot write: folder {folder} does not exist")

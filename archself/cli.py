@@ -101,7 +101,8 @@ def _numeric(path: Path) -> Iterator[None]:
     """Numeric trouble of the libraries as located one-line messages.
 
     Warnings of numpy/scipy (overflow, singular matrix, ...) are collected and
-    printed once each after the command's own output, as ``PATH: warning: ...``;
+    printed once each (at most 5) as ``PATH: warning: ...`` when the command
+    succeeds, and dropped when it fails (its one-line message says why);
     an OverflowError or FloatingPointError (a value of the file out of the range of
     a float, e.g. ``acceptable: 1e308`` squared) is a one-line error, exit 1.
     """
@@ -117,17 +118,17 @@ def _numeric(path: Path) -> Iterator[None]:
                 f"{path}: error: a value of the file is out of the range of the computation "
                 f"({type(exc).__name__}: {detail}); use smaller magnitudes"
             ) from None
-        finally:
-            seen: set[str] = set()
-            for w in caught:
-                if not _numeric_warning(w):
-                    continue
-                text = str(w.message).splitlines()[0] if str(w.message) else ""
-                where = Path(w.filename).name
-                line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
-                if line not in seen and len(seen) < 5:
-                    seen.add(line)
-                    typer.echo(line, err=True)
+        # after a success only: an error's one-line message is not led by warnings
+        seen: set[str] = set()
+        for w in caught:
+            if not _numeric_warning(w):
+                continue
+            text = str(w.message).splitlines()[0] if str(w.message) else ""
+            where = Path(w.filename).name
+            line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
+            if line not in seen and len(seen) < 5:
+                seen.add(line)
+                typer.echo(line, err=True)
 
 
 def _numeric_warning(w: Any) -> bool:
@@ -160,6 +161,7 @@ def validate(
     report: list[dict[str, object]] = []
     for path in paths:
         try:
+            _inputs(path)
             loaded = load_architecture(path)
             findings = check(loaded)
         except SchemaError as exc:
@@ -236,7 +238,12 @@ def _write_or_check(
     (text,) = pages.values()
     if check_file is not None:
         try:
+            _inputs(check_file, what="a file")
             current = check_file.read_text(encoding="utf-8")
+        except ArchselfError as exc:
+            raise _die(exc) from None
+        except UnicodeDecodeError:
+            raise _fail(f"{check_file}: error: not UTF-8 text") from None
         except OSError as exc:
             raise _fail(f"{check_file}: error: cannot read: {exc.strerror}") from None
         if current != text:
@@ -275,6 +282,8 @@ def init(
     from archself.reports.render import render
     from archself.resources import schema_path
 
+    if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
+        raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
     target = Path(name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
     if target.exists() and not force:
         raise _fail(f"{target}: error: exists; pass --force to overwrite it")
@@ -517,8 +526,11 @@ def explain(
     from archself.runtime.decisions import explain as render
 
     try:
+        _inputs(trace, what="a trace (JSON)")
         doc = json.loads(trace.read_text(encoding="utf-8"))
         meta, decisions = doc["meta"], doc["decisions"]
+    except ArchselfError as exc:
+        raise _die(exc) from None
     except FileNotFoundError:
         raise _fail(f"{trace}: error: no such file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
@@ -695,8 +707,17 @@ def campaign_report_cmd(
     """
     from archself.campaign.report import campaign_report, parse_expect, summary_text
 
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
+
     try:
-        summary = campaign_report(results, out_dir, expect=parse_expect(expect or []), tau_path=tau)
+        _inputs(results, what="a results file (Parquet)")
+        for name in _RUN_REPORT_FILES:
+            refuse_same_file([results], out_dir / name, "-o")
+        with protect([results]), _numeric(results):
+            summary = campaign_report(
+                results, out_dir, expect=parse_expect(expect or []), tau_path=tau
+            )
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
@@ -889,7 +910,7 @@ def generate(
     output: Annotated[
         Path | None, typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
     ] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the random wiring.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the random wiring.")] = 0,
     fan_in: Annotated[int, typer.Option("--fan-in", min=1, help="Max. edges into a module.")] = 3,
     feedback: Annotated[
         int, typer.Option("--feedback", min=0, help="Weak backward edges (cycles).")
@@ -910,6 +931,7 @@ def generate(
         )
     if feedback > n * fan_in and not yes:
         raise _fail(f"error: --feedback {feedback:,} is more than N × --fan-in edges")
+    fan_in = min(fan_in, n)  # no module has more than N − 1 predecessors
     text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
     if output is None:
         sys.stdout.write(text)

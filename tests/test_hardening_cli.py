@@ -7,22 +7,23 @@ network but the loopback.
 
 from __future__ import annotations
 
+import os
 import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from archself.atomic import protect, write_text
 from archself.cli import main
-from archself.errors import OutputError
+from archself.errors import EXIT_CODES, OutputError
 
-from conftest import FIXTURES
+from conftest import FIXTURES, ROOT
 
 MINIMAL = FIXTURES / "valid" / "minimal.yaml"
-ARCHSELF = [
-    str(Path(sys.executable).with_name("archself"))
-]
+ARCHSELF = [str(Path(sys.executable).with_name("archself"))]
 
 
 def run(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str, str]:
@@ -129,3 +130,308 @@ def test_write_over_a_protected_input_is_refused_at_the_write(tmp_path) -> None:
     assert f.read_text() == "a: 1"
     write_text(f, "free again")  # protection ends with the block
     assert f.read_text() == "free again"
+
+
+# --------------------------------------------------------------------------- 4. exit codes
+def _wrong_inputs(tmp: Path) -> dict[str, Path]:
+    """An input of each wrong kind."""
+    (tmp / "folder").mkdir(exist_ok=True)
+    (tmp / "folder.yaml").mkdir(exist_ok=True)
+    (tmp / "empty.yaml").write_text("")
+    (tmp / "binary.yaml").write_bytes(b"\x00\xff\xfe" * 100)
+    (tmp / "garbage.json").write_text("{not json")
+    return {
+        "missing": tmp / "missing.yaml",
+        "folder": tmp / "folder",
+        "device": Path("/dev/zero"),
+        "null": Path("/dev/null"),
+        "empty": tmp / "empty.yaml",
+        "binary": tmp / "binary.yaml",
+        "garbage": tmp / "garbage.json",
+    }
+
+
+def _cases(tmp: Path, arch: Path) -> list[list[str]]:
+    """Every option of every command with a wrong value of each kind."""
+    bad_in = _wrong_inputs(tmp)
+    (tmp / "a-file").write_text("x")
+    bad_out_file = {
+        "no folder": tmp / "no" / "such" / "out.json",
+        "unwritable": Path("/proc/archself-test/out.json"),
+        "a folder": tmp / "folder",
+    }
+    bad_out_dir = {"a file": tmp / "a-file", "unwritable": Path("/proc/archself-test/dir")}
+    a = str(arch)
+    cases: list[list[str]] = []
+    for p in bad_in.values():
+        cases += [
+            ["validate", str(p)],
+            ["simulate", str(p), "-s", "calm"],
+            ["report", str(p), "-o", str(tmp / "rep")],
+            ["campaign", str(p), "-s", "calm", "--seeds", "1", "-o", str(tmp / "c.parquet")],
+            ["explain", str(p)],
+            ["campaign-report", str(p), "-o", str(tmp / "crep")],
+            ["export", str(p), "--to", "graphml"],
+            ["info", str(p)],
+            ["schema", "--check", str(p)],
+        ]
+    for p in bad_out_file.values():
+        cases += [
+            ["simulate", a, "-s", "calm", "--trace", str(p)],
+            ["schema", "-o", str(p)],
+            ["generate", "10", "-o", str(p)],
+            ["export", a, "--to", "graphml", "-o", str(p)],
+            ["init", str(p.with_suffix(".yaml"))],
+            ["campaign", a, "-s", "calm", "--seeds", "1", "-o", str(p)],
+        ]
+    for p in bad_out_dir.values():
+        cases += [
+            ["report", a, "-o", str(p)],
+            ["simulate", a, "-s", "calm", "--report", str(p)],
+            ["campaign", a, "-s", "calm", "--seeds", "1", "--traces", str(p), "-o",
+             str(tmp / "t.parquet")],
+            ["docs", str(p)],
+        ]
+    wrong = ["-1", "abc", "", "1e3", "nan"]  # for options that accept 0
+    for v in wrong:
+        cases += [
+            ["simulate", a, "-s", "calm", "--seed", v],
+            ["campaign", a, "-s", "calm", "--seeds", "1", "--root-seed", v, "-o",
+             str(tmp / "n.parquet")],
+            ["generate", "10", "--seed", v],
+            ["generate", "10", "--feedback", v],
+        ]
+    for v in ["0", *wrong]:  # for options that need at least 1 (or 2)
+        cases += [
+            ["campaign", a, "-s", "calm", "--seeds", v, "-o", str(tmp / "n.parquet")],
+            ["campaign", a, "-s", "calm", "--seeds", "1", "--workers", v, "-o",
+             str(tmp / "n.parquet")],
+            ["generate", v],
+            ["generate", "10", "--fan-in", v],
+        ]
+    cases += [
+        ["generate", "100000000"],
+        ["simulate", a, "-s", "nope"],
+        ["simulate", a, "-s", "calm", "-c", "nope"],
+        ["simulate", a, "-s", "calm", "--fixed", "--compare"],
+        ["campaign", a, "-s", "nope", "--seeds", "1"],
+        ["campaign", a, "-s", "calm", "-s", "calm", "--seeds", "1"],
+        ["campaign", a, "-s", "calm", "--seeds", "1", "--mode", "sideways"],
+        ["campaign", a, "-s", "calm", "--seeds", "1", "--executor", "cloud"],
+        ["campaign", a, "-s", "calm", "--seeds", "1", "--address", "tcp://127.0.0.1:1"],
+        ["campaign", a, "-s", "calm", "--seeds", "1", "--executor", "dask", "--address",
+         "not a url"],
+        ["campaign", a, "-s", "calm", "--seeds", "1", "--resume", "--force"],
+        ["campaign", a, "-s", "calm", "--seeds", "1", "--resume", "-o",
+         str(bad_in["garbage"])],
+        ["campaign", a, "-s", "calm", "--seeds", "1000000000000"],
+        ["explain", str(arch)],
+        ["campaign-report", str(bad_in["garbage"]), "-o", str(tmp / "crep")],
+        ["export", a, "--to", "nope"],
+        ["init", str(tmp / "folder")],
+        ["init", ""],
+        ["init", str(arch)],
+        ["generate", "10", "--feedback", str(10**12)],
+        ["schema", "--check", str(tmp / "folder")],
+        ["docs", str(tmp / "a-file")],
+    ]
+    for spec in ["runtime.threshold", "runtime.threshold=", "runtime.threshold=a:b:c",
+                 "runtime.threshold=0.1:0.9:0", "runtime.threshold=0.1:0.9:-3",
+                 "runtime.threshold=0.1:0.9:100000000", "runtime.threshold=nan,1",
+                 "runtime.threshold=1e308:1e309:2", "runtime.nope=1,2", "runtime=1,2",
+                 "runtime.threshold=-5,5", "x[99999999999999999999].y=1", "[0]=1",
+                 "scenarios.calm.duration_s=1e12"]:
+        cases.append(["campaign", a, "-s", "calm", "--seeds", "1", "--sweep", spec, "-o",
+                      str(tmp / "s.parquet")])
+    return cases
+
+
+def test_every_option_with_a_wrong_value_is_a_user_error(
+    tmp_path, arch, monkeypatch, capsys
+) -> None:
+    failures = []
+    cases = _cases(tmp_path, arch)
+    for args in cases:
+        t0 = time.perf_counter()
+        code, _out, err = run(args, monkeypatch, capsys)
+        dt = time.perf_counter() - t0
+        lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+        bad = (
+            code not in (1, 2)
+            or "internal error" in err
+            or "Traceback" in err
+            or not lines
+            or (code == 1 and args[0] != "validate" and len(lines) != 1)
+            or dt > 20
+        )
+        if bad:
+            failures.append(f"{args} -> {code} in {dt:.1f} s: {err.strip()[:300]!r}")
+    assert not failures, "\n".join(failures)
+    assert len(cases) > 150
+
+
+def _readonly_folder(tmp: Path) -> Path:
+    """A folder this process cannot write into (root writes anywhere: then /proc)."""
+    if os.geteuid() == 0:
+        return Path("/proc/archself-readonly")
+    d = tmp / "ro"
+    d.mkdir()
+    d.chmod(0o555)
+    return d / "traces"
+
+
+@pytest.mark.parametrize(
+    ("case", "code", "fragment"),
+    [
+        ("root-seed", 2, "--root-seed"),
+        ("address", 1, "not a Dask scheduler address"),
+        ("traces-readonly", 1, "--traces folder cannot be written"),
+        ("generate-huge", 1, "more than the cap of 100,000"),
+        ("acceptable-1e308", 1, "out of the range of the computation"),
+        ("dev-zero", 1, "is a character device"),
+    ],
+)
+def test_audit_user_mistakes_are_not_internal_errors(
+    case, code, fragment, tmp_path, arch, monkeypatch, capsys
+) -> None:
+    big = tmp_path / "big.yaml"
+    big.write_text(
+        arch.read_text().replace("components: [0, 1]}", "components: [0, 1], acceptable: 1e308}")
+    )
+    args = {
+        "root-seed": ["campaign", arch, "-s", "calm", "--seeds", "1", "--root-seed", "-1"],
+        "address": ["campaign", arch, "-s", "calm", "--seeds", "1", "--executor", "dask",
+                    "--address", "not a url", "-o", tmp_path / "r.parquet"],
+        "traces-readonly": ["campaign", arch, "-s", "calm", "--seeds", "1", "--traces",
+                            _readonly_folder(tmp_path), "-o", tmp_path / "r.parquet"],
+        "generate-huge": ["generate", "100000000"],
+        "acceptable-1e308": ["simulate", big, "-s", "calm"],
+        "dev-zero": ["simulate", "/dev/zero", "-s", "calm"],
+    }[case]
+    got, _, err = run(args, monkeypatch, capsys)
+    assert got == code, err
+    assert fragment in err and "internal error" not in err
+    if code == 1:
+        one_line(err)
+
+
+def test_exit_codes_are_documented() -> None:
+    page = (ROOT / "docs" / "hardening.md").read_text(encoding="utf-8")
+    for code in EXIT_CODES:
+        assert f"| {code} |" in page, code
+
+
+# --------------------------------------------------------------------------- 6. messages
+def test_campaign_report_of_dev_null_says_what_it_is(tmp_path, monkeypatch, capsys) -> None:
+    code, _, err = run(["campaign-report", "/dev/null", "-o", tmp_path / "r"], monkeypatch, capsys)
+    assert code == 1 and "is a character device" in one_line(err) and "no such file" not in err
+
+
+def test_a_pool_that_cannot_start_says_so(arch, tmp_path, monkeypatch, capsys) -> None:
+    import multiprocessing.forkserver
+
+    def gone(*args, **kwargs):
+        raise BrokenPipeError(32, "Broken pipe")  # what a dead forkserver gives
+
+    monkeypatch.setattr(multiprocessing.forkserver, "connect_to_new_process", gone)
+    monkeypatch.setattr(multiprocessing.forkserver._forkserver, "connect_to_new_process", gone)
+    code, _, err = run(
+        ["campaign", arch, "-s", "calm", "--seeds", "1", "--workers", "1", "-o",
+         tmp_path / "r.parquet"],
+        monkeypatch,
+        capsys,
+    )
+    assert code == 1 and "could not start" in one_line(err), err
+
+
+def test_numeric_warnings_are_located_and_after_the_output(arch, monkeypatch, capsys) -> None:
+    import numpy as np
+
+    import archself.cli as cli
+
+    real = cli._run
+
+    def noisy(*args, **kwargs):
+        for _ in range(3):
+            np.log(np.zeros(2))  # RuntimeWarning: divide by zero (three times)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cli, "_run", noisy)
+    code, out, err = run(["simulate", arch, "-s", "calm", "--fixed"], monkeypatch, capsys)
+    assert code == 0 and "max error" in out
+    assert one_line(err).startswith(f"{arch}: warning: RuntimeWarning: divide by zero")
+
+
+def test_numeric_warnings_do_not_precede_an_error(arch, monkeypatch, capsys) -> None:
+    import numpy as np
+
+    import archself.cli as cli
+    from archself.errors import SimulationError
+
+    def noisy(*args, **kwargs):
+        np.log(np.zeros(2))
+        raise SimulationError(f"{arch}: error: the run failed")
+
+    monkeypatch.setattr(cli, "_run", noisy)
+    code, _, err = run(["simulate", arch, "-s", "calm", "--fixed"], monkeypatch, capsys)
+    lines = err.strip().splitlines()
+    assert code == 1 and lines[0] == f"{arch}: error: the run failed", err
+
+
+def _signal_after_start(
+    args: list[str], sig: int, tmp: Path, marker: str | None = None, delay: float = 2.0
+) -> tuple[int, str]:
+    """Start ``archself ARGS`` in ``tmp``, send ``sig`` once a file named ``marker*``
+    appears (or after ``delay`` s); the exit code and stderr. Bounded: 60 s."""
+    err_path = tmp / f"stderr-{int(sig)}.txt"
+    with open(err_path, "w") as err_file:
+        proc = subprocess.Popen(ARCHSELF + args, stdout=subprocess.DEVNULL, stderr=err_file,
+                                cwd=tmp)
+        try:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 60 and proc.poll() is None:
+                if marker is None and time.monotonic() - t0 >= delay:
+                    break
+                if marker is not None and any(p.name.startswith(marker) for p in tmp.iterdir()):
+                    break
+                time.sleep(0.02)
+            proc.send_signal(sig)
+            code = proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
+    return code, err_path.read_text()
+
+
+SIGNALS = [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
+
+
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_a_signal_on_simulate_says_so(sig, code, word, tmp_path) -> None:
+    diffdrive = ROOT / "architectures" / "diffdrive.yaml"
+    got, err = _signal_after_start(
+        ["simulate", str(diffdrive), "-s", "imu_drift", "--compare", "--trace", "t.json"],
+        sig, tmp_path, delay=2.0,
+    )
+    if got == 0:
+        pytest.skip("the run finished before the signal")
+    assert got == code and err.strip().splitlines()[-1] == word, (got, err)
+    assert not list(tmp_path.glob("*.json")) and not list(tmp_path.glob(".t.*")), "no half trace"
+
+
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_a_signal_on_report_leaves_no_half_report(sig, code, word, tmp_path) -> None:
+    diffdrive = ROOT / "architectures" / "diffdrive.yaml"
+    old = tmp_path / "rep"
+    old.mkdir()
+    (old / "index.html").write_text("the old report")
+    got, err = _signal_after_start(
+        ["report", str(diffdrive), "-o", "rep", "--force"], sig, tmp_path, marker=".rep."
+    )
+    if got == 0:
+        pytest.skip("the report was complete before the signal")
+    assert got == code and err.strip().splitlines()[-1] == word, (got, err)
+    assert [p.name for p in old.iterdir()] == ["index.html"], "the old report is untouched"
+    assert (old / "index.html").read_text() == "the old report"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".rep.")], "temp removed"

@@ -245,8 +245,17 @@ def estimate_campaign(
     """Runs, simulated steps and driver memory of a campaign, without building it."""
     n_points = math.prod(len(s.values) for s in sweeps)
     per_cell = n_points * int(seeds) * len(modes)
+    # a swept step or duration: the estimate takes its most expensive value
     dt = float(arch.runtime.step_s)
-    steps = sum(per_cell * round(float(arch.scenarios[s].duration_s) / dt) for s in scenarios)
+    for s in sweeps:
+        if s.keys == ("runtime", "step_s") and min(s.values) > 0:
+            dt = min(dt, min(s.values))
+    durations = {name: float(arch.scenarios[name].duration_s) for name in scenarios}
+    for s in sweeps:
+        if len(s.keys) == 3 and s.keys[0] == "scenarios" and s.keys[2] == "duration_s":
+            if s.keys[1] in durations:
+                durations[str(s.keys[1])] = max(durations[str(s.keys[1])], max(s.values))
+    steps = sum(per_cell * round(d / dt) for d in durations.values())
     runs = per_cell * len(scenarios)
     return CampaignEstimate(runs, steps, runs * BYTES_PER_RUN)
 

@@ -166,8 +166,13 @@ def die_with_parent(driver_pid: int | None = None, watchdog: bool = True) -> Non
 
 def _worker_init(driver_pid: int | None = None) -> None:
     """Initializer of a local pool worker: no SIGINT (the driver stops cleanly), dies with it."""
+    import warnings
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    # a run's numeric trouble shows in its row (NaN metrics, the error column); the
+    # workers' warnings would reach the terminal unlocated, between the driver's lines
+    warnings.simplefilter("ignore", RuntimeWarning)
     die_with_parent(driver_pid)
 
 
