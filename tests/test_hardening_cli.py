@@ -435,3 +435,160 @@ def test_a_signal_on_report_leaves_no_half_report(sig, code, word, tmp_path) -> 
     assert [p.name for p in old.iterdir()] == ["index.html"], "the old report is untouched"
     assert (old / "index.html").read_text() == "the old report"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".rep.")], "temp removed"
+
+
+# --------------------------------------------------------------------------- 2, 3. campaigns
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (psutil if installed, else /proc by ppid)."""
+    try:
+        import psutil
+
+        return [p.pid for p in psutil.Process(pid).children(recursive=True)]
+    except ImportError:
+        pass
+    kids: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            kids.setdefault(ppid, []).append(int(d.name))
+    out, todo = [], [pid]
+    while todo:
+        for k in kids.get(todo.pop(), []):
+            out.append(k)
+            todo.append(k)
+    return out
+
+
+def _running(pid: int) -> bool:
+    """Alive and not a zombie."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+def _start_campaign(tmp: Path, arch: Path, seeds: int, out: str = "r.parquet"):
+    err = open(tmp / "campaign.err", "w")  # noqa: SIM115 - closed by the caller's wait
+    proc = subprocess.Popen(
+        ARCHSELF + ["campaign", str(arch), "-s", "calm", "--seeds", str(seeds), "--workers", "2",
+                    "-o", out, "--force"],
+        stdout=subprocess.DEVNULL, stderr=err, cwd=tmp,
+    )
+    # wait until the forkserver has forked both workers (grandchildren of the driver)
+    t0 = time.monotonic()
+    kids: list[int] = []
+    while time.monotonic() - t0 < 60 and proc.poll() is None:
+        kids = _descendants(proc.pid)
+        if len(kids) >= 4:  # resource tracker, forkserver, 2 workers
+            break
+        time.sleep(0.05)
+    return proc, kids, err
+
+
+def _workers(pid: int) -> list[int]:
+    """The pool workers: the processes two levels below the driver (forkserver's children)."""
+    children = set()
+    for k in _descendants(pid):
+        try:
+            ppid = int(Path(f"/proc/{k}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid != pid:
+            children.add(k)
+    return sorted(children)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and forkserver")
+def test_sigkill_of_the_driver_leaves_no_orphans(tmp_path, arch) -> None:
+    proc, kids, err = _start_campaign(tmp_path, arch, seeds=30)
+    try:
+        assert len(kids) >= 4, kids
+        time.sleep(0.5)
+        proc.kill()
+        t0 = time.monotonic()
+        proc.wait(timeout=10)
+        while time.monotonic() - t0 < 10 and any(_running(k) for k in kids):
+            time.sleep(0.05)
+        gone_after = time.monotonic() - t0
+        left = [k for k in kids if _running(k)]
+    finally:
+        err.close()
+        for k in kids:
+            if _running(k):
+                os.kill(k, signal.SIGKILL)
+    assert not left, f"still running after {gone_after:.1f} s: {left}"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and forkserver")
+def test_sigterm_keeps_the_finished_runs_and_exits_143(tmp_path, arch) -> None:
+    from archself.campaign.results import read_results
+
+    proc, kids, err = _start_campaign(tmp_path, arch, seeds=30)
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 60 and not (tmp_path / "r.parquet").exists():
+            time.sleep(0.05)  # the first flush: some runs are finished
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=30)
+        t1 = time.monotonic()
+        while time.monotonic() - t1 < 10 and any(_running(k) for k in kids):
+            time.sleep(0.05)
+        left = [k for k in kids if _running(k)]
+    finally:
+        err.close()
+        for k in kids:
+            if _running(k):
+                os.kill(k, signal.SIGKILL)
+    text = (tmp_path / "campaign.err").read_text()
+    assert code == 143, text
+    assert text.strip().splitlines()[-1].startswith("terminated: ") and "--resume" in text
+    table, _ = read_results(tmp_path / "r.parquet")
+    assert 0 < table.num_rows < 60
+    assert not left
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and forkserver")
+def test_a_killed_worker_is_replaced_and_the_campaign_finishes(tmp_path, arch) -> None:
+    from archself.campaign.results import read_results
+
+    proc, kids, err = _start_campaign(tmp_path, arch, seeds=6)
+    try:
+        time.sleep(1.0)
+        workers = _workers(proc.pid)
+        assert workers, kids
+        os.kill(workers[0], signal.SIGKILL)
+        code = proc.wait(timeout=120)
+    finally:
+        err.close()
+        if proc.poll() is None:
+            proc.kill()
+    text = (tmp_path / "campaign.err").read_text()
+    assert code == 0, text
+    assert "a worker process died" in text and "pool restarted (1/10)" in text
+    table, _ = read_results(tmp_path / "r.parquet")
+    assert table.num_rows == 12 and all(e is None for e in table.column("error").to_pylist())
+
+
+def poison_job(job):
+    """A run that kills its worker (a crash in C code, the OOM killer) — always."""
+    if job.replicate == 1 and job.mode == "fixed":
+        os._exit(9)
+    from archself.campaign.worker import run_job
+
+    return run_job(job)
+
+
+def test_a_run_that_always_kills_its_worker_becomes_a_failed_row(tmp_path, arch) -> None:
+    from archself.campaign.driver import MAX_ATTEMPTS, plan_campaign, run_campaign
+
+    jobs, meta = plan_campaign(arch, ["calm"], 3)
+    notes: list[str] = []
+    outcome = run_campaign(jobs, meta, tmp_path / "r.parquet", workers=2, notice=notes.append,
+                           job_fn=poison_job)
+    assert outcome.rows == 6 and outcome.failed == 1
+    assert outcome.errors == [f"calm|1|fixed: worker process died ({MAX_ATTEMPTS + 1} tries)"]
+    assert len(notes) == MAX_ATTEMPTS + 1 and "retried one at a time" in notes[0]

@@ -40,10 +40,10 @@ __all__ = [
 ]
 
 MODES = ("fixed", "adaptive")
-#: A run that was on a worker when it died this many times becomes a failed row.
-MAX_ATTEMPTS = 3
+#: A run that broke the pool this many times alone on it becomes a failed row.
+MAX_ATTEMPTS = 2
 #: A campaign restarts its local pool at most this many times, then stops (--resume).
-MAX_POOL_RESTARTS = 5
+MAX_POOL_RESTARTS = 10
 
 
 class CampaignInterrupted(ArchselfError):
@@ -344,6 +344,7 @@ def run_campaign(
     progress: Callable[[int, int], None] | None = None,
     flush_s: float = 2.0,
     notice: Callable[[str], None] | None = None,
+    job_fn: Callable[[Job], dict[str, Any]] = run_job,
 ) -> CampaignOutcome:
     """Run the jobs on an executor and write the results table to ``out``.
 
@@ -367,13 +368,19 @@ def run_campaign(
     notice : callable, optional
         Called with a one-line message when a worker died and the pool is
         restarted (default: printed to stderr).
+    job_fn : callable
+        What a worker runs (default :func:`~archself.campaign.worker.run_job`;
+        another function for fault injection in tests).
 
     A local worker that dies (killed, out of memory, a crash in C code) breaks the
-    pool: the pool is started again and the unfinished runs are submitted again.
-    The runs that were on a worker when it died count an attempt; a run that was
-    there :data:`MAX_ATTEMPTS` times becomes a failed row (``--resume`` retries
-    failed rows). After :data:`MAX_POOL_RESTARTS` restarts the campaign stops with
-    a message naming ``--resume``; the finished rows are saved.
+    pool and every run on it: the pool is started again and the unfinished runs
+    are submitted again. The runs that were on the workers (the first
+    ``workers + 1`` unfinished ones: the pool is FIFO) are retried one at a time
+    first, so that a run that kills its worker is found: alone on the pool
+    :data:`MAX_ATTEMPTS` times, it becomes a failed row (``--resume`` retries
+    failed rows) and the campaign goes on. After :data:`MAX_POOL_RESTARTS`
+    restarts the campaign stops with a message naming ``--resume``; the finished
+    rows are saved.
 
     Raises
     ------
@@ -437,7 +444,8 @@ def run_campaign(
             progress(ran, len(todo))
 
     pending: dict[str, Job] = {j.run_id: j for j in todo}  # in submission order
-    attempts: dict[str, int] = {}
+    suspects: set[str] = set()  # on a worker when the pool broke: retried one at a time
+    attempts: dict[str, int] = {}  # pool breaks while a run was alone on it
     restarts = 0
     ex = start()
     n_workers = ex.workers
@@ -447,8 +455,10 @@ def run_campaign(
             progress(0, len(todo))
         last = time.perf_counter()
         while pending:
+            alone = [j for j in pending.values() if j.run_id in suspects][:1]
+            batch = alone or list(pending.values())
             try:
-                futures = {ex.submit(run_job, j): j for j in pending.values()}
+                futures = {ex.submit(job_fn, j): j for j in batch}
             except Exception as exc:  # noqa: BLE001 - a pool that cannot take work
                 if not _worker_died(exc) and not isinstance(exc, OSError):
                     raise
@@ -464,6 +474,7 @@ def run_campaign(
                         break
                     row = _failed_row(job, f"{type(exc).__name__}: {exc}")
                 pending.pop(job.run_id, None)
+                suspects.discard(job.run_id)
                 keep(row)
                 now = time.perf_counter()
                 if now - last >= flush_s:
@@ -471,19 +482,23 @@ def run_campaign(
                     last = now
             if died is None:
                 continue
-            # a worker died: keep what finished, blame the runs that were on a worker
+            # a worker died: keep what finished, then find the run that was on it
             for fut, job in futures.items():
                 if job.run_id in pending and fut.done() and not fut.cancelled():
                     if fut.exception() is None:
                         pending.pop(job.run_id)
+                        suspects.discard(job.run_id)
                         keep(fut.result())
             flush()
-            suspects = list(pending.values())[: n_workers]
-            for job in suspects:
-                attempts[job.run_id] = attempts.get(job.run_id, 0) + 1
-                if attempts[job.run_id] >= MAX_ATTEMPTS:
-                    pending.pop(job.run_id)
-                    keep(_failed_row(job, f"worker process died ({MAX_ATTEMPTS} attempts)"))
+            if alone:  # it was alone on the pool: it is the one
+                rid = alone[0].run_id
+                attempts[rid] = attempts.get(rid, 0) + 1
+                if attempts[rid] >= MAX_ATTEMPTS:
+                    pending.pop(rid)
+                    suspects.discard(rid)
+                    keep(_failed_row(alone[0], f"worker process died ({MAX_ATTEMPTS + 1} tries)"))
+            else:  # FIFO: the first workers + 1 unfinished runs were on a worker or queued
+                suspects.update(list(pending)[: n_workers + 1])
             _quiet_close(ex)
             restarts += 1
             if restarts > MAX_POOL_RESTARTS:
@@ -494,8 +509,9 @@ def run_campaign(
                     "run the same command with --resume to continue"
                 )
             say(
-                f"a worker process died ({type(died).__name__}); restarting the pool "
+                f"a worker process died ({type(died).__name__}); pool restarted "
                 f"({restarts}/{MAX_POOL_RESTARTS}), {len(pending)} runs to go"
+                + (f", {len(suspects)} retried one at a time" if suspects else "")
             )
             if pending:
                 ex = start()
@@ -551,11 +567,11 @@ def _quiet_close(ex: Any) -> None:
 def _abort(ex: Any, futures: dict[Any, Job]) -> None:
     """Stop the executor at once (Ctrl-C, SIGTERM, an error), whatever state it is in."""
     try:
-        ex.cancel(list(futures))
-    except BaseException:  # noqa: BLE001 - best effort
-        pass
-    try:
-        getattr(ex, "abort", ex.close)()
+        if hasattr(ex, "abort"):  # the local pool: end the workers, no cancel (see abort)
+            ex.abort()
+        else:
+            ex.cancel(list(futures))
+            ex.close()
     except BaseException:  # noqa: BLE001 - a second Ctrl-C, a broken pool
         pass
 

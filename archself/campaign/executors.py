@@ -242,15 +242,16 @@ class LocalExecutor:
 
     def abort(self) -> None:
         """Stop at once: cancel the queue and end the workers (their runs are lost)."""
-        procs = list(getattr(self._pool, "_processes", None) or {})
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
+        # End the workers first, without cancelling futures: the pool's manager then
+        # fails the unfinished futures itself (cancelling them first races with it:
+        # InvalidStateError in its thread, Python 3.11).
+        for p in list(getattr(self._pool, "_processes", None) or {}):
             try:
                 os.kill(p, signal.SIGTERM)
             except OSError:
                 pass
         try:
-            self._pool.shutdown(wait=True)
+            self._pool.shutdown(wait=True, cancel_futures=False)
         except Exception:  # noqa: BLE001 - a broken pool is fine here
             pass
 
