@@ -329,7 +329,11 @@ def _run(
         return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt)
     from contextlib import ExitStack
 
-    label = f"{scenario} ({'adaptive' if adaptive else 'fixed'})"
+    steps, size = _simulation_estimate(arch, scenario, 1)
+    label = (
+        f"{scenario} ({'adaptive' if adaptive else 'fixed'}, {steps:,} steps, "
+        f"~{max(1, round(size / 1024**2)):,} MB)"
+    )
     with ExitStack() as stack:
         state: dict[str, Any] = {"done": 0, "bar": None}
 

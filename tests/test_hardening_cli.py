@@ -592,3 +592,97 @@ def test_a_run_that_always_kills_its_worker_becomes_a_failed_row(tmp_path, arch)
     assert outcome.rows == 6 and outcome.failed == 1
     assert outcome.errors == [f"calm|1|fixed: worker process died ({MAX_ATTEMPTS + 1} tries)"]
     assert len(notes) == MAX_ATTEMPTS + 1 and "retried one at a time" in notes[0]
+
+
+# --------------------------------------------------------------------------- 5. size, reports
+def _many_configurations(tmp: Path, n: int) -> Path:
+    text = MINIMAL.read_text()
+    head, conf = text.split("configurations:\n  only:\n    initial: true\n")
+    modules, rest = conf.split("\n", 1)
+    extra = "".join(f"  c{i}:\n{modules}\n" for i in range(n))
+    p = tmp / "many.yaml"
+    p.write_text(f"{head}configurations:\n  only:\n    initial: true\n{modules}\n{extra}{rest}")
+    return p
+
+
+def test_report_refuses_too_many_files_before_writing(tmp_path, monkeypatch, capsys) -> None:
+    from archself.reports.architecture import MAX_FILES
+
+    big = _many_configurations(tmp_path, MAX_FILES // 6)
+    t0 = time.perf_counter()
+    code, _, err = run(["report", big, "-o", tmp_path / "rep", "--no-render"], monkeypatch,
+                       capsys)
+    assert code == 1 and "pass --yes" in one_line(err) and f"cap of {MAX_FILES:,}" in err
+    assert time.perf_counter() - t0 < 30
+    assert not (tmp_path / "rep").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["many.yaml"], "no temporary folder left"
+
+
+def test_report_needs_force_and_leaves_no_stale_files(arch, tmp_path, monkeypatch, capsys) -> None:
+    out = tmp_path / "rep"
+    assert run(["report", arch, "-o", out, "--no-render"], monkeypatch, capsys)[0] == 0
+    first = sorted(p.name for p in out.iterdir())
+    (out / "stale-from-an-old-report.html").write_text("old")
+    code, _, err = run(["report", arch, "-o", out, "--no-render"], monkeypatch, capsys)
+    assert code == 1 and "pass --force" in one_line(err)
+    assert (out / "stale-from-an-old-report.html").exists()
+    assert run(["report", arch, "-o", out, "--no-render", "--force"], monkeypatch, capsys)[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == first, "stale file gone"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X.yaml", "rep"], "no temporary left"
+    other = tmp_path / "not-a-report"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    code, _, err = run(["report", arch, "-o", other, "--force"], monkeypatch, capsys)
+    assert code == 1 and "not an archself report" in one_line(err)
+    assert (other / "notes.txt").read_text() == "mine"
+
+
+def test_a_failed_report_leaves_the_old_one_whole(arch, tmp_path, monkeypatch, capsys) -> None:
+    import archself.reports.architecture as ra
+
+    out = tmp_path / "rep"
+    assert run(["report", arch, "-o", out, "--no-render"], monkeypatch, capsys)[0] == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    calls = {"n": 0}
+    real = ra.render
+
+    def failing(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise OSError(28, "No space left on device", str(out / "x"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ra, "render", failing)
+    code, _, err = run(["report", arch, "-o", out, "--no-render", "--force"], monkeypatch, capsys)
+    assert code == 1 and "No space left" in one_line(err)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X.yaml", "rep"]
+
+
+def test_huge_campaigns_are_refused_at_once(arch, tmp_path, monkeypatch, capsys) -> None:
+    for args, fragment in (
+        (["--seeds", "1000000000000"], "memory"),
+        (["--seeds", "1", "--sweep", "runtime.threshold=0.1:0.9:100000000"], "10,000 values"),
+        (["--seeds", "100000"], "pass --yes"),
+        (["--seeds", "1", "--sweep", "scenarios.calm.duration_s=1e12"], "pass --yes"),
+    ):
+        t0 = time.perf_counter()
+        code, _, err = run(["campaign", arch, "-s", "calm", *args, "-o", tmp_path / "r.parquet"],
+                           monkeypatch, capsys)
+        assert code == 1 and fragment in one_line(err), (args, err)
+        assert time.perf_counter() - t0 < 10, args
+    assert not (tmp_path / "r.parquet").exists()
+
+
+def test_campaign_estimate_text() -> None:
+    from archself.campaign.driver import CampaignEstimate
+
+    est = CampaignEstimate(runs=1200, steps=1200 * 8000, memory_bytes=1200 * 2048)
+    assert est.text() == "1,200 runs × 8,000 steps = 9.6e+06 steps, ~2 MB"
+
+
+def test_a_huge_simulation_is_refused_with_its_estimate(arch, monkeypatch, capsys) -> None:
+    long = arch.with_name("long.yaml")
+    long.write_text(arch.read_text().replace("calm: {duration_s: 20}", "calm: {duration_s: 1e9}"))
+    code, _, err = run(["simulate", long, "-s", "calm"], monkeypatch, capsys)
+    assert code == 1 and "20,000,000,000 steps" in one_line(err) and "--yes" in err
