@@ -107,6 +107,18 @@ def test_order_respects_active_edges(arch):
     assert s.active == set(arch.configurations["a1"].modules)
 
 
+def test_output_types_are_learnt_per_system(arch):
+    """The non-numeric output types a system finds (model objects) stay in that system."""
+    import archself.system as system_module
+
+    a = compile_system(arch, "a1", seed=1)
+    b = compile_system(arch, "a1", seed=1)
+    for _ in range(3):
+        a.step()
+    assert len(a._not_numeric) > len(system_module._NOT_NUMERIC)  # it found model objects
+    assert b._not_numeric == set(system_module._NOT_NUMERIC) == {str, bool, type(None)}
+
+
 def test_algebraic_loop_is_a_compile_error(toys):
     a = toy_arch(
         {"src": "toy.clock", "p": "toy.pass", "q": "toy.pass"},
