@@ -709,9 +709,8 @@ def campaign_report_cmd(
 
     Writes DIR/index.html (figures as SVG beside it) and DIR/summary.json.
     """
-    from archself.campaign.report import campaign_report, parse_expect, summary_text
-
     from archself.atomic import protect
+    from archself.campaign.report import campaign_report, parse_expect, summary_text
     from archself.outputs import refuse_same_file
 
     try:
