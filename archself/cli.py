@@ -832,6 +832,14 @@ def calibrate(
     json_out: Annotated[
         bool, typer.Option("--json", help="Print the bands and rates as JSON.")
     ] = False,
+    save_runs: Annotated[
+        Path | None,
+        typer.Option("--save-runs", metavar="FILE", help="Keep the runs' residuals (.npz)."),
+    ] = None,
+    from_runs: Annotated[
+        Path | None,
+        typer.Option("--from-runs", metavar="FILE", help="Use saved runs instead of running."),
+    ] = None,
 ) -> None:
     """Derive residual bands (residual.nominal) for a target false-switch rate from nominal runs.
 
@@ -855,6 +863,8 @@ def calibrate(
     try:
         if target is not None:
             check_output(arch_path, target, in_place=in_place, force=force)
+        if save_runs is not None:
+            check_output(arch_path, save_runs, in_place=False, force=force)
         show = sys.stderr.isatty() and not json_out
         bar = None
         state = {"done": 0}
@@ -875,7 +885,7 @@ def calibrate(
                 arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
                 configurations=configurations, root_seed=root_seed, executor=executor,
                 workers=workers, address=address, verify_seeds=verify_seeds,
-                progress=progress if show else None,
+                progress=progress if show else None, save_runs=save_runs, from_runs=from_runs,
             )
         finally:
             if bar is not None:

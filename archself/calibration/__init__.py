@@ -1,0 +1,25 @@
+"""``archself calibrate``: residual bands from nominal runs for a stated false-alarm rate.
+
+- :mod:`~archself.calibration.runs` — the nominal runs (fixed, every configuration,
+  N seeds) on the campaign executors, the Monitor's filtered residuals recorded;
+- :mod:`~archself.calibration.bands` — per-run critical scales, Gumbel tails, bands;
+- :mod:`~archself.calibration.driver` — :func:`calibrate`, the command without output;
+- :mod:`~archself.calibration.edit` — the calibrated copy of the file (text edited in place);
+- :mod:`~archself.calibration.report` — ``--report DIR`` (HTML, Markdown, figures).
+
+See docs/calibrate.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["Calibration", "CalibrationError", "calibrate"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in __all__:
+        from archself.calibration import driver
+
+        return getattr(driver, name)
+    raise AttributeError(name)

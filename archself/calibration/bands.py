@@ -1,0 +1,353 @@
+"""Bands from nominal residuals: the arithmetic of ``archself calibrate``.
+
+Notation (docs/calibrate.md): for a run in configuration c, cycle t after the
+warm-up and module j with a ``residual`` block, x_tj = |s̄_j| is the filtered
+residual signal (:mod:`archself.calibration.runs`). With bands n_j
+(``residual.nominal``) the runtime forms r_j = σ_j·max(0, x_j − n_j)/n_j
+(σ_j = ``residual.sensitivity``), z = (I − Wᵀ)⁻¹ r over the active edges of c
+(W normalized as the runtime does) and raises a candidate when
+max_i |z_i| ≥ τ. A *false alarm* is a nominal run with a candidate in any cycle
+after the warm-up — an upper bound on its false switches (a candidate switches
+only if an admissible action scores above 0).
+
+Bands are n_j = s·b_j: a *shape* b and one common *scale* s.
+
+- Shape: b_j is the (1 − p) quantile of module j's per-run maximum of x_j (the
+  larger of a Gumbel fit's and the empirical one; the largest over the cells in
+  which j is active), so that every channel has about the same tail.
+- Scale: z decreases as s grows (σ ≥ 0 and W ≥ 0), so each run has a
+  critical scale S = sup{s : the run raises a candidate with bands s·b}: the run
+  has a false alarm exactly when s ≤ S. S is a maximum over the run's cycles
+  (found by bisection per cycle), so its tail is modelled as a Gumbel law's:
+  a Gumbel distribution fitted to all the runs' S (scipy.stats.gumbel_r, maximum
+  likelihood) and an exponential fitted to the top 20 % of them (the Gumbel tail,
+  fitted to the tail only; :class:`TailFit`). The scale is the largest of the two
+  fits' (1 − p) quantiles and the smallest s that the empirical rate allows
+  (≤ p of the calibration runs have S ≥ s), over every (scenario, configuration)
+  cell.
+
+All functions are pure numpy/scipy on arrays; nothing here runs a simulation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "Cell",
+    "TailFit",
+    "alarm_threshold",
+    "critical_scales",
+    "cycle_scales",
+    "influence_block",
+    "quantile_level",
+    "rate_at",
+    "scale_for_rate",
+]
+
+
+def alarm_threshold(runtime: Any) -> float:
+    """τ of the candidate set: ``runtime.threshold`` or ``runtime.hysteresis.on``.
+
+    Raises
+    ------
+    ValueError
+        With ``top_k`` (no threshold to calibrate against).
+    """
+    if runtime.threshold is not None:
+        return float(runtime.threshold)
+    if runtime.hysteresis is not None:
+        return float(runtime.hysteresis.on)
+    raise ValueError("runtime.top_k has no threshold τ to calibrate the bands against")
+
+
+def influence_block(arch: Any, configuration: str, residual_modules: Sequence[str]) -> np.ndarray:
+    """M with z_active = M · x-residuals: the columns of (I − Wᵀ)⁻¹ of the runtime.
+
+    Rows: the active modules of ``configuration`` (file order); columns:
+    ``residual_modules``. Computed with the runtime's own
+    :class:`~archself.runtime.knowledge.Knowledge` (active edges, disabled edges,
+    the ρ(W) normalization, the same solver), one unit vector per column.
+    """
+    from archself.runtime.knowledge import Knowledge
+
+    k = Knowledge(arch, configuration)
+    out = np.zeros((len(k.active_index), len(residual_modules)))
+    for j, name in enumerate(residual_modules):
+        e = np.zeros(len(k.names))
+        e[k.index[name]] = 1.0
+        out[:, j] = np.asarray(k.influence(e))[k.active_index]
+    return out
+
+
+def _max_abs_z(x: np.ndarray, n: np.ndarray, sens: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """max_i |z_i| per row of x (cycles × modules) for bands n (rows × modules or modules)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = sens * np.maximum(x - n, 0.0) / n
+    r = np.where(np.isfinite(r), r, 0.0)
+    if m.size == 0 or r.size == 0:
+        return np.zeros(x.shape[0])
+    return np.abs(r @ m.T).max(axis=1)
+
+
+def cycle_scales(
+    x: np.ndarray,
+    base: np.ndarray,
+    sens: np.ndarray,
+    m: np.ndarray,
+    tau: float,
+    *,
+    iterations: int = 60,
+) -> np.ndarray:
+    """The critical scale of every cycle: the largest s with max_i |z_i| ≥ τ for bands s·base.
+
+    Parameters
+    ----------
+    x : ndarray (cycles × J)
+        |s̄_j| per cycle.
+    base : ndarray (J,)
+        Band shape b (> 0).
+    sens : ndarray (J,)
+        σ_j.
+    m : ndarray (A × J)
+        :func:`influence_block`.
+    tau : float
+        τ.
+
+    Returns
+    -------
+    ndarray (cycles,)
+        0 where no band can raise a candidate (every x_j = 0); otherwise found
+        by bisection on log s to a relative precision of about 1e-9.
+
+    Examples
+    --------
+    One module, σ = 1, no edges: a candidate when (x − s·b)/(s·b) ≥ τ, i.e. s ≤ x/(b(1 + τ)).
+
+    >>> s = cycle_scales(np.array([[3.0]]), np.array([1.0]), np.array([1.0]), np.eye(1), 0.5)
+    >>> round(float(s[0]), 6)
+    2.0
+    """
+    x = np.asarray(x, dtype=float)
+    c = x.shape[0]
+    out = np.zeros(c)
+    if c == 0:
+        return out
+    hi = (x / base).max(axis=1)  # above this every r_j = 0
+    live = hi > 0
+    if not live.any():
+        return out
+    xs, his = x[live], hi[live]
+    lo = his * 1e-12
+    # a candidate at lo? (r huge); if not even there, the critical scale is ~0
+    ok_lo = _max_abs_z(xs, lo[:, None] * base, sens, m) >= tau
+    a, b = np.log(lo), np.log(his)
+    for _ in range(iterations):
+        mid = 0.5 * (a + b)
+        alarm = _max_abs_z(xs, np.exp(mid)[:, None] * base, sens, m) >= tau
+        a = np.where(alarm, mid, a)
+        b = np.where(alarm, b, mid)
+    out[live] = np.where(ok_lo, np.exp(a), 0.0)
+    return out
+
+
+@dataclass
+class Cell:
+    """The calibration runs of one (scenario, configuration).
+
+    Attributes
+    ----------
+    scenario, configuration : str
+    modules : list of str
+        The active modules with a residual block (columns of every ``x``).
+    x : list of ndarray
+        Per run: cycles × modules, |s̄_j| after the warm-up.
+    forced : ndarray of bool
+        Per run: an active module was unavailable for a reason of its own in
+        some cycle after the warm-up (a candidate whatever the bands).
+    m : ndarray
+        :func:`influence_block` for ``modules``.
+    sens : ndarray
+        σ_j of ``modules``.
+    seeds : list of int
+    failed : list of str
+        Errors of the runs that failed (not in ``x``).
+    """
+
+    scenario: str
+    configuration: str
+    modules: list[str]
+    x: list[np.ndarray]
+    forced: np.ndarray
+    m: np.ndarray
+    sens: np.ndarray
+    seeds: list[int] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)
+
+    @property
+    def runs(self) -> int:
+        return len(self.x)
+
+    def run_max(self, module: str) -> np.ndarray:
+        """Per run: the largest |s̄_j| of ``module`` after the warm-up."""
+        j = self.modules.index(module)
+        return np.array([float(xr[:, j].max()) if xr.shape[0] else 0.0 for xr in self.x])
+
+
+def critical_scales(cell: Cell, bands: dict[str, float], tau: float) -> np.ndarray:
+    """Per run of ``cell``: S, the largest s at which bands s·n raise a candidate.
+
+    The run has a false alarm with bands s·n exactly when s ≤ S; with the bands
+    themselves (s = 1) when S ≥ 1. A run with a forced candidate has S = inf.
+    """
+    base = np.array([float(bands[m]) for m in cell.modules], dtype=float)
+    out = np.zeros(cell.runs)
+    for k, xr in enumerate(cell.x):
+        if cell.forced[k]:
+            out[k] = math.inf
+        elif xr.shape[0]:
+            out[k] = float(cycle_scales(xr, base, cell.sens, cell.m, tau).max())
+    return out
+
+
+@dataclass
+class TailFit:
+    """The distribution of per-run maxima S, fitted twice; the heavier tail counts.
+
+    A point mass at 0 (runs without any signal) and at +inf (runs with a forced
+    candidate) and, for the positive finite values:
+
+    - a Gumbel law G fitted to all of them (maximum likelihood), the law of a
+      maximum over many cycles;
+    - an exponential law fitted to the excesses of the largest ``k`` values over
+      the next one, u (k = the top 20 %, at least 5): the tail of a Gumbel law,
+      fitted to the tail only, so that a narrow bulk (e.g. the same setpoint
+      ramp in every run) cannot hide rare large values.
+
+    ``predicted(s)`` is the larger of the two tail probabilities (the
+    empirical rate where neither fit exists: fewer than 3, resp. 10, values).
+    """
+
+    values: np.ndarray
+    f0: float
+    finf: float
+    loc: float | None
+    scale: float | None
+    tail_u: float | None = None
+    tail_beta: float | None = None
+    tail_share: float = 0.0
+
+    @classmethod
+    def fit(cls, values: np.ndarray) -> TailFit:
+        v = np.asarray(values, dtype=float)
+        n = max(v.size, 1)
+        pos = np.sort(v[np.isfinite(v) & (v > 0)])
+        f0 = float(np.sum(v <= 0)) / n
+        finf = float(np.sum(np.isinf(v))) / n
+        loc = scale = None
+        spread = pos.size >= 3 and float(np.ptp(pos)) > 1e-12 * float(pos.max())
+        if spread:
+            from scipy.stats import gumbel_r
+
+            loc_, scale_ = gumbel_r.fit(pos)
+            if math.isfinite(loc_) and math.isfinite(scale_) and scale_ > 0:
+                loc, scale = float(loc_), float(scale_)
+        u = beta = None
+        share = 0.0
+        if spread and pos.size >= 10:
+            k = max(5, int(math.ceil(0.2 * pos.size)))
+            top, u_ = pos[-k:], float(pos[-k - 1])
+            beta_ = float(np.mean(top - u_))
+            if beta_ > 0:
+                u, beta, share = u_, beta_, k / n
+        return cls(v, f0, finf, loc, scale, u, beta, share)
+
+    def _gumbel(self, s: float) -> float | None:
+        if self.loc is None or self.scale is None:
+            return None
+        from scipy.stats import gumbel_r
+
+        tail = float(gumbel_r.sf(s, self.loc, self.scale)) if s > 0 else 1.0
+        return self.finf + (1.0 - self.finf - self.f0) * tail
+
+    def _exponential(self, s: float) -> float | None:
+        if self.tail_u is None or self.tail_beta is None:
+            return None
+        if s <= self.tail_u:
+            return self.empirical(s)
+        return self.finf + self.tail_share * math.exp(-(s - self.tail_u) / self.tail_beta)
+
+    def predicted(self, s: float) -> float:
+        """P(S ≥ s): the larger of the two fits (the empirical rate when there is no fit)."""
+        fits = [f for f in (self._gumbel(s), self._exponential(s)) if f is not None]
+        return max(fits) if fits else self.empirical(s)
+
+    def empirical(self, s: float) -> float:
+        """Share of the values ≥ s."""
+        return rate_at(self.values, s)
+
+    def quantile(self, p: float) -> float:
+        """The smallest s with both fits' P(S ≥ s) ≤ p (inf when p ≤ f_inf; 0 without fits)."""
+        if p <= self.finf:
+            return math.inf
+        out = 0.0
+        body = 1.0 - self.finf - self.f0
+        if self.loc is not None and self.scale is not None and body > 0:
+            q = (p - self.finf) / body
+            if q < 1.0:
+                from scipy.stats import gumbel_r
+
+                out = max(out, float(gumbel_r.isf(q, self.loc, self.scale)))
+        if self.tail_u is not None and self.tail_beta is not None:
+            q = p - self.finf
+            if q < self.tail_share:
+                out = max(out, self.tail_u + self.tail_beta * math.log(self.tail_share / q))
+            else:
+                out = max(out, _empirical_level(self.values, p))
+        return max(0.0, out)
+
+
+def rate_at(values: np.ndarray, s: float) -> float:
+    """Share of ``values`` that are ≥ s (the empirical false-alarm rate at scale s)."""
+    v = np.asarray(values, dtype=float)
+    return float(np.mean(v >= s)) if v.size else math.nan
+
+
+def _empirical_level(values: np.ndarray, p: float) -> float:
+    """The smallest level s (just above a value) with at most ⌊N·p⌋ values ≥ s."""
+    v = np.sort(np.asarray(values, dtype=float))[::-1]
+    k = int(math.floor(v.size * p + 1e-9))  # allowed exceedances
+    if k >= v.size:
+        return 0.0
+    top = float(v[k])
+    if top <= 0:
+        return 0.0
+    return math.inf if math.isinf(top) else top * (1.0 + 1e-9)
+
+
+def scale_for_rate(values: np.ndarray, p: float) -> tuple[float, TailFit]:
+    """Scale s with predicted and empirical P(S ≥ s) both ≤ p; and the fit.
+
+    The largest of the Gumbel and the exponential-tail (1 − p) quantiles and the
+    empirical level.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> v = rng.gumbel(1.0, 0.1, 2000)
+    >>> s, fit = scale_for_rate(v, 0.01)
+    >>> round(fit.predicted(s), 3) <= 0.01 and fit.empirical(s) <= 0.01
+    True
+    """
+    fit = TailFit.fit(values)
+    return max(fit.quantile(p), _empirical_level(values, p)), fit
+
+
+def quantile_level(values: np.ndarray, p: float) -> float:
+    """The (1 − p) level of per-run maxima: :func:`scale_for_rate` on them (0 if all 0)."""
+    return scale_for_rate(values, p)[0]

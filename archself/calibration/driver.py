@@ -1,0 +1,526 @@
+"""``archself calibrate``: plan the nominal runs, run them, derive the bands.
+
+:func:`calibrate` is the whole command without its output: it checks the file,
+runs every fault-free scenario fixed in every configuration for N seeds
+(:mod:`~archself.calibration.runs`, on a campaign executor), derives the bands
+(:mod:`~archself.calibration.bands`) and returns a :class:`Calibration` holding
+the old and new bands, the predicted and empirical false-alarm rates per
+(scenario, configuration) and the calibrated text of the file
+(:mod:`~archself.calibration.edit`). Optionally it measures the rate of the new
+bands on fresh seeds (``verify_seeds``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from archself.calibration.bands import (
+    Cell,
+    TailFit,
+    alarm_threshold,
+    critical_scales,
+    influence_block,
+    quantile_level,
+    scale_for_rate,
+)
+from archself.errors import ArchselfError, LoadError
+
+__all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand", "calibrate"]
+
+
+class CalibrationError(ArchselfError):
+    """The calibration cannot be done as asked (one-line message, exit 1)."""
+
+
+@dataclass
+class ModuleBand:
+    """The band of one module: old, shape, new, and why it was (not) changed."""
+
+    name: str
+    old: float
+    new: float
+    base: float
+    sensitivity: float
+    signal: str
+    configurations: list[str]
+    calibrated: bool
+    note: str = ""
+
+
+@dataclass
+class CellResult:
+    """False alarms of one (scenario, configuration) cell, old and new bands."""
+
+    scenario: str
+    configuration: str
+    runs: int
+    failed: list[str]
+    forced: int
+    scale_needed: float
+    old_predicted: float
+    old_empirical: float
+    new_predicted: float
+    new_empirical: float
+    fit_old: TailFit
+    fit_new: TailFit
+    verify_runs: int = 0
+    verify_old: float = math.nan
+    verify_new: float = math.nan
+
+
+@dataclass
+class Calibration:
+    """What :func:`calibrate` found."""
+
+    architecture: str
+    file: str
+    tau: float
+    false_switch: float
+    seeds: int
+    root_seed: int
+    scenarios: list[str]
+    configurations: list[str]
+    scale: float
+    modules: dict[str, ModuleBand]
+    cells: list[CellResult]
+    data: list[Cell]
+    text: str
+    comment: str
+    executor: str
+    workers: int | None
+    elapsed_s: float
+    runs: int
+    verify_seeds: int = 0
+    verify_elapsed_s: float = 0.0
+    verify_data: list[Cell] = field(default_factory=list)
+
+    @property
+    def bands(self) -> dict[str, float]:
+        """module -> new band (as written to the file)."""
+        return {m: b.new for m, b in self.modules.items()}
+
+    def rates(self) -> dict[str, float]:
+        """The worst cell's rates (a run of any cell is a run the loop may be in)."""
+
+        def worst(attr: str) -> float:
+            vals = [getattr(c, attr) for c in self.cells]
+            vals = [v for v in vals if v == v]
+            return max(vals) if vals else math.nan
+
+        return {
+            "predicted_new": worst("new_predicted"),
+            "empirical_new": worst("new_empirical"),
+            "predicted_old": worst("old_predicted"),
+            "empirical_old": worst("old_empirical"),
+            "verify_new": worst("verify_new"),
+            "verify_old": worst("verify_old"),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON data (``--json``; ``calibration.json`` of the report)."""
+
+        def num(v: float) -> float | None:
+            return float(v) if v == v and not math.isinf(v) else None
+
+        return {
+            "architecture": self.architecture,
+            "file": self.file,
+            "tau": self.tau,
+            "false_switch": self.false_switch,
+            "seeds": self.seeds,
+            "root_seed": self.root_seed,
+            "scenarios": self.scenarios,
+            "configurations": self.configurations,
+            "runs": self.runs,
+            "scale": num(self.scale),
+            "bands": {
+                m: {
+                    "old": b.old,
+                    "new": b.new,
+                    "calibrated": b.calibrated,
+                    "signal": b.signal,
+                    "configurations": b.configurations,
+                    "note": b.note,
+                }
+                for m, b in self.modules.items()
+            },
+            "rates": {k: num(v) for k, v in self.rates().items()},
+            "cells": [
+                {
+                    "scenario": c.scenario,
+                    "configuration": c.configuration,
+                    "runs": c.runs,
+                    "failed": len(c.failed),
+                    "forced": c.forced,
+                    "gumbel": {"loc": c.fit_new.loc, "scale": c.fit_new.scale},
+                    "tail": {
+                        "u": c.fit_new.tail_u,
+                        "beta": c.fit_new.tail_beta,
+                        "share": c.fit_new.tail_share,
+                    },
+                    "predicted_new": num(c.new_predicted),
+                    "empirical_new": num(c.new_empirical),
+                    "predicted_old": num(c.old_predicted),
+                    "empirical_old": num(c.old_empirical),
+                    "verify_runs": c.verify_runs,
+                    "verify_new": num(c.verify_new),
+                    "verify_old": num(c.verify_old),
+                }
+                for c in self.cells
+            ],
+            "executor": self.executor,
+            "elapsed_s": round(self.elapsed_s, 3),
+            "verify_seeds": self.verify_seeds,
+            "verify_elapsed_s": round(self.verify_elapsed_s, 3),
+        }
+
+
+def _located(loaded: Any, path: tuple[str, ...], message: str) -> LoadError:
+    line, col = loaded.source.locate(path)
+    return LoadError(message, loaded.file, line, col, ".".join(path))
+
+
+def _prepare(
+    arch_path: str | Path, scenarios: Sequence[str] | None, configurations: Sequence[str] | None
+) -> tuple[str, Any, list[str], list[str], float]:
+    from archself.check import check, has_errors
+    from archself.loader import load_text, read_text
+
+    text = read_text(arch_path)
+    loaded = load_text(text, str(arch_path))
+    findings = check(loaded)
+    if has_errors(findings):
+        raise CalibrationError(str(next(f for f in findings if f.severity == "error")))
+    arch = loaded.arch
+    rt = arch.runtime
+    if rt.normalization != "nominal":
+        raise _located(
+            loaded,
+            ("runtime", "normalization"),
+            "calibrate sets the bands of normalization: nominal; with 'none' the bands are "
+            "not used",
+        )
+    try:
+        tau = alarm_threshold(rt)
+    except ValueError as exc:
+        raise _located(loaded, ("runtime", "top_k"), str(exc)) from None
+    if not any(m.residual is not None for m in arch.modules.values()):
+        raise _located(loaded, ("modules",), "no module declares a residual: nothing to calibrate")
+    if scenarios:
+        for s in scenarios:
+            if s not in arch.scenarios:
+                known = ", ".join(arch.scenarios) or "none"
+                raise CalibrationError(f"{loaded.file}: unknown scenario {s!r}; known: {known}")
+            if arch.scenarios[s].faults:
+                raise _located(
+                    loaded,
+                    ("scenarios", s, "faults"),
+                    f"scenario {s!r} has faults; calibration needs fault-free (nominal) scenarios",
+                )
+        if len(set(scenarios)) != len(scenarios):
+            raise CalibrationError("the same --scenario is given twice")
+        chosen = list(scenarios)
+    else:
+        chosen = [n for n, s in arch.scenarios.items() if not s.faults]
+        if not chosen:
+            raise _located(
+                loaded,
+                ("scenarios",),
+                "no fault-free scenario to calibrate on; declare one (no faults)",
+            )
+    if configurations:
+        for c in configurations:
+            if c not in arch.configurations:
+                known = ", ".join(arch.configurations)
+                raise CalibrationError(
+                    f"{loaded.file}: unknown configuration {c!r}; known: {known}"
+                )
+        confs = list(dict.fromkeys(configurations))
+    else:
+        confs = list(arch.configurations)
+    return text, loaded, chosen, confs, tau
+
+
+def _cells(arch: Any, results: list[dict[str, Any]]) -> list[Cell]:
+    names = [m for m, spec in arch.modules.items() if spec.residual is not None]
+    col = {m: j for j, m in enumerate(names)}
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in results:
+        groups.setdefault((r["scenario"], r["configuration"]), []).append(r)
+    cells = []
+    for (sc, conf), rows in groups.items():
+        active = set(arch.configurations[conf].modules)
+        mods = [m for m in names if m in active]
+        idx = [col[m] for m in mods]
+        ok = [r for r in rows if r["error"] is None]
+        cells.append(
+            Cell(
+                scenario=sc,
+                configuration=conf,
+                modules=mods,
+                x=[np.asarray(r["x"])[:, idx] for r in ok],
+                forced=np.array([bool(np.any(r["forced"])) for r in ok], dtype=bool),
+                m=influence_block(arch, conf, mods),
+                sens=np.array([float(arch.modules[m].residual.sensitivity) for m in mods]),
+                seeds=[int(r["seed"]) for r in ok],
+                failed=[f"seed {r['seed']}: {r['error']}" for r in rows if r["error"] is not None],
+            )
+        )
+    return cells
+
+
+def calibrate(
+    arch_path: str | Path,
+    *,
+    false_switch: float = 0.01,
+    seeds: int = 100,
+    scenarios: Sequence[str] | None = None,
+    configurations: Sequence[str] | None = None,
+    root_seed: int = 0,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    verify_seeds: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+    save_runs: str | Path | None = None,
+    from_runs: str | Path | None = None,
+) -> Calibration:
+    """Run the nominal scenarios and derive bands for a false-alarm rate per run.
+
+    Parameters
+    ----------
+    arch_path : path
+        The architecture file (checked first; a file with errors is refused).
+    false_switch : float
+        Target p in (0, 1): the share of nominal runs (of the scenario's
+        duration) with a candidate after the warm-up, in every configuration.
+    seeds : int
+        Runs per (scenario, configuration).
+    scenarios, configurations : sequence of str, optional
+        Default: every fault-free scenario; every configuration.
+    root_seed : int
+        Seeds are children ``0 … seeds−1`` of ``SeedSequence(root_seed)``
+        (verification: the next ``verify_seeds`` children).
+    executor, workers, address
+        As for ``archself campaign`` (``"inline"`` runs in this process).
+    verify_seeds : int
+        Also measure the rate of the new (and old) bands on this many fresh seeds.
+    progress : callable, optional
+        ``progress(done, total)`` after every run.
+    save_runs : path, optional
+        Also write the runs' residuals to this ``.npz`` file.
+    from_runs : path, optional
+        Take the runs from a file written by ``save_runs`` instead of running them
+        (its seeds, scenarios and configurations; the architecture must be the same
+        but for its bands).
+
+    Raises
+    ------
+    CalibrationError, LoadError
+        A file with errors, ``normalization: none``, ``top_k``, no fault-free
+        scenario, a rate that no band can give, every run failing.
+    """
+    from archself.calibration import runs as R
+    from archself.calibration.edit import set_nominals
+
+    p = float(false_switch)
+    if not 0.0 < p < 1.0:
+        raise CalibrationError(f"--false-switch {false_switch}: expected a rate in (0, 1)")
+    if seeds < 1:
+        raise CalibrationError("--seeds must be at least 1")
+    if verify_seeds < 0:
+        raise CalibrationError("--verify-seeds must be at least 0")
+    text, loaded, chosen, confs, tau = _prepare(arch_path, scenarios, configurations)
+    arch = loaded.arch
+    file = loaded.file
+    digest = R.band_free_digest(loaded.data)
+    elapsed = verify_elapsed = 0.0
+    if from_runs is not None:
+        meta, saved = R.load_runs(from_runs)
+        if meta.get("digest") != digest:
+            raise CalibrationError(
+                f"{from_runs}: runs of another architecture (not only the bands differ from "
+                f"{file}); run them again without --from-runs"
+            )
+        seeds, verify_seeds = int(meta["seeds"]), int(meta["verify_seeds"])
+        chosen, confs = list(meta["scenarios"]), list(meta["configurations"])
+        root_seed = int(meta["root_seed"])
+        elapsed, verify_elapsed = float(meta["elapsed_s"]), float(meta["verify_elapsed_s"])
+        results = [r for r in saved if r["phase"] == "calibration"]
+        vres = [r for r in saved if r["phase"] == "verify"]
+        executor = f"{meta['executor']} (runs from {Path(from_runs).name})"
+    else:
+        t0 = time.perf_counter()
+        jobs = R.plan_runs(text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds))
+        results = R.run_jobs(
+            jobs, executor=executor, workers=workers, address=address, progress=progress
+        )
+        elapsed = time.perf_counter() - t0
+        vres = []
+        if verify_seeds:
+            t1 = time.perf_counter()
+            vjobs = R.plan_runs(
+                text,
+                file,
+                chosen,
+                confs,
+                R.seeds_from(root_seed, seeds, verify_seeds),
+                first_replicate=seeds,
+                phase="verify",
+            )
+            vres = R.run_jobs(
+                vjobs, executor=executor, workers=workers, address=address, progress=progress
+            )
+            verify_elapsed = time.perf_counter() - t1
+        if save_runs is not None:
+            meta = {
+                "format": 1,
+                "architecture": arch.name,
+                "digest": digest,
+                "seeds": seeds,
+                "verify_seeds": verify_seeds,
+                "root_seed": root_seed,
+                "scenarios": chosen,
+                "configurations": confs,
+                "executor": executor,
+                "elapsed_s": elapsed,
+                "verify_elapsed_s": verify_elapsed,
+            }
+            R.save_runs(save_runs, meta, results + vres)
+    cells = _cells(arch, results)
+    for c in cells:
+        if c.runs == 0:
+            raise CalibrationError(
+                f"{file}: every run of {c.scenario} in {c.configuration} failed: {c.failed[0]}"
+            )
+
+    old = {m: float(s.residual.nominal) for m, s in arch.modules.items() if s.residual}
+    # shape: the (1 − p) level of each module's per-run maximum, worst cell
+    base: dict[str, float] = {}
+    where: dict[str, list[str]] = {}
+    for c in cells:
+        for m in c.modules:
+            where.setdefault(m, [])
+            if c.configuration not in where[m]:
+                where[m].append(c.configuration)
+            level = quantile_level(c.run_max(m), p)
+            base[m] = max(base.get(m, 0.0), level)
+    notes: dict[str, str] = {}
+    for m in old:
+        sens = float(arch.modules[m].residual.sensitivity)
+        if m not in where:
+            notes[m] = "not active in a calibrated configuration"
+        elif sens == 0:
+            notes[m] = "sensitivity 0: the band has no effect"
+        elif not math.isfinite(base.get(m, math.nan)) or base.get(m, 0.0) <= 0:
+            notes[m] = "no nominal signal (always 0 or unusable): the band has no effect"
+    calibrated = [m for m in old if m not in notes]
+    if not calibrated:
+        raise CalibrationError(f"{file}: no module's residual could be calibrated")
+    shape = {m: (base[m] if m in calibrated else old[m]) for m in old}
+
+    # scale: every cell's runs at most p false alarms (predicted and empirical)
+    scale = 0.0
+    needed: list[float] = []
+    for c in cells:
+        s_c, _ = scale_for_rate(critical_scales(c, shape, tau), p)
+        needed.append(s_c)
+        if math.isinf(s_c):
+            raise CalibrationError(
+                f"{file}: {int(c.forced.sum())} of {c.runs} nominal runs of {c.scenario} in "
+                f"{c.configuration} have a module unavailable after the warm-up: no band gives "
+                f"a false-switch rate of {p:g}"
+            )
+        scale = max(scale, s_c)
+    if scale <= 0:
+        raise CalibrationError(f"{file}: the nominal residuals raise no candidate at any band")
+
+    from archself.calibration.edit import format_band
+
+    new = {m: (float(format_band(scale * shape[m])) if m in calibrated else old[m]) for m in old}
+    results_cells = []
+    for c, s_needed in zip(cells, needed, strict=True):
+        s_old = critical_scales(c, old, tau)
+        s_new = critical_scales(c, new, tau)
+        f_old, f_new = TailFit.fit(s_old), TailFit.fit(s_new)
+        results_cells.append(
+            CellResult(
+                scenario=c.scenario,
+                configuration=c.configuration,
+                runs=c.runs,
+                failed=c.failed,
+                forced=int(c.forced.sum()),
+                scale_needed=s_needed,
+                old_predicted=f_old.predicted(1.0),
+                old_empirical=f_old.empirical(1.0),
+                new_predicted=f_new.predicted(1.0),
+                new_empirical=f_new.empirical(1.0),
+                fit_old=f_old,
+                fit_new=f_new,
+            )
+        )
+
+    verify_cells: list[Cell] = []
+    if vres:
+        verify_cells = _cells(arch, vres)
+        by_key = {(c.scenario, c.configuration): c for c in verify_cells}
+        for r in results_cells:
+            vc = by_key.get((r.scenario, r.configuration))
+            if vc is None or vc.runs == 0:
+                continue
+            r.verify_runs = vc.runs
+            r.verify_new = float(np.mean(critical_scales(vc, new, tau) >= 1.0))
+            r.verify_old = float(np.mean(critical_scales(vc, old, tau) >= 1.0))
+
+    cells_text = (
+        f"{len(confs)} configuration{'s' * (len(confs) != 1)}"
+        if len(chosen) == 1
+        else f"{len(cells)} (scenario, configuration)"
+    )
+    comment = f"p = {p:g}/run, {seeds} nominal runs × {cells_text} (archself calibrate)"
+    changed = {m: new[m] for m in calibrated}
+    new_text = set_nominals(text, file, changed, comment)
+    modules = {
+        m: ModuleBand(
+            name=m,
+            old=old[m],
+            new=new[m],
+            base=shape[m],
+            sensitivity=float(arch.modules[m].residual.sensitivity),
+            signal=arch.modules[m].residual.signal,
+            configurations=where.get(m, []),
+            calibrated=m in calibrated,
+            note=notes.get(m, ""),
+        )
+        for m in old
+    }
+    return Calibration(
+        architecture=arch.name,
+        file=file,
+        tau=tau,
+        false_switch=p,
+        seeds=seeds,
+        root_seed=root_seed,
+        scenarios=chosen,
+        configurations=confs,
+        scale=scale,
+        modules=modules,
+        cells=results_cells,
+        data=cells,
+        text=new_text,
+        comment=comment,
+        executor=executor,
+        workers=workers,
+        elapsed_s=elapsed,
+        runs=len(results),
+        verify_seeds=verify_seeds,
+        verify_elapsed_s=verify_elapsed,
+        verify_data=verify_cells,
+    )

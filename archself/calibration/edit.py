@@ -1,0 +1,203 @@
+"""Write new ``residual.nominal`` values into the architecture's text, keeping everything else.
+
+The text is composed with ruamel.yaml (the round-trip composer, which keeps the
+position of every node); each ``modules.<m>.residual.nominal`` scalar is replaced
+where it stands, between its start and end marks, and the line gets an
+end-of-line comment (``# calibrated: …``). Nothing else of the file changes —
+comments, flow mappings, key order, blank lines and quoting stay byte for byte
+— and the result is loaded again to check that it holds exactly the new values.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from archself.errors import LoadError, OutputError
+
+__all__ = ["check_output", "format_band", "same_file", "set_nominals"]
+
+COMMENT_TAG = "# calibrated:"
+
+
+def format_band(value: float, digits: int = 3) -> str:
+    """``value`` rounded *up* to ``digits`` significant digits, as a YAML float.
+
+    Rounding up keeps the stated false-alarm rate (a wider band never adds alarms).
+
+    Examples
+    --------
+    >>> format_band(0.000612345)
+    '0.000613'
+    >>> format_band(0.15)
+    '0.15'
+    >>> format_band(2.0)
+    '2.0'
+    >>> format_band(1.234e-05)
+    '1.24e-05'
+    """
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"a band must be positive and finite, not {value!r}")
+    e = math.floor(math.log10(value)) - (digits - 1)
+    q = math.ceil(value / 10.0**e - 1e-9) * 10.0**e
+    text = f"{q:.{digits}g}"
+    if float(text) < value * (1 - 1e-12):  # representation rounded down: one more digit
+        text = f"{q:.{digits + 1}g}"
+    if "e" not in text and "." not in text:
+        text += ".0"
+    return text
+
+
+def _child(node: Any, key: str) -> Any:
+    from ruamel.yaml.nodes import MappingNode, ScalarNode
+
+    if not isinstance(node, MappingNode):
+        return None
+    for k, v in node.value:
+        if isinstance(k, ScalarNode) and k.value == key:
+            return v
+    return None
+
+
+def _comment_start(line: str, start: int) -> int:
+    """Index of a ``#`` comment in ``line`` at or after ``start`` (outside quotes), or -1."""
+    quote = None
+    i = start
+    while i < len(line):
+        ch = line[i]
+        if quote:
+            if ch == "\\" and quote == '"':
+                i += 2
+                continue
+            if ch == quote:
+                if quote == "'" and i + 1 < len(line) and line[i + 1] == "'":
+                    i += 2
+                    continue
+                quote = None
+        elif ch in "\"'":
+            quote = ch
+        elif ch == "#" and (i == 0 or line[i - 1] in " \t"):
+            return i
+        i += 1
+    return -1
+
+
+def set_nominals(
+    text: str, file: str, values: dict[str, float], comment: str, *, verify: bool = True
+) -> str:
+    """The text with ``modules.<m>.residual.nominal`` set to ``values[m]`` for each m.
+
+    Parameters
+    ----------
+    text : str
+        The architecture file's text.
+    file : str
+        Its name (for messages).
+    values : dict
+        module -> new band (written by :func:`format_band`).
+    comment : str
+        Text after ``# calibrated:`` on every changed line (a previous
+        ``# calibrated:`` comment is replaced; another comment is kept and the
+        calibration note appended to it).
+    verify : bool
+        Load the result as an architecture and check the values (off for
+        fragments that are not whole architecture files).
+
+    Raises
+    ------
+    LoadError
+        A module without a ``nominal`` scalar, or a ``residual`` reached through
+        a YAML alias shared by modules that get different values (with the
+        position).
+    """
+    from ruamel.yaml import YAML
+    from ruamel.yaml.nodes import ScalarNode
+
+    root = YAML(typ="rt").compose(text)
+    modules = _child(root, "modules")
+    edits: dict[int, tuple[int, int, str, str]] = {}  # id(node) -> (start, end, new, module)
+    for name, value in values.items():
+        node = _child(_child(_child(modules, name), "residual"), "nominal")
+        if not isinstance(node, ScalarNode):
+            raise LoadError(
+                "no residual.nominal value to calibrate", file, path=f"modules.{name}.residual"
+            )
+        new = format_band(value)
+        start, end = node.start_mark, node.end_mark
+        old = edits.get(id(node))
+        if old is not None and old[2] != new:
+            raise LoadError(
+                f"residual.nominal is shared (a YAML alias) with module {old[3]!r}, which "
+                f"gets another band ({old[2]} vs {new}); write the value out for each module",
+                file,
+                start.line + 1,
+                start.column + 1,
+                f"modules.{name}.residual.nominal",
+            )
+        edits[id(node)] = (start.index, end.index, new, name)
+    out = text
+    changed_lines: set[int] = set()
+    # replace from the end so that earlier indices stay valid
+    for s, e, new, _ in sorted(edits.values(), key=lambda t: -t[0]):
+        out = out[:s] + new + out[e:]
+        changed_lines.add(out.count("\n", 0, s))
+    lines = out.split("\n")
+    note = f"{COMMENT_TAG} {comment}".rstrip()
+    for i in sorted(changed_lines):
+        line = lines[i]
+        cut = _comment_start(line, 0)
+        if cut < 0:
+            lines[i] = f"{line.rstrip()}  {note}"
+        elif line[cut:].startswith(COMMENT_TAG):
+            lines[i] = f"{line[:cut].rstrip()}  {note}"
+        else:
+            lines[i] = f"{line.rstrip()}; {note[2:]}"
+    result = "\n".join(lines)
+    if verify:
+        _verify(result, file, {name: float(format_band(v)) for name, v in values.items()})
+    return result
+
+
+def _verify(text: str, file: str, expect: dict[str, float]) -> None:
+    """Load the new text and check it holds exactly the new values."""
+    from archself.loader import load_text
+
+    arch = load_text(text, file).arch
+    for name, v in expect.items():
+        got = arch.modules[name].residual.nominal
+        if got != v:  # pragma: no cover - a bug of the editor, not of the file
+            raise LoadError(f"writing the band of {name} failed ({got} != {v})", file)
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name the same file (same device and inode; False if one is missing)."""
+    try:
+        sa, sb = os.stat(a), os.stat(b)
+    except OSError:
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+
+
+def check_output(source: str | Path, output: str | Path, *, in_place: bool, force: bool) -> None:
+    """Refuse a calibrated copy that would replace the input or another file unasked.
+
+    Raises
+    ------
+    OutputError
+        ``output`` is the input (same inode) without ``in_place`` and ``force``,
+        it exists without ``force``, or its folder does not exist.
+    """
+    out = Path(output)
+    if same_file(source, out):
+        if not (in_place and force):
+            raise OutputError(
+                f"{out}: error: is the input file; pass --in-place --force to overwrite it"
+            )
+        return
+    if out.exists() and not force:
+        raise OutputError(f"{out}: error: exists; pass --force to overwrite it")
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise OutputError(f"{out}: error: cannot write: folder {folder} does not exist")

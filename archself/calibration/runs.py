@@ -1,0 +1,328 @@
+"""The calibration runs: nominal scenarios, fixed in each configuration, residuals recorded.
+
+One :class:`CalJob` is one run of one fault-free scenario, started (and kept,
+no adaptation) in one configuration, with one seed. The worker steps the
+system with :func:`archself.sim.run.simulate` and, every ``runtime.period_s``
+exactly where the MAPE-K loop would run, samples it with the runtime's own
+:class:`~archself.runtime.monitor.Monitor`. It keeps, for each cycle after the
+warm-up, the magnitude of every module's *filtered* residual signal |s̄_i|
+(before the division by ``residual.nominal``; 0 where the sample was unusable,
+which is what gives r_i = 0 at run time) and whether an active module was
+unavailable for a reason of its own (a saturated residual, a candidate whatever
+the bands). Raw residuals do not depend on the bands, so the bands can be chosen
+afterwards, offline (:mod:`archself.calibration.bands`).
+
+Jobs run on the campaign executors (:mod:`archself.campaign.executors`): a local
+process pool or Dask, like ``archself campaign``. A worker parses the
+architecture text once per process.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "CalJob",
+    "Recorder",
+    "band_free_digest",
+    "load_runs",
+    "plan_runs",
+    "run_calibration_job",
+    "run_jobs",
+    "save_runs",
+    "seeds_from",
+]
+
+_ARCHS: dict[str, Any] = {}  # text digest -> Architecture (parsed once per process)
+
+
+@dataclass(frozen=True)
+class CalJob:
+    """One calibration run: (scenario, configuration, seed), architecture fixed."""
+
+    arch_text: str
+    arch_digest: str
+    file: str
+    scenario: str
+    configuration: str
+    replicate: int
+    seed: int
+    phase: str = "calibration"
+
+
+def seeds_from(root_seed: int, start: int, n: int) -> list[int]:
+    """Seeds of replicates ``start … start+n−1``: children of ``SeedSequence(root_seed)``.
+
+    The campaign's seeds (:func:`archself.campaign.driver.run_seeds`): child ``k``
+    does not depend on how many are drawn, so a verification with replicates
+    ``N … N+V−1`` uses seeds disjoint from the calibration's ``0 … N−1``.
+
+    Examples
+    --------
+    >>> from archself.campaign.driver import run_seeds
+    >>> seeds_from(0, 0, 3) == run_seeds(0, 3)
+    True
+    >>> seeds_from(0, 2, 1) == run_seeds(0, 3)[2:]
+    True
+    """
+    from archself.campaign.driver import run_seeds
+
+    return run_seeds(root_seed, start + n)[start:]
+
+
+def plan_runs(
+    text: str,
+    file: str,
+    scenarios: Sequence[str],
+    configurations: Sequence[str],
+    seeds: Sequence[int],
+    first_replicate: int = 0,
+    phase: str = "calibration",
+) -> list[CalJob]:
+    """Every (scenario, configuration, seed) job, replicate-major."""
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return [
+        CalJob(text, digest, file, sc, conf, first_replicate + k, int(seed), phase)
+        for k, seed in enumerate(seeds)
+        for sc in scenarios
+        for conf in configurations
+    ]
+
+
+class Recorder:
+    """An ``adapt`` callable for :func:`~archself.sim.run.simulate` that only observes.
+
+    Called every ``runtime.period_s`` like :class:`~archself.runtime.MapeK`, it
+    runs the Monitor stage (the same filters, gains and sampling instants) and
+    never acts.
+
+    Parameters
+    ----------
+    arch : Architecture
+    residual_modules : list of str
+        Column order of :attr:`x` (the modules with a ``residual`` block).
+
+    Attributes
+    ----------
+    x : list of list of float
+        Per cycle after the warm-up: |s̄_i| of each module of ``residual_modules``
+        (0 when inactive or the sample was unusable).
+    forced : list of bool
+        Per cycle after the warm-up: an active module was unavailable for a
+        reason of its own (the Monitor gives it the saturated residual).
+    t : list of float
+        Time of each recorded cycle.
+    """
+
+    def __init__(self, arch: Any, residual_modules: list[str]) -> None:
+        from archself.runtime.monitor import Monitor
+
+        self.monitor = Monitor(arch, list(arch.modules))
+        self.warmup = int(arch.runtime.warmup_steps)
+        self.column = {m: j for j, m in enumerate(residual_modules)}
+        self.width = len(residual_modules)
+        self.cycle = 0
+        self.x: list[list[float]] = []
+        self.forced: list[bool] = []
+        self.t: list[float] = []
+
+    def __call__(self, system: Any) -> list[dict[str, Any]]:
+        from archself.runtime.monitor import is_own_failure
+
+        obs = self.monitor.observe(system, frozenset(system.active))
+        if self.cycle >= self.warmup:
+            row = [0.0] * self.width
+            for name, value, ok in zip(
+                obs.signal_names, obs.signal_values.tolist(), obs.signal_ok.tolist(), strict=True
+            ):
+                if ok and value == value:
+                    row[self.column[name]] = abs(value)
+            self.x.append(row)
+            self.forced.append(
+                any(
+                    not k.available and k.reason is not None and is_own_failure(k.reason)
+                    for _, k in obs.kappa.findings()
+                )
+            )
+            self.t.append(float(obs.t))
+        self.cycle += 1
+        return []
+
+
+def _architecture(job: CalJob) -> Any:
+    arch = _ARCHS.get(job.arch_digest)
+    if arch is None:
+        from archself.loader import load_text
+
+        arch = load_text(job.arch_text, job.file).arch
+        _ARCHS.clear()
+        _ARCHS[job.arch_digest] = arch
+    return arch
+
+
+def run_calibration_job(job: CalJob) -> dict[str, Any]:
+    """Run one job; a dict of small arrays (never raises for a failed run).
+
+    Returns
+    -------
+    dict
+        ``scenario``, ``configuration``, ``replicate``, ``seed``, ``x`` (cycles ×
+        residual modules, float64), ``forced`` (bool per cycle), ``t`` and
+        ``error`` (None, or why the run failed).
+    """
+    import numpy as np
+
+    out: dict[str, Any] = {
+        "scenario": job.scenario,
+        "configuration": job.configuration,
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "error": None,
+        "phase": job.phase,
+    }
+    try:
+        arch = _architecture(job)
+        from archself.sim.run import simulate
+
+        names = [m for m, spec in arch.modules.items() if spec.residual is not None]
+        rec = Recorder(arch, names)
+        simulate(
+            arch.model_copy(deep=True),
+            job.scenario,
+            configuration=job.configuration,
+            seed=job.seed,
+            adapt=rec,
+        )
+        out["x"] = np.array(rec.x, dtype=float).reshape(len(rec.x), len(names))
+        out["forced"] = np.array(rec.forced, dtype=bool)
+        out["t"] = np.array(rec.t, dtype=float)
+    except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        out["error"] = f"{type(exc).__name__}: {msg}"[:500]
+    return out
+
+
+def run_jobs(
+    jobs: Sequence[CalJob],
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run the jobs on a campaign executor; results sorted by (scenario, configuration, replicate).
+
+    ``executor`` is ``"local"``, ``"dask"`` or ``"inline"`` (in this process; tests).
+    Ctrl-C cancels the queued runs and propagates.
+    """
+    from archself.campaign.executors import make_executor
+
+    if not jobs:
+        return []
+    ex = make_executor(
+        executor, workers=workers, address=address, preload=["archself.calibration.runs"]
+    )
+    results: list[dict[str, Any]] = []
+    futures: list[Any] = []
+    try:
+        futures = [ex.submit(run_calibration_job, j) for j in jobs]
+        if progress is not None:
+            progress(0, len(jobs))
+        for fut in ex.as_completed(futures):
+            results.append(fut.result())
+            if progress is not None:
+                progress(len(results), len(jobs))
+    except BaseException:
+        ex.cancel(futures)
+        ex.close()
+        raise
+    ex.close()
+    results.sort(key=lambda r: (r["scenario"], r["configuration"], r["replicate"]))
+    return results
+
+
+def band_free_digest(data: dict[str, Any]) -> str:
+    """SHA-256 of the architecture's data without its bands (``modules.*.residual.nominal``).
+
+    The nominal runs are fixed, so their residuals do not depend on the bands: runs
+    saved from a file stay valid for the same file with other bands (e.g. its
+    calibrated copy), and for nothing else.
+    """
+    import copy
+    import json
+
+    d = copy.deepcopy(data)
+    for spec in (d.get("modules") or {}).values():
+        if isinstance(spec, dict) and isinstance(spec.get("residual"), dict):
+            spec["residual"].pop("nominal", None)
+    text = json.dumps(d, sort_keys=True, default=str, ensure_ascii=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str, Any]]) -> None:
+    """Write runs (``run_calibration_job`` results) and ``meta`` to an ``.npz`` file, atomically.
+
+    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string (no
+    pickles: the file is safe to load).
+    """
+    import io
+    import json
+
+    import numpy as np
+
+    from archself.atomic import write_bytes
+
+    arrays: dict[str, Any] = {}
+    rows = []
+    for k, r in enumerate(results):
+        rows.append(
+            {
+                key: r[key]
+                for key in ("scenario", "configuration", "replicate", "seed", "error", "phase")
+            }
+        )
+        if r["error"] is None:
+            arrays[f"x{k}"] = r["x"]
+            arrays[f"forced{k}"] = r["forced"]
+            arrays[f"t{k}"] = r["t"]
+    arrays["meta"] = np.array(json.dumps({**meta, "runs": rows}, ensure_ascii=False))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    write_bytes(path, buf.getvalue())
+
+
+def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """``(meta, results)`` of a file written by :func:`save_runs`.
+
+    Raises
+    ------
+    LoadError
+        When the file is missing or not such a file.
+    """
+    import json
+    import zipfile
+
+    import numpy as np
+
+    from archself.errors import LoadError
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            results = []
+            for k, row in enumerate(meta.pop("runs")):
+                r = dict(row)
+                if r["error"] is None:
+                    r["x"], r["forced"], r["t"] = z[f"x{k}"], z[f"forced{k}"], z[f"t{k}"]
+                results.append(r)
+    except FileNotFoundError:
+        raise LoadError("no such file", str(path)) from None
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+        raise LoadError(
+            f"not a runs file of archself calibrate ({type(exc).__name__})", str(path)
+        ) from None
+    return meta, results

@@ -1,0 +1,280 @@
+"""``archself calibrate``: bands from nominal runs for a stated false-alarm rate.
+
+The process plant with its scenarios shortened to 120 s (2 s per seed in all four
+configurations) keeps this file at about 20 s.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from archself.calibration.bands import _max_abs_z, cycle_scales, influence_block
+from archself.calibration.edit import format_band, set_nominals
+from archself.calibration.runs import Recorder, seeds_from
+from archself.cli import app
+
+from conftest import ROOT
+
+PLANT = ROOT / "architectures" / "process_plant.yaml"
+
+
+def short_plant(tmp: Path, duration: int = 120) -> Path:
+    """The process plant with every scenario shortened (text edit: comments kept)."""
+    text = PLANT.read_text(encoding="utf-8").replace("duration_s: 600", f"duration_s: {duration}")
+    path = tmp / "plant.yaml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+@cache
+def _calibration(tmp: str):
+    from archself.calibration import calibrate
+
+    return calibrate(
+        short_plant(Path(tmp)), seeds=16, false_switch=0.1, configurations=["p1"],
+        executor="inline",
+    )
+
+
+@pytest.fixture(scope="module")
+def cal(tmp_path_factory: pytest.TempPathFactory):
+    return _calibration(str(tmp_path_factory.mktemp("cal")))
+
+
+# ------------------------------------------------------------------ the arithmetic
+def test_cycle_scale_is_the_edge_of_the_candidate_set() -> None:
+    rng = np.random.default_rng(3)
+    x = rng.gamma(2.0, 0.5, (200, 3))
+    x[:5] = 0.0  # no signal: no band raises a candidate
+    base = np.array([0.5, 1.0, 2.0])
+    sens = np.array([1.0, 0.5, 2.0])
+    w = np.array([[0, 0.5, 0], [0, 0, 0.4], [0.2, 0, 0]])  # a loop a -> b -> c -> a
+    m = np.linalg.inv(np.eye(3) - w.T)
+    s = cycle_scales(x, base, sens, m, 0.8)
+    assert np.all(s[:5] == 0) and np.all(s[5:] > 0)
+    below = _max_abs_z(x[5:], (s[5:] * (1 - 1e-6))[:, None] * base, sens, m)
+    above = _max_abs_z(x[5:], (s[5:] * (1 + 1e-6))[:, None] * base, sens, m)
+    assert np.all(below >= 0.8) and np.all(above < 0.8)
+
+
+def test_format_band_rounds_up() -> None:
+    for v in (0.000612345, 0.15, 1.0, 12345.6, 3.3e-7):
+        text = format_band(v)
+        assert float(text) >= v and float(text) <= v * 1.01
+    with pytest.raises(ValueError):
+        format_band(math.inf)
+
+
+def test_offline_z_is_the_runtimes(tmp_path: Path) -> None:
+    """max |z| from the recorded residuals equals the MapeK decision log's, cycle by cycle."""
+    from archself.loader import load_architecture
+    from archself.runtime import MapeK
+    from archself.sim.run import simulate
+
+    arch = load_architecture(short_plant(tmp_path, 90)).arch
+    for spec in arch.modules.values():  # tight bands, so that z is not 0 ...
+        if spec.residual is not None:
+            spec.residual.nominal *= 0.1
+    arch.runtime.threshold = 1e3  # ... and a τ that never lets the loop act
+    names = [m for m, s in arch.modules.items() if s.residual]
+    rec = Recorder(arch, names)
+    simulate(arch.model_copy(deep=True), "nominal", seed=5, adapt=rec)
+    loop = MapeK(arch)
+    simulate(arch.model_copy(deep=True), "nominal", seed=5, adapt=loop)
+    active = [m for m in names if m in arch.configurations["p1"].modules]
+    m = influence_block(arch, "p1", active)
+    cols = [names.index(a) for a in active]
+    bands = np.array([arch.modules[a].residual.nominal for a in active])
+    sens = np.array([arch.modules[a].residual.sensitivity for a in active])
+    offline = _max_abs_z(np.array(rec.x)[:, cols], bands, sens, m)
+    records = loop.decisions[arch.runtime.warmup_steps :]
+    assert len(records) == len(offline) == 60 and not loop.switches
+    for k, rec_k in enumerate(records):
+        z = [abs(v) for v in rec_k.to_dict()["z"].values() if v is not None]
+        assert offline[k] == pytest.approx(max(z), rel=1e-9, abs=1e-12)
+    assert offline.max() > 0 and np.count_nonzero(offline) > 10
+
+
+# ------------------------------------------------------------------ bands and rates
+def test_bands_are_positive_and_finite(cal) -> None:
+    assert cal.scale > 0 and math.isfinite(cal.scale)
+    for name in ("valve", "observer_a", "pi"):
+        b = cal.modules[name]
+        assert b.calibrated and b.new > 0 and math.isfinite(b.new)
+    assert not cal.modules["observer_b"].calibrated  # not active in p1: kept
+    assert cal.modules["observer_b"].new == cal.modules["observer_b"].old
+    (cell,) = cal.cells
+    assert cell.runs == 16 and cell.new_empirical <= 0.1
+    assert cell.new_predicted == pytest.approx(0.1, abs=0.03)
+
+
+def test_calibrated_bands_hold_their_rate_on_fresh_seeds(cal) -> None:
+    """Adaptive nominal runs on 24 unseen seeds: false alarms within the binomial tolerance.
+
+    p = 0.1 over 24 runs: 2.4 expected, P(X ≥ 8) < 0.002. Halving the bands must
+    break the check (it is not vacuous).
+    """
+    from archself.loader import load_text
+    from archself.runtime import MapeK
+    from archself.sim.run import simulate
+
+    arch = load_text(cal.text, "calibrated.yaml").arch
+    fresh = seeds_from(0, 16, 24)
+    assert not set(fresh) & set(cal.data[0].seeds)
+
+    def alarms(a) -> tuple[int, int]:
+        runs_with_candidates = switches = 0
+        for seed in fresh:
+            loop = MapeK(a)
+            res = simulate(a.model_copy(deep=True), "nominal", seed=seed, adapt=loop)
+            late = loop.decisions[a.runtime.warmup_steps :]
+            runs_with_candidates += any(d.candidates for d in late)
+            switches += bool(res.switches)
+        return runs_with_candidates, switches
+
+    with_cand, switched = alarms(arch)
+    assert switched <= with_cand <= 7
+    tight = arch.model_copy(deep=True)
+    for name, b in cal.modules.items():
+        if b.calibrated:
+            tight.modules[name].residual.nominal = b.new * 0.5
+    assert alarms(tight)[0] >= 12
+
+
+# ------------------------------------------------------------------ the calibrated copy
+def test_cli_writes_a_calibrated_copy_that_keeps_comments(tmp_path: Path) -> None:
+    src = short_plant(tmp_path)
+    before = src.read_text(encoding="utf-8")
+    out, rep = tmp_path / "calibrated.yaml", tmp_path / "report"
+    result = CliRunner().invoke(
+        app,
+        [
+            "calibrate", str(src), "--seeds", "4", "-c", "p1", "-c", "p2", "--workers", "2",
+            "--false-switch", "0.25", "-o", str(out), "--report", str(rep), "--json",
+            "--save-runs", str(tmp_path / "runs.npz"),
+        ],
+    )
+    assert result.exit_code == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["runs"] == 8 and data["executor"] == "local"
+    assert src.read_text(encoding="utf-8") == before  # the input is untouched
+    text = out.read_text(encoding="utf-8")
+    old_lines, new_lines = before.splitlines(), text.splitlines()
+    assert len(old_lines) == len(new_lines)
+    changed = [(a, b) for a, b in zip(old_lines, new_lines, strict=True) if a != b]
+    calibrated = [m for m, b in data["bands"].items() if b["calibrated"]]
+    assert len(changed) == len(calibrated) == 4  # valve, both observers, pi
+    for a, b in changed:
+        assert "nominal:" in a and "# calibrated: p = 0.25/run, 4 nominal runs" in b
+    comments = [line for line in old_lines if line.lstrip().startswith("#")]
+    assert comments and all(c in new_lines for c in comments)
+
+    from archself.check import check, has_errors
+    from archself.loader import load_architecture
+
+    loaded = load_architecture(out)
+    assert not has_errors(check(loaded))
+    for m in calibrated:
+        assert loaded.arch.modules[m].residual.nominal == data["bands"][m]["new"] > 0
+    for name in ("index.html", "calibration.md", "calibration.json", "tail.svg"):
+        assert (rep / name).is_file()
+    html = (rep / "index.html").read_text(encoding="utf-8")
+    assert "observer_a" in html and "Gumbel" in html
+
+    # the saved runs give the same bands offline, also for the calibrated copy ...
+    again = CliRunner().invoke(
+        app,
+        ["calibrate", str(out), "--from-runs", str(tmp_path / "runs.npz"), "--json",
+         "--false-switch", "0.25"],
+    )
+    assert again.exit_code == 0, again.stderr
+    assert {m: b["new"] for m, b in json.loads(again.stdout)["bands"].items()} == {
+        m: b["new"] for m, b in data["bands"].items()
+    }
+    # ... but not for another architecture
+    other = tmp_path / "other.yaml"
+    other.write_text(before.replace("weight: 0.6, carries: inflow", "weight: 0.5, carries: inflow"),
+                     encoding="utf-8")
+    refused = CliRunner().invoke(
+        app, ["calibrate", str(other), "--from-runs", str(tmp_path / "runs.npz")]
+    )
+    assert refused.exit_code == 1 and "runs of another architecture" in refused.stderr
+
+
+def test_set_nominals_edits_only_the_numbers() -> None:
+    text = (
+        "modules:\n"
+        "  a:  # the first\n"
+        "    residual: {signal: e, nominal: 0.5}   # hand-tuned\n"
+        "  b:\n"
+        "    residual:\n"
+        "      signal: e\n"
+        "      nominal: 2.0  # calibrated: old note\n"
+        "      smoothing_s: 1\n"
+    )
+    out = set_nominals(text, "t.yaml", {"a": 0.25, "b": 3.14159}, "note", verify=False)
+    assert out.splitlines() == [
+        "modules:",
+        "  a:  # the first",
+        "    residual: {signal: e, nominal: 0.25}   # hand-tuned; calibrated: note",
+        "  b:",
+        "    residual:",
+        "      signal: e",
+        "      nominal: 3.15  # calibrated: note",
+        "      smoothing_s: 1",
+    ]
+
+
+# ------------------------------------------------------------------ refusals
+def test_the_input_is_never_overwritten_without_force(tmp_path: Path) -> None:
+    src = short_plant(tmp_path)
+    before = src.read_text(encoding="utf-8")
+    link = tmp_path / "same-inode.yaml"
+    os.link(src, link)
+    run = CliRunner().invoke
+    for args, code in (
+        (["-o", str(src)], 1),
+        (["-o", str(link)], 1),  # another name of the same file
+        (["-o", str(link), "--force"], 1),  # --force alone never replaces the input
+        (["--in-place"], 2),
+        (["--in-place", "-o", str(tmp_path / "x.yaml"), "--force"], 2),
+    ):
+        result = run(app, ["calibrate", str(src), "--seeds", "1", *args])
+        assert result.exit_code == code, (args, result.stderr)
+        assert len(result.stderr.strip().splitlines()) == 1
+    assert src.read_text(encoding="utf-8") == before
+    result = run(
+        app,
+        ["calibrate", str(src), "--seeds", "2", "-c", "p1", "--false-switch", "0.5",
+         "--in-place", "--force", "--workers", "1"],
+    )
+    assert result.exit_code == 0, result.stderr
+    after = src.read_text(encoding="utf-8")
+    assert after != before and "# calibrated:" in after
+    assert link.read_text(encoding="utf-8") == before  # replaced atomically (new inode)
+
+
+def test_user_errors_are_located_one_liners(tmp_path: Path) -> None:
+    src = short_plant(tmp_path)
+    text = src.read_text(encoding="utf-8")
+    run = CliRunner().invoke
+    result = run(app, ["calibrate", str(src), "-s", "level_drift", "--seeds", "1"])
+    assert result.exit_code == 1
+    assert "scenarios.level_drift.faults: scenario 'level_drift' has faults" in result.stderr
+    assert result.stderr.startswith(f"{src}:")
+    none = tmp_path / "none.yaml"
+    none.write_text(text.replace("normalization: nominal", "normalization: none"), "utf-8")
+    result = run(app, ["calibrate", str(none), "--seeds", "1"])
+    assert result.exit_code == 1
+    line = next(i for i, t in enumerate(text.splitlines(), 1) if "normalization:" in t)
+    assert result.stderr.startswith(f"{none}:{line}:")
+    assert run(app, ["calibrate", str(src), "--false-switch", "0"]).exit_code == 2
+    assert run(app, ["calibrate", str(src), "--executor", "ray"]).exit_code == 2
