@@ -686,3 +686,16 @@ def test_a_huge_simulation_is_refused_with_its_estimate(arch, monkeypatch, capsy
     long.write_text(arch.read_text().replace("calm: {duration_s: 20}", "calm: {duration_s: 1e9}"))
     code, _, err = run(["simulate", long, "-s", "calm"], monkeypatch, capsys)
     assert code == 1 and "20,000,000,000 steps" in one_line(err) and "--yes" in err
+
+
+@pytest.mark.xfail(
+    reason="issue 19 item 6: the schema messages (archself/schema_messages.py, the loader's "
+    "owner) still lead with the union-type line; the CLI prints what the loader finds",
+    strict=False,
+)
+def test_nan_inside_a_list_is_one_located_line(tmp_path, monkeypatch, capsys) -> None:
+    bad = tmp_path / "nan.yaml"
+    bad.write_text(MINIMAL.read_text().replace("[5, 1]", "[5, .nan]"))
+    code, _, err = run(["validate", bad], monkeypatch, capsys)
+    assert code == 1
+    assert "expected a finite number, got .nan" in one_line(err)

@@ -182,7 +182,15 @@ def _ignore_sigint() -> None:
 
 # In the forkserver (it imports this module as a preload, its parent is the driver):
 # die with the driver. The forkserver forks the workers, so no thread is started here.
-if os.environ.get(DRIVER_PID_VARIABLE) == str(os.getppid()):
+def _in_forkserver_of_driver() -> bool:
+    return (
+        os.environ.get(DRIVER_PID_VARIABLE) == str(os.getppid())
+        and sys.argv[:1] == ["-c"]
+        and "multiprocessing.forkserver" in sys.modules
+    )
+
+
+if _in_forkserver_of_driver():
     die_with_parent(watchdog=False)
 
 
