@@ -105,6 +105,18 @@ def _ref(ctx: _Ctx, name: str, path: Path_, what: str = "module") -> bool:
 
 
 # --------------------------------------------------------------------------- rules
+def _known_types_text(key: str, known: list[str]) -> str:
+    """The registered types of ``key``'s namespace (``sensor.*``), or all when it has none.
+
+    Types of other namespaces (another plugin's) do not change the message.
+    """
+    space = key.partition(".")[0] + "."
+    same = [k for k in known if k.startswith(space)]
+    if same:
+        return f"{space}* types: {', '.join(same)}"
+    return f"known types: {', '.join(known)}"
+
+
 def _types(ctx: _Ctx) -> None:
     from archself import registry
 
@@ -118,7 +130,7 @@ def _types(ctx: _Ctx) -> None:
             hint = f"did you mean '{close[0]}'? " if close else ""
             ctx.add(
                 "error", "unknown-type",
-                f"unknown module type '{mod.type}'; {hint}known types: {', '.join(known)}",
+                f"unknown module type '{mod.type}'; {hint}{_known_types_text(mod.type, known)}",
                 ("modules", name, "type"),
             )
             continue

@@ -7,6 +7,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# tests/packs holds a test pack with its own entry points; importing it here (doctest
+# collection) would put it on sys.path and register its types in every test.
+collect_ignore = ["packs"]
 FIXTURES = ROOT / "tests" / "fixtures"
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
 

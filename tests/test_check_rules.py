@@ -170,3 +170,18 @@ def test_a_plugin_cannot_take_a_built_in_type_key() -> None:
     with pytest.raises(RegistryError, match="'sensor.imu' is registered twice"):
         registry.add("sensor.imu", Impostor)
     assert registry.get("sensor.imu") is Imu
+
+
+def test_unknown_type_message_does_not_depend_on_other_plugins() -> None:
+    text = MINIMAL.replace("type: sensor.imu}", "type: sensor.imu_v2}")
+    before = _findings(text, "unknown-type")
+
+    class Other(RuntimeModule):
+        pass
+
+    registry.add("zz_thirdparty.other", Other)
+    try:
+        assert _findings(text, "unknown-type") == before
+    finally:
+        registry.unregister("zz_thirdparty.other")
+    assert "sensor.* types: sensor.encoders" in before[0] and "zz_thirdparty" not in before[0]

@@ -275,7 +275,7 @@ def test_raising_module_is_routed_around(crash_types, seed):
     # the loop ran to the end and the spare configuration is healthy
     assert len(loop.decisions) == int(12 / 0.5)
     assert loop.decisions[-1].kappa == {}
-    assert res.metrics["final_error_m"] < 0.1
+    assert res.metrics["final_error"] < 0.1
 
 
 # ---------------------------------------------------------------- the robot's scenarios
@@ -295,7 +295,7 @@ def test_combined_ends_in_a_configuration_for_both_faults(arch, seed):
     assert pairs(res) == [("a1", "a3")]  # EKF + GPS (drift) and asymmetric LQR (wheel)
     assert res.switches[0]["action"] == "compensate_left_wheel"
     assert res.final_configuration == "a3"
-    assert res.metrics["max_error_m"] < 1.5
+    assert res.metrics["max_error"] < 1.5
 
 
 @pytest.mark.slow
@@ -305,7 +305,7 @@ def test_cascading_adapts_twice(arch, seed):
     assert pairs(res) == [("a1", "a2"), ("a2", "a3")]
     first, second = (s["t_s"] for s in res.switches)
     assert first < 120.0 <= second <= 125.0  # the wheel fault comes after the first adaptation
-    assert res.metrics["max_error_m"] < 1.5
+    assert res.metrics["max_error"] < 1.5
 
 
 @pytest.mark.slow
@@ -324,7 +324,7 @@ def test_gps_dropout_leaves_the_ekf(arch, seed):
     # while the GPS was out, every way back to the EKF was inadmissible
     evs = [e for d in loop.decisions if 64.0 < d.t < 120.0 for e in d.evaluations]
     assert all(e.rejected for e in evs if e.to in ("a2", "a3"))
-    assert res.metrics["max_error_m"] < 1.0
+    assert res.metrics["max_error"] < 1.0
 
 
 @pytest.mark.slow
@@ -351,7 +351,7 @@ def test_gps_fault_on_the_ekf_falls_back_to_odometry_and_returns(arch, kind):
     assert res.switches[1]["action"] == "fallback_odometry"
     assert 90.0 < res.switches[1]["t_s"] <= 95.0
     assert res.switches[2]["t_s"] >= 120.0  # back on the EKF only once the GPS is back
-    assert res.metrics["max_error_m"] < 2.0
+    assert res.metrics["max_error"] < 2.0
 
 
 # ---------------------------------------------------------------- genericity
