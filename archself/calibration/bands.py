@@ -21,10 +21,11 @@ Bands are n_j = s·b_j: a *shape* b and one common *scale* s.
   (found by bisection per cycle), so its tail is modelled as a Gumbel law's:
   a Gumbel distribution fitted to all the runs' S (scipy.stats.gumbel_r, maximum
   likelihood) and an exponential fitted to the top 20 % of them (the Gumbel tail,
-  fitted to the tail only; :class:`TailFit`). The scale is the largest of the two
-  fits' (1 − p) quantiles and the smallest s that the empirical rate allows
-  (≤ p of the calibration runs have S ≥ s), over every (scenario, configuration)
-  cell.
+  fitted to the tail only; :class:`TailFit`); the same for each module's S_j
+  (its residual alone, :func:`channel_scales`). The predicted rate is the larger
+  of the whole-run fit and the sum over the modules (:class:`Prediction`). The
+  scale is the smallest s at which the predicted and the empirical rate are both
+  ≤ p, the largest over the (scenario, configuration) cells.
 
 All functions are pure numpy/scipy on arrays; nothing here runs a simulation.
 """
@@ -40,6 +41,8 @@ import numpy as np
 
 __all__ = [
     "Cell",
+    "Prediction",
+    "channel_scales",
     "TailFit",
     "alarm_threshold",
     "critical_scales",
@@ -215,6 +218,26 @@ def critical_scales(cell: Cell, bands: dict[str, float], tau: float) -> np.ndarr
     return out
 
 
+def channel_scales(cell: Cell, bands: dict[str, float], tau: float) -> np.ndarray:
+    """Per run and module: S_j, the critical scale with module j's residual alone.
+
+    With only r_j ≠ 0, max_i |z_i| = c_j·σ_j·(x_j/(s·n_j) − 1) with c_j = max_i |M_ij|, so
+    S_j = max over the run's cycles of x_j / (n_j·(1 + τ/(c_j·σ_j))) (0 when c_j·σ_j = 0).
+    A run with a forced candidate has S_j = inf. Shape: runs × modules.
+    """
+    n = np.array([float(bands[m]) for m in cell.modules], dtype=float)
+    gain = np.abs(cell.m).max(axis=0) * np.abs(cell.sens) if cell.m.size else np.zeros(n.size)
+    out = np.zeros((cell.runs, n.size))
+    with np.errstate(divide="ignore"):
+        factor = np.where(gain > 0, 1.0 / (n * (1.0 + tau / gain)), 0.0)
+    for k, xr in enumerate(cell.x):
+        if cell.forced[k]:
+            out[k] = math.inf
+        elif xr.shape[0]:
+            out[k] = xr.max(axis=0) * factor
+    return out
+
+
 @dataclass
 class TailFit:
     """The distribution of per-run maxima S, fitted twice; the heavier tail counts.
@@ -310,6 +333,64 @@ class TailFit:
             else:
                 out = max(out, _empirical_level(self.values, p))
         return max(0.0, out)
+
+
+@dataclass
+class Prediction:
+    """P(a run has a false alarm at scale s): the whole-run fit or the channels' sum.
+
+    ``all`` is the :class:`TailFit` of the runs' critical scales S; ``channels``
+    those of each module's S_j (:func:`channel_scales`). A run alarms when
+    S ≥ s, and S ≥ max_j S_j; when one channel drives the alarms (the usual case)
+    S ≈ max_j S_j and P(S ≥ s) ≤ Σ_j P(S_j ≥ s). The prediction is the larger of
+    the whole-run fit and that sum, so a rare mechanism of one channel (noise
+    spikes of an observer) cannot hide behind the narrow bulk of another (the
+    same setpoint ramp in every run).
+    """
+
+    all: TailFit
+    channels: list[TailFit]
+
+    @classmethod
+    def of(cls, cell: Cell, bands: dict[str, float], tau: float) -> Prediction:
+        per = channel_scales(cell, bands, tau)
+        return cls(
+            TailFit.fit(critical_scales(cell, bands, tau)),
+            [TailFit.fit(per[:, j]) for j in range(per.shape[1])],
+        )
+
+    @property
+    def values(self) -> np.ndarray:
+        return self.all.values
+
+    def predicted(self, s: float) -> float:
+        """max(P_all(S ≥ s), Σ_j P_j(S_j ≥ s)), at most 1."""
+        parts = sum(ch.predicted(s) for ch in self.channels)
+        return min(1.0, max(self.all.predicted(s), parts))
+
+    def empirical(self, s: float) -> float:
+        """Share of the runs with S ≥ s."""
+        return self.all.empirical(s)
+
+    def quantile(self, p: float) -> float:
+        """The smallest s with predicted(s) ≤ p and empirical(s) ≤ p (bisection)."""
+        lo = max(self.all.quantile(p), _empirical_level(self.all.values, p))
+        if math.isinf(lo) or self.predicted(lo) <= p:
+            return lo
+        hi = max(lo, 1e-300) * 2.0
+        for _ in range(200):
+            if self.predicted(hi) <= p:
+                break
+            hi *= 2.0
+        else:  # pragma: no cover - a tail that never falls below p
+            return math.inf
+        for _ in range(100):
+            mid = 0.5 * (lo + hi)
+            if self.predicted(mid) <= p:
+                hi = mid
+            else:
+                lo = mid
+        return hi
 
 
 def rate_at(values: np.ndarray, s: float) -> float:

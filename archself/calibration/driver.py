@@ -23,12 +23,11 @@ import numpy as np
 
 from archself.calibration.bands import (
     Cell,
-    TailFit,
+    Prediction,
     alarm_threshold,
     critical_scales,
     influence_block,
     quantile_level,
-    scale_for_rate,
 )
 from archself.errors import ArchselfError, LoadError
 
@@ -68,8 +67,8 @@ class CellResult:
     old_empirical: float
     new_predicted: float
     new_empirical: float
-    fit_old: TailFit
-    fit_new: TailFit
+    fit_old: Prediction
+    fit_new: Prediction
     verify_runs: int = 0
     verify_old: float = math.nan
     verify_new: float = math.nan
@@ -159,11 +158,11 @@ class Calibration:
                     "runs": c.runs,
                     "failed": len(c.failed),
                     "forced": c.forced,
-                    "gumbel": {"loc": c.fit_new.loc, "scale": c.fit_new.scale},
+                    "gumbel": {"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
                     "tail": {
-                        "u": c.fit_new.tail_u,
-                        "beta": c.fit_new.tail_beta,
-                        "share": c.fit_new.tail_share,
+                        "u": c.fit_new.all.tail_u,
+                        "beta": c.fit_new.all.tail_beta,
+                        "share": c.fit_new.all.tail_share,
                     },
                     "predicted_new": num(c.new_predicted),
                     "empirical_new": num(c.new_empirical),
@@ -430,7 +429,7 @@ def calibrate(
     scale = 0.0
     needed: list[float] = []
     for c in cells:
-        s_c, _ = scale_for_rate(critical_scales(c, shape, tau), p)
+        s_c = Prediction.of(c, shape, tau).quantile(p)
         needed.append(s_c)
         if math.isinf(s_c):
             raise CalibrationError(
@@ -447,9 +446,7 @@ def calibrate(
     new = {m: (float(format_band(scale * shape[m])) if m in calibrated else old[m]) for m in old}
     results_cells = []
     for c, s_needed in zip(cells, needed, strict=True):
-        s_old = critical_scales(c, old, tau)
-        s_new = critical_scales(c, new, tau)
-        f_old, f_new = TailFit.fit(s_old), TailFit.fit(s_new)
+        f_old, f_new = Prediction.of(c, old, tau), Prediction.of(c, new, tau)
         results_cells.append(
             CellResult(
                 scenario=c.scenario,

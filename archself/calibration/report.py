@@ -96,14 +96,14 @@ def report_model(cal: Calibration) -> dict[str, Any]:
             "failed": len(c.failed),
             "forced": c.forced,
             "gumbel": (
-                f"loc {_fmt(c.fit_new.loc)}, scale {_fmt(c.fit_new.scale)}"
-                if c.fit_new.loc is not None
+                f"loc {_fmt(c.fit_new.all.loc)}, scale {_fmt(c.fit_new.all.scale)}"
+                if c.fit_new.all.loc is not None
                 else "no fit"
             ),
             "tail": (
-                f"top {_pct(c.fit_new.tail_share)} over {_fmt(c.fit_new.tail_u)}, "
-                f"β {_fmt(c.fit_new.tail_beta)}"
-                if c.fit_new.tail_u is not None
+                f"top {_pct(c.fit_new.all.tail_share)} over {_fmt(c.fit_new.all.tail_u)}, "
+                f"β {_fmt(c.fit_new.all.tail_beta)}"
+                if c.fit_new.all.tail_u is not None
                 else "no fit"
             ),
             "old_predicted": _pct(c.old_predicted),
@@ -202,18 +202,19 @@ def _fig_tail(cal: Calibration, path: Path) -> bool:
             continue
         surv = 1.0 - np.arange(v.size) / v.size  # share of runs ≥ v
         line = ax.step(v, surv, where="post", label=f"{c.scenario}/{c.configuration}")[0]
-        if c.fit_new.loc is not None and c.fit_new.scale is not None:
+        if c.fit_new.all.loc is not None and c.fit_new.all.scale is not None:
             grid = np.linspace(float(v.min()), max(1.2, float(v.max()) * 1.2), 200)
-            body = 1 - c.fit_new.f0 - c.fit_new.finf
+            body = 1 - c.fit_new.all.f0 - c.fit_new.all.finf
             ax.plot(
                 grid,
-                c.fit_new.finf + body * gumbel_r.sf(grid, c.fit_new.loc, c.fit_new.scale),
+                c.fit_new.all.finf
+                + body * gumbel_r.sf(grid, c.fit_new.all.loc, c.fit_new.all.scale),
                 color=line.get_color(),
                 linestyle=":",
                 linewidth=1,
             )
-        if c.fit_new.tail_u is not None:
-            grid = np.linspace(c.fit_new.tail_u, max(1.2, float(v.max()) * 1.2), 100)
+        if c.fit_new.all.tail_u is not None:
+            grid = np.linspace(c.fit_new.all.tail_u, max(1.2, float(v.max()) * 1.2), 100)
             ax.plot(
                 grid,
                 [c.fit_new.predicted(float(g)) for g in grid],
