@@ -354,7 +354,7 @@ def calibrate(
         elapsed, verify_elapsed = float(meta["elapsed_s"]), float(meta["verify_elapsed_s"])
         results = [r for r in saved if r["phase"] == "calibration"]
         vres = [r for r in saved if r["phase"] == "verify"]
-        executor = f"{meta['executor']} (runs from {Path(from_runs).name})"
+        executor = f"{meta['executor']}, runs from {Path(from_runs).name}"
     else:
         t0 = time.perf_counter()
         jobs = R.plan_runs(text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds))
