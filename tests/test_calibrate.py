@@ -65,6 +65,24 @@ def test_cycle_scale_is_the_edge_of_the_candidate_set() -> None:
     assert np.all(below >= 0.8) and np.all(above < 0.8)
 
 
+def test_a_channels_closed_form_scale_is_the_bisections() -> None:
+    from archself.calibration.bands import Cell, channel_scales, critical_scales
+
+    rng = np.random.default_rng(4)
+    w = np.array([[0, 0.5, 0], [0, 0, 0.4], [0.2, 0, 0]])
+    m = np.linalg.inv(np.eye(3) - w.T)
+    x = [rng.gamma(2.0, 0.5, (50, 3)) for _ in range(6)]
+    cell = Cell("s", "c", ["a", "b", "c"], x, np.zeros(6, dtype=bool), m, np.array([1, 0.5, 2]))
+    bands = {"a": 0.5, "b": 1.0, "c": 2.0}
+    per = channel_scales(cell, bands, 0.8)
+    for j in range(3):
+        alone = Cell("s", "c", cell.modules, [np.where(np.arange(3) == j, xr, 0) for xr in x],
+                     cell.forced, m, cell.sens)
+        assert np.allclose(per[:, j], critical_scales(alone, bands, 0.8), rtol=1e-7)
+    # the whole run alarms at least as early as its strongest channel
+    assert np.all(critical_scales(cell, bands, 0.8) >= per.max(axis=1) * (1 - 1e-7))
+
+
 def test_format_band_rounds_up() -> None:
     for v in (0.000612345, 0.15, 1.0, 12345.6, 3.3e-7):
         text = format_band(v)
