@@ -143,7 +143,7 @@ def schema_findings(data: dict[str, Any], exc: Any, src: SourceMap) -> list[Find
 
     schema = architecture_schema()
     grouped: dict[tuple[Path_, Any], list[dict[str, Any]]] = {}
-    for err in exc.errors(include_url=False):
+    for err in _deepest_union_branches(data, exc.errors(include_url=False)):
         loc = tuple(err["loc"])
         key: tuple[Path_, Any]
         if err["type"] == "extra_forbidden" and loc:
@@ -190,6 +190,50 @@ def schema_findings(data: dict[str, Any], exc: Any, src: SourceMap) -> list[Find
         findings.append(Finding("error", "schema", msg, dotted(path), src.file, line, col))
     findings.sort(key=lambda f: (f.line or 0, f.col or 0))
     return findings
+
+
+def _union_tag_index(data: Any, loc: tuple[Any, ...]) -> int | None:
+    """Index in ``loc`` of the first union-member tag (a loc item that is not in the data)."""
+    node = data
+    for i, item in enumerate(loc):
+        if isinstance(node, dict) and item in node:
+            node = node[item]
+        elif isinstance(item, int) and isinstance(node, list) and 0 <= item < len(node):
+            node = node[item]
+        elif isinstance(item, str):
+            return i
+        else:
+            return None
+    return None
+
+
+def _deepest_union_branches(data: Any, errors: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Keep, for each union that failed, only the member(s) that got deepest into the value.
+
+    When every member of a union fails, pydantic reports each member's errors: for a
+    list of points with one NaN that is "not a number" for the scalar members, "not a
+    number" for each point under ``list[float]`` and "not finite" for the one bad
+    coordinate under ``list[list[float]]``. The member whose error lies deepest is the
+    one the value was meant to be; its errors alone are reported.
+    """
+    tags: list[int | None] = [_union_tag_index(data, tuple(e["loc"])) for e in errors]
+    best: dict[tuple[Any, ...], int] = {}
+    for e, i in zip(errors, tags, strict=True):
+        if i is not None:
+            loc = tuple(e["loc"])
+            best[loc[:i]] = max(best.get(loc[:i], 0), len(loc) - i - 1)
+    keep_branch: dict[tuple[Any, ...], set[Any]] = {}
+    for e, i in zip(errors, tags, strict=True):
+        if i is not None:
+            loc = tuple(e["loc"])
+            if len(loc) - i - 1 == best[loc[:i]]:
+                keep_branch.setdefault(loc[:i], set()).add(loc[i])
+    out = []
+    for e, i in zip(errors, tags, strict=True):
+        loc = tuple(e["loc"])
+        if i is None or best[loc[:i]] == 0 or loc[i] in keep_branch[loc[:i]]:
+            out.append(e)
+    return out
 
 
 def _value_at(data: Any, path: Path_) -> Any:

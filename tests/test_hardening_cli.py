@@ -688,11 +688,6 @@ def test_a_huge_simulation_is_refused_with_its_estimate(arch, monkeypatch, capsy
     assert code == 1 and "20,000,000,000 steps" in one_line(err) and "--yes" in err
 
 
-@pytest.mark.xfail(
-    reason="issue 19 item 6: the schema messages (archself/schema_messages.py, the loader's "
-    "owner) still lead with the union-type line; the CLI prints what the loader finds",
-    strict=False,
-)
 def test_nan_inside_a_list_is_one_located_line(tmp_path, monkeypatch, capsys) -> None:
     bad = tmp_path / "nan.yaml"
     bad.write_text(MINIMAL.read_text().replace("[5, 1]", "[5, .nan]"))
