@@ -50,6 +50,16 @@ def _root(
     """Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K)."""
 
 
+# Options shared by the commands that run many simulations (campaign, calibrate).
+ExecutorOption = Annotated[str, typer.Option("--executor", help="local (process pool) or dask.")]
+AddressOption = Annotated[
+    str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
+]
+WorkersOption = Annotated[
+    int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
+]
+
+
 def _fail(msg: str, code: int = 1) -> typer.Exit:
     typer.echo(msg if ":" in msg else f"error: {msg}", err=True)
     return typer.Exit(code)
@@ -569,15 +579,9 @@ def campaign(
         ),
     ] = None,
     mode: Annotated[str, typer.Option("--mode", help="both, fixed or adaptive.")] = "both",
-    executor: Annotated[
-        str, typer.Option("--executor", help="local (process pool) or dask.")
-    ] = "local",
-    address: Annotated[
-        str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
-    ] = None,
-    workers: Annotated[
-        int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
-    ] = None,
+    executor: ExecutorOption = "local",
+    address: AddressOption = None,
+    workers: WorkersOption = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Results file (Parquet).")] = Path(
         "results.parquet"
     ),
@@ -810,15 +814,9 @@ def calibrate(
     verify_seeds: Annotated[
         int, typer.Option("--verify-seeds", min=0, help="Fresh seeds to measure the new rate on.")
     ] = 0,
-    executor: Annotated[
-        str, typer.Option("--executor", help="local (process pool) or dask.")
-    ] = "local",
-    address: Annotated[
-        str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
-    ] = None,
-    workers: Annotated[
-        int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
-    ] = None,
+    executor: ExecutorOption = "local",
+    address: AddressOption = None,
+    workers: WorkersOption = None,
     root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
     output: Annotated[
         Path | None,
