@@ -342,9 +342,12 @@ def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
     if size > max_bytes:
         raise LoadError(f"file is {size} bytes, larger than the {max_bytes}-byte cap", file)
     try:
-        raw = p.read_bytes()
+        with p.open("rb") as fh:  # a pipe has no size: read one byte past the cap at most
+            raw = fh.read(max_bytes + 1)
     except OSError as exc:
         raise LoadError(f"cannot read: {exc.strerror}", file) from None
+    if len(raw) > max_bytes:
+        raise LoadError(f"input is larger than the {max_bytes}-byte cap", file)
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

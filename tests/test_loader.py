@@ -121,3 +121,21 @@ def test_validate_json_output(monkeypatch) -> None:
     (f,) = report["findings"]
     assert f["severity"] == "error" and f["path"] == "modules.level_sensor.kind"
     assert (f["line"], f["col"]) == (5, 11)
+
+
+def test_a_pipe_is_read_only_up_to_the_cap() -> None:
+    import os
+    import threading
+
+    from archself.errors import LoadError
+    from archself.yaml_source import read_text
+
+    r, w = os.pipe()
+    writer = threading.Thread(target=lambda: (os.write(w, b"a: 1\n" * 20), os.close(w)))
+    writer.start()
+    try:
+        with pytest.raises(LoadError, match="larger than the 10-byte cap"):
+            read_text(f"/dev/fd/{r}", max_bytes=10)
+    finally:
+        writer.join(timeout=10)
+        os.close(r)
