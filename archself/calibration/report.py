@@ -225,13 +225,13 @@ def _fig_tail(cal: Calibration, path: Path) -> bool:
         drawn = True
     if not drawn:
         return False
-    ax.axvline(1.0, color="#1f77b4", label="the new bands (s = 1)")
+    ax.axvline(1.0, color="#000000", linewidth=1, label="the new bands (s = 1)")
     ax.axhline(cal.false_switch, color="#c0392b", linestyle="--", label=f"p = {cal.false_switch:g}")
     ax.set_yscale("log")
     ax.set_ylim(bottom=min(cal.false_switch / 10, 0.5 / max(c.runs for c in cal.cells)))
     ax.set_xlabel("critical scale S of a run (false alarm when the bands are ≤ S × new)")
     ax.set_ylabel("share of runs ≥ S")
-    ax.set_title("Per-run critical scale S: runs (steps), Gumbel (dotted), prediction (dashed)")
+    ax.set_title("S per run: data, Gumbel (dotted), prediction (dashed)")
     ax.legend(frameon=False, fontsize="small")
     _save(fig, path)
     return True
