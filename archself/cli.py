@@ -70,6 +70,20 @@ def _die(err: ArchselfError) -> typer.Exit:
     return typer.Exit(err.exit_code)
 
 
+def _emit(text: str, output: Path | None, done: str) -> None:
+    """Write ``text`` to stdout (no ``output``, or ``-``) or atomically to ``output``."""
+    if output is None or str(output) == "-":
+        sys.stdout.write(text)
+        return
+    from archself.atomic import write_text
+
+    try:
+        write_text(output, text)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(done, err=True)
+
+
 #: Files ``simulate --report DIR`` writes that an input could be named like.
 _RUN_REPORT_FILES = ("index.html", "summary.json")
 #: ``simulate`` refuses more steps than this (runs × duration / step) without --yes.
@@ -245,7 +259,6 @@ def docs(
 def _write_or_check(
     pages: dict[str, str], output: Path | None, check_file: Path | None, regen: str
 ) -> None:
-    from archself.atomic import write_text
 
     (text,) = pages.values()
     if check_file is not None:
@@ -267,14 +280,8 @@ def _write_or_check(
             )
             raise typer.Exit(1)
         typer.echo(f"{check_file}: up to date")
-    elif output is None:
-        sys.stdout.write(text)
     else:
-        try:
-            write_text(output, text)
-        except ArchselfError as exc:
-            raise _die(exc) from None
-        typer.echo(f"wrote {output}", err=True)
+        _emit(text, output, f"wrote {output}")
 
 
 # --------------------------------------------------------------------------- init
@@ -765,15 +772,9 @@ def export(
         from archself.export import export as export_text
 
         text = export_text(_load(arch), to)
-        if output is None or str(output) == "-":
-            sys.stdout.write(text)
-            return
-        from archself.atomic import write_text
-
-        write_text(output, text)
     except ArchselfError as exc:
         raise _die(exc) from None
-    typer.echo(f"{output}: {to}", err=True)
+    _emit(text, output, f"{output}: {to}")
 
 
 @app.command()
@@ -933,7 +934,6 @@ def generate(
     ] = False,
 ) -> None:
     """Generate a large DAG-like architecture of N generic.relay modules (scaling studies)."""
-    from archself.atomic import write_text
     from archself.generate import generate_architecture
 
     if n > GENERATE_MAX and not yes:
@@ -946,14 +946,7 @@ def generate(
         raise _fail(f"error: --feedback {feedback:,} is more than N × --fan-in edges")
     fan_in = min(fan_in, n)  # no module has more than N − 1 predecessors
     text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
-    if output is None:
-        sys.stdout.write(text)
-        return
-    try:
-        write_text(output, text)
-    except ArchselfError as exc:
-        raise _die(exc) from None
-    typer.echo(f"{output}: {n} modules", err=True)
+    _emit(text, output, f"{output}: {n} modules")
 
 
 def main() -> None:

@@ -86,7 +86,19 @@ def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
     return r * (wl + wr) / 2.0, r * (wr - wl) / kin.wheel_base_m
 
 
-class Odometry(RuntimeModule):
+class _PoseEstimator(RuntimeModule):
+    """The interface both pose estimators share (signals, residual, common parameters)."""
+
+    parameters = _COMMON
+    role = "estimator"
+    inputs = ("encoder_speeds", "heading", "kinematics")
+    optional_inputs = ("position",)
+    outputs = ("pose_estimate", "covariance")
+    output_sizes = {"pose_estimate": 3}
+    residual_signals = ("innovation",)
+
+
+class Odometry(_PoseEstimator):
     """Dead reckoning: encoder speeds for the distance, IMU heading for the direction.
 
     The assumed sensor noises (``heading_noise_rad``, ``encoder_noise_rad_s``)
@@ -110,12 +122,6 @@ class Odometry(RuntimeModule):
         "heading_noise_rad": Param(0.005, "rad", "assumed IMU heading noise"),
         **_COMMON,
     }
-    role = "estimator"
-    inputs = ("encoder_speeds", "heading", "kinematics")
-    optional_inputs = ("position",)
-    outputs = ("pose_estimate", "covariance")
-    output_sizes = {"pose_estimate": 3}
-    residual_signals = ("innovation",)
 
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
@@ -181,7 +187,7 @@ class Odometry(RuntimeModule):
         self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 
 
-class Ekf(RuntimeModule):
+class Ekf(_PoseEstimator):
     """Extended Kalman filter (filterpy) on ``[x, y, θ, b]`` with the IMU bias ``b`` as a state.
 
     Predict with the encoder speeds (unicycle model, encoder noise propagated
@@ -209,12 +215,6 @@ class Ekf(RuntimeModule):
         "initial_bias_std_rad": Param(0.05, "rad", "initial IMU-bias uncertainty"),
         **_COMMON,
     }
-    role = "estimator"
-    inputs = ("encoder_speeds", "heading", "kinematics")
-    optional_inputs = ("position",)
-    outputs = ("pose_estimate", "covariance")
-    output_sizes = {"pose_estimate": 3}
-    residual_signals = ("innovation",)
 
     _H_GPS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
