@@ -11,6 +11,7 @@ start-up.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -911,6 +912,137 @@ def calibrate(
         typer.echo(f"wrote {target}", err=True)
     if report_dir is not None:
         typer.echo(f"report: {index}", err=True)
+
+
+# --------------------------------------------------------------------------- identify
+def _perturbations(items: list[str] | None) -> dict[str, tuple[str, float]]:
+    """``--perturb MODULE=KIND:X`` options as module -> (kind, magnitude)."""
+    out: dict[str, tuple[str, float]] = {}
+    for item in items or ():
+        name, _, rest = item.partition("=")
+        kind, _, mag = rest.partition(":")
+        try:
+            value = float(mag)
+        except ValueError:
+            value = math.nan
+        if not name or not kind or not math.isfinite(value):
+            raise _fail(f"--perturb {item}: expected MODULE=KIND:MAGNITUDE, e.g. imu=bias:0.01", 2)
+        out[name] = (kind, value)
+    return out
+
+
+@app.command()
+def identify(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    configurations: Annotated[
+        list[str] | None,
+        typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
+    ] = None,
+    scenario: Annotated[
+        str | None,
+        typer.Option("--scenario", "-s", help="Fault-free scenario (default: nominal)."),
+    ] = None,
+    seeds: Annotated[
+        int, typer.Option("--seeds", min=1, help="Seeds per experiment and configuration.")
+    ] = 3,
+    kind: Annotated[
+        str, typer.Option("--kind", help="Fault kind of each perturbation (on the main output).")
+    ] = "bias",
+    magnitude: Annotated[
+        float, typer.Option("--magnitude", metavar="X", help="Size of each perturbation.")
+    ] = 0.1,
+    perturb: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--perturb", metavar="MODULE=KIND:X",
+            help="Perturbation of one module (repeatable; X = 0 leaves it out).",
+        ),
+    ] = None,
+    settle: Annotated[
+        float | None,
+        typer.Option("--settle", metavar="S",
+                     help="Average from S seconds (default: warm-up + 5 × longest smoothing)."),
+    ] = None,
+    min_excitation: Annotated[
+        float,
+        typer.Option("--min-excitation", help="A source moving its Δr less is not identifiable."),
+    ] = 0.02,
+    executor: Annotated[
+        str, typer.Option("--executor", help="local (process pool), dask or inline.")
+    ] = "local",
+    address: AddressOption = None,
+    workers: WorkersOption = None,
+    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    all_edges: Annotated[
+        bool, typer.Option("--all", help="List the edges that are not identifiable too.")
+    ] = False,
+    output: Annotated[
+        Path | None,
+        typer.Option("-o", "--output", metavar="FILE", help="Write the Markdown report."),
+    ] = None,
+    write_back: Annotated[
+        Path | None,
+        typer.Option("--write-back", metavar="FILE",
+                     help="Write a copy of ARCH with the fitted weights (comments kept)."),
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite FILE.")] = False,
+) -> None:
+    """Estimate the edge weights W from perturbation experiments; fitted vs declared.
+
+    Runs the fault-free scenario fixed in each configuration, unperturbed and with a
+    small fault on each module that takes it, --seeds times, and fits the weights of
+    the edges into each module with a residual from the differences of the
+    time-averaged residuals (non-negative least squares, standard errors, R²).
+    docs/identify.md.
+    """
+    from archself.calibration.edit import check_output
+    from archself.calibration.identify import identify as run_identify
+
+    if executor not in ("local", "dask", "inline"):
+        raise _fail(f"--executor {executor}: expected local, dask or inline", 2)
+    if not math.isfinite(magnitude):
+        raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
+    overrides = _perturbations(perturb)
+    try:
+        from archself.outputs import refuse_same_file
+
+        _inputs(arch_path)
+
+        if output is not None and str(output) != "-":
+            refuse_same_file([arch_path], output, "-o")
+        if write_back is not None:
+            check_output(arch_path, write_back, in_place=False, force=force)
+        with _numeric(arch_path):
+            ident = run_identify(
+                arch_path, configurations=configurations, scenario=scenario, seeds=seeds,
+                kind=kind, magnitude=magnitude, perturb=overrides, settle_s=settle,
+                min_excitation=min_excitation, root_seed=root_seed, executor=executor,
+                workers=workers, address=address,
+            )
+        copy = None
+        if write_back is not None:
+            from archself.calibration.identify import written_copy
+
+            copy = written_copy(ident)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    from archself.calibration.identify import markdown_table, summary_text
+
+    if json_out:
+        typer.echo(json.dumps(ident.to_dict(), indent=2, ensure_ascii=False))
+    elif output is None or str(output) != "-":
+        typer.echo(summary_text(ident, all_edges=all_edges), nl=False)
+    if output is not None:
+        _emit(markdown_table(ident), output, f"wrote {output}")
+    if write_back is not None and copy is not None:
+        from archself.atomic import write_text
+
+        try:
+            write_text(write_back, copy)
+        except ArchselfError as exc:
+            raise _die(exc) from None
+        typer.echo(f"wrote {write_back}", err=True)
 
 
 # --------------------------------------------------------------------------- generate

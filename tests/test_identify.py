@@ -243,3 +243,55 @@ def test_identify_recovers_toy_weights(toy_file) -> None:
     assert "# identified: archself identify" in text
     assert text.startswith("# A synthetic architecture")
     assert "weight: 0.05" in text  # unidentifiable edges keep their declared weight
+
+
+# --------------------------------------------------------------------------- (c) command line
+def test_cli_identify_table_report_and_write_back(toy_file, tmp_path) -> None:
+    from typer.testing import CliRunner
+
+    from archself.cli import app
+
+    report, copy = tmp_path / "report.md", tmp_path / "fitted.yaml"
+    res = CliRunner().invoke(
+        app,
+        ["identify", str(toy_file), "--seeds", "2", "--executor", "inline", "-c", "all",
+         "-o", str(report), "--write-back", str(copy)],
+    )
+    assert res.exit_code == 0, res.output
+    assert "configuration all" in res.stdout
+    assert "  a -> c     0.100     0.300    0.000  DIFFERS" in res.stdout
+    assert "  a -> b     0.500     0.500    0.000  ok" in res.stdout
+    assert "| all | a → c | 0.100 | 0.300 | 0.000 | DIFFERS |" in report.read_text()
+    assert "weight: 0.3, carries: level}   # declared wrong" in copy.read_text()
+    # --write-back does not replace an existing file without --force, nor the input ever
+    again = CliRunner().invoke(
+        app, ["identify", str(toy_file), "--executor", "inline", "--write-back", str(copy)]
+    )
+    assert again.exit_code == 1 and "exists; pass --force" in again.stderr
+    onto = CliRunner().invoke(
+        app, ["identify", str(toy_file), "--executor", "inline", "--force",
+              "--write-back", str(toy_file)]
+    )
+    assert onto.exit_code == 1 and "is the input file" in onto.stderr
+    js = CliRunner().invoke(
+        app, ["identify", str(toy_file), "--seeds", "1", "--executor", "inline", "--json",
+              "-c", "chain"]
+    )
+    assert js.exit_code == 0
+    import json
+
+    data = json.loads(js.stdout)
+    bd = next(e for e in data["edges"] if (e["source"], e["target"]) == ("b", "d"))
+    assert bd["identifiable"] and abs(bd["fitted"] - 0.4) < 1e-6
+
+
+def test_cli_identify_errors_are_one_line(tmp_path) -> None:
+    from typer.testing import CliRunner
+
+    from archself.cli import app
+
+    missing = CliRunner().invoke(app, ["identify", str(tmp_path / "nope.yaml")])
+    assert missing.exit_code == 1
+    assert missing.stderr.strip().count("\n") == 0 and "no such file" in missing.stderr
+    bad = CliRunner().invoke(app, ["identify", str(tmp_path / "x.yaml"), "--perturb", "imu"])
+    assert bad.exit_code == 2 and "MODULE=KIND:MAGNITUDE" in bad.stderr
