@@ -1,0 +1,118 @@
+"""``generic.actuator``: saturation, rate limit, lag, gain; a command-versus-delivered residual."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from archself.modules.base import Param, RuntimeModule
+from archself_blocks.lti import as_vector
+
+__all__ = ["Actuator", "ACTUATOR_FAULTS"]
+
+#: Fault kinds a scenario may inject into an actuator's ``u``.
+ACTUATOR_FAULTS = frozenset(
+    {"effectiveness_loss", "stuck", "dropout", "bias", "bias_drift", "noise_increase", "nan"}
+)
+
+
+class Actuator(RuntimeModule):
+    """Turns a ``command`` into the plant input ``u``::
+
+        target = clip(gain·command, u_min, u_max)
+        v ← v + clip(target − v, ±rate_limit·dt)        (rate limit)
+        x ← x + (1 − e^(−dt/τ))·(v − x)                (first-order lag, τ = time_constant_s)
+        u = x
+
+    ``gain`` is the effectiveness the actuator is driven with (1 when healthy; a
+    ``parameter_update`` that raises it compensates a partial loss). A scenario's
+    ``effectiveness_loss`` on ``u`` scales what the plant really receives. The
+    output is a number, or, with ``width`` > 1, a vector of that length with the
+    value at ``channel`` (one input of a multi-input plant).
+
+    Optional input ``measurement``: a meter of what is delivered (a sensor on the
+    plant's ``u`` output). Residual signal ``command_error`` =
+    |x_prev/gain − measurement|: what the controller asked for in the last step
+    (as far as the limits let it) against what arrived — near the meter's noise
+    when healthy, a fraction of the command when the actuator lost effectiveness.
+
+    Examples
+    --------
+    >>> a = Actuator("a", {"u_max": 10.0, "rate_limit": 20.0}, np.random.default_rng(0))
+    >>> [a.step(0.1 * k, 0.1, {"command": 50.0})["u"] for k in range(3)]
+    [2.0, 4.0, 6.0]
+    """
+
+    parameters = {
+        "gain": Param(1.0, "", "effectiveness the command is multiplied by"),
+        "u_min": Param(None, "", "lower output limit; None: none"),
+        "u_max": Param(None, "", "upper output limit; None: none"),
+        "rate_limit": Param(None, "1/s", "largest change per second (output units); None: none"),
+        "time_constant_s": Param(0.0, "s", "first-order lag; 0: none"),
+        "initial": Param(0.0, "", "output at the start"),
+        "channel": Param(0, "", "plant input driven, with width > 1"),
+        "width": Param(1, "", "length of the output vector; 1: a number"),
+    }
+    role = "actuator"
+    inputs = ("command",)
+    optional_inputs = ("measurement",)
+    outputs = ("u",)
+    residual_signals = ("command_error",)
+    fault_kinds = ACTUATOR_FAULTS
+    main_output = "u"
+
+    def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
+        super().__init__(name, params, rng)
+        self.v = self.x = float(self.params["initial"])
+        self.prev: float | None = None
+        self.signals = {"command_error": math.nan}
+
+    def configure(self) -> None:
+        p = self.params
+        self.gain = float(p["gain"])
+        self.lo = -math.inf if p["u_min"] is None else float(p["u_min"])
+        self.hi = math.inf if p["u_max"] is None else float(p["u_max"])
+        self.rate = math.inf if p["rate_limit"] is None else float(p["rate_limit"])
+        self.tau = float(p["time_constant_s"])
+        self.channel, self.width = int(p["channel"]), int(p["width"])
+
+    def _publish(self, x: float) -> Any:
+        if self.width <= 1:
+            return x
+        out = np.zeros(self.width)
+        out[self.channel] = x
+        return out
+
+    def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
+        meas = as_vector(inputs.get("measurement"))
+        if meas is not None and self.prev is not None and self.gain:
+            self.signals["command_error"] = abs(self.prev / self.gain - float(meas[0]))
+        cmd = as_vector(inputs.get("command"))
+        if cmd is None:
+            self.prev = None
+            return {"u": None}
+        target = min(max(self.gain * float(cmd[0]), self.lo), self.hi)
+        step = self.rate * dt
+        self.v += min(max(target - self.v, -step), step)
+        if self.tau > 0:
+            self.x += (1.0 - math.exp(-dt / self.tau)) * (self.v - self.x)
+        else:
+            self.x = self.v
+        self.prev = self.x
+        return {"u": self._publish(self.x)}
+
+    def state_space(self) -> tuple[np.ndarray, ...] | None:
+        """(A, B, C, D) of the lag from command to u, linear between the limits."""
+        if self.tau <= 0:
+            return None
+        return (np.array([[-1.0 / self.tau]]), np.array([[self.gain / self.tau]]),
+                np.array([[1.0]]), np.array([[0.0]]))
+
+    def export_state(self) -> dict[str, Any]:
+        return {"output": self.x}
+
+    def import_state(self, state: dict[str, Any]) -> None:
+        if "output" in state:  # a backup takes over where the other one stood
+            self.v = self.x = float(state["output"])

@@ -1,0 +1,354 @@
+"""Estimators on an LTI model: the linear Kalman filter (filterpy) and the Luenberger observer.
+
+Both take the model from a ``generic.lti_model`` node (input ``model``), the plant's
+applied input (``u``, optional: zeros without it) and a measurement of some of the
+model's outputs (``measurement``). They publish ``estimate`` (``C x̂``, a vector) and
+``state`` (``x̂``), and two residual signals for the Monitor (Eq. 12), taken over a
+sliding window of ``innovation_window_s``:
+
+* ``innovation`` — the norm of the window mean of the innovation ν = y − C x̂⁻:
+  zero-mean sensor noise averages out, a bias or drift does not;
+* ``nis`` — the window mean of the normalized innovation squared νᵀ S⁻¹ ν (Kalman
+  filter only; about the number of measured outputs when the filter is consistent).
+
+For ``settle_s`` seconds after the start and after a hand-over the monitor is
+paused: a converging estimate says nothing about the sensor.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any, ClassVar
+
+import numpy as np
+
+from archself.modules.base import Param, RuntimeModule
+from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
+
+__all__ = ["MeanWindow", "KalmanFilter", "Luenberger", "observer_gain"]
+
+
+class MeanWindow:
+    """Sliding-window mean of vectors over ``window_s`` seconds (NaN until half full).
+
+    Examples
+    --------
+    >>> w = MeanWindow(4.0)
+    >>> for t, v in [(0.0, 1.0), (1.0, -1.0), (2.0, 3.0)]:
+    ...     w.add(t, np.array([v]))
+    >>> w.value().tolist()
+    [1.0]
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = float(window_s)
+        self.items: deque[tuple[float, np.ndarray]] = deque()
+        self.total: np.ndarray | None = None
+        self.start: float | None = None
+        self.last = 0.0
+
+    def add(self, t: float, v: np.ndarray) -> None:
+        if self.start is None:
+            self.start = t
+        self.last = t
+        self.items.append((t, v))
+        self.total = v.copy() if self.total is None else self.total + v
+        while self.items and self.items[0][0] <= t - self.window_s:
+            self.total = self.total - self.items.popleft()[1]
+
+    def value(self) -> np.ndarray | None:
+        if self.total is None or self.start is None or self.last - self.start < 0.5 * self.window_s:
+            return None
+        return np.asarray(self.total / len(self.items))
+
+    def clear(self) -> None:
+        self.items.clear()
+        self.total = None
+        self.start = None
+
+
+_COMMON = {
+    "measured_outputs": Param(None, "", "rows of C the measurement holds; None: all"),
+    "x0": Param(None, "", "initial estimate; None: least squares from the first measurement"),
+    "innovation_window_s": Param(10.0, "s", "window of the innovation monitor"),
+    "settle_s": Param(5.0, "s", "monitor paused this long after a start or hand-over"),
+}
+
+
+class _ModelEstimator(RuntimeModule):
+    """What the Kalman filter and the observer share: inputs, monitor, hand-over."""
+
+    role = "estimator"
+    inputs = ("measurement", "model")
+    optional_inputs = ("u",)
+    outputs = ("estimate", "state")
+    residual_signals: ClassVar[tuple[str, ...]] = ("innovation",)
+
+    def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
+        self.window = MeanWindow(10.0)
+        super().__init__(name, params, rng)
+        self.model: Any = None  # LtiModel once the model input has arrived
+        self.x: np.ndarray | None = None
+        self.u: np.ndarray | None = None
+        self.quiet_until = -math.inf
+        self._pending_settle = False
+        self._dt: float | None = None
+        self.signals = {k: math.nan for k in self.residual_signals}
+
+    def configure(self) -> None:
+        p = self.params
+        self.window.window_s = float(p["innovation_window_s"])
+        self.settle_s = float(p["settle_s"])
+        rows = p["measured_outputs"]
+        self.rows = None if rows is None else [int(r) for r in np.atleast_1d(rows)]
+        self._dt = None  # rebuild the discrete matrices
+
+    def _h(self) -> np.ndarray:
+        C = self.model.C
+        return C if self.rows is None else C[self.rows, :]
+
+    def _begin(self, t: float, z: np.ndarray) -> None:
+        x0 = self.params["x0"]
+        self.x = vector(x0) if x0 is not None else np.linalg.pinv(self._h()) @ z
+        self.quiet_until = t + self.settle_s
+
+    def _monitor(self, t: float, nu: np.ndarray, nis: float | None = None) -> None:
+        if t < self.quiet_until:
+            return
+        self.window.add(t, nu if nis is None else np.append(nu, nis))
+        mean = self.window.value()
+        if mean is None:
+            return
+        k = nu.size
+        self.signals["innovation"] = float(np.linalg.norm(mean[:k]))
+        if nis is not None:
+            self.signals["nis"] = float(mean[k])
+
+    def _inputs(self, t: float, dt: float, inputs: dict[str, Any]) -> np.ndarray | None:
+        """The measurement, after taking the model and u; None when nothing can be done."""
+        m = inputs.get("model")
+        if m is not None and m is not self.model:
+            self.model = m
+            self._dt = None
+        u = as_vector(inputs.get("u"))
+        if u is not None:
+            self.u = u
+        elif self.u is None and self.model is not None:
+            self.u = np.zeros(self.model.m)
+        if self._pending_settle:
+            self.quiet_until = t + self.settle_s
+            self._pending_settle = False
+        return as_vector(inputs.get("measurement"))
+
+    def _out(self) -> dict[str, Any]:
+        if self.x is None or self.model is None:
+            return {"estimate": None, "state": None}
+        return {"estimate": self.model.C @ self.x, "state": self.x.copy()}
+
+    def export_state(self) -> dict[str, Any]:
+        return {} if self.x is None else {"state": self.x.copy()}
+
+    def import_state(self, state: dict[str, Any]) -> None:
+        x = state.get("state")
+        if x is not None:
+            self.x = vector(x)
+            self._reset_covariance()
+        self.window.clear()
+        self._pending_settle = True
+        for k in self.signals:
+            self.signals[k] = math.nan
+
+    def _reset_covariance(self) -> None:
+        """A hand-over restarts the uncertainty (Kalman filter)."""
+
+
+def _cov(x: Any, n: int) -> np.ndarray:
+    """A covariance from a number (times I), a flat list (the diagonal) or a matrix."""
+    return as_matrix(x, rows=n, cols=None if np.ndim(x) == 0 else n)
+
+
+class KalmanFilter(_ModelEstimator):
+    """Linear Kalman filter (filterpy's ``KalmanFilter``) on an LTI model.
+
+    A continuous model is discretized at the run's step (zero-order hold) and the
+    process noise intensity ``Q`` becomes ``Q·dt`` per step; a discrete model's
+    period must be the run's step and ``Q`` is per step. Each step predicts with the
+    applied input ``u`` (the plant's ``u`` output: the input of the step that just
+    ended), then updates with the measurement (rows ``measured_outputs`` of C; ``R``
+    its covariance). A number for ``Q``, ``R`` or ``P0`` means that times the
+    identity, a flat list the diagonal.
+
+    Residual signals ``innovation`` and ``nis`` (see the module's docstring).
+    """
+
+    parameters = {
+        "Q": Param(1.0, "", "process noise intensity (per s continuous, per step discrete)"),
+        "R": Param(1.0, "", "measurement noise covariance"),
+        "P0": Param(1.0, "", "initial covariance"),
+        **_COMMON,
+    }
+    residual_signals: ClassVar[tuple[str, ...]] = ("innovation", "nis")
+
+    def _matrices(self, dt: float) -> None:
+        import filterpy.kalman
+
+        m = self.model
+        n, k = m.n, self._h().shape[0]
+        Ad, Bd = m.discrete(dt)
+        q = _cov(self.params["Q"], n)
+        if self.model.dt == 0:
+            q = q * dt
+        prev = getattr(self, "kf", None)
+        kf = filterpy.kalman.KalmanFilter(dim_x=n, dim_z=k, dim_u=m.m)
+        kf.F, kf.B, kf.H, kf.Q = Ad, Bd, self._h(), q
+        kf.R = _cov(self.params["R"], k)
+        if prev is not None and prev.P.shape == (n, n):
+            kf.P = prev.P.copy()
+        else:
+            kf.P = self._p0()
+        self.kf = kf
+        self._dt = dt
+
+    def _p0(self) -> np.ndarray:
+        return _cov(self.params["P0"], self.model.n)
+
+    def _reset_covariance(self) -> None:
+        if getattr(self, "kf", None) is not None and self.model is not None:
+            self.kf.P = self._p0()
+
+    def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
+        z = self._inputs(t, dt, inputs)
+        if self.model is None:
+            return self._out()
+        if self._dt != dt:
+            self._matrices(dt)
+        kf = self.kf
+        if self.x is None:
+            if z is None:
+                return self._out()
+            self._begin(t, z)
+            kf.x = np.array(self.x, dtype=float)
+            return self._out()
+        kf.x = self.x
+        kf.predict(u=self.u)
+        if z is not None:
+            nu = z - kf.H @ kf.x
+            kf.update(z)
+            s = kf.S
+            nis = float(nu @ np.linalg.solve(s, nu))
+            self._monitor(t, nu, nis)
+        self.x = np.asarray(kf.x, dtype=float).ravel().copy()
+        return self._out()
+
+    def linearization(self) -> np.ndarray | None:
+        """Error dynamics ``(I − K H) F`` of the filter as a continuous equivalent."""
+        kf = getattr(self, "kf", None)
+        if kf is None or self._dt is None:
+            return None
+        k = kf.P @ kf.H.T @ np.linalg.inv(kf.H @ kf.P @ kf.H.T + kf.R)
+        err = (np.eye(kf.F.shape[0]) - k @ kf.H) @ kf.F
+        return continuous_equivalent(err, self._dt)
+
+
+def observer_gain(model: LtiModel, poles: Any, rows: list[int] | None = None) -> np.ndarray:
+    """Luenberger gain L with eig(A − L C) at ``poles`` (``control.place`` on the dual).
+
+    Poles are numbers, or ``[re, im]`` pairs for a complex pair (give each once).
+
+    Examples
+    --------
+    >>> m = LtiModel([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], [[1.0, 0.0]])
+    >>> observer_gain(m, [-2.0, -3.0]).round(6).tolist()
+    [[5.0], [6.0]]
+    """
+    import control
+
+    C = model.C if rows is None else model.C[rows, :]
+    wanted: list[complex] = []
+    for p in poles:
+        if isinstance(p, (list, tuple)):
+            re, im = float(p[0]), float(p[1])
+            wanted += [complex(re, im), complex(re, -im)]
+        else:
+            wanted.append(float(p))
+    return np.asarray(control.place(model.A.T, C.T, wanted), dtype=float).T
+
+
+class Luenberger(_ModelEstimator):
+    """Luenberger observer ``dx̂/dt = A x̂ + B u + L (y − C x̂)`` on an LTI model.
+
+    ``L`` is given (``gain``, n × measured outputs) or placed (``poles``: eig(A − L C),
+    ``control.place``). A continuous observer is integrated exactly over each step
+    (zero-order hold of u and y, ``control.c2d``); on a discrete model it is
+    ``x̂⁺ = A x̂ + B u + L (y − C x̂)``. ``linearization()`` gives the error dynamics
+    ``A − L C`` (the separation principle: the closed loop's poles are the
+    controller's and these). Residual signal ``innovation``.
+    """
+
+    parameters = {
+        "gain": Param(None, "", "L (n × measured outputs); None: from poles"),
+        "poles": Param(None, "1/s", "observer poles (numbers, or [re, im] pairs)"),
+        **_COMMON,
+    }
+
+    def configure(self) -> None:
+        super().configure()
+        if (self.params["gain"] is None) == (self.params["poles"] is None):
+            raise ValueError("give exactly one of gain and poles")
+        self._y: np.ndarray | None = None
+        self._L: np.ndarray | None = None
+
+    def gain(self) -> np.ndarray:
+        """L (computed once per model)."""
+        if self._L is None:
+            g = self.params["gain"]
+            if g is not None:
+                L = as_matrix(g)
+                if L.shape[0] != self.model.n and L.size == self.model.n:
+                    L = L.reshape(self.model.n, -1)
+                self._L = L
+            else:
+                self._L = observer_gain(self.model, self.params["poles"], self.rows)
+        return self._L
+
+    def _matrices(self, dt: float) -> None:
+        m = self.model
+        L = self.gain()
+        H = self._h()
+        ao, bo = m.A - L @ H, np.hstack([m.B, L])
+        if m.dt == 0:
+            import control
+
+            sysd = control.c2d(control.ss(ao, bo, np.eye(m.n), 0), dt, method="zoh")
+            self._ad, self._bd = np.asarray(sysd.A), np.asarray(sysd.B)
+        else:
+            self._ad, self._bd = ao, bo
+        self._dt = dt
+
+    def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
+        z = self._inputs(t, dt, inputs)
+        if self.model is None:
+            return self._out()
+        if self._dt != dt:
+            self._L = None if self.params["gain"] is None else self._L
+            self._matrices(dt)
+        if self.x is None:
+            if z is None:
+                return self._out()
+            self._begin(t, z)
+            self._y = z
+            return self._out()
+        if self._y is not None:  # propagate over the step that ended, with its u and y
+            self.x = self._ad @ self.x + self._bd @ np.concatenate([self.u, self._y])
+        if z is not None:
+            nu = z - self._h() @ self.x
+            self._monitor(t, nu)
+            self._y = z
+        return self._out()
+
+    def linearization(self) -> np.ndarray | None:
+        if self.model is None:
+            return None
+        err = self.model.A - self.gain() @ self._h()
+        return err if self.model.dt == 0 else continuous_equivalent(err, self.model.dt)

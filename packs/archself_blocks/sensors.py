@@ -1,0 +1,92 @@
+"""``generic.sensor``: a reading with gain, bias, drift, noise, quantization, range, dropout."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from archself.modules.base import Param, RuntimeModule
+from archself_blocks.lti import as_vector
+
+__all__ = ["Sensor", "SENSOR_FAULTS"]
+
+#: Fault kinds a scenario may inject into a sensor's ``measurement``.
+SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "stuck", "nan"})
+
+
+class Sensor(RuntimeModule):
+    """Reads component ``index`` of its input and publishes ``measurement``::
+
+        m = quantize(gain·x + bias + drift_per_s·t + noise·n) clipped to [min, max]
+
+    with ``n`` standard normal and ``quantize`` rounding to a multiple of
+    ``resolution`` (0: none). With probability ``dropout_probability`` a sample is
+    lost (``None``). The input is ``y`` (a plant's output) or ``u`` (a plant's
+    applied input: a meter on the input line); the first one connected is read.
+
+    The built-in ``bias``/``drift_per_s`` describe a sensor as it is; a scenario's
+    faults (``bias_drift``, ``bias``, ``noise_increase``, ``dropout``, ``stuck``, ``nan``)
+    act on ``measurement`` on top. An unquantized noisy sensor declares its noise
+    (``noise_levels``), so a frozen value is detected as stale.
+
+    Examples
+    --------
+    >>> s = Sensor("s", {"resolution": 0.5}, np.random.default_rng(0))
+    >>> s.step(0.0, 0.1, {"y": np.array([1.2, 3.0])})
+    {'measurement': 1.0}
+    """
+
+    parameters = {
+        "index": Param(0, "", "component of the input vector that is measured"),
+        "gain": Param(1.0, "", "scale factor"),
+        "bias": Param(0.0, "", "constant offset (units of the measurement)"),
+        "drift_per_s": Param(0.0, "1/s", "offset growing with time (units per second)"),
+        "noise": Param(0.0, "", "standard deviation of the white noise"),
+        "resolution": Param(0.0, "", "quantization step; 0: none"),
+        "min": Param(None, "", "lower end of the range; None: none"),
+        "max": Param(None, "", "upper end of the range; None: none"),
+        "dropout_probability": Param(0.0, "", "probability that a sample is lost"),
+    }
+    role = "sensor"
+    optional_inputs = ("y", "u")
+    outputs = ("measurement",)
+    fault_kinds = SENSOR_FAULTS
+    main_output = "measurement"
+
+    def configure(self) -> None:
+        p = self.params
+        self.index = int(p["index"])
+        self.gain, self.bias = float(p["gain"]), float(p["bias"])
+        self.drift = float(p["drift_per_s"])
+        self.noise = float(p["noise"])
+        self.resolution = float(p["resolution"])
+        self.lo = -np.inf if p["min"] is None else float(p["min"])
+        self.hi = np.inf if p["max"] is None else float(p["max"])
+        self.p_drop = float(p["dropout_probability"])
+        if not 0.0 <= self.p_drop <= 1.0:
+            raise ValueError("dropout_probability must lie in [0, 1]")
+        self.noise_levels = (
+            {"measurement": self.noise} if self.noise > 0 and self.resolution == 0 else None
+        )
+
+    def measure(self, t: float, x: float) -> float | None:
+        """One reading of the true value ``x`` at ``t`` (None: lost)."""
+        v = self.gain * x + self.bias + self.drift * t
+        if self.noise:
+            v += self.noise * float(self.rng.standard_normal())
+        if self.resolution > 0:
+            v = self.resolution * round(v / self.resolution)
+        v = min(max(v, self.lo), self.hi)
+        if self.p_drop and float(self.rng.random()) < self.p_drop:
+            return None
+        return float(v)
+
+    def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
+        x = inputs.get("y")
+        if x is None:
+            x = inputs.get("u")
+        vec = as_vector(x)
+        if vec is None:
+            return {"measurement": None}
+        return {"measurement": self.measure(t, float(vec[self.index]))}
