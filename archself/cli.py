@@ -842,6 +842,15 @@ def calibrate(
         Path | None,
         typer.Option("--from-runs", metavar="FILE", help="Use saved runs instead of running."),
     ] = None,
+    envelope: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--envelope",
+            metavar="PATH=VALUES",
+            help="Operating condition to cover, as campaign --sweep (repeatable: product), e.g. "
+            "modules.gps.params.noise_m.value=0.2,0.4; the bands hold in the worst point.",
+        ),
+    ] = None,
 ) -> None:
     """Derive residual bands (residual.nominal) for a target false-switch rate from nominal runs.
 
@@ -888,6 +897,7 @@ def calibrate(
                 configurations=configurations, root_seed=root_seed, executor=executor,
                 workers=workers, address=address, verify_seeds=verify_seeds,
                 progress=progress if show else None, save_runs=save_runs, from_runs=from_runs,
+                envelope=envelope or (),
             )
         finally:
             if bar is not None:
@@ -966,7 +976,7 @@ def identify(
     min_excitation: Annotated[
         float,
         typer.Option("--min-excitation", help="A source moving its Δr less is not identifiable."),
-    ] = 0.02,
+    ] = 0.05,
     executor: Annotated[
         str, typer.Option("--executor", help="local (process pool), dask or inline.")
     ] = "local",

@@ -296,6 +296,14 @@ class Hysteresis(_Strict):
         return self
 
 
+class Ablation(_Strict):
+    """Stages of Algorithm 1 that can be switched off (all on by default)."""
+
+    propagation: bool = Field(True, description="false: z = r (W = 0 in Analyze).")
+    stability: bool = Field(True, description="false: no stability filter (Eq. 21–24).")
+    dwell: bool = Field(True, description="false: no dwell time (T_min = 0).")
+
+
 class Objective(_Strict):
     """J: the error between an actual and a reference signal (Eq. 11)."""
 
@@ -333,13 +341,40 @@ class Runtime(_Strict):
         "nominal",
         description="z channels divided by the nominal level each would have (nominal) or raw.",
     )
-    warmup_steps: int = Field(0, ge=0, description="MAPE-K cycles without adaptation.")
+    warmup_s: NonNeg = Field(
+        0.0,
+        description="Seconds from the first cycle without adaptation (the loop still monitors). "
+        "Residuals are also trusted per module, see min_confidence.",
+    )
+    warmup_steps: int = Field(
+        0, ge=0, description="Deprecated (use warmup_s): MAPE-K cycles without adaptation."
+    )
+    min_confidence: Annotated[float, Field(ge=0, lt=1)] = Field(
+        0.5,
+        description="A module's residual counts only once its filter has settled: confidence "
+        "1 − exp(−t_valid/T) ≥ this (0.5: after T·ln 2 of usable samples). Before, r_i = 0.",
+    )
+    isolate_compensated: bool = Field(
+        True,
+        description="After a structural action keyed to a module, that module's residual is no "
+        "longer propagated through W (its own z_i = r_i still shows it) until an action keyed to "
+        "it applies again: a compensated fault stops pulling z onto other modules.",
+    )
+    ablation: Ablation = Field(
+        default_factory=lambda: Ablation(),
+        description="Stages of Algorithm 1 that can be switched off for an ablation study.",
+    )
     dwell_s: NonNeg = Field(0.0, description="T_min of Eq. 28.")
     cost_weight: NonNeg = Field(description="λ of Eq. 25.")
     stability: Stability
     max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(
         0.95, description="ρ(W) must stay below this (Eq. 13)."
     )
+
+    @property
+    def warmup_time_s(self) -> float:
+        """The warm-up in seconds: ``max(warmup_s, warmup_steps · period_s)``."""
+        return max(float(self.warmup_s), self.warmup_steps * float(self.period_s))
 
     @field_validator("record")
     @classmethod

@@ -113,8 +113,8 @@ def test_offline_z_is_the_runtimes(tmp_path: Path) -> None:
     bands = np.array([arch.modules[a].residual.nominal for a in active])
     sens = np.array([arch.modules[a].residual.sensitivity for a in active])
     offline = _max_abs_z(np.array(rec.x)[:, cols], bands, sens, m)
-    records = loop.decisions[arch.runtime.warmup_steps :]
-    assert len(records) == len(offline) == 60 and not loop.switches
+    records = [d for d in loop.decisions if d.phase != "warmup"]
+    assert len(records) == len(offline) == 90 and not loop.switches
     for k, rec_k in enumerate(records):
         z = [abs(v) for v in rec_k.to_dict()["z"].values() if v is not None]
         assert offline[k] == pytest.approx(max(z), rel=1e-9, abs=1e-12)

@@ -120,6 +120,8 @@ class _Reference:
             st.confidence = filt.confidence
             if ok:
                 signals[name] = float(value)
+                if filt.confidence < self.arch.runtime.min_confidence:
+                    continue  # not trusted yet: r_i = 0
                 r[k] = module_residual(
                     value,
                     mod.residual.sensitivity,

@@ -247,6 +247,28 @@ def _prepare(
     return text, loaded, chosen, confs, tau
 
 
+def _envelope(loaded: Any, specs: Sequence[str]) -> tuple[Any, ...]:
+    """Parse ``--envelope`` specs and check every point gives a valid file."""
+    if not specs:
+        return ()
+    from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
+    from archself.check import check, has_errors
+    from archself.loader import Loaded, SourceMap
+
+    try:
+        sweeps = tuple(parse_sweep(s) for s in specs)
+        for point in sweep_points(sweeps):
+            swept = apply_values(loaded.data, sweeps, point, loaded.file)
+            bad = [f for f in check(Loaded(swept, SourceMap(loaded.file), loaded.data))
+                   if f.severity == "error"]
+            if bad:
+                setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
+                raise CalibrationError(f"--envelope {setting}: {bad[0]}")
+    except CampaignError as exc:
+        raise CalibrationError(f"--envelope: {exc}") from None
+    return sweeps
+
+
 def _cells(arch: Any, results: list[dict[str, Any]]) -> list[Cell]:
     names = [m for m, spec in arch.modules.items() if spec.residual is not None]
     col = {m: j for j, m in enumerate(names)}
@@ -290,6 +312,7 @@ def calibrate(
     progress: Callable[[int, int], None] | None = None,
     save_runs: str | Path | None = None,
     from_runs: str | Path | None = None,
+    envelope: Sequence[str] = (),
 ) -> Calibration:
     """Run the nominal scenarios and derive bands for a false-alarm rate per run.
 
@@ -319,6 +342,11 @@ def calibrate(
         Take the runs from a file written by ``save_runs`` instead of running them
         (its seeds, scenarios and configurations; the architecture must be the same
         but for its bands).
+    envelope : sequence of str
+        The operating envelope, as ``archself campaign --sweep`` specs
+        (``PATH=v1,v2`` or ``PATH=START:STOP:NUM``): every point of their product
+        is run with the same seeds, and the bands hold the rate in the worst of
+        them (e.g. ``modules.gps.params.noise_m.value=0.2,0.3,0.4``).
 
     Raises
     ------
@@ -339,7 +367,10 @@ def calibrate(
     text, loaded, chosen, confs, tau = _prepare(arch_path, scenarios, configurations)
     arch = loaded.arch
     file = loaded.file
+    sweeps = _envelope(loaded, envelope)
     digest = R.band_free_digest(loaded.data)
+    if sweeps:
+        digest += "|" + ";".join(f"{s.path}={s.values}" for s in sweeps)
     elapsed = verify_elapsed = 0.0
     if from_runs is not None:
         meta, saved = R.load_runs(from_runs)
@@ -357,7 +388,9 @@ def calibrate(
         executor = f"{meta['executor']}, runs from {Path(from_runs).name}"
     else:
         t0 = time.perf_counter()
-        jobs = R.plan_runs(text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds))
+        jobs = R.plan_runs(
+            text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds), envelope=sweeps
+        )
         results = R.run_jobs(
             jobs, executor=executor, workers=workers, address=address, progress=progress
         )
@@ -373,6 +406,7 @@ def calibrate(
                 R.seeds_from(root_seed, seeds, verify_seeds),
                 first_replicate=seeds,
                 phase="verify",
+                envelope=sweeps,
             )
             vres = R.run_jobs(
                 vjobs, executor=executor, workers=workers, address=address, progress=progress

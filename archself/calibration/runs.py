@@ -52,6 +52,8 @@ class CalJob:
     replicate: int
     seed: int
     phase: str = "calibration"
+    sweeps: tuple[Any, ...] = ()
+    point: tuple[float, ...] = ()
 
 
 def seeds_from(root_seed: int, start: int, n: int) -> list[int]:
@@ -82,12 +84,24 @@ def plan_runs(
     seeds: Sequence[int],
     first_replicate: int = 0,
     phase: str = "calibration",
+    envelope: Sequence[Any] = (),
 ) -> list[CalJob]:
-    """Every (scenario, configuration, seed) job, replicate-major."""
+    """Every (envelope point, scenario, configuration, seed) job, replicate-major.
+
+    ``envelope`` holds :class:`~archself.campaign.sweep.Sweep` objects: each point of
+    their product is one operating condition of the file (a noise level, say), and
+    every condition gets the same seeds.
+    """
+    from archself.campaign.sweep import sweep_points
+
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    sweeps = tuple(envelope)
     return [
-        CalJob(text, digest, file, sc, conf, first_replicate + k, int(seed), phase)
+        CalJob(
+            text, digest, file, sc, conf, first_replicate + k, int(seed), phase, sweeps, point
+        )
         for k, seed in enumerate(seeds)
+        for point in sweep_points(sweeps)
         for sc in scenarios
         for conf in configurations
     ]
@@ -110,7 +124,8 @@ class Recorder:
     ----------
     x : list of list of float
         Per cycle after the warm-up: |s̄_i| of each module of ``residual_modules``
-        (0 when inactive or the sample was unusable).
+        (0 when inactive, the sample was unusable or the filter not yet trusted,
+        ``runtime.min_confidence``).
     forced : list of bool
         Per cycle after the warm-up: an active module was unavailable for a
         reason of its own (the Monitor gives it the saturated residual).
@@ -122,7 +137,9 @@ class Recorder:
         from archself.runtime.monitor import Monitor
 
         self.monitor = Monitor(arch, list(arch.modules))
-        self.warmup = int(arch.runtime.warmup_steps)
+        self.warmup_s = arch.runtime.warmup_time_s
+        self.t_start: float | None = None
+        self.trust = float(arch.runtime.min_confidence)
         self.column = {m: j for j, m in enumerate(residual_modules)}
         self.width = len(residual_modules)
         self.cycle = 0
@@ -134,12 +151,14 @@ class Recorder:
         from archself.runtime.monitor import is_own_failure
 
         obs = self.monitor.observe(system, frozenset(system.active))
-        if self.cycle >= self.warmup:
+        if self.t_start is None:
+            self.t_start = obs.t
+        if obs.t - self.t_start >= self.warmup_s - 1e-9:
             row = [0.0] * self.width
             for name, value, ok in zip(
                 obs.signal_names, obs.signal_values.tolist(), obs.signal_ok.tolist(), strict=True
             ):
-                if ok and value == value:
+                if ok and value == value and obs.kappa[name].confidence >= self.trust:
                     row[self.column[name]] = abs(value)
             self.x.append(row)
             self.forced.append(
@@ -154,13 +173,20 @@ class Recorder:
 
 
 def _architecture(job: CalJob) -> Any:
-    arch = _ARCHS.get(job.arch_digest)
+    key = f"{job.arch_digest}:{job.point}"
+    arch = _ARCHS.get(key)
     if arch is None:
         from archself.loader import load_text
 
-        arch = load_text(job.arch_text, job.file).arch
-        _ARCHS.clear()
-        _ARCHS[job.arch_digest] = arch
+        loaded = load_text(job.arch_text, job.file)
+        arch = loaded.arch
+        if job.sweeps:
+            from archself.campaign.sweep import apply_values
+
+            arch = apply_values(loaded.data, job.sweeps, job.point, job.file)
+        if len(_ARCHS) > 16:
+            _ARCHS.clear()
+        _ARCHS[key] = arch
     return arch
 
 

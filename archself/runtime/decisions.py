@@ -150,6 +150,7 @@ class DecisionRecord:
     evaluations: list[ActionEvaluation] = field(default_factory=list)
     chosen: dict[str, Any] | None = None
     note: str = ""
+    compensated: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable(
@@ -169,6 +170,7 @@ class DecisionRecord:
                 "evaluations": [e.to_dict() for e in self.evaluations],
                 "chosen": self.chosen,
                 "note": self.note,
+                **({"compensated": self.compensated} if self.compensated else {}),
             }
         )
 
@@ -235,6 +237,11 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
         lines.append(f"  candidates ({d.get('selector', '')}): {shown}")
     else:
         lines.append(f"  no candidate; largest z: {_top_z(d)}")
+    if d.get("compensated"):
+        lines.append(
+            "  compensated (own z only, not propagated through W): "
+            + ", ".join(d["compensated"])
+        )
     for e in d.get("evaluations") or []:
         chosen_id = (d.get("chosen") or {}).get("action")
         mark = "  ← chosen" if chosen_id is not None and chosen_id == e.get("action") else ""

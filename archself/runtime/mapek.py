@@ -15,9 +15,19 @@
    (:mod:`~archself.runtime.knowledge`) is synchronized with the system and
    ``t_last`` recorded for architectural changes.
 
-No adaptation happens during the first ``runtime.warmup_steps`` cycles (the loop
-still monitors, analyzes and logs). Every cycle appends a
-:class:`~archself.runtime.decisions.DecisionRecord` to :attr:`MapeK.decisions`.
+No adaptation happens during the first ``runtime.warmup_s`` seconds (the loop
+still monitors, analyzes and logs); besides, each module's residual counts only
+once its filter has settled (``runtime.min_confidence``, see
+:mod:`~archself.runtime.monitor`), so a fault that starts early is acted on as
+soon as the residuals that show it are trusted. After a structural action the
+module it was keyed to counts as *compensated* (``runtime.isolate_compensated``):
+its residual stays its own (z_i includes r_i) but is not propagated through W,
+so the fault that was dealt with does not keep pulling z onto the modules
+downstream; the mark is dropped when an action keyed to the module applies
+again (the compensation is gone) or it becomes inactive. ``runtime.ablation`` switches
+propagation (z = r), the stability filter or the dwell time off. Every cycle
+appends a :class:`~archself.runtime.decisions.DecisionRecord` to
+:attr:`MapeK.decisions`.
 """
 
 from __future__ import annotations
@@ -74,6 +84,12 @@ class MapeK:
         self.switches: list[dict[str, Any]] = []
         self.updates: list[dict[str, Any]] = []
         self.cycle = 0
+        rt = arch.runtime
+        self.warmup_s = rt.warmup_time_s
+        self.propagate = rt.ablation.propagation
+        self.t_start: float | None = None
+        self.compensated: dict[str, str] = {}  # module -> configuration it was compensated in
+        self._checked_conf: str | None = None
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: Any) -> list[dict[str, Any]]:
@@ -95,16 +111,20 @@ class MapeK:
         k.sync(system)  # the system may start in any configuration: adopt it
         t = float(system.t)
 
+        if self.compensated and k.configuration != self._checked_conf:
+            self._still_compensated(k.configuration, k.active)
         # MONITOR (Eq. 11-12)
         obs = self.monitor.observe(system, k.active)
         # ANALYZE (Eq. 13-16)
-        z = k.influence(obs.r)
+        z = self._influence(obs.r, k)
         z_values = z[k.active_index]
         z_active = ValueMap(k.active_names, k.active_pos, z_values)
         r_active = ValueMap(k.active_names, k.active_pos, obs.r[k.active_index])
         candidates = self.selector.select(z_active, z_values)
 
-        warm = self.cycle < self.arch.runtime.warmup_steps
+        if self.t_start is None:
+            self.t_start = t
+        warm = t - self.t_start < self.warmup_s - 1e-9
         record = DecisionRecord(
             cycle=self.cycle,
             t=t,
@@ -118,6 +138,7 @@ class MapeK:
             candidates=list(candidates),
             selector=self.selector.describe(),
             kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
+            compensated=sorted(self.compensated),
         )
         self.decisions.append(record)
         self.cycle += 1
@@ -173,6 +194,9 @@ class MapeK:
             return []
         after = k.configuration
         k.record_structural(t, action.id, before, after)
+        if self.arch.runtime.isolate_compensated and action.module in k.active:
+            self.compensated[action.module] = after
+            self._checked_conf = after
         chosen.update({"from": before, "to": after})
         record.chosen = chosen
         switch = {
@@ -184,6 +208,38 @@ class MapeK:
         }
         self.switches.append(switch)
         return [dict(switch)]
+
+    def _influence(self, r: Any, k: Knowledge) -> Any:
+        """z of Eq. 14; compensated modules' residuals stay their own, not propagated."""
+        if not self.propagate:
+            return r
+        if not self.compensated:
+            return k.influence(r)
+        own = [k.index[m] for m in self.compensated]
+        spread = r.copy()
+        spread[own] = 0.0
+        z = k.influence(spread)
+        z[own] += r[own]
+        return z
+
+    def _still_compensated(self, configuration: str, active: frozenset[str]) -> None:
+        """Drop the modules whose compensation is gone in ``configuration``.
+
+        Gone: the module is inactive, or a structural action keyed to it applies
+        here (``applies_in`` unset or listing it, leading elsewhere), i.e. the
+        loop could compensate it again.
+        """
+        self._checked_conf = configuration
+        for name in list(self.compensated):
+            if name not in active:
+                del self.compensated[name]
+                continue
+            for _, a in self.planner.by_module.get(name, ()):
+                if a.kind == "parameter_update" or a.to == configuration:
+                    continue
+                if a.applies_in is None or configuration in a.applies_in:
+                    del self.compensated[name]
+                    break
 
     # ------------------------------------------------------------------ output
     def log(self) -> list[dict[str, Any]]:

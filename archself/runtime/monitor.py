@@ -18,6 +18,11 @@
 
   Inactive modules, modules without a ``residual`` block and modules whose signal
   is missing or not finite contribute ``r_i = 0``; the last are flagged in κ_i.
+- Trust (a warm-up from statistics, per module): a residual counts only once its
+  filter has settled, ``confidence = 1 − exp(−t_valid/T) ≥
+  runtime.min_confidence`` (t_valid: time with usable samples since the filter
+  last started); before that ``r_i = 0``. A module that becomes active starts a
+  new filter, so it is trusted again only after it has settled.
 - Unavailable modules (Eq. 12 with a total deviation): an active module the
   system reports unavailable for a reason of its own (it raised, gave NaN, fell
   silent or froze; not ``lost input``, which is an upstream failure) gets the
@@ -422,6 +427,7 @@ class _Layout:
         monitor.value[self.res_off] = 0.0
         monitor.valid_time[self.res_off] = 0.0
         monitor.samples[self.res_off] = 0
+        self.trust_time = monitor.trust_time[self.res_on]
         self.value = monitor.value[self.res_on]
         self.valid_time = monitor.valid_time[self.res_on]
         self.samples = monitor.samples[self.res_on]
@@ -491,6 +497,10 @@ class Monitor:
         self.value = np.zeros(len(res))
         self.valid_time = np.zeros(len(res))
         self.samples = np.zeros(len(res), dtype=np.int64)
+        # trust: valid time a filter needs before its residual counts (min_confidence)
+        c_min = float(getattr(arch.runtime, "min_confidence", 0.0))
+        tc = self.time_constant
+        self.trust_time = np.where(tc > 0, -tc * math.log1p(-c_min), 0.0)
         self.constrained = [
             (k, n)
             for k, n in enumerate(self.names)
@@ -653,7 +663,12 @@ class Monitor:
                 lay.samples[upd] += 1
                 lay.valid_time = lay.valid_time.copy()
                 lay.valid_time[upd] += max(dt, 0.0)
-            r[lay.on_pos[upd]] = self._residuals(new, lay.sensitivity[upd], lay.nominal[upd])
+            res = self._residuals(new, lay.sensitivity[upd], lay.nominal[upd])
+            # trust: no residual before the filter has settled
+            untrusted = lay.valid_time[upd] < lay.trust_time[upd]
+            if untrusted.any():
+                res = np.where(untrusted, 0.0, res)
+            r[lay.on_pos[upd]] = res
         return ok
 
     def _residuals(self, value: np.ndarray, sens: np.ndarray, nom: np.ndarray) -> np.ndarray:

@@ -197,7 +197,8 @@ class Planner:
         }
         rt = arch.runtime
         self.cost_weight = rt.cost_weight
-        self.dwell_s = rt.dwell_s
+        self.dwell_s = rt.dwell_s if rt.ablation.dwell else 0.0
+        self.stability_on = rt.ablation.stability
         self.margin = rt.stability.margin
         self.alpha = rt.stability.lyapunov_alpha
         self.horizon_steps = rt.stability.horizon_steps
@@ -370,7 +371,11 @@ class Planner:
         return evaluations, chosen, chosen_eval
 
     def stability(self, system: Any, action: Action) -> StabilityVerdict:
-        """Stability filter (Eq. 21, else Eq. 24) for one action."""
+        """Stability filter (Eq. 21, else Eq. 24) for one action (passes when ablated)."""
+        if not self.stability_on:
+            return StabilityVerdict(
+                True, "off", None, None, "stability filter off (runtime.ablation)"
+            )
         return check_action_stability(
             system,
             action,

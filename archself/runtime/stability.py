@@ -59,7 +59,8 @@ class StabilityVerdict:
         The action preserves stability.
     method : str
         ``"eigenvalue"`` (Eq. 21), ``"lyapunov"`` (Eq. 24), ``"lyapunov-floor"``
-        (accepted because V stayed below the floor) or ``"error"``.
+        (accepted because V stayed below the floor), ``"error"`` or ``"off"``
+        (the filter is switched off by ``runtime.ablation``).
     value : float or None
         ``max Re λ(A_k)`` or ``E[ΔV|a_k]``.
     bound : float or None

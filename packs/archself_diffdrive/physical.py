@@ -22,12 +22,26 @@ _SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "
 
 
 class DiffDrivePlant(RuntimeModule):
-    """Differential-drive chassis with first-order wheel-speed lag and speed limits.
+    """Differential-drive chassis with first-order wheel-speed lag, speed limits and disturbances.
 
     Parameters (``params``): see :attr:`parameters`. The wheel speeds are clipped
     to ±``max_wheel_speed_rad_s`` and lag the actuators' speeds with
     ``wheel_time_constant_s`` (0: no lag); ``effectiveness`` is the built-in
     per-wheel effectiveness (scenario faults act on the actuators instead).
+
+    Disturbances (the module's own random stream, so a seed gives one world):
+
+    - **wheel slip** — the ground travel of each wheel over a step is
+      ``r·ω·dt + sqrt(k·|r·ω·dt|)·N(0, 1)`` with ``k = slip_variance_m``: the
+      non-systematic odometry error model of Chong & Kleeman (1997), whose
+      variance grows with the distance a wheel rolls. Encoders measure the wheel's
+      rotation, not its travel, so slip is what dead reckoning cannot see;
+    - **process noise** — ground unevenness and side slip as white noise on the
+      pose: lateral ``lateral_noise_m_sqrt_s`` (m/√s, across the heading) and yaw
+      ``yaw_noise_rad_sqrt_s`` (rad/√s).
+
+    docs/disturbances.md gives the defaults and where they come from; 0 turns a
+    disturbance off.
 
     Inputs ``wheel_speed_left``, ``wheel_speed_right`` (rad/s; None = motor off);
     outputs the true ``pose`` ``[x, y, θ]`` and ``wheel_speeds`` ``[l, r]``.
@@ -48,6 +62,9 @@ class DiffDrivePlant(RuntimeModule):
         "initial_pose": Param([0.0, 0.0, 0.0], "m, m, rad", "[x, y, θ] at t = 0"),
         "wheel_time_constant_s": parameters_of(Dynamics)["wheel_time_constant_s"],
         "effectiveness": Param([1.0, 1.0], "", "built-in per-wheel effectiveness [l, r]"),
+        "slip_variance_m": Param(0.0, "m", "wheel-travel variance per metre rolled (slip)"),
+        "lateral_noise_m_sqrt_s": Param(0.0, "m/sqrt(s)", "side-slip noise across the heading"),
+        "yaw_noise_rad_sqrt_s": Param(0.0, "rad/sqrt(s)", "heading noise (ground unevenness)"),
     }
     role = "plant"
     inputs = ("wheel_speed_left", "wheel_speed_right")
@@ -71,6 +88,9 @@ class DiffDrivePlant(RuntimeModule):
             "wheel_base_m": float(p["wheel_base_m"]),
             "effectiveness": [float(e) for e in p["effectiveness"]],
         }
+        self.slip = float(p["slip_variance_m"])
+        self.lateral = float(p["lateral_noise_m_sqrt_s"])
+        self.yaw = float(p["yaw_noise_rad_sqrt_s"])
 
     def output(self, t):
         return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
@@ -90,8 +110,33 @@ class DiffDrivePlant(RuntimeModule):
             u = (0.5 * (wl0 + self.wl), 0.5 * (wr0 + self.wr))
         else:
             u = (self.wl, self.wr)
-        self.pose = integrate_pose(t, self.pose, u, self._kp)
+        if self.slip > 0 or self.lateral > 0 or self.yaw > 0:
+            u = self._disturb(u, dt)
+            self.pose = integrate_pose(t, self.pose, u, self._kp)
+            self.pose += self._process_noise(dt)
+        else:
+            self.pose = integrate_pose(t, self.pose, u, self._kp)
         return {}
+
+    def _disturb(self, u: tuple[float, float], dt: float) -> tuple[float, float]:
+        """Wheel speeds whose ground travel carries the slip: σ² = k·|r·ω·dt| per wheel."""
+        if self.slip <= 0 or dt <= 0:
+            return u
+        r = self._kp["wheel_radius_m"]
+        n = self.rng.standard_normal(2)
+        return tuple(  # type: ignore[return-value]
+            w + math.sqrt(self.slip * abs(r * w * dt)) * float(e) / (r * dt)
+            for w, e in zip(u, n, strict=True)
+        )
+
+    def _process_noise(self, dt: float) -> np.ndarray:
+        """Pose increment of the lateral and yaw noise over ``dt``."""
+        if (self.lateral <= 0 and self.yaw <= 0) or dt <= 0:
+            return np.zeros(3)
+        n = self.rng.standard_normal(2) * math.sqrt(dt)
+        th = float(self.pose[2])
+        lat = self.lateral * float(n[0])
+        return np.array([-math.sin(th) * lat, math.cos(th) * lat, self.yaw * float(n[1])])
 
     def export_state(self):
         return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}

@@ -220,12 +220,29 @@ class TankPlant(RuntimeModule):
     Input ``inflow`` (m³/s; None = valve closed). Outputs the true ``level``
     ``[h]`` (m) and ``inflow``: the inflow that entered during the last step
     (what a flow meter in the inlet line sees).
+
+    Disturbances (the module's own random stream; 0 turns one off), each a
+    first-order Gauss–Markov (Ornstein–Uhlenbeck) process with correlation time
+    ``disturbance_time_s``:
+
+    - **supply pressure** — the inflow through the valve varies by a relative
+      ``supply_variation`` (standard deviation): upstream pressure fluctuations
+      change the flow at a given opening. The flow meter sees it; the model does
+      not;
+    - **draw-off** — the outflow varies by a relative ``outflow_variation``
+      (a downstream consumer, a partly blocked drain): unmeasured, it shows only in
+      the level.
+
+    docs/disturbances.md gives the shipped values and where they come from.
     """
 
     parameters = {
         **{k: v for k, v in MODEL_PARAMETERS.items() if k != "max_flow_m3_s"},
         "initial_level_m": Param(1.0, "m", "level at t = 0"),
         "substeps": Param(4, "", "Euler sub-steps per step"),
+        "supply_variation": Param(0.0, "", "relative std of the inflow (supply pressure)"),
+        "outflow_variation": Param(0.0, "", "relative std of the outflow (draw-off)"),
+        "disturbance_time_s": Param(30.0, "s", "correlation time of both disturbances"),
     }
     role = "plant"
     inputs = ("inflow",)
@@ -244,6 +261,11 @@ class TankPlant(RuntimeModule):
         self.k = float(p["outflow_coeff"])
         self.h_max = float(p["max_level_m"])
         self.substeps = max(1, int(p["substeps"]))
+        self.supply = float(p["supply_variation"])
+        self.draw = float(p["outflow_variation"])
+        self.t_dist = max(float(p["disturbance_time_s"]), 1e-9)
+        self.d_in = getattr(self, "d_in", 0.0)
+        self.d_out = getattr(self, "d_out", 0.0)
 
     def output(self, t):
         return {"level": np.array([self.h]), "inflow": self.q_in}
@@ -251,13 +273,25 @@ class TankPlant(RuntimeModule):
     def step(self, t, dt, inputs):
         q = _f(inputs.get("inflow"))
         q = 0.0 if q is None else max(q, 0.0)
+        k = self.k
+        if self.supply > 0 or self.draw > 0:
+            self._disturb(dt)
+            q *= max(1.0 + self.supply * self.d_in, 0.0)
+            k *= max(1.0 + self.draw * self.d_out, 0.0)
         self.q_in = q
         h = self.h
         d = dt / self.substeps
         for _ in range(self.substeps):
-            h = min(max(h + d * tank_derivative(h, q, self.area, self.k), 0.0), self.h_max)
+            h = min(max(h + d * tank_derivative(h, q, self.area, k), 0.0), self.h_max)
         self.h = h
         return {}
+
+    def _disturb(self, dt: float) -> None:
+        """Advance the two unit-variance Gauss–Markov processes by ``dt`` (exact discretization)."""
+        a = math.exp(-max(dt, 0.0) / self.t_dist)
+        n = self.rng.standard_normal(2) * math.sqrt(1.0 - a * a)
+        self.d_in = a * self.d_in + float(n[0])
+        self.d_out = a * self.d_out + float(n[1])
 
     def export_state(self):
         return {"level": self.h}
