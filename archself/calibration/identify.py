@@ -274,7 +274,8 @@ class Identification:
             ],
             "targets": {
                 c: {
-                    t: {"rows": f.rows, "r2": num(f.r2), "rms": num(f.rms)} for t, f in fits.items()
+                    t: {"rows": f.rows, "r2": num(f.r2), "rms": num(f.rms), "moved": num(f.moved)}
+                    for t, f in fits.items()
                 }
                 for c, fits in self.fits.items()
             },
@@ -368,7 +369,7 @@ def identify(
     magnitude: float = 0.1,
     perturb: Mapping[str, tuple[str, float]] | None = None,
     settle_s: float | None = None,
-    min_excitation: float = 0.02,
+    min_excitation: float = 0.05,
     root_seed: int = 0,
     executor: str = "local",
     workers: int | None = None,
@@ -622,12 +623,14 @@ def markdown_table(ident: Identification) -> str:
             )
     out += [
         "",
-        "| configuration | target | equations | R² | RMS of the fit |",
-        "| --- | --- | ---: | ---: | ---: |",
+        "| configuration | target | equations | largest Δr | R² | RMS of the fit |",
+        "| --- | --- | ---: | ---: | ---: | ---: |",
     ]
     for c, fits in ident.fits.items():
         for t, f in fits.items():
-            out.append(f"| {c} | {t} | {f.rows} | {_f(f.r2, 2)} | {_f(f.rms, 4)} |")
+            out.append(
+                f"| {c} | {t} | {f.rows} | {_f(f.moved, 4)} | {_f(f.r2, 2)} | {_f(f.rms, 4)} |"
+            )
     out += [
         "",
         "| configuration | perturbed | fault | own Δr | largest Δr |",

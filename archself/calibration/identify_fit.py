@@ -191,6 +191,9 @@ class TargetFit:
         Uncentered R² ``1 − RSS / Σ Δr_i²`` (NaN without signal).
     rms : float
         Root mean square of the fit's residuals.
+    moved : float
+        Largest |Δr| of the target in the usable equations (an R² of a target
+        that hardly moves says little).
     """
 
     weights: np.ndarray
@@ -199,6 +202,7 @@ class TargetFit:
     rows: int
     r2: float
     rms: float
+    moved: float = math.nan
 
 
 def fit_target(
@@ -261,6 +265,7 @@ def fit_target(
     ok = np.zeros(p, dtype=bool)
     ok[cols] = True
     ss = float(y @ y)
+    moved = float(np.abs(y).max()) if n else math.nan
     if not cols:
         rss = ss
         return TargetFit(
@@ -270,6 +275,7 @@ def fit_target(
             n,
             math.nan if ss == 0 else 1.0 - rss / ss,
             math.sqrt(rss / n) if n else math.nan,
+            moved,
         )
     A = X[:, cols]
     if nonnegative:
@@ -284,7 +290,7 @@ def fit_target(
         se[cols] = np.sqrt(np.maximum(np.diag(cov), 0.0))
     weights[cols] = w
     r2 = math.nan if ss == 0 else 1.0 - rss / ss
-    return TargetFit(weights, se, ok, n, r2, math.sqrt(rss / n))
+    return TargetFit(weights, se, ok, n, r2, math.sqrt(rss / n), moved)
 
 
 @dataclass
