@@ -198,6 +198,8 @@ SCHEMA = {
     "first_fault_onset_s": "double",
     "detection_delay_s": "double",
     "false_switches": "int32",
+    "n_updates": "int32",
+    "updates": "string",
     "max_error": "double",
     "final_error": "double",
     "rms_error": "double",

@@ -19,6 +19,8 @@ column                    type             meaning
 ``first_fault_onset_s``   float64 (null)   earliest fault onset (null: fault-free)
 ``detection_delay_s``     float64 (null)   first switch at/after the onset − onset
 ``false_switches``        int32            switches without a fault / before the onset
+``n_updates``             int32            parameter updates the loop made
+``updates``               string           each as ``action@t_s``, ``;``-separated
 ``max_error``             float64          objective error J of the run: maximum,
 ``final_error``           float64          at the end, RMS (in ``unit``), and when
 ``rms_error``             float64          the maximum was reached
@@ -67,6 +69,8 @@ _AFTER = [
     ("first_fault_onset_s", "float64"),
     ("detection_delay_s", "float64"),
     ("false_switches", "int32"),
+    ("n_updates", "int32"),
+    ("updates", "string"),
     ("max_error", "float64"),
     ("final_error", "float64"),
     ("rms_error", "float64"),

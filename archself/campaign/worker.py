@@ -110,6 +110,9 @@ def run_job(job: Job) -> dict[str, Any]:
         # the cached model is shared by the runs of this process: give each run its own copy
         result = simulate(arch.model_copy(deep=True), job.scenario, seed=job.seed, adapt=adapt)
         row.update(summarize_run(result, arch))
+        if adapt is not None:
+            row["n_updates"] = len(adapt.updates)
+            row["updates"] = ";".join(f"{u['action']}@{u['t_s']:g}" for u in adapt.updates)
         if job.trace is not None:
             result.write_trace(job.trace)
             row["trace"] = job.trace
@@ -140,6 +143,8 @@ def _base_row(job: Job) -> dict[str, Any]:
             "first_fault_onset_s": None,
             "detection_delay_s": None,
             "false_switches": 0,
+            "n_updates": 0,
+            "updates": "",
             "max_error": nan,
             "final_error": nan,
             "rms_error": nan,
