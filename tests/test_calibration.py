@@ -67,7 +67,7 @@ def test_actuator_fault_a1_peaks_then_oscillates(seed):
     r = run("actuator_fault", "a1", seed)
     m = r.metrics
     assert 10.0 <= m["max_error_m"] <= 16.0
-    assert 110.0 <= m["peak_time_s"] <= 150.0
+    assert 90.0 <= m["peak_time_s"] <= 150.0
     late = r.series["J"][r.series["t"] >= 200]
     assert 6.0 <= late.mean() <= 10.0
     assert late.max() - late.min() > 1.0  # it oscillates, it does not settle
@@ -93,14 +93,15 @@ def test_residuals_separate_the_faults(seed):
     for m, level in nominal_level.items():
         # nominal: every channel at or below its declared nominal level
         assert np.nanmax(smoothed(nom, m)[late]) < level, m
-    # IMU drift: odometry innovation well above nominal 60 s after onset; wheels quiet
+    # IMU drift: odometry innovation above its (envelope-calibrated) band 90 s after onset,
+    # well above 140 s after; wheels quiet
     odo = smoothed(drift, "odometry")
-    assert odo[int(70 / 0.05)] > 1.5 * nominal_level["odometry"]
-    assert odo[int(100 / 0.05)] > 4 * nominal_level["odometry"]
+    assert odo[int(100 / 0.05)] > 1.5 * nominal_level["odometry"]
+    assert odo[int(150 / 0.05)] > 4 * nominal_level["odometry"]
     for w in ("wheel_left", "wheel_right"):
         assert np.nanmax(smoothed(drift, w)[late]) < nominal_level[w]
     # actuator fault: left wheel error at once, odometry and right wheel quiet
     wl = smoothed(act, "wheel_left")
-    assert wl[int(25 / 0.05)] > 4 * nominal_level["wheel_left"]
+    assert wl[int(25 / 0.05)] > 2 * nominal_level["wheel_left"]
     assert np.nanmax(smoothed(act, "wheel_right")[late]) < nominal_level["wheel_right"]
     assert np.nanmax(smoothed(act, "odometry")[late]) < nominal_level["odometry"] * 1.2

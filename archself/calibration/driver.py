@@ -356,6 +356,7 @@ def calibrate(
     """
     from archself.calibration import runs as R
     from archself.calibration.edit import set_nominals
+    from archself.campaign.sweep import sweep_points
 
     p = float(false_switch)
     if not 0.0 < p < 1.0:
@@ -515,6 +516,9 @@ def calibrate(
         if len(chosen) == 1
         else f"{len(cells)} (scenario, configuration)"
     )
+    if sweeps:
+        n_points = len(sweep_points(sweeps))
+        cells_text += f" × {n_points} envelope point{'s' * (n_points != 1)}"
     comment = f"p = {p:g}/run, {seeds} nominal runs × {cells_text} (archself calibrate)"
     changed = {m: new[m] for m in calibrated}
     new_text = set_nominals(text, file, changed, comment)

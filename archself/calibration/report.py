@@ -286,9 +286,12 @@ def summary_text(cal: Calibration) -> str:
     rates = cal.rates()
     cells = len(cal.cells)
     workers = f" on {cal.workers} workers" if cal.workers else ""
+    points = cal.runs // max(cal.seeds * cells, 1)
+    envelope = f" × {points} envelope points" if points > 1 else ""
     lines = [
         f"{cal.architecture}: τ = {_fmt(cal.tau)}, target p = {cal.false_switch:g} false alarms "
-        f"per nominal run; {cal.runs} runs ({cal.seeds} seeds × {cells} scenario/configuration) "
+        f"per nominal run; {cal.runs} runs ({cal.seeds} seeds × {cells} scenario/configuration"
+        f"{envelope}) "
         f"in {cal.elapsed_s:.1f} s ({cal.executor}{workers})"
     ]
     width = max(len(m) for m in cal.modules)
