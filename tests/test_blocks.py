@@ -21,7 +21,7 @@ from numpy.testing import assert_allclose
 from archself import registry
 from archself.sim.faults import FAULT_KINDS
 from archself_blocks.actuators import Actuator
-from archself_blocks.estimators import KalmanFilter, Luenberger, observer_gain
+from archself_blocks.estimators import AugmentedEkf, KalmanFilter, Luenberger, observer_gain
 from archself_blocks.lti import LtiModel, LtiModelNode, StateSpacePlant, TransferFunctionPlant
 from archself_blocks.pid import Pid, pid_closed_loop
 from archself_blocks.sensors import Sensor
@@ -29,7 +29,7 @@ from archself_blocks.signals import Gain, Reference, Select, Sum
 
 KEYS = [
     "generic.state_space", "generic.transfer_function", "generic.lti_model", "generic.pid",
-    "generic.kalman", "generic.luenberger", "generic.sensor", "generic.actuator",
+    "generic.kalman", "generic.ekf", "generic.luenberger", "generic.sensor", "generic.actuator",
     "generic.reference", "generic.gain", "generic.sum", "generic.select",
 ]
 A2 = [[-1.0, 2.0], [-3.0, -0.5]]
@@ -295,6 +295,71 @@ def test_kalman_innovation_monitor_sees_a_bias_not_the_noise():
     healthy, biased = monitor(0.0), monitor(1.0)
     assert healthy["innovation"] < 0.15 < biased["innovation"]
     assert 0.3 < healthy["nis"] < 3.0
+
+
+def _plant_run(steps, dt, effectiveness=lambda k: 1.0, bias=0.0, seed=5, noise=0.05):
+    """The 2-state plant driven by a varying input; (z, u) as the filters receive them."""
+    r = rng(seed)
+    plant = StateSpacePlant("p", {"A": A2, "B": B2, "C": C2}, rng())
+    zs, us = [], []
+    for k in range(steps):
+        u = 1.0 + math.sin(0.05 * k) + 0.5 * math.sin(0.31 * k)
+        plant.step(k * dt, dt, {"u": [effectiveness(k) * u]})
+        zs.append(plant.output((k + 1) * dt)["y"][0] + bias + noise * r.standard_normal())
+        us.append(np.array([u]))
+    return np.array(zs), us
+
+
+def test_ekf_matches_the_equations_written_out():
+    dt = 0.1
+    zs, us = _plant_run(30, dt)
+    model = LtiModel(A2, B2, C2)
+    ekf = AugmentedEkf("e", {"Q": 0.01, "R": 0.0025, "P0": 0.5, "x0": [0.0, 0.0],
+                             "measured_outputs": [0], "effectiveness_noise": 0.01,
+                             "effectiveness_p0": 0.04}, rng())
+    ekf.step(0.0, dt, {"measurement": zs[0], "model": model})
+    Ad, Bd = zoh(A2, B2, dt)
+    x, P = np.array([0.0, 0.0, 1.0]), np.diag([0.5, 0.5, 0.04])
+    Q, H, R = np.diag([0.01 * dt, 0.01 * dt, 0.01 * dt]), np.array([[1.0, 0.0, 0.0]]), 0.0025
+    for k in range(1, 30):
+        out = ekf.step(k * dt, dt, {"measurement": zs[k], "u": us[k], "model": model})
+        F = np.eye(3)
+        F[:2, :2], F[:2, 2] = Ad, Bd[:, 0] * us[k][0]
+        x = np.concatenate([Ad @ x[:2] + Bd[:, 0] * x[2] * us[k][0], [x[2]]])
+        P = F @ P @ F.T + Q
+        S = H @ P @ H.T + R
+        K = P @ H.T / S
+        x = x + (K * (zs[k] - H @ x)).ravel()
+        IKH = np.eye(3) - K @ H
+        P = IKH @ P @ IKH.T + R * K @ K.T
+        assert_allclose(out["state"], x[:2], rtol=1e-9, atol=1e-12)
+        assert_allclose(out["parameters"], x[2:], rtol=1e-9, atol=1e-12)
+
+
+def test_ekf_estimates_an_actuator_effectiveness_loss():
+    dt = 0.1
+    zs, us = _plant_run(1500, dt, effectiveness=lambda k: 1.0 if k < 500 else 0.6)
+    model = LtiModel(A2, B2, C2)
+    ekf = AugmentedEkf("e", {"Q": 0.001, "R": 0.0025, "measured_outputs": [0],
+                             "effectiveness_noise": 0.001}, rng())
+    seen = []
+    for k in range(len(zs)):
+        ekf.step(k * dt, dt, {"measurement": zs[k], "u": us[k], "model": model})
+        seen.append(ekf.local_signals()["effectiveness_loss"])
+    assert seen[490] < 0.1 < 0.3 < seen[-1]
+    assert ekf.aug[0] == pytest.approx(0.6, abs=0.05)
+
+
+def test_ekf_estimates_a_sensor_bias():
+    dt = 0.1
+    zs, us = _plant_run(1500, dt, bias=0.5)
+    model = LtiModel(A2, B2, C2)
+    ekf = AugmentedEkf("e", {"Q": 0.001, "R": 0.0025, "measured_outputs": [0],
+                             "estimate_effectiveness": False, "estimate_bias": True}, rng())
+    for k in range(len(zs)):
+        ekf.step(k * dt, dt, {"measurement": zs[k], "u": us[k], "model": model})
+    assert ekf.aug.tolist() == pytest.approx([0.5], abs=0.05)
+    assert ekf.local_signals()["bias"] == pytest.approx(0.5, abs=0.05)
 
 
 def test_luenberger_matches_dlsim_of_its_equations_and_places_its_poles():

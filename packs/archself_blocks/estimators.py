@@ -1,4 +1,4 @@
-"""Estimators on an LTI model: the linear Kalman filter (filterpy) and the Luenberger observer.
+"""Estimators on an LTI model: Kalman filters (filterpy) and the Luenberger observer.
 
 Both take the model from a ``generic.lti_model`` node (input ``model``), the plant's
 applied input (``u``, optional: zeros without it) and a measurement of some of the
@@ -26,7 +26,7 @@ import numpy as np
 from archself.modules.base import Param, RuntimeModule
 from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
 
-__all__ = ["MeanWindow", "KalmanFilter", "Luenberger", "observer_gain"]
+__all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]
 
 
 class MeanWindow:
@@ -82,7 +82,7 @@ class _ModelEstimator(RuntimeModule):
     role = "estimator"
     inputs = ("measurement", "model")
     optional_inputs = ("u",)
-    outputs = ("estimate", "state")
+    outputs: ClassVar[tuple[str, ...]] = ("estimate", "state")
     residual_signals: ClassVar[tuple[str, ...]] = ("innovation",)
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
@@ -249,6 +249,144 @@ class KalmanFilter(_ModelEstimator):
         k = kf.P @ kf.H.T @ np.linalg.inv(kf.H @ kf.P @ kf.H.T + kf.R)
         err = (np.eye(kf.F.shape[0]) - k @ kf.H) @ kf.F
         return continuous_equivalent(err, self._dt)
+
+
+class AugmentedEkf(KalmanFilter):
+    """Extended Kalman filter (filterpy's ``ExtendedKalmanFilter``) that also estimates
+    the effectiveness of each plant input and the bias of each measured output.
+
+    The state is augmented with η (one effectiveness per input, start 1, random walk of
+    intensity ``effectiveness_noise``) and b (one bias per measured output, start 0,
+    ``bias_noise``), each part switched on by ``estimate_effectiveness`` /
+    ``estimate_bias``::
+
+        x⁺ = Ad x + Bd (η ∘ u),   η⁺ = η,   b⁺ = b,   z = H x + b
+
+    The product η ∘ u makes the model nonlinear in the augmented state; its Jacobian
+    ``[[Ad, Bd diag(u), 0], [0, I, 0], [0, 0, I]]`` is exact for the given u. With
+    varying inputs η and b are distinguishable; at a constant input they trade off
+    against each other, so switch on only the one the application needs.
+
+    ``Q``, ``R``, ``P0`` are those of the plant states (as :class:`KalmanFilter`).
+    Outputs ``estimate`` and ``state`` (the plant's part) and ``parameters`` (η then b).
+    Residual signals ``innovation``, ``nis``, ``effectiveness_loss`` = max_j (1 − η̂_j)⁺
+    (an actuator that lost effectiveness, seen from the estimator) and ``bias`` = max |b̂|.
+    """
+
+    parameters = {
+        **KalmanFilter.parameters,
+        "estimate_effectiveness": Param(True, "", "augment the state with η per input"),
+        "effectiveness_noise": Param(1e-3, "1/s", "random-walk intensity of η"),
+        "effectiveness_p0": Param(0.01, "", "initial variance of η"),
+        "estimate_bias": Param(False, "", "augment the state with a bias per measured output"),
+        "bias_noise": Param(1e-4, "", "random-walk intensity of b (units²/s)"),
+        "bias_p0": Param(1.0, "", "initial variance of b (units²)"),
+    }
+    outputs: ClassVar[tuple[str, ...]] = ("estimate", "state", "parameters")
+    residual_signals: ClassVar[tuple[str, ...]] = (
+        "innovation", "nis", "effectiveness_loss", "bias",
+    )
+
+    def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
+        super().__init__(name, params, rng)
+        self.aug: np.ndarray | None = None  # [η, b]
+
+    def _sizes(self) -> tuple[int, int, int]:
+        m = self.model
+        ne = m.m if self.params["estimate_effectiveness"] else 0
+        nb = self._h().shape[0] if self.params["estimate_bias"] else 0
+        return m.n, ne, nb
+
+    def _p0(self) -> np.ndarray:
+        n, ne, nb = self._sizes()
+        p = np.zeros((n + ne + nb,) * 2)
+        p[:n, :n] = _cov(self.params["P0"], n)
+        p[n:n + ne, n:n + ne] = float(self.params["effectiveness_p0"]) * np.eye(ne)
+        p[n + ne:, n + ne:] = float(self.params["bias_p0"]) * np.eye(nb)
+        return p
+
+    def _matrices(self, dt: float) -> None:
+        import filterpy.kalman
+
+        m = self.model
+        n, ne, nb = self._sizes()
+        k = self._h().shape[0]
+        self._ad, self._bd = m.discrete(dt)
+        scale = dt if m.dt == 0 else 1.0
+        q = np.zeros((n + ne + nb,) * 2)
+        q[:n, :n] = _cov(self.params["Q"], n) * scale
+        q[n:n + ne, n:n + ne] = float(self.params["effectiveness_noise"]) * scale * np.eye(ne)
+        q[n + ne:, n + ne:] = float(self.params["bias_noise"]) * scale * np.eye(nb)
+        h = np.zeros((k, n + ne + nb))
+        h[:, :n] = self._h()
+        h[:, n + ne:] = np.eye(k)[:, :nb] if nb else 0.0
+        prev = getattr(self, "kf", None)
+        kf = filterpy.kalman.ExtendedKalmanFilter(dim_x=n + ne + nb, dim_z=k)
+        kf.Q, kf.R = q, _cov(self.params["R"], k)
+        kf.P = prev.P.copy() if prev is not None and prev.P.shape == q.shape else self._p0()
+        self.kf, self._haug, self._dt = kf, h, dt
+        if self.aug is None or self.aug.size != ne + nb:
+            self.aug = np.concatenate([np.ones(ne), np.zeros(nb)])
+
+    def _jacobian(self, u: np.ndarray) -> np.ndarray:
+        n, ne, nb = self._sizes()
+        f = np.eye(n + ne + nb)
+        f[:n, :n] = self._ad
+        if ne:
+            f[:n, n:n + ne] = self._bd * u  # Bd diag(u)
+        return f
+
+    def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
+        z = self._inputs(t, dt, inputs)
+        if self.model is None:
+            return self._out()
+        if self._dt != dt:
+            self._matrices(dt)
+        kf = self.kf
+        n, ne, nb = self._sizes()
+        if self.x is None:
+            if z is None:
+                return self._out()
+            self._begin(t, z)
+            return self._out()
+        u = self.u if self.u is not None else np.zeros(self.model.m)
+        kf.x = np.concatenate([self.x, self.aug])
+        f = self._jacobian(u)
+        if not ne:  # η ≡ 1 is not a state: the input enters as in the linear filter
+            kf.B = np.vstack([self._bd, np.zeros((nb, self.model.m))])
+            kf.F = f
+            kf.predict(u=u)
+        else:
+            kf.B = 0
+            kf.F = f  # exact: f(x, η) = F·[x, η, b] for this u
+            kf.predict()
+        if z is not None:
+            h = self._haug
+            kf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ x)
+            nu = np.asarray(kf.y, dtype=float).ravel()
+            self._monitor(t, nu, float(nu @ np.linalg.solve(kf.S, nu)))
+        xa = np.asarray(kf.x, dtype=float).ravel()
+        self.x, self.aug = xa[:n].copy(), xa[n:].copy()
+        if t >= self.quiet_until:
+            eta, b = self.aug[:ne], self.aug[ne:]
+            self.signals["effectiveness_loss"] = float(max(0.0, *(1.0 - eta))) if ne else 0.0
+            self.signals["bias"] = float(np.abs(b).max()) if nb else 0.0
+        return self._out()
+
+    def _out(self) -> dict[str, Any]:
+        out = super()._out()
+        out["parameters"] = None if self.aug is None else self.aug.copy()
+        return out
+
+    def linearization(self) -> np.ndarray | None:
+        """None: with η in the state the error dynamics depend on the input u."""
+        return None
+
+    def export_state(self) -> dict[str, Any]:
+        out = super().export_state()
+        if self.aug is not None:
+            out["parameters"] = self.aug.copy()
+        return out
 
 
 def observer_gain(model: LtiModel, poles: Any, rows: list[int] | None = None) -> np.ndarray:
