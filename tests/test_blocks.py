@@ -69,6 +69,25 @@ def test_declarations(key):
     assert not set(cls.inputs) & set(cls.optional_inputs)
 
 
+REQUIRED = {
+    "generic.state_space": {"A": A2, "B": B2},
+    "generic.transfer_function": {"num": [1.0], "den": [1.0, 1.0]},
+    "generic.lti_model": {"A": A2, "B": B2},
+    "generic.luenberger": {"poles": [-1.0, -2.0]},
+}
+
+
+@pytest.mark.parametrize("key", KEYS)
+def test_parameters_declared_once(key):
+    """Built from the required parameters alone, a block holds exactly the declared names."""
+    cls = registry.get(key)
+    m = cls("m", dict(REQUIRED.get(key, {})), rng())
+    assert set(m.params) == set(cls.parameters)
+    for name, p in cls.parameters.items():
+        if not p.required and name not in REQUIRED.get(key, {}):
+            assert m.params[name] == p.default, (key, name)
+
+
 def test_import_is_light():
     code = (
         "import sys, archself_blocks.lti, archself_blocks.pid, archself_blocks.estimators, "

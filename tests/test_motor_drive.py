@@ -68,3 +68,18 @@ def test_drive_loss_switches_to_the_backup_drive(arch):
     assert result.metrics["rms_error"] < 0.5 * fixed.metrics["rms_error"]
     j = np.asarray(result.series["J"])
     assert j[-100:].max() < 2.0  # back inside the acceptable error
+
+
+def test_stability_filter_sees_the_pi_over_the_model(arch):
+    from archself.compiler import compile_system
+    from archself_blocks.pid import pid_closed_loop
+
+    system = compile_system(arch, "m1", seed=1)
+    for _ in range(20):
+        system.step()
+    A = system.linearization("m3")
+    pi = system.modules["pi"]
+    closed = pid_closed_loop(pi.model, pi.kp, pi.ki, pi.kd, pi.n)
+    assert A is not None and A.shape[0] >= closed.shape[0]
+    assert np.linalg.eigvals(A).real.max() < 0
+    assert any(np.allclose(A[i:i + 3, i:i + 3], closed) for i in range(A.shape[0] - 2))
