@@ -296,3 +296,19 @@ def test_user_errors_are_located_one_liners(tmp_path: Path) -> None:
     assert result.stderr.startswith(f"{none}:{line}:")
     assert run(app, ["calibrate", str(src), "--false-switch", "0"]).exit_code == 2
     assert run(app, ["calibrate", str(src), "--executor", "ray"]).exit_code == 2
+
+
+# ------------------------------------------------------------------ operating envelope
+def test_an_envelope_widens_the_bands_to_its_worst_point(tmp_path: Path) -> None:
+    from archself.calibration import CalibrationError, calibrate
+
+    plant = short_plant(tmp_path, 90)
+    common = dict(seeds=6, false_switch=0.1, configurations=["p1"], executor="inline")
+    quiet = calibrate(plant, **common)
+    noisy = calibrate(plant, envelope=["modules.level_a.params.noise_m.value=0.005,0.02"], **common)
+    assert noisy.runs == 2 * quiet.runs  # every point of the envelope gets the same seeds
+    # observer A reads transmitter A: its band grows with the worst noise of the envelope
+    assert noisy.modules["observer_a"].new > 1.5 * quiet.modules["observer_a"].new
+    assert "× 2 envelope points" in noisy.text
+    with pytest.raises(CalibrationError, match="--envelope"):
+        calibrate(plant, envelope=["modules.nope.params.x.value=1,2"], **common)
