@@ -361,7 +361,7 @@ class Runtime(_Strict):
         "it applies again: a compensated fault stops pulling z onto other modules.",
     )
     ablation: Ablation = Field(
-        default_factory=lambda: Ablation(),
+        default_factory=lambda: Ablation.model_validate({}),
         description="Stages of Algorithm 1 that can be switched off for an ablation study.",
     )
     dwell_s: NonNeg = Field(0.0, description="T_min of Eq. 28.")

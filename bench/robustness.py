@@ -1,33 +1,35 @@
-"""The robustness matrix of the diff-drive robot: noise levels, fault sizes, wheels and onsets.
+"""The robustness matrix of a shipped system: noise levels, fault sizes and onsets.
 
-A regenerable campaign (docs/robustness.md is its output): the shipped
-``architectures/diffdrive.yaml`` (calibrated bands, disturbances on) is run
-adaptively in
+A regenerable campaign (docs/robustness.md shows its output) of the shipped file
+(calibrated bands, disturbances on), run adaptively in
 
-- **nominal** cells — no fault, at GPS noise 0.2/0.3/0.4 m, encoder noise 1×/2×/4×,
-  IMU noise 1×/2×/4× (one factor at a time) and all three at their worst
-  together: false switches per run;
-- **IMU drift** cells — bias drift ¼×/1×/4× the shipped 7·10⁻⁴ rad/s from onsets
-  2/50/300 s: switches to a configuration with the EKF (the one that compensates
-  a heading drift), detection delay, max tracking error;
-- **wheel loss** cells — 5/20/40/50 % effectiveness loss of the left or the right
-  wheel from onsets 2/50/300 s: switches to a configuration with the asymmetric
-  LQR;
-- **worst noise with faults** — drift 1× and left-wheel 20 % at the all-worst noise.
+- **nominal** cells — no fault, each noise parameter of :data:`SYSTEMS` at 1×–4× of
+  its file value (one at a time) and all at their worst together: runs with a false
+  switch;
+- **fault** cells — each fault at ¼×–4× its shipped size (or a list of sizes), from
+  early, middle and late onsets: right switches (a configuration holding the module
+  that compensates the fault, no switch before the onset), detection delay, mean, spread
+  and worst of the max tracking error;
+- **worst noise with faults** — each fault at its shipped size at the worst noise.
 
-The fault scenarios are added to a temporary copy of the file (``m_*``), so the
-matrix needs nothing the file does not already declare. Everything runs through
+The diff-drive robot: GPS 0.2/0.3/0.4 m, encoders and IMU 2×/4×; IMU drift ¼×/1×/4× of
+7·10⁻⁴ rad/s; 5/20/40/50 % loss of either wheel; onsets 2/50/300 s. The tank: both
+level transmitters and the flow meter 2×/4×; transmitter drift ¼×/1×/4× of 0.5 mm/s;
+10/25/40/60 % valve loss; onsets 2/150/400 s.
+
+The fault scenarios are added to a temporary copy of the file (``m_*``), so the matrix
+needs nothing the file does not already declare. Everything runs through
 :func:`archself.campaign.plan_campaign` / :func:`~archself.campaign.run_campaign`
 (``--executor dask --address …`` for a cluster).
 
 Usage::
 
-    python bench/robustness.py                      # full matrix (≈1,500 runs)
-    python bench/robustness.py --seeds 4 --nominal-seeds 10 --out /tmp/rob   # quick look
-    python bench/robustness.py --markdown docs/robustness_table.md
+    python bench/robustness.py --system diffdrive --markdown docs/robustness_diffdrive.md
+    python bench/robustness.py --system process_plant --markdown docs/robustness_plant.md
+    python bench/robustness.py --seeds 3 --nominal-seeds 5 --out /tmp/rob   # quick look
 
-The summary is printed and written as JSON (``--out``/summary.json); the Markdown
-table (``--markdown``) is what docs/robustness.md shows.
+The summary is printed and written as JSON (``--out``/summary.json); the Markdown table
+(``--markdown``) is what docs/robustness.md includes.
 """
 
 from __future__ import annotations
@@ -44,87 +46,108 @@ from typing import Any
 from ruamel.yaml import YAML
 
 ROOT = Path(__file__).resolve().parents[1]
-ARCH = ROOT / "architectures" / "diffdrive.yaml"
 
-DRIFT = 7.0e-4  # rad/s, the shipped imu_drift
-DRIFT_FACTORS = (0.25, 1.0, 4.0)
-LOSSES = (0.05, 0.2, 0.4, 0.5)
-ONSETS = (2.0, 50.0, 300.0)
-GPS = "modules.gps.params.noise_m.value"
-ENC = "modules.encoders.params.noise_rad_s.value"
-IMU = "modules.imu.params.noise_rad.value"
+#: The matrix of each shipped system: its noise parameters (1× is the file's value), the
+#: faults (module, kind, shipped magnitude, factors, signal), the onsets, and which module a
+#: configuration must hold to compensate each fault (the "right switch").
+SYSTEMS: dict[str, dict[str, Any]] = {
+    "diffdrive": {
+        "file": "architectures/diffdrive.yaml",
+        "duration_s": 400,
+        "noise": {
+            "gps": ("modules.gps.params.noise_m.value", (1.0, 1.5, 2.0)),  # 0.2, 0.3, 0.4 m
+            "encoders": ("modules.encoders.params.noise_rad_s.value", (2.0, 4.0)),
+            "imu": ("modules.imu.params.noise_rad.value", (2.0, 4.0)),
+        },
+        "faults": {
+            "imu drift": {"module": "imu", "kind": "bias_drift", "magnitude": 7.0e-4,
+                          "signal": "heading", "factors": (0.25, 1.0, 4.0), "expect": "ekf"},
+            "left wheel loss": {"module": "wheel_left", "kind": "effectiveness_loss",
+                                "values": (0.05, 0.2, 0.4, 0.5), "expect": "asym_lqr"},
+            "right wheel loss": {"module": "wheel_right", "kind": "effectiveness_loss",
+                                 "values": (0.05, 0.2, 0.4, 0.5), "expect": "asym_lqr"},
+        },
+        "onsets": (2.0, 50.0, 300.0),
+        "worst_faults": {"imu drift": 7.0e-4, "left wheel loss": 0.2},
+    },
+    "process_plant": {
+        "file": "architectures/process_plant.yaml",
+        "duration_s": 600,
+        "noise": {
+            "level_a": ("modules.level_a.params.noise_m.value", (2.0, 4.0)),
+            "level_b": ("modules.level_b.params.noise_m.value", (2.0, 4.0)),
+            "flow_meter": ("modules.flow_meter.params.noise_m3_s.value", (2.0, 4.0)),
+        },
+        "faults": {
+            "level drift": {"module": "level_a", "kind": "bias_drift", "magnitude": 5.0e-4,
+                            "signal": "level_measured", "factors": (0.25, 1.0, 4.0),
+                            "expect": "observer_b"},
+            "valve loss": {"module": "valve", "kind": "effectiveness_loss", "signal": "inflow",
+                           "values": (0.1, 0.25, 0.4, 0.6), "expect": "ff_pi"},
+        },
+        "onsets": (2.0, 150.0, 400.0),
+        "worst_faults": {"level drift": 5.0e-4, "valve loss": 0.4},
+    },
+}
 
 
-def matrix_file(src: Path, dst: Path) -> dict[str, Any]:
-    """Copy ``src`` with the matrix's fault scenarios ``m_*`` added; returns the base noises."""
+def _slug(name: str) -> str:
+    return "m_" + name.replace(" ", "_")
+
+
+def matrix_file(system: dict[str, Any], src: Path, dst: Path) -> dict[str, float]:
+    """Copy ``src`` with the matrix's scenarios ``m_*`` added; returns the 1× noise values."""
     yaml = YAML()
     data = yaml.load(src.read_text(encoding="utf-8"))
     sc = data["scenarios"]
-    sc["m_nominal"] = {"duration_s": 400, "seed": 1}
-    sc["m_drift"] = {
-        "duration_s": 400,
-        "seed": 1,
-        "faults": [
-            {"module": "imu", "kind": "bias_drift", "onset_s": 50.0, "magnitude": DRIFT,
-             "signal": "heading"}
-        ],
-    }
-    for side in ("left", "right"):
-        sc[f"m_wheel_{side}"] = {
-            "duration_s": 400,
-            "seed": 1,
-            "faults": [
-                {"module": f"wheel_{side}", "kind": "effectiveness_loss", "onset_s": 50.0,
-                 "magnitude": 0.2}
-            ],
-        }
+    dur = system["duration_s"]
+    sc["m_nominal"] = {"duration_s": dur, "seed": 1}
+    for name, f in system["faults"].items():
+        fault = {"module": f["module"], "kind": f["kind"], "onset_s": 50.0,
+                 "magnitude": f.get("magnitude", f.get("values", (0.0,))[0])}
+        if f.get("signal"):
+            fault["signal"] = f["signal"]
+        sc[_slug(name)] = {"duration_s": dur, "seed": 1, "faults": [fault]}
     with dst.open("w", encoding="utf-8") as fh:
         yaml.dump(data, fh)
-    mods = data["modules"]
-    return {
-        "gps": float(mods["gps"]["params"]["noise_m"]["value"]),
-        "enc": float(mods["encoders"]["params"]["noise_rad_s"]["value"]),
-        "imu": float(mods["imu"]["params"]["noise_rad"]["value"]),
-    }
+
+    def value(path: str) -> float:
+        cur: Any = data
+        for key in path.split("."):
+            cur = cur[key]
+        return float(cur)
+
+    return {k: value(path) for k, (path, _) in system["noise"].items()}
 
 
-def cells(base: dict[str, float], seeds: int, nominal_seeds: int) -> list[dict[str, Any]]:
-    """The campaigns of the matrix: name, scenario, sweep specs, seeds, expected module."""
-    worst = [f"{GPS}=0.4", f"{ENC}={4 * base['enc']:g}", f"{IMU}={4 * base['imu']:g}"]
-    out: list[dict[str, Any]] = [
-        {"block": "nominal", "scenario": "m_nominal", "sweeps": [f"{GPS}=0.2,0.3,0.4"],
-         "seeds": nominal_seeds, "expect": None},
-        {"block": "nominal", "scenario": "m_nominal",
-         "sweeps": [f"{ENC}={2 * base['enc']:g},{4 * base['enc']:g}"],
-         "seeds": nominal_seeds, "expect": None},
-        {"block": "nominal", "scenario": "m_nominal",
-         "sweeps": [f"{IMU}={2 * base['imu']:g},{4 * base['imu']:g}"],
-         "seeds": nominal_seeds, "expect": None},
-        {"block": "nominal", "scenario": "m_nominal", "sweeps": worst,
-         "seeds": nominal_seeds, "expect": None},
-        {"block": "imu drift", "scenario": "m_drift",
-         "sweeps": [
-             "scenarios.m_drift.faults[0].magnitude="
-             + ",".join(f"{DRIFT * f:g}" for f in DRIFT_FACTORS),
-             "scenarios.m_drift.faults[0].onset_s=" + ",".join(f"{o:g}" for o in ONSETS),
-         ],
-         "seeds": seeds, "expect": "ekf"},
-    ]
-    for side in ("left", "right"):
-        out.append(
-            {"block": f"{side} wheel loss", "scenario": f"m_wheel_{side}",
-             "sweeps": [
-                 f"scenarios.m_wheel_{side}.faults[0].magnitude="
-                 + ",".join(f"{m:g}" for m in LOSSES),
-                 f"scenarios.m_wheel_{side}.faults[0].onset_s="
-                 + ",".join(f"{o:g}" for o in ONSETS),
-             ],
-             "seeds": seeds, "expect": "asym_lqr"}
-        )
-    out.append({"block": "worst noise + drift", "scenario": "m_drift", "sweeps": worst,
-                "seeds": seeds, "expect": "ekf"})
-    out.append({"block": "worst noise + left wheel 20 %", "scenario": "m_wheel_left",
-                "sweeps": worst, "seeds": seeds, "expect": "asym_lqr"})
+def cells(system: dict[str, Any], base: dict[str, float], seeds: int, nominal_seeds: int
+          ) -> list[dict[str, Any]]:
+    """The campaigns of the matrix: block, scenario, sweep specs, seeds, expected module."""
+    noise = system["noise"]
+    out: list[dict[str, Any]] = []
+    for k, (path, factors) in noise.items():
+        vals = ",".join(f"{base[k] * f:g}" for f in factors)
+        out.append({"block": "nominal", "scenario": "m_nominal", "sweeps": [f"{path}={vals}"],
+                    "seeds": nominal_seeds, "expect": None})
+    worst = [f"{path}={base[k] * max(factors):g}" for k, (path, factors) in noise.items()]
+    out.append({"block": "nominal, all noises worst", "scenario": "m_nominal", "sweeps": worst,
+                "seeds": nominal_seeds, "expect": None})
+    onsets = ",".join(f"{o:g}" for o in system["onsets"])
+    for name, f in system["faults"].items():
+        slug = _slug(name)
+        values = f.get("values") or tuple(f["magnitude"] * x for x in f["factors"])
+        out.append({
+            "block": name, "scenario": slug, "expect": f["expect"], "seeds": seeds,
+            "sweeps": [
+                f"scenarios.{slug}.faults[0].magnitude=" + ",".join(f"{v:g}" for v in values),
+                f"scenarios.{slug}.faults[0].onset_s={onsets}",
+            ],
+        })
+    for name, magnitude in system["worst_faults"].items():
+        slug = _slug(name)
+        out.append({"block": f"all noises worst + {name}", "scenario": slug,
+                    "expect": system["faults"][name]["expect"], "seeds": seeds,
+                    "sweeps": worst + [f"scenarios.{slug}.faults[0].magnitude={magnitude:g}"]})
     return out
 
 
@@ -191,7 +214,8 @@ def markdown(summary: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--arch", type=Path, default=ARCH)
+    ap.add_argument("--system", choices=sorted(SYSTEMS), default="diffdrive")
+    ap.add_argument("--arch", type=Path, default=None, help="default: the system's file")
     ap.add_argument("--seeds", type=int, default=20, help="seeds per fault cell")
     ap.add_argument("--nominal-seeds", type=int, default=100, help="seeds per nominal cell")
     ap.add_argument("--out", type=Path, default=Path("robustness-out"))
@@ -206,14 +230,17 @@ def main(argv: list[str] | None = None) -> int:
     from archself.campaign.results import read_results
     from archself.loader import load_architecture
 
+    system = SYSTEMS[args.system]
+    if args.arch is None:
+        args.arch = ROOT / system["file"]
     args.out.mkdir(parents=True, exist_ok=True)
     file = args.out / "matrix.yaml"
-    base = matrix_file(args.arch, file)
+    base = matrix_file(system, args.arch, file)
     arch = load_architecture(file).arch
     lines: list[dict[str, Any]] = []
     runs = 0
     t0 = time.perf_counter()
-    for k, cell in enumerate(cells(base, args.seeds, args.nominal_seeds)):
+    for k, cell in enumerate(cells(system, base, args.seeds, args.nominal_seeds)):
         if args.only and args.only not in cell["block"]:
             continue
         sweeps = [parse_sweep(s) for s in cell["sweeps"]]

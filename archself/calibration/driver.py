@@ -252,7 +252,7 @@ def _envelope(loaded: Any, specs: Sequence[str]) -> tuple[Any, ...]:
     if not specs:
         return ()
     from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
-    from archself.check import check, has_errors
+    from archself.check import check
     from archself.loader import Loaded, SourceMap
 
     try:
