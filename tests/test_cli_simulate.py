@@ -155,7 +155,7 @@ def test_progress_bar_starts_with_the_first_step(monkeypatch) -> None:
 
     import typer
 
-    import archself.cli as cli
+    import archself.cli.runs as cli
     import archself.sim.run as run
     from archself.loader import load_architecture
 

@@ -347,7 +347,7 @@ def test_a_pool_that_cannot_start_says_so(arch, tmp_path, monkeypatch, capsys) -
 def test_numeric_warnings_are_located_and_after_the_output(arch, monkeypatch, capsys) -> None:
     import numpy as np
 
-    import archself.cli as cli
+    import archself.cli.runs as cli
 
     real = cli._run
 
@@ -365,7 +365,7 @@ def test_numeric_warnings_are_located_and_after_the_output(arch, monkeypatch, ca
 def test_numeric_warnings_do_not_precede_an_error(arch, monkeypatch, capsys) -> None:
     import numpy as np
 
-    import archself.cli as cli
+    import archself.cli.runs as cli
     from archself.errors import SimulationError
 
     def noisy(*args, **kwargs):

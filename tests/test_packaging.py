@@ -32,7 +32,7 @@ def test_wheel_contains_data(wheel: Path) -> None:
     assert "archself/_data/schemas/architecture.schema.json" in names
     assert "archself/_data/architectures/diffdrive.yaml" in names
     assert any(n.startswith("archself/_data/templates/") for n in names)
-    assert "archself/cli.py" in names
+    assert "archself/cli/__init__.py" in names
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "archself = archself.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
 

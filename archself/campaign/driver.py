@@ -574,10 +574,3 @@ def _abort(ex: Any, futures: dict[Any, Job]) -> None:
             ex.close()
     except BaseException:  # noqa: BLE001 - a second Ctrl-C, a broken pool
         pass
-
-
-def throughput(outcome: CampaignOutcome) -> float:
-    """Runs per second of a campaign (NaN when nothing ran)."""
-    if outcome.ran == 0 or outcome.elapsed_s <= 0:
-        return math.nan
-    return outcome.ran / outcome.elapsed_s

@@ -146,8 +146,3 @@ class SplinePlanner(RuntimeModule):
 
     def step(self, t, dt, inputs):
         return {"reference": self.reference(t)}
-
-    def path_points(self) -> np.ndarray:
-        """The tabulated path ``(m, 2)`` (for plots)."""
-        x, y, _, _ = self._table.xytk
-        return np.column_stack([x, y])

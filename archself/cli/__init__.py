@@ -1,0 +1,39 @@
+"""The ``archself`` command line (typer).
+
+Data goes to stdout, diagnostics to stderr. Exit codes (``archself.errors.EXIT_CODES``,
+docs/hardening.md): 0 ok, 1 findings or a user error, 2 usage error, 3 internal
+error (a bug), 130 interrupted (SIGINT), 143 terminated (SIGTERM). No output is
+written onto an input (:mod:`archself.outputs`). Heavy libraries (python-control,
+filterpy, matplotlib) are imported inside the commands that need them, never at
+start-up.
+
+The app and what the commands share are in :mod:`archself.cli.base`; the commands in
+:mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.campaigns`
+and :mod:`~archself.cli.calibration`. They are registered here, in the order
+``archself --help`` lists them.
+"""
+
+from __future__ import annotations
+
+from archself.cli.base import app, main
+from archself.cli.calibration import calibrate, identify
+from archself.cli.campaigns import campaign, campaign_report_cmd
+from archself.cli.files import docs, export, generate, info, init, schema, validate
+from archself.cli.runs import explain, report, simulate
+
+app.command()(validate)
+app.command()(schema)
+app.command()(docs)
+app.command()(init)
+app.command()(simulate)
+app.command()(report)
+app.command()(explain)
+app.command()(campaign)
+app.command("campaign-report")(campaign_report_cmd)
+app.command()(export)
+app.command()(info)
+app.command()(calibrate)
+app.command()(identify)
+app.command()(generate)
+
+__all__ = ["app", "main"]

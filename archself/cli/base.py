@@ -1,0 +1,200 @@
+"""The typer app of the ``archself`` command line and what its commands share.
+
+The app with its root callback, the options shared by the commands that run many
+simulations, the one-line error helpers (``_fail``, ``_die``), ``_emit`` (stdout or
+an atomic file), input checks, the numeric-trouble guard and ``main`` (the
+``archself`` script: signals, Ctrl-C, one-line errors, exit codes). The commands
+live in the sibling modules and are registered in :mod:`archself.cli`.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from archself.errors import ArchselfError
+
+app = typer.Typer(
+    name="archself",
+    help="Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from archself import __version__
+
+        typer.echo(f"archself {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", "-V", callback=_version, is_eager=True,
+                           help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K)."""
+
+
+# Options shared by the commands that run many simulations (campaign, calibrate).
+ExecutorOption = Annotated[str, typer.Option("--executor", help="local (process pool) or dask.")]
+AddressOption = Annotated[
+    str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
+]
+WorkersOption = Annotated[
+    int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
+]
+
+
+def _fail(msg: str, code: int = 1) -> typer.Exit:
+    typer.echo(msg if ":" in msg else f"error: {msg}", err=True)
+    return typer.Exit(code)
+
+
+def _die(err: ArchselfError) -> typer.Exit:
+    typer.echo(str(err), err=True)
+    return typer.Exit(err.exit_code)
+
+
+def _emit(text: str, output: Path | None, done: str) -> None:
+    """Write ``text`` to stdout (no ``output``, or ``-``) or atomically to ``output``."""
+    if output is None or str(output) == "-":
+        sys.stdout.write(text)
+        return
+    from archself.atomic import write_text
+
+    try:
+        write_text(output, text)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(done, err=True)
+
+
+#: Files ``simulate --report DIR`` writes that an input could be named like.
+_RUN_REPORT_FILES = ("index.html", "summary.json")
+
+
+def _inputs(*paths: Path, what: str = "an architecture file") -> None:
+    """Every input must be a regular file (or a pipe): not missing, a folder or a device."""
+    from archself.outputs import check_input
+
+    for p in paths:
+        check_input(p, what)
+
+
+@contextmanager
+def _numeric(path: Path) -> Iterator[None]:
+    """Numeric trouble of the libraries as located one-line messages.
+
+    Warnings of numpy/scipy (overflow, singular matrix, ...) are collected and
+    printed once each (at most 5) as ``PATH: warning: ...`` when the command
+    succeeds, and dropped when it fails (its one-line message says why);
+    an OverflowError or FloatingPointError (a value of the file out of the range of
+    a float, e.g. ``acceptable: 1e308`` squared) is a one-line error, exit 1.
+    """
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        try:
+            yield
+        except (OverflowError, FloatingPointError) as exc:
+            detail = str(exc.args[-1]) if exc.args else type(exc).__name__
+            raise _fail(
+                f"{path}: error: a value of the file is out of the range of the computation "
+                f"({type(exc).__name__}: {detail}); use smaller magnitudes"
+            ) from None
+        # after a success only: an error's one-line message is not led by warnings
+        seen: set[str] = set()
+        for w in caught:
+            if not _numeric_warning(w):
+                continue
+            text = str(w.message).splitlines()[0] if str(w.message) else ""
+            where = Path(w.filename).name
+            line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
+            if line not in seen and len(seen) < 5:
+                seen.add(line)
+                typer.echo(line, err=True)
+
+
+def _numeric_warning(w: Any) -> bool:
+    """A warning worth showing: from numpy/scipy/the runtime, not a library's deprecation."""
+    if issubclass(w.category, DeprecationWarning | PendingDeprecationWarning):
+        return False
+    return issubclass(w.category, RuntimeWarning) or "numpy" in w.category.__module__ or (
+        "scipy" in w.category.__module__
+    )
+
+
+def _load(path: Path):
+    from archself.check import check, has_errors
+    from archself.loader import load_architecture
+
+    loaded = load_architecture(path)
+    findings = check(loaded)
+    if has_errors(findings):
+        for f in findings:
+            if f.severity == "error":
+                typer.echo(str(f), err=True)
+        raise typer.Exit(1)
+    return loaded.arch
+
+
+def main() -> None:
+    """Entry point of the ``archself`` script."""
+    from archself.campaign.executors import single_thread_blas
+
+    single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
+    import signal
+
+    from archself.errors import Terminated, raise_terminated
+
+    signal.signal(signal.SIGTERM, raise_terminated)  # the clean-up of Ctrl-C, exit 143
+    try:
+        app()
+    except SystemExit as exc:
+        # typer turns Ctrl-C into a silent exit 130: say what happened
+        cause = exc.__context__.__cause__ if exc.__context__ is not None else None
+        if exc.code == 130 and isinstance(cause, KeyboardInterrupt):
+            terminated = isinstance(cause, Terminated)
+            typer.echo("terminated" if terminated else "interrupted", err=True)
+            raise SystemExit(143 if terminated else 130) from None
+        raise
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        typer.echo("terminated" if terminated else "interrupted", err=True)
+        raise SystemExit(143 if terminated else 130) from None
+    except ArchselfError as exc:
+        typer.echo(str(exc), err=True)
+        raise SystemExit(exc.exit_code) from None
+    except MemoryError:
+        typer.echo("error: out of memory; the work asked for is too large for this machine",
+                   err=True)
+        raise SystemExit(1) from None
+    except OSError as exc:  # the system refused (permissions, disk full): not a bug
+        where = f"{exc.filename}: " if exc.filename else ""
+        typer.echo(f"{where}error: {exc.strerror or exc}", err=True)
+        raise SystemExit(1) from None
+    except Exception as exc:  # a bug, not a user error: say so in one line
+        import os
+
+        if os.environ.get("ARCHSELF_DEBUG"):
+            raise
+        typer.echo(
+            f"internal error: {type(exc).__name__}: {exc} "
+            "(set ARCHSELF_DEBUG=1 for the traceback; please report it)",
+            err=True,
+        )
+        raise SystemExit(3) from None

@@ -1,0 +1,280 @@
+"""Commands that fit the file to nominal runs: calibrate (residual bands), identify (W)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from archself.cli.base import (
+    AddressOption,
+    ExecutorOption,
+    WorkersOption,
+    _die,
+    _emit,
+    _fail,
+    _inputs,
+    _numeric,
+)
+from archself.errors import ArchselfError
+
+
+def calibrate(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    false_switch: Annotated[
+        float,
+        typer.Option("--false-switch", metavar="P", help="Target false alarms per nominal run."),
+    ] = 0.01,
+    seeds: Annotated[
+        int, typer.Option("--seeds", min=1, help="Runs per scenario and configuration.")
+    ] = 100,
+    scenarios: Annotated[
+        list[str] | None,
+        typer.Option("--scenario", "-s", help="Fault-free scenario (repeatable; default: all)."),
+    ] = None,
+    configurations: Annotated[
+        list[str] | None,
+        typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
+    ] = None,
+    verify_seeds: Annotated[
+        int, typer.Option("--verify-seeds", min=0, help="Fresh seeds to measure the new rate on.")
+    ] = 0,
+    executor: ExecutorOption = "local",
+    address: AddressOption = None,
+    workers: WorkersOption = None,
+    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    output: Annotated[
+        Path | None,
+        typer.Option("-o", "--output", metavar="FILE", help="Write the calibrated copy."),
+    ] = None,
+    in_place: Annotated[
+        bool, typer.Option("--in-place", help="Calibrate ARCH itself (needs --force).")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite FILE (or ARCH).")] = False,
+    report_dir: Annotated[
+        Path | None, typer.Option("--report", metavar="DIR", help="Write the HTML/Markdown report.")
+    ] = None,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print the bands and rates as JSON.")
+    ] = False,
+    save_runs: Annotated[
+        Path | None,
+        typer.Option("--save-runs", metavar="FILE", help="Keep the runs' residuals (.npz)."),
+    ] = None,
+    from_runs: Annotated[
+        Path | None,
+        typer.Option("--from-runs", metavar="FILE", help="Use saved runs instead of running."),
+    ] = None,
+    envelope: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--envelope",
+            metavar="PATH=VALUES",
+            help="Operating condition to cover, as campaign --sweep (repeatable: product), e.g. "
+            "modules.gps.params.noise_m.value=0.2,0.4; the bands hold in the worst point.",
+        ),
+    ] = None,
+) -> None:
+    """Derive residual bands (residual.nominal) for a target false-switch rate from nominal runs.
+
+    Runs every fault-free scenario fixed in every configuration for --seeds seeds
+    (local pool or Dask), records the Monitor's filtered residuals and chooses the
+    bands so that at most P of the nominal runs raise a candidate (Gumbel tail of
+    the per-run maxima). docs/calibrate.md.
+    """
+    from archself.calibration.driver import calibrate as run_calibration
+    from archself.calibration.edit import check_output
+
+    if not 0.0 < false_switch < 1.0:
+        raise _fail(f"--false-switch {false_switch:g}: expected a rate between 0 and 1", 2)
+    if executor not in ("local", "dask"):
+        raise _fail(f"--executor {executor}: expected local or dask", 2)
+    if in_place and output is not None:
+        raise _fail("--in-place and --output exclude each other", 2)
+    if in_place and not force:
+        raise _fail("--in-place overwrites ARCH: pass --force as well", 2)
+    target = arch_path if in_place else output
+    try:
+        if target is not None:
+            check_output(arch_path, target, in_place=in_place, force=force)
+        if save_runs is not None:
+            check_output(arch_path, save_runs, in_place=False, force=force)
+        show = sys.stderr.isatty() and not json_out
+        bar = None
+        state = {"done": 0}
+
+        def progress(done: int, total: int) -> None:
+            nonlocal bar
+            if done < state["done"] or bar is None:
+                if bar is not None:
+                    bar.__exit__(None, None, None)
+                bar = typer.progressbar(length=total, label=f"{total} runs", file=sys.stderr)
+                bar.__enter__()
+                state["done"] = 0
+            bar.update(done - state["done"])
+            state["done"] = done
+
+        try:
+            cal = run_calibration(
+                arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
+                configurations=configurations, root_seed=root_seed, executor=executor,
+                workers=workers, address=address, verify_seeds=verify_seeds,
+                progress=progress if show else None, save_runs=save_runs, from_runs=from_runs,
+                envelope=envelope or (),
+            )
+        finally:
+            if bar is not None:
+                bar.__exit__(None, None, None)
+        if target is not None:
+            from archself.atomic import write_text
+
+            write_text(target, cal.text)
+        if report_dir is not None:
+            from archself.calibration.report import write_report
+
+            index = write_report(cal, report_dir)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if json_out:
+        typer.echo(json.dumps(cal.to_dict(), indent=2, ensure_ascii=False))
+    else:
+        from archself.calibration.report import summary_text
+
+        typer.echo(summary_text(cal))
+    if target is not None:
+        typer.echo(f"wrote {target}", err=True)
+    if report_dir is not None:
+        typer.echo(f"report: {index}", err=True)
+
+
+def _perturbations(items: list[str] | None) -> dict[str, tuple[str, float]]:
+    """``--perturb MODULE=KIND:X`` options as module -> (kind, magnitude)."""
+    out: dict[str, tuple[str, float]] = {}
+    for item in items or ():
+        name, _, rest = item.partition("=")
+        kind, _, mag = rest.partition(":")
+        try:
+            value = float(mag)
+        except ValueError:
+            value = math.nan
+        if not name or not kind or not math.isfinite(value):
+            raise _fail(f"--perturb {item}: expected MODULE=KIND:MAGNITUDE, e.g. imu=bias:0.01", 2)
+        out[name] = (kind, value)
+    return out
+
+
+def identify(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    configurations: Annotated[
+        list[str] | None,
+        typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
+    ] = None,
+    scenario: Annotated[
+        str | None,
+        typer.Option("--scenario", "-s", help="Fault-free scenario (default: nominal)."),
+    ] = None,
+    seeds: Annotated[
+        int, typer.Option("--seeds", min=1, help="Seeds per experiment and configuration.")
+    ] = 3,
+    kind: Annotated[
+        str, typer.Option("--kind", help="Fault kind of each perturbation (on the main output).")
+    ] = "bias",
+    magnitude: Annotated[
+        float, typer.Option("--magnitude", metavar="X", help="Size of each perturbation.")
+    ] = 0.1,
+    perturb: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--perturb", metavar="MODULE=KIND:X",
+            help="Perturbation of one module (repeatable; X = 0 leaves it out).",
+        ),
+    ] = None,
+    settle: Annotated[
+        float | None,
+        typer.Option("--settle", metavar="S",
+                     help="Average from S seconds (default: warm-up + 5 × longest smoothing)."),
+    ] = None,
+    min_excitation: Annotated[
+        float,
+        typer.Option("--min-excitation", help="A source moving its Δr less is not identifiable."),
+    ] = 0.05,
+    executor: Annotated[
+        str, typer.Option("--executor", help="local (process pool), dask or inline.")
+    ] = "local",
+    address: AddressOption = None,
+    workers: WorkersOption = None,
+    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    all_edges: Annotated[
+        bool, typer.Option("--all", help="List the edges that are not identifiable too.")
+    ] = False,
+    output: Annotated[
+        Path | None,
+        typer.Option("-o", "--output", metavar="FILE", help="Write the Markdown report."),
+    ] = None,
+    write_back: Annotated[
+        Path | None,
+        typer.Option("--write-back", metavar="FILE",
+                     help="Write a copy of ARCH with the fitted weights (comments kept)."),
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite FILE.")] = False,
+) -> None:
+    """Estimate the edge weights W from perturbation experiments; fitted vs declared.
+
+    Runs the fault-free scenario fixed in each configuration, unperturbed and with a
+    small fault on each module that takes it, --seeds times, and fits the weights of
+    the edges into each module with a residual from the differences of the
+    time-averaged residuals (non-negative least squares, standard errors, R²).
+    docs/identify.md.
+    """
+    from archself.calibration.edit import check_output
+    from archself.calibration.identify import identify as run_identify
+
+    if executor not in ("local", "dask", "inline"):
+        raise _fail(f"--executor {executor}: expected local, dask or inline", 2)
+    if not math.isfinite(magnitude):
+        raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
+    overrides = _perturbations(perturb)
+    try:
+        from archself.outputs import refuse_same_file
+
+        _inputs(arch_path)
+
+        if output is not None and str(output) != "-":
+            refuse_same_file([arch_path], output, "-o")
+        if write_back is not None:
+            check_output(arch_path, write_back, in_place=False, force=force)
+        with _numeric(arch_path):
+            ident = run_identify(
+                arch_path, configurations=configurations, scenario=scenario, seeds=seeds,
+                kind=kind, magnitude=magnitude, perturb=overrides, settle_s=settle,
+                min_excitation=min_excitation, root_seed=root_seed, executor=executor,
+                workers=workers, address=address,
+            )
+        copy = None
+        if write_back is not None:
+            from archself.calibration.identify import written_copy
+
+            copy = written_copy(ident)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    from archself.calibration.identify import markdown_table, summary_text
+
+    if json_out:
+        typer.echo(json.dumps(ident.to_dict(), indent=2, ensure_ascii=False))
+    elif output is None or str(output) != "-":
+        typer.echo(summary_text(ident, all_edges=all_edges), nl=False)
+    if output is not None:
+        _emit(markdown_table(ident), output, f"wrote {output}")
+    if write_back is not None and copy is not None:
+        from archself.atomic import write_text
+
+        try:
+            write_text(write_back, copy)
+        except ArchselfError as exc:
+            raise _die(exc) from None
+        typer.echo(f"wrote {write_back}", err=True)

@@ -1,0 +1,198 @@
+"""Commands over many runs: campaign and campaign-report."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from archself.cli.base import (
+    _RUN_REPORT_FILES,
+    AddressOption,
+    ExecutorOption,
+    WorkersOption,
+    _die,
+    _fail,
+    _inputs,
+    _numeric,
+)
+from archself.errors import ArchselfError
+
+
+def campaign(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    scenarios: Annotated[
+        list[str], typer.Option("--scenario", "-s", help="Scenario of the file (repeatable).")
+    ],
+    seeds: Annotated[
+        int, typer.Option("--seeds", help="Seeds (replicates) per scenario and sweep point.")
+    ],
+    sweep: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--sweep",
+            metavar="PATH=START:STOP:NUM",
+            help="Vary a value of the file, e.g. runtime.threshold=0.4:0.7:4 or "
+            "scenarios.imu_drift.faults[0].magnitude=1e-4,7e-4 (repeatable: product).",
+        ),
+    ] = None,
+    mode: Annotated[str, typer.Option("--mode", help="both, fixed or adaptive.")] = "both",
+    executor: ExecutorOption = "local",
+    address: AddressOption = None,
+    workers: WorkersOption = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results file (Parquet).")] = Path(
+        "results.parquet"
+    ),
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Keep the runs already in --out; run the rest.")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --out.")] = False,
+    traces: Annotated[
+        Path | None, typer.Option("--traces", metavar="DIR", help="Write every run's trace here.")
+    ] = None,
+    root_seed: Annotated[
+        int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
+    ] = 0,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the outcome as JSON.")] = False,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
+    ] = False,
+) -> None:
+    """Run a Monte Carlo campaign: scenarios x sweep values x seeds, fixed and adaptive.
+
+    One Parquet row per run, written as runs finish; Ctrl-C keeps the finished
+    runs (exit 130; SIGTERM: 143) and --resume continues. The same command gives
+    the same table whatever the number of workers. A campaign larger than the cap
+    (runs, steps) needs --yes; --out is never the architecture file.
+    """
+    from archself.campaign.driver import plan_campaign, run_campaign
+    from archself.campaign.sweep import parse_sweep
+
+    modes = {"both": ("fixed", "adaptive"), "fixed": ("fixed",), "adaptive": ("adaptive",)}
+    if mode not in modes:
+        raise _fail(f"--mode {mode}: expected both, fixed or adaptive", 2)
+    if executor not in ("local", "dask"):
+        raise _fail(f"--executor {executor}: expected local or dask", 2)
+    if resume and force:
+        raise _fail("--resume and --force exclude each other", 2)
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
+
+    try:
+        _inputs(arch_path)
+        refuse_same_file([arch_path], out, "--out")
+        sweeps = [parse_sweep(s) for s in sweep or []]
+        with protect([arch_path]), _numeric(arch_path):
+            jobs, meta = plan_campaign(
+                arch_path,
+                scenarios,
+                seeds,
+                sweeps,
+                modes=modes[mode],
+                root_seed=root_seed,
+                traces=traces,
+                yes=yes,
+            )
+            show = sys.stderr.isatty() and not json_out
+            bar = None
+            state = {"done": 0}
+            steps = int(meta.get("steps", 0))
+
+            def progress(done: int, total: int) -> None:
+                nonlocal bar
+                if bar is None:
+                    per = steps // max(len(jobs), 1)
+                    label = f"{total:,} runs × {per:,} steps"
+                    bar = typer.progressbar(length=total, label=label, file=sys.stderr)
+                    bar.__enter__()
+                bar.update(done - state["done"])
+                state["done"] = done
+
+            try:
+                outcome = run_campaign(
+                    jobs,
+                    meta,
+                    out,
+                    executor=executor,
+                    workers=workers,
+                    address=address,
+                    resume=resume,
+                    force=force,
+                    progress=progress if show else None,
+                    notice=lambda msg: typer.echo(f"warning: {msg}", err=True),
+                )
+            finally:
+                if bar is not None:
+                    bar.__exit__(None, None, None)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    data = {
+        "out": str(outcome.out),
+        "planned": outcome.planned,
+        "skipped": outcome.skipped,
+        "ran": outcome.ran,
+        "failed": outcome.failed,
+        "rows": outcome.rows,
+        "executor": outcome.executor,
+        "workers": outcome.workers,
+        "elapsed_s": round(outcome.elapsed_s, 3),
+        "errors": outcome.errors,
+    }
+    if json_out:
+        typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
+    else:
+        rate = f", {outcome.ran / outcome.elapsed_s:.2f} runs/s" if outcome.elapsed_s > 0 else ""
+        typer.echo(
+            f"{outcome.out}: {outcome.rows} runs ({outcome.ran} new, {outcome.skipped} "
+            f"already there, {outcome.failed} failed) in {outcome.elapsed_s:.1f} s on "
+            f"{outcome.workers} {outcome.executor} worker"
+            f"{'s' * (outcome.workers != 1)}{rate}"
+        )
+        for e in outcome.errors:
+            typer.echo(f"failed: {e}", err=True)
+
+
+def campaign_report_cmd(
+    results: Annotated[Path, typer.Argument(metavar="RESULTS", help="Parquet file of `campaign`.")],
+    out_dir: Annotated[Path, typer.Option("-o", "--output", metavar="DIR", help="Report folder.")],
+    expect: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--expect",
+            metavar="SCENARIO=CONFIG",
+            help="Expected final configuration of a scenario (repeatable).",
+        ),
+    ] = None,
+    tau: Annotated[
+        str | None, typer.Option("--tau", metavar="PATH", help="Swept column holding τ.")
+    ] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Summarize a campaign: correct switches, detection delay, false switches, errors, τ sweep.
+
+    Writes DIR/index.html (figures as SVG beside it) and DIR/summary.json.
+    """
+    from archself.atomic import protect
+    from archself.campaign.report import campaign_report, parse_expect, summary_text
+    from archself.outputs import refuse_same_file
+
+    try:
+        _inputs(results, what="a results file (Parquet)")
+        for name in _RUN_REPORT_FILES:
+            refuse_same_file([results], out_dir / name, "-o")
+        with protect([results]), _numeric(results):
+            summary = campaign_report(
+                results, out_dir, expect=parse_expect(expect or []), tau_path=tau
+            )
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if json_out:
+        from archself.jsondata import jsonable
+
+        typer.echo(json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
+    else:
+        typer.echo(summary_text(summary))
+        typer.echo(f"report: {out_dir / 'index.html'}", err=True)

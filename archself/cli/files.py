@@ -1,0 +1,237 @@
+"""Commands on files: validate, schema, docs, init, export, info, generate."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from archself.cli.base import _die, _emit, _fail, _inputs, _load, app
+from archself.errors import ArchselfError
+
+
+def validate(
+    paths: Annotated[
+        list[Path], typer.Argument(help="Architecture files to check.", metavar="PATH...")
+    ],
+    json_out: Annotated[bool, typer.Option("--json", help="Print findings as JSON.")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Treat warnings as errors.")] = False,
+) -> None:
+    """Check architecture files against the schema and the semantic rules.
+
+    Exit 0 when no file has an error finding, 1 otherwise.
+    """
+    from archself.check import check
+    from archself.findings import Finding
+    from archself.loader import SchemaError, load_architecture
+
+    failed = False
+    report: list[dict[str, object]] = []
+    for path in paths:
+        try:
+            _inputs(path)
+            loaded = load_architecture(path)
+            findings = check(loaded)
+        except SchemaError as exc:
+            findings = exc.findings
+        except ArchselfError as exc:
+            e = exc
+            findings = [
+                Finding(
+                    "error",
+                    "load",
+                    getattr(e, "message", str(e)),
+                    getattr(e, "path", ""),
+                    str(path),
+                    getattr(e, "line", None),
+                    getattr(e, "col", None),
+                )
+            ]
+        bad = [f for f in findings if f.severity == "error" or (strict and f.severity == "warning")]
+        failed |= bool(bad)
+        if json_out:
+            report.append(
+                {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings]}
+            )
+        else:
+            for f in findings:
+                typer.echo(str(f), err=True)
+            if not bad:
+                n = len(findings)
+                typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
+    if json_out:
+        typer.echo(
+            json.dumps(report if len(report) != 1 else report[0], indent=2, ensure_ascii=False)
+        )
+    raise typer.Exit(1 if failed else 0)
+
+
+def schema(
+    output: Annotated[Path | None, typer.Option("-o", "--output", help="Write to FILE.")] = None,
+    check_file: Annotated[
+        Path | None, typer.Option("--check", help="Exit 1 if FILE differs from the model.")
+    ] = None,
+) -> None:
+    """Print the JSON Schema of architecture files, generated from the model."""
+    from archself.schema import schema_text
+
+    _write_or_check(
+        {"architecture.schema.json": schema_text()}, output, check_file, "archself schema -o"
+    )
+
+
+def docs(
+    folder: Annotated[Path, typer.Argument(help="Folder of the reference pages.")] = Path("docs"),
+    check: Annotated[bool, typer.Option("--check", help="Exit 1 if a page is stale.")] = False,
+) -> None:
+    """Regenerate the reference pages (format.md from the schema, cli.md from this CLI)."""
+    from archself.docgen import reference_pages
+
+    for name, text in reference_pages(app).items():  # docgen never imports this module
+        target = folder / name
+        if check:
+            _write_or_check({name: text}, None, target, f"archself docs {folder}")
+        else:
+            _write_or_check({name: text}, target, None, "")
+
+
+def _write_or_check(
+    pages: dict[str, str], output: Path | None, check_file: Path | None, regen: str
+) -> None:
+
+    (text,) = pages.values()
+    if check_file is not None:
+        try:
+            _inputs(check_file, what="a file")
+            current = check_file.read_text(encoding="utf-8")
+        except ArchselfError as exc:
+            raise _die(exc) from None
+        except UnicodeDecodeError:
+            raise _fail(f"{check_file}: error: not UTF-8 text") from None
+        except OSError as exc:
+            raise _fail(f"{check_file}: error: cannot read: {exc.strerror}") from None
+        if current != text:
+            typer.echo(
+                f"{check_file}: stale; regenerate with `{regen} {check_file}`"
+                if regen.endswith("-o")
+                else f"{check_file}: stale; run `{regen}`",
+                err=True,
+            )
+            raise typer.Exit(1)
+        typer.echo(f"{check_file}: up to date")
+    else:
+        _emit(text, output, f"wrote {output}")
+
+
+def init(
+    name: Annotated[str, typer.Argument(help="Name of the system; writes NAME.yaml.")],
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+) -> None:
+    """Write a small, valid architecture file to start from (NAME.yaml).
+
+    The file carries the schema modeline, so an editor with yaml-language-server
+    completes and checks it while you edit.
+    """
+    import os
+
+    from archself.atomic import write_text
+    from archself.reports.render import render
+    from archself.resources import schema_path
+
+    if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
+        raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
+    target = Path(name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
+    if target.exists() and not force:
+        raise _fail(f"{target}: error: exists; pass --force to overwrite it")
+    folder = target.parent if str(target.parent) else Path(".")
+    try:
+        schema = os.path.relpath(schema_path(), folder.resolve())
+    except ValueError:  # another drive
+        schema = schema_path().as_uri()
+    text = render("init.yaml.j2", name=target.stem, file_name=target.name, schema_url=schema)
+    try:
+        write_text(target, text)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(f"wrote {target}; next: archself validate {target}")
+
+
+def export(
+    arch: Annotated[Path, typer.Argument(metavar="FILE", help="Architecture file.")],
+    to: Annotated[
+        str,
+        typer.Option("--to", metavar="FORMAT",
+                     help="graphml, node-link, edges-csv or ros2-modes (docs/export.md)."),
+    ],
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
+    ] = None,
+) -> None:
+    """Export the architecture for other tools: GraphML, node-link JSON, edge CSV, ROS 2 modes."""
+    from archself.export import FORMATS
+
+    if to not in FORMATS:
+        raise _fail(f"error: --to: unknown format '{to}'; choose one of {', '.join(FORMATS)}", 2)
+    _inputs(arch)
+    try:
+        if output is not None and str(output) != "-":
+            from archself.outputs import refuse_same_file
+
+            refuse_same_file([arch], output, "--output")
+        from archself.export import export as export_text
+
+        text = export_text(_load(arch), to)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    _emit(text, output, f"{output}: {to}")
+
+
+def info(
+    arch: Annotated[Path, typer.Argument(metavar="FILE", help="Architecture file.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """What a file holds: modules, configurations, actions, scenarios and runtime settings."""
+    from archself.summary import summarize, summary_text
+
+    _inputs(arch)
+    try:
+        data = summarize(_load(arch))
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(json.dumps(data, indent=2) if as_json else summary_text(data))
+
+
+#: ``generate`` refuses more modules than this without --yes (≈ 22 MB of YAML).
+GENERATE_MAX = 100_000
+
+
+def generate(
+    n: Annotated[int, typer.Argument(metavar="N", min=2, help="Number of modules.")],
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the random wiring.")] = 0,
+    fan_in: Annotated[int, typer.Option("--fan-in", min=1, help="Max. edges into a module.")] = 3,
+    feedback: Annotated[
+        int, typer.Option("--feedback", min=0, help="Weak backward edges (cycles).")
+    ] = 0,
+    yes: Annotated[
+        bool, typer.Option("--yes", help=f"Generate even more than {GENERATE_MAX:,} modules.")
+    ] = False,
+) -> None:
+    """Generate a large DAG-like architecture of N generic.relay modules (scaling studies)."""
+    from archself.generate import generate_architecture
+
+    if n > GENERATE_MAX and not yes:
+        raise _fail(
+            f"error: N = {n:,} modules is more than the cap of {GENERATE_MAX:,} (about "
+            f"{GENERATE_MAX * 230 // 1024**2} MB of YAML; the loader reads at most 20 MB); "
+            "pass --yes to generate it anyway"
+        )
+    if feedback > n * fan_in and not yes:
+        raise _fail(f"error: --feedback {feedback:,} is more than N × --fan-in edges")
+    fan_in = min(fan_in, n)  # no module has more than N − 1 predecessors
+    text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
+    _emit(text, output, f"{output}: {n} modules")

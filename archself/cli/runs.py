@@ -1,0 +1,267 @@
+"""Commands on single runs: simulate, report (of the architecture), explain."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from archself.cli.base import _RUN_REPORT_FILES, _die, _fail, _inputs, _load, _numeric
+from archself.errors import ArchselfError
+
+#: ``simulate`` refuses more steps than this (runs × duration / step) without --yes.
+SIM_MAX_STEPS = 5_000_000
+#: and an estimated memory above this (bytes).
+SIM_MAX_BYTES = 2 * 1024**3
+
+
+def _simulation_estimate(arch: Any, scenario: str, runs: int) -> tuple[int, int]:
+    """``(steps, bytes)`` of ``runs`` runs of ``scenario`` (0, 0 for an unknown scenario)."""
+    sc = arch.scenarios.get(scenario)
+    if sc is None:
+        return 0, 0
+    steps = runs * round(float(sc.duration_s) / float(arch.runtime.step_s))
+    n_res = sum(1 for m in arch.modules.values() if m.residual)
+    # recorded per step: time, J, configuration, 4 series of ~3 floats, residual rows
+    return steps, steps * (250 + 40 * n_res)
+
+
+def _check_simulation_size(arch: Any, scenario: str, runs: int, yes: bool) -> None:
+    steps, size = _simulation_estimate(arch, scenario, runs)
+    if yes or (steps <= SIM_MAX_STEPS and size <= SIM_MAX_BYTES):
+        return
+    raise _fail(
+        f"error: {runs} run{'s' * (runs != 1)} of {scenario} = {steps:,} steps, about "
+        f"{size / 1024**2:,.0f} MB of series: more than the cap ({SIM_MAX_STEPS:,} steps, "
+        f"{SIM_MAX_BYTES // 1024**3} GB); shorten duration_s or raise step_s, or pass --yes"
+    )
+
+
+def _run(
+    arch, scenario: str, config: str | None, seed: int | None, adaptive: bool, show_progress: bool
+):
+    from archself.sim.run import simulate as run_simulation
+
+    adapt = None
+    if adaptive:
+        from archself.runtime import MapeK
+
+        adapt = MapeK(arch)
+    if not show_progress:
+        return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt)
+    from contextlib import ExitStack
+
+    steps, size = _simulation_estimate(arch, scenario, 1)
+    label = (
+        f"{scenario} ({'adaptive' if adaptive else 'fixed'}, {steps:,} steps, "
+        f"~{max(1, round(size / 1024**2)):,} MB)"
+    )
+    with ExitStack() as stack:
+        state: dict[str, Any] = {"done": 0, "bar": None}
+
+        def progress(done: int, total: int) -> None:
+            # the bar starts with the first simulated step, not before the imports and
+            # the build, so that its time estimate is that of the simulation
+            if state["bar"] is None:
+                state["bar"] = stack.enter_context(
+                    typer.progressbar(length=100, label=label, file=sys.stderr)
+                )
+            pct = int(100 * done / max(total, 1))
+            if pct > state["done"]:
+                state["bar"].update(pct - state["done"])
+                state["done"] = pct
+
+        return run_simulation(
+            arch, scenario, configuration=config, seed=seed, adapt=adapt, progress=progress
+        )
+
+
+def _switches_text(switches: list[dict]) -> str:
+    if not switches:
+        return "none"
+    return "; ".join(
+        f"t = {s['t_s']:.1f} s {s['from']} → {s['to']} ({s['action']})" for s in switches
+    )
+
+
+def _summary(results: list) -> str:
+    from archself.sim.run import metric_rows
+
+    rows = metric_rows(results[0].unit)  # labels carry the unit of runtime.objective
+    first = results[0]
+    head = f"scenario {first.scenario} · seed {first.seed} · start {first.configuration}"
+    lines = [head]
+    names = [f"{r.mode} (→ {r.final_configuration})" for r in results]
+    width = max(16, *(len(n) + 2 for n in names))
+    left = max(18, *(len(label) + 2 for label, _, _ in rows))
+    lines.append(" " * left + "".join(n.rjust(width) for n in names))
+    for label, key, decimals in rows:
+        vals = "".join(f"{r.metrics[key]:.{decimals}f}".rjust(width) for r in results)
+        lines.append(label.ljust(left) + vals)
+    for r in results:
+        lines.append(f"switches ({r.mode}): {_switches_text(r.switches)}")
+    return "\n".join(lines)
+
+
+def simulate(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    scenario: Annotated[str, typer.Option("--scenario", "-s", help="Scenario of the file.")],
+    config: Annotated[
+        str | None, typer.Option("--config", "-c", help="Start configuration (default: initial).")
+    ] = None,
+    fixed: Annotated[bool, typer.Option("--fixed", help="Hold the architecture fixed.")] = False,
+    compare: Annotated[
+        bool, typer.Option("--compare", help="Run the fixed baseline beside the adaptive run.")
+    ] = False,
+    seed: Annotated[
+        int | None, typer.Option("--seed", min=0, help="Seed ≥ 0 (default: the scenario's).")
+    ] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    trace: Annotated[
+        Path | None,
+        typer.Option("--trace", help="Write the time series and decision log (JSON) to FILE."),
+    ] = None,
+    report: Annotated[
+        Path | None,
+        typer.Option(
+            "--report",
+            metavar="DIR",
+            help="Write an HTML run report with the paper's figures to DIR.",
+        ),
+    ] = None,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
+    ] = False,
+) -> None:
+    """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
+
+    With --compare both run from the same start and seed; --trace FILE writes the
+    adaptive trace to FILE and the fixed one to FILE with '.fixed' before the suffix.
+    """
+    if fixed and compare:
+        raise _fail("--fixed and --compare exclude each other", 2)
+    if trace is not None and not (trace.parent if str(trace.parent) else Path(".")).is_dir():
+        raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
+
+    fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
+    try:
+        _inputs(arch_path)
+        for target, what in ((trace, "--trace"), (fixed_trace if compare else None, "--trace")):
+            if target is not None:
+                refuse_same_file([arch_path], target, what)
+        if report is not None:
+            for name in _RUN_REPORT_FILES:
+                refuse_same_file([arch_path], report / name, "--report")
+        with protect([arch_path]), _numeric(arch_path):
+            arch = _load(arch_path)
+            if config is not None and config not in arch.configurations:
+                known = ", ".join(arch.configurations)
+                raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
+            _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
+            show = sys.stderr.isatty() and not json_out
+            modes = [False, True] if compare else [not fixed]
+            results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
+            if trace is not None:
+                for r in results:
+                    target = trace
+                    if compare and r.mode == "fixed" and fixed_trace is not None:
+                        target = fixed_trace
+                    r.write_trace(target)
+            if report is not None:
+                from archself.reports.run_report import write_run_report
+
+                write_run_report(arch, results, report)
+                typer.echo(f"report: {report / 'index.html'}", err=True)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if json_out:
+        data = [r.to_dict() for r in results]
+        typer.echo(json.dumps(data if compare else data[0], indent=2, ensure_ascii=False))
+    else:
+        typer.echo(_summary(results))
+
+
+def report(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    output: Annotated[
+        Path,
+        typer.Option(
+            "-o", "--output", metavar="DIR", help="Folder to write the report into (created)."
+        ),
+    ],
+    no_render: Annotated[
+        bool, typer.Option("--no-render", help="DOT sources only, even if `dot` is installed.")
+    ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace the report in an existing, non-empty DIR.")
+    ] = False,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Write even past the cap on the number of files.")
+    ] = False,
+) -> None:
+    """Architecture report: DSMs (HTML, Markdown, CSV), Fig. 1 graphs and configuration diffs.
+
+    Graphs are rendered to SVG and PNG when Graphviz `dot` is on PATH; index.html links all.
+    The report is written beside DIR and swapped in when complete (no half report,
+    no stale files); a non-empty DIR is replaced only with --force.
+    """
+    from archself.atomic import protect
+    from archself.outputs import refuse_input_inside
+
+    try:
+        _inputs(arch_path)
+        refuse_input_inside([arch_path], output, "-o")
+        with protect([arch_path]), _numeric(arch_path):
+            arch = _load(arch_path)
+            import shutil
+
+            from archself.reports.architecture import (
+                MAX_FILES,
+                count_report_files,
+                write_architecture_report,
+            )
+
+            files = count_report_files(arch, not no_render and shutil.which("dot") is not None)
+            if files > MAX_FILES and not yes:
+                raise _fail(
+                    f"{arch_path}: error: the report would be {files:,} files "
+                    f"({len(arch.configurations):,} configurations), more than the cap of "
+                    f"{MAX_FILES:,}; pass --yes to write them"
+                )
+            if files > MAX_FILES:
+                typer.echo(f"writing {files:,} files into {output}", err=True)
+            rep = write_architecture_report(arch, output, dot=not no_render, force=force)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if rep.note and not no_render:
+        typer.echo(f"note: {rep.note}", err=True)
+    typer.echo(str(rep.index))
+
+
+def explain(
+    trace: Annotated[Path, typer.Argument(help="A trace written by `simulate --trace`.")],
+) -> None:
+    """Explain a run's decisions: why (and why not) the architecture switched."""
+    from archself.runtime.decisions import explain as render
+
+    try:
+        _inputs(trace, what="a trace (JSON)")
+        doc = json.loads(trace.read_text(encoding="utf-8"))
+        meta, decisions = doc["meta"], doc["decisions"]
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    except FileNotFoundError:
+        raise _fail(f"{trace}: error: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise _fail(f"{trace}: error: not an archself trace ({type(exc).__name__})") from None
+    typer.echo(
+        f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · "
+        f"seed {meta.get('seed')} · {meta.get('mode')} · "
+        f"{meta.get('configuration')} → {meta.get('final_configuration')}"
+    )
+    typer.echo(render(decisions))
