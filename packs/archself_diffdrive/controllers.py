@@ -183,9 +183,12 @@ class LqrController(RuntimeModule):
     def _limit(left: float, right: float, inputs) -> tuple[float, float]:
         act: Actuation | None = inputs.get("actuation")
         if act is not None:
+            # scale both wheels together: clipping each alone would change the curvature
+            # (a saturated pair turns in circles instead of slowing down on the path)
             lim = act.max_wheel_speed_rad_s
-            left = min(max(left, -lim), lim)
-            right = min(max(right, -lim), lim)
+            peak = max(abs(left), abs(right))
+            if peak > lim:
+                left, right = left * lim / peak, right * lim / peak
         return left, right
 
     def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:

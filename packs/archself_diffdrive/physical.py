@@ -88,6 +88,7 @@ class DiffDrivePlant(RuntimeModule):
             "wheel_base_m": float(p["wheel_base_m"]),
             "effectiveness": [float(e) for e in p["effectiveness"]],
         }
+        self.radius = float(p["wheel_radius_m"])
         self.slip = float(p["slip_variance_m"])
         self.lateral = float(p["lateral_noise_m_sqrt_s"])
         self.yaw = float(p["yaw_noise_rad_sqrt_s"])
@@ -122,11 +123,12 @@ class DiffDrivePlant(RuntimeModule):
         """Wheel speeds whose ground travel carries the slip: σ² = k·|r·ω·dt| per wheel."""
         if self.slip <= 0 or dt <= 0:
             return u
-        r = self._kp["wheel_radius_m"]
+        r = self.radius
         n = self.rng.standard_normal(2)
-        return tuple(  # type: ignore[return-value]
-            w + math.sqrt(self.slip * abs(r * w * dt)) * float(e) / (r * dt)
-            for w, e in zip(u, n, strict=True)
+        wl, wr = u
+        return (
+            wl + math.sqrt(self.slip * abs(r * wl * dt)) * float(n[0]) / (r * dt),
+            wr + math.sqrt(self.slip * abs(r * wr * dt)) * float(n[1]) / (r * dt),
         )
 
     def _process_noise(self, dt: float) -> np.ndarray:
@@ -154,9 +156,14 @@ class WheelActuator(RuntimeModule):
     Parameter ``side`` (``"left"`` or ``"right"``): which entry of ``wheel_cmd``
     ``[l, r]`` this wheel takes. Inputs ``wheel_cmd`` (rad/s, from a controller) and optionally
     ``encoder_speeds``; output ``wheel_speed_<side>``: the speed it drives.
-    Residual signal ``command_error`` = |previous command − measured encoder
-    speed| (rad/s): near the encoder noise when healthy, a sizeable fraction of
-    the command when the wheel loses effectiveness.
+    Residual signal ``command_error`` = (previous command − measured encoder
+    speed)·sign(previous command) (rad/s): the wheel's shortfall, positive when it
+    turns slower than commanded. Signed, so that the Monitor's low-pass filter
+    averages the encoder noise out (a filtered magnitude would keep its mean,
+    ≈ 0.8σ): near 0 when healthy, a steady fraction of the command when the wheel
+    loses effectiveness. ``error_smoothing_s`` > 0 averages it at every step (the
+    Monitor samples it only once per MAPE-K period, so without it the encoder noise
+    of the other steps is not averaged at all).
 
     Examples
     --------
@@ -167,9 +174,18 @@ class WheelActuator(RuntimeModule):
     ...                         "encoder_speeds": np.array([3.2, 6.0])})
     >>> round(w.local_signals()["command_error"], 3)
     0.8
+    >>> _ = w.step(0.1, 0.05, {"wheel_cmd": np.array([4.0, 6.0]),
+    ...                        "encoder_speeds": np.array([4.3, 6.0])})
+    >>> round(w.local_signals()["command_error"], 3)   # faster than commanded
+    -0.3
     """
 
-    parameters = {"side": Param("left", "", "'left' or 'right': the entry of wheel_cmd taken")}
+    parameters = {
+        "side": Param("left", "", "'left' or 'right': the entry of wheel_cmd taken"),
+        "error_smoothing_s": Param(
+            0.0, "s", "time constant of the command_error average kept at every step (0: raw)"
+        ),
+    }
     role = "actuator"
     inputs = ("wheel_cmd",)
     optional_inputs = ("encoder_speeds",)
@@ -191,11 +207,17 @@ class WheelActuator(RuntimeModule):
             raise ValueError(f"side must be 'left' or 'right', not {side!r}")
         self.index = 0 if side == "left" else 1
         self.main_output = f"wheel_speed_{side}"
+        self.smoothing = float(self.params["error_smoothing_s"])
 
     def step(self, t, dt, inputs):
         enc = inputs.get("encoder_speeds")
         if enc is not None and self.prev_cmd is not None:
-            self.signals["command_error"] = abs(self.prev_cmd - float(enc[self.index]))
+            c, m = self.prev_cmd, float(enc[self.index])
+            e = c - m if c >= 0 else m - c
+            last = self.signals["command_error"]
+            if self.smoothing > 0 and last == last:  # average at the step rate
+                e = last + (1.0 - math.exp(-dt / self.smoothing)) * (e - last)
+            self.signals["command_error"] = e
         cmd = inputs.get("wheel_cmd")
         if cmd is None:
             self.prev_cmd = None

@@ -307,10 +307,13 @@ class ControlValve(RuntimeModule):
     Parameter ``max_flow_m3_s``: q_max, the inflow when fully open (m³/s).
 
     Input ``valve_cmd`` (0..1); optional ``flow_measured`` (m³/s, from a flow
-    meter). Output ``inflow``. Residual signal ``command_error`` = |q_max·u_prev −
-    flow_measured| (m³/s): the flow the valve was commanded to pass in the last
-    step minus the flow measured, near the flow-meter noise when healthy and a
-    fraction of the flow when the valve loses effectiveness or sticks.
+    meter). Output ``inflow``. Residual signal ``command_error`` = q_max·u_prev −
+    flow_measured (m³/s, signed: the shortfall): the flow the valve was commanded
+    to pass in the last step minus the flow measured, near 0 on average when
+    healthy and a fraction of the flow when the valve loses effectiveness or
+    sticks. ``error_smoothing_s`` > 0 averages it at every step, so that the
+    Monitor (which samples once per MAPE-K period) sees the flow-meter noise
+    averaged out.
 
     Examples
     --------
@@ -322,7 +325,12 @@ class ControlValve(RuntimeModule):
     0.004
     """
 
-    parameters = {"max_flow_m3_s": MODEL_PARAMETERS["max_flow_m3_s"]}
+    parameters = {
+        "max_flow_m3_s": MODEL_PARAMETERS["max_flow_m3_s"],
+        "error_smoothing_s": Param(
+            0.0, "s", "time constant of the command_error average kept at every step (0: raw)"
+        ),
+    }
     role = "actuator"
     inputs = ("valve_cmd",)
     optional_inputs = ("flow_measured",)
@@ -340,11 +348,16 @@ class ControlValve(RuntimeModule):
 
     def configure(self) -> None:
         self.q_max = float(self.params["max_flow_m3_s"])
+        self.smoothing = float(self.params["error_smoothing_s"])
 
     def step(self, t, dt, inputs):
         meas = _f(inputs.get("flow_measured"))
         if meas is not None and self.prev_flow is not None:
-            self.signals["command_error"] = abs(self.prev_flow - meas)
+            e = self.prev_flow - meas
+            last = self.signals["command_error"]
+            if self.smoothing > 0 and last == last:  # average at the step rate
+                e = last + (1.0 - math.exp(-dt / self.smoothing)) * (e - last)
+            self.signals["command_error"] = e
         u = _f(inputs.get("valve_cmd"))
         if u is None:
             self.prev_flow = None
