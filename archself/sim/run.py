@@ -120,6 +120,10 @@ class RunResult:
         inactive).
     decisions : list
         The adaptation loop's decision log (its ``decisions`` attribute), if any.
+
+    :meth:`to_pandas` and :meth:`decisions_frame` give the series and the decision
+    log as tidy pandas frames (named columns, configuration names); in a notebook
+    the result shows as a small HTML summary.
     meta : dict
         Architecture name, step, period, duration.
     unit : str or None
@@ -159,6 +163,127 @@ class RunResult:
         decisions = [_decision(d) for d in self.decisions]
         return {"meta": meta, "series": series, "decisions": jsonable(decisions)}
 
+    # ------------------------------------------------------------------ notebooks
+    def to_pandas(self) -> Any:
+        """The recorded series as a tidy :class:`pandas.DataFrame`, one row per step.
+
+        Columns, in the order of :attr:`series`: ``t`` [s], ``J`` (the objective
+        error, in :attr:`unit`), then every other series; a 2-D series (a vector
+        signal) becomes one column per component, ``<name>_<k>``: ``reference_0`` …,
+        ``actual_0`` … (the objective compares ``runtime.objective.components`` of
+        them), ``estimate_0`` …; ``residual.<module>`` (NaN while inactive) and
+        ``configuration``, the name of the configuration active at that step (a
+        categorical over :attr:`configurations`, in file order). ``attrs`` holds
+        ``scenario``, ``seed``, ``mode``, ``unit`` and ``objective``.
+
+        Requires pandas (``pip install 'archself[pandas]'``). The largest error per
+        configuration: ``res.to_pandas().groupby("configuration", observed=True)["J"].max()``.
+        """
+        pd = _pandas("to_pandas")
+        cols: dict[str, Any] = {}
+        for name, arr in self.series.items():
+            a = np.asarray(arr)
+            if name == "configuration":
+                cols[name] = self._configuration_names(pd, a)
+            elif a.ndim == 2:
+                for k in range(a.shape[1]):
+                    cols[f"{name}_{k}"] = a[:, k]
+            else:
+                cols[name] = a
+        df = pd.DataFrame(cols)
+        df.attrs.update(self._attrs())
+        return df
+
+    def decisions_frame(self) -> Any:
+        """The decision log as a tidy :class:`pandas.DataFrame`: one row per cycle and module.
+
+        One row for every MAPE-K cycle and every module active in it: ``cycle``,
+        ``t`` [s], ``configuration`` (name, categorical as in :meth:`to_pandas`),
+        ``phase`` (``warmup`` or ``adapt``), ``module``, ``r`` (the module's residual
+        r_i, Eq. 12), ``z`` (its influence z_i, Eq. 14) and ``candidate`` (True when
+        the module was in the cycle's candidate set, Eq. 16). Empty (same columns)
+        for a fixed run, which has no loop.
+
+        Requires pandas (``pip install 'archself[pandas]'``).
+        """
+        pd = _pandas("decisions_frame")
+        cycle: list[int] = []
+        t: list[float] = []
+        conf: list[str] = []
+        phase: list[str] = []
+        module: list[str] = []
+        r: list[float] = []
+        z: list[float] = []
+        cand: list[bool] = []
+        for d in self.decisions:
+            zs = _field(d, "z") or {}
+            rs = _field(d, "r") or {}
+            cs = set(_field(d, "candidates") or ())
+            names = list(zs)
+            n = len(names)
+            cycle += [int(_field(d, "cycle") or 0)] * n
+            t += [_float(_field(d, "t"))] * n
+            conf += [str(_field(d, "configuration"))] * n
+            phase += [str(_field(d, "phase"))] * n
+            module += names
+            z += [_float(zs.get(m)) for m in names]
+            r += [_float(rs.get(m)) for m in names]
+            cand += [m in cs for m in names]
+        df = pd.DataFrame({
+            "cycle": np.asarray(cycle, dtype=np.int64),
+            "t": np.asarray(t, dtype=float),
+            "configuration": self._configuration_names(pd, conf),
+            "phase": pd.Series(phase, dtype=object).astype(str),
+            "module": pd.Series(module, dtype=object).astype(str),
+            "r": np.asarray(r, dtype=float),
+            "z": np.asarray(z, dtype=float),
+            "candidate": np.asarray(cand, dtype=bool),
+        })
+        df.attrs.update(self._attrs())
+        return df
+
+    def _configuration_names(self, pd: Any, values: Any) -> Any:
+        """Configuration codes (int array) or names as a categorical over the file's names."""
+        a = np.asarray(values)
+        if a.dtype.kind in "iu":
+            if self.configurations:
+                return pd.Categorical.from_codes(a.astype(np.int64), categories=self.configurations)
+            return a
+        return pd.Categorical(a.tolist(), categories=self.configurations or None)
+
+    def _attrs(self) -> dict[str, Any]:
+        return {"scenario": self.scenario, "seed": self.seed, "mode": self.mode,
+                "unit": self.unit, "objective": dict(self.meta.get("objective") or {})}
+
+    def _repr_html_(self) -> str:
+        """A small HTML summary for notebooks: the run, its configuration path, the metrics."""
+        from html import escape
+
+        path = [self.configuration, *(str(s.get("to")) for s in self.switches)]
+        if path[-1] != self.final_configuration:
+            path.append(self.final_configuration)
+        rows = "".join(
+            f"<tr><td>{escape(label)}</td><td>{self.metrics.get(key, math.nan):.{dec}f}</td></tr>"
+            for label, key, dec in metric_rows(self.unit)
+        )
+        switches = "".join(
+            f"<li>t = {float(s.get('t_s', math.nan)):.1f} s: {escape(str(s.get('from')))} → "
+            f"{escape(str(s.get('to')))} ({escape(str(s.get('action')))})</li>"
+            for s in self.switches
+        )
+        name = self.meta.get("architecture")
+        head = (f"<b>{escape(str(name))}</b> · " if name else "") + (
+            f"scenario <b>{escape(self.scenario)}</b> · seed {int(self.seed)} · "
+            f"{escape(self.mode)}")
+        return (
+            "<div class=\"archself-run\">"
+            f"<p>{head}<br>configurations: {escape(' → '.join(path))}</p>"
+            f"<table><thead><tr><th>metric</th><th>value</th></tr></thead>"
+            f"<tbody>{rows}</tbody></table>"
+            + (f"<p>switches:</p><ul>{switches}</ul>" if switches else "")
+            + "</div>"
+        )
+
     def write_trace(self, path: str | Path) -> None:
         """Write :meth:`trace` as JSON to ``path``, atomically and deterministically.
 
@@ -174,6 +299,26 @@ class RunResult:
 
         text = json.dumps(self.trace(), separators=(",", ":"), allow_nan=False)
         write_text(path, text + "\n")
+
+
+def _pandas(method: str) -> Any:
+    """pandas, or a one-line ImportError saying how to install it."""
+    try:
+        import pandas
+    except ImportError:
+        raise ImportError(
+            f"RunResult.{method}() needs pandas: pip install 'archself[pandas]'"
+        ) from None
+    return pandas
+
+
+def _field(d: Any, key: str) -> Any:
+    """``d[key]`` of a decision dict (from a trace), or the attribute of a DecisionRecord."""
+    return d.get(key) if isinstance(d, dict) else getattr(d, key, None)
+
+
+def _float(x: Any) -> float:
+    return math.nan if x is None else float(x)
 
 
 def _series_list(arr: np.ndarray) -> list:

@@ -1,0 +1,154 @@
+"""The Python API of a notebook: lazy names on ``archself``, tidy frames, an HTML summary."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from typing import Any
+
+import numpy as np
+import pytest
+
+import archself
+
+from conftest import DIFFDRIVE, FIXTURES
+
+pd = pytest.importorskip("pandas")
+
+HEAVY = ("control", "filterpy", "matplotlib", "pandas")
+PUBLIC = ("load", "validate", "simulate", "RunResult", "MapeK", "explain", "plan_campaign",
+          "run_campaign", "read_results", "parse_sweep", "calibrate", "Architecture",
+          "Finding", "ArchselfError", "LoadError")
+
+
+def test_public_names_are_exported_lazily() -> None:
+    assert set(PUBLIC) == set(archself.__all__) and set(PUBLIC) <= set(dir(archself))
+    assert all(getattr(archself, name) is not None for name in archself.__all__)
+    from archself.runtime import MapeK, explain
+    from archself.sim.run import simulate
+
+    assert archself.simulate is simulate and archself.MapeK is MapeK
+    assert archself.explain is explain
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        archself.nope  # noqa: B018
+
+
+def test_import_archself_stays_light() -> None:
+    code = (
+        "import sys, archself\n"
+        f"heavy = [m for m in {HEAVY!r} + ('numpy', 'scipy') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+        f"from archself import {', '.join(PUBLIC)}\n"
+        f"heavy = [m for m in {HEAVY!r} if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_load_and_validate() -> None:
+    arch = archself.load(DIFFDRIVE)
+    assert isinstance(arch, archself.Architecture) and arch.initial_configuration() == "a1"
+    assert not [f for f in archself.validate(DIFFDRIVE) if f.severity == "error"]
+    missing = archself.validate(FIXTURES / "no-such-file.yaml")
+    assert [f.code for f in missing] == ["load"]
+
+
+def test_load_refuses_a_file_with_semantic_errors(tmp_path: Any) -> None:
+    text = DIFFDRIVE.read_text(encoding="utf-8").replace("max_spectral_radius: 0.95",
+                                                         "max_spectral_radius: 0.0001")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text, encoding="utf-8")
+    errors = [f for f in archself.validate(bad) if f.severity == "error"]
+    assert errors
+    with pytest.raises(archself.LoadError) as info:
+        archself.load(bad)
+    assert str(info.value) == str(errors[0])
+    assert archself.load(bad, check=False).name == "diffdrive"
+
+
+@pytest.fixture(scope="module")
+def run() -> Any:
+    """30 s of diffdrive, left wheel failing at 5 s: the loop switches a1 → a3."""
+    arch = archself.load(DIFFDRIVE)
+    sc = arch.scenarios["actuator_fault"]
+    sc.duration_s = 30
+    sc.faults[0].onset_s = 5
+    return archself.simulate(arch, "actuator_fault", adapt=archself.MapeK(arch))
+
+
+def test_to_pandas_columns_dtypes_and_length(run: Any) -> None:
+    df = run.to_pandas()
+    n = len(run.series["t"])
+    assert len(df) == n == 600
+    cols = list(df.columns)
+    assert cols[:2] == ["t", "J"]
+    for name in ("reference_0", "reference_4", "actual_0", "actual_2", "estimate_0",
+                 "command_1", "residual.wheel_left", "configuration"):
+        assert name in cols, name
+    assert "reference_5" not in cols and "actual" not in cols
+    assert all(df[c].dtype == np.float64 for c in cols if c != "configuration")
+    np.testing.assert_array_equal(df["actual_1"].to_numpy(), run.series["actual"][:, 1])
+    assert df.attrs["scenario"] == "actuator_fault" and df.attrs["unit"] == "m"
+
+
+def test_configuration_column_holds_names(run: Any) -> None:
+    df = run.to_pandas()
+    conf = df["configuration"]
+    assert isinstance(conf.dtype, pd.CategoricalDtype)
+    assert list(conf.cat.categories) == run.configurations
+    assert conf.iloc[0] == "a1" and conf.iloc[-1] == "a3"
+    assert set(conf.unique()) == {"a1", "a3"}
+    switch_t = run.switches[0]["t_s"]
+    assert (conf[df["t"] > switch_t + 0.1] == "a3").all()
+
+
+def test_decisions_frame_one_row_per_cycle_and_active_module(run: Any) -> None:
+    dd = run.decisions_frame()
+    assert list(dd.columns) == ["cycle", "t", "configuration", "phase", "module", "r", "z",
+                                "candidate"]
+    assert dd["candidate"].dtype == bool and dd["cycle"].dtype == np.int64
+    assert dd["z"].dtype == np.float64 and dd["r"].dtype == np.float64
+    expected = sum(len(d.z) for d in run.decisions)
+    assert len(dd) == expected and dd["cycle"].nunique() == len(run.decisions) == 60
+    counts = dd.groupby("cycle").size()
+    assert (counts == [len(d.z) for d in run.decisions]).all()
+    assert not dd.duplicated(["cycle", "module"]).any()
+    # W ≥ 0 and r_i ≥ 0: z = (I − Wᵀ)⁻¹ r = r + Wᵀr + … ≥ r
+    assert (dd["z"] >= dd["r"] - 1e-9).all()
+    assert set(dd["configuration"].unique()) == {"a1", "a3"}
+    # the inactive modules of a3 have no row after the switch, a3's own ones do
+    after = dd[dd["configuration"] == "a3"]
+    assert "asym_lqr" in set(after["module"]) and "lqr" not in set(after["module"])
+    d = run.decisions[20]
+    rows = dd[dd["cycle"] == d.cycle].set_index("module")
+    assert set(rows.index[rows["candidate"]]) == set(d.candidates)
+    assert rows.loc["wheel_left", "z"] == pytest.approx(d.z["wheel_left"])
+
+
+def test_decisions_frame_of_a_fixed_run_is_empty() -> None:
+    arch = archself.load(DIFFDRIVE)
+    arch.scenarios["nominal"].duration_s = 2
+    dd = archself.simulate(arch, "nominal").decisions_frame()
+    assert len(dd) == 0 and "candidate" in dd.columns
+
+
+def test_repr_html_summarizes_and_escapes(run: Any) -> None:
+    page = run._repr_html_()
+    assert "actuator_fault" in page and "a1 → a3" in page and "max error [m]" in page
+    assert "compensate_left_wheel" in page
+    import dataclasses
+
+    odd = dataclasses.replace(run, scenario="<script>x</script>", switches=[])
+    page = odd._repr_html_()
+    assert "<script>" not in page and "&lt;script&gt;" in page
+
+
+def test_missing_pandas_is_a_one_line_error(run: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "pandas", None)
+    for method in (run.to_pandas, run.decisions_frame):
+        with pytest.raises(ImportError) as info:
+            method()
+        assert "pip install 'archself[pandas]'" in str(info.value)
+        assert "\n" not in str(info.value)
