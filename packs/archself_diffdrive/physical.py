@@ -163,7 +163,10 @@ class WheelActuator(RuntimeModule):
     ≈ 0.8σ): near 0 when healthy, a steady fraction of the command when the wheel
     loses effectiveness. ``error_smoothing_s`` > 0 averages it at every step (the
     Monitor samples it only once per MAPE-K period, so without it the encoder noise
-    of the other steps is not averaged at all).
+    of the other steps is not averaged at all). ``response_time_s`` > 0 compares the
+    measurement with the command passed through the healthy wheel's first-order lag
+    (a model-based residual): a commanded acceleration, the start from rest
+    included, then leaves no shortfall.
 
     Examples
     --------
@@ -185,6 +188,9 @@ class WheelActuator(RuntimeModule):
         "error_smoothing_s": Param(
             0.0, "s", "time constant of the command_error average kept at every step (0: raw)"
         ),
+        "response_time_s": Param(
+            0.0, "s", "first-order lag the healthy wheel follows its command with (0: none)"
+        ),
     }
     role = "actuator"
     inputs = ("wheel_cmd",)
@@ -199,6 +205,7 @@ class WheelActuator(RuntimeModule):
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
         self.prev_cmd: float | None = None
+        self.expected = 0.0  # the healthy wheel's speed (from rest)
         self.signals = {"command_error": math.nan}
 
     def configure(self) -> None:
@@ -208,11 +215,16 @@ class WheelActuator(RuntimeModule):
         self.index = 0 if side == "left" else 1
         self.main_output = f"wheel_speed_{side}"
         self.smoothing = float(self.params["error_smoothing_s"])
+        self.response = float(self.params["response_time_s"])
 
     def step(self, t, dt, inputs):
         enc = inputs.get("encoder_speeds")
         if enc is not None and self.prev_cmd is not None:
             c, m = self.prev_cmd, float(enc[self.index])
+            if self.response > 0:  # what a healthy wheel would turn at now: the lagged command
+                c = self.expected = self.expected + (1.0 - math.exp(-dt / self.response)) * (
+                    c - self.expected
+                )
             e = c - m if c >= 0 else m - c
             last = self.signals["command_error"]
             if self.smoothing > 0 and last == last:  # average at the step rate
