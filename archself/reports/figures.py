@@ -170,7 +170,7 @@ def plot_influence(rep: RunReport) -> Any:
     ax = fig.add_subplot()
     if rep.warmup_s > 0:
         ax.axvspan(0, rep.warmup_s, color="#bbbbbb", alpha=0.35,
-                   label=f"warm-up ({rep.warmup_steps} cycles)")
+                   label=f"warm-up ({rep.warmup_s:g} s)")
     for name, z in rep.z.items():
         ax.plot(rep.z_t, z, lw=1.3, label=_tex(f"|z| {name}"))
     for k, (label, value) in enumerate(rep.tau):

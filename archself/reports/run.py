@@ -7,8 +7,9 @@
   of the error metrics (``runtime.objective.unit``);
 - the z channels per module per MAPE-K cycle from the decision records
   (``decisions[i]['z']``; NaN where a module was inactive), τ from
-  ``runtime.threshold`` (or τ_on/τ_off), the warm-up (``runtime.warmup_steps``
-  cycles) and the switch events;
+  ``runtime.threshold`` (or τ_on/τ_off), the warm-up in seconds
+  (``runtime.warmup_time_s``), the trust setting (``runtime.min_confidence``) and
+  the switch events;
 - the decision log reduced to the cycles where something happened: a candidate
   set, an action chosen, a note, or the end of the warm-up. Consecutive cycles
   in the same situation (configuration, candidates, rejections) are folded into
@@ -90,8 +91,8 @@ class RunReport:
     selector: str
     tau: list[tuple[str, float]]  # [("τ", 0.55)] or [("τ_on", ..), ("τ_off", ..)] or []
     period_s: float
-    warmup_steps: int
-    warmup_s: float
+    warmup_s: float  # runtime.warmup_time_s: max(warmup_s, warmup_steps · period_s)
+    min_confidence: float
     runs: list[RunSummary]
     decision_rows: list[DecisionRow] = field(default_factory=list)
     z_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -117,6 +118,7 @@ class RunReport:
             "faults": self.faults,
             "selector": self.selector,
             "warmup_s": self.warmup_s,
+            "min_confidence": self.min_confidence,
             "runs": [
                 {
                     "mode": r.mode,
@@ -179,13 +181,16 @@ def _g(x: Any) -> str:
     return "n/a" if x is None else f"{float(x):.3g}"
 
 
-def _decision_rows(decisions: list[dict[str, Any]], warmup_steps: int) -> list[DecisionRow]:
+def _decision_rows(decisions: list[dict[str, Any]]) -> list[DecisionRow]:
     rows: list[DecisionRow] = []
     prev_sig = None
+    prev_phase = None
     for d in decisions:
         cands = tuple((c, (d.get("z") or {}).get(c)) for c in d.get("candidates") or [])
         outcome, detail = _outcome(d)
-        first_after_warmup = warmup_steps > 0 and d.get("cycle") == warmup_steps
+        # the first cycle after the warm-up (the loop records phase "warmup" until then)
+        first_after_warmup = prev_phase == "warmup" and d.get("phase") != "warmup"
+        prev_phase = d.get("phase")
         interesting = bool(cands) or outcome in ("switch", "update", "note") or first_after_warmup
         if not interesting:
             prev_sig = None
@@ -248,10 +253,10 @@ def build_run_report(arch: Architecture, results: list[Any]) -> RunReport:
         selector=selector,
         tau=tau,
         period_s=float(rt.period_s),
-        warmup_steps=int(rt.warmup_steps),
-        warmup_s=float(rt.warmup_steps * rt.period_s),
+        warmup_s=float(rt.warmup_time_s),
+        min_confidence=float(rt.min_confidence),
         runs=runs,
-        decision_rows=_decision_rows(decisions, int(rt.warmup_steps)),
+        decision_rows=_decision_rows(decisions),
         z_t=z_t,
         z=z,
         series=series,
