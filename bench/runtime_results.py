@@ -167,7 +167,8 @@ def settings(arch) -> str:
         else (f"top-k = {rt.top_k}" if rt.top_k is not None else f"hysteresis {rt.hysteresis}")
     )
     return (
-        f"Settings as in the file: {sel}, {rt.warmup_steps} warm-up cycles, "
+        f"Settings as in the file: {sel}, warm-up {rt.warmup_time_s:g} s, "
+        f"`min_confidence` {rt.min_confidence:g}, "
         f"`period_s` {rt.period_s:g} s, T_min = {rt.dwell_s:g} s, λ = {rt.cost_weight:g}, "
         f"ε = {rt.stability.margin:g}."
     )
