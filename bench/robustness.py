@@ -226,7 +226,8 @@ def markdown(summary: dict[str, Any]) -> str:
         f"{summary['elapsed_s']:.0f} s on {summary['workers']} local workers.",
         "",
         "| block | setting | runs | right switch | runs with a false switch | "
-        "max error mean ± sd [m] | worst [m] | median delay [s] |",
+        f"max error mean ± sd [{summary['unit']}] | worst [{summary['unit']}] | "
+        "median delay [s] |",
         "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for ln in summary["lines"]:
@@ -290,6 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         "runs": runs,
         "elapsed_s": time.perf_counter() - t0,
         "workers": args.workers or "all",
+        "unit": arch.runtime.objective.unit or "",
         "lines": lines,
     }
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
