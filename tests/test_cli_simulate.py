@@ -95,6 +95,29 @@ def test_trace_and_explain(tmp_path: Path) -> None:
     assert "MAPE-K decision log" in out.stdout
 
 
+def test_explain_json_holds_what_the_text_shows(tmp_path: Path) -> None:
+    from archself.runtime.decisions import explain
+
+    trace = tmp_path / "run.json"
+    CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--trace", str(trace)])
+    decisions = json.loads(trace.read_text())["decisions"]
+    out = CliRunner().invoke(app, ["explain", str(trace), "--json"])
+    assert out.exit_code == 0, out.stderr
+    doc = json.loads(out.stdout)
+    assert set(doc) == {"run", "cycles", "switches", "updates", "segments"}
+    assert doc["cycles"] == len(decisions)
+    # every cycle is in exactly one segment, in order
+    counted = [1 if s["kind"] == "cycle" else s["cycles"] for s in doc["segments"]]
+    assert sum(counted) == len(decisions)
+    full = [s["record"]["cycle"] for s in doc["segments"] if s["kind"] == "cycle"]
+    assert full == sorted(full) and full[0] == decisions[0]["cycle"]
+    # the text shows one block per notable cycle and one line per repeat
+    text = explain(decisions)
+    repeats = [s for s in doc["segments"] if s["kind"] == "repeat"]
+    assert text.count("more cycle(s)") == len(repeats)
+    assert len(doc["switches"]) == text.count("  switch at t =")
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

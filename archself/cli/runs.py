@@ -245,9 +245,18 @@ def report(
 
 def explain(
     trace: Annotated[Path, typer.Argument(help="A trace written by `simulate --trace`.")],
+    json_out: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print {run, cycles, switches, updates, segments} as JSON (notable cycles "
+            "in full, repeats summarized).",
+        ),
+    ] = False,
 ) -> None:
     """Explain a run's decisions: why (and why not) the architecture switched."""
     from archself.runtime.decisions import explain as render
+    from archself.runtime.decisions import explain_data
 
     try:
         _inputs(trace, what="a trace (JSON)")
@@ -259,6 +268,11 @@ def explain(
         raise _fail(f"{trace}: error: no such file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
         raise _fail(f"{trace}: error: not an archself trace ({type(exc).__name__})") from None
+    if json_out:
+        run = {k: meta.get(k) for k in ("architecture", "scenario", "seed", "mode",
+                                        "configuration", "final_configuration")}
+        typer.echo(json.dumps({"run": run, **explain_data(decisions)}, indent=1))
+        return
     typer.echo(
         f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · "
         f"seed {meta.get('seed')} · {meta.get('mode')} · "

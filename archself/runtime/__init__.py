@@ -29,6 +29,7 @@ _LAZY = {
     "ActionEvaluation": "decisions",
     "DecisionRecord": "decisions",
     "explain": "decisions",
+    "explain_data": "decisions",
     "InfluenceSolver": "influence",
     "influence": "influence",
     "spectral_radius": "influence",

@@ -21,7 +21,7 @@ from typing import Any
 
 from archself.jsondata import jsonable
 
-__all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "jsonable"]
+__all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "explain_data", "jsonable"]
 
 
 class _ValueItems(ItemsView[str, float]):
@@ -293,33 +293,88 @@ def explain(decisions: Iterable[Any]) -> str:
             f"score {_fmt(ch.get('score'))})"
         )
     lines.append("")
-    prev_sig: tuple | None = None
-    run: list[dict[str, Any]] = []
-
-    def flush() -> None:
-        if not run:
-            return
-        a, b = run[0], run[-1]
-        peak = max(
-            (abs(v) for d in run for v in (d.get("z") or {}).values() if v is not None),
-            default=0.0,
-        )
+    for kind, seg in _segments(recs):
+        if kind == "cycle":
+            lines.extend(_cycle_block(seg[0]))
+            continue
+        a, b = seg[0], seg[-1]
         what = "warm-up" if a.get("phase") == "warmup" else "same situation"
         lines.append(
-            f"t = {_fmt(a.get('t'), '.1f')}–{_fmt(b.get('t'), '.1f')} s: {len(run)} more cycle(s), "
+            f"t = {_fmt(a.get('t'), '.1f')}–{_fmt(b.get('t'), '.1f')} s: {len(seg)} more cycle(s), "
             f"{what} [{a.get('configuration')}], candidates {a.get('candidates') or 'none'}, "
-            f"max |z| {_fmt(peak, '.2f')}"
+            f"max |z| {_fmt(_peak(seg), '.2f')}"
         )
-        run.clear()
+    return "\n".join(lines)
 
+
+def _peak(run: list[dict[str, Any]]) -> float:
+    """Largest |z_i| over a run of cycles."""
+    return max(
+        (abs(v) for d in run for v in (d.get("z") or {}).values() if v is not None), default=0.0
+    )
+
+
+def _segments(recs: list[dict[str, Any]]) -> Iterator[tuple[str, list[dict[str, Any]]]]:
+    """The log as ``("cycle", [d])`` for notable cycles and ``("run", [d, ...])`` for repeats.
+
+    A cycle is notable when an action was chosen, it carries a note, or its situation
+    (phase, configuration, candidates, evaluation outcomes) differs from the cycle before.
+    """
+    prev_sig: tuple | None = None
+    run: list[dict[str, Any]] = []
     for d in recs:
         sig = _signature(d)
-        notable = bool(d.get("chosen")) or d.get("note") or sig != prev_sig
-        if notable:
-            flush()
-            lines.extend(_cycle_block(d))
+        if bool(d.get("chosen")) or d.get("note") or sig != prev_sig:
+            if run:
+                yield "run", run
+                run = []
+            yield "cycle", [d]
         else:
             run.append(d)
         prev_sig = sig
-    flush()
-    return "\n".join(lines)
+    if run:
+        yield "run", run
+
+
+def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
+    """What :func:`explain` shows, as JSON-ready data (``archself explain --json``).
+
+    Returns
+    -------
+    dict
+        ``cycles`` (number logged), ``switches`` and ``updates`` (``{t, action, module,
+        from, to | set, z, score}``), and ``segments``: the notable cycles in full
+        (``{"kind": "cycle", "record": <decision record>}``) and runs of repeated cycles
+        summarized (``{"kind": "repeat", "t_from", "t_to", "cycles", "phase",
+        "configuration", "candidates", "max_abs_z"}``).
+    """
+    recs = [_as_dict(d) for d in decisions]
+    switches, updates = [], []
+    for d in recs:
+        ch = d.get("chosen")
+        if not ch:
+            continue
+        item = {"t": d.get("t"), **{k: ch.get(k) for k in ("action", "module", "z", "score")}}
+        if ch.get("kind") == "parameter_update":
+            updates.append({**item, "set": ch.get("set")})
+        else:
+            switches.append({**item, "from": ch.get("from"), "to": ch.get("to")})
+    segments: list[dict[str, Any]] = []
+    for kind, seg in _segments(recs):
+        if kind == "cycle":
+            segments.append({"kind": "cycle", "record": seg[0]})
+        else:
+            a = seg[0]
+            segments.append({
+                "kind": "repeat",
+                "t_from": a.get("t"),
+                "t_to": seg[-1].get("t"),
+                "cycles": len(seg),
+                "phase": a.get("phase"),
+                "configuration": a.get("configuration"),
+                "candidates": list(a.get("candidates") or []),
+                "max_abs_z": _peak(seg),
+            })
+    return jsonable(
+        {"cycles": len(recs), "switches": switches, "updates": updates, "segments": segments}
+    )
