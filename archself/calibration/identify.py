@@ -136,27 +136,12 @@ def _run_jobs(
     address: str | None,
     progress: Callable[[int, int], None] | None,
 ) -> list[dict[str, Any]]:
-    from archself.campaign.executors import make_executor
+    from archself.calibration.runs import run_on_executor
 
-    ex = make_executor(
-        executor, workers=workers, address=address, preload=["archself.calibration.identify"]
+    return run_on_executor(
+        jobs, run_identify_job, "archself.calibration.identify",
+        executor=executor, workers=workers, address=address, progress=progress,
     )
-    results: list[dict[str, Any]] = []
-    futures: list[Any] = []
-    try:
-        futures = [ex.submit(run_identify_job, j) for j in jobs]
-        if progress is not None:
-            progress(0, len(jobs))
-        for fut in ex.as_completed(futures):
-            results.append(fut.result())
-            if progress is not None:
-                progress(len(results), len(jobs))
-    except BaseException:
-        ex.cancel(futures)
-        ex.close()
-        raise
-    ex.close()
-    return results
 
 
 @dataclass

@@ -33,6 +33,7 @@ __all__ = [
     "plan_runs",
     "run_calibration_job",
     "run_jobs",
+    "run_on_executor",
     "save_runs",
     "seeds_from",
 ]
@@ -245,28 +246,10 @@ def run_jobs(
     ``executor`` is ``"local"``, ``"dask"`` or ``"inline"`` (in this process; tests).
     Ctrl-C cancels the queued runs and propagates.
     """
-    from archself.campaign.executors import make_executor
-
-    if not jobs:
-        return []
-    ex = make_executor(
-        executor, workers=workers, address=address, preload=["archself.calibration.runs"]
+    results = run_on_executor(
+        jobs, run_calibration_job, "archself.calibration.runs",
+        executor=executor, workers=workers, address=address, progress=progress,
     )
-    results: list[dict[str, Any]] = []
-    futures: list[Any] = []
-    try:
-        futures = [ex.submit(run_calibration_job, j) for j in jobs]
-        if progress is not None:
-            progress(0, len(jobs))
-        for fut in ex.as_completed(futures):
-            results.append(fut.result())
-            if progress is not None:
-                progress(len(results), len(jobs))
-    except BaseException:
-        ex.cancel(futures)
-        ex.close()
-        raise
-    ex.close()
     results.sort(key=lambda r: (r["scenario"], r["configuration"], r["replicate"]))
     return results
 
@@ -352,3 +335,41 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
             f"not a runs file of archself calibrate ({type(exc).__name__})", str(path)
         ) from None
     return meta, results
+
+
+def run_on_executor(
+    jobs: Sequence[Any],
+    fn: Callable[[Any], dict[str, Any]],
+    preload: str,
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[dict[str, Any]]:
+    """``fn(job)`` for every job on a campaign executor, in completion order.
+
+    ``preload`` is the module the workers import first (where ``fn`` lives). Ctrl-C
+    cancels the queued runs and propagates. Used by calibrate and identify.
+    """
+    from archself.campaign.executors import make_executor
+
+    if not jobs:
+        return []
+    ex = make_executor(executor, workers=workers, address=address, preload=[preload])
+    results: list[dict[str, Any]] = []
+    futures: list[Any] = []
+    try:
+        futures = [ex.submit(fn, j) for j in jobs]
+        if progress is not None:
+            progress(0, len(jobs))
+        for fut in ex.as_completed(futures):
+            results.append(fut.result())
+            if progress is not None:
+                progress(len(results), len(jobs))
+    except BaseException:
+        ex.cancel(futures)
+        ex.close()
+        raise
+    ex.close()
+    return results
