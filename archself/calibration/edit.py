@@ -17,7 +17,7 @@ from typing import Any
 
 from archself.errors import LoadError, OutputError
 
-__all__ = ["check_output", "format_band", "same_file", "set_nominals"]
+__all__ = ["check_output", "format_band", "replace_scalars", "same_file", "set_nominals"]
 
 COMMENT_TAG = "# calibrated:"
 
@@ -137,24 +137,7 @@ def set_nominals(
                 f"modules.{name}.residual.nominal",
             )
         edits[id(node)] = (start.index, end.index, new, name)
-    out = text
-    changed_lines: set[int] = set()
-    # replace from the end so that earlier indices stay valid
-    for s, e, new, _ in sorted(edits.values(), key=lambda t: -t[0]):
-        out = out[:s] + new + out[e:]
-        changed_lines.add(out.count("\n", 0, s))
-    lines = out.split("\n")
-    note = f"{COMMENT_TAG} {comment}".rstrip()
-    for i in sorted(changed_lines):
-        line = lines[i]
-        cut = _comment_start(line, 0)
-        if cut < 0:
-            lines[i] = f"{line.rstrip()}  {note}"
-        elif line[cut:].startswith(COMMENT_TAG):
-            lines[i] = f"{line[:cut].rstrip()}  {note}"
-        else:
-            lines[i] = f"{line.rstrip()}; {note[2:]}"
-    result = "\n".join(lines)
+    result = replace_scalars(text, [(s, e, new) for s, e, new, _ in edits.values()], comment)
     if verify:
         _verify(result, file, {name: float(format_band(v)) for name, v in values.items()})
     return result
@@ -201,3 +184,32 @@ def check_output(source: str | Path, output: str | Path, *, in_place: bool, forc
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"{out}: error: cannot write: folder {folder} does not exist")
+
+
+def replace_scalars(
+    text: str, edits: list[tuple[int, int, str]], comment: str, tag: str = COMMENT_TAG
+) -> str:
+    """Replace ``text[start:end]`` by each new scalar and tag every changed line.
+
+    Each changed line gets the end-of-line comment ``<tag> <comment>`` (an earlier
+    comment with that tag is replaced, another comment is kept before it). Used for the bands
+    (:func:`set_nominals`) and the edge weights of ``archself identify --write-back``.
+    """
+    out = text
+    changed_lines: set[int] = set()
+    # replace from the end so that earlier indices stay valid
+    for s, e, new in sorted(edits, key=lambda t: -t[0]):
+        out = out[:s] + new + out[e:]
+        changed_lines.add(out.count("\n", 0, s))
+    lines = out.split("\n")
+    note = f"{tag} {comment}".rstrip()
+    for i in sorted(changed_lines):
+        line = lines[i]
+        cut = _comment_start(line, 0)
+        if cut < 0:
+            lines[i] = f"{line.rstrip()}  {note}"
+        elif line[cut:].startswith(tag):
+            lines[i] = f"{line[:cut].rstrip()}  {note}"
+        else:
+            lines[i] = f"{line.rstrip()}; {note[2:]}"
+    return "\n".join(lines)

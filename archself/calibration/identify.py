@@ -659,7 +659,7 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
     from ruamel.yaml import YAML
     from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-    from archself.calibration.edit import _child, _comment_start
+    from archself.calibration.edit import _child, replace_scalars
 
     root = YAML(typ="rt").compose(text)
     seq = _child(root, "edges")
@@ -694,23 +694,7 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
                 )
             edits[id(node)] = (node.start_mark.index, node.end_mark.index, new)
             expect[i] = float(new)
-    out = text
-    changed: set[int] = set()
-    for s_, e_, new in sorted(edits.values(), key=lambda v: -v[0]):
-        out = out[:s_] + new + out[e_:]
-        changed.add(out.count("\n", 0, s_))
-    lines = out.split("\n")
-    note = f"{COMMENT_TAG} {comment}".rstrip()
-    for i in sorted(changed):
-        line = lines[i]
-        cut = _comment_start(line, 0)
-        if cut < 0:
-            lines[i] = f"{line.rstrip()}  {note}"
-        elif line[cut:].startswith(COMMENT_TAG):
-            lines[i] = f"{line[:cut].rstrip()}  {note}"
-        else:
-            lines[i] = f"{line.rstrip()}; {note[2:]}"
-    result = "\n".join(lines)
+    result = replace_scalars(text, list(edits.values()), comment, COMMENT_TAG)
     from archself.loader import load_text
 
     arch = load_text(result, file).arch
