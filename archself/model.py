@@ -337,6 +337,13 @@ class Runtime(_Strict):
     threshold: Positive | None = Field(None, description="τ of Eq. 16.")
     top_k: int | None = Field(None, gt=0, description="Alternative to τ: the k largest |z_i|.")
     hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
+    localization: Literal["influence", "source"] = Field(
+        "influence",
+        description="What drives candidate selection and the planner's weight: influence, the "
+        "paper's z = (I − Wᵀ)⁻¹ r (Eq. 14: largest downstream of a fault), or source, the local "
+        "faults e ≥ 0 that explain r = (I − Wᵀ)⁻¹ e (largest at the fault's origin). Both are "
+        "logged.",
+    )
     normalization: Literal["nominal", "none"] = Field(
         "nominal",
         description="z channels divided by the nominal level each would have (nominal) or raw.",
