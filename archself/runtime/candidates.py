@@ -8,6 +8,10 @@ Three selectors, chosen by the ``runtime`` block of the architecture file:
 - ``hysteresis: {on, off}`` — a module enters C when ``|z_i| ≥ τ_on`` and leaves it
   only when ``|z_i| < τ_off`` (τ_on > τ_off), :class:`HysteresisSelector`.
 
+With ``runtime.localization: source`` the same selectors run on the source
+estimate ê (:mod:`~archself.runtime.sources`) instead of z; ``symbol`` names the
+quantity in :meth:`CandidateSelector.describe`.
+
 Every selector returns the candidates ordered by decreasing ``|z_i|``, equal
 magnitudes by name. ``select(z, values)`` may be given ``values``, the array of
 ``z``'s values in its key order: the test on ``|z_i|`` then runs on the array
@@ -80,7 +84,10 @@ class CandidateSelector:
 
     ``values``, when given, is ``numpy.array(list(z.values()))`` (computed
     already by the caller); selectors use it to test every module at once.
+    ``symbol`` names the quantity selected on in :meth:`describe` (``z`` or ``ê``).
     """
+
+    symbol = "z"
 
     def select(
         self, z: Mapping[str, float], values: np.ndarray | None = None
@@ -97,8 +104,9 @@ class CandidateSelector:
 class ThresholdSelector(CandidateSelector):
     """``|z_i| ≥ τ`` (Eq. 16)."""
 
-    def __init__(self, tau: float) -> None:
+    def __init__(self, tau: float, symbol: str = "z") -> None:
         self.tau = float(tau)
+        self.symbol = symbol
 
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
@@ -106,14 +114,15 @@ class ThresholdSelector(CandidateSelector):
         return _ranked_where(z, values, np.abs(values) >= self.tau)
 
     def describe(self) -> str:
-        return f"|z| >= {self.tau:g}"
+        return f"|{self.symbol}| >= {self.tau:g}"
 
 
 class TopKSelector(CandidateSelector):
     """The ``k`` largest non-zero ``|z_i|``."""
 
-    def __init__(self, k: int) -> None:
+    def __init__(self, k: int, symbol: str = "z") -> None:
         self.k = int(k)
+        self.symbol = symbol
 
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
@@ -121,7 +130,7 @@ class TopKSelector(CandidateSelector):
         return _ranked_where(z, values, values != 0.0)[: self.k]
 
     def describe(self) -> str:
-        return f"top {self.k} by |z|"
+        return f"top {self.k} by |{self.symbol}|"
 
 
 class HysteresisSelector(CandidateSelector):
@@ -145,7 +154,8 @@ class HysteresisSelector(CandidateSelector):
     []
     """
 
-    def __init__(self, on: float, off: float) -> None:
+    def __init__(self, on: float, off: float, symbol: str = "z") -> None:
+        self.symbol = symbol
         if not on > off:
             raise ValueError("hysteresis needs on > off")
         self.on = float(on)
@@ -166,14 +176,19 @@ class HysteresisSelector(CandidateSelector):
         self.members.clear()
 
     def describe(self) -> str:
-        return f"hysteresis on |z| >= {self.on:g}, off |z| < {self.off:g}"
+        s = self.symbol
+        return f"hysteresis on |{s}| >= {self.on:g}, off |{s}| < {self.off:g}"
 
 
 def selector_from_runtime(runtime: Runtime) -> CandidateSelector:
-    """The selector the ``runtime`` block declares (exactly one is given)."""
+    """The selector the ``runtime`` block declares (exactly one is given).
+
+    It selects on z, or on the source estimate ê with ``localization: source``.
+    """
+    symbol = "ê" if runtime.localization == "source" else "z"
     if runtime.hysteresis is not None:
-        return HysteresisSelector(runtime.hysteresis.on, runtime.hysteresis.off)
+        return HysteresisSelector(runtime.hysteresis.on, runtime.hysteresis.off, symbol)
     if runtime.top_k is not None:
-        return TopKSelector(runtime.top_k)
+        return TopKSelector(runtime.top_k, symbol)
     assert runtime.threshold is not None
-    return ThresholdSelector(runtime.threshold)
+    return ThresholdSelector(runtime.threshold, symbol)

@@ -2,7 +2,9 @@
 
 One :class:`DecisionRecord` per cycle holds what Algorithm 1 saw and decided:
 the objective ``J_obs`` and global residual ``r`` (Eq. 11), the module residuals
-``r_i`` (Eq. 12), the influence ``z`` (Eq. 14), the candidate set (Eq. 16), and
+``r_i`` (Eq. 12), the influence ``z`` (Eq. 14), the source estimate ``ê``
+(:mod:`~archself.runtime.sources`) and which of the two drove the candidate set
+(``runtime.localization``), the candidate set (Eq. 16), and
 for every action evaluated its estimated improvement Δ (Eq. 18), its stability
 verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
 ``unavailable``, ``constraint``, ``budget``, ``dwell``, ``no improvement``,
@@ -151,6 +153,8 @@ class DecisionRecord:
     chosen: dict[str, Any] | None = None
     note: str = ""
     compensated: list[str] = field(default_factory=list)
+    source: Mapping[str, float] | None = None
+    localization: str = "influence"
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable(
@@ -164,6 +168,8 @@ class DecisionRecord:
                 "r_global": self.r_global,
                 "r": self.r,
                 "z": self.z,
+                **({"source": self.source} if self.source is not None else {}),
+                "localization": self.localization,
                 "candidates": self.candidates,
                 "selector": self.selector,
                 "kappa": self.kappa,
@@ -196,20 +202,34 @@ def _signature(d: dict[str, Any]) -> tuple:
     return (d.get("phase"), d.get("configuration"), frozenset(d.get("candidates") or []), evals)
 
 
-def _top_z(d: dict[str, Any], k: int = 3) -> str:
-    z = {n: v for n, v in (d.get("z") or {}).items() if v}
+def _top_z(d: dict[str, Any], k: int = 3, key: str = "z") -> str:
+    z = {n: v for n, v in (d.get(key) or {}).items() if v}
     top = sorted(z.items(), key=lambda kv: -abs(kv[1]))[:k]
     return ", ".join(f"{n} {_fmt(v, '.2f')}" for n, v in top) or "none"
 
 
-def _describe_eval(e: dict[str, Any]) -> str:
+def _largest(values: Mapping[str, Any]) -> str | None:
+    """The module with the largest non-zero |value| (ties: first in order), or None."""
+    best, top = None, 0.0
+    for n, v in values.items():
+        if v is not None and abs(v) > top:
+            best, top = n, abs(v)
+    return best
+
+
+def _weight_symbol(d: dict[str, Any]) -> str:
+    """The planner's weight in a record's scores: z, or the source estimate ê."""
+    return "ê" if d.get("localization") == "source" else "z"
+
+
+def _describe_eval(e: dict[str, Any], weight: str = "z") -> str:
     target = f" → {e['to']}" if e.get("to") else ""
     head = f"{e.get('action')} ({e.get('kind')} on {e.get('module')}{target})"
     parts = []
     if e.get("delta") is not None:
         parts.append(f"Δ={_fmt(e['delta'])}")
     if e.get("score") is not None:
-        parts.append(f"score={_fmt(e['score'])} = z·Δ − λ·cost")
+        parts.append(f"score={_fmt(e['score'])} = {weight}·Δ − λ·cost")
     st = e.get("stability")
     if st:
         parts.append(("stable: " if st.get("ok") else "UNSTABLE: ") + str(st.get("reason") or ""))
@@ -230,22 +250,35 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
     cands = d.get("candidates") or []
     z = d.get("z") or {}
     r = d.get("r") or {}
+    src = d.get("source")
     if cands:
         shown = ", ".join(
-            f"{c} (z = {_fmt(z.get(c), '.2f')}, own r = {_fmt(r.get(c), '.2f')})" for c in cands
+            f"{c} (z = {_fmt(z.get(c), '.2f')}"
+            + (f", source ê = {_fmt(src.get(c), '.2f')}" if src is not None else "")
+            + f", own r = {_fmt(r.get(c), '.2f')})"
+            for c in cands
         )
         lines.append(f"  candidates ({d.get('selector', '')}): {shown}")
     else:
-        lines.append(f"  no candidate; largest z: {_top_z(d)}")
+        line = f"  no candidate; largest z: {_top_z(d)}"
+        if src is not None:
+            line += f"; largest source ê: {_top_z(d, key='source')}"
+        lines.append(line)
+    if src is not None and cands and _largest(z) != _largest(src):
+        lines.append(
+            f"  z and source disagree: largest z {_top_z(d, 1)}, "
+            f"largest source ê {_top_z(d, 1, key='source')}"
+        )
     if d.get("compensated"):
         lines.append(
             "  compensated (own z only, not propagated through W): "
             + ", ".join(d["compensated"])
         )
+    weight = _weight_symbol(d)
     for e in d.get("evaluations") or []:
         chosen_id = (d.get("chosen") or {}).get("action")
         mark = "  ← chosen" if chosen_id is not None and chosen_id == e.get("action") else ""
-        lines.append("    - " + _describe_eval(e) + mark)
+        lines.append("    - " + _describe_eval(e, weight) + mark)
     ch = d.get("chosen")
     if ch:
         if ch.get("kind") == "parameter_update":
@@ -290,7 +323,8 @@ def explain(decisions: Iterable[Any]) -> str:
         lines.append(
             f"  switch at t = {_fmt(d.get('t'), '.1f')} s: {ch.get('from')} → {ch.get('to')} "
             f"({ch.get('action')}, module {ch.get('module')}, z = {_fmt(ch.get('z'), '.2f')}, "
-            f"score {_fmt(ch.get('score'))})"
+            + (f"source ê = {_fmt(ch.get('source'), '.2f')}, " if "source" in ch else "")
+            + f"score {_fmt(ch.get('score'))})"
         )
     lines.append("")
     for kind, seg in _segments(recs):
@@ -303,14 +337,15 @@ def explain(decisions: Iterable[Any]) -> str:
             f"t = {_fmt(a.get('t'), '.1f')}–{_fmt(b.get('t'), '.1f')} s: {len(seg)} more cycle(s), "
             f"{what} [{a.get('configuration')}], candidates {a.get('candidates') or 'none'}, "
             f"max |z| {_fmt(_peak(seg), '.2f')}"
+            + (f", max ê {_fmt(_peak(seg, 'source'), '.2f')}" if "source" in a else "")
         )
     return "\n".join(lines)
 
 
-def _peak(run: list[dict[str, Any]]) -> float:
-    """Largest |z_i| over a run of cycles."""
+def _peak(run: list[dict[str, Any]], key: str = "z") -> float:
+    """Largest |z_i| (or of another per-module quantity) over a run of cycles."""
     return max(
-        (abs(v) for d in run for v in (d.get("z") or {}).values() if v is not None), default=0.0
+        (abs(v) for d in run for v in (d.get(key) or {}).values() if v is not None), default=0.0
     )
 
 
@@ -343,10 +378,11 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
     -------
     dict
         ``cycles`` (number logged), ``switches`` and ``updates`` (``{t, action, module,
-        from, to | set, z, score}``), and ``segments``: the notable cycles in full
-        (``{"kind": "cycle", "record": <decision record>}``) and runs of repeated cycles
-        summarized (``{"kind": "repeat", "t_from", "t_to", "cycles", "phase",
-        "configuration", "candidates", "max_abs_z"}``).
+        from, to | set, z, score}`` and ``source``, the source estimate ê, when the log
+        has it), and ``segments``: the notable cycles in full (``{"kind": "cycle",
+        "record": <decision record>}``) and runs of repeated cycles summarized
+        (``{"kind": "repeat", "t_from", "t_to", "cycles", "phase", "configuration",
+        "candidates", "max_abs_z"}`` and ``max_source`` when the log has ê).
     """
     recs = [_as_dict(d) for d in decisions]
     switches, updates = [], []
@@ -355,6 +391,8 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
         if not ch:
             continue
         item = {"t": d.get("t"), **{k: ch.get(k) for k in ("action", "module", "z", "score")}}
+        if "source" in ch:
+            item["source"] = ch["source"]
         if ch.get("kind") == "parameter_update":
             updates.append({**item, "set": ch.get("set")})
         else:
@@ -374,6 +412,7 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
                 "configuration": a.get("configuration"),
                 "candidates": list(a.get("candidates") or []),
                 "max_abs_z": _peak(seg),
+                **({"max_source": _peak(seg, "source")} if "source" in a else {}),
             })
     return jsonable(
         {"cycles": len(recs), "switches": switches, "updates": updates, "segments": segments}

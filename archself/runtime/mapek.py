@@ -24,8 +24,17 @@ module it was keyed to counts as *compensated* (``runtime.isolate_compensated``)
 its residual stays its own (z_i includes r_i) but is not propagated through W,
 so the fault that was dealt with does not keep pulling z onto the modules
 downstream; the mark is dropped when an action keyed to the module applies
-again (the compensation is gone) or it becomes inactive. ``runtime.ablation`` switches
-propagation (z = r), the stability filter or the dwell time off. Every cycle
+again (the compensation is gone) or it becomes inactive.
+
+Localization: besides z, every cycle estimates the local faults that explain the
+residuals, ``ê = max(0, (I − Wᵀ) r)`` (:mod:`~archself.runtime.sources`), which is
+largest at a fault's origin where z is largest downstream of it.
+``runtime.localization`` chooses which of the two drives the candidate set and the
+planner's weight (``influence``: z, the paper's Algorithm 1; ``source``: ê); the
+decision log holds both. The source estimate uses every residual as it is (a
+compensated module's residual still explains its downstream echoes).
+``runtime.ablation`` switches propagation (z = ê = r), the stability filter or the
+dwell time off. Every cycle
 appends a :class:`~archself.runtime.decisions.DecisionRecord` to
 :attr:`MapeK.decisions`.
 """
@@ -40,6 +49,7 @@ from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
+from archself.runtime.sources import source_estimate
 
 __all__ = ["MapeK"]
 
@@ -79,6 +89,7 @@ class MapeK:
         self.knowledge = Knowledge(arch)
         self.monitor = Monitor(arch, self.knowledge.names)
         self.selector = selector_from_runtime(arch.runtime)
+        self.localization = arch.runtime.localization
         self.planner = Planner(arch)
         self.decisions: list[DecisionRecord] = []
         self.switches: list[dict[str, Any]] = []
@@ -90,6 +101,8 @@ class MapeK:
         self.t_start: float | None = None
         self.compensated: dict[str, str] = {}  # module -> configuration it was compensated in
         self._checked_conf: str | None = None
+        self._w_key: Any = None
+        self._w: Any = None
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: Any) -> list[dict[str, Any]]:
@@ -120,7 +133,13 @@ class MapeK:
         z_values = z[k.active_index]
         z_active = ValueMap(k.active_names, k.active_pos, z_values)
         r_active = ValueMap(k.active_names, k.active_pos, obs.r[k.active_index])
-        candidates = self.selector.select(z_active, z_values)
+        e_values = self._sources(obs.r, k)[k.active_index]
+        e_active = ValueMap(k.active_names, k.active_pos, e_values)
+        if self.localization == "source":
+            drive, drive_values = e_active, e_values
+        else:
+            drive, drive_values = z_active, z_values
+        candidates = self.selector.select(drive, drive_values)
 
         if self.t_start is None:
             self.t_start = t
@@ -137,6 +156,8 @@ class MapeK:
             z=z_active,
             candidates=list(candidates),
             selector=self.selector.describe(),
+            source=e_active,
+            localization=self.localization,
             kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
             compensated=sorted(self.compensated),
         )
@@ -151,7 +172,7 @@ class MapeK:
             configuration=k.configuration,
             active=k.active,
             edges=k.edges,
-            z=z_active,
+            z=drive,
             r=r_active,
             kappa=obs.kappa,
             params=k.params,
@@ -176,11 +197,13 @@ class MapeK:
             k.sync(system)
             return []
         k.sync(system)
+        z_chosen = ev.z if self.localization == "influence" else abs(z_active.get(action.module, 0))
         chosen: dict[str, Any] = {
             "action": action.id,
             "kind": action.kind,
             "module": action.module,
-            "z": ev.z,
+            "z": z_chosen,
+            "source": abs(e_active.get(action.module, 0.0)),
             "delta": ev.delta,
             "score": ev.score,
         }
@@ -221,6 +244,15 @@ class MapeK:
         z = k.influence(spread)
         z[own] += r[own]
         return z
+
+    def _sources(self, r: Any, k: Knowledge) -> Any:
+        """ê = max(0, (I − Wᵀ) r) for the active edges (:func:`source_estimate`)."""
+        if not self.propagate:
+            return r
+        if self._w_key is not k.edges and self._w_key != k.edges:
+            self._w = k.weight_matrix()
+            self._w_key = k.edges
+        return source_estimate(self._w, r)
 
     def _still_compensated(self, configuration: str, active: frozenset[str]) -> None:
         """Drop the modules whose compensation is gone in ``configuration``.
