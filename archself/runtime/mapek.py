@@ -27,8 +27,9 @@ downstream; the mark is dropped when an action keyed to the module applies
 again (the compensation is gone) or it becomes inactive.
 
 Localization: besides z, every cycle estimates the local faults that explain the
-residuals, ``ê = max(0, (I − Wᵀ) r)`` (:mod:`~archself.runtime.sources`), which is
-largest at a fault's origin where z is largest downstream of it.
+residuals, ``ê = max(0, (I − Wᵀ) r)`` with the residuals of the modules without a
+``residual`` block filled in by propagation (:mod:`~archself.runtime.sources`),
+which is largest at a fault's origin where z is largest downstream of it.
 ``runtime.localization`` chooses which of the two drives the candidate set and the
 planner's weight (``influence``: z, the paper's Algorithm 1; ``source``: ê); the
 decision log holds both. The source estimate uses every residual as it is (a
@@ -49,7 +50,7 @@ from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
-from archself.runtime.sources import source_estimate
+from archself.runtime.sources import SourceEstimator
 
 __all__ = ["MapeK"]
 
@@ -101,8 +102,9 @@ class MapeK:
         self.t_start: float | None = None
         self.compensated: dict[str, str] = {}  # module -> configuration it was compensated in
         self._checked_conf: str | None = None
-        self._w_key: Any = None
-        self._w: Any = None
+        self._observed = [m.residual is not None for m in arch.modules.values()]
+        self._sources_key: Any = None
+        self._estimator: SourceEstimator | None = None
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: Any) -> list[dict[str, Any]]:
@@ -246,13 +248,15 @@ class MapeK:
         return z
 
     def _sources(self, r: Any, k: Knowledge) -> Any:
-        """ê = max(0, (I − Wᵀ) r) for the active edges (:func:`source_estimate`)."""
+        """ê of the active edges (:class:`SourceEstimator`), built once per edge set."""
         if not self.propagate:
             return r
-        if self._w_key is not k.edges and self._w_key != k.edges:
-            self._w = k.weight_matrix()
-            self._w_key = k.edges
-        return source_estimate(self._w, r)
+        if self._estimator is None or (
+            self._sources_key is not k.edges and self._sources_key != k.edges
+        ):
+            self._estimator = SourceEstimator(k.weight_matrix(), self._observed)
+            self._sources_key = k.edges
+        return self._estimator.estimate(r)
 
     def _still_compensated(self, configuration: str, active: frozenset[str]) -> None:
         """Drop the modules whose compensation is gone in ``configuration``.

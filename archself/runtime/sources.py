@@ -14,22 +14,33 @@ Row ``i``: a module's own fault is its residual minus what its upstream modules'
 residuals explain through the edges. The **source estimate** inverts the
 propagation instead of applying it once more:
 
-- :func:`source_estimate` — ``ê = max(0, (I − Wᵀ) r)``, exact when ``r`` follows
-  the model, one sparse product per cycle (O(edges), no factorization: 10^5
-  modules in about a millisecond). A module's estimate never exceeds its own
-  residual, and a residual that its upstream explains (a downstream echo of
-  the fault, or less than W predicts, as the nominal noise bands make it) gives
-  0 rather than a negative source.
+- ``ê = max(0, (I − Wᵀ) r)`` when every module's residual is observed: exact
+  when ``r`` follows the model, one sparse product per cycle. A module's
+  estimate never exceeds its own residual, and a residual its upstream explains
+  (a downstream echo of the fault, or less than W predicts, as the nominal noise
+  bands make it) gives 0 rather than a negative source.
+- **Hidden modules.** A module without a ``residual`` block (a plant, a sensor)
+  has no observed residual: the runtime gives it ``r = 0``, which would cut every
+  chain at it (heater → *zone* → *sensor* → observer: the observer's residual
+  would look like its own fault). Its residual is unknown, not zero, so it is
+  filled in with the echo the observed residuals predict,
+  ``x_H = (I − W_HHᵀ)⁻¹ (r_H + W_OHᵀ r_O)`` (``O`` observed, ``H`` hidden), and the
+  observed modules' sources are ``ê_O = max(0, r_O − (Wᵀ x)_O)``: the
+  elimination of the hidden modules (a Schur complement), solved with the same
+  reused factorization as z (:class:`~archself.runtime.influence.InfluenceSolver`
+  on ``W_HH``), so 10^5 modules cost one back-substitution per cycle. A hidden
+  module's own source is its own residual (non-zero only when the system reports
+  it unavailable).
 - :func:`source_nnls` — the non-negative least-squares fit
-  ``min ‖(I − Wᵀ)⁻¹ e − r‖₂, e ≥ 0`` (:func:`scipy.optimize.nnls` on the dense
-  propagation matrix; for comparison, up to a few hundred modules). Where the
-  residuals downstream of a fault are *smaller* than W predicts, it lowers the
-  estimate at the fault to fit them too, so the head of a chain scores below
-  its own residual.
+  ``min ‖((I − Wᵀ)⁻¹)_OO e_O − r_O‖₂, e_O ≥ 0`` (:func:`scipy.optimize.nnls` on
+  the dense propagation matrix; for comparison, up to a few hundred modules).
+  Where the residuals downstream of a fault are *smaller* than W predicts, it
+  lowers the estimate at the fault to fit them too, so the head of a chain
+  scores below its own residual.
 
-``bench/localization.py`` compares the two (and a sparse, L1-penalized fit) with
-the paper's z on noisy residuals; docs/localization.md has the figures and why
-the runtime uses :func:`source_estimate` for ``runtime.localization: source``.
+``bench/localization.py`` compares the estimates (and a sparse, L1-penalized fit)
+with the paper's z on noisy residuals; docs/localization.md has the figures and
+why the runtime uses :class:`SourceEstimator` for ``runtime.localization: source``.
 """
 
 from __future__ import annotations
@@ -40,38 +51,122 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
-__all__ = ["propagation_matrix", "source_estimate", "source_nnls"]
+from archself.runtime.influence import InfluenceSolver
+
+__all__ = ["SourceEstimator", "propagation_matrix", "source_estimate", "source_nnls"]
 
 
-def _transpose_product(W: Any, r: np.ndarray) -> np.ndarray:
-    """``Wᵀ r`` for a dense or sparse ``W``."""
-    if scipy.sparse.issparse(W):
-        return np.asarray(W.T @ r, dtype=float).ravel()
-    return np.asarray(W, dtype=float).T @ r
+def _mask(observed: Any, n: int) -> np.ndarray:
+    """Boolean observed-mask of length ``n`` (None: every module observed)."""
+    if observed is None:
+        return np.ones(n, dtype=bool)
+    mask = np.asarray(observed, dtype=bool).ravel()
+    if mask.shape != (n,):
+        raise ValueError(f"observed has shape {mask.shape}, expected ({n},)")
+    return mask
 
 
-def source_estimate(W: Any, r: Any) -> np.ndarray:
-    """Local faults ``ê = max(0, (I − Wᵀ) r)`` that explain the residuals ``r``.
+class SourceEstimator:
+    """The source estimate ê for one W, with the hidden modules eliminated once.
 
     Parameters
     ----------
     W : array_like or scipy.sparse matrix, shape (n, n)
         Weighted adjacency matrix, ``W[j, i]`` the weight of the edge ``j → i``
         (Eq. 13).
+    observed : array_like of bool, shape (n,), optional
+        Which modules' residuals are observed (a ``residual`` block); the others
+        are hidden. Default: all observed.
+
+    Examples
+    --------
+    A fault at the head of heater → zone → sensor → observer, where only the
+    heater and the observer carry a residual (zone and sensor are hidden):
+
+    >>> from archself.runtime.influence import weight_matrix, influence
+    >>> names = ["heater", "zone", "sensor", "observer"]
+    >>> W = weight_matrix(names, [("heater", "zone", 0.8), ("zone", "sensor", 0.9),
+    ...                           ("sensor", "observer", 0.7)])
+    >>> r = [1.0, 0.0, 0.0, 0.5]                  # the observer sees the fault's echo
+    >>> influence(W, r).round(3).tolist()         # the paper's z: largest at the observer
+    [1.0, 0.8, 0.72, 1.004]
+    >>> est = SourceEstimator(W, observed=[True, False, False, True])
+    >>> est.estimate(r).round(3).tolist()         # the source: the heater
+    [1.0, 0.0, 0.0, 0.0]
+    >>> source_estimate(W, r).round(3).tolist()   # hidden residuals taken as 0: wrong
+    [1.0, 0.0, 0.0, 0.5]
+    """
+
+    def __init__(self, W: Any, observed: Any = None) -> None:
+        S = scipy.sparse.csr_matrix(W, dtype=float)
+        n = S.shape[0]
+        self.n = n
+        self.observed = _mask(observed, n)
+        self.hidden_index = np.flatnonzero(~self.observed)
+        self.observed_index = np.flatnonzero(self.observed)
+        self._WT = S.T.tocsr()
+        self._solver: InfluenceSolver | None = None
+        if self.hidden_index.size:
+            h, o = self.hidden_index, self.observed_index
+            self._solver = InfluenceSolver()
+            self._solver.set_matrix(S[h][:, h], key=0)
+            self._W_OH_T = S[o][:, h].T.tocsr()
+
+    def estimate(self, r: Any) -> np.ndarray:
+        """``ê``: observed modules ``max(0, r_O − (Wᵀ x)_O)``, hidden ones their own ``r``.
+
+        Parameters
+        ----------
+        r : array_like, shape (n,)
+            Module residuals (Eq. 12), hidden modules' usually 0.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            The estimated local faults, ``≥ 0`` for ``r ≥ 0``.
+
+        Raises
+        ------
+        ValueError
+            If ``r`` does not have one value per module or is not finite.
+        """
+        r = np.asarray(r, dtype=float).ravel()
+        if r.shape != (self.n,):
+            raise ValueError(f"r has shape {r.shape}, expected ({self.n},)")
+        if not np.all(np.isfinite(r)):
+            raise ValueError("r must be finite")
+        x = r
+        if self._solver is not None:
+            h, o = self.hidden_index, self.observed_index
+            x = r.copy()
+            x[h] = self._solver.solve(r[h] + self._W_OH_T @ r[o])
+        e = r - self._WT @ x
+        np.maximum(e, 0.0, out=e)
+        if self._solver is not None:
+            e[self.hidden_index] = r[self.hidden_index]
+        return e
+
+
+def source_estimate(W: Any, r: Any, observed: Any = None) -> np.ndarray:
+    """One-shot source estimate (:class:`SourceEstimator`).
+
+    With every module observed, ``ê = max(0, (I − Wᵀ) r)``: module ``i``'s
+    residual minus what its upstream residuals explain.
+
+    Parameters
+    ----------
+    W : array_like or scipy.sparse matrix, shape (n, n)
+        Weighted adjacency matrix, ``W[j, i]`` the weight of the edge ``j → i``.
     r : array_like, shape (n,)
         Module residuals (Eq. 12), in the index order of ``W``.
+    observed : array_like of bool, shape (n,), optional
+        Modules with an observed residual; default all.
 
     Returns
     -------
     numpy.ndarray, shape (n,)
-        ``ê_i = max(0, r_i − Σ_j W_ji r_j)``: module ``i``'s residual minus what
-        its upstream residuals explain. :func:`archself.runtime.influence.influence`
-        of ``ê`` gives ``r`` back wherever no component was clipped.
-
-    Raises
-    ------
-    ValueError
-        If ``r`` does not have one value per module or is not finite.
+        The estimated local faults; :func:`~archself.runtime.influence.influence`
+        of them gives ``r`` back wherever nothing was clipped (all observed).
 
     Examples
     --------
@@ -85,14 +180,7 @@ def source_estimate(W: Any, r: Any) -> np.ndarray:
     >>> source_estimate(W, r).round(3).tolist()  # the source: a
     [1.0, 0.0, 0.0]
     """
-    r = np.asarray(r, dtype=float).ravel()
-    if r.shape != (W.shape[0],):
-        raise ValueError(f"r has shape {r.shape}, expected ({W.shape[0]},)")
-    if not np.all(np.isfinite(r)):
-        raise ValueError("r must be finite")
-    e = r - _transpose_product(W, r)
-    np.maximum(e, 0.0, out=e)
-    return e
+    return SourceEstimator(W, observed).estimate(r)
 
 
 def propagation_matrix(W: Any) -> np.ndarray:
@@ -108,10 +196,10 @@ def propagation_matrix(W: Any) -> np.ndarray:
     return np.linalg.solve(np.eye(n) - dense.T, np.eye(n))
 
 
-def source_nnls(W: Any, r: Any) -> np.ndarray:
-    """Non-negative least squares ``argmin_{e ≥ 0} ‖(I − Wᵀ)⁻¹ e − r‖₂``.
+def source_nnls(W: Any, r: Any, observed: Any = None) -> np.ndarray:
+    """Non-negative least squares ``argmin_{e_O ≥ 0} ‖P_OO e_O − r_O‖₂``, ``P = (I − Wᵀ)⁻¹``.
 
-    Dense (``O(n³)``): for comparison with :func:`source_estimate` on graphs of
+    Dense (``O(n³)``): for comparison with :class:`SourceEstimator` on graphs of
     up to a few hundred modules, not for the runtime.
 
     Parameters
@@ -120,12 +208,15 @@ def source_nnls(W: Any, r: Any) -> np.ndarray:
         Weighted adjacency matrix (Eq. 13).
     r : array_like, shape (n,)
         Module residuals.
+    observed : array_like of bool, shape (n,), optional
+        Modules with an observed residual (the fit's rows and unknowns); default
+        all. Hidden modules get their own residual, as in :class:`SourceEstimator`.
 
     Returns
     -------
     numpy.ndarray, shape (n,)
         The fitted local faults ``e ≥ 0``; equal to :func:`source_estimate`
-        whenever ``(I − Wᵀ) r ≥ 0``.
+        whenever nothing is clipped there.
 
     Examples
     --------
@@ -140,10 +231,13 @@ def source_nnls(W: Any, r: Any) -> np.ndarray:
     [1.0, 0.0]
     """
     r = np.asarray(r, dtype=float).ravel()
-    A = propagation_matrix(W)
-    if r.shape != (A.shape[0],):
-        raise ValueError(f"r has shape {r.shape}, expected ({A.shape[0]},)")
-    if A.shape[0] == 0:
-        return np.zeros(0)
-    e, _ = scipy.optimize.nnls(A, r)
-    return np.asarray(e, dtype=float)
+    P = propagation_matrix(W)
+    n = P.shape[0]
+    if r.shape != (n,):
+        raise ValueError(f"r has shape {r.shape}, expected ({n},)")
+    mask = _mask(observed, n)
+    e = np.where(mask, 0.0, r)
+    o = np.flatnonzero(mask)
+    if o.size:
+        e[o], _ = scipy.optimize.nnls(P[np.ix_(o, o)], r[o])
+    return e
