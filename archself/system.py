@@ -57,8 +57,9 @@ from typing import Any
 import numpy as np
 
 from archself.errors import CompileError, SimulationError
+from archself.linear import ClosedLoop, Wire, interconnect, loop_modules
 from archself.model import Architecture
-from archself.modules.base import RuntimeModule
+from archself.modules.base import LinearModel, Port, RuntimeModule
 from archself.objective import objective_norm
 
 __all__ = ["LiveSystem", "STALE_REPEATS", "algebraic_loop", "stable_hash", "module_rng"]
@@ -649,43 +650,88 @@ class LiveSystem:
             memo[id(p)] = p
         return copy.deepcopy(self, memo)
 
-    def linearization(self, configuration: str | None = None) -> np.ndarray | None:
-        """Closed-loop A (Eq. 20) of the configuration's modules that provide one.
+    def _linear_module(self, name: str, plan: _Plan) -> RuntimeModule:
+        """The module as it would run in ``plan``: live if active now, else a hand-over copy.
 
-        Modules of ``configuration`` (default: the active one) whose
-        ``linearization()`` is not None contribute a diagonal block. An inactive
-        module is evaluated on a copy that is first given the state of the
-        active module of the same role (as a hand-over would); the live system
-        is not changed. None when no module provides a model.
+        An inactive module is evaluated on a copy that is first given the state of
+        the active module of the same role (as a hand-over would); the live
+        system is not changed.
+        """
+        mod = self._module(name)
+        if name in self._plan.active_set:
+            return mod
+        mod = copy.deepcopy(mod)  # never change the live system
+        for a in self._plan.active:
+            other = self._pool[a]
+            if other.role == mod.role and a not in plan.active_set:
+                mod.import_state(other.export_state())
+                break
+        return mod
+
+    def closed_loop(self, configuration: str | None = None) -> ClosedLoop:
+        """The closed loop of ``configuration`` (default: the active one) around now.
+
+        Modules whose type gives :meth:`RuntimeModule.linear_model` are wired along
+        the configuration's active edges (:func:`archself.linear.interconnect`, in
+        discrete time at the step); a module that gives none, or whose model closes
+        no loop with the others, contributes its ``linearization()`` as a diagonal
+        block. Inactive modules are evaluated on hand-over copies.
+
+        Raises
+        ------
+        LinearizationError
+            When the models cannot be wired (widths or periods disagree).
         """
         conf_name = configuration or self.configuration
         plan = self._make_plan(conf_name)
-        blocks = []
+        mods = {n: self._linear_module(n, plan) for n in plan.active}
+        base = RuntimeModule.linear_model
+        models: dict[str, LinearModel] = {}
+        widths: dict[tuple[str, str], int] = {}
+        outs = self.outputs
+        for n in (*plan.nonft, *plan.order):
+            mod = mods[n]
+            if type(mod).linear_model is base:
+                continue
+            ports: dict[str, list[Port]] = {}
+            for carries, src, *_ in plan.routes[n]:
+                value = (outs.get(src) or {}).get(carries) if src in self._plan.active_set else None
+                ports.setdefault(carries, []).append(Port(src, widths.get((src, carries)), value))
+            lm = mod.linear_model(self.dt, ports)
+            if lm is None:
+                continue
+            models[n] = lm
+            for sig, size in lm.outputs:  # type: ignore[misc]
+                widths.setdefault((n, sig), size)
+        wires = [
+            Wire(src, n, carries, delay)
+            for n in plan.active
+            for carries, src, _i, _unc, delay in plan.routes[n]
+        ] if models else []
+        in_loop = loop_modules(models, wires) if models else set()
+        blocks: list[tuple[str, np.ndarray]] = []
         for n in plan.active:
-            mod = self._module(n)
-            if n not in self._plan.active_set:
-                mod = copy.deepcopy(mod)  # never change the live system
-                for a in self._plan.active:
-                    other = self._pool[a]
-                    if other.role == mod.role and a not in plan.active_set:
-                        mod.import_state(other.export_state())
-                        break
+            if n in models and n in in_loop:
+                continue
             try:
-                A = mod.linearization()
-            except Exception:
+                A = mods[n].linearization()
+            except Exception:  # noqa: BLE001 - a failing linearization is no model
                 A = None
             if A is not None:
-                blocks.append(np.atleast_2d(np.asarray(A, dtype=float)))
-        if not blocks:
-            return None
-        size = sum(b.shape[0] for b in blocks)
-        out = np.zeros((size, size))
-        i = 0
-        for b in blocks:
-            k = b.shape[0]
-            out[i : i + k, i : i + k] = b
-            i += k
-        return out
+                blocks.append((n, np.atleast_2d(np.asarray(A, dtype=float))))
+                models.pop(n, None)
+        loop = interconnect(models, wires, self.dt) if models else None
+        return ClosedLoop(loop, blocks)
+
+    def linearization(self, configuration: str | None = None) -> np.ndarray | None:
+        """Closed-loop A (Eq. 20) of ``configuration`` (default: the active one), or None.
+
+        The continuous-time matrix of :meth:`closed_loop` (:meth:`ClosedLoop.matrix`):
+        the wired models' discrete closed loop as ``ln(λ)/dt`` in modal form, and the
+        ``linearization()`` blocks of the modules without a model. None when no
+        module provides either.
+        """
+        return self.closed_loop(configuration).matrix()
 
     def pool(self) -> dict[str, RuntimeModule]:
         """Every module instantiated so far (active or not)."""

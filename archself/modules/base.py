@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -51,21 +51,123 @@ class Param:
         Unit of the value (documentation and reports).
     doc : str, optional
         One line on what it sets.
+    min, max : float, optional
+        The physically meaningful range of every number of the value (a scalar, or
+        each entry of a list or matrix). ``archself validate`` refuses a file value,
+        a file ``min``/``max`` or an action's ``set`` outside it; without them only
+        the global cap ``archself.model.MAX_MAGNITUDE`` (1e9) applies.
 
     Examples
     --------
     >>> Param(0.2, "m").required, Param().required
     (False, True)
+    >>> Param(0.5, "m", "wheel base", min=0.01, max=10.0).max
+    10.0
     """
 
     default: Any = REQUIRED
     unit: str = ""
     doc: str = ""
+    min: float | None = None
+    max: float | None = None
 
     @property
     def required(self) -> bool:
         """True when the file must give the value."""
         return self.default is REQUIRED
+
+
+@dataclasses.dataclass(frozen=True)
+class Port:
+    """One active edge into a module, as :meth:`RuntimeModule.linear_model` sees it.
+
+    Attributes
+    ----------
+    source : str
+        The module the edge comes from.
+    size : int or None
+        Width of the signal in the source's :class:`LinearModel` (None: the source
+        gives no linear model, or not this signal).
+    value : object
+        The source's current value of the signal (None: nothing published yet).
+    """
+
+    source: str
+    size: int | None = None
+    value: Any = None
+
+
+@dataclasses.dataclass
+class LinearModel:
+    """A module's linear model with named inputs and outputs (state space).
+
+    ``x⁺ = A x + B u, y = C x + D u`` in discrete time with period ``dt`` (the
+    run's step), or ``ẋ = A x + B u, y = C x + D u`` when ``dt = 0`` (the system
+    discretizes it with a zero-order hold at its step). ``u`` stacks the
+    ``inputs`` and ``y`` the ``outputs`` in the order given, as python-control's
+    named-signal ``ss`` systems do. An input port ``(signal, size)`` receives the
+    sum of every active edge that carries ``signal`` into the module; a port
+    ``(signal, size, k)`` only the ``k``-th of them (0-based, in file order).
+
+    Parameters
+    ----------
+    A, B, C, D : array_like
+        The matrices (n×n, n×m, p×n, p×m; n may be 0 for a static block).
+    inputs, outputs : sequence of tuple
+        ``(signal, size)`` or ``(signal, size, edge)`` per port.
+    dt : float
+        0 for continuous time, else the sample time (s).
+    states : sequence of str, optional
+        A label per state (reports say which states an unstable mode lives in).
+
+    Examples
+    --------
+    >>> g = LinearModel([], [], [], [[2.0]], inputs=[("u", 1)], outputs=[("y", 1)], dt=0.1)
+    >>> g.n, g.m, g.p
+    (0, 1, 1)
+    """
+
+    A: Any
+    B: Any
+    C: Any
+    D: Any
+    inputs: Sequence[tuple[Any, ...]] = ()
+    outputs: Sequence[tuple[Any, ...]] = ()
+    dt: float = 0.0
+    states: Sequence[str] = ()
+
+    def __post_init__(self) -> None:
+        self.inputs = tuple(
+            (str(p[0]), int(p[1]), None if len(p) < 3 or p[2] is None else int(p[2]))
+            for p in self.inputs
+        )
+        self.outputs = tuple((str(p[0]), int(p[1])) for p in self.outputs)
+        m = sum(p[1] for p in self.inputs)
+        q = sum(p[1] for p in self.outputs)
+        A = np.asarray(self.A, dtype=float)
+        n = A.shape[0] if A.size else 0
+        self.A = A.reshape(n, n)
+        self.B = np.asarray(self.B, dtype=float).reshape(n, m)
+        self.C = np.asarray(self.C, dtype=float).reshape(q, n)
+        self.D = np.asarray(self.D, dtype=float).reshape(q, m)
+        self.dt = float(self.dt)
+        labels = tuple(str(s) for s in self.states)
+        self.states = labels if len(labels) == n else tuple(f"x{k}" for k in range(n))
+
+    @property
+    def n(self) -> int:
+        """Number of states."""
+        return int(self.A.shape[0])
+
+    @property
+    def m(self) -> int:
+        """Width of the stacked input."""
+        return int(self.B.shape[1])
+
+    @property
+    def p(self) -> int:
+        """Width of the stacked output."""
+        return int(self.C.shape[0])
 
 
 class RuntimeModule:
@@ -167,7 +269,37 @@ class RuntimeModule:
         return dict(self.signals)
 
     def linearization(self) -> np.ndarray | None:
-        """Closed-loop system matrix A of Eq. 20 around the current point, if known."""
+        """Closed-loop system matrix A of Eq. 20 around the current point, if known.
+
+        The fallback of :meth:`linear_model`: a module that gives no linear model
+        contributes this matrix as a diagonal block of the configuration's A, and so
+        does a module whose linear model closes no loop with the others (a
+        controller over a plant that has no model of its own).
+        """
+        return None
+
+    def linear_model(self, dt: float, inputs: Mapping[str, Sequence[Port]]) -> LinearModel | None:
+        """This module's linear model around the current point, with named signals.
+
+        The system wires the models of a configuration's modules along its active
+        edges (signals by ``carries``) into the closed-loop A of Eq. 20
+        (:meth:`archself.system.LiveSystem.closed_loop`); it asks in execution order,
+        so the ports of a feedthrough module know their sources' widths.
+
+        Parameters
+        ----------
+        dt : float
+            The run's step (s): a discrete model must have this period.
+        inputs : mapping of str to sequence of Port
+            Every input signal with an active edge in the configuration, one
+            :class:`Port` per edge (file order).
+
+        Returns
+        -------
+        LinearModel or None
+            None (the default): the module has no linear model; its
+            :meth:`linearization`, if any, is used instead.
+        """
         return None
 
     # ----------------------------------------------------------------- hand-over

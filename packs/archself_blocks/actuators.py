@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.modules.base import Param, RuntimeModule
+from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import as_vector
 
 __all__ = ["Actuator", "ACTUATOR_FAULTS"]
@@ -109,6 +109,26 @@ class Actuator(RuntimeModule):
             return None
         return (np.array([[-1.0 / self.tau]]), np.array([[self.gain / self.tau]]),
                 np.array([[1.0]]), np.array([[0.0]]))
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """Command to ``u`` between the limits, as one step runs it (rate limit inactive).
+
+        ``u_k = (1 − a)·u_{k−1} + a·gain·command_k`` with ``a = 1 − e^(−dt/τ)`` (``a = 1``
+        without a lag): the state is the output of the step before.
+        """
+        ports = inputs.get("command") or ()
+        w_in = next((pt.size for pt in ports if pt.size), 1)
+        a = 1.0 - math.exp(-dt / self.tau) if self.tau > 0 else 1.0
+        width = max(self.width, 1)
+        row = np.zeros((width, 1))
+        row[self.channel if width > 1 else 0, 0] = 1.0
+        b = np.zeros((1, w_in))
+        b[0, 0] = a * self.gain
+        if a >= 1.0:  # no lag: a static gain
+            return LinearModel(np.zeros((0, 0)), np.zeros((0, w_in)), np.zeros((width, 0)),
+                               row @ b, [("command", w_in)], [("u", width)], dt)
+        return LinearModel([[1.0 - a]], b, row * (1.0 - a), row @ b, [("command", w_in)],
+                           [("u", width)], dt, ["lag"])
 
     def export_state(self) -> dict[str, Any]:
         return {"output": self.x}

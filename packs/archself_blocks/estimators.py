@@ -17,13 +17,14 @@ paused: a converging estimate says nothing about the sensor.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from typing import Any, ClassVar
 
 import numpy as np
 
-from archself.modules.base import Param, RuntimeModule
+from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
 
 __all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]
@@ -162,6 +163,38 @@ class _ModelEstimator(RuntimeModule):
     def _reset_covariance(self) -> None:
         """A hand-over restarts the uncertainty (Kalman filter)."""
 
+    def _linear_model_of(self, inputs: Any) -> LtiModel | None:
+        """The model the filter runs on: its own, else the one its ``model`` input carries."""
+        if self.model is not None:
+            return self.model
+        for pt in inputs.get("model") or ():
+            if isinstance(pt.value, LtiModel):
+                return pt.value
+        return None
+
+    def _filter_model(self, dt: float, model: LtiModel, G: np.ndarray, Bu: np.ndarray,
+                      K: np.ndarray, extra: int = 0) -> LinearModel:
+        """``x̂_k = G s + Bu u_k + K z_k`` with the state ``s = x̂_{k−1}``.
+
+        Outputs ``estimate = C x̂_k`` and ``state = x̂_k``.
+
+        ``extra`` trailing states hold the previous measurement (the observer's).
+        """
+        n, k, m, p = model.n, K.shape[1], model.m, model.C.shape[0]
+        size = n + extra
+        A = np.zeros((size, size))
+        A[:n, :] = G
+        B = np.zeros((size, m + k))
+        B[:n, :m], B[:n, m:] = Bu, K
+        if extra:
+            B[n:, m:] = np.eye(k)
+        Cx, Dx = A[:n, :], B[:n, :]  # x̂_k as a function of (s, u, z)
+        C = np.vstack([model.C @ Cx, Cx])
+        D = np.vstack([model.C @ Dx, Dx])
+        states = [f"x_hat{i}" for i in range(n)] + [f"z_prev{i}" for i in range(extra)]
+        return LinearModel(A, B, C, D, [("u", m), ("measurement", k)],
+                           [("estimate", p), ("state", n)], dt, states)
+
 
 def _cov(x: Any, n: int) -> np.ndarray:
     """A covariance from a number (times I), a flat list (the diagonal) or a matrix."""
@@ -240,6 +273,34 @@ class KalmanFilter(_ModelEstimator):
             self._monitor(t, nu, nis)
         self.x = np.asarray(kf.x, dtype=float).ravel().copy()
         return self._out()
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """One predict-update step with the current gain.
+
+        ``x̂_k = (I − K H)(F x̂_{k−1} + B u_k) + K z_k`` with
+        ``K = P⁻ Hᵀ (H P⁻ Hᵀ + R)⁻¹`` and ``P⁻ = F P Fᵀ + Q`` from the filter's
+        covariance now (``P0`` before its first step). None without a model, or for a
+        discrete model whose period is not the step.
+        """
+        model = self._linear_model_of(inputs)
+        if model is None or (model.dt > 0 and abs(model.dt - dt) > 1e-9 * max(1.0, dt)):
+            return None
+        saved = self.model
+        self.model = model
+        try:
+            H = self._h()
+            F, Bd = model.discrete(dt)
+            n = model.n
+            q = _cov(self.params["Q"], n) * (dt if model.dt == 0 else 1.0)
+            kf = getattr(self, "kf", None)
+            P = kf.P if kf is not None and kf.P.shape == (n, n) else self._p0()
+            R = _cov(self.params["R"], H.shape[0])
+        finally:
+            self.model = saved
+        Pm = F @ P @ F.T + q
+        K = Pm @ H.T @ np.linalg.inv(H @ Pm @ H.T + R)
+        IKH = np.eye(n) - K @ H
+        return self._filter_model(dt, model, IKH @ F, IKH @ Bd, K)
 
     def linearization(self) -> np.ndarray | None:
         """Error dynamics ``(I − K H) F`` of the filter as a continuous equivalent."""
@@ -382,6 +443,10 @@ class AugmentedEkf(KalmanFilter):
         """None: with η in the state the error dynamics depend on the input u."""
         return None
 
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """None: the augmented filter is not linear in its state (η multiplies u)."""
+        return None
+
     def export_state(self) -> dict[str, Any]:
         out = super().export_state()
         if self.aug is not None:
@@ -484,6 +549,23 @@ class Luenberger(_ModelEstimator):
             self._monitor(t, nu)
             self._y = z
         return self._out()
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """One step: ``x̂_k = Ad x̂_{k−1} + Bd_u u_k + Bd_y z_{k−1}`` (the measurement of
+        the step before is a state), with the observer's ``(Ad, Bd)`` at the step."""
+        model = self._linear_model_of(inputs)
+        if model is None or (model.dt > 0 and abs(model.dt - dt) > 1e-9 * max(1.0, dt)):
+            return None
+        probe = copy.copy(self)  # the matrices are a cache; compute them on a copy
+        probe.model = model
+        if probe._dt != dt or self.model is not model:
+            probe._L = None if self.params["gain"] is None else self._L
+            probe._matrices(dt)
+        n, m = model.n, model.m
+        ad, bd = probe._ad, probe._bd
+        k = bd.shape[1] - m
+        G = np.hstack([ad, bd[:, m:]])
+        return self._filter_model(dt, model, G, bd[:, :m], np.zeros((n, k)), extra=k)
 
     def linearization(self) -> np.ndarray | None:
         if self.model is None:

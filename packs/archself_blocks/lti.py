@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.modules.base import Param, RuntimeModule
+from archself.modules.base import LinearModel, Param, RuntimeModule
 
 __all__ = [
     "LtiModel",
@@ -241,9 +241,9 @@ class StateSpacePlant(RuntimeModule):
     ``u`` (the input applied during the last step, as a meter on the input line
     sees it). No direct feedthrough: it breaks feedback loops.
 
-    Its ``linearization()`` is None, as the packs' plants: the closed loop is given
-    by the controller that closes it (``generic.pid`` with a ``model`` input) and
-    the observers their error dynamics; :meth:`state_space` gives (A, B, C, D).
+    Its ``linearization()`` is None: the plant enters the closed-loop A of a
+    configuration through :meth:`linear_model`, wired to the actuators, sensors,
+    estimators and controllers around it; :meth:`state_space` gives (A, B, C, D).
     """
 
     parameters = {
@@ -280,6 +280,30 @@ class StateSpacePlant(RuntimeModule):
     def output(self, t: float) -> dict[str, Any]:
         m = self.model
         return {"y": m.C @ self.x + m.D @ self.u, "state": self.x.copy(), "u": self.u.copy()}
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """The plant as the executor runs it, with the state ``[x; u_prev]``.
+
+        ``x⁺ = Ad x + Bd u`` and ``u_prev⁺ = u``;
+        ``y = C x + D u_prev``, ``state = x`` and ``u = u_prev`` (the input of the step
+        that ended); a continuous model is held over the step (zero-order hold). None
+        for a discrete model whose period is not the step.
+        """
+        m = self.model
+        if m.dt > 0 and abs(m.dt - dt) > 1e-9 * max(1.0, dt):
+            return None
+        Ad, Bd = m.discrete(dt)
+        n, k, p = m.n, m.m, m.p
+        A = np.zeros((n + k, n + k))
+        A[:n, :n] = Ad
+        B = np.vstack([Bd, np.eye(k)])
+        C = np.zeros((p + n + k, n + k))
+        C[:p, :n], C[:p, n:] = m.C, m.D
+        C[p : p + n, :n] = np.eye(n)
+        C[p + n :, n:] = np.eye(k)
+        states = [f"x{i}" for i in range(n)] + [f"u_prev{i}" for i in range(k)]
+        return LinearModel(A, B, C, np.zeros((p + n + k, k)), [("u", k)],
+                           [("y", p), ("state", n), ("u", k)], dt, states)
 
     def _input(self, inputs: dict[str, Any]) -> np.ndarray:
         total = np.zeros(self.model.m)

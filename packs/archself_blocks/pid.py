@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.modules.base import Param, RuntimeModule
+from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import LtiModel, as_vector
 
 __all__ = ["Pid", "pid_closed_loop"]
@@ -185,6 +185,48 @@ class Pid(RuntimeModule):
             return None
         return pid_closed_loop(self.model, self.kp, self.ki, self.kd, self.n,
                                self.input_index, self.fi)
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """One step of the controller between the limits, in discrete time.
+
+        With ``y`` the fed-back component (of ``estimate`` when that input is wired,
+        else of ``measurement``), ``r`` and ``ṙ`` the reference's components and
+        ``α = 1 − e^(−N dt)``::
+
+            u   = ff_gain·r + ff_rate_gain·ṙ + kp (r − y) + I − kd N (y − y_f)
+            I⁺  = I + ki dt (r − y)              (a state when ki ≠ 0)
+            y_f⁺ = y_f + α (y − y_f)              (a state when kd ≠ 0)
+        """
+        key = "estimate" if inputs.get("estimate") else "measurement"
+        w_y = next((pt.size for pt in inputs.get(key) or () if pt.size), self.fi + 1)
+        w_r = next((pt.size for pt in inputs.get("reference") or () if pt.size), self.ri + 1)
+        if self.fi >= w_y or self.ri >= w_r:
+            return None
+        r = np.zeros(w_r)
+        r[self.ri] = 1.0
+        rate = np.zeros(w_r)
+        if w_r > self.ri + 1:
+            rate[self.ri + 1] = 1.0
+        y = np.zeros(w_y)
+        y[self.fi] = 1.0
+        states = ([("I", 1.0)] if self.ki else []) + ([("y_f", 0.0)] if self.kd else [])
+        n = len(states)
+        A, B = np.eye(n), np.zeros((n, w_r + w_y))
+        C, D = np.zeros((1, n)), np.zeros((1, w_r + w_y))
+        D[0, :w_r] = self.ff_gain * r + self.ff_rate_gain * rate + self.kp * r
+        D[0, w_r:] = -(self.kp + self.kd * self.n) * y
+        alpha = 1.0 - math.exp(-self.n * dt)
+        for k, (label, _) in enumerate(states):
+            if label == "I":
+                C[0, k] = 1.0
+                B[k, :w_r] = self.ki * dt * r
+                B[k, w_r:] = -self.ki * dt * y
+            else:
+                C[0, k] = self.kd * self.n
+                A[k, k] = 1.0 - alpha
+                B[k, w_r:] = alpha * y
+        return LinearModel(A, B, C, D, [("reference", w_r), (key, w_y)], [("command", 1)], dt,
+                           [label for label, _ in states])
 
     def export_state(self) -> dict[str, Any]:
         out: dict[str, Any] = {"integral": self.integral}

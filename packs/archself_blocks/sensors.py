@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.modules.base import Param, RuntimeModule
+from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import as_vector
 
 __all__ = ["Sensor", "SENSOR_FAULTS"]
@@ -81,6 +81,21 @@ class Sensor(RuntimeModule):
         if self.p_drop and float(self.rng.random()) < self.p_drop:
             return None
         return float(v)
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """``measurement = gain·x[index]`` of ``y`` (or of ``u`` when no ``y`` is wired).
+
+        Bias, drift and noise are additive (no part of A), quantization, range and
+        dropout are left out: the small-signal model of a sensor is its gain.
+        """
+        key = "y" if inputs.get("y") else "u"
+        width = next((pt.size for pt in inputs.get(key) or () if pt.size), self.index + 1)
+        if self.index >= width:
+            return None
+        D = np.zeros((1, width))
+        D[0, self.index] = self.gain
+        return LinearModel(np.zeros((0, 0)), np.zeros((0, width)), np.zeros((1, 0)), D,
+                           [(key, width)], [("measurement", 1)], dt)
 
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         x = inputs.get("y")

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.modules.base import Param, RuntimeModule
+from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import as_matrix, as_vector
 
 __all__ = ["PORTS", "Reference", "Gain", "Sum", "Select"]
@@ -100,6 +100,23 @@ class _Static(RuntimeModule):
                 out.append(as_vector(v) if isinstance(v, (int, float, list, np.ndarray)) else None)
         return out
 
+    def _first(self, inputs: Any) -> list[tuple[str, int, int]]:
+        """``[(signal, width, edge)]`` of the first wired input in the order of
+        :meth:`_values`; empty when there is none or its source has no model."""
+        for name in PORTS:
+            for k, pt in enumerate(inputs.get(name) or ()):
+                return [(name, int(pt.size), k)] if pt.size else []
+        return []
+
+    def _static_model(self, dt: float, ports: list[tuple[str, int, int]],
+                      D: np.ndarray) -> LinearModel:
+        """``y = D u`` on ``ports``, published under every name of :data:`PORTS`."""
+        p = D.shape[0]
+        Dall = np.vstack([D] * len(PORTS))
+        return LinearModel(np.zeros((0, 0)), np.zeros((0, D.shape[1])),
+                           np.zeros((Dall.shape[0], 0)), Dall, ports,
+                           [(name, p) for name in PORTS], dt)
+
     def _publish(self, v: np.ndarray | None) -> dict[str, Any]:
         if v is None:
             return dict.fromkeys(PORTS)
@@ -135,6 +152,17 @@ class Gain(_Static):
         y = self.k * x if self.k.ndim == 0 else as_matrix(self.k) @ x
         return self._publish(np.atleast_1d(y + self.offset))
 
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """``K`` on the first wired input (the offset is no part of A)."""
+        ports = self._first(inputs)
+        if not ports:
+            return None
+        w = ports[0][1]
+        K = self.k * np.eye(w) if self.k.ndim == 0 else as_matrix(self.k)
+        if K.shape[1] != w:
+            return None
+        return self._static_model(dt, ports, K)
+
 
 class Sum(_Static):
     """``out = Σ w_k·in_k`` over every input (missing ones count as 0).
@@ -164,6 +192,20 @@ class Sum(_Static):
             total = wk * v if total is None else total + wk * v
         return self._publish(total)
 
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """``Σ w_k·in_k`` over the wired inputs (of one width)."""
+        w = self.params["weights"]
+        order = [(name, k, pt) for name in PORTS for k, pt in enumerate(inputs.get(name) or ())]
+        weights = [1.0] * len(order) if w is None else [float(x) for x in w]
+        ports, cols = [], []
+        for (name, k, pt), wk in zip(order, weights, strict=False):
+            if pt.size:
+                ports.append((name, int(pt.size), k))
+                cols.append(wk * np.eye(int(pt.size)))
+        if not ports or len({c.shape[0] for c in cols}) != 1:
+            return None
+        return self._static_model(dt, ports, np.hstack(cols))
+
 
 class Select(_Static):
     """Components ``index`` (a number or a list) of the first available input.
@@ -188,3 +230,12 @@ class Select(_Static):
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         x = next((v for v in self._values(inputs) if v is not None), None)
         return self._publish(None if x is None else x[self.idx])
+
+    def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
+        """Components ``index`` of the first wired input."""
+        ports = self._first(inputs)
+        if not ports or max(self.idx) >= ports[0][1]:
+            return None
+        D = np.zeros((len(self.idx), ports[0][1]))
+        D[np.arange(len(self.idx)), self.idx] = 1.0
+        return self._static_model(dt, ports, D)

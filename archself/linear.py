@@ -1,0 +1,395 @@
+"""The closed-loop A of a configuration from its modules' linear models, wired by its edges.
+
+A module type may give a :class:`~archself.modules.base.LinearModel` (state space
+with named input and output signals, :meth:`RuntimeModule.linear_model`). The
+system (:meth:`archself.system.LiveSystem.closed_loop`) discretizes each model at
+the run's step, wires them as the executor does — an input port receives the
+outputs of the active edges that carry its signal into the module, an edge with a
+latency becomes a chain of unit delays — and closes the loop::
+
+    x⁺ = A x + B u,   y = C x + D u,   u = K y
+    ⇒ x⁺ = (A + B K (I − D K)⁻¹ C) x
+
+(``I − D K`` is invertible when the data flow has no algebraic loop, which the
+executor requires.) Discrete time at the run's step is what the executor really
+runs: a gain that is stable in continuous time but not at the sampling rate is
+caught. For the eigenvalue margin of Eq. 21 (a continuous-time test) each
+discrete eigenvalue λ is mapped to ``μ = ln(λ)/dt`` (``Re μ = ln|λ|/dt``).
+
+Modules that give no model but a ``linearization()`` contribute that matrix as a
+diagonal block, as before; so does a module whose model closes no loop with the
+other models (a controller over a plant that has no model), because its own
+dynamics alone (an open integrator) say less than its closed loop over a model.
+The eigenvalues of a cascade are the union of those of its parts, so leaving such a
+module out of the interconnection changes no other eigenvalue.
+
+Examples
+--------
+A plant ``x⁺ = 0.9 x + u`` under the static feedback ``u = −k y``:
+
+>>> from archself.modules.base import LinearModel
+>>> plant = LinearModel([[0.9]], [[1.0]], [[1.0]], [[0.0]], [("u", 1)], [("y", 1)], dt=0.1)
+>>> gain = LinearModel([], [], [], [[-0.5]], [("y", 1)], [("u", 1)], dt=0.1)
+>>> cl = interconnect({"p": plant, "k": gain}, [Wire("p", "k", "y"), Wire("k", "p", "u")], 0.1)
+>>> cl.A.round(6).tolist()
+[[0.4]]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from archself.modules.base import LinearModel
+
+__all__ = [
+    "ClosedLoop",
+    "Interconnection",
+    "LinearizationError",
+    "Wire",
+    "discretize",
+    "interconnect",
+    "loop_modules",
+    "modal_form",
+]
+
+#: Floor of |λ| when mapping a discrete eigenvalue to ln|λ|/dt (a pure delay has λ = 0).
+_LAMBDA_FLOOR = 1e-12
+
+
+class LinearizationError(ValueError):
+    """The models of a configuration cannot be wired (widths or periods disagree)."""
+
+
+@dataclass(frozen=True)
+class Wire:
+    """An active edge as the interconnection sees it: ``source --signal--> target``.
+
+    ``delay`` is the edge's latency in steps (a chain of unit delays).
+    """
+
+    source: str
+    target: str
+    signal: str
+    delay: int = 0
+
+
+def discretize(model: LinearModel, dt: float) -> LinearModel:
+    """``model`` at period ``dt``: zero-order hold of a continuous one, a discrete one as is.
+
+    Raises
+    ------
+    LinearizationError
+        For a discrete model whose period is not ``dt``.
+
+    Examples
+    --------
+    >>> m = LinearModel([[-1.0]], [[1.0]], [[1.0]], [[0.0]], [("u", 1)], [("y", 1)])
+    >>> d = discretize(m, 0.1)
+    >>> round(float(d.A[0, 0]), 6), round(float(d.B[0, 0]), 6), d.dt
+    (0.904837, 0.095163, 0.1)
+    """
+    if model.dt > 0:
+        if abs(model.dt - dt) > 1e-9 * max(1.0, dt):
+            raise LinearizationError(
+                f"a discrete model of period {model.dt:g} s in a run with step {dt:g} s"
+            )
+        return model
+    n, m = model.n, model.m
+    if n == 0:
+        Ad, Bd = model.A, model.B
+    else:
+        from scipy.linalg import expm
+
+        big = np.zeros((n + m, n + m))
+        big[:n, :n] = model.A * dt
+        big[:n, n:] = model.B * dt
+        e = expm(big)
+        Ad, Bd = e[:n, :n], e[:n, n:]
+    return LinearModel(Ad, Bd, model.C, model.D, model.inputs, model.outputs, dt, model.states)
+
+
+def _delay_line(signal: str, width: int, steps: int, dt: float) -> LinearModel:
+    """``steps`` unit delays of a ``width``-vector: ``y_k = u_{k−steps}``."""
+    n = width * steps
+    A = np.zeros((n, n))
+    A[width:, :-width] = np.eye(n - width)
+    B = np.zeros((n, width))
+    B[:width] = np.eye(width)
+    C = np.zeros((width, n))
+    C[:, -width:] = np.eye(width)
+    states = [f"{signal}[t-{k + 1}]" for k in range(steps) for _ in range(width)]
+    return LinearModel(
+        A, B, C, np.zeros((width, width)), [(signal, width)], [(signal, width)], dt, states
+    )
+
+
+def _ports(
+    model: LinearModel,
+) -> tuple[list[tuple[str, int, int | None, int]], dict[str, tuple[int, int]]]:
+    """Input ports ``(signal, size, edge, offset)``; outputs signal -> ``(offset, size)``."""
+    ins = []
+    k = 0
+    for sig, size, edge in model.inputs:  # type: ignore[misc]
+        ins.append((sig, size, edge, k))
+        k += size
+    outs: dict[str, tuple[int, int]] = {}
+    k = 0
+    for sig, size in model.outputs:  # type: ignore[misc]
+        outs.setdefault(sig, (k, size))
+        k += size
+    return ins, outs
+
+
+def _routes(models: Mapping[str, LinearModel], wires: Sequence[Wire]) -> list[tuple[Wire, int]]:
+    """The wires that connect a model's output to a model's input port, with their port index."""
+    into: dict[tuple[str, str], list[Wire]] = {}
+    for w in wires:
+        into.setdefault((w.target, w.signal), []).append(w)
+    out = []
+    for name, model in models.items():
+        for j, (sig, _size, edge) in enumerate(model.inputs):  # type: ignore[misc]
+            found = into.get((name, sig), [])
+            if edge is not None:
+                found = found[edge : edge + 1]
+            for w in found:
+                src = models.get(w.source)
+                if src is not None and any(s == sig for s, _ in src.outputs):
+                    out.append((w, j))
+    return out
+
+
+def loop_modules(models: Mapping[str, LinearModel], wires: Sequence[Wire]) -> set[str]:
+    """The modules that lie on a feedback loop of wires between models.
+
+    Examples
+    --------
+    >>> m = LinearModel([], [], [], [[1.0]], [("a", 1)], [("a", 1)], dt=0.1)
+    >>> sorted(loop_modules({"x": m, "y": m, "z": m},
+    ...                     [Wire("x", "y", "a"), Wire("y", "x", "a"), Wire("y", "z", "a")]))
+    ['x', 'y']
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    names = list(models)
+    index = {n: i for i, n in enumerate(names)}
+    pairs = {(index[w.source], index[w.target]) for w, _ in _routes(models, wires)}
+    if not pairs:
+        return set()
+    rows, cols = zip(*pairs, strict=True)
+    g = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(names), len(names)))
+    _, labels = connected_components(g, directed=True, connection="strong")
+    size = np.bincount(labels)
+    on = {names[i] for i in range(len(names)) if size[labels[i]] > 1}
+    on.update(names[s] for s, t in pairs if s == t)
+    return on
+
+
+@dataclass
+class Interconnection:
+    """The discrete closed loop of wired models.
+
+    Attributes
+    ----------
+    A : numpy.ndarray
+        Closed-loop state matrix (discrete, period ``dt``).
+    dt : float
+        The period.
+    owners : list of str
+        The module (or ``source→target`` delay line) each state belongs to.
+    labels : list of str
+        ``owner.state`` per state.
+    """
+
+    A: np.ndarray
+    dt: float
+    owners: list[str]
+    labels: list[str]
+
+
+def interconnect(
+    models: Mapping[str, LinearModel], wires: Sequence[Wire], dt: float
+) -> Interconnection:
+    """Wire the models along ``wires`` and close the loop (discrete at ``dt``).
+
+    Outputs of modules without a model, and inputs that no modelled source drives,
+    are exogenous: they do not enter the closed-loop A. An edge with a ``delay``
+    between two models becomes a delay line of its own states.
+
+    Raises
+    ------
+    LinearizationError
+        When a port's width differs from its source's, a model's period is not
+        ``dt``, or the loop is algebraic (``I − D K`` singular).
+    """
+    disc: dict[str, LinearModel] = {}
+    for name, model in models.items():
+        try:
+            disc[name] = discretize(model, dt)
+        except LinearizationError as exc:
+            raise LinearizationError(f"{name}: {exc}") from None
+    # latency: a delay line between the two models, wired in place of the edge
+    plain: list[Wire] = []
+    for w in wires:
+        src, dst = disc.get(w.source), disc.get(w.target)
+        if w.delay > 0 and src is not None and dst is not None:
+            width = next((s for sig, s in src.outputs if sig == w.signal), None)  # type: ignore[misc]
+            if width is not None:
+                line = f"{w.source}→{w.target}"
+                disc[line] = _delay_line(w.signal, width, w.delay, dt)
+                plain += [Wire(w.source, line, w.signal), Wire(line, w.target, w.signal)]
+                continue
+        plain.append(w)
+    names = list(disc)
+    xo, uo, yo = {}, {}, {}
+    n = m = p = 0
+    for name in names:
+        mod = disc[name]
+        xo[name], uo[name], yo[name] = n, m, p
+        n, m, p = n + mod.n, m + mod.m, p + mod.p
+    A = np.zeros((n, n))
+    B = np.zeros((n, m))
+    C = np.zeros((p, n))
+    D = np.zeros((p, m))
+    owners: list[str] = []
+    labels: list[str] = []
+    ports = {}
+    for name in names:
+        mod = disc[name]
+        x, u, y = xo[name], uo[name], yo[name]
+        A[x : x + mod.n, x : x + mod.n] = mod.A
+        B[x : x + mod.n, u : u + mod.m] = mod.B
+        C[y : y + mod.p, x : x + mod.n] = mod.C
+        D[y : y + mod.p, u : u + mod.m] = mod.D
+        owners += [name] * mod.n
+        labels += [f"{name}.{s}" for s in mod.states]
+        ports[name] = _ports(mod)
+    K = np.zeros((m, p))
+    for w, j in _routes(disc, plain):
+        sig, size, _edge, off = ports[w.target][0][j]
+        y_off, y_size = ports[w.source][1][w.signal]
+        if y_size != size:
+            raise LinearizationError(
+                f"{w.source}.{w.signal} has {y_size} component(s), {w.target} takes {size}"
+            )
+        r = uo[w.target] + off
+        c = yo[w.source] + y_off
+        K[r : r + size, c : c + size] += np.eye(size)
+    if n == 0:
+        return Interconnection(np.zeros((0, 0)), dt, owners, labels)
+    M = np.eye(p) - D @ K
+    try:
+        Y = np.linalg.solve(M, C)  # y = (I − D K)⁻¹ C x
+    except np.linalg.LinAlgError:
+        raise LinearizationError("the wired models form an algebraic loop") from None
+    return Interconnection(A + B @ K @ Y, dt, owners, labels)
+
+
+def modal_form(Ad: np.ndarray, dt: float) -> np.ndarray:
+    """A real matrix whose eigenvalues are ``ln(λ_i)/dt`` for the eigenvalues λ_i of ``Ad``.
+
+    Real λ give 1×1 blocks ``ln|λ|/dt``; a complex pair gives the 2×2 block
+    ``[[a, ω], [−ω, a]]`` with ``a = ln|λ|/dt`` and ``ω = arg(λ)/dt``. Only the real
+    parts matter for Eq. 21; |λ| is floored at 1e-12 (a pure delay).
+
+    Examples
+    --------
+    >>> modal_form(np.array([[0.5]]), 0.1).round(4).tolist()
+    [[-6.9315]]
+    """
+    lam = np.linalg.eigvals(np.atleast_2d(Ad)) if Ad.size else np.zeros(0)
+    blocks = []
+    for z in lam:
+        a = math.log(max(abs(z), _LAMBDA_FLOOR)) / dt
+        if z.imag > 1e-12:
+            w = math.atan2(z.imag, z.real) / dt
+            blocks.append(np.array([[a, w], [-w, a]]))
+        elif z.imag >= -1e-12:
+            blocks.append(np.array([[a]]))
+    return _block_diag(blocks)
+
+
+def _block_diag(blocks: Sequence[np.ndarray]) -> np.ndarray:
+    size = sum(b.shape[0] for b in blocks)
+    out = np.zeros((size, size))
+    i = 0
+    for b in blocks:
+        k = b.shape[0]
+        out[i : i + k, i : i + k] = b
+        i += k
+    return out
+
+
+@dataclass
+class ClosedLoop:
+    """The closed loop of a configuration: the wired models and the fallback blocks.
+
+    Attributes
+    ----------
+    loop : Interconnection or None
+        The discrete closed loop of the modules that give a linear model.
+    blocks : list of (str, numpy.ndarray)
+        ``(module, A)``: continuous closed-loop matrices of the modules that give
+        only ``linearization()`` (or whose model closes no loop), in file order.
+    """
+
+    loop: Interconnection | None = None
+    blocks: list[tuple[str, np.ndarray]] = field(default_factory=list)
+
+    def matrix(self) -> np.ndarray | None:
+        """The continuous-time A of Eq. 20 the eigenvalue margin tests (None: no model).
+
+        The wired part in :func:`modal_form`, then the blocks on the diagonal.
+        """
+        parts = []
+        if self.loop is not None and self.loop.A.size:
+            parts.append(modal_form(self.loop.A, self.loop.dt))
+        parts += [b for _, b in self.blocks]
+        if not parts:
+            return None
+        return _block_diag(parts)
+
+    @property
+    def modules(self) -> list[str]:
+        """The modules that contribute states."""
+        seen = dict.fromkeys(self.loop.owners if self.loop is not None else [])
+        seen.update(dict.fromkeys(n for n, _ in self.blocks))
+        return list(seen)
+
+    def worst_mode(self) -> tuple[float, float | None, list[tuple[str, float]]] | None:
+        """``(max Re μ, |λ| or None, [(module, share), ...])`` of the least stable mode.
+
+        ``μ`` is the continuous-equivalent eigenvalue; ``|λ|`` its discrete
+        magnitude when it comes from the wired part (per step). The shares are the
+        fractions of the mode's eigenvector (``|v_j|²``, normalized) in each module's
+        states, largest first. None when there are no states.
+        """
+        best: tuple[float, float | None, list[tuple[str, float]]] | None = None
+        if self.loop is not None and self.loop.A.size:
+            lam, vec = np.linalg.eig(self.loop.A)
+            mag = np.maximum(np.abs(lam), _LAMBDA_FLOOR)
+            k = int(np.argmax(mag))
+            best = (
+                math.log(mag[k]) / self.loop.dt,
+                float(np.abs(lam[k])),
+                _shares(np.abs(vec[:, k]) ** 2, self.loop.owners),
+            )
+        for name, b in self.blocks:
+            if not b.size:
+                continue
+            worst = float(np.max(np.linalg.eigvals(b).real))
+            if best is None or worst > best[0]:
+                best = (worst, None, [(name, 1.0)])
+        return best
+
+
+def _shares(weight: np.ndarray, owners: Sequence[str]) -> list[tuple[str, float]]:
+    total = float(weight.sum()) or 1.0
+    acc: dict[str, float] = {}
+    for w, o in zip(weight.tolist(), owners, strict=True):
+        acc[o] = acc.get(o, 0.0) + w / total
+    return sorted(acc.items(), key=lambda kv: -kv[1])
