@@ -29,7 +29,10 @@ offending node. The rules:
   change, parameter updates name parameters of the module and stay in bounds;
   the module an action addresses is active where it applies (a warning);
 * ``residual``: a residual names a signal the module's type publishes;
-* ``initial``: at most one configuration is marked initial.
+* ``initial``: at most one configuration is marked initial;
+* ``stability``: with ``runtime.stability.verify`` warning or error (opt-in: it
+  compiles the modules), every configuration's closed loop and every action's
+  result pass Eq. 21 (:mod:`archself.verify`); judged only on a file without errors.
 """
 
 from __future__ import annotations
@@ -73,6 +76,7 @@ def check(loaded: Loaded) -> list[Finding]:
         _actions,
         _scenarios,
         _objective,
+        _stability,
     ):
         rule(ctx)
     ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
@@ -522,3 +526,13 @@ def _objective(ctx: _Ctx) -> None:
                     ctx.add("error", "objective",
                             f"component {c} is out of range: '{ref}' has {size} component(s) "
                             f"(indices 0..{size - 1})", ("runtime", "objective", "components", j))
+
+
+def _stability(ctx: _Ctx) -> None:
+    mode = ctx.arch.runtime.stability.verify
+    if mode == "off" or any(f.severity == "error" for f in ctx.out):
+        return
+    from archself.verify import verify_stability  # compiles modules: only when asked
+
+    for u in verify_stability(ctx.arch):
+        ctx.add(mode, "stability", u.message, u.path, key=len(u.path) == 2)

@@ -281,6 +281,16 @@ class Stability(_Strict):
     margin: Positive = Field(description="ε: require max Re λ(A_k) ≤ −ε (Eq. 21).")
     lyapunov_alpha: Positive = Field(description="α: require E[ΔV|a_k] ≤ −α‖x_t‖² (Eq. 24).")
     horizon_steps: int = Field(gt=0, description="Rollout length of the Lyapunov test.")
+    verify: Literal["off", "warning", "error"] = Field(
+        "off",
+        description="What `archself validate` does with the closed-loop stability of every "
+        "configuration and of every action's result (Eq. 21 with this margin, where the "
+        "modules give linear models or linearizations): off (default: not checked, and "
+        "validate stays light), warning or error (an unstable configuration is a finding of "
+        "that severity, located at the configuration, naming max Re λ and the modules the "
+        "unstable mode lives in). The check compiles the modules, so it imports what their "
+        "types need (python-control, filterpy); only a file that opts in pays for it.",
+    )
 
 
 class Hysteresis(_Strict):
