@@ -22,9 +22,14 @@ offending node. The rules:
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
 * ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
 * ``parameter``: required parameters are given, every parameter is one the type
-  declares (when it declares them: ``RuntimeModule.parameters``), and
-  nominal values lie inside their spaces;
-* ``fault``: faults target modules whose type accepts that fault kind and signal;
+  declares (when it declares them: ``RuntimeModule.parameters``),
+  nominal values lie inside their spaces, and every number of a value (and the
+  file's ``min``/``max``) lies in the range the type declares (``Param.min``/``max``);
+* ``fault``: faults target modules whose type accepts that fault kind and signal,
+  and that are in at least one configuration (else the fault never acts);
+* ``work``: each scenario's run fits the caps: :data:`MAX_RUN_STEPS` simulation
+  steps, :data:`MAX_RUN_BYTES` of recorded series, :data:`MAX_RUN_WORK`
+  module-steps with the rollouts and Lyapunov tests (:func:`run_estimate`);
 * ``action``: actions lead to declared configurations, their kind matches the
   change, parameter updates name parameters of the module and stay in bounds;
   the module an action addresses is active where it applies (a warning);
@@ -43,6 +48,48 @@ from typing import Any
 from archself.findings import Finding
 from archself.loader import Loaded, Path_, dotted
 from archself.model import Architecture, Parameter
+
+#: Simulation steps of one run of a scenario (duration_s / step_s): about 3 h at 10^4 steps/s.
+MAX_RUN_STEPS = 10**8
+#: Memory of one run's recorded series (bytes; the estimate ``simulate`` shows).
+MAX_RUN_BYTES = 16 * 1024**3
+#: Module-steps of one run: modules × (steps + rollout and Lyapunov steps of every cycle).
+MAX_RUN_WORK = 10**10
+
+
+def run_estimate(arch: Architecture, scenario: str) -> tuple[int, int, int]:
+    """``(steps, bytes, work)`` of one run of ``scenario``: what ``work`` checks.
+
+    steps = ⌈duration_s / step_s⌉; bytes ≈ steps × (250 + 40 × residual modules)
+    (the series a run records); work = modules of the largest configuration ×
+    (steps + cycles × Σ over actions of the rollout steps of its Δ estimate and
+    ``stability.horizon_steps``), with cycles = ⌈duration_s / period_s⌉.
+
+    Examples
+    --------
+    >>> from archself.loader import load_architecture
+    >>> from archself.resources import data_dir
+    >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+    >>> steps, size, work = run_estimate(arch, "nominal")
+    >>> steps, size < 100 * 2**20
+    (8000, True)
+    """
+    import math
+
+    rt = arch.runtime
+    duration = float(arch.scenarios[scenario].duration_s)
+    steps = math.ceil(duration / float(rt.step_s) - 1e-9)
+    n_res = sum(1 for m in arch.modules.values() if m.residual is not None)
+    size = steps * (250 + 40 * n_res)
+    cycles = math.ceil(duration / float(rt.period_s) - 1e-9)
+    per_cycle = 0
+    for a in arch.actions:
+        horizon = getattr(a.improvement, "horizon_s", None)
+        if horizon is not None:
+            per_cycle += math.ceil(float(horizon) / float(rt.step_s))
+        per_cycle += rt.stability.horizon_steps
+    width = max(len(c.modules) for c in arch.configurations.values())
+    return steps, size, width * (steps + cycles * per_cycle)
 
 
 class _Ctx:
@@ -75,6 +122,7 @@ def check(loaded: Loaded) -> list[Finding]:
         _parameters,
         _actions,
         _scenarios,
+        _work,
         _objective,
         _stability,
     ):
@@ -148,6 +196,8 @@ def _types(ctx: _Ctx) -> None:
             takes = tuple(declared)
             for pname in mod.params:
                 if pname in takes:
+                    _declared_range(ctx, mod.type, pname, declared[pname], mod.params[pname],
+                                    ("modules", name, "params", pname))
                     continue
                 near = _close(pname, takes)
                 hint = (f"did you mean '{near}'?" if near
@@ -168,10 +218,50 @@ def _types(ctx: _Ctx) -> None:
                 _ref(ctx, other, ("modules", name, "constraints", dep, i))
 
 
+def _numbers(value: Any) -> Iterator[float]:
+    """The numbers of a parameter value: itself, or the entries of a list or matrix."""
+    if isinstance(value, bool):
+        return
+    if isinstance(value, (int, float)):
+        yield value
+    elif isinstance(value, list):
+        for v in value:
+            yield from _numbers(v)
+
+
+def _outside(spec: Any, value: Any) -> str | None:
+    """Why a number of ``value`` is outside the range ``spec`` (a ``Param``) declares."""
+    lo, hi = getattr(spec, "min", None), getattr(spec, "max", None)
+    if lo is None and hi is None:
+        return None
+    for x in _numbers(value):
+        if (lo is not None and x < lo) or (hi is not None and x > hi):
+            unit = f" {spec.unit}" if getattr(spec, "unit", "") else ""
+            rng = f"[{'-∞' if lo is None else f'{lo:g}'}, {'∞' if hi is None else f'{hi:g}'}]"
+            return f"{x:g} is outside {rng}{unit}"
+    return None
+
+
+def _declared_range(ctx: _Ctx, type_: str, pname: str, spec: Any, p: Parameter,
+                    path: Path_) -> None:
+    for key, value in (("value", p.value), ("min", p.min), ("max", p.max)):
+        if value is None:
+            continue
+        why = _outside(spec, value)
+        if why:
+            ctx.add("error", "parameter",
+                    f"{why}, the range type '{type_}' declares for '{pname}'", (*path, key))
+
+
 def _edges(ctx: _Ctx) -> None:
     seen: dict[tuple[str, str, str], int] = {}
+    modules = ctx.arch.modules
     for i, e in enumerate(ctx.arch.edges):
-        ok = _ref(ctx, e.source, ("edges", i, "from")) & _ref(ctx, e.target, ("edges", i, "to"))
+        if e.source in modules and e.target in modules:  # the common case: no call
+            ok = True
+        else:
+            ok = (_ref(ctx, e.source, ("edges", i, "from"))
+                  & _ref(ctx, e.target, ("edges", i, "to")))
         if e.source == e.target:
             ctx.add("error", "self-loop", f"edge from '{e.source}' to itself", ("edges", i))
         key = (e.source, e.target, e.carries)
@@ -227,10 +317,21 @@ def spectrum_summary(
     (0.5, False)
     """
     import numpy as np
+    import scipy.sparse
 
-    from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
+    from archself.runtime.influence import InfluenceSolver, spectral_radius
 
-    W = weight_matrix(names, [e for e in edges if e[0] != e[1]], allow_negative=True)
+    index = {name: k for k, name in enumerate(names)}
+    rows, cols, data = [], [], []
+    for source, target, weight in edges:  # finite weights: the schema says so
+        j, i = index.get(source), index.get(target)
+        if j is not None and i is not None and j != i:
+            rows.append(j)
+            cols.append(i)
+            data.append(float(weight))
+    n = len(names)
+    W = scipy.sparse.coo_matrix((np.asarray(data, dtype=float), (rows, cols)),
+                                shape=(n, n)).tocsr()  # parallel edges add up
     rho = spectral_radius(W)
     singular = False
     if rho >= 1.0 - 1e-9:
@@ -295,10 +396,10 @@ def _configurations(ctx: _Ctx) -> None:
              if ctx.types.get(m) is not None}
     for cname, conf in arch.configurations.items():
         base: Path_ = ("configurations", cname)
-        names = []
-        for i, m in enumerate(conf.modules):
-            if _ref(ctx, m, (*base, "modules", i)):
-                names.append(m)
+        names = [m for m in conf.modules if m in arch.modules]
+        if len(names) != len(conf.modules):
+            for i, m in enumerate(conf.modules):
+                _ref(ctx, m, (*base, "modules", i))
         for mod, key in needed.items():
             if mod not in conf.modules:
                 ctx.add("error", "incomplete",
@@ -442,6 +543,12 @@ def _actions(ctx: _Ctx) -> None:
                     elif why := _in_space(params[pname], value):
                         ctx.add("error", "action", f"new value {value!r} is {why}",
                                 (*base, "set", pname))
+                    elif (cls := ctx.types.get(a.module)) is not None and (
+                            why := _outside((cls.parameters or {}).get(pname), value)):
+                        ctx.add("error", "action",
+                                f"new value: {why}, the range type "
+                                f"'{arch.modules[a.module].type}' declares for '{pname}'",
+                                (*base, "set", pname))
             continue
         assert a.to is not None
         if not _ref(ctx, a.to, (*base, "to"), "configuration"):
@@ -477,8 +584,17 @@ def _fault_targets(arch: Architecture) -> Iterator[tuple[Path_, Any]]:
 
 def _scenarios(ctx: _Ctx) -> None:
     arch = ctx.arch
+    placed: set[str] = set()
+    for conf in arch.configurations.values():
+        placed.update(conf.modules)
     for path, f in _fault_targets(arch):
         if not _ref(ctx, f.module, (*path, "module")):
+            continue
+        if f.module not in placed:
+            ctx.add("error", "fault",
+                    f"'{f.module}' is in no configuration, so the fault would never act; aim it "
+                    "at a module of a configuration (or add the module to one)",
+                    (*path, "module"))
             continue
         cls = ctx.types.get(f.module)
         if cls is None:
@@ -499,6 +615,32 @@ def _scenarios(ctx: _Ctx) -> None:
             ctx.add("warning", "fault",
                     f"onset {f.onset_s:g} s is after the end of the scenario ({duration:g} s)",
                     (*path, "onset_s"))
+
+
+def _work(ctx: _Ctx) -> None:
+    arch = ctx.arch
+    rt = arch.runtime
+    for name in arch.scenarios:
+        steps, size, work = run_estimate(arch, name)
+        path: Path_ = ("scenarios", name, "duration_s")
+        sc = arch.scenarios[name]
+        if steps > MAX_RUN_STEPS:
+            ctx.add("error", "work",
+                    f"a run of '{name}' is {steps:,} steps (duration_s {sc.duration_s:g} s / "
+                    f"runtime.step_s {rt.step_s:g} s), more than the cap of {MAX_RUN_STEPS:,}; "
+                    "shorten duration_s or raise runtime.step_s", path)
+        elif size > MAX_RUN_BYTES:
+            ctx.add("error", "work",
+                    f"a run of '{name}' would record about {size / 2**30:,.1f} GiB of series "
+                    f"({steps:,} steps), more than the cap of {MAX_RUN_BYTES // 2**30} GiB; "
+                    "shorten duration_s or raise runtime.step_s", path)
+        elif work > MAX_RUN_WORK:
+            ctx.add("error", "work",
+                    f"a run of '{name}' is about {work:.3g} module-steps with the rollouts and "
+                    f"Lyapunov tests of {len(arch.actions)} actions every "
+                    f"{rt.period_s:g} s, more than the cap of {MAX_RUN_WORK:.0e}; shorten "
+                    "duration_s, the rollout horizons or runtime.stability.horizon_steps, or "
+                    "raise runtime.period_s", path)
 
 
 def _objective(ctx: _Ctx) -> None:

@@ -33,10 +33,14 @@ def _type(s: dict[str, Any]) -> str:
             sub = next(iter(s["patternProperties"].values()))
         return f"map name → {_type(sub)}" if isinstance(sub, dict) else "mapping"
     bounds = []
-    for k, sym in (("minimum", "≥"), ("exclusiveMinimum", ">"), ("maximum", "≤"),
-                   ("exclusiveMaximum", "<")):
-        if k in s:
-            bounds.append(f"{sym} {s[k]}")
+    if s.get("minimum") is not None and s.get("minimum") == -s.get("maximum", 0) != 0:
+        bounds.append(f"|x| ≤ {s['maximum']:g}")  # the global magnitude cap
+    else:
+        for k, sym in (("minimum", "≥"), ("exclusiveMinimum", ">"), ("maximum", "≤"),
+                       ("exclusiveMaximum", "<")):
+            if k in s:
+                v = s[k]
+                bounds.append(f"{sym} {v:g}" if isinstance(v, float) else f"{sym} {v}")
     return (t or "any") + (f" ({', '.join(bounds)})" if bounds else "")
 
 

@@ -28,13 +28,42 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
 
 FORMAT_VERSION = 1
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+#: No number of a file is larger in magnitude (in its SI unit): 1e9 m is 2.6 times the
+#: distance to the Moon, 1e9 s 31 years. A backstop for quantities without a tighter range:
+#: it keeps squares and sums of file values far from float overflow (1e308).
+MAX_MAGNITUDE = 1e9
+#: The longest time a file states (s): 10^7 s, about 116 days.
+MAX_TIME_S = 1e7
+#: The shortest simulation step or MAPE-K period (s): 1 µs.
+MIN_STEP_S = 1e-6
+#: The longest simulation step (s): one hour.
+MAX_STEP_S = 3600.0
+#: The smallest scale a residual is divided by (``nominal``): below it r_i overflows.
+MIN_SCALE = 1e-12
+#: Numbers in one parameter value (a 316 × 316 matrix, 100,000 waypoint coordinates).
+MAX_PARAM_NUMBERS = 100_000
+#: Steps of one Lyapunov rollout (Eq. 22–24), per candidate action and cycle.
+MAX_HORIZON_STEPS = 10_000
+
+Finite = Annotated[
+    float, Field(allow_inf_nan=False, ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)
+]
+NonNeg = Annotated[float, Field(ge=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
+Seconds = Annotated[float, Field(ge=0, le=MAX_TIME_S, allow_inf_nan=False)]
+PositiveSeconds = Annotated[float, Field(gt=0, le=MAX_TIME_S, allow_inf_nan=False)]
+Scale = Annotated[float, Field(ge=MIN_SCALE, le=MAX_MAGNITUDE, allow_inf_nan=False)]
 Name = Annotated[
     str,
     Field(
@@ -44,7 +73,21 @@ Name = Annotated[
         description="A name: any printable text without control characters.",
     ),
 ]
-ParamValue = Union[bool, Finite, str, list[Finite], list[list[Finite]]]  # noqa: UP007
+def _few_numbers(value: Any) -> Any:
+    if isinstance(value, list):
+        count = sum(len(v) if isinstance(v, list) else 1 for v in value)
+        if count > MAX_PARAM_NUMBERS:
+            raise ValueError(
+                f"{count:,} numbers in one parameter value, more than the cap of "
+                f"{MAX_PARAM_NUMBERS:,}"
+            )
+    return value
+
+
+ParamValue = Annotated[
+    Union[bool, Finite, str, list[Finite], list[list[Finite]]],  # noqa: UP007
+    AfterValidator(_few_numbers),
+]
 
 
 class _Strict(BaseModel):
@@ -92,10 +135,11 @@ class Residual(_Strict):
 
     signal: Name = Field(description="Name of the local signal the module publishes.")
     sensitivity: Finite = Field(1.0, description="∂J/∂θ_i of Eq. 12 (dimensionless).")
-    nominal: Positive = Field(
-        description="Nominal noise level of the signal; r_i is expressed in multiples of it."
+    nominal: Scale = Field(
+        description="Nominal noise level of the signal; r_i is expressed in multiples of it "
+        "(≥ 1e-12)."
     )
-    smoothing_s: NonNeg = Field(
+    smoothing_s: Seconds = Field(
         0.0, description="Time constant of a first-order filter on the signal (0 = none)."
     )
 
@@ -139,7 +183,7 @@ class Edge(_Strict):
     target: Name = Field(alias="to", description="Receiving module m_i.")
     weight: Finite = Field(description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).")
     carries: Name = Field(description="The signal that flows, named as the source outputs it.")
-    latency_s: NonNeg = Field(0.0, description="Communication latency in seconds.")
+    latency_s: Seconds = Field(0.0, description="Communication latency in seconds.")
     uncertainty: NonNeg = Field(0.0, description="Standard deviation added to the carried value.")
     description: str | None = None
 
@@ -171,7 +215,7 @@ class RolloutEstimate(_Strict):
     """Δ_k from a short-horizon rollout of a snapshot of the running system."""
 
     method: Literal["rollout"]
-    horizon_s: Positive = Field(description="Length of the rollout.")
+    horizon_s: PositiveSeconds = Field(description="Length of the rollout.")
 
 
 class TableEstimate(_Strict):
@@ -251,8 +295,10 @@ class Fault(_Strict):
 
     module: Name
     kind: FaultKind
-    onset_s: NonNeg
-    end_s: Positive | None = Field(None, description="When the fault clears (default: never).")
+    onset_s: Seconds
+    end_s: PositiveSeconds | None = Field(
+        None, description="When the fault clears (default: never)."
+    )
     magnitude: Finite = 0.0
     signal: Name | None = Field(
         None, description="Affected output (default: the module's main one)."
@@ -269,8 +315,8 @@ class Scenario(_Strict):
     """An environment e: a duration, a seed and the faults injected."""
 
     description: str | None = None
-    duration_s: Positive
-    seed: int = Field(0, ge=0)
+    duration_s: PositiveSeconds
+    seed: int = Field(0, ge=0, lt=2**64)
     faults: list[Fault] = Field(default_factory=list)
 
 
@@ -280,7 +326,9 @@ class Stability(_Strict):
 
     margin: Positive = Field(description="ε: require max Re λ(A_k) ≤ −ε (Eq. 21).")
     lyapunov_alpha: Positive = Field(description="α: require E[ΔV|a_k] ≤ −α‖x_t‖² (Eq. 24).")
-    horizon_steps: int = Field(gt=0, description="Rollout length of the Lyapunov test.")
+    horizon_steps: int = Field(
+        gt=0, le=MAX_HORIZON_STEPS, description="Rollout length of the Lyapunov test."
+    )
     verify: Literal["off", "warning", "error"] = Field(
         "off",
         description="What `archself validate` does with the closed-loop stability of every "
@@ -335,8 +383,14 @@ class Runtime(_Strict):
 
     model_config = ConfigDict(json_schema_extra=_ONE_SELECTOR)
 
-    step_s: Positive = Field(description="Simulation step.")
-    period_s: Positive = Field(description="Period of one MAPE-K cycle.")
+    step_s: float = Field(
+        ge=MIN_STEP_S, le=MAX_STEP_S, allow_inf_nan=False,
+        description="Simulation step (1 µs to 1 h).",
+    )
+    period_s: float = Field(
+        ge=MIN_STEP_S, le=MAX_TIME_S, allow_inf_nan=False,
+        description="Period of one MAPE-K cycle.",
+    )
     objective: Objective
     record: dict[Name, Name] = Field(
         default_factory=dict,
@@ -345,7 +399,9 @@ class Runtime(_Strict):
         "publishes it.",
     )
     threshold: Positive | None = Field(None, description="τ of Eq. 16.")
-    top_k: int | None = Field(None, gt=0, description="Alternative to τ: the k largest |z_i|.")
+    top_k: int | None = Field(
+        None, gt=0, le=10**6, description="Alternative to τ: the k largest |z_i|."
+    )
     hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
     localization: Literal["influence", "source"] = Field(
         "influence",
@@ -358,13 +414,14 @@ class Runtime(_Strict):
         "nominal",
         description="z channels divided by the nominal level each would have (nominal) or raw.",
     )
-    warmup_s: NonNeg = Field(
+    warmup_s: Seconds = Field(
         0.0,
         description="Seconds from the first cycle without adaptation (the loop still monitors). "
         "Residuals are also trusted per module, see min_confidence.",
     )
     warmup_steps: int = Field(
-        0, ge=0, description="Deprecated (use warmup_s): MAPE-K cycles without adaptation."
+        0, ge=0, le=10**9,
+        description="Deprecated (use warmup_s): MAPE-K cycles without adaptation.",
     )
     min_confidence: Annotated[float, Field(ge=0, lt=1)] = Field(
         0.5,
@@ -381,7 +438,7 @@ class Runtime(_Strict):
         default_factory=lambda: Ablation.model_validate({}),
         description="Stages of Algorithm 1 that can be switched off for an ablation study.",
     )
-    dwell_s: NonNeg = Field(0.0, description="T_min of Eq. 28.")
+    dwell_s: Seconds = Field(0.0, description="T_min of Eq. 28.")
     cost_weight: NonNeg = Field(description="λ of Eq. 25.")
     stability: Stability
     max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(

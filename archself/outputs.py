@@ -4,7 +4,8 @@ Every command that reads a file and writes another checks, before it starts,
 that no output is an input (the same file: same ``st_dev`` and ``st_ino``,
 whatever the path, a hard link or a symbolic link), that no input lies inside
 an output folder that is replaced as a whole, and that every input is a
-regular file (``/dev/zero`` is refused, not read until memory runs out). The
+regular file (``/dev/zero`` is refused, not read until memory runs out; a FIFO is
+refused, not opened: without a writer the open would block forever). The
 inputs are also registered with :func:`archself.atomic.protect`, so that a write
 the up-front check could not foresee is refused at the moment it would happen.
 ``--force`` never lifts these checks: it allows replacing an old *output*.
@@ -40,6 +41,7 @@ __all__ = [
 ]
 
 _KINDS = (
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
     (stat.S_ISCHR, "a character device"),
     (stat.S_ISBLK, "a block device"),
     (stat.S_ISSOCK, "a socket"),
@@ -48,12 +50,14 @@ _KINDS = (
 
 
 def check_input(path: str | Path, what: str = "file") -> None:
-    """Refuse an input that is missing or not a regular file (a FIFO is allowed).
+    """Refuse an input that is missing or not a regular file (a FIFO, a device, a socket).
+
+    Only ``stat`` is called: nothing is opened, so a FIFO cannot block.
 
     Raises
     ------
     LoadError
-        ``PATH: error: no such file`` or ``... not a regular file (a character device) ...``.
+        ``PATH: error: no such file`` or ``PATH: error: is a FIFO (named pipe), expected ...``.
     """
     file = str(path)
     try:

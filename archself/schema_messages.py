@@ -19,6 +19,7 @@ x.yaml:3:10: error: modules: expected a mapping, got number 3
 from __future__ import annotations
 
 import difflib
+import functools
 import math
 from typing import Any
 
@@ -98,6 +99,19 @@ _EXPECT = {
 }
 
 
+@functools.cache
+def _bound_reasons() -> dict[float, str]:
+    from archself import model
+
+    return {
+        model.MAX_MAGNITUDE: " (no number of a file is larger: docs/format.md, Ranges)",
+        model.MAX_TIME_S: " (the longest time a file states, about 116 days)",
+        model.MIN_STEP_S: " (the shortest step or period, 1 µs)",
+        model.MAX_STEP_S: " (the longest step, 1 h)",
+        model.MIN_SCALE: " (the smallest scale a residual is divided by)",
+    }
+
+
 def _message(err: dict[str, Any], value: Any, schema: dict[str, Any], parent: Path_) -> str:
     typ = err["type"]
     ctx = err.get("ctx", {}) or {}
@@ -116,7 +130,12 @@ def _message(err: dict[str, Any], value: Any, schema: dict[str, Any], parent: Pa
         sym = {"greater_than": ">", "greater_than_equal": "≥", "less_than": "<",
                "less_than_equal": "≤"}[typ]
         bound = next(iter(ctx.values()), "?")
-        return f"expected a number {sym} {bound}, got {describe(value)}"
+        why = ""
+        if isinstance(bound, float) and not bound.is_integer() or (
+                isinstance(bound, (int, float)) and abs(bound) >= 1e5):
+            why = _bound_reasons().get(float(bound), "")
+            bound = f"{bound:g}"
+        return f"expected a number {sym} {bound}{why}, got {describe(value)}"
     if typ in ("too_short", "too_long"):
         return f"{err['msg'].lower()}"
     if typ == "string_pattern_mismatch":

@@ -11,6 +11,16 @@ expanded). The node graph is kept in a :class:`SourceMap`, so that the
 recorded per node: a 10,000-module file converts in a fraction of a second; plain
 scalars are resolved once per distinct text).
 
+Size caps follow one rule: a file must load in about ten seconds on a slow
+machine. libyaml through Python composes about 1 MB of YAML a second, so YAML
+text is capped at :data:`MAX_YAML_BYTES` (8 MiB); a document that is JSON (YAML
+1.2 includes JSON; comment lines are allowed) is parsed by the :mod:`json`
+module, about 50 times faster, and capped at :data:`MAX_FILE_BYTES` (64 MiB).
+``archself generate`` writes JSON-compatible YAML, so its 10^5-module files load
+as JSON; their positions are composed from the text only when a message needs
+one. Only regular files are read: a FIFO, a socket or a device is refused before
+it is opened for reading (a FIFO would block the reader forever).
+
 :mod:`archself.loader` builds the architecture model on top of this module;
 :mod:`archself.schema_messages` turns schema violations into located findings.
 
@@ -36,10 +46,13 @@ from typing import Any
 
 from archself.errors import LoadError
 
-__all__ = ["MAX_ALIASES", "MAX_DEPTH", "MAX_FILE_BYTES", "MAX_NODES", "Path_", "SourceMap",
-           "describe", "dotted", "load_data", "read_text"]
+__all__ = ["MAX_ALIASES", "MAX_DEPTH", "MAX_FILE_BYTES", "MAX_NODES", "MAX_YAML_BYTES", "Path_",
+           "SourceMap", "describe", "dotted", "load_data", "read_text"]
 
-MAX_FILE_BYTES = 20 * 1024 * 1024
+#: Any document (JSON text, which the json module parses at tens of MB/s).
+MAX_FILE_BYTES = 64 * 1024 * 1024
+#: YAML that is not JSON (libyaml through Python: about 1 MB/s on a slow machine).
+MAX_YAML_BYTES = 8 * 1024 * 1024
 MAX_ALIASES = 64
 MAX_DEPTH = 64
 MAX_NODES = 5_000_000
@@ -63,6 +76,7 @@ class SourceMap:
     keys: dict[Path_, tuple[int, int]] = field(default_factory=dict)
     values: dict[Path_, tuple[int, int]] = field(default_factory=dict)
     root: Any = field(default=None, repr=False, compare=False)
+    text: str | None = field(default=None, repr=False, compare=False)
     _index: dict[int, dict[Any, tuple[Any, Any]]] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
@@ -70,7 +84,12 @@ class SourceMap:
     def locate(self, path: Path_, *, key: bool = True) -> tuple[int | None, int | None]:
         """Position of ``path``: the key (or value), else the nearest enclosing node."""
         p = tuple(path)
-        found = self._walk(p)
+        if self.root is None and self.text is not None:  # a JSON document: compose on demand
+            try:
+                self.root = _parse(self.text, self.file)
+            except LoadError:
+                self.text = None
+        found = self._walk(p) if self.root is not None else []
         while True:
             table = (self.keys, self.values) if key else (self.values, self.keys)
             for t in table:
@@ -328,24 +347,43 @@ class _Converter:
 
 
 def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
-    """Read a file as UTF-8 with a size cap; errors become :class:`LoadError`."""
-    p = Path(path)
+    """Read a regular file as UTF-8 with a size cap; errors become :class:`LoadError`.
+
+    A FIFO, a socket or a device is refused before it is opened for reading (a
+    FIFO without a writer would block forever, ``/dev/zero`` never ends); the
+    file is opened non-blocking and checked again on the open descriptor, so a
+    path swapped for a FIFO in between is refused too.
+    """
+    import os
+    import stat
+
     file = str(path)
     try:
-        size = p.stat().st_size
+        st = os.stat(path)
     except FileNotFoundError:
         raise LoadError("no such file", file) from None
     except OSError as exc:
         raise LoadError(f"cannot read: {exc.strerror}", file) from None
-    if p.is_dir():
+    if stat.S_ISDIR(st.st_mode):
         raise LoadError("is a directory, expected an architecture file", file)
-    if size > max_bytes:
-        raise LoadError(f"file is {size} bytes, larger than the {max_bytes}-byte cap", file)
+    if not stat.S_ISREG(st.st_mode):
+        raise LoadError(f"is {_file_kind(st.st_mode)}, expected a regular file", file)
+    if st.st_size > max_bytes:
+        raise LoadError(f"file is {st.st_size} bytes, larger than the {max_bytes}-byte cap", file)
     try:
-        with p.open("rb") as fh:  # a pipe has no size: read one byte past the cap at most
-            raw = fh.read(max_bytes + 1)
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
     except OSError as exc:
         raise LoadError(f"cannot read: {exc.strerror}", file) from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise LoadError(f"is {_file_kind(mode)}, expected a regular file", file)
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            raw = fh.read(max_bytes + 1)  # the file may have grown since stat()
+    except OSError as exc:
+        raise LoadError(f"cannot read: {exc.strerror}", file) from None
+    finally:
+        os.close(fd)
     if len(raw) > max_bytes:
         raise LoadError(f"input is larger than the {max_bytes}-byte cap", file)
     try:
@@ -355,10 +393,83 @@ def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
         raise LoadError("not UTF-8 text", file, line, 1) from None
 
 
+def _file_kind(mode: int) -> str:
+    import stat
+
+    for test, kind in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
+                       (stat.S_ISDIR, "a directory")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+_COMMENT_LINE = re.compile(r"^[ \t]*#[^\n]*", re.M)
+
+
+class _NotJson(Exception):
+    """The document is not plain JSON (a duplicate key, NaN, ...): read it as YAML."""
+
+
+def _json_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        raise _NotJson("duplicate key")
+    return out
+
+
+def _json_constant(name: str) -> Any:
+    raise _NotJson(name)  # NaN, Infinity: not JSON, and YAML reads them as strings
+
+
+def _json_document(text: str, file: str) -> Any:
+    """The data of ``text`` if it is a JSON object (comment lines allowed), else ``_NotJson``.
+
+    JSON is YAML 1.2 and means the same data there; :mod:`json` parses it at C
+    speed. A document that starts like JSON but is over :data:`MAX_YAML_BYTES` and
+    not JSON gets the JSON parser's located error (YAML would be refused by size).
+    """
+    import json
+
+    body = _COMMENT_LINE.sub("", text) if "#" in text else text
+    if not body.lstrip().startswith("{"):
+        raise _NotJson("not an object")
+    try:
+        return json.loads(body, object_pairs_hook=_json_pairs, parse_constant=_json_constant)
+    except json.JSONDecodeError as exc:
+        if len(text) > MAX_YAML_BYTES:
+            raise LoadError(
+                f"invalid JSON: {exc.msg} (a document over the {MAX_YAML_BYTES // 2**20} MiB "
+                "cap of YAML must be JSON)", file, exc.lineno, exc.colno) from None
+        raise _NotJson(exc.msg) from None
+    except RecursionError:
+        raise _NotJson("nesting") from None
+
+
 def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceMap]:
-    """Parse YAML text into plain data and a :class:`SourceMap`."""
-    if len(text.encode("utf-8", "surrogatepass")) > MAX_FILE_BYTES:
+    """Parse YAML (or JSON) text into plain data and a :class:`SourceMap`."""
+    size = len(text.encode("utf-8", "surrogatepass")) if len(text) * 4 > MAX_YAML_BYTES else 0
+    if size > MAX_FILE_BYTES:
         raise LoadError(f"document larger than the {MAX_FILE_BYTES}-byte cap", file)
+    try:
+        data = _json_document(text, file)
+    except _NotJson:
+        pass
+    else:
+        return data, SourceMap(file, text=text)
+    if size > MAX_YAML_BYTES:
+        cut = text.encode("utf-8", "surrogatepass")[:MAX_YAML_BYTES].decode("utf-8", "ignore")
+        line = cut.count("\n") + 1
+        col = len(cut) - (cut.rfind("\n") + 1) + 1
+        start = cut.rfind("\n") + 1
+        head = text[start:start + 200].split("\n", 1)[0].strip()
+        head = head if len(head) <= 30 else head[:27] + "..."
+        raise LoadError(
+            f"YAML text passes its {MAX_YAML_BYTES // 2**20} MiB cap here, in the line "
+            f"'{head}' ({size:,} bytes in "
+            f"all; about 1 MB of YAML loads a second): shrink the file, or write it as JSON "
+            f"(YAML 1.2 includes JSON; up to {MAX_FILE_BYTES // 2**20} MiB), as `archself "
+            "generate` does", file, line, col)
     node = _parse(text, file)
     src = SourceMap(file, root=node)
     if node is None:

@@ -19,7 +19,7 @@ import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
-_EDGE = re.compile(r"\{from: (m\d+), to: (m\d+), weight: ([0-9.eE+-]+)")
+_EDGE = re.compile(r'\{"from": "(m\d+)", "to": "(m\d+)", "weight": ([0-9.eE+-]+)')
 
 
 @pytest.fixture(scope="session")

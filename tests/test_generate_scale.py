@@ -19,7 +19,7 @@ from archself.cli import app
 from archself.generate import generate_architecture
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 
-_EDGE = re.compile(r"\{from: (m\d+), to: (m\d+), weight: ([0-9.eE+-]+)")
+_EDGE = re.compile(r'\{"from": "(m\d+)", "to": "(m\d+)", "weight": ([0-9.eE+-]+)')
 
 
 def _graph(n: int, seed: int = 1, feedback: int = 0) -> tuple[list[str], list]:

@@ -166,21 +166,21 @@ FAULT_KINDS = ["bias", "bias_drift", "effectiveness_loss", "noise_increase", "dr
 @st.composite
 def generated_architectures(draw) -> str:
     n = draw(st.integers(2, 25))
-    text = generate_architecture(
+    faults = []
+    for _ in range(draw(st.integers(0, 3))):
+        faults.append({
+            "module": f"m{draw(st.integers(0, n - 1))}",
+            "kind": draw(st.sampled_from(FAULT_KINDS)),
+            "onset_s": draw(st.floats(0, 4, allow_nan=False)),
+            "magnitude": draw(st.floats(-5, 5, allow_nan=False)),
+        })
+    return generate_architecture(
         n,
         seed=draw(st.integers(0, 2**16)),
         fan_in=draw(st.integers(1, 4)),
         feedback=draw(st.integers(0, 3)),
+        scenarios={"s": {"duration_s": 5, "faults": faults}},
     )
-    faults = []
-    for _ in range(draw(st.integers(0, 3))):
-        kind = draw(st.sampled_from(FAULT_KINDS))
-        module = f"m{draw(st.integers(0, n - 1))}"
-        onset = draw(st.floats(0, 4, allow_nan=False))
-        mag = draw(st.floats(-5, 5, allow_nan=False))
-        faults.append(f"{{module: {module}, kind: {kind}, onset_s: {onset!r}, magnitude: {mag!r}}}")
-    text += "scenarios:\n  s:\n    duration_s: 5\n    faults: [" + ", ".join(faults) + "]\n"
-    return text
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

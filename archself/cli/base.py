@@ -87,7 +87,7 @@ _RUN_REPORT_FILES = ("index.html", "summary.json")
 
 
 def _inputs(*paths: Path, what: str = "an architecture file") -> None:
-    """Every input must be a regular file (or a pipe): not missing, a folder or a device."""
+    """Every input must be a regular file: not missing, a folder, a FIFO or a device."""
     from archself.outputs import check_input
 
     for p in paths:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -30,10 +31,14 @@ def validate(
     failed = False
     report: list[dict[str, object]] = []
     for path in paths:
+        caught: list[warnings.WarningMessage] = []
         try:
             _inputs(path)
-            loaded = load_architecture(path)
-            findings = check(loaded)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")  # recorded, never printed as Python warnings
+                loaded = load_architecture(path)
+                findings = check(loaded)
+            findings += _warning_findings(caught, str(path))
         except SchemaError as exc:
             findings = exc.findings
         except ArchselfError as exc:
@@ -66,6 +71,24 @@ def validate(
             json.dumps(report if len(report) != 1 else report[0], indent=2, ensure_ascii=False)
         )
     raise typer.Exit(1 if failed else 0)
+
+
+def _warning_findings(caught: list, file: str) -> list:
+    """numpy/scipy warnings of a check as findings (once each): no warning text on the terminal."""
+    from archself.cli.base import _numeric_warning
+    from archself.findings import Finding
+
+    out: list[Finding] = []
+    seen: set[str] = set()
+    for w in caught:
+        if not _numeric_warning(w):
+            continue
+        text = (str(w.message).splitlines() or [""])[0]
+        msg = f"numeric trouble while checking: {w.category.__name__}: {text}"
+        if msg not in seen and len(seen) < 5:
+            seen.add(msg)
+            out.append(Finding("warning", "numeric", msg, "", file, None, None))
+    return out
 
 
 def schema(
@@ -203,7 +226,7 @@ def info(
     typer.echo(json.dumps(data, indent=2) if as_json else summary_text(data))
 
 
-#: ``generate`` refuses more modules than this without --yes (≈ 22 MB of YAML).
+#: ``generate`` refuses more modules than this without --yes (≈ 27 MB of JSON-compatible YAML).
 GENERATE_MAX = 100_000
 
 
@@ -223,11 +246,13 @@ def generate(
 ) -> None:
     """Generate a large DAG-like architecture of N generic.relay modules (scaling studies)."""
     from archself.generate import generate_architecture
+    from archself.yaml_source import MAX_FILE_BYTES
 
     if n > GENERATE_MAX and not yes:
         raise _fail(
             f"error: N = {n:,} modules is more than the cap of {GENERATE_MAX:,} (about "
-            f"{GENERATE_MAX * 230 // 1024**2} MB of YAML; the loader reads at most 20 MB); "
+            f"{GENERATE_MAX * 270 // 1024**2} MB; the loader reads at most "
+            f"{MAX_FILE_BYTES // 1024**2} MiB of JSON); "
             "pass --yes to generate it anyway"
         )
     if feedback > n * fan_in and not yes:
