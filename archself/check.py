@@ -35,6 +35,8 @@ offending node. The rules:
   the module an action addresses is active where it applies (a warning);
 * ``residual``: a residual names a signal the module's type publishes;
 * ``initial``: at most one configuration is marked initial;
+* ``limits``: a module's ``constraints.blocks`` names declared actions (and has
+  ``limits`` to be violated);
 * ``stability``: with ``runtime.stability.verify`` warning or error (opt-in: it
   compiles the modules), every configuration's closed loop and every action's
   result pass Eq. 21 (:mod:`archself.verify`); judged only on a file without errors.
@@ -124,6 +126,7 @@ def check(loaded: Loaded) -> list[Finding]:
         _scenarios,
         _work,
         _objective,
+        _limits,
         _stability,
     ):
         rule(ctx)
@@ -678,3 +681,19 @@ def _stability(ctx: _Ctx) -> None:
 
     for u in verify_stability(ctx.arch):
         ctx.add(mode, "stability", u.message, u.path, key=len(u.path) == 2)
+
+
+def _limits(ctx: _Ctx) -> None:
+    ids = [a.id for a in ctx.arch.actions]
+    for name, mod in ctx.arch.modules.items():
+        cons = mod.constraints
+        path: Path_ = ("modules", name, "constraints", "blocks")
+        if cons.blocks and not cons.limits:
+            ctx.add("warning", "limits", "'blocks' has no effect without 'limits'", path)
+        if cons.blocks == "all":
+            continue
+        for j, aid in enumerate(cons.blocks):
+            if aid not in ids:
+                close = _close(aid, ids)
+                hint = f" (did you mean '{close}'?)" if close else ""
+                ctx.add("error", "reference", f"unknown action '{aid}'{hint}", (*path, j))

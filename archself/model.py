@@ -154,7 +154,18 @@ class ModuleConstraints(_Strict):
         default_factory=list, description="Modules that must not be active with this one."
     )
     limits: dict[Name, Finite] = Field(
-        default_factory=dict, description="Operating limits, e.g. max_speed_mps."
+        default_factory=dict,
+        description="Operating limits `max_<x>` / `min_<x>` (C(a, θ, e) ≤ 0, Eq. 27). x is a "
+        "parameter of the module (θ: a parameter_update whose new value breaks the limit is "
+        "not admissible, rejection `limit`) or a signal it publishes, a residual signal or a "
+        "scalar output (e: measured every cycle; a violation is reported in κ_i and blocks "
+        "the actions named in `blocks`).",
+    )
+    blocks: list[Name] | Literal["all"] = Field(
+        default_factory=list,
+        description="Actions that are not admissible while one of this module's measured "
+        "limits is violated: action ids, or `all` (every action whose target configuration "
+        "keeps this module active). Empty (default): measured limits are only reported in κ.",
     )
 
 

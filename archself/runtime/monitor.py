@@ -62,6 +62,7 @@ __all__ = [
     "ResidualFilter",
     "StatusMap",
     "filter_gain",
+    "is_limit_violation",
     "module_residual",
     "unavailable_residual",
 ]
@@ -378,16 +379,35 @@ def _samples(local: Mapping[str, Any], lay: _Layout) -> list[Any]:
     return [(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs]
 
 
-def _limit_violations(limits: Mapping[str, Any], local: Mapping[str, Any]) -> list[str]:
-    """Declared ``max_<signal>``/``min_<signal>`` limits the module's local signals break."""
+def _limit_violations(
+    limits: Mapping[str, Any], local: Mapping[str, Any], outputs: Mapping[str, Any] | None = None
+) -> list[str]:
+    """Declared ``max_<signal>``/``min_<signal>`` limits the module's signals break (e).
+
+    The signal is a local (residual) signal, else a scalar output the module published
+    this step; a limit on anything else (a parameter, θ) is judged by the planner.
+    Each line starts with the limit's key (:func:`is_limit_violation`).
+    """
     out = []
     for key, limit in limits.items():
         for prefix, worse in (("max_", float.__gt__), ("min_", float.__lt__)):
             if key.startswith(prefix):
-                value = _finite(local.get(key[len(prefix) :], math.nan))
+                name = key[len(prefix) :]
+                if name in local:
+                    raw = local[name]
+                else:
+                    raw = outputs.get(name) if outputs else None
+                    if isinstance(raw, np.ndarray):
+                        raw = raw.item() if raw.size == 1 else None
+                value = _finite(math.nan if raw is None else raw)
                 if math.isfinite(value) and worse(value, float(limit)):
                     out.append(f"{key} {limit:g} violated ({value:g})")
     return out
+
+
+def is_limit_violation(text: str) -> bool:
+    """True for a κ violation line of a measured limit (not ``requires``/``excludes``)."""
+    return text.startswith(("max_", "min_"))
 
 
 class _Layout:
@@ -574,10 +594,11 @@ class Monitor:
 
         # constraint violations of the active modules
         violations: dict[str, list[str]] = {}
+        outputs = getattr(system, "outputs", None) or {}
         for _k, name, fixed, limits in lay.constrained:
             found = list(fixed)
             if limits:
-                found += _limit_violations(limits, local.get(name) or {})
+                found += _limit_violations(limits, local.get(name) or {}, outputs.get(name))
             if found:
                 violations[name] = found
 

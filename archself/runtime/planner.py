@@ -17,7 +17,12 @@ reason; cheap checks come before the costly ones):
    Without that information every module of the target must be available;
 3. *constraints* C(a, θ, e) ≤ 0 (Eq. 27) of the resulting architecture: each
    module's ``requires``/``excludes`` (``constraint``) and each budget
-   ``Σ_{m in target} resources[resource] ≤ max`` (``budget``);
+   ``Σ_{m in target} resources[resource] ≤ max`` (``budget``) — these depend on
+   the target's module set only and are cached per set; then the operating
+   ``limits`` (``limit``), evaluated every time: on θ, a parameter update whose new
+   value breaks the module's ``max_<p>``/``min_<p>``; on e, an action a module's
+   ``blocks`` names (or, with ``blocks: all``, any action whose target keeps that
+   module active) while the Monitor measures one of its limits violated (κ);
 4. *dwell time* — a structural change only if ``t − t_last ≥ T_min`` (Eq. 28);
 5. *improvement* Δ_k (Eq. 18) by the method the action declares, and the score
    ``|z_i|·Δ_k − λ·Cost(a_k)`` (Eq. 25); a score ≤ 0 is ``no improvement``;
@@ -48,7 +53,7 @@ from typing import Any
 
 from archself.model import Action, Architecture
 from archself.runtime.decisions import ActionEvaluation
-from archself.runtime.monitor import ModuleStatus, StatusMap
+from archself.runtime.monitor import ModuleStatus, StatusMap, is_limit_violation
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 
 __all__ = [
@@ -207,6 +212,12 @@ class Planner:
         self._deps: dict[str, Mapping[str, Iterable[str]] | None] = {}
         # C(a) of a module set depends on the file only: computed once per set
         self._static: dict[tuple[str, ...], tuple[str | None, str]] = {}
+        # modules whose measured limits block actions: name -> action ids, or "all"
+        self._blocking: dict[str, frozenset[str] | str] = {
+            n: ("all" if m.constraints.blocks == "all" else frozenset(m.constraints.blocks))
+            for n, m in arch.modules.items()
+            if m.constraints.limits and m.constraints.blocks
+        }
         self._conf_modules: dict[str, tuple[str, ...]] = {}
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
@@ -266,6 +277,8 @@ class Planner:
         if down:
             return "unavailable", ", ".join(down), target
         reason, detail = self._constraints(target)
+        if reason is None:
+            reason, detail = self._limits(a, s, target)
         if reason is not None:
             return reason, detail, target
         if a.kind != "parameter_update" and s.t - s.t_last < self.dwell_s:
@@ -302,6 +315,30 @@ class Planner:
                 found = (None, "")
             self._static[key] = found
         return found
+
+    def _limits(self, a: Action, s: PlanState, target: tuple[str, ...]) -> tuple[str | None, str]:
+        """(``"limit"``/None, detail): operating limits on θ after ``a`` and on e now.
+
+        Not cached: θ changes with parameter updates and e every cycle.
+        """
+        if a.kind == "parameter_update":
+            limits = self.arch.modules[a.module].constraints.limits
+            for p, v in (a.set or {}).items() if limits else ():
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    continue
+                hi, lo = limits.get(f"max_{p}"), limits.get(f"min_{p}")
+                if hi is not None and v > hi:
+                    return "limit", f"θ: {a.module}.{p} = {v:g} would break max_{p} {hi:g}"
+                if lo is not None and v < lo:
+                    return "limit", f"θ: {a.module}.{p} = {v:g} would break min_{p} {lo:g}"
+        for m, blocks in self._blocking.items():
+            if m not in s.active or (a.id not in blocks if blocks != "all" else m not in target):
+                continue
+            status = s.kappa[m] if m in s.kappa else None
+            bad = [v for v in status.violations if is_limit_violation(v)] if status else []
+            if bad:
+                return "limit", f"e: {m} {'; '.join(bad)} blocks {a.id}"
+        return None, ""
 
     # ------------------------------------------------------------------ plan
     def plan(
