@@ -15,7 +15,7 @@ from scipy.stats import chi2
 from archself import registry
 from archself.sim.faults import FAULT_KINDS, FaultInjector
 from archself_diffdrive.controllers import AsymLqrController, LqrController, lqr_gain
-from archself_diffdrive.estimators import Ekf, InnovationWindow, Odometry
+from archself_diffdrive.estimators import Ekf, InnovationTrend, InnovationWindow, Odometry
 from archself_diffdrive.kinematics import error_dynamics
 from archself_diffdrive.models import (
     Actuation,
@@ -467,6 +467,72 @@ def test_innovation_window_vector_mean():
     for k in range(30):
         w.add(float(k), 0.5, 0.0)
     assert w.value() == pytest.approx(0.5)
+
+
+def _trend_of(t, e, window_s=60.0):
+    w = InnovationTrend(window_s)
+    for tk, (ex, ey) in zip(t, e, strict=True):
+        w.add(float(tk), float(ex), float(ey))
+    return w
+
+
+def test_innovation_trend_is_the_ols_slope_over_its_first_difference_noise():
+    """Slope: scipy's least squares per axis; noise: first differences; window honoured."""
+    from scipy.stats import linregress
+
+    g = rng(11)
+    t = np.arange(0.0, 100.0)
+    e = np.column_stack([0.02 * t, -0.01 * t]) + 0.3 * g.standard_normal((t.size, 2))
+    w = _trend_of(t, e, 60.0)
+    keep = t > t[-1] - 60.0  # the window: the last 60 s
+    slopes = [linregress(t[keep], e[keep, j]).slope for j in range(2)]
+    d = np.diff(e[keep], axis=0)
+    se = math.sqrt(np.mean(d * d) / 2.0 / np.sum((t[keep] - t[keep].mean()) ** 2))
+    assert_allclose(w.value(), math.hypot(*slopes) / se, rtol=1e-12)
+
+
+def test_innovation_trend_does_not_depend_on_the_noise_scale():
+    """The fault-free statistic is the same at any GPS noise: one band for every level."""
+    g = rng(3)
+    t = np.arange(0.0, 60.0)
+    e = g.standard_normal((t.size, 2))
+    assert_allclose(_trend_of(t, 0.2 * e).value(), _trend_of(t, 0.4 * e).value(), rtol=1e-12)
+    # white noise gives an O(1) statistic; a 2 cm/s run-away under the same noise does not
+    assert _trend_of(t, 0.2 * e).value() < 4.0
+    assert _trend_of(t, 0.2 * e + 0.02 * t[:, None]).value() > 10.0
+
+
+def test_innovation_trend_waits_for_half_a_window_and_forgets():
+    w = InnovationTrend(60.0)
+    for k in range(29):
+        w.add(float(k), 0.1 * (-1) ** k, 0.0)
+    assert math.isnan(w.value())
+    w.add(30.0, 0.0, 0.0)
+    assert math.isfinite(w.value())
+    w.clear()
+    assert math.isnan(w.value())
+
+
+def test_odometry_trend_sees_a_heading_bias_the_gps_does_not_share():
+    """Straight run at 0.5 m/s, GPS at the truth with 0.2 m noise: a 0.05 rad IMU bias
+    makes dead reckoning run away from the fixes at about v·b = 2.5 cm/s."""
+
+    def run(bias):
+        o = Odometry("o", {}, rng())
+        g = rng(7)
+        kin = Kinematics(0.5, 0.1)
+        dt = 0.05
+        for k in range(1200):  # 60 s
+            t = k * dt
+            gps = None
+            if k % 20 == 0:
+                gps = np.array([0.5 * t, 0.0]) + 0.2 * g.standard_normal(2)
+            o.step(t, dt, {"encoder_speeds": np.array([5.0, 5.0]), "heading": bias,
+                           "kinematics": kin, "position": gps})
+        return o.local_signals()["innovation_trend"]
+
+    assert run(0.0) < 4.0
+    assert run(0.05) > 8.0
 
 
 def test_gps_rate_and_gaps():
