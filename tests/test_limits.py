@@ -43,7 +43,7 @@ def test_a_measured_limit_and_a_parameter_limit_block_actions_in_a_run() -> None
     assert ev["use_spare"] == (None, "")
     # explain says why
     text = explain(loop.decisions)
-    assert "boost_main (parameter_update on main)  rejected (limit: e: meter min_measurement" in text
+    assert "boost_main (parameter_update on main)  rejected (limit: e: meter min_measure" in text
     assert "rejected (limit: θ: main.gain = 4 would break max_gain 3)" in text
 
 
