@@ -17,6 +17,7 @@ name                        what it is
 :func:`simulate`            run a scenario, fixed or adaptive → :class:`RunResult`
 :class:`MapeK`              the adaptation loop of Algorithm 1 (``adapt=MapeK(arch)``)
 :func:`explain`             a decision log as text: why it switched
+:func:`read_trace`          a saved trace (Parquet or JSON) → :class:`RunResult`
 :func:`plan_campaign`       the jobs of a Monte Carlo campaign (``parse_sweep`` for sweeps)
 :func:`run_campaign`        run them into a Parquet results file
 :func:`read_results`        that file → (``pyarrow.Table``, metadata)
@@ -45,6 +46,7 @@ _LAZY = {
     "Finding": "archself.findings",
     "simulate": "archself.sim.run",
     "RunResult": "archself.sim.run",
+    "read_trace": "archself.sim.trace",
     "MapeK": "archself.runtime.mapek",
     "explain": "archself.runtime.decisions",
     "parse_sweep": "archself.campaign.sweep",
@@ -67,6 +69,7 @@ __all__ = [
     "parse_sweep",
     "plan_campaign",
     "read_results",
+    "read_trace",
     "run_campaign",
     "simulate",
     "validate",
@@ -85,6 +88,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from archself.runtime.decisions import explain
     from archself.runtime.mapek import MapeK
     from archself.sim.run import RunResult, simulate
+    from archself.sim.trace import read_trace
 
 
 def load(path: str | Path, *, check: bool = True) -> Architecture:

@@ -17,7 +17,7 @@ pd = pytest.importorskip("pandas")
 
 HEAVY = ("control", "filterpy", "matplotlib", "pandas")
 PUBLIC = ("load", "validate", "simulate", "RunResult", "MapeK", "explain", "plan_campaign",
-          "run_campaign", "read_results", "parse_sweep", "calibrate", "Architecture",
+          "run_campaign", "read_results", "read_trace", "parse_sweep", "calibrate", "Architecture",
           "Finding", "ArchselfError", "LoadError")
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -46,6 +47,33 @@ def _root(
     ] = False,
 ) -> None:
     """Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K)."""
+
+
+class FigureFormat(StrEnum):
+    """File formats of the figures (``--format``)."""
+
+    png = "png"
+    pdf = "pdf"
+    svg = "svg"
+
+
+# Options of the commands that write figures (simulate --report, report, campaign-report).
+FormatOption = Annotated[
+    list[FigureFormat] | None,
+    typer.Option("--format", help="Figure format; repeat for several (e.g. --format pdf "
+                 "--format svg). The HTML shows the SVG or PNG (written too if neither is "
+                 "asked for)."),
+]
+DpiOption = Annotated[
+    int, typer.Option("--dpi", min=50, max=1200, help="Resolution of PNG figures (dots per inch).")
+]
+
+
+def _formats(chosen: list[FigureFormat] | None, default: str = "png") -> tuple[str, ...]:
+    """The ``--format`` values as strings, in order, without repeats (``default`` if none)."""
+    if not chosen:
+        return (default,)
+    return tuple(dict.fromkeys(FigureFormat(c).value for c in chosen))
 
 
 # Options shared by the commands that run many simulations (campaign, calibrate).

@@ -9,7 +9,17 @@ from typing import Annotated, Any
 
 import typer
 
-from archself.cli.base import _RUN_REPORT_FILES, _die, _fail, _inputs, _load, _numeric
+from archself.cli.base import (
+    _RUN_REPORT_FILES,
+    DpiOption,
+    FormatOption,
+    _die,
+    _fail,
+    _formats,
+    _inputs,
+    _load,
+    _numeric,
+)
 from archself.errors import ArchselfError
 
 #: ``simulate`` refuses more steps than this (runs × duration / step) without --yes.
@@ -122,7 +132,11 @@ def simulate(
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     trace: Annotated[
         Path | None,
-        typer.Option("--trace", help="Write the time series and decision log (JSON) to FILE."),
+        typer.Option(
+            "--trace", metavar="FILE",
+            help="Write the time series and decision log to FILE: Parquet if it ends in "
+            ".parquet, else JSON; '-' writes JSON to stdout (the summary goes to stderr).",
+        ),
     ] = None,
     report: Annotated[
         Path | None,
@@ -132,6 +146,8 @@ def simulate(
             help="Write an HTML run report with the paper's figures to DIR.",
         ),
     ] = None,
+    fig_format: FormatOption = None,
+    dpi: DpiOption = 150,
     yes: Annotated[
         bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
     ] = False,
@@ -143,6 +159,15 @@ def simulate(
     """
     if fixed and compare:
         raise _fail("--fixed and --compare exclude each other", 2)
+    to_stdout = trace is not None and str(trace) == "-"
+    if to_stdout and compare:
+        raise _fail(
+            "--trace - writes one run to stdout and --compare makes two; name a file instead", 2
+        )
+    if to_stdout and json_out:
+        raise _fail("--trace - and --json both write to stdout: choose one", 2)
+    if to_stdout:
+        trace = None
     if trace is not None and not (trace.parent if str(trace.parent) else Path(".")).is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
     from archself.atomic import protect
@@ -175,11 +200,16 @@ def simulate(
             if report is not None:
                 from archself.reports.run_report import write_run_report
 
-                write_run_report(arch, results, report)
+                write_run_report(arch, results, report, formats=_formats(fig_format), dpi=dpi)
                 typer.echo(f"report: {report / 'index.html'}", err=True)
     except ArchselfError as exc:
         raise _die(exc) from None
-    if json_out:
+    if to_stdout:
+        from archself.sim.trace import json_text
+
+        typer.echo(_summary(results), err=True)
+        sys.stdout.write(json_text(results[0]))
+    elif json_out:
         data = [r.to_dict() for r in results]
         typer.echo(json.dumps(data if compare else data[0], indent=2, ensure_ascii=False))
     else:
@@ -187,13 +217,27 @@ def simulate(
 
 
 def report(
-    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
     output: Annotated[
         Path,
         typer.Option(
             "-o", "--output", metavar="DIR", help="Folder to write the report into (created)."
         ),
     ],
+    arch_path: Annotated[
+        Path | None,
+        typer.Argument(metavar="[ARCH]",
+                       help="Architecture file (optional with --trace: the trace holds it)."),
+    ] = None,
+    trace: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--trace", metavar="TRACE",
+            help="Rebuild the run report of a saved trace (Parquet or JSON) instead; twice "
+            "for a fixed and an adaptive run of the same scenario and seed.",
+        ),
+    ] = None,
+    fig_format: FormatOption = None,
+    dpi: DpiOption = 150,
     no_render: Annotated[
         bool, typer.Option("--no-render", help="DOT sources only, even if `dot` is installed.")
     ] = False,
@@ -209,10 +253,18 @@ def report(
     Graphs are rendered to SVG and PNG when Graphviz `dot` is on PATH; index.html links all.
     The report is written beside DIR and swapped in when complete (no half report,
     no stale files); a non-empty DIR is replaced only with --force.
+
+    With --trace TRACE it is the run report of `simulate --report` instead, rebuilt from
+    the saved trace(s) without running anything (ARCH is then optional).
     """
     from archself.atomic import protect
     from archself.outputs import refuse_input_inside
 
+    if trace:
+        _report_from_traces(arch_path, trace, output, _formats(fig_format), dpi)
+        return
+    if arch_path is None:
+        raise _fail("missing argument ARCH (or --trace TRACE for a run report)", 2)
     try:
         _inputs(arch_path)
         refuse_input_inside([arch_path], output, "-o")
@@ -243,8 +295,57 @@ def report(
     typer.echo(str(rep.index))
 
 
+def _report_from_traces(
+    arch_path: Path | None, traces: list[Path], output: Path, formats: tuple[str, ...], dpi: int
+) -> None:
+    """``report --trace``: the run report of saved traces (one run, or fixed + adaptive)."""
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
+    from archself.sim.trace import read_trace
+
+    if len(traces) > 2:
+        raise _fail("--trace takes one run, or two (fixed and adaptive)", 2)
+    inputs = [*traces, *([arch_path] if arch_path is not None else [])]
+    try:
+        _inputs(*traces, what="a trace")
+        if arch_path is not None:
+            _inputs(arch_path)
+        for name in _RUN_REPORT_FILES:
+            refuse_same_file(inputs, output / name, "-o")
+        with protect(inputs):
+            results = [read_trace(t) for t in traces]
+            if len(results) == 2:
+                a, b = results
+                if {a.mode, b.mode} != {"fixed", "adaptive"} or (a.scenario, a.seed) != (
+                        b.scenario, b.seed):
+                    raise _fail(
+                        f"{traces[1]}: error: two traces must be a fixed and an adaptive run "
+                        f"of one scenario and seed; got {a.mode} {a.scenario} seed {a.seed} "
+                        f"and {b.mode} {b.scenario} seed {b.seed}")
+                results.sort(key=lambda r: r.mode != "fixed")  # fixed first, as --compare
+            arch = None
+            for t, r in zip(traces, results, strict=True):
+                if arch_path is None and not isinstance(r.meta.get("report"), dict):
+                    raise _fail(f"{t}: error: the trace does not hold the run report's "
+                                "settings (written by an older archself); pass the "
+                                "architecture file: archself report ARCH --trace TRACE -o DIR")
+            if arch_path is not None:
+                arch = _load(arch_path)
+                if results[0].scenario not in arch.scenarios:
+                    raise _fail(f"{arch_path}: error: has no scenario "
+                                f"'{results[0].scenario}' of the trace")
+            from archself.reports.run_report import write_run_report
+
+            write_run_report(arch, results, output, formats=formats, dpi=dpi)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(str(output / "index.html"))
+
+
 def explain(
-    trace: Annotated[Path, typer.Argument(help="A trace written by `simulate --trace`.")],
+    trace: Annotated[
+        Path, typer.Argument(help="A trace written by `simulate --trace` (Parquet or JSON).")
+    ],
     json_out: Annotated[
         bool,
         typer.Option(
@@ -257,17 +358,14 @@ def explain(
     """Explain a run's decisions: why (and why not) the architecture switched."""
     from archself.runtime.decisions import explain as render
     from archself.runtime.decisions import explain_data
+    from archself.sim.trace import read_trace
 
     try:
-        _inputs(trace, what="a trace (JSON)")
-        doc = json.loads(trace.read_text(encoding="utf-8"))
-        meta, decisions = doc["meta"], doc["decisions"]
+        _inputs(trace, what="a trace (Parquet or JSON)")
+        res = read_trace(trace)
     except ArchselfError as exc:
         raise _die(exc) from None
-    except FileNotFoundError:
-        raise _fail(f"{trace}: error: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise _fail(f"{trace}: error: not an archself trace ({type(exc).__name__})") from None
+    meta, decisions = res.trace_meta(), res.trace_decisions()
     if json_out:
         run = {k: meta.get(k) for k in ("architecture", "scenario", "seed", "mode",
                                         "configuration", "final_configuration")}

@@ -21,7 +21,9 @@ import numpy as np
 from archself.reports.run import RunReport
 
 __all__ = [
+    "FORMATS",
     "error_figure",
+    "figure_bytes",
     "influence_figure",
     "plot_error",
     "plot_influence",
@@ -43,10 +45,35 @@ def _figure(w: float = 7.5, h: float = 4.2) -> Any:
     return Figure(figsize=(w, h), dpi=100, layout="constrained")
 
 
-def _png(fig: Any) -> bytes:
+#: Figure formats :func:`figure_bytes` writes, and the metadata each gets (no date, no
+#: software version: the bytes depend only on the data and the matplotlib version).
+FORMATS = {
+    "png": {"Software": None},
+    "svg": {"Date": None},
+    "pdf": {"CreationDate": None, "Producer": None},
+}
+
+
+def figure_bytes(fig: Any, fmt: str = "png", dpi: int = 150) -> bytes:
+    """``fig`` saved as ``png``, ``svg`` or ``pdf``: deterministic bytes.
+
+    ``dpi`` matters for PNG (and for images inside a vector file); SVG keeps its text
+    as text (``svg.fonttype: none``) so a paper's fonts apply, and a fixed hash salt.
+    """
+    import matplotlib
+
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown figure format {fmt!r}; known: {', '.join(FORMATS)}")
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
+    rc: dict[str, Any] = {"svg.hashsalt": "archself", "svg.fonttype": "none",
+                          "pdf.fonttype": 42}
+    with matplotlib.rc_context(rc):  # type: ignore[arg-type]
+        fig.savefig(buf, format=fmt, dpi=dpi, metadata=FORMATS[fmt])
     return buf.getvalue()
+
+
+def _png(fig: Any) -> bytes:
+    return figure_bytes(fig, "png", 100)
 
 
 def _comp(arr: np.ndarray, c: int) -> np.ndarray:

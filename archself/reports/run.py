@@ -146,16 +146,22 @@ class RunReport:
         })
 
 
-def _selector(arch: Architecture) -> tuple[str, list[tuple[str, float]]]:
-    rt = arch.runtime
-    if rt.hysteresis is not None:
-        h = rt.hysteresis
-        return (f"hysteresis |z| ≥ {h.on:g} on, < {h.off:g} off",
-                [("τ_on", float(h.on)), ("τ_off", float(h.off))])
-    if rt.top_k is not None:
-        return f"top {rt.top_k} by |z|", []
-    assert rt.threshold is not None
-    return f"|z| ≥ τ = {rt.threshold:g}", [("τ", float(rt.threshold))]
+def _selector(ctx: dict[str, Any]) -> tuple[str, list[tuple[str, float]]]:
+    h = ctx.get("hysteresis")
+    if h is not None:
+        return (f"hysteresis |z| ≥ {h['on']:g} on, < {h['off']:g} off",
+                [("τ_on", float(h["on"])), ("τ_off", float(h["off"]))])
+    if ctx.get("top_k") is not None:
+        return f"top {ctx['top_k']} by |z|", []
+    threshold = float(ctx["threshold"])
+    return f"|z| ≥ τ = {threshold:g}", [("τ", threshold)]
+
+
+def run_context(arch: Architecture, scenario: str) -> dict[str, Any]:
+    """What the report needs of the file beyond the runs (a trace's ``meta.report``)."""
+    from archself.sim.run import _report_context
+
+    return _report_context(arch, arch.scenarios[scenario])
 
 
 def _outcome(d: dict[str, Any]) -> tuple[str, str]:
@@ -211,12 +217,43 @@ def _decision_rows(decisions: list[dict[str, Any]]) -> list[DecisionRow]:
     return rows
 
 
-def build_run_report(arch: Architecture, results: list[Any]) -> RunReport:
-    """The report model of one run or of a fixed/adaptive pair from the same start and seed."""
+def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport:
+    """The report model of one run or of a fixed/adaptive pair from the same start and seed.
+
+    ``arch`` None takes what the report needs of the file from the runs' ``meta``
+    (traces read with :func:`archself.read_trace`; ``archself report --trace``).
+
+    Raises
+    ------
+    TraceError
+        ``arch`` is None and the runs' ``meta`` lacks the report context (a trace
+        written before archself recorded it: pass the architecture file).
+    """
     first = results[0]
-    sc = arch.scenarios[first.scenario]
-    selector, tau = _selector(arch)
-    rt = arch.runtime
+    meta = dict(first.meta)
+    if arch is not None:
+        ctx = run_context(arch, first.scenario)
+        name = arch.name
+        objective = {"actual": arch.runtime.objective.actual,
+                     "reference": arch.runtime.objective.reference,
+                     "components": list(arch.runtime.objective.components)}
+        unit = arch.runtime.objective.unit
+        period_s = float(arch.runtime.period_s)
+        modules = list(arch.modules)
+    else:
+        from archself.sim.trace import TraceError
+
+        if not isinstance(meta.get("report"), dict) or "objective" not in meta:
+            raise TraceError("error: the trace does not hold the run report's settings "
+                             "(written by an older archself); pass the architecture file: "
+                             "archself report ARCH --trace TRACE -o DIR")
+        ctx = meta["report"]
+        name = str(meta.get("architecture", "?"))
+        objective = {k: meta["objective"][k] for k in ("actual", "reference", "components")}
+        unit = meta["objective"].get("unit")
+        period_s = float(meta.get("period_s", math.nan))
+        modules = []
+    selector, tau = _selector(ctx)
     runs = []
     series = {}
     decisions: list[dict[str, Any]] = []
@@ -232,7 +269,10 @@ def build_run_report(arch: Architecture, results: list[Any]) -> RunReport:
         series[r.mode] = r.series
         if r.mode == "adaptive":
             decisions = recs
-    names = [n for n in arch.modules
+    # a trace: the modules in the order of the decision records (the file's order)
+    modules += list(dict.fromkeys(n for d in decisions for n in (d.get("z") or {})
+                                  if n not in modules))
+    names = [n for n in modules
              if any((d.get("z") or {}).get(n) not in (None, 0.0) for d in decisions)]
     z_t = np.array([float(d["t"]) for d in decisions])
     z = {
@@ -241,20 +281,19 @@ def build_run_report(arch: Architecture, results: list[Any]) -> RunReport:
         for n in names
     }
     return RunReport(
-        architecture=arch.name,
+        architecture=name,
         scenario=first.scenario,
-        scenario_description=sc.description or "",
+        scenario_description=str(ctx.get("scenario_description") or ""),
         seed=int(first.seed),
-        faults=[f.model_dump(exclude_none=True) for f in sc.faults],
-        objective={"actual": rt.objective.actual, "reference": rt.objective.reference,
-                   "components": list(rt.objective.components)},
-        acceptable=float(rt.objective.acceptable),
-        unit=rt.objective.unit,
+        faults=[dict(f) for f in ctx.get("faults") or []],
+        objective=objective,
+        acceptable=float(ctx.get("acceptable") or 0.0),
+        unit=unit,
         selector=selector,
         tau=tau,
-        period_s=float(rt.period_s),
-        warmup_s=float(rt.warmup_time_s),
-        min_confidence=float(rt.min_confidence),
+        period_s=period_s,
+        warmup_s=float(ctx.get("warmup_s") or 0.0),
+        min_confidence=float(ctx.get("min_confidence") or 0.0),
         runs=runs,
         decision_rows=_decision_rows(decisions),
         z_t=z_t,

@@ -1,14 +1,16 @@
-"""``archself simulate --report DIR``: the HTML run report with the paper's figures.
+"""``archself simulate --report DIR`` and ``archself report --trace``: the HTML run report.
 
-Writes into ``DIR`` (created if missing):
+Writes into ``DIR`` (created if missing), each figure in every ``--format`` asked for
+(``png`` by default; ``svg``, ``pdf``):
 
-==================  ==========================================================
-``index.html``      summary, figures, decision log (``templates/run_report.html.j2``)
-``trajectory.png``  Fig. 2–4: actual against reference
-``error.png``       Fig. 6: tracking error, fixed and/or adaptive, switches marked
-``influence.png``   Fig. 5: |z_i| per cycle, τ, warm-up, switches (adaptive runs)
-``summary.json``    :meth:`archself.reports.run.RunReport.summary`, deterministic
-==================  ==========================================================
+=====================  =======================================================
+``index.html``         summary, figures, decision log (``templates/run_report.html.j2``)
+``trajectory.<fmt>``   Fig. 2–4: actual against reference
+``error.<fmt>``        Fig. 6: tracking error, fixed and/or adaptive, switches marked
+``influence.<fmt>``    Fig. 5: |z_i| per cycle, τ, warm-up, switches, why cycles were
+                       rejected (adaptive runs)
+``summary.json``       :meth:`archself.reports.run.RunReport.summary`, deterministic
+=====================  =======================================================
 """
 
 from __future__ import annotations
@@ -26,8 +28,14 @@ from archself.reports.run import RunReport, build_run_report
 __all__ = ["write_run_report"]
 
 
-def write_run_report(arch: Architecture, results: list[Any], out_dir: str | Path) -> RunReport:
+def write_run_report(arch: Architecture | None, results: list[Any], out_dir: str | Path,
+                     formats: tuple[str, ...] = ("png",), dpi: int = 150) -> RunReport:
     """Write the run report of ``results`` (one run, or fixed + adaptive) into ``out_dir``.
+
+    ``arch`` None takes the file's settings from the runs' ``meta`` (traces read back
+    with :func:`archself.read_trace`). Each figure is written in every one of
+    ``formats`` (``png``, ``svg``, ``pdf``; PNG at ``dpi``); the HTML shows the SVG if
+    asked for, else the PNG (written too when neither is asked for).
 
     Raises
     ------
@@ -40,29 +48,35 @@ def write_run_report(arch: Architecture, results: list[Any], out_dir: str | Path
     out = Path(out_dir)
     ensure_dir(out)
     rep = build_run_report(arch, results)
+    shown = "svg" if "svg" in formats else "png"
+    fmts = tuple(dict.fromkeys((*formats, shown)))
     figs = [
-        ("trajectory.png", "Trajectory against the reference (cf. paper Fig. 2–4)",
+        ("trajectory", "Trajectory against the reference (cf. paper Fig. 2–4)",
          f"{rep.objective['actual']} components {rep.objective['components']} against "
          f"{rep.objective['reference']}; dots mark architecture switches.",
-         figures.trajectory_figure(rep)),
-        ("error.png", "Tracking error, fixed versus adaptive (cf. paper Fig. 6)",
+         figures.plot_trajectory),
+        ("error", "Tracking error, fixed versus adaptive (cf. paper Fig. 6)",
          "The objective error J_obs of each run; dashed green lines are architecture "
          "switches, dotted grey lines fault onsets.",
-         figures.error_figure(rep)),
+         figures.plot_error),
     ]
     if rep.adaptive is not None:
         figs.append((
-            "influence.png", "Influence channels z with τ, warm-up and switches (cf. paper Fig. 5)",
+            "influence", "Influence channels z with τ, warm-up and switches (cf. paper Fig. 5)",
             f"|z_i| of every module with a non-zero influence, per MAPE-K cycle "
             f"(every {rep.period_s:g} s); candidates: {rep.selector}. Gaps: module inactive.",
-            figures.influence_figure(rep)))
-    for name, _title, _caption, data in figs:
-        write_bytes(out / name, data)
+            figures.plot_influence))
+    for stem, _title, _caption, plot in figs:
+        fig = plot(rep)
+        for fmt in fmts:
+            write_bytes(out / f"{stem}.{fmt}", figures.figure_bytes(fig, fmt, dpi))
     write_text(out / "summary.json",
                json.dumps(rep.summary(), indent=2, ensure_ascii=False, sort_keys=True) + "\n")
     write_text(out / "index.html", render(
         "run_report.html.j2", rep=rep,
-        figures=[{"file": f, "title": t, "caption": c} for f, t, c, _ in figs],
+        figures=[{"file": f"{stem}.{shown}", "title": t, "caption": c,
+                  "others": [f"{stem}.{x}" for x in fmts if x != shown]}
+                 for stem, t, c, _ in figs],
         metric_rows=[(label, key, f"%.{d}f") for label, key, d in metric_rows(rep.unit)],
     ))
     return rep

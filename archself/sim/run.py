@@ -21,7 +21,6 @@ Examples
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -158,10 +157,17 @@ class RunResult:
 
     def trace(self) -> dict[str, Any]:
         """The trace document ``{meta, series, decisions}`` as plain JSON data."""
-        meta = {**self.meta, **self.to_dict(), "configurations": list(self.configurations)}
         series = {name: _series_list(arr) for name, arr in self.series.items()}
-        decisions = [_decision(d) for d in self.decisions]
-        return {"meta": meta, "series": series, "decisions": jsonable(decisions)}
+        return {"meta": self.trace_meta(), "series": series,
+                "decisions": jsonable(self.trace_decisions())}
+
+    def trace_meta(self) -> dict[str, Any]:
+        """The trace's ``meta``: :attr:`meta`, :meth:`to_dict` and the configuration names."""
+        return {**self.meta, **self.to_dict(), "configurations": list(self.configurations)}
+
+    def trace_decisions(self) -> list[Any]:
+        """The decision log as plain data (dicts), as the trace stores it."""
+        return [_decision(d) for d in self.decisions]
 
     # ------------------------------------------------------------------ notebooks
     def to_pandas(self) -> Any:
@@ -285,20 +291,22 @@ class RunResult:
         )
 
     def write_trace(self, path: str | Path) -> None:
-        """Write :meth:`trace` as JSON to ``path``, atomically and deterministically.
+        """Write the trace to ``path``, atomically and deterministically.
 
-        The same seed gives a byte-identical file. NaN is written as ``null``;
-        series values are rounded to 1e-6.
+        ``.parquet`` (or ``.pq``) writes Parquet (``pd.read_parquet(path)`` gives the
+        columns of :meth:`to_pandas`; float32 series, the decision log in the schema
+        metadata), any other suffix JSON (:meth:`trace`; NaN as ``null``, series rounded
+        to 1e-6). The same seed gives a byte-identical file; :func:`archself.read_trace`
+        reads either back. See :mod:`archself.sim.trace`.
 
         Raises
         ------
         OutputError
             If the file cannot be written.
         """
-        from archself.atomic import write_text
+        from archself.sim.trace import write_trace
 
-        text = json.dumps(self.trace(), separators=(",", ":"), allow_nan=False)
-        write_text(path, text + "\n")
+        write_trace(self, path)
 
 
 def _pandas(method: str) -> Any:
@@ -339,6 +347,22 @@ def _decision(d: Any) -> Any:
     if dataclasses.is_dataclass(d) and not isinstance(d, type):
         return dataclasses.asdict(d)
     return d
+
+
+def _report_context(arch: Architecture, sc: Any) -> dict[str, Any]:
+    """What a run report needs of the file beyond the run (``archself report --trace``)."""
+    rt = arch.runtime
+    h = rt.hysteresis
+    return {
+        "scenario_description": sc.description or "",
+        "faults": [f.model_dump(exclude_none=True) for f in sc.faults],
+        "acceptable": float(rt.objective.acceptable),
+        "threshold": None if rt.threshold is None else float(rt.threshold),
+        "top_k": rt.top_k,
+        "hysteresis": None if h is None else {"on": float(h.on), "off": float(h.off)},
+        "warmup_s": float(rt.warmup_time_s),
+        "min_confidence": float(rt.min_confidence),
+    }
 
 
 def _publisher(system: Any, signal: str) -> str | None:
@@ -502,6 +526,7 @@ def simulate(
             "unit": rt.objective.unit,
         },
         "residuals": {m: s for m, s in res_mods},
+        "report": _report_context(arch, sc),
     }
     return RunResult(
         scenario=scenario,
