@@ -1,0 +1,244 @@
+"""Run traces on disk: Parquet (compact, read by pandas and polars) or JSON.
+
+A trace holds a run's recorded series, its decision log and what the run report
+needs to be rebuilt (``archself report --trace``) without the architecture file.
+The format follows the file name: ``.parquet`` (or ``.pq``) writes Parquet, any other
+suffix JSON; reading looks at the content (Parquet's ``PAR1`` magic), not the name.
+
+Parquet layout (``pd.read_parquet(path)`` gives the same columns as
+:meth:`archself.sim.run.RunResult.to_pandas`):
+
+- one row per simulation step; ``t`` float64 [s], every other series float32 (7
+  significant digits: finer than the JSON trace's rounding to 1e-6 for values below
+  10), a vector series one column per component (``reference_0`` …),
+  ``configuration`` a dictionary-encoded string (a categorical in pandas);
+- the file's key-value metadata ``archself.trace``: JSON ``{"format": 1, "meta": …,
+  "series": [[name, width], …]}`` (``meta`` as in the JSON trace, widths to rebuild the
+  2-D series);
+- key-value metadata ``archself.decisions``: the decision log, JSON compressed with xz
+  (LZMA) and base64-encoded (``json.loads(lzma.decompress(base64.b64decode(v)))``).
+
+A 400 s diffdrive run is ≈ 0.4 MB in Parquet against ≈ 2.2 MB of JSON.
+The same run and seed give byte-identical files (same pyarrow version).
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import lzma
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from archself.errors import ArchselfError
+from archself.jsondata import jsonable
+
+__all__ = [
+    "TRACE_KEY",
+    "DECISIONS_KEY",
+    "TraceError",
+    "is_parquet_name",
+    "parquet_bytes",
+    "read_trace",
+    "write_trace",
+]
+
+TRACE_KEY = b"archself.trace"
+DECISIONS_KEY = b"archself.decisions"
+FORMAT = 1
+_SUFFIXES = (".parquet", ".pq")
+
+
+class TraceError(ArchselfError):
+    """A file that is not an archself trace."""
+
+
+def is_parquet_name(path: str | Path) -> bool:
+    """True when ``path`` asks for a Parquet trace (by its suffix).
+
+    Examples
+    --------
+    >>> is_parquet_name("run.parquet"), is_parquet_name("run.json"), is_parquet_name("-")
+    (True, False, False)
+    """
+    return Path(str(path)).suffix.lower() in _SUFFIXES
+
+
+def write_trace(result: Any, path: str | Path) -> None:
+    """Write ``result``'s trace to ``path``, atomically: Parquet or JSON by the suffix.
+
+    Raises
+    ------
+    OutputError
+        If the file cannot be written.
+    """
+    from archself.atomic import write_bytes
+
+    if is_parquet_name(path):
+        write_bytes(path, parquet_bytes(result))
+    else:
+        write_bytes(path, json_text(result).encode("utf-8"))
+
+
+def json_text(result: Any) -> str:
+    """The JSON trace ``{meta, series, decisions}``: compact, deterministic, one line."""
+    return json.dumps(result.trace(), separators=(",", ":"), allow_nan=False) + "\n"
+
+
+def parquet_bytes(result: Any) -> bytes:
+    """The Parquet trace of ``result`` (see the module's description)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    doc_meta = result.trace_meta()
+    columns: dict[str, Any] = {}
+    widths: list[list[Any]] = []
+    for name, arr in result.series.items():
+        a = np.asarray(arr)
+        if name == "configuration":
+            names = list(result.configurations)
+            codes = a.astype(np.int32)
+            if names:
+                columns[name] = pa.DictionaryArray.from_arrays(
+                    pa.array(codes, type=pa.int32()), pa.array(names, type=pa.string()))
+            else:
+                columns[name] = pa.array(codes)
+            widths.append([name, 0])
+        elif a.ndim == 2:
+            for k in range(a.shape[1]):
+                columns[f"{name}_{k}"] = pa.array(a[:, k].astype(np.float32))
+            widths.append([name, int(a.shape[1])])
+        elif name == "t":
+            columns[name] = pa.array(a.astype(np.float64))
+            widths.append([name, 0])
+        else:
+            col = a.astype(np.float32) if a.dtype.kind == "f" else a
+            columns[name] = pa.array(col)
+            widths.append([name, 0])
+    decisions = json.dumps(jsonable(result.trace_decisions()), separators=(",", ":"),
+                           allow_nan=False)
+    head = {"format": FORMAT, "meta": jsonable(doc_meta), "series": widths}
+    table = pa.table(columns)
+    buf = io.BytesIO()
+    floats = [n for n, c in columns.items() if pa.types.is_floating(c.type)]
+    with pq.ParquetWriter(buf, table.schema, compression="zstd", compression_level=15,
+                          use_byte_stream_split=floats,
+                          use_dictionary=["configuration"] if "configuration" in columns
+                          else False) as writer:
+        writer.write_table(table)
+        # in the file's key-value metadata only: as schema metadata the Arrow schema
+        # (ARROW:schema) would hold the decision log a second time
+        writer.add_key_value_metadata({
+            TRACE_KEY: json.dumps(head, separators=(",", ":"), allow_nan=False).encode(),
+            DECISIONS_KEY: base64.b64encode(lzma.compress(decisions.encode("utf-8"),
+                                                          preset=9 | lzma.PRESET_EXTREME)),
+        })
+    return buf.getvalue()
+
+
+def read_trace(path: str | Path) -> Any:
+    """The :class:`~archself.sim.run.RunResult` of a trace file (Parquet or JSON).
+
+    Series come back as float arrays (NaN where the JSON has ``null``), the
+    decision log as a list of dicts (what :func:`archself.explain` and
+    :meth:`~archself.sim.run.RunResult.decisions_frame` take).
+
+    Raises
+    ------
+    TraceError
+        ``PATH: error: not an archself trace (…)`` for any other file.
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            magic = fh.read(4)
+    except FileNotFoundError:
+        raise TraceError(f"{path}: error: no such file") from None
+    except OSError as exc:
+        raise TraceError(f"{path}: error: cannot read: {exc.strerror or exc}") from None
+    try:
+        if magic == b"PAR1":
+            return _read_parquet(p)
+        return _read_json(p)
+    except TraceError:
+        raise
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, IndexError,
+            AttributeError, lzma.LZMAError) as exc:
+        raise TraceError(
+            f"{path}: error: not an archself trace ({type(exc).__name__})") from None
+
+
+def _read_json(p: Path) -> Any:
+    doc = json.loads(p.read_text(encoding="utf-8"))
+    meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
+    arrays: dict[str, np.ndarray] = {}
+    for name, values in series.items():
+        if name == "configuration":
+            arrays[name] = np.asarray(values, dtype=int)
+        else:
+            arrays[name] = np.array(
+                [[math.nan if v is None else v for v in row] if isinstance(row, list)
+                 else (math.nan if row is None else row) for row in values], dtype=float)
+    return _result(meta, arrays, list(decisions))
+
+
+def _read_parquet(p: Path) -> Any:
+    import pyarrow.parquet as pq
+
+    pf = pq.ParquetFile(p)
+    md = pf.metadata.metadata or {}
+    if TRACE_KEY not in md:
+        raise TraceError(f"{p}: error: not an archself trace (a Parquet file without "
+                         "archself.trace metadata; a campaign's results are read by "
+                         "campaign-report)")
+    head = json.loads(md[TRACE_KEY])
+    table = pf.read()
+    if int(head.get("format", 0)) > FORMAT:
+        raise TraceError(f"{p}: error: trace format {head['format']} is newer than this "
+                         f"archself reads ({FORMAT}); upgrade archself")
+    meta = head["meta"]
+    decisions = json.loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
+        if DECISIONS_KEY in md else []
+    arrays: dict[str, np.ndarray] = {}
+    for name, width in head["series"]:
+        if name == "configuration":
+            col = table.column(name).combine_chunks()
+            if hasattr(col, "indices"):
+                arrays[name] = np.asarray(col.indices.to_numpy(zero_copy_only=False), dtype=int)
+            else:
+                arrays[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=int)
+        elif width:
+            arrays[name] = np.column_stack([
+                np.asarray(table.column(f"{name}_{k}").to_numpy(zero_copy_only=False),
+                           dtype=float) for k in range(int(width))])
+        else:
+            arrays[name] = np.asarray(table.column(name).to_numpy(zero_copy_only=False),
+                                      dtype=float)
+    return _result(meta, arrays, list(decisions))
+
+
+def _result(meta: dict[str, Any], series: dict[str, np.ndarray], decisions: list) -> Any:
+    from archself.sim.run import RunResult
+
+    keep = {k: v for k, v in meta.items()
+            if k not in ("scenario", "seed", "mode", "configuration", "final_configuration",
+                         "unit", "metrics", "switches", "configurations")}
+    return RunResult(
+        scenario=str(meta["scenario"]),
+        seed=int(meta["seed"]),
+        mode=str(meta["mode"]),
+        configuration=str(meta["configuration"]),
+        final_configuration=str(meta["final_configuration"]),
+        metrics={k: (math.nan if v is None else float(v))
+                 for k, v in dict(meta["metrics"]).items()},
+        switches=[dict(s) for s in meta.get("switches") or []],
+        series=series,
+        decisions=decisions,
+        meta=keep,
+        configurations=[str(c) for c in meta.get("configurations") or []],
+        unit=meta.get("unit"),
+    )
