@@ -20,7 +20,7 @@ def _tool(name: str) -> str:
 
 
 def test_ruff_is_clean() -> None:
-    paths = ["archself", "packs", "tests", "plugins", "bench"]
+    paths = ["archself", "packs", "tests", "plugins", "bench", "examples"]
     proc = subprocess.run([_tool("ruff"), "check", *paths], cwd=ROOT, capture_output=True,
                           text=True)
     assert proc.returncode == 0, proc.stdout[-3000:]

@@ -8,9 +8,9 @@ filterpy, matplotlib) are imported inside the commands that need them, never at
 start-up.
 
 The app and what the commands share are in :mod:`archself.cli.base`; the commands in
-:mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.campaigns`
-and :mod:`~archself.cli.calibration`. They are registered here, in the order
-``archself --help`` lists them.
+:mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.campaigns`,
+:mod:`~archself.cli.calibration` and :mod:`~archself.cli.live`. They are registered here,
+in the order ``archself --help`` lists them.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from archself.cli.base import app, main
 from archself.cli.calibration import calibrate, identify
 from archself.cli.campaigns import campaign, campaign_report_cmd
 from archself.cli.files import docs, export, generate, info, init, schema, validate
+from archself.cli.live import live
 from archself.cli.runs import explain, report, simulate
 
 app.command()(validate)
@@ -28,6 +29,7 @@ app.command()(init)
 app.command()(simulate)
 app.command()(report)
 app.command()(explain)
+app.command()(live)
 app.command()(campaign)
 app.command("campaign-report")(campaign_report_cmd)
 app.command()(export)

@@ -1,0 +1,124 @@
+"""``archself live``: the MAPE-K loop of a plant in another process (docs/live.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from archself.cli.base import _die, _fail, _inputs, _load, _numeric
+from archself.errors import ArchselfError
+
+
+def live(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    connect: Annotated[
+        str,
+        typer.Option("--connect", metavar="HOST:PORT",
+                     help="The plant's address (it listens; JSON lines, docs/live.md)."),
+    ],
+    config: Annotated[
+        str | None,
+        typer.Option("--config", "-c",
+                     help="Configuration the plant starts in (default: initial)."),
+    ] = None,
+    timeout: Annotated[
+        float,
+        typer.Option("--timeout", min=0.1, max=86400.0,
+                     help="Seconds of silence from the plant before giving up (exit 1)."),
+    ] = 30.0,
+    rollout: Annotated[
+        str,
+        typer.Option("--rollout", metavar="refuse|reject",
+                     help="Actions only a rollout could judge: refuse the file (default) or "
+                     "reject those actions at run time."),
+    ] = "refuse",
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    log: Annotated[
+        Path | None,
+        typer.Option("--log", metavar="FILE",
+                     help="Write the decision log to FILE (JSON, read by `archself explain`)."),
+    ] = None,
+) -> None:
+    """Run the MAPE-K loop on a plant that pushes measurements over a local socket.
+
+    The plant listens at HOST:PORT and sends a measurement each step; every one is
+    answered with the reconfiguration commands decided on it. Δ and stability come
+    from the architecture's compiled models (no snapshot of a real plant exists).
+    Stops when the plant ends the run.
+    """
+    if rollout not in ("refuse", "reject"):
+        raise _fail(f"--rollout must be refuse or reject, not {rollout!r}", 2)
+    from archself.live import LiveLoop, parse_address, run_remote
+
+    try:
+        host, port = parse_address(connect)
+    except ArchselfError as exc:
+        raise _fail(f"--connect: {exc}", 2) from None
+    try:
+        _inputs(arch_path)
+        if log is not None:
+            from archself.outputs import refuse_same_file
+
+            refuse_same_file([arch_path], log, "--log")
+        with _numeric(arch_path):
+            arch = _load(arch_path)
+            if config is not None and config not in arch.configurations:
+                known = ", ".join(arch.configurations)
+                raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
+            loop = LiveLoop(arch, configuration=config, rollout=rollout)
+            start = loop.configuration
+            loop.on_command(lambda c: typer.echo(
+                f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
+                if c.kind == "configuration" else
+                f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
+            served = run_remote(loop, host, port, timeout_s=timeout)
+            if log is not None:
+                from archself.atomic import write_text
+                from archself.jsondata import jsonable
+
+                write_text(log, json.dumps(jsonable(_log(loop, arch_path, start, served)),
+                                           separators=(",", ":")) + "\n")
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    result = {
+        "architecture": arch.name,
+        "measurements": served,
+        "cycles": loop.mapek.cycle,
+        "configuration": start,
+        "final_configuration": loop.configuration,
+        "switches": loop.switches,
+        "updates": loop.updates,
+    }
+    if json_out:
+        typer.echo(json.dumps(result, indent=1))
+        return
+    path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
+    typer.echo(f"{arch.name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")
+    for s in loop.switches:
+        typer.echo(f"  t = {s['t_s']:g} s: {s['from']} → {s['to']} ({s['action']})")
+    for u in loop.updates:
+        typer.echo(f"  t = {u['t_s']:g} s: {u['module']} ← {u['set']} ({u['action']})")
+
+
+def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
+    """The run as a trace document without series: ``{meta, series, decisions}``."""
+    meta = {
+        "architecture": loop.arch.name,
+        "file": str(arch_path),
+        "mode": "live",
+        "scenario": "live",  # no scenario: the plant's own course
+        "seed": 0,  # of the compiled models (never stepped)
+        "metrics": {},
+        "configuration": start,
+        "final_configuration": loop.configuration,
+        "step_s": float(loop.arch.runtime.step_s),
+        "period_s": float(loop.arch.runtime.period_s),
+        "measurements": served,
+        "switches": loop.switches,
+        "updates": loop.updates,
+        "configurations": list(loop.arch.configurations),
+    }
+    return {"meta": meta, "series": {}, "decisions": [d.to_dict() for d in loop.decisions]}

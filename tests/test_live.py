@@ -1,0 +1,383 @@
+"""archself.live: the MAPE-K loop on a plant that pushes measurements (docs/live.md).
+
+The live runs are compared with :func:`archself.simulate` on the same scenario and
+seed: a plant that waits for the loop's answer before its next step acts on every
+decision at the step a simulation does, so the switch sequence and the switch times
+must be the same (no tolerance). Timeouts below are hang guards only.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import selectors
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from archself.compiler import compile_system
+from archself.live import (
+    NO_ROLLOUT,
+    Command,
+    LiveError,
+    LiveLoop,
+    MeasuredSystem,
+    PlantLink,
+    live_problems,
+    parse_address,
+    run_remote,
+)
+from archself.loader import load_text
+from archself.runtime.mapek import MapeK
+from archself.sim.run import simulate
+
+from conftest import ROOT
+
+PLANT = ROOT / "architectures" / "process_plant.yaml"
+SCENARIO = "drift_then_valve"  # two switches: transmitter A drifts, then the valve clogs
+DURATION = 240.0  # shortened from 600 s: both switches happen before 180 s
+HANG_GUARD_S = 120.0
+
+
+def _plant_text(duration: float = DURATION) -> str:
+    """process_plant.yaml with the scenario shortened to ``duration``."""
+    text = PLANT.read_text(encoding="utf-8")
+    head, sep, tail = text.partition(f"  {SCENARIO}:\n")
+    tail = tail.replace("duration_s: 600", f"duration_s: {duration:g}", 1)
+    return head + sep + tail
+
+
+@pytest.fixture(scope="module")
+def arch():
+    return load_text(_plant_text(), str(PLANT)).arch
+
+
+@pytest.fixture(scope="module")
+def simulated(arch):
+    loop = MapeK(arch)
+    res = simulate(arch, SCENARIO, adapt=loop)
+    return res, loop
+
+
+def _drive(arch, loop: LiveLoop, *, every: int = 1, until: float = DURATION) -> list[Command]:
+    """Run the scenario's plant in this process, pushing every ``every`` steps."""
+    sc = arch.scenarios[SCENARIO]
+    plant = compile_system(arch, seed=sc.seed, scenario=sc)
+    applied = []
+    for k in range(1, int(round(until / plant.dt)) + 1):
+        plant.step()
+        if k % every:
+            continue
+        for c in loop.push(plant.t, plant.outputs, plant.local_signals(), plant.health(),
+                           plant.configuration):
+            if c.kind == "configuration":
+                plant.apply_configuration(c.configuration)
+            else:
+                plant.set_params(c.module, c.values)
+            applied.append(c)
+    return applied
+
+
+def _switches(items) -> list[tuple[float, str, str, str]]:
+    return [(float(s["t_s"]), s["from"], s["to"], s["action"]) for s in items]
+
+
+# ---------------------------------------------------------------------- MeasuredSystem
+def test_measured_system_reads_what_was_pushed(arch) -> None:
+    s = MeasuredSystem(arch)
+    assert s.configuration == arch.initial_configuration()
+    assert np.isnan(s.objective_error())
+    s.update(2.0, outputs={"tank": {"level": 1.25}, "setpoint": {"setpoint": [1.0, 0.0]}},
+             signals={"observer_a": {"innovation": 0.01}, "observer_b": {"innovation": 9.0}},
+             health={"level_a": "stale level_measured (4 identical values)"})
+    assert s.t == 2.0
+    assert_allclose(s.objective_error(), 0.25)
+    assert_allclose(s.state_error(), [0.25])
+    local = s.local_signals()
+    assert local["observer_a"] == {"innovation": 0.01}
+    assert "observer_b" not in local  # not active in the initial configuration
+    assert s.available()["level_a"] is False
+    assert s.health()["level_a"].startswith("stale")
+    assert s.available()["tank"] is True
+    s.update(3.0, health={"level_a": None}, configuration="p2")
+    assert s.available()["level_a"] is True
+    assert s.configuration == "p2" and "observer_b" in s.active
+    assert s.history[-1]["by"] == "plant"
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"t": float("nan")}, "not finite"),
+        ({"t": "soon"}, "not a number"),
+        ({"t": 1.0, "configuration": "p9"}, "unknown configuration 'p9'"),
+        ({"t": 1.0, "outputs": [1, 2]}, "outputs must be a mapping"),
+    ],
+)
+def test_measured_system_refuses_bad_measurements(arch, kwargs, message) -> None:
+    with pytest.raises(LiveError, match=message):
+        MeasuredSystem(arch).update(**kwargs)
+
+
+def test_snapshot_is_the_models_never_a_rollout(arch) -> None:
+    s = MeasuredSystem(arch)
+    before = s.linearization()
+    snap = s.snapshot()
+    snap.set_params("pi", {"kp": 5.0, "ki": 0.213})
+    # the same update on a compiled system gives the same closed loop
+    ref = compile_system(arch, seed=0)
+    ref.set_params("pi", {"kp": 5.0, "ki": 0.213})
+    assert_allclose(snap.linearization(), ref.linearization(), rtol=1e-12)
+    assert not np.allclose(snap.linearization(), before)
+    assert_allclose(s.linearization(), before, rtol=0)  # the live models did not change
+    for call in (snap.step, snap.state_error, snap.objective_error, s.step):
+        with pytest.raises(LiveError, match="no rollout"):
+            call()
+
+
+# ---------------------------------------------------------------------- LiveLoop
+@pytest.mark.parametrize("every", [1, 5])  # every step; every MAPE-K period (1 s = 5 steps)
+def test_live_loop_decides_as_the_simulation(arch, simulated, every) -> None:
+    res, sim_loop = simulated
+    heard: list[Command] = []
+    loop = LiveLoop(arch, on_command=heard.append)
+    applied = _drive(arch, loop, every=every)
+
+    assert len(res.switches) == 2
+    assert _switches(loop.switches) == _switches(res.switches)
+    assert [(c.t_s, c.configuration) for c in applied] == [
+        (s["t_s"], s["to"]) for s in res.switches
+    ]
+    queued = [loop.commands.get_nowait() for _ in range(loop.commands.qsize())]
+    assert heard == queued == applied
+    assert loop.updates == sim_loop.updates
+
+    # cycle by cycle, the loop saw the same numbers as in simulation
+    live, sim = loop.decisions, sim_loop.decisions
+    assert [d.t for d in live] == [d.t for d in sim]
+    assert_allclose([d.j_obs for d in live], [d.j_obs for d in sim], rtol=1e-12)
+    for a, b in zip(live, sim, strict=True):
+        assert a.configuration == b.configuration
+        assert a.candidates == b.candidates
+        assert_allclose([a.z[m] for m in a.z], [b.z[m] for m in b.z], rtol=1e-12, atol=1e-15)
+        assert_allclose([a.r[m] for m in a.r], [b.r[m] for m in b.r], rtol=1e-12, atol=1e-15)
+        assert [(e.action, e.rejected, e.delta) for e in a.evaluations] == [
+            (e.action, e.rejected, e.delta) for e in b.evaluations
+        ]
+        assert [e.stability["ok"] for e in a.evaluations if e.stability] == [
+            e.stability["ok"] for e in b.evaluations if e.stability
+        ]
+
+
+def test_decision_log_says_where_delta_and_stability_came_from(arch) -> None:
+    loop = LiveLoop(arch)
+    _drive(arch, loop, until=175.0)
+    chosen = [d for d in loop.decisions if d.chosen]
+    assert [d.chosen["action"] for d in chosen] == ["use_transmitter_b", "compensate_valve_on_b"]
+    for d in chosen:
+        assert d.note == (
+            "live (no plant snapshot): Δ by sensitivity; "
+            "stability by eigenvalue margin of the compiled models"
+        )
+        stab = [e.stability for e in d.evaluations if e.stability]
+        assert stab and all(s["source"] == "models" and s["method"] == "eigenvalue"
+                            for s in stab)
+    quiet = [d for d in loop.decisions if not d.evaluations]
+    assert quiet and all(d.note == "" for d in quiet)
+
+
+def test_cycles_follow_the_plant_clock(arch) -> None:
+    loop = LiveLoop(arch, start_s=100.0)
+    out = {"tank": {"level": 1.0}, "setpoint": {"setpoint": [1.0, 0.0]}}
+    for t in (100.2, 100.8, 101.0, 101.2, 104.6, 104.8, 105.0):
+        loop.push(t, outputs=out)
+    # due at 101 (on 101.0), 102 (first measurement after: 104.6, one cycle), 105
+    assert [d.t for d in loop.decisions] == [101.0, 104.6, 105.0]
+    assert loop.measurements == 7
+
+
+# ---------------------------------------------------------------------- refusals
+def _with_rollout(action: str) -> str:
+    """The plant's text with ``action``'s Δ estimated by rollout."""
+    text = _plant_text()
+    head, sep, tail = text.partition(f"  - id: {action}\n")
+    tail = tail.replace("improvement: {method: sensitivity, delta_theta: -0.9}",
+                        "improvement: {method: rollout, horizon_s: 5}", 1)
+    return head + sep + tail
+
+
+def test_rollout_action_is_refused_in_one_line() -> None:
+    arch = load_text(_with_rollout("use_transmitter_b"), "plant.yaml").arch
+    assert live_problems(arch) == ["action use_transmitter_b: its Δ is estimated by rollout"]
+    with pytest.raises(LiveError) as err:
+        LiveLoop(arch)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith("process_plant: action use_transmitter_b: its Δ is estimated by "
+                          "rollout, which needs a snapshot of the plant")
+
+
+def test_rollout_action_is_rejected_at_run_time_when_asked() -> None:
+    arch = load_text(_with_rollout("use_transmitter_b"), "plant.yaml").arch
+    loop = LiveLoop(arch, rollout="reject")
+    assert loop.problems
+    _drive(arch, loop, until=155.0)
+    assert loop.switches == []
+    evs = [e for d in loop.decisions for e in d.evaluations if e.action == "use_transmitter_b"]
+    assert evs and all(e.rejected == "no improvement" for e in evs)
+    assert evs[0].detail == f"estimate failed: {NO_ROLLOUT}"
+
+
+RELAYS = """
+archself: 1
+name: relays
+modules:
+  a: {kind: physical, type: generic.relay, residual: {signal: deviation, nominal: 0.1}}
+  b: {kind: functional, type: generic.relay, residual: {signal: deviation, nominal: 0.1}}
+  c: {kind: functional, type: generic.relay, residual: {signal: deviation, nominal: 0.1}}
+edges:
+  - {from: a, to: b, weight: 0.5, carries: signal}
+  - {from: a, to: c, weight: 0.5, carries: signal}
+configurations:
+  one: {initial: true, modules: [a, b]}
+  two: {modules: [a, c]}
+actions:
+  - {id: to_c, module: b, kind: substitute, to: two, cost: 0.1,
+     improvement: {method: sensitivity, delta_theta: -0.9}}
+runtime:
+  step_s: 0.1
+  period_s: 1.0
+  objective: {actual: b.signal, reference: a.signal}
+  threshold: 1.0
+  cost_weight: 0.1
+  stability: {margin: 0.001, lyapunov_alpha: 0.01, horizon_steps: 10}
+"""
+
+
+def test_target_without_a_linear_model_is_refused() -> None:
+    arch = load_text(RELAYS, "relays.yaml").arch
+    assert live_problems(arch) == ["action to_c: configuration two has no linear model"]
+    with pytest.raises(LiveError, match="to_c: configuration two has no linear model"):
+        LiveLoop(arch)
+    # with the stability filter off nothing needs a model
+    off = load_text(RELAYS + "  ablation: {stability: false}\n", "relays.yaml").arch
+    assert live_problems(off) == []
+    assert LiveLoop(off).problems == []
+
+
+# ---------------------------------------------------------------------- wire
+def test_parse_address() -> None:
+    assert parse_address("localhost:8080") == ("localhost", 8080)
+    assert parse_address("[::1]:1") == ("::1", 1)
+    for bad in ("8080", "host:", ":80", "h:99999", "h:x"):
+        with pytest.raises(LiveError, match="not HOST:PORT"):
+            parse_address(bad)
+
+
+def test_plant_listens_on_loopback_only() -> None:
+    with pytest.raises(LiveError, match="loopback address only"):
+        PlantLink("0.0.0.0", 0)
+
+
+def test_command_round_trip() -> None:
+    c = Command(3.0, "parameters", "raise", "pi", "p1", "p1", {"kp": 5.0})
+    assert Command.from_dict(json.loads(json.dumps(c.to_dict()))) == c
+
+
+def test_loop_gives_up_on_a_silent_plant(arch) -> None:
+    link = PlantLink(port=0, timeout_s=10.0)
+    accepted = threading.Thread(target=link.accept, daemon=True)
+    accepted.start()
+    try:
+        with pytest.raises(LiveError, match="no message from the peer for 0.3 s"):
+            run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=0.3)
+    finally:
+        accepted.join(timeout=10.0)
+        link.close()
+
+
+def test_loop_reports_a_plant_that_is_not_there(arch) -> None:
+    with socket.socket() as s:  # a free port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(LiveError, match="cannot connect to the plant"):
+        run_remote(LiveLoop(arch), "127.0.0.1", port, timeout_s=5.0)
+
+
+# ---------------------------------------------------------------------- two processes
+def _first_line(proc: subprocess.Popen, timeout: float) -> str:
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)  # type: ignore[arg-type]
+    if not sel.select(timeout):
+        proc.kill()
+        pytest.fail(f"the plant printed no address within {timeout} s")
+    return proc.stdout.readline()  # type: ignore[union-attr]
+
+
+def test_two_processes_switch_as_the_simulation(tmp_path: Path, simulated) -> None:
+    """The plant in one process, `archself live` in another, over loopback TCP."""
+    res, _ = simulated
+    arch_file = tmp_path / "plant.yaml"
+    arch_file.write_text(_plant_text(), encoding="utf-8")
+    log = tmp_path / "log.json"
+    plant = subprocess.Popen(
+        [sys.executable, str(ROOT / "examples" / "live" / "plant_process.py"), str(arch_file),
+         "--scenario", SCENARIO, "--port", "0", "--timeout", "60"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+)\n", _first_line(plant, 60.0))
+        assert m, "the plant did not say where it listens"
+        loop = subprocess.run(
+            [sys.executable, "-m", "archself", "live", str(arch_file),
+             "--connect", f"127.0.0.1:{m.group(1)}", "--json", "--log", str(log),
+             "--timeout", "60"],
+            capture_output=True, text=True, timeout=HANG_GUARD_S,
+        )
+        out, err = plant.communicate(timeout=HANG_GUARD_S)
+    except subprocess.TimeoutExpired:
+        plant.kill()
+        pytest.fail(f"the live run did not finish within {HANG_GUARD_S} s")
+    finally:
+        if plant.poll() is None:
+            plant.kill()
+            plant.wait()
+    assert loop.returncode == 0, loop.stderr
+    assert plant.returncode == 0, err
+    result = json.loads(loop.stdout)
+    assert result["measurements"] == int(DURATION / 0.2)
+    assert _switches(result["switches"]) == _switches(res.switches)
+    assert result["final_configuration"] == res.final_configuration == "p4"
+    applied = json.loads(out.splitlines()[-1])
+    assert [(c["t_s"], c["configuration"]) for c in applied["applied"]] == [
+        (s["t_s"], s["to"]) for s in res.switches
+    ]
+    assert "t = 150 s: p1 → p2 (use_transmitter_b)" in loop.stderr
+    decisions = json.loads(log.read_text(encoding="utf-8"))["decisions"]
+    notes = {d["note"] for d in decisions if d["chosen"]}
+    assert notes == {"live (no plant snapshot): Δ by sensitivity; stability by eigenvalue "
+                     "margin of the compiled models"}
+
+
+def test_cli_live_refuses_in_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "plant.yaml"
+    bad.write_text(_with_rollout("use_transmitter_b"), encoding="utf-8")
+    proc = subprocess.run(
+        [sys.executable, "-m", "archself", "live", str(bad), "--connect", "127.0.0.1:9"],
+        capture_output=True, text=True, timeout=HANG_GUARD_S,
+    )
+    assert proc.returncode == 1
+    assert proc.stdout == ""
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and "its Δ is estimated by rollout" in lines[0]
+    usage = subprocess.run(
+        [sys.executable, "-m", "archself", "live", str(bad), "--connect", "nowhere"],
+        capture_output=True, text=True, timeout=HANG_GUARD_S,
+    )
+    assert usage.returncode == 2 and "not HOST:PORT" in usage.stderr
