@@ -381,3 +381,20 @@ def test_cli_live_refuses_in_one_line(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=HANG_GUARD_S,
     )
     assert usage.returncode == 2 and "not HOST:PORT" in usage.stderr
+
+
+def test_commands_name_the_exported_ros2_modes(arch) -> None:
+    from archself.export import ros2_modes
+
+    doc = ros2_modes(arch)
+    for conf in arch.configurations:
+        part, mode = Command(1.0, "configuration", "a", "m", conf, "p1").ros2_mode(arch.name)
+        assert doc[part]["ros__parameters"]["type"] == "system"
+        assert mode in doc[part]["ros__parameters"]["modes"]
+    updates = [a for a in arch.actions if a.kind == "parameter_update"]
+    assert updates
+    for a in updates:
+        c = Command(1.0, "parameters", a.id, a.module, "p1", "p1", dict(a.set or {}))
+        part, mode = c.ros2_mode(arch.name)
+        assert part == a.module
+        assert doc[part]["ros__parameters"]["modes"][mode]["ros__parameters"] == a.set

@@ -91,6 +91,27 @@ class Command:
             "values": dict(self.values),
         }
 
+    def ros2_mode(self, system: str) -> tuple[str, str]:
+        """``(part, mode)`` to request from a ROS 2 system_modes mode manager.
+
+        The names of ``archself export --to ros2-modes`` (docs/export.md): a
+        configuration is a mode of the system (``system``: the architecture's
+        ``name``), a parameter update a mode of the module's node named after the
+        action.
+
+        Examples
+        --------
+        >>> Command(1.0, "configuration", "use_b", "obs", "p2", "p1").ros2_mode("my plant")
+        ('my_plant', 'P2')
+        >>> Command(1.0, "parameters", "raise-gain", "pi", "p1", "p1").ros2_mode("x")
+        ('pi', 'RAISE_GAIN')
+        """
+        from archself.export import _mode_name
+
+        if self.kind == "configuration":
+            return _mode_name(system).lower(), _mode_name(self.configuration)
+        return self.module, _mode_name(self.action)
+
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Command:
         """The inverse of :meth:`to_dict`."""
