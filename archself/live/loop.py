@@ -216,7 +216,9 @@ class LiveLoop:
     mapek : MapeK
         The loop itself (its ``decisions`` are the decision log).
     commands : queue.Queue of Command
-        Every command, in order (thread-safe; drain it or ignore it).
+        Every command, in order (thread-safe: another thread may act on them;
+        drain it or ignore it). :meth:`push` itself is not thread-safe: call it
+        from one thread.
     measurements : int
         Number of measurements pushed.
 
