@@ -1,9 +1,24 @@
-"""The campaign report's figures (SVG): detection delays, errors fixed vs adaptive, τ sweep.
+"""The campaign report's figures: detection delays, errors fixed vs adaptive, τ sweep.
 
 Drawn with matplotlib's object-oriented API (:class:`matplotlib.figure.Figure`, no
 pyplot), imported inside the functions: only ``campaign-report`` loads matplotlib.
-The SVG files are deterministic (fixed hash salt, no date). Each ``fig_*`` writes
-its file and returns False when there is nothing to draw.
+``plot_*`` return the Figure (None when there is nothing to draw); ``fig_*`` write it
+to a file in the format of its suffix (SVG, PNG or PDF, deterministic bytes:
+:func:`archself.reports.figures.figure_bytes`) and return False when there is nothing
+to draw.
+
+They are made to stay readable on real campaigns of 1,000+ runs
+(``docs/campaign/``, 1,008 runs):
+
+- delays: one set of bins for every scenario, as wide as the delays' quantum (the
+  loop period) or 1/40 of the range, so 168 runs detected in the first cycle are one
+  tall bar, not a hairline, and the tallest bar of each scenario is labelled;
+- errors: one panel per scenario (its own scale, log only when fixed and adaptive
+  are a decade apart), every run drawn as a point beside its box and the medians
+  written, so a tight distribution (168 fixed runs within 0.5 %) is still seen;
+- τ sweep: τ on the x axis, the median delay (10–90 % band) above and the
+  false-switch and detection rates (95 % Wilson intervals) below, so a sweep where
+  no τ ever switches falsely does not pile every point onto x = 0.
 """
 
 from __future__ import annotations
@@ -13,164 +28,200 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["fig_delays", "fig_errors", "fig_tau"]
+__all__ = ["fig_delays", "fig_errors", "fig_tau", "plot_delays", "plot_errors", "plot_tau"]
+
+COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
+MODE_COLORS = {"fixed": "#999999", "adaptive": "#1f77b4"}
 
 
 def _figure(width: float = 6.4, height: float = 3.6) -> Any:
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width, height), layout="constrained")
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def _save(fig: Any, path: Path, dpi: int = 150) -> None:
+    from archself.atomic import write_bytes
+    from archself.reports.figures import figure_bytes
+
+    fmt = Path(path).suffix.lstrip(".").lower() or "svg"
+    write_bytes(path, figure_bytes(fig, fmt, dpi))
+
+
+def _ok(r: Mapping[str, Any], metric: str) -> bool:
+    v = r.get(metric)
+    return r.get("error") is None and v is not None and math.isfinite(v)
+
+
+def _bins(values: list[float]) -> list[float]:
+    """Common bin edges: a multiple of the values' quantum (their smallest gap, e.g. the
+    loop period) about 1/40 of the range wide, each bin centred on multiples of it."""
+    lo, hi = min(values), max(values)
+    distinct = sorted(set(values))
+    gaps = [b - a for a, b in zip(distinct, distinct[1:], strict=False) if b - a > 1e-9]
+    quantum = min(gaps) if gaps else 1.0
+    width = quantum * max(1, math.ceil((hi - lo) / 40 / quantum - 1e-9))
+    edges = [lo - quantum / 2]
+    while edges[-1] <= hi:
+        edges.append(edges[-1] + width)
+    return edges
+
+
+def plot_delays(rows: list[dict[str, Any]], names: list[str]) -> Any:
+    """Histogram of the detection delays of the adaptive runs, per faulted scenario."""
+    data = {n: [r["detection_delay_s"] for r in rows
+                if r["scenario"] == n and r["mode"] == "adaptive"
+                and _ok(r, "detection_delay_s")] for n in names}
+    data = {n: d for n, d in data.items() if d}
+    if not data:
+        return None
+    edges = _bins([v for d in data.values() for v in d])
+    fig = _figure()
+    ax = fig.add_subplot()
+    for k, (n, d) in enumerate(data.items()):
+        color = COLORS[k % len(COLORS)]
+        d_sorted = sorted(d)
+        median = d_sorted[len(d) // 2]
+        counts, _, _ = ax.hist(d, bins=edges, alpha=0.65, color=color,
+                               label=f"{n} (n = {len(d)}, median {median:g} s)")
+        i = max(range(len(counts)), key=lambda j: counts[j])
+        ax.annotate(f"{int(counts[i])}", ((edges[i] + edges[i + 1]) / 2, counts[i]),
+                    textcoords="offset points", xytext=(0, 2), ha="center", fontsize=7,
+                    color=color)
+    ax.set_xlabel("detection delay [s]")
+    ax.set_ylabel("runs")
+    ax.set_ylim(top=ax.get_ylim()[1] * 1.08)
+    ax.legend(frameon=False, fontsize=8)
+    ax.set_title("Detection delay: first switch after the fault onset")
     return fig
 
 
-def _save(fig: Any, path: Path) -> None:
-    import io
-
-    import matplotlib
-
-    from archself.atomic import write_bytes
-
-    buf = io.BytesIO()
-    with matplotlib.rc_context({"svg.hashsalt": "archself", "svg.fonttype": "none"}):
-        fig.savefig(buf, format="svg", metadata={"Date": None})
-    write_bytes(path, buf.getvalue())
-
-
-def fig_delays(rows: list[dict[str, Any]], names: list[str], path: Path) -> bool:
-    data = [
-        [
-            r["detection_delay_s"]
-            for r in rows
-            if r["scenario"] == n
-            and r["mode"] == "adaptive"
-            and r.get("error") is None
-            and r["detection_delay_s"] is not None
-        ]
-        for n in names
-    ]
-    if not any(data):
-        return False
-    fig = _figure()
-    ax = fig.add_subplot()
-    for n, d in zip(names, data, strict=True):
-        if d:
-            ax.hist(d, bins=min(30, max(5, len(d) // 3)), alpha=0.6, label=f"{n} (n = {len(d)})")
-    ax.set_xlabel("detection delay [s]")
-    ax.set_ylabel("runs")
-    ax.legend(frameon=False)
-    ax.set_title("Detection delay: first switch after the fault onset")
-    _save(fig, path)
-    return True
-
-
-def fig_errors(
-    rows: list[dict[str, Any]], names: list[str], metric: str, path: Path, unit: str | None = None
-) -> bool:
-    fig = _figure(max(6.4, 1.6 * len(names) + 2), 3.8)
-    ax = fig.add_subplot()
-    data, labels, colors = [], [], []
+def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
+                unit: str | None = None) -> Any:
+    """Fixed vs adaptive ``metric``, one panel per scenario: boxes, every run, medians."""
+    panels = []
     for n in names:
-        for mode, color in (("fixed", "#999999"), ("adaptive", "#1f77b4")):
-            v = [
-                r[metric]
-                for r in rows
-                if r["scenario"] == n
-                and r["mode"] == mode
-                and r.get("error") is None
-                and r[metric] is not None
-                and math.isfinite(r[metric])
-            ]
-            if v:
-                data.append(v)
-                labels.append(f"{n}\n{mode}")
-                colors.append(color)
-    if not data:
-        return False
-    parts = ax.boxplot(data, patch_artist=True, showfliers=True)
-    ax.set_xticks(range(1, len(labels) + 1), labels)
-    for patch, c in zip(parts["boxes"], colors, strict=True):
-        patch.set_facecolor(c)
-        patch.set_alpha(0.6)
-    ax.set_ylabel(metric.replace("_", " ") + (f" [{unit}]" if unit else ""))
-    ax.set_yscale("log" if min(min(d) for d in data) > 0 else "linear")
+        groups = [(mode, [r[metric] for r in rows if r["scenario"] == n
+                          and r["mode"] == mode and _ok(r, metric)])
+                  for mode in ("fixed", "adaptive")]
+        groups = [(m, v) for m, v in groups if v]
+        if groups:
+            panels.append((n, groups))
+    if not panels:
+        return None
+    fig = _figure(max(6.4, 2.2 * len(panels)), 3.8)
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
     title = {"rms_error": "RMS", "max_error": "Maximum", "final_error": "Final"}[metric]
-    ax.set_title(f"{title} error, fixed vs adaptive (paired seeds)")
-    _save(fig, path)
-    return True
+    u = f" [{unit}]" if unit else ""
+    for ax, (n, groups) in zip(axes, panels, strict=True):
+        values = [v for _, vs in groups for v in vs]
+        lo, hi = min(values), max(values)
+        log = lo > 0 and hi / lo > 10
+        parts = ax.boxplot([vs for _, vs in groups], patch_artist=True, showfliers=False,
+                           widths=0.5)
+        for k, ((mode, vs), patch) in enumerate(zip(groups, parts["boxes"], strict=True)):
+            patch.set_facecolor(MODE_COLORS[mode])
+            patch.set_alpha(0.45)
+            # every run, spread sideways by its rank (deterministic, no random jitter)
+            xs = [k + 1.33 + 0.12 * ((i * 0.618) % 1.0) for i in range(len(vs))]
+            ax.scatter(xs, vs, s=4, color=MODE_COLORS[mode], alpha=0.5, lw=0)
+            med = sorted(vs)[len(vs) // 2]
+            ax.annotate(f"{med:.3g}", (k + 1, med), textcoords="offset points",
+                        xytext=(0, 4), ha="center", fontsize=7)
+        for med in parts["medians"]:
+            med.set_color("#000000")
+        ax.set_xticks(range(1, len(groups) + 1), [m for m, _ in groups])
+        ax.set_xlim(0.5, len(groups) + 0.75)
+        if log:
+            ax.set_yscale("log")
+            ax.set_ylim(lo / 1.6, hi * 1.6)
+        else:
+            pad = (hi - lo) * 0.15 or abs(hi) * 0.1 or 1.0
+            ax.set_ylim(lo - pad, hi + pad)
+        ax.set_title(n, fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].set_ylabel(metric.replace("_", " ") + u)
+    fig.suptitle(f"{title} error, fixed vs adaptive (paired seeds; medians written)",
+                 fontsize=10)
+    return fig
 
 
-def fig_tau(tau: Mapping[str, Any], path: Path) -> bool:
-    """One curve per faulted scenario: false-switch rate (x) against median delay (y) over τ."""
+def plot_tau(tau: Mapping[str, Any]) -> Any:
+    """The τ sweep: median delay (10–90 %) above, false-switch and detection rates below."""
     curves = tau.get("curves") or [{"scenario": "all faulted", "points": tau["points"]}]
-    fig = _figure(6.0, 4.4)
-    ax = fig.add_subplot()
-    colors = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
-    drawn = False
-    xs_all: list[float] = []
+    curves = [c for c in curves if c["points"]]
+    if not curves:
+        return None
+    fig = _figure(6.4, 5.2)
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
     basis = ""
-    for c, curve in enumerate(curves):
-        color = colors[c % len(colors)]
-        pts = [p for p in curve["points"] if p["false_switch"]["rate"] is not None]
+    for k, curve in enumerate(curves):
+        color = COLORS[k % len(COLORS)]
+        pts = sorted(curve["points"], key=lambda p: p["value"])
+        x = [p["value"] for p in pts]
         ok = [p for p in pts if p["delay_s"]["median"] is not None]
-        if not pts:
-            continue
-        basis = pts[0]["false_switch_basis"]
-        xs_all += [p["false_switch"]["rate"] for p in pts]
         if ok:
-            drawn = True
-            x = [p["false_switch"]["rate"] for p in ok]
-            y = [p["delay_s"]["median"] for p in ok]
-            ax.plot(x, y, "-o", color=color, label=str(curve["scenario"]))
-            for k, (p, xi, yi) in enumerate(zip(ok, x, y, strict=True)):
-                ax.plot(
-                    [xi, xi],
-                    [p["delay_s"]["p10"], p["delay_s"]["p90"]],
-                    color=color,
-                    alpha=0.35,
-                    lw=3,
-                )
-                ax.plot(
-                    [p["false_switch"]["lo"], p["false_switch"]["hi"]],
-                    [yi, yi],
-                    color=color,
-                    alpha=0.35,
-                    lw=1,
-                )
-                # the ends of the curve are labelled; when both sit on one spot (every τ
-                # detects in the first cycle, say) one label gives the range
-                together = len(ok) > 1 and x[0] == x[-1] and abs(y[0] - y[-1]) < 1.0
-                label = None
-                if together and k == 0:
-                    label = f"τ={ok[0]['value']:g}…{ok[-1]['value']:g}"
-                elif not together and k in (0, len(ok) - 1):
-                    label = f"τ={p['value']:g}"
-                if label is not None:
-                    ax.annotate(
-                        label,
-                        (xi, yi),
-                        textcoords="offset points",
-                        xytext=(6, 2),
-                        fontsize=7,
-                        color=color,
-                    )
+            top.fill_between([p["value"] for p in ok], [p["delay_s"]["p10"] for p in ok],
+                             [p["delay_s"]["p90"] for p in ok], color=color, alpha=0.2, lw=0)
+            top.plot([p["value"] for p in ok], [p["delay_s"]["median"] for p in ok], "-o",
+                     color=color, ms=4, label=str(curve["scenario"]))
         for p in pts:
             if p["delay_s"]["median"] is None:
-                drawn = True
-                ax.axvline(p["false_switch"]["rate"], color=color, ls=":", lw=1)
-                ax.annotate(
-                    f"{curve['scenario']}, τ={p['value']:g}: never detected",
-                    (p["false_switch"]["rate"], 0),
-                    fontsize=7,
-                    color=color,
-                    rotation=90,
-                    va="bottom",
-                )
-    if not drawn:
+                top.plot([p["value"]], [0], "x", color=color, ms=7)
+                top.annotate("never detected", (p["value"], 0), textcoords="offset points",
+                             xytext=(3, 4), fontsize=7, color=color, rotation=90)
+        fs = [p["false_switch"] for p in pts]
+        if any(f["rate"] is not None for f in fs):
+            basis = pts[0].get("false_switch_basis", "")
+            xf = [xi for xi, f in zip(x, fs, strict=True) if f["rate"] is not None]
+            ff = [f for f in fs if f["rate"] is not None]
+            bottom.fill_between(xf, [f["lo"] for f in ff], [f["hi"] for f in ff],
+                                color=color, alpha=0.15, lw=0)
+            bottom.plot(xf, [f["rate"] for f in ff], "-o", color=color, ms=4,
+                        label=f"{curve['scenario']}: false switches")
+        det = [(xi, p["detected"]) for xi, p in zip(x, pts, strict=True)
+               if p.get("detected") and p["detected"]["rate"] is not None]
+        if det:
+            bottom.plot([d[0] for d in det], [d[1]["rate"] for d in det], ":s", color=color,
+                        ms=3, label=f"{curve['scenario']}: detected")
+    top.set_ylabel("detection delay [s]\n(median, 10–90 %)")
+    top.set_title(f"τ sweep: {tau['path']}")
+    top.grid(alpha=0.3)
+    top.set_ylim(bottom=0)
+    top.legend(frameon=False, fontsize=8)
+    bottom.set_ylabel("rate (95 % CI)")
+    bottom.set_ylim(-0.05, 1.05)
+    bottom.set_xlabel(f"τ ({tau['path']})")
+    bottom.grid(alpha=0.3)
+    bottom.legend(frameon=False, fontsize=7, ncols=2, loc="center right")
+    if basis:
+        bottom.set_title(f"false switches over {basis}", fontsize=8, loc="left")
+    return fig
+
+
+def fig_delays(rows: list[dict[str, Any]], names: list[str], path: Path, dpi: int = 150) -> bool:
+    """:func:`plot_delays` written to ``path`` (format from its suffix); False if empty."""
+    fig = plot_delays(rows, names)
+    if fig is None:
         return False
-    ax.set_xlabel(f"false-switch rate ({basis})")
-    ax.set_ylabel("detection delay [s] (median, 10–90 %)")
-    ax.set_title(f"τ sweep: {tau['path']}")
-    ax.set_xlim(-0.03, max(1.0, max(xs_all)) + 0.03)
-    ax.legend(frameon=False, fontsize=8)
-    _save(fig, path)
+    _save(fig, path, dpi)
+    return True
+
+
+def fig_errors(rows: list[dict[str, Any]], names: list[str], metric: str, path: Path,
+               unit: str | None = None, dpi: int = 150) -> bool:
+    """:func:`plot_errors` written to ``path``; False if there is nothing to draw."""
+    fig = plot_errors(rows, names, metric, unit)
+    if fig is None:
+        return False
+    _save(fig, path, dpi)
+    return True
+
+
+def fig_tau(tau: Mapping[str, Any], path: Path, dpi: int = 150) -> bool:
+    """:func:`plot_tau` written to ``path``; False if there is nothing to draw."""
+    fig = plot_tau(tau)
+    if fig is None:
+        return False
+    _save(fig, path, dpi)
     return True

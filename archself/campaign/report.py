@@ -94,8 +94,13 @@ def campaign_report(
     *,
     expect: Mapping[str, str] | None = None,
     tau_path: str | None = None,
+    formats: tuple[str, ...] = ("svg",),
+    dpi: int = 150,
 ) -> CampaignSummary:
-    """Write ``index.html``, ``summary.json`` and the SVG figures of a campaign to ``out_dir``.
+    """Write ``index.html``, ``summary.json`` and the figures of a campaign to ``out_dir``.
+
+    Each figure is written in every one of ``formats`` (``svg``, ``png``, ``pdf``; PNG at
+    ``dpi``); the HTML shows the SVG if asked for, else the PNG (written too if neither is).
 
     Raises
     ------
@@ -104,10 +109,11 @@ def campaign_report(
     OutputError
         If ``out_dir`` cannot be written.
     """
-    from archself.atomic import write_text
+    from archself.atomic import write_bytes, write_text
     from archself.campaign import figures as fig
     from archself.campaign.results import read_results
     from archself.errors import OutputError
+    from archself.reports.figures import figure_bytes
 
     table, meta = read_results(results)
     summary = summarize(table, meta, expect, tau_path)
@@ -119,21 +125,22 @@ def campaign_report(
         raise OutputError(f"{out}: cannot create folder: {exc.strerror}") from None
     names = [b["scenario"] for b in summary.scenarios]
     figures: dict[str, str | None] = {}
+    faulted = [b["scenario"] for b in summary.scenarios if b["faulted"]]
     specs = [
-        (
-            "delays",
-            lambda p: fig.fig_delays(
-                rows, [b["scenario"] for b in summary.scenarios if b["faulted"]], p
-            ),
-        ),
-        ("rms", lambda p: fig.fig_errors(rows, names, "rms_error", p, summary.unit)),
-        ("max", lambda p: fig.fig_errors(rows, names, "max_error", p, summary.unit)),
-        ("final", lambda p: fig.fig_errors(rows, names, "final_error", p, summary.unit)),
-        ("tau", lambda p: summary.tau is not None and fig.fig_tau(summary.tau, p)),
+        ("delays", lambda: fig.plot_delays(rows, faulted)),
+        ("rms", lambda: fig.plot_errors(rows, names, "rms_error", summary.unit)),
+        ("max", lambda: fig.plot_errors(rows, names, "max_error", summary.unit)),
+        ("final", lambda: fig.plot_errors(rows, names, "final_error", summary.unit)),
+        ("tau", lambda: fig.plot_tau(summary.tau) if summary.tau is not None else None),
     ]
+    shown = "svg" if "svg" in formats else "png"
+    fmts = tuple(dict.fromkeys((*formats, shown)))
     for key, draw in specs:
-        name = f"{key}.svg"
-        figures[key] = name if draw(out / name) else None
+        figure = draw()
+        figures[key] = None if figure is None else f"{key}.{shown}"
+        if figure is not None:
+            for fmt in fmts:
+                write_bytes(out / f"{key}.{fmt}", figure_bytes(figure, fmt, dpi))
     env = _environment()
     html = env.get_template("campaign_report.html.j2").render(
         s=summary.to_dict(),

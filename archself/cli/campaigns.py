@@ -12,10 +12,13 @@ import typer
 from archself.cli.base import (
     _RUN_REPORT_FILES,
     AddressOption,
+    DpiOption,
     ExecutorOption,
+    FormatOption,
     WorkersOption,
     _die,
     _fail,
+    _formats,
     _inputs,
     _numeric,
 )
@@ -169,11 +172,14 @@ def campaign_report_cmd(
     tau: Annotated[
         str | None, typer.Option("--tau", metavar="PATH", help="Swept column holding τ.")
     ] = None,
+    fig_format: FormatOption = None,
+    dpi: DpiOption = 150,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
     """Summarize a campaign: correct switches, detection delay, false switches, errors, τ sweep.
 
-    Writes DIR/index.html (figures as SVG beside it) and DIR/summary.json.
+    Writes DIR/index.html (figures beside it: SVG unless --format says otherwise) and
+    DIR/summary.json.
     """
     from archself.atomic import protect
     from archself.campaign.report import campaign_report, parse_expect, summary_text
@@ -185,7 +191,8 @@ def campaign_report_cmd(
             refuse_same_file([results], out_dir / name, "-o")
         with protect([results]), _numeric(results):
             summary = campaign_report(
-                results, out_dir, expect=parse_expect(expect or []), tau_path=tau
+                results, out_dir, expect=parse_expect(expect or []), tau_path=tau,
+                formats=_formats(fig_format, "svg"), dpi=dpi,
             )
     except ArchselfError as exc:
         raise _die(exc) from None

@@ -123,49 +123,61 @@ def influence_figure(rep: RunReport) -> bytes:
     return _png(plot_influence(rep))
 
 
+def _unit(rep: RunReport) -> str:
+    return f" [{_tex(rep.unit)}]" if rep.unit else ""
+
+
 def plot_trajectory(rep: RunReport) -> Any:
-    """Fig. 2–4: the objective's actual signal against its reference (x–y, or vs. t)."""
+    """Fig. 2–4: the objective's actual signal against its reference (x–y, or vs. t).
+
+    Two or more components: an x–y plot at equal aspect (a metre is as long on both
+    axes), axes in the objective's unit; one component: against time. The reference is
+    drawn last, dashed and on top, so it stays visible where a run follows it closely.
+    """
     comps = rep.objective["components"]
     fig = _figure(7.5, 5.0)
     ax = fig.add_subplot()
     first = next(iter(rep.series.values()))
     xy = len(comps) >= 2 and "reference" in first and np.ndim(first["reference"]) == 2
+    ref_style = {"color": COLORS["reference"], "ls": (0, (4, 3)), "lw": 1.1, "zorder": 4,
+                 "label": "reference"}
     if xy:
         cx, cy = comps[0], comps[1]
-        ax.plot(_comp(first["reference"], cx), _comp(first["reference"], cy),
-                color=COLORS["reference"], ls="--", lw=1.2, label="reference")
         for mode, s in rep.series.items():
             if "actual" not in s:
                 continue
             x, y = _comp(s["actual"], cx), _comp(s["actual"], cy)
-            ax.plot(x, y, color=COLORS.get(mode), lw=1.4, label=LABELS.get(mode, mode))
+            ax.plot(x, y, color=COLORS.get(mode), lw=2.0, alpha=0.85, zorder=2,
+                    label=LABELS.get(mode, mode))
             if mode == "adaptive":
                 t = np.asarray(s["t"])
                 for k, sw in enumerate(rep.switches):
                     i = int(np.searchsorted(t, sw["t_s"]))
                     if i < len(t):
-                        ax.plot(x[i], y[i], "o", color="#2ca02c", ms=7,
-                                label=("switch" if k == 0 else None))
-        ax.set_xlabel(_tex(f"{rep.objective['actual']}[{cx}]"))
-        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{cy}]"))
+                        ax.plot(x[i], y[i], "o", color="#2ca02c", ms=7, zorder=5,
+                                mec="white", mew=0.8, label=("switch" if k == 0 else None))
+        ax.plot(_comp(first["reference"], cx), _comp(first["reference"], cy), **ref_style)
+        ax.set_xlabel(_tex(f"{rep.objective['actual']}[{cx}]") + _unit(rep))
+        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{cy}]") + _unit(rep))
         ax.set_aspect("equal", adjustable="datalim")
     else:
         c = comps[0]
         for mode, s in rep.series.items():
-            t = np.asarray(s["t"])
-            if mode == next(iter(rep.series)) and "reference" in s:
-                ax.plot(t, _comp(s["reference"], c), color=COLORS["reference"], ls="--",
-                        label="reference")
             if "actual" in s:
-                ax.plot(t, _comp(s["actual"], c), color=COLORS.get(mode),
-                        label=LABELS.get(mode, mode))
+                ax.plot(np.asarray(s["t"]), _comp(s["actual"], c), color=COLORS.get(mode),
+                        lw=2.0, alpha=0.85, zorder=2, label=LABELS.get(mode, mode))
+        if "reference" in first:
+            ax.plot(np.asarray(first["t"]), _comp(first["reference"], c), **ref_style)
         _switch_lines(ax, rep, label=False)
         ax.set_xlabel("t [s]")
-        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{c}]"))
+        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{c}]") + _unit(rep))
     ax.set_title(_tex(f"Trajectory: {rep.scenario}"))
     ax.grid(alpha=0.3)
-    if xy:  # x–y: no switch labels, and "best" avoids the curves
-        ax.legend(fontsize=8, loc="best")
+    if xy:  # x–y: no switch labels, and "best" avoids the curves; reference first
+        handles, labels = ax.get_legend_handles_labels()
+        order = sorted(range(len(labels)), key=lambda i: labels[i] != "reference")
+        ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize=8,
+                  loc="best")
     else:
         _legend_below(fig, ax)
     return fig
@@ -191,10 +203,26 @@ def plot_error(rep: RunReport) -> Any:
     return fig
 
 
+#: Colours of the rejection reasons in Fig. 5's strip (most frequent first).
+REJECTION_COLORS = ("#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
+
+
 def plot_influence(rep: RunReport) -> Any:
-    """Fig. 5: |z_i| per module per MAPE-K cycle, τ, the warm-up and the switch events."""
-    fig = _figure(9.0, 4.6)
-    ax = fig.add_subplot()
+    """Fig. 5: |z_i| per module per MAPE-K cycle, τ, the warm-up and the switch events.
+
+    Under the channels, a strip marks the cycles whose candidates changed nothing, one
+    row per reason (the action and the planner's verdict, e.g. ``compensate_left_wheel:
+    not applicable (only in a1, a2)``: the fault was already compensated), with the
+    number of cycles; the legend under the figure says the reason in full.
+    """
+    rej = rep.rejections[: len(REJECTION_COLORS)]
+    if rej:
+        fig = _figure(9.0, 5.4 + 0.25 * len(rej))
+        ax, strip = fig.subplots(2, 1, sharex=True,
+                                 height_ratios=[4.0, 0.45 + 0.35 * len(rej)])
+    else:
+        fig = _figure(9.0, 4.6)
+        ax, strip = fig.add_subplot(), None
     if rep.warmup_s > 0:
         ax.axvspan(0, rep.warmup_s, color="#bbbbbb", alpha=0.35,
                    label=f"warm-up ({rep.warmup_s:g} s)")
@@ -208,9 +236,34 @@ def plot_influence(rep: RunReport) -> Any:
     if not rep.z:
         ax.text(0.5, 0.5, "no module influence above zero", ha="center",
                 transform=ax.transAxes, color="#777777")
-    ax.set_xlabel("t [s]")
+    if strip is None:
+        ax.set_xlabel("t [s]")
     ax.set_ylabel("|z_i|  (Eq. 14)")
     ax.set_title(_tex(f"Influence channels: {rep.scenario}"))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    if strip is not None:
+        _rejection_strip(fig, strip, rep, rej)
     return fig
+
+
+def _rejection_strip(fig: Any, ax: Any, rep: RunReport, rej: list[Any]) -> None:
+    """One row per rejection reason: a bar over every cycle it turned down."""
+    width = rep.period_s if rep.period_s == rep.period_s and rep.period_s > 0 else 1.0
+    total = sum(len(r.t) for r in rep.rejections)
+    for k, r in enumerate(rej):
+        color = REJECTION_COLORS[k]
+        ax.broken_barh([(t - width, width) for t in r.t], (k - 0.35, 0.7), color=color,
+                       label=_tex(f"{len(r.t)} cycles: {r.label}"))
+    ax.set_yticks(range(len(rej)), [_tex(f"{r.reason} ({len(r.t)})") for r in rej],
+                  fontsize=7)
+    ax.set_ylim(len(rej) - 0.5, -0.5)
+    ax.set_xlabel("t [s]")
+    ax.set_title(f"cycles with candidates that changed nothing: {total}", fontsize=8,
+                 loc="left")
+    ax.grid(axis="x", alpha=0.3)
+    for s in rep.switches:
+        ax.axvline(s["t_s"], color="#2ca02c", ls="--", lw=1.2)
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower left", fontsize=7, frameon=False,
+               title="why (action: verdict of the planner)", title_fontsize=7)

@@ -29,7 +29,7 @@ import numpy as np
 
 from archself.model import Architecture
 
-__all__ = ["DecisionRow", "RunReport", "RunSummary", "build_run_report"]
+__all__ = ["DecisionRow", "Rejection", "RunReport", "RunSummary", "build_run_report"]
 
 
 def _round(x: Any) -> Any:
@@ -76,6 +76,23 @@ class DecisionRow:
     detail: str
 
 
+@dataclass(frozen=True)
+class Rejection:
+    """Cycles whose candidates were all turned down for one reason (action and verdict)."""
+
+    action: str
+    reason: str  # "not applicable", "no improvement", "unstable", "constraint", ...
+    detail: str  # the planner's detail: the same in every cycle, or that of the first
+    same_detail: bool
+    t: tuple[float, ...]  # the cycles' times [s]
+
+    @property
+    def label(self) -> str:
+        if not self.detail:
+            return f"{self.action}: {self.reason}"
+        return f"{self.action}: {self.reason} ({'' if self.same_detail else 'e.g. '}{self.detail})"
+
+
 @dataclass
 class RunReport:
     """Everything the run report shows, as data."""
@@ -98,6 +115,8 @@ class RunReport:
     z_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     z: dict[str, np.ndarray] = field(default_factory=dict)
     series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # mode -> series
+    #: why cycles with candidates changed nothing, most frequent first (adaptive run)
+    rejections: list[Rejection] = field(default_factory=list)
 
     @property
     def adaptive(self) -> RunSummary | None:
@@ -217,6 +236,31 @@ def _decision_rows(decisions: list[dict[str, Any]]) -> list[DecisionRow]:
     return rows
 
 
+def _rejections(decisions: list[dict[str, Any]]) -> list[Rejection]:
+    """Cycles with candidates and no chosen action, grouped by what turned them down.
+
+    A cycle counts once, under its first evaluated action's verdict (the candidates'
+    actions are evaluated in the planner's order); a cycle whose candidates have no
+    action at all counts under ``(none)``.
+    """
+    groups: dict[tuple[str, str], list[Any]] = {}
+    for d in decisions:
+        if not d.get("candidates") or d.get("chosen") or d.get("phase") == "warmup":
+            continue
+        evals = d.get("evaluations") or []
+        if evals:
+            e = evals[0]
+            key = (str(e.get("action")), str(e.get("rejected") or "not chosen"))
+            detail = str(e.get("detail") or "")
+        else:
+            key, detail = ("(none)", "no action for the candidates"), ""
+        g = groups.setdefault(key, [detail, True, []])
+        g[1] = g[1] and detail == g[0]
+        g[2].append(float(d.get("t", math.nan)))
+    out = [Rejection(a, r, g[0], g[1], tuple(g[2])) for (a, r), g in groups.items()]
+    return sorted(out, key=lambda x: -len(x.t))
+
+
 def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport:
     """The report model of one run or of a fixed/adaptive pair from the same start and seed.
 
@@ -299,4 +343,5 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
         z_t=z_t,
         z=z,
         series=series,
+        rejections=_rejections(decisions),
     )

@@ -1,0 +1,113 @@
+"""Figures for a paper (issue 15 item 3): Figures returned, formats, readable on real data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import archself
+from archself.campaign import figures as cfig
+from archself.campaign.aggregate import summarize
+from archself.campaign.results import read_results
+from archself.reports import figures
+from archself.reports.run import build_run_report
+
+from conftest import DIFFDRIVE, ROOT
+
+pytest.importorskip("matplotlib")
+
+CAMPAIGN = ROOT / "docs" / "campaign" / "campaign.parquet"
+
+
+@pytest.fixture(scope="module")
+def shipped_campaign() -> tuple[list[dict], object]:
+    table, meta = read_results(CAMPAIGN)
+    return table.to_pylist(), summarize(table, meta, None, None)
+
+
+@pytest.fixture(scope="module")
+def fault_report() -> object:
+    """actuator_fault shortened: a switch to a3, then cycles whose action is not applicable."""
+    arch = archself.load(DIFFDRIVE)
+    arch.scenarios["actuator_fault"].duration_s = 40
+    runs = [archself.simulate(arch, "actuator_fault"),
+            archself.simulate(arch, "actuator_fault", adapt=archself.MapeK(arch))]
+    return build_run_report(arch, runs)
+
+
+def test_delay_histogram_shows_the_spike_of_first_cycle_detections(shipped_campaign):
+    rows, summary = shipped_campaign
+    fig = cfig.plot_delays(rows, ["actuator_fault", "imu_drift"])
+    ax = fig.axes[0]
+    bars = [p for p in ax.patches if p.get_height() > 0]
+    spike = max(bars, key=lambda p: p.get_height())
+    # every actuator_fault run switches in the first cycle: one bar of 168 runs, as wide as
+    # the other bars (one common set of bins), not a hairline
+    assert spike.get_height() == 168
+    widths = {round(p.get_width(), 9) for p in bars}
+    assert len(widths) == 1 and spike.get_width() >= 0.5
+    assert spike.get_x() <= 0.5 <= spike.get_x() + spike.get_width()
+    assert any(t.get_text() == "168" for t in ax.texts)
+
+
+def test_tau_sweep_has_tau_on_x_not_every_point_at_zero(shipped_campaign):
+    _, summary = shipped_campaign
+    fig = cfig.plot_tau(summary.tau)
+    top, bottom = fig.axes
+    taus = sorted({p["value"] for c in summary.tau["curves"] for p in c["points"]})
+    xs = {round(float(x), 9) for line in top.get_lines() for x in line.get_xdata()}
+    assert len(taus) == 7 and set(np.round(taus, 9)) <= xs
+    assert "τ" in bottom.get_xlabel()
+    # the false-switch rates (all 0 in this campaign) are a line with their interval
+    assert any("false switches" in (line.get_label() or "") for line in bottom.get_lines())
+
+
+@pytest.mark.parametrize("metric", ["rms_error", "max_error", "final_error"])
+def test_error_boxes_are_not_clipped(shipped_campaign, metric):
+    rows, summary = shipped_campaign
+    names = [b["scenario"] for b in summary.scenarios]
+    fig = cfig.plot_errors(rows, names, metric, summary.unit)
+    assert [ax.get_title() for ax in fig.axes] == names
+    for ax, name in zip(fig.axes, names, strict=True):
+        lo, hi = ax.get_ylim()
+        values = [r[metric] for r in rows if r["scenario"] == name]
+        assert lo < min(values) and max(values) < hi, name
+        assert [t.get_text() for t in ax.get_xticklabels()] == ["fixed", "adaptive"]
+    assert fig.axes[0].get_ylabel().endswith("[m]")
+
+
+def test_trajectory_has_units_equal_aspect_and_the_reference_on_top(fault_report):
+    fig = figures.plot_trajectory(fault_report)
+    ax = fig.axes[0]
+    assert ax.get_xlabel().endswith("[m]") and ax.get_ylabel().endswith("[m]")
+    assert ax.get_aspect() == 1.0
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    ref = lines["reference"]
+    assert all(ref.get_zorder() > line.get_zorder()
+               for label, line in lines.items() if label in figures.LABELS.values())
+    assert ax.get_legend().get_texts()[0].get_text() == "reference"
+
+
+def test_influence_figure_says_why_cycles_were_rejected(fault_report):
+    assert fault_report.rejections, "the shortened run has rejected cycles"
+    top = fault_report.rejections[0]
+    assert (top.action, top.reason) == ("compensate_left_wheel", "not applicable")
+    assert "only in a1, a2" in top.label
+    fig = figures.plot_influence(fault_report)
+    assert len(fig.axes) == 2  # the channels and the strip of rejected cycles
+    legend_texts = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert any(f"{len(top.t)} cycles: compensate_left_wheel: not applicable" in t
+               for t in legend_texts)
+
+
+def test_figure_formats_are_deterministic(fault_report, tmp_path: Path):
+    fig = figures.plot_error(fault_report)
+    for fmt, magic in (("png", b"\x89PNG"), ("pdf", b"%PDF-"), ("svg", b"<?xml")):
+        a = figures.figure_bytes(fig, fmt, 200)
+        assert a[:5].startswith(magic) and a == figures.figure_bytes(fig, fmt, 200)
+    small, large = (len(figures.figure_bytes(fig, "png", d)) for d in (72, 300))
+    assert large > small
+    with pytest.raises(ValueError, match="unknown figure format"):
+        figures.figure_bytes(fig, "bmp")
