@@ -111,3 +111,35 @@ def test_figure_formats_are_deterministic(fault_report, tmp_path: Path):
     assert large > small
     with pytest.raises(ValueError, match="unknown figure format"):
         figures.figure_bytes(fig, "bmp")
+
+
+def _positions(dot_file: Path) -> dict[str, tuple[str, str]]:
+    import shutil
+    import subprocess
+
+    exe = shutil.which("dot")
+    if exe is None:
+        pytest.skip("Graphviz dot is not installed")
+    out = subprocess.run([exe, "-Tplain", str(dot_file)], capture_output=True, text=True,
+                         check=True).stdout
+    return {f[1]: (f[2], f[3]) for f in (line.split() for line in out.splitlines())
+            if f and f[0] == "node"}
+
+
+def test_configuration_drawings_and_diffs_keep_node_positions(tmp_path: Path) -> None:
+    from archself.reports.architecture import write_architecture_report
+
+    arch = archself.load(DIFFDRIVE)
+    write_architecture_report(arch, tmp_path / "r", dot=False)
+    files = sorted((tmp_path / "r").glob("*.dot"))
+    assert len(files) >= 10  # the whole graph, 4 configurations, 6 diffs
+    layouts = {f.name: _positions(f) for f in files}
+    first = layouts["graph-architecture.dot"]
+    assert set(first) == set(arch.modules)
+    for name, pos in layouts.items():
+        assert pos == first, name
+    # a configuration hides the modules it does not run, a diff marks them
+    a1 = (tmp_path / "r" / "graph-config-a1.dot").read_text()
+    assert '"ekf" [label="ekf\\nestimator.ekf"' in a1 and 'style="invis"' in a1
+    diff = (tmp_path / "r" / "diff-a1--a2.dot").read_text()
+    assert 'xlabel="+"' in diff and 'xlabel="−"' in diff

@@ -254,7 +254,8 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         put(f"graph-{stem}.dot", render("graph.dot.j2", graph=g))
         graphs.append({"scope": "whole architecture" if conf is None else conf,
                        "subtitle": g.subtitle, "stem": f"graph-{stem}",
-                       "nodes": len(g.nodes), "edges": len(g.edges)})
+                       "nodes": sum(n.status != "hidden" for n in g.nodes),
+                       "edges": sum(e.status != "hidden" for e in g.edges)})
 
     diffs = []
     for a, b in diff_pairs(arch):

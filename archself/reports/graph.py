@@ -41,7 +41,7 @@ class GraphNode:
     kind: str
     type: str
     description: str = ""
-    status: str = "normal"  # normal | kept | added | removed
+    status: str = "normal"  # normal | kept | added | removed | hidden
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class GraphEdge:
     weight: float
     carries: str
     penwidth: float
-    status: str = "normal"  # normal | kept | added | removed
+    status: str = "normal"  # normal | kept | added | removed | hidden
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,10 @@ class ArchGraph:
     @property
     def kinds(self) -> tuple[str, ...]:
         return tuple(k for k in KINDS if self.nodes_of(k))
+
+    def shown(self, kind: str) -> bool:
+        """True when a node of ``kind`` is visible (a cluster of hidden nodes is hidden)."""
+        return any(n.status != "hidden" for n in self.nodes_of(kind))
 
 
 @dataclass(frozen=True)
@@ -105,20 +109,29 @@ def _node(arch: Architecture, name: str, status: str = "normal") -> GraphNode:
 
 
 def build_graph(arch: Architecture, configuration: str | None = None) -> ArchGraph:
-    """The graph of the whole architecture or of one configuration (its active part)."""
+    """The graph of the whole architecture or of one configuration (its active part).
+
+    Every drawing holds every module and edge of the file, in file order, the ones outside
+    the configuration ``hidden`` (drawn invisible): Graphviz lays out the same graph with
+    the same label sizes each time, so a module sits at the same place in the drawing of
+    every configuration, of every diff and of the whole architecture.
+    """
     wmax = _wmax(arch)
     if configuration is None:
-        names = list(arch.modules)
+        active = set(arch.modules)
         title, sub = arch.name, "all modules and edges"
     else:
         conf = arch.configurations[configuration]
         active = set(conf.modules)
-        names = [n for n in arch.modules if n in active]
         title, sub = f"{arch.name}: {configuration}", conf.description or ""
+    shown = {(s, t, c) for s, t, _w, c in scope_edges(arch, configuration)}
     edges = tuple(
-        GraphEdge(s, t, w, c, _penwidth(w, wmax)) for s, t, w, c in scope_edges(arch, configuration)
+        GraphEdge(s, t, w, c, _penwidth(w, wmax),
+                  "normal" if (s, t, c) in shown else "hidden")
+        for s, t, w, c in scope_edges(arch, None)
     )
-    return ArchGraph(title, sub, tuple(_node(arch, n) for n in names), edges)
+    nodes = tuple(_node(arch, n, "normal" if n in active else "hidden") for n in arch.modules)
+    return ArchGraph(title, sub, nodes, edges)
 
 
 def diff_pairs(arch: Architecture) -> list[tuple[str, str]]:
@@ -163,19 +176,20 @@ def diff_graph(arch: Architecture, d: ConfigDiff) -> ArchGraph:
     """The union of both configurations, every node and edge marked kept, added or removed."""
     wmax = _wmax(arch)
     added, removed = set(d.added_modules), set(d.removed_modules)
-    names = [n for n in arch.modules if n in added or n in removed or n in set(d.kept_modules)]
+    kept_modules = set(d.kept_modules)
     nodes = tuple(
-        _node(arch, n, "added" if n in added else "removed" if n in removed else "kept")
-        for n in names
+        _node(arch, n, "added" if n in added else "removed" if n in removed
+              else "kept" if n in kept_modules else "hidden")
+        for n in arch.modules
     )
     ea, eb = set(d.removed_edges), set(d.added_edges)
     kept = {(s, t, c) for s, t, _w, c in scope_edges(arch, d.a)} - ea
     edges = []
-    for e in arch.edges:
+    for e in arch.edges:  # every edge, as in build_graph: the same layout
         key = (e.source, e.target, e.carries)
-        status = "added" if key in eb else "removed" if key in ea else "kept" if key in kept else ""
-        if status:
-            w = float(e.weight)
-            edges.append(GraphEdge(e.source, e.target, w, e.carries, _penwidth(w, wmax), status))
+        status = ("added" if key in eb else "removed" if key in ea else "kept" if key in kept
+                  else "hidden")
+        w = float(e.weight)
+        edges.append(GraphEdge(e.source, e.target, w, e.carries, _penwidth(w, wmax), status))
     via = ", ".join(d.actions) if d.actions else "consecutive configurations"
     return ArchGraph(f"{arch.name}: {d.a} → {d.b}", f"via {via}", nodes, tuple(edges), diff=True)
