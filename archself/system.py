@@ -51,7 +51,7 @@ import hashlib
 import heapq
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
 import numpy as np
@@ -211,6 +211,25 @@ class _Plan:
         }
         # module -> its inputs that collect a list, one value per active edge
         self.multi = multi
+        self.nonft_set = frozenset(nonft)
+        # some module type overrides linear_model or linearization (set by the system)
+        self.linearizable = True
+
+    def restricted(self, keep: Collection[str]) -> _Plan:
+        """The plan of the modules ``keep`` alone (file order and step order kept)."""
+        active = [n for n in self.active if n in keep]
+        plan = _Plan(
+            self.name,
+            active,
+            [n for n in self.nonft if n in keep],
+            [n for n in self.order if n in keep],
+            {n: self.routes[n] for n in active},
+            {n: self.required[n] for n in active},
+            sorted(r[2] for n in active for r in self.routes[n]),
+            {n: v for n, v in self.multi.items() if n in keep},
+        )
+        plan.linearizable = self.linearizable
+        return plan
 
 
 def _is_bad(value: Any) -> bool:
@@ -284,6 +303,8 @@ class LiveSystem:
         self._obj_actual = obj.actual
         self._obj_ref = obj.reference
         self._obj_comp = list(obj.components)
+        self._scope: frozenset[str] | None = None  # a partial copy's modules (snapshot(only=))
+        self._scoped: dict[str, _Plan] = {}  # its plans, restricted to them
         self._plan = self._make_plan(configuration)
         for name in self._plan.active:
             self._module(name)
@@ -300,6 +321,15 @@ class LiveSystem:
         return mod
 
     def _make_plan(self, configuration: str) -> _Plan:
+        plan = self._full_plan(configuration)
+        if self._scope is None:
+            return plan
+        found = self._scoped.get(configuration)
+        if found is None:
+            found = self._scoped[configuration] = plan.restricted(self._scope)
+        return found
+
+    def _full_plan(self, configuration: str) -> _Plan:
         cached = self._plans.get(configuration)
         if cached is not None:
             return cached
@@ -343,6 +373,11 @@ class LiveSystem:
         required = {n: tuple(classes[n].inputs) for n in active}
         multi = {n: frozenset(classes[n].multi_inputs) for n in active if classes[n].multi_inputs}
         plan = _Plan(configuration, active, nonft, order, routes, required, edges, multi)
+        plan.linearizable = any(
+            cls.linear_model is not RuntimeModule.linear_model
+            or cls.linearization is not RuntimeModule.linearization
+            for cls in set(classes.values())
+        )
         self._plans[configuration] = plan
         return plan
 
@@ -643,12 +678,88 @@ class LiveSystem:
         """Apply a parameter update to ``module`` (instantiated if not yet used)."""
         self._module(module).set_params(dict(values))
 
-    def snapshot(self) -> LiveSystem:
-        """An independent deep copy (same RNG states, so a rollout is deterministic)."""
+    def snapshot(self, only: Collection[str] | None = None) -> LiveSystem:
+        """An independent deep copy (same RNG states, so a rollout is deterministic).
+
+        With ``only``, a partial copy of those modules alone (with their outputs,
+        health, faults and the edges into them): it steps them as the whole system
+        would as long as what it is asked about depends on them only, e.g. the
+        objective over a rollout when ``only`` is :meth:`rollout_scope`. Its
+        ``modules``, ``available()``, ``dependencies()`` and the like answer for
+        those modules; a module outside ``only`` that it is given an update for is
+        created from the file and never stepped.
+        """
         memo = {id(self.arch): self.arch, id(self._factory): self._factory}
         for p in self._plans.values():
             memo[id(p)] = p
-        return copy.deepcopy(self, memo)
+        for p in self._scoped.values():
+            memo[id(p)] = p
+        if only is None:
+            return copy.deepcopy(self, memo)
+        keep = frozenset(only) if self._scope is None else self._scope.intersection(only)
+        edges = self.arch.edges
+        per_module = {
+            "_pool": {n: m for n, m in self._pool.items() if n in keep},
+            "outputs": {n: v for n, v in self.outputs.items() if n in keep},
+            "_ok": {n: v for n, v in self._ok.items() if n in keep},
+            "_why": {n: v for n, v in self._why.items() if n in keep},
+            "_heard": {n: v for n, v in self._heard.items() if n in keep},
+            "_last": {k: v for k, v in self._last.items() if k[0] in keep},
+            "_repeats": {k: v for k, v in self._repeats.items() if k[0] in keep},
+            "_broken": {n for n in self._broken if n in keep},
+            "_faults": {n: v for n, v in self._faults.items() if n in keep},
+            "_delay": {i: v for i, v in self._delay.items() if edges[i].target in keep},
+            "_edge_rng": {i: v for i, v in self._edge_rng.items() if edges[i].target in keep},
+            "_scoped": {},
+            "_plan": None,
+        }
+        rest = {k: v for k, v in self.__dict__.items() if k not in per_module}
+        part = object.__new__(type(self))
+        rest, per_module = copy.deepcopy((rest, per_module), memo)
+        part.__dict__.update(rest)
+        part.__dict__.update(per_module)
+        part._scope = keep
+        part._plan = part._make_plan(self.configuration)
+        return part
+
+    def rollout_scope(self, configuration: str | None = None, steps: int = 0) -> frozenset[str]:
+        """The modules a rollout of ``steps`` steps in ``configuration`` needs for the objective.
+
+        Those whose outputs reach a ``runtime.objective`` signal within ``steps``
+        steps along the configuration's edges (an edge into a module without
+        direct feed-through takes a step, a latency its steps; an edge into a
+        feed-through module none), and for each of them that a switch to
+        ``configuration`` brings in, the module it would take its state from
+        (hand-over by role). :meth:`snapshot` ``(only=…)`` of these gives the same
+        objective error, step by step, as a copy of the whole system.
+        """
+        plan = self._full_plan(configuration or self.configuration)
+        refs = (self._obj_actual, self._obj_ref)
+        starts = {(r.rsplit(".", 1)[0] if isinstance(r, str) else r[0]) for r in refs}
+        dist = {m: 0 for m in starts if m in plan.active_set}
+        heap = [(0, m) for m in dist]
+        nonft = plan.nonft_set
+        routes = plan.routes
+        while heap:
+            d, m = heapq.heappop(heap)
+            if d > dist[m]:
+                continue
+            hop = d + (1 if m in nonft else 0)
+            for _carries, src, _i, _unc, delay in routes[m]:
+                nd = hop + delay
+                if nd <= steps and nd < dist.get(src, steps + 1):
+                    dist[src] = nd
+                    heapq.heappush(heap, (nd, src))
+        keep = set(dist)
+        current = self._plan
+        if plan.name != current.name:
+            gone = [g for g in current.active if g not in plan.active_set]
+            for n in [n for n in keep if n not in current.active_set]:
+                role = self._module(n).role
+                giver = next((g for g in gone if self._pool[g].role == role), None)
+                if giver is not None:
+                    keep.add(giver)
+        return frozenset(keep)
 
     def _linear_module(self, name: str, plan: _Plan) -> RuntimeModule:
         """The module as it would run in ``plan``: live if active now, else a hand-over copy.
@@ -684,6 +795,8 @@ class LiveSystem:
         """
         conf_name = configuration or self.configuration
         plan = self._make_plan(conf_name)
+        if not plan.linearizable:  # no type of the configuration gives a model or a matrix
+            return ClosedLoop(None, [])
         mods = {n: self._linear_module(n, plan) for n in plan.active}
         base = RuntimeModule.linear_model
         models: dict[str, LinearModel] = {}

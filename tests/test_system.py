@@ -195,6 +195,49 @@ def test_snapshot_is_independent_and_deterministic(arch):
     assert_array_equal(s.outputs["chassis"]["pose"], snap.outputs["chassis"]["pose"])
 
 
+def _errors(system, configuration, steps, *, only=None):
+    snap = system.snapshot(only=only)
+    snap.apply_configuration(configuration)
+    out = [snap.objective_error()]
+    for _ in range(steps):
+        snap.step()
+        out.append(snap.objective_error())
+    return out
+
+
+@pytest.mark.parametrize(
+    ("fname", "start", "scenario"),
+    [
+        ("diffdrive.yaml", "a1", "imu_drift"),
+        ("process_plant.yaml", "p1", "level_drift"),
+        ("motor_drive.yaml", None, None),
+        ("generated", None, None),
+    ],
+)
+def test_partial_snapshot_rolls_the_objective_out_as_the_whole(fname, start, scenario):
+    """snapshot(only=rollout_scope(c, H)): the objective error of a whole copy, step by step."""
+    if fname == "generated":
+        from archself.generate import generate_architecture
+        from archself.loader import load_text
+
+        arch = load_text(generate_architecture(400, seed=2, feedback=20)).arch
+    else:
+        arch = load_architecture(DIFFDRIVE.parent / fname).arch
+    start = start or arch.initial_configuration()
+    s = compile_system(arch, start, seed=4, scenario=scenario)
+    for _ in range(300):
+        s.step()
+    targets = [start, *sorted({a.to for a in arch.actions if a.to and a.to != start})]
+    for conf in targets:
+        for steps in (1, 10, 40):
+            scope = s.rollout_scope(conf, steps)
+            assert_array_equal(
+                _errors(s, conf, steps, only=scope), _errors(s, conf, steps), err_msg=conf
+            )
+    assert len(s.rollout_scope(start, 0)) < len(s.active) or fname != "generated"
+    assert s.t == pytest.approx(300 * s.dt)  # the live system did not move
+
+
 def test_hot_swap_hands_over_state(arch):
     s = compile_system(arch, "a1", seed=1, scenario="imu_drift")
     for _ in range(600):

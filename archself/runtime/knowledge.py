@@ -6,7 +6,10 @@ and of all edges (attributes ``weight``, ``carries``, ``active``), the name of
 the current configuration, the parameter values changed at run time and
 ``t_last``, the time of the last architectural change (Eq. 28). It is kept in
 step with the running system: :meth:`Knowledge.sync` reads the active modules
-and configuration from the system after each executed action.
+and configuration from the system after each executed action. The graph is
+built when it is first asked for and its ``active`` flags are brought up to date
+when it is read, not at every change: the loop itself works on the arrays and the
+edge set (a switch in a 10^5-module graph would otherwise set 3·10^5 flags).
 
 It also owns the index order of the influence vector and the weighted adjacency
 matrix W of the *active* edges (Eq. 13), with the factorization of ``I − Wᵀ``
@@ -100,24 +103,19 @@ class Knowledge:
         self.arch = arch
         self.names: list[str] = list(arch.modules)
         self.index = {n: k for k, n in enumerate(self.names)}
-        self.graph = nx.DiGraph()
-        for name, mod in arch.modules.items():
-            self.graph.add_node(name, kind=mod.kind, type=mod.type, active=False)
-        for e in arch.edges:
-            if self.graph.has_edge(e.source, e.target):
-                data = self.graph.edges[e.source, e.target]
-                data["weight"] += e.weight
-                data["carries"].append(e.carries)
-            else:
-                self.graph.add_edge(
-                    e.source, e.target, weight=e.weight, carries=[e.carries], active=False
-                )
+        self._graph: nx.DiGraph | None = None
+        self._graph_state: tuple[str, frozenset[str]] | None = None  # what its flags show
         self.params: dict[str, dict[str, Any]] = {
             name: {p: spec.value for p, spec in mod.params.items()}
             for name, mod in arch.modules.items()
         }
-        for name in self.names:
-            self.graph.nodes[name]["params"] = self.params[name]  # same dict: stays in step
+        # every edge as (source, target, carries) and its ends' positions in names
+        self._edge_keys = [(e.source, e.target, e.carries) for e in arch.edges]
+        index = self.index
+        self._edge_ends = np.array(
+            [(index.get(e.source, -1), index.get(e.target, -1)) for e in arch.edges],
+            dtype=np.intp,
+        ).reshape(-1, 2)
         self._weights: dict[EdgeKey, float] = {}
         for e in arch.edges:
             key = (e.source, e.target, e.carries)
@@ -145,19 +143,48 @@ class Knowledge:
     def _set_active(self, configuration: str, active: Iterable[str]) -> None:
         self.configuration = configuration
         self.active = frozenset(active)
-        self.active_index = np.array(
-            [k for k, n in enumerate(self.names) if n in self.active], dtype=np.intp
-        )
+        index = self.index
+        on = np.zeros(len(self.names) + 1, dtype=bool)  # the last slot: unknown names
+        on[[index[n] for n in self.active if n in index]] = True
+        self.active_index = np.flatnonzero(on[:-1])
         self.active_names = [self.names[k] for k in self.active_index.tolist()]
         self.active_pos = {n: i for i, n in enumerate(self.active_names)}
         conf = self.arch.configurations.get(configuration)
-        disabled = conf.disabled_edges if conf is not None else []
-        self.edges = active_edges(self.arch, self.active, disabled)
-        pairs = {(s, t) for s, t, _ in self.edges}
-        for n in self.graph.nodes:
-            self.graph.nodes[n]["active"] = n in self.active
-        for s, t, data in self.graph.edges(data=True):
-            data["active"] = (s, t) in pairs
+        off = {tuple(pair) for pair in (conf.disabled_edges if conf is not None else [])}
+        ends = self._edge_ends
+        live = (on[ends[:, 0]] & on[ends[:, 1]]).tolist() if len(ends) else []
+        keys = self._edge_keys
+        self.edges = frozenset(
+            keys[i] for i, ok in enumerate(live) if ok and keys[i][:2] not in off
+        )
+
+    @property
+    def graph(self) -> nx.DiGraph:
+        """All modules and edges; ``active`` flags follow the running system."""
+        g = self._graph
+        if g is None:
+            g = self._graph = nx.DiGraph()
+            for name, mod in self.arch.modules.items():
+                # the params dict is Knowledge's own: it stays in step
+                g.add_node(name, kind=mod.kind, type=mod.type, active=False,
+                           params=self.params[name])
+            for e in self.arch.edges:
+                if g.has_edge(e.source, e.target):
+                    data = g.edges[e.source, e.target]
+                    data["weight"] += e.weight
+                    data["carries"].append(e.carries)
+                else:
+                    g.add_edge(e.source, e.target, weight=e.weight, carries=[e.carries],
+                               active=False)
+        state = (self.configuration, self.active)
+        if self._graph_state != state:
+            pairs = {(s, t) for s, t, _ in self.edges}
+            for n, data in g.nodes(data=True):
+                data["active"] = n in self.active
+            for s, t, data in g.edges(data=True):
+                data["active"] = (s, t) in pairs
+            self._graph_state = state
+        return g
 
     def sync(self, system: Any) -> bool:
         """Read configuration and active modules from the running system.

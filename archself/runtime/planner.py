@@ -54,7 +54,7 @@ from typing import Any
 from archself.model import Action, Architecture
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.monitor import ModuleStatus, StatusMap, is_limit_violation
-from archself.runtime.stability import StabilityVerdict, check_action_stability
+from archself.runtime.stability import StabilityVerdict, check_action_stability, rollout_copy
 
 __all__ = [
     "PlanState",
@@ -118,11 +118,17 @@ def budget_violations(arch: Architecture, modules: Iterable[str]) -> list[str]:
     return out
 
 
-def constraint_violations(arch: Architecture, modules: Iterable[str]) -> list[str]:
-    """Module constraints k_i (``requires``/``excludes``) violated by a module set."""
+def constraint_violations(
+    arch: Architecture, modules: Iterable[str], constrained: Iterable[str] | None = None
+) -> list[str]:
+    """Module constraints k_i (``requires``/``excludes``) violated by a module set.
+
+    ``constrained``, when given, holds every module of the file that has a
+    constraint (the others cannot violate one): only those are looked at.
+    """
     on = set(modules)
     out = []
-    for m in sorted(on):
+    for m in sorted(on if constrained is None else on.intersection(constrained)):
         if m not in arch.modules:
             continue
         cons = arch.modules[m].constraints
@@ -150,11 +156,14 @@ def rollout_improvement(system: Any, action: Action, horizon_s: float) -> float:
     """Δ = mean J(no action) − mean J(action) over ``horizon_s`` on two snapshots.
 
     The live system is not modified. Snapshots share the RNG state, so noise is
-    common to both branches and the difference isolates the action's effect.
+    common to both branches and the difference isolates the action's effect. Each
+    copies only the modules the objective depends on over the horizon when the
+    system says which (:func:`~archself.runtime.stability.rollout_copy`).
     """
     steps = max(1, int(round(horizon_s / float(system.dt))))
-    base = system.snapshot()
-    trial = system.snapshot()
+    base = rollout_copy(system, system.configuration, steps)
+    target = system.configuration if action.kind == "parameter_update" else action.to
+    trial = rollout_copy(system, target, steps)
     _apply(trial, action)
     return _mean_objective(base, steps) - _mean_objective(trial, steps)
 
@@ -219,6 +228,9 @@ class Planner:
             if m.constraints.limits and m.constraints.blocks
         }
         self._conf_modules: dict[str, tuple[str, ...]] = {}
+        self._constrained = frozenset(
+            n for n, m in arch.modules.items() if m.constraints.requires or m.constraints.excludes
+        )
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
@@ -305,7 +317,7 @@ class Planner:
         key = target
         found = self._static.get(key)
         if found is None:
-            bad = constraint_violations(self.arch, target)
+            bad = constraint_violations(self.arch, target, self._constrained)
             over = budget_violations(self.arch, target) if not bad else []
             if bad:
                 found = ("constraint", "; ".join(bad))

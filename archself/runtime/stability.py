@@ -29,6 +29,11 @@ An action ``a_k`` is admissible only if the closed loop it leads to is stable:
   ``J_ref²`` (``runtime.objective.acceptable`` squared) when that is positive,
   else ``1e-6``.
 
+  The snapshot holds only the modules whose outputs reach the objective within
+  the horizon (:func:`rollout_copy`, when the system gives ``rollout_scope``): V
+  is the same step by step, and a rollout in a 10^5-module graph copies and
+  steps the few hundred modules upstream of the objective, not the whole graph.
+
 Every failure of the test itself (no snapshot, an exception in the rollout,
 NaN) rejects the action: the filter fails closed.
 """
@@ -46,6 +51,7 @@ __all__ = [
     "check_action_stability",
     "eigenvalue_margin",
     "lyapunov_decrease",
+    "rollout_copy",
 ]
 
 
@@ -189,6 +195,24 @@ def _apply(system: Any, action: Any) -> None:
         system.apply_configuration(action.to)
 
 
+def rollout_copy(system: Any, configuration: str | None, steps: int) -> Any:
+    """A snapshot of ``system`` for a rollout of ``steps`` steps in ``configuration``.
+
+    When the system can say which modules such a rollout needs for the objective
+    (``rollout_scope``, docs/develop.md), a copy of those alone — the objective's
+    error is the same step by step, and a large graph is not copied and stepped
+    whole; otherwise ``system.snapshot()``.
+    """
+    scope = getattr(system, "rollout_scope", None)
+    if scope is None:
+        return system.snapshot()
+    return system.snapshot(only=scope(configuration, steps))
+
+
+def _target(system: Any, action: Any) -> str:
+    return system.configuration if action.kind == "parameter_update" else action.to
+
+
 def _v(system: Any) -> float:
     x = np.asarray(system.state_error(), dtype=float).ravel()
     return float(x @ x)
@@ -236,7 +260,7 @@ def check_action_stability(
         return eigenvalue_margin(A, margin)
     try:
         if snap is None:
-            snap = system.snapshot()
+            snap = rollout_copy(system, _target(system, action), horizon_steps)
             _apply(snap, action)
         v = [_v(snap)]
         for _ in range(horizon_steps):
