@@ -116,7 +116,7 @@ def test_validate_json_output(monkeypatch) -> None:
         app, ["validate", "--json", "tests/fixtures/invalid/bad_kind.yaml"]
     )
     assert result.exit_code == 1
-    report = json.loads(result.stdout)
+    (report,) = json.loads(result.stdout)  # a list, even for one file
     assert report["ok"] is False
     (f,) = report["findings"]
     assert f["severity"] == "error" and f["path"] == "modules.level_sensor.kind"

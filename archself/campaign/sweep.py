@@ -314,8 +314,63 @@ def apply_values(
         err = exc.errors()[0]
         from archself.loader import dotted
 
+        for s in sweeps:  # a new last key that the model refuses: most likely a typo
+            parent = get_path(data, s.keys[:-1])
+            last = s.keys[-1]
+            fields = _model_keys(s.keys[:-1])
+            if isinstance(parent, dict) and last not in parent and last not in fields:
+                known = [*parent, *(k for k in fields if k not in parent)]
+                raise CampaignError(
+                    f"{file}: sweep PATH {s.path}: no such key"
+                    f"{_hint(str(last), dict.fromkeys(known))}"
+                ) from None
+
         where = dotted(tuple(err.get("loc", ()))) or "<root>"
         setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
         raise CampaignError(
             f"{file}: {setting}: {where}: {err.get('msg', 'invalid value')}"
         ) from None
+
+
+def _model_keys(keys: Path_) -> list[str]:
+    """The field names of the model class the data at ``keys`` validates to ([] if none).
+
+    Walks :class:`archself.model.Architecture`'s annotations: a model's field, a dict's
+    value type for a key, a list's item type for an index.
+    """
+    import typing
+
+    from pydantic import BaseModel
+
+    from archself.model import Architecture
+
+    def models(tp: Any) -> list[Any]:
+        """The classes a field's annotation may hold (Optional, Union, Annotated unwrapped)."""
+        origin = typing.get_origin(tp)
+        if origin is None:
+            return [tp]
+        if origin in (dict, list) or str(origin).endswith("Mapping") or origin is tuple:
+            return [tp]
+        return [m for a in typing.get_args(tp) for m in models(a)]
+
+    current: list[Any] = [Architecture]
+    for k in keys:
+        nxt: list[Any] = []
+        for tp in current:
+            origin = typing.get_origin(tp)
+            if isinstance(k, int):
+                if origin in (list, tuple):
+                    nxt += models(typing.get_args(tp)[0])
+            elif origin is dict:
+                nxt += models(typing.get_args(tp)[1])
+            elif isinstance(tp, type) and issubclass(tp, BaseModel):
+                alias = {f.alias or n: f for n, f in tp.model_fields.items()}
+                field = alias.get(k)
+                if field is not None:
+                    nxt += models(field.annotation)
+        current = nxt
+    out: list[str] = []
+    for tp in current:
+        if isinstance(tp, type) and issubclass(tp, BaseModel):
+            out += [f.alias or n for n, f in tp.model_fields.items()]
+    return out

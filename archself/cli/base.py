@@ -24,7 +24,7 @@ app = typer.Typer(
     name="archself",
     help="Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K).",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
     context_settings={"help_option_names": ["-h", "--help"]},
@@ -57,6 +57,29 @@ class FigureFormat(StrEnum):
     svg = "svg"
 
 
+class Mode(StrEnum):
+    """Which runs a campaign makes (``--mode``)."""
+
+    both = "both"
+    fixed = "fixed"
+    adaptive = "adaptive"
+
+
+class Executor(StrEnum):
+    """Where the runs of a campaign or calibration go (``--executor``)."""
+
+    local = "local"
+    dask = "dask"
+
+
+class IdentifyExecutor(StrEnum):
+    """``identify --executor``: the campaign executors and ``inline`` (this process)."""
+
+    local = "local"
+    dask = "dask"
+    inline = "inline"
+
+
 # Options of the commands that write figures (simulate --report, report, campaign-report).
 FormatOption = Annotated[
     list[FigureFormat] | None,
@@ -77,7 +100,9 @@ def _formats(chosen: list[FigureFormat] | None, default: str = "png") -> tuple[s
 
 
 # Options shared by the commands that run many simulations (campaign, calibrate).
-ExecutorOption = Annotated[str, typer.Option("--executor", help="local (process pool) or dask.")]
+ExecutorOption = Annotated[
+    Executor, typer.Option("--executor", help="local (process pool) or dask.")
+]
 AddressOption = Annotated[
     str | None, typer.Option("--address", help="Dask scheduler, tcp://HOST:PORT.")
 ]
@@ -86,13 +111,123 @@ WorkersOption = Annotated[
 ]
 
 
+#: The name of stdin in findings and messages (``validate -``).
+STDIN_NAME = "<stdin>"
+
+
+def _read_stdin() -> str:
+    """Standard input as UTF-8 text, capped like a file (``yaml_source.MAX_FILE_BYTES``)."""
+    from archself.errors import LoadError
+    from archself.yaml_source import MAX_FILE_BYTES
+
+    raw = sys.stdin.buffer.read(MAX_FILE_BYTES + 1)
+    if len(raw) > MAX_FILE_BYTES:
+        raise LoadError(f"input is larger than the {MAX_FILE_BYTES}-byte cap", STDIN_NAME)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise LoadError("not UTF-8 text", STDIN_NAME, line, 1) from None
+
+
+def color_enabled(stream: Any = None) -> bool:
+    """Colour only on a terminal, and never when ``NO_COLOR`` is set (no-color.org).
+
+    ``FORCE_COLOR`` (non-empty) turns it on even off a terminal, e.g. in CI logs.
+    """
+    import os
+
+    if os.environ.get("NO_COLOR"):
+        return False
+    if os.environ.get("FORCE_COLOR"):
+        return True
+    stream = sys.stderr if stream is None else stream
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+_SEVERITY_COLORS = {"error": "red", "warning": "yellow", "internal error": "red"}
+
+
+def colorize(line: str, stream: Any = None) -> str:
+    """``PATH: error: …`` with the severity word coloured, when :func:`color_enabled`."""
+    if not color_enabled(stream):
+        return line
+    for word, color in _SEVERITY_COLORS.items():
+        for at in (f": {word}:", f"{word}:"):
+            i = line.find(at)
+            if i == 0 or (i > 0 and at.startswith(":")):
+                start = i + (2 if at.startswith(":") else 0)
+                end = start + len(word)
+                return line[:start] + typer.style(word, fg=color, bold=True) + line[end:]
+    return line
+
+
+def _err(line: str) -> None:
+    """One diagnostic line on stderr, its severity coloured on a terminal."""
+    typer.echo(colorize(line), err=True, color=color_enabled())
+
+
+class RunProgress:
+    """A progress bar on stderr for many runs: count, percent, rate and ETA.
+
+    ``update(done, total)`` is the ``progress`` callback of the campaign and
+    calibration drivers; a ``done`` lower than before (a new phase, e.g. the
+    calibration's verification runs) starts a new bar. The bar is drawn only on a
+    terminal (the caller decides), its fill coloured unless ``NO_COLOR``; ``close()``
+    ends it. Rate and ETA are measured from the first finished run, so the start-up of
+    the workers does not skew them.
+    """
+
+    def __init__(self, label: str, unit: str = "runs") -> None:
+        self.label, self.unit = label, unit
+        self.bar: Any = None
+        self.done = 0
+        self.t0 = 0.0
+        self.first = 0
+
+    def _rate(self, _item: Any = None) -> str:
+        import time
+
+        elapsed = time.monotonic() - self.t0
+        n = self.done - self.first
+        return f"{n / elapsed:.2f} {self.unit}/s" if n > 0 and elapsed > 0 else ""
+
+    def update(self, done: int, total: int) -> None:
+        import time
+
+        if self.bar is None or done < self.done:
+            self.close()
+            fill = typer.style("█", fg="cyan") if color_enabled() else "#"
+            self.bar = typer.progressbar(
+                length=total, label=self.label.format(total=total), file=sys.stderr,
+                show_eta=True, show_percent=True, show_pos=True, fill_char=fill,
+                empty_char="·" if fill != "#" else "-", item_show_func=self._rate,
+                color=color_enabled(),
+            )
+            self.bar.__enter__()
+            self.done, self.t0, self.first = 0, time.monotonic(), 0
+        if self.done == 0 and done > 0:  # the first finished run(s): start the clock
+            self.t0, self.first = time.monotonic(), 0
+        step = done - self.done
+        self.done = done
+        self.bar.update(step)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
+
+
 def _fail(msg: str, code: int = 1) -> typer.Exit:
-    typer.echo(msg if ":" in msg else f"error: {msg}", err=True)
+    _err(msg if ":" in msg else f"error: {msg}")
     return typer.Exit(code)
 
 
 def _die(err: ArchselfError) -> typer.Exit:
-    typer.echo(str(err), err=True)
+    _err(str(err))
     return typer.Exit(err.exit_code)
 
 
@@ -175,7 +310,7 @@ def _load(path: Path):
     if has_errors(findings):
         for f in findings:
             if f.severity == "error":
-                typer.echo(str(f), err=True)
+                _err(str(f))
         raise typer.Exit(1)
     return loaded.arch
 
@@ -205,7 +340,7 @@ def main() -> None:
         typer.echo("terminated" if terminated else "interrupted", err=True)
         raise SystemExit(143 if terminated else 130) from None
     except ArchselfError as exc:
-        typer.echo(str(exc), err=True)
+        _err(str(exc))
         raise SystemExit(exc.exit_code) from None
     except MemoryError:
         typer.echo("error: out of memory; the work asked for is too large for this machine",

@@ -12,7 +12,10 @@ import typer
 
 from archself.cli.base import (
     AddressOption,
+    Executor,
     ExecutorOption,
+    IdentifyExecutor,
+    RunProgress,
     WorkersOption,
     _die,
     _emit,
@@ -43,7 +46,7 @@ def calibrate(
     verify_seeds: Annotated[
         int, typer.Option("--verify-seeds", min=0, help="Fresh seeds to measure the new rate on.")
     ] = 0,
-    executor: ExecutorOption = "local",
+    executor: ExecutorOption = Executor.local,
     address: AddressOption = None,
     workers: WorkersOption = None,
     root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
@@ -59,7 +62,7 @@ def calibrate(
         Path | None, typer.Option("--report", metavar="DIR", help="Write the HTML/Markdown report.")
     ] = None,
     json_out: Annotated[
-        bool, typer.Option("--json", help="Print the bands and rates as JSON.")
+        bool, typer.Option("--json", help="Print the bands and rates as one JSON object.")
     ] = False,
     save_runs: Annotated[
         Path | None,
@@ -91,8 +94,6 @@ def calibrate(
 
     if not 0.0 < false_switch < 1.0:
         raise _fail(f"--false-switch {false_switch:g}: expected a rate between 0 and 1", 2)
-    if executor not in ("local", "dask"):
-        raise _fail(f"--executor {executor}: expected local or dask", 2)
     if in_place and output is not None:
         raise _fail("--in-place and --output exclude each other", 2)
     if in_place and not force:
@@ -104,31 +105,19 @@ def calibrate(
         if save_runs is not None:
             check_output(arch_path, save_runs, in_place=False, force=force)
         show = sys.stderr.isatty() and not json_out
-        bar = None
-        state = {"done": 0}
-
-        def progress(done: int, total: int) -> None:
-            nonlocal bar
-            if done < state["done"] or bar is None:
-                if bar is not None:
-                    bar.__exit__(None, None, None)
-                bar = typer.progressbar(length=total, label=f"{total} runs", file=sys.stderr)
-                bar.__enter__()
-                state["done"] = 0
-            bar.update(done - state["done"])
-            state["done"] = done
+        bar = RunProgress("{total:,} runs")
+        progress = bar.update
 
         try:
             cal = run_calibration(
                 arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
-                configurations=configurations, root_seed=root_seed, executor=executor,
+                configurations=configurations, root_seed=root_seed, executor=executor.value,
                 workers=workers, address=address, verify_seeds=verify_seeds,
                 progress=progress if show else None, save_runs=save_runs, from_runs=from_runs,
                 envelope=envelope or (),
             )
         finally:
-            if bar is not None:
-                bar.__exit__(None, None, None)
+            bar.close()
         if target is not None:
             from archself.atomic import write_text
 
@@ -203,12 +192,15 @@ def identify(
         typer.Option("--min-excitation", help="A source moving its Δr less is not identifiable."),
     ] = 0.05,
     executor: Annotated[
-        str, typer.Option("--executor", help="local (process pool), dask or inline.")
-    ] = "local",
+        IdentifyExecutor,
+        typer.Option("--executor", help="local (process pool), dask or inline (this process)."),
+    ] = IdentifyExecutor.local,
     address: AddressOption = None,
     workers: WorkersOption = None,
     root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print the fitted and declared W as one JSON object.")
+    ] = False,
     all_edges: Annotated[
         bool, typer.Option("--all", help="List the edges that are not identifiable too.")
     ] = False,
@@ -234,8 +226,6 @@ def identify(
     from archself.calibration.edit import check_output
     from archself.calibration.identify import identify as run_identify
 
-    if executor not in ("local", "dask", "inline"):
-        raise _fail(f"--executor {executor}: expected local, dask or inline", 2)
     if not math.isfinite(magnitude):
         raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
     overrides = _perturbations(perturb)
@@ -252,7 +242,7 @@ def identify(
             ident = run_identify(
                 arch_path, configurations=configurations, scenario=scenario, seeds=seeds,
                 kind=kind, magnitude=magnitude, perturb=overrides, settle_s=settle,
-                min_excitation=min_excitation, root_seed=root_seed, executor=executor,
+                min_excitation=min_excitation, root_seed=root_seed, executor=executor.value,
                 workers=workers, address=address,
             )
         copy = None

@@ -13,8 +13,11 @@ from archself.cli.base import (
     _RUN_REPORT_FILES,
     AddressOption,
     DpiOption,
+    Executor,
     ExecutorOption,
     FormatOption,
+    Mode,
+    RunProgress,
     WorkersOption,
     _die,
     _fail,
@@ -42,8 +45,10 @@ def campaign(
             "scenarios.imu_drift.faults[0].magnitude=1e-4,7e-4 (repeatable: product).",
         ),
     ] = None,
-    mode: Annotated[str, typer.Option("--mode", help="both, fixed or adaptive.")] = "both",
-    executor: ExecutorOption = "local",
+    mode: Annotated[
+        Mode, typer.Option("--mode", help="Fixed and adaptive runs, or one of them.")
+    ] = Mode.both,
+    executor: ExecutorOption = Executor.local,
     address: AddressOption = None,
     workers: WorkersOption = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Results file (Parquet).")] = Path(
@@ -59,7 +64,11 @@ def campaign(
     root_seed: Annotated[
         int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
     ] = 0,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the outcome as JSON.")] = False,
+    json_out: Annotated[
+        bool,
+        typer.Option("--json", help="Print the outcome as one JSON object {out, skipped, ran, "
+                     "failed, rows, executor, workers, elapsed_s, errors}."),
+    ] = False,
     yes: Annotated[
         bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
     ] = False,
@@ -75,10 +84,6 @@ def campaign(
     from archself.campaign.sweep import parse_sweep
 
     modes = {"both": ("fixed", "adaptive"), "fixed": ("fixed",), "adaptive": ("adaptive",)}
-    if mode not in modes:
-        raise _fail(f"--mode {mode}: expected both, fixed or adaptive", 2)
-    if executor not in ("local", "dask"):
-        raise _fail(f"--executor {executor}: expected local or dask", 2)
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
     from archself.atomic import protect
@@ -94,32 +99,22 @@ def campaign(
                 scenarios,
                 seeds,
                 sweeps,
-                modes=modes[mode],
+                modes=modes[mode.value],
                 root_seed=root_seed,
                 traces=traces,
                 yes=yes,
             )
             show = sys.stderr.isatty() and not json_out
-            bar = None
-            state = {"done": 0}
-            steps = int(meta.get("steps", 0))
-
-            def progress(done: int, total: int) -> None:
-                nonlocal bar
-                if bar is None:
-                    per = steps // max(len(jobs), 1)
-                    label = f"{total:,} runs × {per:,} steps"
-                    bar = typer.progressbar(length=total, label=label, file=sys.stderr)
-                    bar.__enter__()
-                bar.update(done - state["done"])
-                state["done"] = done
+            per = int(meta.get("steps", 0)) // max(len(jobs), 1)
+            bar = RunProgress(f"{{total:,}} runs × {per:,} steps")
+            progress = bar.update
 
             try:
                 outcome = run_campaign(
                     jobs,
                     meta,
                     out,
-                    executor=executor,
+                    executor=executor.value,
                     workers=workers,
                     address=address,
                     resume=resume,
@@ -128,8 +123,7 @@ def campaign(
                     notice=lambda msg: typer.echo(f"warning: {msg}", err=True),
                 )
             finally:
-                if bar is not None:
-                    bar.__exit__(None, None, None)
+                bar.close()
     except ArchselfError as exc:
         raise _die(exc) from None
     data = {
@@ -174,7 +168,10 @@ def campaign_report_cmd(
     ] = None,
     fig_format: FormatOption = None,
     dpi: DpiOption = 150,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json_out: Annotated[
+        bool,
+        typer.Option("--json", help="Print the summary as one JSON object (DIR/summary.json)."),
+    ] = False,
 ) -> None:
     """Summarize a campaign: correct switches, detection delay, false switches, errors, τ sweep.
 

@@ -9,34 +9,58 @@ from typing import Annotated
 
 import typer
 
-from archself.cli.base import _die, _emit, _fail, _inputs, _load, app
+from archself.cli.base import (
+    STDIN_NAME,
+    _die,
+    _emit,
+    _err,
+    _fail,
+    _inputs,
+    _load,
+    _read_stdin,
+    app,
+)
 from archself.errors import ArchselfError
 
 
 def validate(
     paths: Annotated[
-        list[Path], typer.Argument(help="Architecture files to check.", metavar="PATH...")
+        list[Path],
+        typer.Argument(help="Architecture files to check; '-' reads one from stdin.",
+                       metavar="PATH..."),
     ],
-    json_out: Annotated[bool, typer.Option("--json", help="Print findings as JSON.")] = False,
+    json_out: Annotated[
+        bool,
+        typer.Option("--json", help="Print a JSON list, one {file, ok, findings} per PATH "
+                     "(a list even for one file)."),
+    ] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Treat warnings as errors.")] = False,
 ) -> None:
     """Check architecture files against the schema and the semantic rules.
 
-    Exit 0 when no file has an error finding, 1 otherwise.
+    Exit 0 when no file has an error finding, 1 otherwise. `-` reads the file from
+    stdin (named `<stdin>` in the findings).
     """
     from archself.check import check
     from archself.findings import Finding
-    from archself.loader import SchemaError, load_architecture
+    from archself.loader import SchemaError, load_architecture, load_text
 
+    if sum(str(p) == "-" for p in paths) > 1:
+        raise _fail("'-' (stdin) can be given once", 2)
     failed = False
     report: list[dict[str, object]] = []
     for path in paths:
         caught: list[warnings.WarningMessage] = []
+        stdin = str(path) == "-"
+        if stdin:
+            path = Path(STDIN_NAME)
         try:
-            _inputs(path)
+            if not stdin:
+                _inputs(path)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")  # recorded, never printed as Python warnings
-                loaded = load_architecture(path)
+                loaded = (load_text(_read_stdin(), STDIN_NAME) if stdin
+                          else load_architecture(path))
                 findings = check(loaded)
             findings += _warning_findings(caught, str(path))
         except SchemaError as exc:
@@ -62,14 +86,12 @@ def validate(
             )
         else:
             for f in findings:
-                typer.echo(str(f), err=True)
+                _err(str(f))
             if not bad:
                 n = len(findings)
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
-    if json_out:
-        typer.echo(
-            json.dumps(report if len(report) != 1 else report[0], indent=2, ensure_ascii=False)
-        )
+    if json_out:  # one shape: a list, whatever the number of files
+        typer.echo(json.dumps(report, indent=2, ensure_ascii=False))
     raise typer.Exit(1 if failed else 0)
 
 
@@ -213,7 +235,9 @@ def export(
 
 def info(
     arch: Annotated[Path, typer.Argument(metavar="FILE", help="Architecture file.")],
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print what the file holds as one JSON object.")
+    ] = False,
 ) -> None:
     """What a file holds: modules, configurations, actions, scenarios and runtime settings."""
     from archself.summary import summarize, summary_text

@@ -129,7 +129,12 @@ def simulate(
     seed: Annotated[
         int | None, typer.Option("--seed", min=0, help="Seed ≥ 0 (default: the scenario's).")
     ] = None,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    json_out: Annotated[
+        bool,
+        typer.Option("--json", help="Print the run as one JSON object {scenario, seed, mode, "
+                     "configuration, final_configuration, unit, metrics, switches}; with "
+                     "--compare a list of two, [fixed, adaptive]."),
+    ] = False,
     trace: Annotated[
         Path | None,
         typer.Option(
