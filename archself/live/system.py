@@ -271,8 +271,12 @@ class MeasuredSystem:
         self._sync_models()
         return self._models.linearization(configuration or self.configuration)
 
-    def snapshot(self) -> ModelSnapshot:
-        """A copy of the compiled models (no plant): linearizable, never stepped."""
+    def snapshot(self, only: Any = None) -> ModelSnapshot:
+        """A copy of the compiled models (no plant): linearizable, never stepped.
+
+        ``only`` (the modules a partial rollout copy would hold) is accepted for
+        the contract's sake and ignored: the copy is never stepped.
+        """
         self._sync_models()
         return ModelSnapshot(self._models.snapshot())
 
