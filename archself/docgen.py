@@ -53,7 +53,7 @@ def format_reference() -> str:
     from archself.reports.render import render
     from archself.schema import architecture_schema
 
-    schema = architecture_schema()
+    schema = architecture_schema(installed=False)
     defs = schema.get("$defs", {})
     objects = [("Architecture", schema)] + sorted(defs.items())
     sections = []

@@ -160,7 +160,7 @@ def schema_findings(data: dict[str, Any], exc: Any, src: SourceMap) -> list[Find
     """Turn a pydantic ``ValidationError`` into located findings, one per data path."""
     from archself.schema import architecture_schema
 
-    schema = architecture_schema()
+    schema = architecture_schema(installed=False)
     grouped: dict[tuple[Path_, Any], list[dict[str, Any]]] = {}
     for err in _deepest_union_branches(data, exc.errors(include_url=False)):
         loc = tuple(err["loc"])

@@ -8,6 +8,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from archself.cli import app
+from archself.schema import SCHEMA_ID, schema_text
 
 
 def test_init_writes_a_valid_file_that_adapts(tmp_path: Path, monkeypatch) -> None:
@@ -17,9 +18,8 @@ def test_init_writes_a_valid_file_that_adapts(tmp_path: Path, monkeypatch) -> No
     assert result.exit_code == 0, result.stderr
     text = (tmp_path / "tank.yaml").read_text()
     first = text.splitlines()[0]
-    assert first.startswith("# yaml-language-server: $schema=")
-    schema = (tmp_path / first.split("$schema=", 1)[1]).resolve()
-    assert schema.name == "architecture.schema.json" and schema.is_file()
+    # no project schema in or above tmp_path: the published URL, never site-packages
+    assert first == "# yaml-language-server: $schema=" + SCHEMA_ID
     assert runner.invoke(app, ["validate", "--strict", "tank.yaml"]).exit_code == 0
     out = runner.invoke(app, ["simulate", "tank.yaml", "-s", "level_drift", "--compare", "--json"])
     assert out.exit_code == 0, out.stderr
@@ -44,3 +44,31 @@ def test_init_quotes_the_name(tmp_path: Path, monkeypatch) -> None:
     from archself.loader import load_architecture
 
     assert load_architecture(tmp_path / 'odd: "name".yaml').arch.name == 'odd: "name"'
+
+
+def test_init_points_at_the_project_schema_never_into_a_venv(tmp_path: Path, monkeypatch):
+    project = tmp_path / "proj"
+    (project / "schemas").mkdir(parents=True)
+    (project / "schemas" / "architecture.schema.json").write_text(schema_text())
+    (project / "plants").mkdir()
+    monkeypatch.chdir(project / "plants")
+    assert CliRunner().invoke(app, ["init", "tank"]).exit_code == 0
+    first = (project / "plants" / "tank.yaml").read_text().splitlines()[0]
+    assert first == "# yaml-language-server: $schema=../schemas/architecture.schema.json"
+    # a schema inside an installed package is not a project's
+    venv = tmp_path / "venv" / "lib" / "site-packages"
+    (venv / "schemas").mkdir(parents=True)
+    (venv / "schemas" / "architecture.schema.json").write_text("{}")
+    monkeypatch.chdir(venv)
+    assert CliRunner().invoke(app, ["init", "x"]).exit_code == 0
+    assert (venv / "x.yaml").read_text().splitlines()[0].endswith("$schema=" + SCHEMA_ID)
+
+
+def test_init_schema_copy_and_explicit_reference(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert CliRunner().invoke(app, ["init", "tank", "--schema", "copy"]).exit_code == 0
+    first = (tmp_path / "tank.yaml").read_text().splitlines()[0]
+    assert first == "# yaml-language-server: $schema=architecture.schema.json"
+    assert (tmp_path / "architecture.schema.json").read_text() == schema_text()
+    assert CliRunner().invoke(app, ["init", "b", "--schema", "s/a.json"]).exit_code == 0
+    assert (tmp_path / "b.yaml").read_text().startswith("# yaml-language-server: $schema=s/a.json")

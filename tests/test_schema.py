@@ -28,15 +28,15 @@ STRUCTURAL = [
 
 
 def test_checked_in_schema_is_current() -> None:
-    assert SCHEMA.read_text(encoding="utf-8") == schema_text(), (
-        "schemas/architecture.schema.json is stale: run `archself schema -o "
+    assert SCHEMA.read_text(encoding="utf-8") == schema_text(installed=False), (
+        "schemas/architecture.schema.json is stale: run `archself schema --builtin -o "
         "schemas/architecture.schema.json`"
     )
 
 
 def test_schema_check_command(tmp_path: Path) -> None:
     runner = CliRunner()
-    assert runner.invoke(app, ["schema", "--check", str(SCHEMA)]).exit_code == 0
+    assert runner.invoke(app, ["schema", "--builtin", "--check", str(SCHEMA)]).exit_code == 0
     stale = tmp_path / "stale.json"
     stale.write_text("{}")
     result = runner.invoke(app, ["schema", "--check", str(stale)])
@@ -111,3 +111,22 @@ def test_independent_validator_accepts_a_null_second_selector(tmp_path: Path) ->
     path.write_text(text.replace("  threshold: 0.5\n", "  threshold: 0.5\n  top_k: null\n"))
     proc = subprocess.run([*_check_jsonschema(), str(path)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_module_type_offers_the_registered_types() -> None:
+    from archself.registry import _points
+    from archself.schema import architecture_schema
+
+    registered = set(_points())  # every installed entry point (nothing imported)
+
+    builtin = json.loads(SCHEMA.read_text())["$defs"]["Module"]["properties"]["type"]
+    assert {"sensor.imu", "generic.pid", "plant.tank"} <= set(builtin["examples"])
+    assert not any(t.startswith("example.") for t in builtin["examples"])  # a plugin's
+    installed = architecture_schema(installed=True)["$defs"]["Module"]["properties"]["type"]
+    assert set(installed["examples"]) == registered >= set(builtin["examples"])
+    schema = json.loads(SCHEMA.read_text())
+    assert schema["$defs"]["Runtime"]["properties"]["threshold"]["examples"] == [0.55, 0.5]
+    assert schema["$defs"]["Edge"]["properties"]["carries"]["examples"][0] == "pose"
+    out = CliRunner().invoke(app, ["schema"]).stdout
+    assert json.loads(out)["$defs"]["Module"]["properties"]["type"]["examples"] == sorted(
+        registered)

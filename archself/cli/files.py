@@ -118,12 +118,23 @@ def schema(
     check_file: Annotated[
         Path | None, typer.Option("--check", help="Exit 1 if FILE differs from the model.")
     ] = None,
+    builtin: Annotated[
+        bool,
+        typer.Option("--builtin", help="Offer only the built-in module types (the schema "
+                     "checked in as schemas/architecture.schema.json), not installed plugins'."),
+    ] = False,
 ) -> None:
-    """Print the JSON Schema of architecture files, generated from the model."""
+    """Print the JSON Schema of architecture files, generated from the model.
+
+    A module's `type` offers the registered types for completion (`examples`): the
+    built-in ones and those of the installed plugins (--builtin: built-in only).
+    """
     from archself.schema import schema_text
 
+    regen = "archself schema --builtin -o" if builtin else "archself schema -o"
     _write_or_check(
-        {"architecture.schema.json": schema_text()}, output, check_file, "archself schema -o"
+        {"architecture.schema.json": schema_text(installed=not builtin)}, output, check_file,
+        regen,
     )
 
 
@@ -173,17 +184,27 @@ def _write_or_check(
 def init(
     name: Annotated[str, typer.Argument(help="Name of the system; writes NAME.yaml.")],
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+    schema_ref: Annotated[
+        str | None,
+        typer.Option("--schema", metavar="REF",
+                     help="The modeline's schema: a path or URL, or 'copy' to write "
+                     "architecture.schema.json beside NAME.yaml (default: the project's "
+                     "schemas/architecture.schema.json if there is one, else the published URL)."),
+    ] = None,
 ) -> None:
     """Write a small, valid architecture file to start from (NAME.yaml).
 
     The file carries the schema modeline, so an editor with yaml-language-server
-    completes and checks it while you edit.
+    completes and checks it while you edit. The modeline never points into an
+    installed package (a virtual environment's site-packages moves and goes): it names
+    the schema of the project the file is in (a `schemas/architecture.schema.json` in
+    its folder or above, as in the archself repository), else the schema's published
+    URL, or what --schema says.
     """
     import os
 
     from archself.atomic import write_text
     from archself.reports.render import render
-    from archself.resources import schema_path
 
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
@@ -191,16 +212,45 @@ def init(
     if target.exists() and not force:
         raise _fail(f"{target}: error: exists; pass --force to overwrite it")
     folder = target.parent if str(target.parent) else Path(".")
-    try:
-        schema = os.path.relpath(schema_path(), folder.resolve())
-    except ValueError:  # another drive
-        schema = schema_path().as_uri()
+    copy_to = folder / "architecture.schema.json" if schema_ref == "copy" else None
+    if copy_to is not None:
+        schema = copy_to.name
+    elif schema_ref is not None:
+        schema = schema_ref
+    else:
+        schema = _project_schema(folder)
     text = render("init.yaml.j2", name=target.stem, file_name=target.name, schema_url=schema)
     try:
+        if copy_to is not None:
+            from archself.schema import schema_text
+
+            write_text(copy_to, schema_text())
         write_text(target, text)
     except ArchselfError as exc:
         raise _die(exc) from None
     typer.echo(f"wrote {target}; next: archself validate {target}")
+
+
+def _project_schema(folder: Path) -> str:
+    """The modeline's schema for a file in ``folder``: the nearest
+    ``schemas/architecture.schema.json`` in it or above (relative), else the ``$id`` URL.
+
+    A folder inside an installed package (``site-packages``, ``dist-packages``) is never
+    named: a virtual environment is not where a project's files should point.
+    """
+    import os
+
+    from archself.schema import SCHEMA_ID
+
+    here = folder.resolve()
+    for d in (here, *here.parents):
+        cand = d / "schemas" / "architecture.schema.json"
+        if cand.is_file() and not {"site-packages", "dist-packages"} & set(cand.parts):
+            try:
+                return Path(os.path.relpath(cand, here)).as_posix()
+            except ValueError:  # another drive
+                return cand.as_uri()
+    return SCHEMA_ID
 
 
 def export(
