@@ -117,3 +117,22 @@ def test_run_progress_counts_and_restarts(capsys) -> None:
     bar.close()
     assert bar.bar is None
     assert "4 runs" in capsys.readouterr().err
+
+
+def test_dash_is_stdin_for_architectures_and_traces(tmp_path) -> None:
+    text = MINIMAL.read_text()
+    run = CliRunner().invoke(app, ["simulate", "-", "-s", "calm", "--trace", "-"], input=text)
+    assert run.exit_code == 0, run.stderr
+    said = CliRunner().invoke(app, ["explain", "-"], input=run.stdout)
+    assert said.exit_code == 0 and said.stdout.startswith("minimal cart · scenario calm")
+    info = CliRunner().invoke(app, ["info", "-", "--json"], input=text)
+    assert info.exit_code == 0 and json.loads(info.stdout)
+    import archself
+
+    archself.simulate(MINIMAL, "calm").write_trace(tmp_path / "t.parquet")
+    said = CliRunner().invoke(app, ["explain", "-"], input=(tmp_path / "t.parquet").read_bytes())
+    assert said.exit_code == 0 and "· fixed ·" in said.stdout
+    bad = CliRunner().invoke(app, ["info", "-"], input="x: 1\n")
+    assert bad.exit_code == 1 and bad.stderr.startswith("<stdin>:")
+    junk = CliRunner().invoke(app, ["explain", "-"], input="[1, 2]")
+    assert junk.exit_code == 1 and "<stdin>: error: not an archself trace" in junk.stderr

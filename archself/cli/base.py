@@ -254,7 +254,8 @@ def _inputs(*paths: Path, what: str = "an architecture file") -> None:
     from archself.outputs import check_input
 
     for p in paths:
-        check_input(p, what)
+        if str(p) != "-":  # stdin, read by _load
+            check_input(p, what)
 
 
 @contextmanager
@@ -305,7 +306,12 @@ def _load(path: Path):
     from archself.check import check, has_errors
     from archself.loader import load_architecture
 
-    loaded = load_architecture(path)
+    if str(path) == "-":
+        from archself.loader import load_text
+
+        loaded = load_text(_read_stdin(), STDIN_NAME)
+    else:
+        loaded = load_architecture(path)
     findings = check(loaded)
     if has_errors(findings):
         for f in findings:

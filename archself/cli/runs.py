@@ -117,7 +117,9 @@ def _summary(results: list) -> str:
 
 
 def simulate(
-    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    arch_path: Annotated[
+        Path, typer.Argument(metavar="ARCH", help="Architecture file ('-': stdin).")
+    ],
     scenario: Annotated[str, typer.Option("--scenario", "-s", help="Scenario of the file.")],
     config: Annotated[
         str | None, typer.Option("--config", "-c", help="Start configuration (default: initial).")
@@ -349,7 +351,8 @@ def _report_from_traces(
 
 def explain(
     trace: Annotated[
-        Path, typer.Argument(help="A trace written by `simulate --trace` (Parquet or JSON).")
+        Path, typer.Argument(help="A trace written by `simulate --trace` (Parquet or JSON); "
+                             "'-' reads it from stdin.")
     ],
     json_out: Annotated[
         bool,
@@ -363,11 +366,16 @@ def explain(
     """Explain a run's decisions: why (and why not) the architecture switched."""
     from archself.runtime.decisions import explain as render
     from archself.runtime.decisions import explain_data
-    from archself.sim.trace import read_trace
+    from archself.sim.trace import read_trace, trace_from_bytes
 
     try:
         _inputs(trace, what="a trace (Parquet or JSON)")
-        res = read_trace(trace)
+        if str(trace) == "-":
+            from archself.yaml_source import MAX_FILE_BYTES
+
+            res = trace_from_bytes(sys.stdin.buffer.read(MAX_FILE_BYTES), "<stdin>")
+        else:
+            res = read_trace(trace)
     except ArchselfError as exc:
         raise _die(exc) from None
     meta, decisions = res.trace_meta(), res.trace_decisions()

@@ -44,6 +44,7 @@ __all__ = [
     "is_parquet_name",
     "parquet_bytes",
     "read_trace",
+    "trace_from_bytes",
     "write_trace",
 ]
 
@@ -152,28 +153,31 @@ def read_trace(path: str | Path) -> Any:
     TraceError
         ``PATH: error: not an archself trace (…)`` for any other file.
     """
-    p = Path(path)
     try:
-        with open(p, "rb") as fh:
-            magic = fh.read(4)
+        raw = Path(path).read_bytes()
     except FileNotFoundError:
         raise TraceError(f"{path}: error: no such file") from None
     except OSError as exc:
         raise TraceError(f"{path}: error: cannot read: {exc.strerror or exc}") from None
+    return trace_from_bytes(raw, str(path))
+
+
+def trace_from_bytes(raw: bytes, name: str = "<trace>") -> Any:
+    """:func:`read_trace` of a trace's bytes (stdin: ``archself explain -``)."""
     try:
-        if magic == b"PAR1":
-            return _read_parquet(p)
-        return _read_json(p)
+        if raw[:4] == b"PAR1":
+            return _read_parquet(io.BytesIO(raw), name)
+        return _read_json(raw)
     except TraceError:
         raise
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, IndexError,
             AttributeError, lzma.LZMAError) as exc:
         raise TraceError(
-            f"{path}: error: not an archself trace ({type(exc).__name__})") from None
+            f"{name}: error: not an archself trace ({type(exc).__name__})") from None
 
 
-def _read_json(p: Path) -> Any:
-    doc = json.loads(p.read_text(encoding="utf-8"))
+def _read_json(raw: bytes) -> Any:
+    doc = json.loads(raw.decode("utf-8"))
     meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
     arrays: dict[str, np.ndarray] = {}
     for name, values in series.items():
@@ -186,10 +190,10 @@ def _read_json(p: Path) -> Any:
     return _result(meta, arrays, list(decisions))
 
 
-def _read_parquet(p: Path) -> Any:
+def _read_parquet(source: Any, p: str) -> Any:
     import pyarrow.parquet as pq
 
-    pf = pq.ParquetFile(p)
+    pf = pq.ParquetFile(source)
     md = pf.metadata.metadata or {}
     if TRACE_KEY not in md:
         raise TraceError(f"{p}: error: not an archself trace (a Parquet file without "
