@@ -160,3 +160,15 @@ def test_trace_dash_writes_json_to_stdout(tmp_path: Path, monkeypatch) -> None:
         bad = CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--trace", "-",
                                        *extra])
         assert bad.exit_code == 2 and "stdout" in bad.stderr
+
+
+def test_campaign_writes_parquet_traces(tmp_path: Path) -> None:
+    out = CliRunner().invoke(app, ["campaign", str(MINIMAL), "-s", "calm", "--seeds", "1",
+                                   "--mode", "adaptive", "--workers", "1", "-o",
+                                   str(tmp_path / "c.parquet"), "--traces", str(tmp_path / "t"),
+                                   "--trace-format", "parquet"])
+    assert out.exit_code == 0, out.stderr
+    (trace,) = (tmp_path / "t").iterdir()
+    assert trace.suffix == ".parquet" and read_trace(trace).mode == "adaptive"
+    table = pd.read_parquet(tmp_path / "c.parquet")
+    assert table["trace"].tolist() == [str(trace)]

@@ -106,6 +106,7 @@ def plan_campaign(
     root_seed: int = 0,
     traces: str | Path | None = None,
     yes: bool = False,
+    trace_format: str = "json",
 ) -> tuple[list[Job], dict[str, Any]]:
     """Validate a campaign and list its jobs (and the metadata of its results file).
 
@@ -113,7 +114,8 @@ def plan_campaign(
     and validated, so user errors are one-line errors before any run starts.
     The size (:func:`estimate_campaign`) is checked against :data:`MAX_RUNS` and
     :data:`MAX_STEPS` (lifted by ``yes``) and against the memory (never lifted)
-    before anything is built.
+    before anything is built. With ``traces`` each run's trace goes into that folder,
+    as ``trace_format`` (``json`` or ``parquet``).
 
     Raises
     ------
@@ -121,6 +123,9 @@ def plan_campaign(
         Unknown scenario, bad PATH or value, a file with errors.
     """
     from archself.check import check, has_errors
+
+    if trace_format not in ("json", "parquet"):
+        raise CampaignError(f"unknown trace format {trace_format!r}; known: json, parquet")
     from archself.loader import Loaded, SourceMap, load_text, read_text
 
     file = str(arch_path)
@@ -162,7 +167,8 @@ def plan_campaign(
                 for mode in modes:
                     trace = None
                     if tdir is not None:
-                        trace = str(tdir / trace_name(sc, tuple(point), rep, mode))
+                        trace = str(tdir / trace_name(sc, tuple(point), rep, mode,
+                                                      f".{trace_format}"))
                     jobs.append(
                         Job(
                             run_id=run_id(sc, sweeps, point, rep, mode),

@@ -51,7 +51,7 @@ class Job:
     mode : str
         ``"fixed"`` or ``"adaptive"``.
     trace : str or None
-        Where to write the run's trace (JSON), if anywhere.
+        Where to write the run's trace (Parquet or JSON by the suffix), if anywhere.
     """
 
     run_id: str
@@ -201,15 +201,18 @@ def summarize_run(result: Any, arch: Any) -> dict[str, Any]:
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.=-]+")
 
 
-def trace_name(scenario: str, point: tuple[float, ...], replicate: int, mode: str) -> str:
+def trace_name(scenario: str, point: tuple[float, ...], replicate: int, mode: str,
+               suffix: str = ".json") -> str:
     """A file name for a run's trace: readable, unique per run, safe on every OS.
+
+    ``suffix`` chooses the format (``.parquet``: :mod:`archself.sim.trace`).
 
     Examples
     --------
     >>> trace_name("imu_drift", (0.5,), 3, "adaptive")
     'imu_drift_0.5_r0003_adaptive.json'
-    >>> trace_name("imu drift", (), 0, "fixed")
-    'imu_drift-cd60cc_r0000_fixed.json'
+    >>> trace_name("imu drift", (), 0, "fixed", ".parquet")
+    'imu_drift-cd60cc_r0000_fixed.parquet'
     """
     safe = _UNSAFE.sub("_", scenario).strip("._") or "scenario"
     if safe != scenario:  # keep names apart that differ only in replaced characters
@@ -219,4 +222,4 @@ def trace_name(scenario: str, point: tuple[float, ...], replicate: int, mode: st
     parts = [safe]
     parts += [f"{v:.6g}" for v in point]
     parts += [f"r{replicate:04d}", mode]
-    return "_".join(parts) + ".json"
+    return "_".join(parts) + suffix

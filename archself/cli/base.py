@@ -111,6 +111,13 @@ WorkersOption = Annotated[
 ]
 
 
+class TraceFormat(StrEnum):
+    """Formats of a campaign's run traces (``--trace-format``)."""
+
+    json = "json"
+    parquet = "parquet"
+
+
 #: The name of stdin in findings and messages (``validate -``).
 STDIN_NAME = "<stdin>"
 
