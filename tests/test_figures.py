@@ -87,7 +87,7 @@ def test_trajectory_has_units_equal_aspect_and_the_reference_on_top(fault_report
     ref = lines["reference"]
     assert all(ref.get_zorder() > line.get_zorder()
                for label, line in lines.items() if label in figures.LABELS.values())
-    assert ax.get_legend().get_texts()[0].get_text() == "reference"
+    assert fig.legends[0].get_texts()[0].get_text() == "reference"  # outside the axes
 
 
 def test_influence_figure_says_why_cycles_were_rejected(fault_report):

@@ -32,7 +32,7 @@ __all__ = [
 ]
 
 COLORS = {"fixed": "#c0392b", "adaptive": "#1f77b4", "reference": "#222222"}
-LABELS = {"fixed": "fixed architecture", "adaptive": "architecture-aware adaptation"}
+LABELS = {"fixed": "fixed architecture", "adaptive": "adaptive architecture"}
 
 
 def _tex(s: Any) -> str:
@@ -81,16 +81,19 @@ def _comp(arr: np.ndarray, c: int) -> np.ndarray:
     return a if a.ndim == 1 else a[:, c]
 
 
-def _legend_below(fig: Any, ax: Any) -> None:
+def _legend_below(fig: Any, ax: Any, first: str | None = None) -> None:
     """The legend under the axes, outside them: it can hide neither a curve nor a label.
 
     The switch labels ("a1 → a2") sit at the top of the axes, where a legend inside
-    the axes (``upper left``, or ``best``, which ignores text) may cover them.
+    the axes (``upper left``, or ``best``, which ignores text) may cover them; an x–y
+    trajectory fills its axes at equal aspect. ``first``: the label listed first.
     """
     handles, labels = ax.get_legend_handles_labels()
+    order = sorted(range(len(labels)), key=lambda i: labels[i] != first)
+    handles, labels = [handles[i] for i in order], [labels[i] for i in order]
     if handles:
         fig.legend(handles, labels, loc="outside lower center", fontsize=8,
-                   ncols=min(3, len(handles)), frameon=False)
+                   ncols=min(2, len(handles)), frameon=False)
 
 
 def _switch_lines(ax: Any, rep: RunReport, label: bool = True) -> None:
@@ -173,13 +176,7 @@ def plot_trajectory(rep: RunReport) -> Any:
         ax.set_ylabel(_tex(f"{rep.objective['actual']}[{c}]") + _unit(rep))
     ax.set_title(_tex(f"Trajectory: {rep.scenario}"))
     ax.grid(alpha=0.3)
-    if xy:  # x–y: no switch labels, and "best" avoids the curves; reference first
-        handles, labels = ax.get_legend_handles_labels()
-        order = sorted(range(len(labels)), key=lambda i: labels[i] != "reference")
-        ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize=8,
-                  loc="best")
-    else:
-        _legend_below(fig, ax)
+    _legend_below(fig, ax, first="reference")  # outside: it hides no curve at any size
     return fig
 
 
