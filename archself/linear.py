@@ -23,6 +23,12 @@ dynamics alone (an open integrator) say less than its closed loop over a model.
 The eigenvalues of a cascade are the union of those of its parts, so leaving such a
 module out of the interconnection changes no other eigenvalue.
 
+Large loops are sparse. Above :data:`DENSE_STATES` states the interconnection is
+assembled as a ``scipy.sparse`` matrix, and :func:`eigenvalues` takes the
+eigenvalues of each strong component of its pattern (a block triangular matrix
+has those of its diagonal blocks): a 10^4-module cascade is 10^4 1×1 blocks, not
+a dense 10^4 × 10^4 eigenproblem. Small loops keep the dense path as before.
+
 Examples
 --------
 A plant ``x⁺ = 0.9 x + u`` under the static feedback ``u = −k y``:
@@ -40,17 +46,21 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+import scipy.sparse
 
 from archself.modules.base import LinearModel
 
 __all__ = [
     "ClosedLoop",
+    "DENSE_STATES",
     "Interconnection",
     "LinearizationError",
     "Wire",
     "discretize",
+    "eigenvalues",
     "interconnect",
     "loop_modules",
     "modal_form",
@@ -58,6 +68,43 @@ __all__ = [
 
 #: Floor of |λ| when mapping a discrete eigenvalue to ln|λ|/dt (a pure delay has λ = 0).
 _LAMBDA_FLOOR = 1e-12
+
+#: Interconnections with more states than this are assembled as sparse matrices.
+DENSE_STATES = 400
+
+
+def eigenvalues(A: np.ndarray | scipy.sparse.spmatrix) -> np.ndarray:
+    """The eigenvalues of a dense or ``scipy.sparse`` square matrix (complex).
+
+    A sparse matrix is split into the strong components of its pattern: in their
+    topological order it is block triangular, so its eigenvalues are those of the
+    diagonal blocks (a 1×1 block's is its entry).
+
+    Examples
+    --------
+    >>> import scipy.sparse
+    >>> A = scipy.sparse.csr_matrix([[0.5, 0.0, 0.0], [1.0, 0.0, 2.0], [0.0, -2.0, 0.0]])
+    >>> sorted(eigenvalues(A).round(6).tolist(), key=lambda z: (z.real, z.imag))
+    [-2j, 2j, (0.5+0j)]
+    """
+    if not scipy.sparse.issparse(A):
+        A = np.atleast_2d(np.asarray(A, dtype=float))
+        return np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
+    from scipy.sparse.csgraph import connected_components
+
+    A = scipy.sparse.csr_matrix(A)
+    if A.shape[0] == 0:
+        return np.zeros(0, dtype=complex)
+    count, labels = connected_components(A, directed=True, connection="strong")
+    size = np.bincount(labels, minlength=count)
+    single = size[labels] == 1
+    out = [A.diagonal()[single].astype(complex)]
+    order = np.argsort(labels, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(size)])
+    for c in np.flatnonzero(size > 1).tolist():
+        idx = order[starts[c] : starts[c + 1]]
+        out.append(np.linalg.eigvals(A[idx][:, idx].toarray()))
+    return np.concatenate(out)
 
 
 class LinearizationError(ValueError):
@@ -149,6 +196,7 @@ def _routes(models: Mapping[str, LinearModel], wires: Sequence[Wire]) -> list[tu
     into: dict[tuple[str, str], list[Wire]] = {}
     for w in wires:
         into.setdefault((w.target, w.signal), []).append(w)
+    gives = {name: {s for s, *_ in model.outputs} for name, model in models.items()}
     out = []
     for name, model in models.items():
         for j, (sig, _size, edge) in enumerate(model.inputs):  # type: ignore[misc]
@@ -156,8 +204,8 @@ def _routes(models: Mapping[str, LinearModel], wires: Sequence[Wire]) -> list[tu
             if edge is not None:
                 found = found[edge : edge + 1]
             for w in found:
-                src = models.get(w.source)
-                if src is not None and any(s == sig for s, _ in src.outputs):
+                src = gives.get(w.source)
+                if src is not None and sig in src:
                     out.append((w, j))
     return out
 
@@ -251,6 +299,8 @@ def interconnect(
         mod = disc[name]
         xo[name], uo[name], yo[name] = n, m, p
         n, m, p = n + mod.n, m + mod.m, p + mod.p
+    if n > DENSE_STATES:
+        return _interconnect_sparse(disc, plain, (xo, uo, yo), (n, m, p), dt)
     A = np.zeros((n, n))
     B = np.zeros((n, m))
     C = np.zeros((p, n))
@@ -289,6 +339,88 @@ def interconnect(
     return Interconnection(A + B @ K @ Y, dt, owners, labels)
 
 
+def _interconnect_sparse(
+    disc: Mapping[str, LinearModel],
+    plain: Sequence[Wire],
+    offsets: tuple[dict[str, int], dict[str, int], dict[str, int]],
+    sizes: tuple[int, int, int],
+    dt: float,
+) -> Interconnection:
+    """:func:`interconnect` of many states, with ``scipy.sparse`` matrices."""
+    from scipy.sparse.csgraph import connected_components
+
+    xo, uo, yo = offsets
+    n, m, p = sizes
+    parts: dict[str, tuple[list, list, list]] = {k: ([], [], []) for k in "ABCDK"}
+
+    def put(key: str, block: np.ndarray, r0: int, c0: int) -> None:
+        rows, cols, vals = parts[key]
+        for i, line in enumerate(np.asarray(block, dtype=float).tolist()):  # small blocks
+            for j, v in enumerate(line):
+                if v:
+                    rows.append(r0 + i)
+                    cols.append(c0 + j)
+                    vals.append(v)
+
+    owners: list[str] = []
+    labels: list[str] = []
+    ports = {}
+    for name, mod in disc.items():
+        x, u, y = xo[name], uo[name], yo[name]
+        put("A", mod.A, x, x)
+        put("B", mod.B, x, u)
+        put("C", mod.C, y, x)
+        put("D", mod.D, y, u)
+        owners += [name] * mod.n
+        labels += [f"{name}.{s}" for s in mod.states]
+        ports[name] = _ports(mod)
+    for w, j in _routes(disc, plain):
+        sig, size, _edge, off = ports[w.target][0][j]
+        y_off, y_size = ports[w.source][1][w.signal]
+        if y_size != size:
+            raise LinearizationError(
+                f"{w.source}.{w.signal} has {y_size} component(s), {w.target} takes {size}"
+            )
+        rows, cols, vals = parts["K"]
+        r0, c0 = uo[w.target] + off, yo[w.source] + y_off
+        rows += range(r0, r0 + size)
+        cols += range(c0, c0 + size)
+        vals += [1.0] * size
+
+    def mat(key: str, shape: tuple[int, int]) -> scipy.sparse.csr_matrix:
+        rows, cols, vals = parts[key]
+        at = (np.array(rows, dtype=np.intp), np.array(cols, dtype=np.intp))
+        coo = (np.array(vals, dtype=float), at)
+        return scipy.sparse.csr_matrix(coo, shape=shape)  # duplicates add up, as += does
+
+    A, B, C = mat("A", (n, n)), mat("B", (n, m)), mat("C", (p, n))
+    D, K = mat("D", (p, m)), mat("K", (m, p))
+    DK = (D @ K).tocsr()
+    DK.eliminate_zeros()
+    Y = C  # y = (I − D K)⁻¹ C x
+    if DK.nnz:
+        count, _ = connected_components(DK, directed=True, connection="strong")
+        if count == p and not DK.diagonal().any():
+            # no loop through feed-through models: D K is nilpotent, the series ends
+            term = C
+            for _ in range(p):
+                term = (DK @ term).tocsr()
+                term.eliminate_zeros()
+                if not term.nnz:
+                    break
+                Y = Y + term
+        else:
+            from scipy.sparse.linalg import splu
+
+            try:
+                lu = splu((scipy.sparse.identity(p, format="csc") - DK).tocsc())
+            except RuntimeError:
+                raise LinearizationError("the wired models form an algebraic loop") from None
+            Y = scipy.sparse.csr_matrix(lu.solve(C.toarray()))
+    closed = (A + B @ K @ Y).tocsr()
+    return Interconnection(closed, dt, owners, labels)
+
+
 def modal_form(Ad: np.ndarray, dt: float) -> np.ndarray:
     """A real matrix whose eigenvalues are ``ln(λ_i)/dt`` for the eigenvalues λ_i of ``Ad``.
 
@@ -301,6 +433,8 @@ def modal_form(Ad: np.ndarray, dt: float) -> np.ndarray:
     >>> modal_form(np.array([[0.5]]), 0.1).round(4).tolist()
     [[-6.9315]]
     """
+    if scipy.sparse.issparse(Ad):
+        return _modal_sparse(eigenvalues(Ad), dt)
     lam = np.linalg.eigvals(np.atleast_2d(Ad)) if Ad.size else np.zeros(0)
     blocks = []
     for z in lam:
@@ -313,7 +447,28 @@ def modal_form(Ad: np.ndarray, dt: float) -> np.ndarray:
     return _block_diag(blocks)
 
 
-def _block_diag(blocks: Sequence[np.ndarray]) -> np.ndarray:
+def _modal_sparse(lam: np.ndarray, dt: float) -> scipy.sparse.csr_matrix:
+    """:func:`modal_form` of the eigenvalues ``lam``, as a sparse matrix."""
+    a = np.log(np.maximum(np.abs(lam), _LAMBDA_FLOOR)) / dt
+    w = np.arctan2(lam.imag, lam.real) / dt
+    real = np.abs(lam.imag) <= 1e-12
+    pair = lam.imag > 1e-12
+    keep = real | pair
+    width = np.where(pair, 2, 1)[keep]
+    start = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.intp)
+    a, w, pair = a[keep], w[keep], pair[keep]
+    rows = [start, start[pair], start[pair] + 1, start[pair] + 1]
+    cols = [start, start[pair] + 1, start[pair], start[pair] + 1]
+    vals = [a, w[pair], -w[pair], a[pair]]
+    size = int(width.sum())
+    return scipy.sparse.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
+    )
+
+
+def _block_diag(blocks: Sequence[Any]) -> Any:
+    if any(scipy.sparse.issparse(b) for b in blocks):
+        return scipy.sparse.block_diag(blocks, format="csr")
     size = sum(b.shape[0] for b in blocks)
     out = np.zeros((size, size))
     i = 0
@@ -346,7 +501,7 @@ class ClosedLoop:
         The wired part in :func:`modal_form`, then the blocks on the diagonal.
         """
         parts = []
-        if self.loop is not None and self.loop.A.size:
+        if self.loop is not None and self.loop.A.shape[0]:
             parts.append(modal_form(self.loop.A, self.loop.dt))
         parts += [b for _, b in self.blocks]
         if not parts:
@@ -369,7 +524,9 @@ class ClosedLoop:
         states, largest first. None when there are no states.
         """
         best: tuple[float, float | None, list[tuple[str, float]]] | None = None
-        if self.loop is not None and self.loop.A.size:
+        if self.loop is not None and scipy.sparse.issparse(self.loop.A):
+            best = _worst_sparse(self.loop)
+        elif self.loop is not None and self.loop.A.size:
             lam, vec = np.linalg.eig(self.loop.A)
             mag = np.maximum(np.abs(lam), _LAMBDA_FLOOR)
             k = int(np.argmax(mag))
@@ -385,6 +542,38 @@ class ClosedLoop:
             if best is None or worst > best[0]:
                 best = (worst, None, [(name, 1.0)])
         return best
+
+
+def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, float]]] | None:
+    """``worst_mode`` of a sparse loop: the largest |λ| of the strong components' blocks.
+
+    The shares are those of the eigenvector of the component's own block (the
+    mode's states in that component; its echo in the components downstream is
+    not counted).
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    A = scipy.sparse.csr_matrix(loop.A)
+    if not A.shape[0]:
+        return None
+    _, labels = connected_components(A, directed=True, connection="strong")
+    size = np.bincount(labels)
+    diag = np.abs(A.diagonal())
+    single = size[labels] == 1
+    best: tuple[float, list[int], np.ndarray] | None = None
+    if single.any():
+        i = int(np.flatnonzero(single)[np.argmax(diag[single])])
+        best = (float(diag[i]), [i], np.ones(1))
+    for c in np.flatnonzero(size > 1).tolist():
+        members = np.flatnonzero(labels == c)
+        lam, vec = np.linalg.eig(A[members][:, members].toarray())
+        k = int(np.argmax(np.abs(lam)))
+        if best is None or abs(lam[k]) > best[0]:
+            best = (float(abs(lam[k])), members.tolist(), np.abs(vec[:, k]) ** 2)
+    assert best is not None
+    mag, idx, weight = best
+    owners = [loop.owners[i] for i in idx]
+    return (math.log(max(mag, _LAMBDA_FLOOR)) / loop.dt, mag, _shares(weight, owners))
 
 
 def _shares(weight: np.ndarray, owners: Sequence[str]) -> list[tuple[str, float]]:

@@ -214,6 +214,17 @@ class _Plan:
         self.nonft_set = frozenset(nonft)
         # some module type overrides linear_model or linearization (set by the system)
         self.linearizable = True
+        self._wires: list[Wire] | None = None
+
+    def wires(self) -> list[Wire]:
+        """The active edges as :class:`~archself.linear.Wire` s (made once)."""
+        if self._wires is None:
+            self._wires = [
+                Wire(src, n, carries, delay)
+                for n in self.active
+                for carries, src, _i, _unc, delay in self.routes[n]
+            ]
+        return self._wires
 
     def restricted(self, keep: Collection[str]) -> _Plan:
         """The plan of the modules ``keep`` alone (file order and step order kept)."""
@@ -816,11 +827,7 @@ class LiveSystem:
             models[n] = lm
             for sig, size in lm.outputs:  # type: ignore[misc]
                 widths.setdefault((n, sig), size)
-        wires = [
-            Wire(src, n, carries, delay)
-            for n in plan.active
-            for carries, src, _i, _unc, delay in plan.routes[n]
-        ] if models else []
+        wires = plan.wires() if models else []
         in_loop = loop_modules(models, wires) if models else set()
         blocks: list[tuple[str, np.ndarray]] = []
         for n in plan.active:

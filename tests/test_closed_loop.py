@@ -181,3 +181,59 @@ def test_motor_drive_model_with_kalman_filter_reproduces_the_executor(
     d = np.diff(np.array(x), axis=0)
     assert np.abs(d).max() > 0.1
     assert_allclose(d[1:], d[:-1] @ cl.loop.A.T, rtol=1e-9, atol=1e-12)
+
+
+def _chain_models(n: int, seed: int):
+    """n one-state models in a ring of delays plus static (feed-through) gains between them."""
+    rng = np.random.default_rng(seed)
+    models, wires = {}, []
+    for i in range(n):
+        models[f"x{i}"] = LinearModel(
+            [[rng.uniform(-0.9, 0.9)]], [[rng.uniform(0.1, 0.5)]], [[1.0]], [[0.0]],
+            [("u", 1)], [("y", 1)], dt=0.1,
+        )
+        models[f"g{i}"] = LinearModel(  # a gain that passes y on at once (D ≠ 0)
+            np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[rng.uniform(-1, 1)]],
+            [("y", 1)], [("u", 1)], dt=0.1,
+        )
+        wires += [Wire(f"x{i}", f"g{i}", "y"), Wire(f"g{i}", f"x{(i + 1) % n}", "u")]
+        if i % 7 == 3:  # a chord: strong components larger than one state
+            wires.append(Wire(f"g{i}", f"x{(i + 5) % n}", "u"))
+    return models, wires
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_large_loop_is_sparse_and_has_the_dense_eigenvalues(seed: int, monkeypatch) -> None:
+    """Above DENSE_STATES states: sparse A, the same A and eigenvalues as the dense path."""
+    import scipy.sparse
+
+    import archself.linear as linear
+
+    models, wires = _chain_models(450, seed)
+    big = interconnect(models, wires, 0.1)
+    assert scipy.sparse.issparse(big.A)
+    monkeypatch.setattr(linear, "DENSE_STATES", 10**6)
+    dense = interconnect(models, wires, 0.1)
+    assert_allclose(big.A.toarray(), dense.A, atol=1e-12)
+    lam_sparse = np.sort_complex(linear.eigenvalues(big.A))
+    assert_allclose(lam_sparse, np.sort_complex(np.linalg.eigvals(dense.A)), atol=1e-9)
+    worst_dense = eigenvalue_margin(modal_form(dense.A, 0.1), 0.01).value
+    worst_sparse = eigenvalue_margin(modal_form(big.A, 0.1), 0.01).value
+    assert worst_sparse == pytest.approx(worst_dense, abs=1e-9)
+    assert scipy.sparse.issparse(ClosedLoop(big, []).matrix())
+    mode_s, mode_d = ClosedLoop(big, []).worst_mode(), ClosedLoop(dense, []).worst_mode()
+    assert mode_s is not None and mode_d is not None
+    assert mode_s[0] == pytest.approx(mode_d[0], abs=1e-9)
+
+
+def test_a_large_cascade_without_feedthrough_loops_is_triangular() -> None:
+    """A 600-state cascade: every strong component is one state; λ = the diagonal."""
+    import archself.linear as linear
+
+    models = {
+        f"x{i}": LinearModel([[0.5]], [[1.0]], [[1.0]], [[0.0]], [("y", 1)], [("y", 1)], dt=0.1)
+        for i in range(600)
+    }
+    wires = [Wire(f"x{i}", f"x{i + 1}", "y") for i in range(599)]
+    big = interconnect(models, wires, 0.1)
+    assert_allclose(linear.eigenvalues(big.A), np.full(600, 0.5))

@@ -95,7 +95,7 @@ class StabilityVerdict:
 
 
 def eigenvalue_margin(A: Any, margin: float) -> StabilityVerdict:
-    """Eq. 21: ``max Re λ(A) ≤ −ε``.
+    """Eq. 21: ``max Re λ(A) ≤ −ε`` (``A`` dense, or ``scipy.sparse`` for a large loop).
 
     Examples
     --------
@@ -104,13 +104,21 @@ def eigenvalue_margin(A: Any, margin: float) -> StabilityVerdict:
     >>> eigenvalue_margin([[0.5, 0.0], [0.0, -2.0]], 0.01).ok
     False
     """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    if A.shape[0] != A.shape[1] or not np.all(np.isfinite(A)):
+    import scipy.sparse
+
+    from archself.linear import eigenvalues
+
+    if scipy.sparse.issparse(A):  # a large closed loop (archself.linear.eigenvalues)
+        finite = bool(np.all(np.isfinite(A.data)))
+    else:
+        A = np.atleast_2d(np.asarray(A, dtype=float))
+        finite = bool(np.all(np.isfinite(A)))
+    if A.shape[0] != A.shape[1] or not finite:
         why = "linearization is not a finite square matrix"
         return StabilityVerdict(False, "error", None, -margin, why)
-    if A.size == 0:
+    if A.shape[0] == 0:
         return StabilityVerdict(True, "eigenvalue", None, -margin, "empty linearization")
-    worst = float(np.max(np.linalg.eigvals(A).real))
+    worst = float(np.max(eigenvalues(A).real))
     ok = worst <= -margin
     rel = "≤" if ok else ">"
     return StabilityVerdict(
