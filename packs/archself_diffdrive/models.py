@@ -69,7 +69,7 @@ def parameters_of(cls: type) -> dict[str, Param]:
     Examples
     --------
     >>> parameters_of(Kinematics)["wheel_base_m"]
-    Param(default=0.5, unit='m', doc='distance between the wheels')
+    Param(default=0.5, unit='m', doc='distance between the wheels', min=None, max=None)
     """
     return {
         f.name: Param(f.default, f.metadata.get("unit", ""), f.metadata.get("doc", ""))
