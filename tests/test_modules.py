@@ -535,6 +535,25 @@ def test_odometry_trend_sees_a_heading_bias_the_gps_does_not_share():
     assert run(0.05) > 8.0
 
 
+def test_odometry_takes_a_handed_over_imu_bias_off_the_heading():
+    """The EKF's bias estimate survives a fall-back to dead reckoning (and comes back)."""
+    o = Odometry("o", {}, rng())
+    o.import_state({"pose": np.zeros(3), "imu_bias": 0.05})
+    kin = Kinematics(0.5, 0.1)
+    for k in range(200):  # 10 s straight ahead at 0.5 m/s; the IMU reads true heading + 0.05
+        out = o.step(k * 0.05, 0.05, {"encoder_speeds": np.array([5.0, 5.0]),
+                                       "heading": 0.05, "kinematics": kin})
+    assert_allclose(out["pose_estimate"], [200 * 0.025, 0.0, 0.0], atol=1e-9)
+    assert o.export_state()["imu_bias"] == 0.05
+    o.import_state({"pose": np.zeros(3)})  # a state without a bias: none assumed
+    assert o.bias == 0.0
+    # a bias within 3 standard deviations of zero is noise: not applied
+    o.import_state({"pose": np.zeros(3), "imu_bias": -0.017, "imu_bias_std": 0.012})
+    assert o.bias == 0.0
+    o.import_state({"pose": np.zeros(3), "imu_bias": 0.07, "imu_bias_std": 0.012})
+    assert o.bias == 0.07
+
+
 def test_gps_rate_and_gaps():
     gps = Gps("gps", {"rate_hz": 2.0, "noise_m": 0.0}, rng())
     fixes = [

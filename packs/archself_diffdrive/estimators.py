@@ -167,7 +167,12 @@ class Odometry(_PoseEstimator):
     """Dead reckoning: encoder speeds for the distance, IMU heading for the direction.
 
     The assumed sensor noises (``heading_noise_rad``, ``encoder_noise_rad_s``)
-    set the covariance only.
+    set the covariance only. An IMU bias handed over by the estimator it replaces
+    (the EKF's ``imu_bias`` state, e.g. when the GPS is lost) is taken off the IMU
+    heading and kept, so dead reckoning drifts only by the bias's change since —
+    when it is significant: ``|b| ≥ bias_significance · σ_b`` with ``σ_b`` the
+    estimate's standard deviation (``imu_bias_std``); a bias indistinguishable from
+    zero would only add a constant heading error.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
     (GPS) used only for the residuals ``innovation`` and ``innovation_trend``,
@@ -186,6 +191,9 @@ class Odometry(_PoseEstimator):
     parameters = {
         "heading_noise_rad": Param(0.005, "rad", "assumed IMU heading noise"),
         "trend_window_s": Param(60.0, "s", "window of the innovation-trend statistic"),
+        "bias_significance": Param(
+            3.0, "", "a handed-over IMU bias is used if |b| ≥ this many standard deviations"
+        ),
         **_COMMON,
     }
     residual_signals = ("innovation", "innovation_trend")
@@ -196,6 +204,7 @@ class Odometry(_PoseEstimator):
         super().__init__(name, params, rng)
         self.x, self.y, self.th = (float(v) for v in self.params["initial_pose"])
         self.var_pos = 0.01
+        self.bias = 0.0  # IMU heading bias taken off the heading (from a hand-over)
         self.started = False
         self.signals = {"innovation": math.nan, "innovation_trend": math.nan}
 
@@ -216,7 +225,7 @@ class Odometry(_PoseEstimator):
         else:
             v, w = 0.0, 0.0
         if heading is not None:
-            th1 = th0 + ((float(heading) - th0 + math.pi) % (2 * math.pi) - math.pi)
+            th1 = th0 + ((float(heading) - self.bias - th0 + math.pi) % (2 * math.pi) - math.pi)
             if not self.started:
                 th0 = th1
         else:
@@ -246,12 +255,20 @@ class Odometry(_PoseEstimator):
         return np.diag([self.var_pos, self.var_pos, self.var_th])
 
     def export_state(self):
-        return {"pose": np.array([self.x, self.y, self.th]), "covariance": self.covariance()}
+        return {
+            "pose": np.array([self.x, self.y, self.th]),
+            "covariance": self.covariance(),
+            "imu_bias": self.bias,
+        }
 
     def import_state(self, state):
         if "pose" in state:
             self.x, self.y, self.th = (float(v) for v in np.asarray(state["pose"])[:3])
             self.started = True
+        bias = float(state.get("imu_bias", 0.0))
+        std = state.get("imu_bias_std")
+        significant = std is None or abs(bias) >= float(self.params["bias_significance"]) * std
+        self.bias = bias if significant else 0.0
         if "covariance" in state:
             c = np.asarray(state["covariance"], dtype=float)
             self.var_pos = float(max(c[0, 0], c[1, 1]))
@@ -460,6 +477,7 @@ class Ekf(_PoseEstimator):
             "pose": np.array(self._xs[:3]),
             "covariance": self._pose_covariance(),
             "imu_bias": self._xs[3],
+            "imu_bias_std": math.sqrt(max(self._ps[15], 0.0)),
         }
 
     def import_state(self, state):
