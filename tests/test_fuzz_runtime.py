@@ -197,8 +197,9 @@ def adaptive_architectures(draw: Any) -> dict[str, Any]:
 
     duration = draw(st.sampled_from([2.0, 3.0, 4.0]))
     faults = []
-    for _ in range(draw(st.integers(1, 2))):
-        fault: dict[str, Any] = {"module": draw(st.sampled_from(relays)),
+    placed = [m for m in relays if any(m in c["modules"] for c in confs.values())]
+    for _ in range(draw(st.integers(1, 2))):  # a fault acts on a module of some configuration
+        fault: dict[str, Any] = {"module": draw(st.sampled_from(placed or relays)),
                                  "kind": draw(st.sampled_from(RELAY_FAULTS)),
                                  "onset_s": _f(draw, 0.0, duration / 2),
                                  "magnitude": _f(draw, -2.0, 2.0)}
