@@ -15,6 +15,38 @@ FIXTURES = ROOT / "tests" / "fixtures"
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
 
 
+#: The distributions whose module types the tests see: archself itself (the packs), the
+#: in-repo example plugin and the test pack of tests/packs. A third-party plugin installed
+#: in the same environment must not change a golden message (its ``sensor.*`` type would
+#: join the "did you mean" and the list of ``sensor.*`` types).
+IN_REPO_DISTRIBUTIONS = frozenset({"archself", "archself-example", "toy-pack"})
+
+
+def in_repo_entry_points() -> dict:
+    """The ``archself.modules`` entry points of :data:`IN_REPO_DISTRIBUTIONS`, by type key."""
+    import re
+    from importlib.metadata import entry_points
+
+    from archself.registry import ENTRY_POINT_GROUP
+
+    def dist(ep) -> str:  # noqa: ANN001
+        name = ep.dist.name if ep.dist is not None else ""
+        return re.sub(r"[-_.]+", "-", name).lower()
+
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)
+            if dist(ep) in IN_REPO_DISTRIBUTIONS}
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _only_in_repo_plugins():
+    """The registry reads only the in-repo entry points, whatever else is installed."""
+    from archself import registry
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(registry, "_POINTS", in_repo_entry_points())
+        yield
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--regen-golden",

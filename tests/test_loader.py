@@ -31,6 +31,30 @@ def test_invalid_fixture_gives_golden_one_line_error(path: Path, regen: bool, mo
     compare_golden(path.with_suffix(".expected"), result.stderr, regen)
 
 
+def test_goldens_do_not_depend_on_installed_plugins(tmp_path: Path, monkeypatch) -> None:
+    """A third-party ``sensor.*`` type installed beside archself leaves the goldens alone."""
+    import importlib.metadata
+    import sys
+
+    from archself import registry
+
+    from conftest import in_repo_entry_points
+
+    info = tmp_path / "third_cam-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: third-cam\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[archself.modules]\nsensor.camera_x = third_cam:Cam\n")
+    monkeypatch.setattr(sys, "path", [str(tmp_path), *sys.path])
+    group = importlib.metadata.entry_points(group=registry.ENTRY_POINT_GROUP)
+    assert "sensor.camera_x" in group.names  # installed, as far as Python knows
+    assert "sensor.camera_x" not in in_repo_entry_points()
+    assert "sensor.camera_x" not in registry.known_types()
+    monkeypatch.chdir(ROOT)
+    out = CliRunner().invoke(app, ["validate", "tests/fixtures/invalid/hostile_name.yaml"])
+    assert "camera_x" not in out.stderr
+    compare_golden(FIXTURES / "invalid" / "hostile_name.expected", out.stderr, False)
+
+
 def test_positions_point_at_the_offending_node() -> None:
     with pytest.raises(SchemaError) as info:
         load_architecture(FIXTURES / "invalid" / "wrong_type.yaml")
