@@ -52,7 +52,7 @@ def run_one(arch: str, scenario: str, seed: int) -> dict:
         res = CliRunner().invoke(app, args)
         if res.exit_code != 0:
             raise RuntimeError(f"{' '.join(args)} exited {res.exit_code}: {res.output}")
-        fixed, adaptive = json.loads(res.stdout)
+        fixed, adaptive = json.loads(res.stdout)["runs"]
         decisions = json.loads(trace.read_text())["decisions"]
     dominant = None
     if adaptive["switches"]:

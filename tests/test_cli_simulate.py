@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
@@ -18,14 +19,17 @@ METRICS = {"max_error", "final_error", "rms_error", "peak_time_s"}
 METRE_ALIASES = {"max_error_m", "final_error_m", "rms_error_m"}  # deprecated, unit m only
 
 
-def _json(args: list[str]) -> object:
+def _json(args: list[str]) -> Any:
+    """The runs of ``simulate --json``: always one object ``{runs: [...]}``."""
     result = CliRunner().invoke(app, ["simulate", *args, "--json"])
     assert result.exit_code == 0, result.stderr
-    return json.loads(result.stdout)
+    data = json.loads(result.stdout)
+    assert isinstance(data, dict) and set(data) == {"runs"}
+    return data["runs"]
 
 
 def test_fixed_json_shape() -> None:
-    out = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])
+    out = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])[0]
     assert KEYS <= set(out)
     assert set(out["metrics"]) == METRICS and out["unit"] is None  # minimal.yaml: no unit
     assert out["mode"] == "fixed" and out["seed"] == 3 and out["switches"] == []
@@ -44,9 +48,9 @@ def _with_unit(tmp_path: Path, unit: str) -> Path:
 
 
 def test_metric_names_and_units_come_from_the_objective(tmp_path: Path) -> None:
-    plain = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])
-    metres = _json([str(_with_unit(tmp_path, "m")), "-s", "calm", "--fixed", "--seed", "3"])
-    kelvin = _json([str(_with_unit(tmp_path, "K")), "-s", "calm", "--fixed", "--seed", "3"])
+    plain = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "3"])[0]
+    metres = _json([str(_with_unit(tmp_path, "m")), "-s", "calm", "--fixed", "--seed", "3"])[0]
+    kelvin = _json([str(_with_unit(tmp_path, "K")), "-s", "calm", "--fixed", "--seed", "3"])[0]
     assert metres["unit"] == "m" and kelvin["unit"] == "K"
     assert set(kelvin["metrics"]) == METRICS
     # unit m: the pre-unit names stay for one release, with the same values
@@ -60,9 +64,9 @@ def test_metric_names_and_units_come_from_the_objective(tmp_path: Path) -> None:
 
 
 def test_same_seed_same_result_different_seed_differs() -> None:
-    a = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "5"])
-    b = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "5"])
-    c = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "6"])
+    a = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "5"])[0]
+    b = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "5"])[0]
+    c = _json([str(MINIMAL), "--scenario", "calm", "--fixed", "--seed", "6"])[0]
     assert a == b
     assert a["metrics"] != c["metrics"]
 
@@ -160,7 +164,7 @@ def test_plugin_type_runs_in_a_simulation(tmp_path: Path) -> None:
     arch = tmp_path / "magnetometer.yaml"
     arch.write_text(text)
     assert CliRunner().invoke(app, ["validate", str(arch)]).exit_code == 0
-    out = _json([str(arch), "--scenario", "calm", "--fixed"])
+    out = _json([str(arch), "--scenario", "calm", "--fixed"])[0]
     assert out["metrics"]["max_error"] < 0.5
 
 

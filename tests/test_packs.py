@@ -71,7 +71,7 @@ def test_cli_validates_and_simulates_with_the_packs_blocked() -> None:
     assert proc.returncode == 0, proc.stderr
     proc = _run("-c", main, "simulate", str(TOY / "toy.yaml"), "-s", "nominal", "--json")
     assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout)["switches"] == []
+    assert json.loads(proc.stdout)["runs"][0]["switches"] == []
 
 
 def test_a_file_of_a_blocked_pack_gets_a_message_not_a_traceback() -> None:

@@ -159,7 +159,7 @@ def test_cli_compare_json(arch):
         app, ["simulate", str(ARCH_PATH), "--scenario", "valve_loss", "--compare", "--json"]
     )
     assert out.exit_code == 0, out.output
-    fixed, adaptive = json.loads(out.stdout)
+    fixed, adaptive = json.loads(out.stdout)["runs"]
     assert (fixed["mode"], adaptive["mode"]) == ("fixed", "adaptive")
     assert fixed["switches"] == [] and adaptive["final_configuration"] == "p3"
     assert adaptive["metrics"]["max_error_m"] < fixed["metrics"]["max_error_m"]

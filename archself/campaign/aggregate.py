@@ -181,6 +181,8 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
         "final_configurations": _counts(r["final_configuration"] for r in ada),
         "paths": _counts(r["configuration_path"] for r in ada),
     }
+    # one shape for every scenario (``--json``, summary.json): null when fault-free
+    block["detected"] = block["delay_s"] = None
     if faulted:
         delays = [r["detection_delay_s"] for r in ada]
         block["detected"] = _rate(sum(1 for d in delays if d is not None), len(ada))

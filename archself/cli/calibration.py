@@ -62,7 +62,9 @@ def calibrate(
         Path | None, typer.Option("--report", metavar="DIR", help="Write the HTML/Markdown report.")
     ] = None,
     json_out: Annotated[
-        bool, typer.Option("--json", help="Print the bands and rates as one JSON object.")
+        bool,
+        typer.Option("--json", help="Print the bands and rates as one JSON object "
+                     "(docs/json.md)."),
     ] = False,
     save_runs: Annotated[
         Path | None,
@@ -199,7 +201,8 @@ def identify(
     workers: WorkersOption = None,
     root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
     json_out: Annotated[
-        bool, typer.Option("--json", help="Print the fitted and declared W as one JSON object.")
+        bool, typer.Option("--json", help="Print the fitted and declared W as one JSON object "
+                     "(docs/json.md).")
     ] = False,
     all_edges: Annotated[
         bool, typer.Option("--all", help="List the edges that are not identifiable too.")

@@ -73,7 +73,7 @@ def campaign(
     json_out: Annotated[
         bool,
         typer.Option("--json", help="Print the outcome as one JSON object {out, skipped, ran, "
-                     "failed, rows, executor, workers, elapsed_s, errors}."),
+                     "failed, rows, executor, workers, elapsed_s, errors} (docs/json.md)."),
     ] = False,
     yes: Annotated[
         bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
@@ -177,7 +177,8 @@ def campaign_report_cmd(
     dpi: DpiOption = 150,
     json_out: Annotated[
         bool,
-        typer.Option("--json", help="Print the summary as one JSON object (DIR/summary.json)."),
+        typer.Option("--json", help="Print the summary as one JSON object (DIR/summary.json; "
+                     "docs/json.md)."),
     ] = False,
 ) -> None:
     """Summarize a campaign: correct switches, detection delay, false switches, errors, τ sweep.

@@ -35,7 +35,11 @@ def live(
                      help="Actions only a rollout could judge: refuse the file (default) or "
                      "reject those actions at run time."),
     ] = "refuse",
-    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    json_out: Annotated[
+        bool,
+        typer.Option("--json", help="Print one JSON object {architecture, measurements, cycles, "
+                     "configuration, final_configuration, switches, updates} (docs/json.md)."),
+    ] = False,
     log: Annotated[
         Path | None,
         typer.Option("--log", metavar="FILE",

@@ -133,9 +133,10 @@ def simulate(
     ] = None,
     json_out: Annotated[
         bool,
-        typer.Option("--json", help="Print the run as one JSON object {scenario, seed, mode, "
-                     "configuration, final_configuration, unit, metrics, switches}; with "
-                     "--compare a list of two, [fixed, adaptive]."),
+        typer.Option("--json", help="Print one JSON object {runs: [...]}, one {scenario, "
+                     "seed, mode, configuration, final_configuration, unit, metrics, "
+                     "switches} per run: one run, or [fixed, adaptive] with --compare "
+                     "(docs/json.md)."),
     ] = False,
     trace: Annotated[
         Path | None,
@@ -217,8 +218,9 @@ def simulate(
         typer.echo(_summary(results), err=True)
         sys.stdout.write(json_text(results[0]))
     elif json_out:
-        data = [r.to_dict() for r in results]
-        typer.echo(json.dumps(data if compare else data[0], indent=2, ensure_ascii=False))
+        # one shape whatever the options: an object with the list of runs
+        data = {"runs": [r.to_dict() for r in results]}
+        typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
     else:
         typer.echo(_summary(results))
 
@@ -358,8 +360,8 @@ def explain(
         bool,
         typer.Option(
             "--json",
-            help="Print {run, cycles, switches, updates, segments} as JSON (notable cycles "
-            "in full, repeats summarized).",
+            help="Print one JSON object {run, cycles, switches, updates, segments} (notable "
+            "cycles in full, repeats summarized; docs/json.md).",
         ),
     ] = False,
 ) -> None:
@@ -382,7 +384,14 @@ def explain(
     if json_out:
         run = {k: meta.get(k) for k in ("architecture", "scenario", "seed", "mode",
                                         "configuration", "final_configuration")}
-        typer.echo(json.dumps({"run": run, **explain_data(decisions)}, indent=1))
+        data = explain_data(decisions)
+        # one shape for logs with and without the source estimate ê (older traces)
+        for item in (*data["switches"], *data["updates"]):
+            item.setdefault("source", None)
+        for seg in data["segments"]:
+            if seg["kind"] == "repeat":
+                seg.setdefault("max_source", None)
+        typer.echo(json.dumps({"run": run, **data}, indent=1))
         return
     typer.echo(
         f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · "

@@ -143,7 +143,7 @@ class RunResult:
     unit: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """Summary as plain data (the ``--json`` output of ``archself simulate``)."""
+        """Summary as plain data (one of the ``runs`` of ``archself simulate --json``)."""
         return {
             "scenario": self.scenario,
             "seed": self.seed,

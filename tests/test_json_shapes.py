@@ -1,0 +1,295 @@
+"""Every command's ``--json`` has one shape, the one docs/json.md gives (issue 15).
+
+docs/json.md is the specification: each ``## command`` section holds the command's shape
+as a JSON block. Every command with a ``--json`` option is run here with its option
+variants (one file or several, one run or a comparison, a fixed or an adaptive trace,
+a threshold or a top-k selector, with or without a τ sweep, ...) and each output must
+match its section's shape exactly: the same keys, values of the given types.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import typer.main
+from typer.testing import CliRunner
+
+from archself.cli import app
+
+from conftest import DIFFDRIVE, FIXTURES, ROOT
+
+PAGE = ROOT / "docs" / "json.md"
+MINIMAL = FIXTURES / "valid" / "minimal.yaml"
+BAD = FIXTURES / "invalid" / "bad_kind.yaml"
+PLANT = ROOT / "architectures" / "process_plant.yaml"
+CAMPAIGN = ROOT / "docs" / "campaign" / "campaign.parquet"
+TYPES: dict[str, Any] = {
+    "string": lambda v: isinstance(v, str),
+    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "number": lambda v: isinstance(v, int | float) and not isinstance(v, bool),
+    "boolean": lambda v: isinstance(v, bool),
+    "null": lambda v: v is None,
+    "object": lambda v: isinstance(v, dict),
+    "any": lambda v: True,
+}
+
+
+# ------------------------------------------------------------------ the specification
+def documented_shapes() -> dict[str, Any]:
+    """Command → shape, from the first ``json`` block of each ``## command`` section."""
+    shapes: dict[str, Any] = {}
+    for section in re.split(r"^## ", PAGE.read_text(encoding="utf-8"), flags=re.M)[1:]:
+        name = section.split("\n", 1)[0].strip()
+        block = re.search(r"```json\n(.*?)```", section, flags=re.S)
+        assert block, f"docs/json.md: section {name} has no json block"
+        shapes[name] = json.loads(block.group(1))
+    return shapes
+
+
+def mismatches(value: Any, shape: Any, where: str = "$") -> list[str]:
+    """Where ``value`` departs from ``shape`` (empty: it conforms); see docs/json.md."""
+    if isinstance(shape, str):
+        names = shape.split("|")
+        assert all(n in TYPES for n in names), f"docs/json.md: unknown type {shape!r}"
+        ok = any(TYPES[n](value) for n in names)
+        return [] if ok else [f"{where}: expected {shape}, got {type(value).__name__}"]
+    if isinstance(shape, list):
+        if not isinstance(value, list):
+            return [f"{where}: expected a list, got {type(value).__name__}"]
+        out: list[str] = []
+        for i, item in enumerate(value):
+            tries = [mismatches(item, alt, f"{where}[{i}]") for alt in shape]
+            if all(tries):
+                out += min(tries, key=len)
+        return out
+    if not isinstance(value, dict):
+        return [f"{where}: expected an object, got {type(value).__name__}"]
+    if set(shape) == {"*"}:
+        return [m for k, v in value.items() for m in mismatches(v, shape["*"], f"{where}.{k}")]
+    out = [f"{where}: missing key {k!r}" for k in shape if k not in value]
+    out += [f"{where}: undocumented key {k!r}" for k in value if k not in shape]
+    for k in shape:
+        if k in value:
+            out += mismatches(value[k], shape[k], f"{where}.{k}")
+    return out
+
+
+SHAPES = documented_shapes()
+
+
+def test_every_json_command_is_documented_once() -> None:
+    group = typer.main.get_command(app)
+    ctx = group.make_context("archself", [], resilient_parsing=True)
+    with_json = {
+        name for name in group.list_commands(ctx)
+        if any("--json" in p.opts for p in group.get_command(ctx, name).params)
+    }
+    assert set(SHAPES) == with_json
+    assert "[json.md](json.md)" in (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
+
+
+def test_the_checker_rejects_what_departs() -> None:
+    shape = {"runs": [{"n": "integer", "x": "number|null", "m": {"*": "string"}}]}
+    assert mismatches({"runs": [{"n": 1, "x": None, "m": {"a": "b"}}]}, shape) == []
+    assert mismatches({"runs": [{"n": 1.5, "x": 2, "m": {}}]}, shape) == [
+        "$.runs[0].n: expected integer, got float"]
+    assert mismatches({"runs": [], "extra": 1}, shape) == ["$: undocumented key 'extra'"]
+    assert mismatches([{"n": True}], shape) == ["$: expected an object, got list"]
+    assert mismatches({"runs": [{"n": 1, "x": 0.1}]}, shape) == ["$.runs[0]: missing key 'm'"]
+
+
+# ------------------------------------------------------------------ the runs
+def _cli(args: list[str], stdin: str | bytes | None = None) -> Any:
+    res = CliRunner().invoke(app, args, input=stdin)
+    assert res.exit_code in (0, 1), (args, res.stderr)
+    return json.loads(res.stdout)
+
+
+def _short_plant(folder: Path, scenario: str | None = None, duration: int = 120) -> Path:
+    """process_plant.yaml with the scenarios (or one) shortened (a text edit)."""
+    text = PLANT.read_text(encoding="utf-8")
+    if scenario is None:
+        text = text.replace("duration_s: 600", f"duration_s: {duration}")
+    else:
+        head, sep, tail = text.partition(f"  {scenario}:\n")
+        text = head + sep + tail.replace("duration_s: 600", f"duration_s: {duration}", 1)
+    path = folder / f"plant_{scenario or 'all'}.yaml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _variant(minimal_text: str, old: str, new: str, folder: Path, name: str) -> Path:
+    assert old in minimal_text
+    path = folder / f"{name}.yaml"
+    path.write_text(minimal_text.replace(old, new), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("json")
+
+
+def _check(command: str, outputs: list[Any]) -> None:
+    for i, out in enumerate(outputs):
+        bad = mismatches(out, SHAPES[command])
+        assert not bad, (command, f"variant {i}", bad[:5])
+
+
+def test_validate(work: Path) -> None:
+    outs = [
+        _cli(["validate", "--json", str(MINIMAL)]),
+        _cli(["validate", "--json", str(MINIMAL), str(BAD)]),
+        _cli(["validate", "--json", "--strict", "-"], stdin=BAD.read_text(encoding="utf-8")),
+        _cli(["validate", "--json", str(work / "missing.yaml")]),
+    ]
+    _check("validate", outs)
+    assert [len(o) for o in outs] == [1, 2, 1, 1]
+    assert outs[1][1]["findings"] and outs[1][1]["findings"][0]["line"] == 5
+
+
+def test_simulate_and_explain(work: Path) -> None:
+    plant = _short_plant(work, "drift_then_valve", 240)
+    sims = [
+        _cli(["simulate", str(MINIMAL), "-s", "calm", "--json"]),
+        _cli(["simulate", str(MINIMAL), "-s", "calm", "--fixed", "--seed", "3", "--json"]),
+        _cli(["simulate", str(MINIMAL), "-s", "calm", "--compare", "--json", "--trace",
+              str(work / "calm.json")]),
+        _cli(["simulate", "-", "-s", "calm", "-c", "only", "--json"],
+             stdin=MINIMAL.read_text(encoding="utf-8")),
+        # two switches and a parameter update between them (seed 3)
+        _cli(["simulate", str(plant), "-s", "drift_then_valve", "--seed", "3", "--json",
+              "--trace", str(work / "plant.parquet")]),
+    ]
+    _check("simulate", sims)
+    assert [len(s["runs"]) for s in sims] == [1, 1, 2, 1, 1]
+    assert [r["mode"] for r in sims[2]["runs"]] == ["fixed", "adaptive"]
+    assert len(sims[4]["runs"][0]["switches"]) == 2 and sims[4]["runs"][0]["unit"] == "m"
+
+    explained = [
+        _cli(["explain", str(work / "plant.parquet"), "--json"]),
+        _cli(["explain", str(work / "calm.fixed.json"), "--json"]),
+        _cli(["explain", str(work / "calm.json"), "--json"]),
+        _cli(["explain", "-", "--json"], stdin=(work / "plant.parquet").read_bytes()),
+        _cli(["explain", "-", "--json"], stdin=_without_source(work / "calm.json")),
+    ]
+    _check("explain", explained)
+    plant_ex = explained[0]
+    assert len(plant_ex["switches"]) == 2 and len(plant_ex["updates"]) == 1
+    kinds = {s["kind"] for e in explained for s in e["segments"]}
+    assert kinds == {"cycle", "repeat"}
+    assert all(s["source"] is None for s in explained[4]["switches"])
+
+
+def _without_source(trace: Path) -> str:
+    """A JSON trace as an older archself wrote it: no source estimate ê in the log."""
+    doc = json.loads(trace.read_text(encoding="utf-8"))
+    for d in doc["decisions"]:
+        d.pop("source", None)
+        if isinstance(d.get("chosen"), dict):
+            d["chosen"].pop("source", None)
+    return json.dumps(doc)
+
+
+def test_live(work: Path) -> None:
+    plant = _short_plant(work, "drift_then_valve", 240)
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "examples" / "live" / "plant_process.py"), str(plant),
+         "--scenario", "drift_then_valve", "--seed", "3", "--port", "0", "--timeout", "60"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        first = proc.stdout.readline()  # type: ignore[union-attr]
+        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+)\n", first)
+        assert m, first
+        loop = subprocess.run(
+            [sys.executable, "-m", "archself", "live", str(plant), "--connect",
+             f"127.0.0.1:{m.group(1)}", "--json", "--log", str(work / "live.json"),
+             "--timeout", "60"],
+            capture_output=True, text=True, timeout=120,
+        )
+        proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert loop.returncode == 0, loop.stderr
+    out = json.loads(loop.stdout)
+    _check("live", [out])
+    assert len(out["switches"]) == 2
+    _check("explain", [_cli(["explain", str(work / "live.json"), "--json"])])
+
+
+def test_campaign_and_campaign_report(work: Path) -> None:
+    both, swept = work / "both.parquet", work / "swept.parquet"
+    runs = [
+        _cli(["campaign", str(MINIMAL), "-s", "calm", "--seeds", "2", "-o", str(both),
+              "--workers", "1", "--json"]),
+        _cli(["campaign", str(MINIMAL), "-s", "calm", "--seeds", "3", "-o", str(both),
+              "--workers", "1", "--resume", "--json"]),
+        _cli(["campaign", str(MINIMAL), "-s", "calm", "--seeds", "1", "--mode", "adaptive",
+              "--sweep", "runtime.threshold=0.4,0.6", "-o", str(swept), "--workers", "1",
+              "--json"]),
+    ]
+    _check("campaign", runs)
+    assert [(r["ran"], r["skipped"]) for r in runs] == [(4, 0), (2, 4), (2, 0)]
+    reports = [
+        _cli(["campaign-report", str(both), "-o", str(work / "r1"), "--json"]),
+        _cli(["campaign-report", str(both), "-o", str(work / "r2"), "--expect", "calm=only",
+              "--json"]),
+        _cli(["campaign-report", str(swept), "-o", str(work / "r3"), "--json"]),
+        # 1,008 runs: faulted scenarios, a τ sweep, expectations
+        _cli(["campaign-report", str(CAMPAIGN), "-o", str(work / "r4"), "--expect",
+              "imu_drift=a2", "--json"]),
+    ]
+    _check("campaign-report", reports)
+    assert reports[2]["tau"] is not None and reports[2]["scenarios"][0]["adaptive_better_rms"] \
+        is None
+    big = {b["scenario"]: b for b in reports[3]["scenarios"]}
+    assert big["nominal"]["detected"] is None and big["imu_drift"]["detected"]["n"] > 0
+    for r in reports:  # summary.json is the same document
+        assert json.loads((work / f"r{reports.index(r) + 1}" / "summary.json").read_text(
+            encoding="utf-8")) == r
+
+
+def test_info(work: Path) -> None:
+    text = MINIMAL.read_text(encoding="utf-8")
+    files = [
+        MINIMAL,
+        _variant(text, "threshold: 0.5", "top_k: 2", work, "top_k"),
+        _variant(text, "threshold: 0.5", "hysteresis: {on: 0.6, off: 0.3}", work, "hyst"),
+        PLANT,
+        DIFFDRIVE,
+    ]
+    outs = [_cli(["info", str(f), "--json"]) for f in files]
+    _check("info", outs)
+    assert [o["runtime"]["selector"] for o in outs[:3]] == ["threshold", "top_k", "hysteresis"]
+    assert [o["runtime"]["top_k"] for o in outs[:3]] == [None, 2, None]
+    assert any(a["set"] for a in outs[3]["actions"])
+
+
+def test_calibrate_and_identify(work: Path) -> None:
+    plant = _short_plant(work, None, 60)
+    runs = work / "runs.npz"
+    cals = [
+        _cli(["calibrate", str(plant), "--seeds", "2", "-c", "p1", "--workers", "1", "--json",
+              "--save-runs", str(runs)]),
+        _cli(["calibrate", str(plant), "--from-runs", str(runs), "--false-switch", "0.2",
+              "--json"]),
+    ]
+    _check("calibrate", cals)
+    assert {b["calibrated"] for b in cals[0]["bands"].values()} == {True, False}
+    idents = [
+        _cli(["identify", str(plant), "--seeds", "1", "-c", "p1", "--executor", "inline",
+              "--json"]),
+        _cli(["identify", str(plant), "--seeds", "1", "-c", "p2", "--executor", "inline",
+              "--all", "--json"]),
+    ]
+    _check("identify", idents)
+    assert any(e["identifiable"] for e in idents[0]["edges"])
