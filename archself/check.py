@@ -11,12 +11,14 @@ offending node. The rules:
 * ``spectral-radius``, ``singular``: ρ(W) < ``runtime.max_spectral_radius`` < 1 so
   that I − Wᵀ is nonsingular and z = (I − Wᵀ)⁻¹ r is bounded (Eq. 13–14);
 * ``signal``: an edge carries a signal its source outputs;
+* ``port``: named ports (``from: module.port``) exist on the types, with "did you
+  mean"; an edge names a signal (:mod:`archself.ports`);
 * ``incomplete``: in each configuration every active module receives its
   required inputs over active edges, the active modules are connected, and the
   modules ``runtime.objective`` reads are active; a configuration that fills
   none of the roles the initial configuration fills gets a warning;
-* ``double-input``: no module receives the same signal over two active edges
-  of one configuration (the executor would keep only one of them);
+* ``double-input``: no module receives the same signal (input port) over two active
+  edges of one configuration (the executor would keep only one of them);
 * ``algebraic-loop``: every cycle of active edges passes through a module
   without direct feedthrough (a plant, a delay), so the data flow can be ordered;
 * ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
@@ -119,6 +121,7 @@ def check(loaded: Loaded) -> list[Finding]:
     for rule in (
         _types,
         _edges,
+        _ports,
         _weights,
         _configurations,
         _parameters,
@@ -257,7 +260,7 @@ def _declared_range(ctx: _Ctx, type_: str, pname: str, spec: Any, p: Parameter,
 
 
 def _edges(ctx: _Ctx) -> None:
-    seen: dict[tuple[str, str, str], int] = {}
+    seen: dict[tuple[str, str, str, str], int] = {}
     modules = ctx.arch.modules
     for i, e in enumerate(ctx.arch.edges):
         if e.source in modules and e.target in modules:  # the common case: no call
@@ -267,7 +270,7 @@ def _edges(ctx: _Ctx) -> None:
                   & _ref(ctx, e.target, ("edges", i, "to")))
         if e.source == e.target:
             ctx.add("error", "self-loop", f"edge from '{e.source}' to itself", ("edges", i))
-        key = (e.source, e.target, e.carries)
+        key = (e.source, e.target, e.carries, e.into)
         if key in seen:
             ctx.add("error", "duplicate",
                     f"duplicate edge {e.source} -> {e.target} carrying '{e.carries}' "
@@ -277,15 +280,16 @@ def _edges(ctx: _Ctx) -> None:
             ctx.add("error", "weight",
                     f"negative weight {e.weight}: influence weights must be ≥ 0 (Eq. 13)",
                     ("edges", i, "weight"))
-        if ok:
+        if ok and e.carries:  # named ports: archself.ports
             src = ctx.types.get(e.source)
-            if src is not None and src.outputs and e.carries not in src.outputs:
+            if (src is not None and src.outputs and e.carries not in src.outputs
+                    and e.from_port is None):
                 ctx.add("error", "signal",
                         f"'{e.source}' ({ctx.arch.modules[e.source].type}) does not output "
                         f"'{e.carries}'; it outputs: {', '.join(src.outputs)}",
                         ("edges", i, "carries"))
             dst = ctx.types.get(e.target)
-            if (dst is not None and (dst.inputs or dst.optional_inputs)
+            if (dst is not None and (dst.inputs or dst.optional_inputs) and e.to_port is None
                     and e.carries not in dst.inputs + dst.optional_inputs):
                 ctx.add("warning", "signal",
                         f"'{e.target}' ({ctx.arch.modules[e.target].type}) does not use "
@@ -343,6 +347,13 @@ def spectrum_summary(
         except np.linalg.LinAlgError:
             singular = True
     return rho, singular
+
+
+def _ports(ctx: _Ctx) -> None:
+    from archself.ports import port_findings
+
+    for code, msg, path in port_findings(ctx.arch, ctx.types):
+        ctx.add("error", code, msg, path)
 
 
 def _weights(ctx: _Ctx) -> None:
@@ -425,13 +436,13 @@ def _configurations(ctx: _Ctx) -> None:
         edges = _active_edges(arch, cname)
         delivered: dict[str, dict[str, int]] = {m: {} for m in active}
         for i, e in edges:
-            first_edge = delivered[e.target].setdefault(e.carries, i)
+            first_edge = delivered[e.target].setdefault(e.into, i)  # by the target's port
             target_cls = ctx.types.get(e.target)
-            many = target_cls is not None and e.carries in target_cls.multi_inputs
+            many = target_cls is not None and e.into in target_cls.multi_inputs
             if first_edge != i and not many:
                 other = arch.edges[first_edge].source
                 ctx.add("error", "double-input",
-                        f"configuration '{cname}': '{e.target}' receives '{e.carries}' from both "
+                        f"configuration '{cname}': '{e.target}' receives '{e.into}' from both "
                         f"'{other}' and '{e.source}'; one would overwrite the other (split the "
                         "configuration, or disable one edge with disabled_edges)", ("edges", i))
         for m in names:

@@ -33,6 +33,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     field_validator,
     model_validator,
 )
@@ -188,15 +189,70 @@ class Module(_Strict):
 
 # --------------------------------------------------------------------------- edges
 class Edge(_Strict):
-    """A dependency (m_j, m_i) ∈ Γ: m_j provides ``carries`` to m_i (Eq. 8–9)."""
+    """A dependency (m_j, m_i) ∈ Γ: m_j provides ``carries`` to m_i (Eq. 8–9).
 
-    source: Name = Field(alias="from", description="Providing module m_j.")
-    target: Name = Field(alias="to", description="Receiving module m_i.")
+    ``from``/``to`` may name ports as ``module.port`` (see Named ports): the source's
+    output port is then ``carries``, and the target receives the value under its input
+    port. Without a port in ``to`` the target receives it under ``carries``.
+    """
+
+    # for other JSON Schema validators: carries, or a port in from or to
+    model_config = ConfigDict(json_schema_extra={"anyOf": [
+        {"required": ["carries"]},
+        {"properties": {"from": {"pattern": "[.]"}}},
+        {"properties": {"to": {"pattern": "[.]"}}},
+    ]})
+
+    source: Name = Field(
+        alias="from",
+        description="Providing module m_j, or its output port as `module.port` (then "
+        "`carries` may be left out).",
+    )
+    target: Name = Field(
+        alias="to",
+        description="Receiving module m_i, or its input port as `module.port` (default: the "
+        "input named like `carries`).",
+    )
     weight: Finite = Field(description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).")
-    carries: Name = Field(description="The signal that flows, named as the source outputs it.")
+    carries: Name = Field(
+        "",  # "" until archself.ports fills it from a port; no default in the schema
+        description="The signal that flows, named as the source outputs it; required unless "
+        "`from` or `to` names a port (`module.port`).",
+        json_schema_extra=lambda s: s.pop("default", None),  # type: ignore[arg-type,misc]
+    )
     latency_s: Seconds = Field(0.0, description="Communication latency in seconds.")
     uncertainty: NonNeg = Field(0.0, description="Standard deviation added to the carried value.")
     description: str | None = None
+    _from_port: str | None = PrivateAttr(None)
+    _to_port: str | None = PrivateAttr(None)
+    _resolved: bool = PrivateAttr(False)
+
+    @property
+    def from_port(self) -> str | None:
+        """The output port ``from`` names (``module.port``), or None."""
+        return self._from_port
+
+    @property
+    def to_port(self) -> str | None:
+        """The input port ``to`` names (``module.port``), or None."""
+        return self._to_port
+
+    @property
+    def into(self) -> str:
+        """The target's input the value arrives at: the port in ``to``, else ``carries``."""
+        return self._to_port or self.carries
+
+    @property
+    def ports_resolved(self) -> bool:
+        """True once :func:`archself.ports.resolve_edges` has split ``from``/``to``."""
+        return self._resolved
+
+    def set_ports(self, from_port: str | None, to_port: str | None) -> None:
+        """Record the ports of ``from``/``to``; ``carries`` defaults to the source port,
+        else the target port."""
+        self._from_port, self._to_port, self._resolved = from_port, to_port, True
+        if not self.carries:
+            self.carries = from_port or to_port or ""
 
 
 # --------------------------------------------------------------------------- configurations
@@ -497,6 +553,13 @@ class Architecture(_Strict):
     constraints: list[Budget] = Field(default_factory=list, description="C(a, θ, e) ≤ 0.")
     scenarios: dict[Name, Scenario] = Field(default_factory=dict, description="Environments e.")
     runtime: Runtime
+
+    @model_validator(mode="after")
+    def _ports(self) -> Architecture:
+        from archself.ports import resolve_edges
+
+        resolve_edges(self.modules, self.edges)
+        return self
 
     def initial_configuration(self) -> str:
         """Name of the configuration marked ``initial`` (else the first one)."""

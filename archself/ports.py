@@ -1,0 +1,170 @@
+"""Named ports: what a module type takes and gives, and edges that name them.
+
+A module type declares its ports once, next to its parameters::
+
+    ports = {
+        "q_in": Input("W", "heat delivered by the heaters", multi=True),
+        "setpoint": Input("K", required=False),
+        "temperature": Output("K", "air temperature of the zone"),
+    }
+
+from which :class:`~archself.modules.base.RuntimeModule` derives ``inputs``,
+``optional_inputs``, ``multi_inputs``, ``outputs`` and ``output_sizes`` (the
+tuples every other part of archself reads; a type may still set those directly).
+
+An edge names its ends' ports as ``module.port``::
+
+    - {from: heater.q_out, to: zone.q_in, weight: 0.6}
+
+``carries`` is then the source port (``from: heater.q_out`` is ``from: heater``
+with ``carries: q_out``) and the target receives the value under its own port name
+(``into``). Without ports an edge works as before: ``carries`` names the signal on
+both sides. ``archself validate`` (:func:`check_ports`) reports a port the type
+does not have (with "did you mean") and a ``carries`` that contradicts ``from``;
+the ``double-input`` and ``incomplete`` rules of :mod:`archself.check` count
+inputs by the target's port, so a port driven twice in one configuration and a
+required input left undriven are errors there.
+
+Examples
+--------
+>>> split_ref("heater.q_out", ["heater", "zone"])
+('heater', 'q_out')
+>>> split_ref("zone", ["heater", "zone"])
+('zone', None)
+>>> split_ref("cell.1.temp", ["cell.1"])   # module names may hold dots
+('cell.1', 'temp')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+
+@dataclasses.dataclass(frozen=True)
+class Input:
+    """An input port of a module type.
+
+    Parameters
+    ----------
+    unit : str, optional
+        Unit of the value (documentation).
+    doc : str, optional
+        One line on what the module does with it.
+    required : bool, optional
+        True (default): a configuration in which no active edge drives it is
+        incomplete. False: the module uses it when present.
+    multi : bool, optional
+        The port takes several edges; the module receives a list, one value per
+        edge (file order). Any other port driven by two active edges is an error.
+    """
+
+    unit: str = ""
+    doc: str = ""
+    required: bool = True
+    multi: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Output:
+    """An output port of a module type.
+
+    Parameters
+    ----------
+    unit : str, optional
+        Unit of the value (documentation).
+    doc : str, optional
+        One line on what it is.
+    size : int, optional
+        Length of a vector value (lets ``validate`` check objective components).
+    """
+
+    unit: str = ""
+    doc: str = ""
+    size: int | None = None
+
+
+def declare(cls: Any) -> None:
+    """Derive the signal tuples of ``cls`` from its own ``ports`` mapping, if it has one."""
+    ports = cls.__dict__.get("ports")
+    if not ports:
+        return
+    ins = {k: p for k, p in ports.items() if isinstance(p, Input)}
+    outs = {k: p for k, p in ports.items() if isinstance(p, Output)}
+    odd = [k for k, p in ports.items() if not isinstance(p, (Input, Output))]
+    if odd:
+        raise TypeError(f"{cls.__name__}.ports[{odd[0]!r}] is neither an Input nor an Output")
+    cls.inputs = tuple(k for k, p in ins.items() if p.required)
+    cls.optional_inputs = tuple(k for k, p in ins.items() if not p.required)
+    cls.multi_inputs = tuple(k for k, p in ins.items() if p.multi)
+    cls.outputs = tuple(outs)
+    cls.output_sizes = {k: p.size for k, p in outs.items() if p.size is not None}
+
+
+def split_ref(ref: str, modules: Iterable[str]) -> tuple[str, str | None]:
+    """``module.port`` → ``(module, port)``; a plain module name → ``(module, None)``.
+
+    The module is the longest declared name ``ref`` starts with (followed by a
+    dot), so module names with dots work; an undeclared module splits at the first
+    dot (the ``reference`` rule then names the unknown module).
+    """
+    names = modules if isinstance(modules, (set, frozenset, dict)) else set(modules)
+    if ref in names:
+        return ref, None
+    best = max((m for m in names if ref.startswith(f"{m}.")), key=len, default=None)
+    if best is not None:
+        return best, ref[len(best) + 1 :]
+    mod, dot, port = ref.partition(".")
+    return (mod, port) if dot and mod and port else (ref, None)
+
+
+def resolve_edges(modules: Mapping[str, Any], edges: Iterable[Any]) -> None:
+    """Split ``from``/``to`` of every edge into module and port (in place).
+
+    ``carries`` defaults to the source port, else to the target port; an edge's
+    ``source``/``target`` are module names afterwards, whatever the file wrote.
+    """
+    names = set(modules)
+    for e in edges:
+        if e.ports_resolved:
+            continue
+        e.source, from_port = split_ref(e.source, names)
+        e.target, to_port = split_ref(e.target, names)
+        e.set_ports(from_port, to_port)
+
+
+def _hint(word: str, options: Iterable[str]) -> str:
+    options = list(options)
+    close = difflib.get_close_matches(word, options, n=1)
+    if close:
+        return f"did you mean '{close[0]}'?"
+    return f"it has: {', '.join(options) or 'none'}"
+
+
+def port_findings(arch: Any, types: Mapping[str, Any]) -> Iterable[tuple[str, str, tuple]]:
+    """``(code, message, path)`` of every port problem of ``arch``'s edges.
+
+    ``types`` maps module name → its runtime class (or None when unknown). Checked:
+    an edge that names no signal, ``carries`` against the port in ``from``, and
+    named ports against the ports the types declare. (Ports driven twice and
+    undriven required inputs are the ``double-input`` and ``incomplete`` rules.)
+    """
+    for i, e in enumerate(arch.edges):
+        if not e.carries:
+            yield ("port", "the edge names no signal: give 'carries', or the ports as "
+                   "'from: module.port' / 'to: module.port'", ("edges", i))
+            continue
+        if e.from_port is not None and e.carries != e.from_port:
+            yield ("port", f"'carries: {e.carries}' contradicts the port in 'from' "
+                   f"('{e.source}.{e.from_port}'); give one of them", ("edges", i, "carries"))
+        src, dst = types.get(e.source), types.get(e.target)
+        if e.from_port is not None and src is not None and src.outputs \
+                and e.from_port not in src.outputs:
+            yield ("port", f"'{e.source}' ({arch.modules[e.source].type}) has no output port "
+                   f"'{e.from_port}'; {_hint(e.from_port, src.outputs)}", ("edges", i, "from"))
+        takes = (dst.inputs + dst.optional_inputs) if dst is not None else ()
+        if e.to_port is not None and takes and e.to_port not in takes:
+            yield ("port", f"'{e.target}' ({arch.modules[e.target].type}) has no input port "
+                   f"'{e.to_port}'; {_hint(e.to_port, takes)}", ("edges", i, "to"))

@@ -1,0 +1,84 @@
+"""Named ports (archself.ports): declarations, edges that name them, their checks."""
+
+from __future__ import annotations
+
+import pytest
+
+from archself.check import check
+from archself.loader import load_text
+from archself.modules.base import RuntimeModule
+from archself.ports import Input, Output, declare, split_ref
+
+from conftest import FIXTURES
+
+MINIMAL = (FIXTURES / "valid" / "minimal.yaml").read_text()
+HEADING = "  - {from: compass, to: dead_reckoning, weight: 0.5, carries: heading}"
+
+
+def _findings(text: str) -> list[tuple[str, str, str]]:
+    return [(f.severity, f.code, f.message) for f in check(load_text(text, "m.yaml"))]
+
+
+def test_split_ref_takes_the_longest_declared_module() -> None:
+    names = ["a", "a.b", "zone"]
+    assert split_ref("a.b.port", names) == ("a.b", "port")
+    assert split_ref("a.port", names) == ("a", "port")
+    assert split_ref("a.b", names) == ("a.b", None)
+    assert split_ref("nowhere.port", names) == ("nowhere", "port")
+    assert split_ref("plain", names) == ("plain", None)
+
+
+def test_declared_ports_give_the_signal_tuples() -> None:
+    class Zone(RuntimeModule):
+        ports = {
+            "q_in": Input("W", "heat", multi=True),
+            "setpoint": Input("K", required=False),
+            "temperature": Output("K", size=1),
+            "state": Output(size=2),
+        }
+
+    declare(Zone)
+    assert Zone.inputs == ("q_in",)
+    assert Zone.optional_inputs == ("setpoint",)
+    assert Zone.multi_inputs == ("q_in",)
+    assert Zone.outputs == ("temperature", "state")
+    assert Zone.output_sizes == {"temperature": 1, "state": 2}
+
+    class Odd(RuntimeModule):
+        ports = {"x": 1.0}
+
+    with pytest.raises(TypeError, match="neither an Input nor an Output"):
+        declare(Odd)
+
+
+def test_an_edge_with_ports_is_the_edge_with_carries() -> None:
+    ported = MINIMAL.replace(HEADING, "  - {from: compass.heading, to: dead_reckoning.heading, "
+                             "weight: 0.5}")
+    arch = load_text(ported, "m.yaml").arch
+    e = arch.edges[7]
+    assert (e.source, e.target, e.carries, e.into) == ("compass", "dead_reckoning", "heading",
+                                                       "heading")
+    assert (e.from_port, e.to_port) == ("heading", "heading")
+    assert _findings(ported) == _findings(MINIMAL)
+    # a port in 'to' alone names the signal on both sides
+    only_to = MINIMAL.replace(HEADING, "  - {from: compass, to: dead_reckoning.heading, "
+                              "weight: 0.5}")
+    assert _findings(only_to) == _findings(MINIMAL)
+    # a deep copy keeps the ports (campaign workers copy the model)
+    assert arch.model_copy(deep=True).edges[7].from_port == "heading"
+
+
+def test_an_edge_without_a_signal_is_an_error() -> None:
+    bare = MINIMAL.replace(HEADING, "  - {from: compass, to: dead_reckoning, weight: 0.5}")
+    found = _findings(bare)
+    assert ("error", "port", "the edge names no signal: give 'carries', or the ports as "
+            "'from: module.port' / 'to: module.port'") in found
+
+
+def test_a_renamed_port_counts_for_the_target_port() -> None:
+    # 'heading' delivered into the optional input 'position': heading is missing now
+    renamed = MINIMAL.replace(HEADING, "  - {from: compass.heading, to: dead_reckoning.position,"
+                              " weight: 0.5}")
+    found = _findings(renamed)
+    assert any(c == "incomplete" and "needs 'heading'" in m for _, c, m in found)
+    assert not any(c == "signal" for _, c, m in found)
