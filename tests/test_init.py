@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from archself.cli import app
@@ -23,7 +24,7 @@ def test_init_writes_a_valid_file_that_adapts(tmp_path: Path, monkeypatch) -> No
     assert runner.invoke(app, ["validate", "--strict", "tank.yaml"]).exit_code == 0
     out = runner.invoke(app, ["simulate", "tank.yaml", "-s", "level_drift", "--compare", "--json"])
     assert out.exit_code == 0, out.stderr
-    fixed, adaptive = json.loads(out.stdout)
+    fixed, adaptive = json.loads(out.stdout)["runs"]
     assert [s["to"] for s in adaptive["switches"]] == ["on_b"]
     assert adaptive["metrics"]["final_error_m"] < 0.5 * fixed["metrics"]["final_error_m"]
 
@@ -72,3 +73,47 @@ def test_init_schema_copy_and_explicit_reference(tmp_path: Path, monkeypatch) ->
     assert (tmp_path / "architecture.schema.json").read_text() == schema_text()
     assert CliRunner().invoke(app, ["init", "b", "--schema", "s/a.json"]).exit_code == 0
     assert (tmp_path / "b.yaml").read_text().startswith("# yaml-language-server: $schema=s/a.json")
+
+
+@pytest.mark.parametrize("template", ["tank", "lti", "process", "diffdrive", "motor"])
+def test_every_template_writes_a_valid_file_under_the_name(tmp_path: Path, monkeypatch,
+                                                             template: str) -> None:
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    result = runner.invoke(app, ["init", "plant_x", "--template", template])
+    assert result.exit_code == 0, result.stderr
+    text = (tmp_path / "plant_x.yaml").read_text()
+    assert text.splitlines()[0] == "# yaml-language-server: $schema=" + SCHEMA_ID
+    from archself.loader import load_architecture
+
+    assert load_architecture(tmp_path / "plant_x.yaml").arch.name == "plant_x"
+    assert runner.invoke(app, ["validate", "--strict", "plant_x.yaml"]).exit_code == 0
+
+
+def test_the_lti_template_is_generic_blocks_only_and_adapts(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    assert runner.invoke(app, ["init", "loop", "-t", "lti"]).exit_code == 0
+    from archself.loader import load_architecture
+
+    arch = load_architecture(tmp_path / "loop.yaml").arch
+    assert all(m.type.startswith("generic.") for m in arch.modules.values())
+    out = runner.invoke(app, ["simulate", "loop.yaml", "-s", "sensor_drift", "--compare", "--json"])
+    assert out.exit_code == 0, out.stderr
+    fixed, adaptive = json.loads(out.stdout)["runs"]
+    assert [s["to"] for s in adaptive["switches"]] == ["on_b"]
+    assert adaptive["metrics"]["final_error"] < 0.5 * fixed["metrics"]["final_error"]
+    nominal = runner.invoke(app, ["simulate", "loop.yaml", "-s", "nominal", "--json"])
+    assert json.loads(nominal.stdout)["runs"][0]["switches"] == []
+
+
+def test_an_unknown_template_gets_did_you_mean_and_the_choices(tmp_path: Path,
+                                                                monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["init", "x", "--template", "tnak"])
+    assert result.exit_code == 2
+    assert "did you mean 'tank'?" in result.stderr
+    assert "tank, lti, process, diffdrive, motor" in result.stderr
+    assert not (tmp_path / "x.yaml").exists()
+    assert "[tank|lti|process|diffdrive|motor]" in CliRunner().invoke(
+        app, ["init", "--help"]).stdout

@@ -181,9 +181,66 @@ def _write_or_check(
         _emit(text, output, f"wrote {output}")
 
 
+#: ``init --template``: name -> (what it is, the ``templates/`` file or the shipped
+#: ``architectures/`` file it copies).
+TEMPLATES: dict[str, tuple[str, str]] = {
+    "tank": ("a tank under level control with a spare transmitter (the default)",
+             "templates/init.yaml.j2"),
+    "lti": ("a first-order LTI plant, PI and Kalman filters: generic blocks only",
+            "templates/init_lti.yaml.j2"),
+    "process": ("the shipped liquid-level process (docs/process_plant.md)",
+                "architectures/process_plant.yaml"),
+    "diffdrive": ("the paper's differential-drive robot (Fig. 1, docs/reproduction.md)",
+                  "architectures/diffdrive.yaml"),
+    "motor": ("the DC-motor drive of generic blocks (docs/motor_drive.md)",
+              "architectures/motor_drive.yaml"),
+}
+
+
+def _template_choice(value: str) -> str:
+    """``--template``'s value, or a usage error with "did you mean" and the choices."""
+    if value in TEMPLATES:
+        return value
+    import difflib
+
+    close = difflib.get_close_matches(value, list(TEMPLATES), n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ""
+    raise typer.BadParameter(f"unknown template {value!r}; {hint}choose from: "
+                             f"{', '.join(TEMPLATES)}")
+
+
+def _template_text(template: str, name: str, file_name: str, schema: str) -> str:
+    """The text ``init`` writes: a rendered template, or a shipped architecture renamed.
+
+    A shipped architecture is copied as it is, its modeline pointing at ``schema`` and
+    its top-level ``name`` replaced by ``name``.
+    """
+    import re
+
+    from archself.reports.render import render, yaml_string
+    from archself.resources import data_dir
+
+    folder, _, file = TEMPLATES[template][1].partition("/")
+    if folder == "templates":
+        return render(file, name=name, file_name=file_name, schema_url=schema)
+    text = (data_dir(folder) / file).read_text(encoding="utf-8")
+    text = re.sub(r"\A# yaml-language-server: \$schema=.*$",
+                  lambda _: f"# yaml-language-server: $schema={schema}", text, count=1, flags=re.M)
+    return re.sub(r"^name: .*$", lambda _: f"name: {yaml_string(name)}", text, count=1,
+                  flags=re.M)
+
+
 def init(
     name: Annotated[str, typer.Argument(help="Name of the system; writes NAME.yaml.")],
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+    template: Annotated[
+        str,
+        typer.Option("--template", "-t", metavar="[" + "|".join(TEMPLATES) + "]",
+                     callback=_template_choice,
+                     autocompletion=lambda: list(TEMPLATES),
+                     help="What to start from: " + "; ".join(
+                         f"{k}: {v[0]}" for k, v in TEMPLATES.items()) + "."),
+    ] = "tank",
     schema_ref: Annotated[
         str | None,
         typer.Option("--schema", metavar="REF",
@@ -194,7 +251,8 @@ def init(
 ) -> None:
     """Write a small, valid architecture file to start from (NAME.yaml).
 
-    The file carries the schema modeline, so an editor with yaml-language-server
+    --template chooses it: a small tank (the default), a generic-blocks LTI loop, or a
+    copy of a shipped example under the new name. The file carries the schema modeline, so an editor with yaml-language-server
     completes and checks it while you edit. The modeline never points into an
     installed package (a virtual environment's site-packages moves and goes): it names
     the schema of the project the file is in (a `schemas/architecture.schema.json` in
@@ -204,7 +262,6 @@ def init(
     import os
 
     from archself.atomic import write_text
-    from archself.reports.render import render
 
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
@@ -219,7 +276,7 @@ def init(
         schema = schema_ref
     else:
         schema = _project_schema(folder)
-    text = render("init.yaml.j2", name=target.stem, file_name=target.name, schema_url=schema)
+    text = _template_text(template, target.stem, target.name, schema)
     try:
         if copy_to is not None:
             from archself.schema import schema_text
