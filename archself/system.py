@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from archself.errors import CompileError, SimulationError
-from archself.linear import ClosedLoop, Wire, interconnect, loop_modules
+from archself.linear import ClosedLoop, Wire, gc_paused, interconnect, loop_modules, wiring
 from archself.model import Architecture
 from archself.modules.base import LinearModel, Port, RuntimeModule
 from archself.objective import objective_norm
@@ -215,6 +215,9 @@ class _Plan:
         # some module type overrides linear_model or linearization (set by the system)
         self.linearizable = True
         self._wires: list[Wire] | None = None
+        # edge index -> the source's output it reads, where the target's input port is
+        # named otherwise (archself.ports: routes are keyed by the target's port)
+        self.reads: dict[int, str] = {}
 
     def wires(self) -> list[Wire]:
         """The active edges as :class:`~archself.linear.Wire` s (made once)."""
@@ -240,6 +243,8 @@ class _Plan:
             {n: v for n, v in self.multi.items() if n in keep},
         )
         plan.linearizable = self.linearizable
+        plan.reads = self.reads
+        plan.direct.update({n: None for n in active if self.direct[n] is None})
         return plan
 
 
@@ -369,7 +374,7 @@ class LiveSystem:
                 continue
             edges.append(i)
             delay = int(round(e.latency_s / self.dt)) if e.latency_s > 0 else 0
-            routes[e.target].append((e.carries, e.source, i, float(e.uncertainty), delay))
+            routes[e.target].append((e.into, e.source, i, float(e.uncertainty), delay))
             if e.target not in nonft_set:
                 flow.append((e.source, e.target))
         loop = algebraic_loop(flow)
@@ -384,6 +389,11 @@ class LiveSystem:
         required = {n: tuple(classes[n].inputs) for n in active}
         multi = {n: frozenset(classes[n].multi_inputs) for n in active if classes[n].multi_inputs}
         plan = _Plan(configuration, active, nonft, order, routes, required, edges, multi)
+        for i in edges:  # named ports: read as the source's output, delivered as the port
+            e = arch.edges[i]
+            if e.into != e.carries:
+                plan.reads[i] = e.carries
+                plan.direct[e.target] = None
         plan.linearizable = any(
             cls.linear_model is not RuntimeModule.linear_model
             or cls.linearization is not RuntimeModule.linearization
@@ -425,9 +435,11 @@ class LiveSystem:
                     inputs[carries] = val
             return inputs
         multi = self._plan.multi.get(name, ())
+        reads = self._plan.reads
         for carries, src, idx, unc, delay in self._plan.routes[name]:
             src_out = outs.get(src)
-            val = src_out.get(carries) if src_out is not None else None
+            sig = reads.get(idx, carries) if reads else carries
+            val = src_out.get(sig) if src_out is not None else None
             if delay:
                 line = self._delay.get(idx)
                 if line is None:
@@ -808,6 +820,11 @@ class LiveSystem:
         plan = self._make_plan(conf_name)
         if not plan.linearizable:  # no type of the configuration gives a model or a matrix
             return ClosedLoop(None, [])
+        with gc_paused():  # many small acyclic objects (archself.linear.gc_paused)
+            return self._closed_loop(plan)
+
+    def _closed_loop(self, plan: _Plan) -> ClosedLoop:
+        """:meth:`closed_loop` of a plan that has modules giving models or matrices."""
         mods = {n: self._linear_module(n, plan) for n in plan.active}
         base = RuntimeModule.linear_model
         models: dict[str, LinearModel] = {}
@@ -818,9 +835,10 @@ class LiveSystem:
             if type(mod).linear_model is base:
                 continue
             ports: dict[str, list[Port]] = {}
-            for carries, src, *_ in plan.routes[n]:
-                value = (outs.get(src) or {}).get(carries) if src in self._plan.active_set else None
-                ports.setdefault(carries, []).append(Port(src, widths.get((src, carries)), value))
+            for carries, src, idx, *_ in plan.routes[n]:  # carries: n's input port
+                sig = plan.reads.get(idx, carries)
+                value = (outs.get(src) or {}).get(sig) if src in self._plan.active_set else None
+                ports.setdefault(carries, []).append(Port(src, widths.get((src, sig)), value))
             lm = mod.linear_model(self.dt, ports)
             if lm is None:
                 continue
@@ -828,7 +846,10 @@ class LiveSystem:
             for sig, size in lm.outputs:  # type: ignore[misc]
                 widths.setdefault((n, sig), size)
         wires = plan.wires() if models else []
-        in_loop = loop_modules(models, wires) if models else set()
+        if plan.reads and models:
+            wires = self._port_wires(plan, wires, models, widths)
+        routes = wiring(models, wires) if models else []
+        in_loop = loop_modules(models, wires, routes=routes) if models else set()
         blocks: list[tuple[str, np.ndarray]] = []
         for n in plan.active:
             if n in models and n in in_loop:
@@ -840,8 +861,34 @@ class LiveSystem:
             if A is not None:
                 blocks.append((n, np.atleast_2d(np.asarray(A, dtype=float))))
                 models.pop(n, None)
-        loop = interconnect(models, wires, self.dt) if models else None
+        loop = interconnect(models, wires, self.dt, routes=routes) if models else None
         return ClosedLoop(loop, blocks)
+
+    def _port_wires(
+        self, plan: _Plan, wires: list[Wire], models: dict[str, LinearModel],
+        widths: dict[tuple[str, str], int],
+    ) -> list[Wire]:
+        """``wires`` with each renamed edge (``from: a.y, to: b.u``) through a pass-through.
+
+        The edge becomes ``a --y--> [y→u] --u--> b``, a static identity model named
+        ``a.y→b.u`` added to ``models``: no state, so the closed loop's eigenvalues are
+        those of the direct wire.
+        """
+        out = list(wires)
+        for n in plan.active:
+            for port, src, idx, _unc, delay in plan.routes[n]:
+                sig = plan.reads.get(idx)
+                if sig is None:
+                    continue
+                out.remove(Wire(src, n, port, delay))
+                width = widths.get((src, sig))
+                if width is None or n not in models:
+                    continue  # the source gives no model of it: the input is exogenous
+                alias = f"{src}.{sig}→{n}.{port}"
+                models[alias] = LinearModel([], [], [], np.eye(width), [(sig, width)],
+                                            [(port, width)], dt=self.dt)
+                out += [Wire(src, alias, sig, delay), Wire(alias, n, port)]
+        return out
 
     def linearization(self, configuration: str | None = None) -> np.ndarray | None:
         """Closed-loop A (Eq. 20) of ``configuration`` (default: the active one), or None.
