@@ -2,11 +2,13 @@
 
 A module type declares its ports once, next to its parameters::
 
-    ports = {
-        "q_in": Input("W", "heat delivered by the heaters", multi=True),
-        "setpoint": Input("K", required=False),
-        "temperature": Output("K", "air temperature of the zone"),
-    }
+    ports = (
+        Input("q_in", "W", "heat delivered by the heaters", multi=True),
+        Input("setpoint", "K", required=False),
+        Output("temperature", "K", "air temperature of the zone"),
+    )
+
+(a sequence, not a mapping: a plant may take ``u`` and publish the ``u`` it applied)
 
 from which :class:`~archself.modules.base.RuntimeModule` derives ``inputs``,
 ``optional_inputs``, ``multi_inputs``, ``outputs`` and ``output_sizes`` (the
@@ -49,6 +51,8 @@ class Input:
 
     Parameters
     ----------
+    name : str
+        The signal name edges deliver it under (``to: module.name``).
     unit : str, optional
         Unit of the value (documentation).
     doc : str, optional
@@ -61,6 +65,7 @@ class Input:
         edge (file order). Any other port driven by two active edges is an error.
     """
 
+    name: str
     unit: str = ""
     doc: str = ""
     required: bool = True
@@ -73,6 +78,8 @@ class Output:
 
     Parameters
     ----------
+    name : str
+        The signal name the module publishes it under (``from: module.name``).
     unit : str, optional
         Unit of the value (documentation).
     doc : str, optional
@@ -81,26 +88,39 @@ class Output:
         Length of a vector value (lets ``validate`` check objective components).
     """
 
+    name: str
     unit: str = ""
     doc: str = ""
     size: int | None = None
 
 
 def declare(cls: Any) -> None:
-    """Derive the signal tuples of ``cls`` from its own ``ports`` mapping, if it has one."""
+    """Derive the signal tuples of ``cls`` from its own ``ports``, if it declares them.
+
+    Raises
+    ------
+    TypeError
+        For an entry that is not an :class:`Input` or :class:`Output`, or a name
+        declared twice on the same side.
+    """
     ports = cls.__dict__.get("ports")
     if not ports:
         return
-    ins = {k: p for k, p in ports.items() if isinstance(p, Input)}
-    outs = {k: p for k, p in ports.items() if isinstance(p, Output)}
-    odd = [k for k, p in ports.items() if not isinstance(p, (Input, Output))]
+    odd = [p for p in ports if not isinstance(p, (Input, Output))]
     if odd:
-        raise TypeError(f"{cls.__name__}.ports[{odd[0]!r}] is neither an Input nor an Output")
-    cls.inputs = tuple(k for k, p in ins.items() if p.required)
-    cls.optional_inputs = tuple(k for k, p in ins.items() if not p.required)
-    cls.multi_inputs = tuple(k for k, p in ins.items() if p.multi)
-    cls.outputs = tuple(outs)
-    cls.output_sizes = {k: p.size for k, p in outs.items() if p.size is not None}
+        raise TypeError(f"{cls.__name__}.ports: {odd[0]!r} is neither an Input nor an Output")
+    ins = [p for p in ports if isinstance(p, Input)]
+    outs = [p for p in ports if isinstance(p, Output)]
+    for side in (ins, outs):
+        names = [p.name for p in side]
+        twice = next((n for n in names if names.count(n) > 1), None)
+        if twice is not None:
+            raise TypeError(f"{cls.__name__}.ports: {type(side[0]).__name__} '{twice}' twice")
+    cls.inputs = tuple(p.name for p in ins if p.required)
+    cls.optional_inputs = tuple(p.name for p in ins if not p.required)
+    cls.multi_inputs = tuple(p.name for p in ins if p.multi)
+    cls.outputs = tuple(p.name for p in outs)
+    cls.output_sizes = {p.name: p.size for p in outs if p.size is not None}
 
 
 def split_ref(ref: str, modules: Iterable[str]) -> tuple[str, str | None]:

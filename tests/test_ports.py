@@ -30,25 +30,29 @@ def test_split_ref_takes_the_longest_declared_module() -> None:
 
 def test_declared_ports_give_the_signal_tuples() -> None:
     class Zone(RuntimeModule):
-        ports = {
-            "q_in": Input("W", "heat", multi=True),
-            "setpoint": Input("K", required=False),
-            "temperature": Output("K", size=1),
-            "state": Output(size=2),
-        }
+        ports = (
+            Input("q_in", "W", "heat", multi=True),
+            Input("setpoint", "K", required=False),
+            Output("temperature", "K", size=1),
+            Output("state", size=2),
+            Output("q_in", "W", "the heat it took (an input and an output of one name)"),
+        )
 
-    declare(Zone)
+    declare(Zone)  # RuntimeModule.__init_subclass__ does it on class creation
     assert Zone.inputs == ("q_in",)
     assert Zone.optional_inputs == ("setpoint",)
     assert Zone.multi_inputs == ("q_in",)
-    assert Zone.outputs == ("temperature", "state")
+    assert Zone.outputs == ("temperature", "state", "q_in")
     assert Zone.output_sizes == {"temperature": 1, "state": 2}
 
-    class Odd(RuntimeModule):
-        ports = {"x": 1.0}
-
     with pytest.raises(TypeError, match="neither an Input nor an Output"):
+        class Odd(RuntimeModule):
+            ports = (1.0,)
         declare(Odd)
+    with pytest.raises(TypeError, match="Output 'y' twice"):
+        class Twice(RuntimeModule):
+            ports = (Output("y"), Output("y"))
+        declare(Twice)
 
 
 def test_an_edge_with_ports_is_the_edge_with_carries() -> None:
@@ -82,3 +86,4 @@ def test_a_renamed_port_counts_for_the_target_port() -> None:
     found = _findings(renamed)
     assert any(c == "incomplete" and "needs 'heading'" in m for _, c, m in found)
     assert not any(c == "signal" for _, c, m in found)
+
