@@ -25,9 +25,11 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
+
+from archself.errors import SimulationError
 
 
 class _Required:
@@ -76,10 +78,37 @@ class Param:
         """True when the file must give the value."""
         return self.default is REQUIRED
 
+    def outside(self, value: Any) -> str | None:
+        """Why ``value`` (a number, or a list or matrix of them) leaves the range, or None.
 
-@dataclasses.dataclass(frozen=True)
-class Port:
+        Examples
+        --------
+        >>> Param(0.5, "m", min=0.01, max=100.0).outside([0.5, 1e8])
+        '1e+08 is outside [0.01, 100] m'
+        >>> Param(0.5, "m", min=0.01).outside(0.5) is None
+        True
+        """
+        lo, hi = self.min, self.max
+        if lo is None and hi is None:
+            return None
+        stack = [value]
+        while stack:
+            v = stack.pop()
+            if isinstance(v, (list, tuple)):
+                stack.extend(reversed(v))
+            elif isinstance(v, (int, float)) and not isinstance(v, bool):
+                if (lo is not None and v < lo) or (hi is not None and v > hi):
+                    low = "-∞" if lo is None else f"{lo:g}"
+                    high = "∞" if hi is None else f"{hi:g}"
+                    unit = f" {self.unit}" if self.unit else ""
+                    return f"{v:g} is outside [{low}, {high}]{unit}"
+        return None
+
+
+class Port(NamedTuple):
     """One active edge into a module, as :meth:`RuntimeModule.linear_model` sees it.
+
+    A named tuple: a closed loop of 10^4 modules passes some 10^4 of them.
 
     Attributes
     ----------
@@ -212,6 +241,11 @@ class RuntimeModule:
         parameter is named. ``self.params`` holds the defaults overlaid with the
         file's values; ``archself validate`` reports missing required and unknown
         parameters. None (the default for plugins that predate it): not checked.
+    ports : sequence of archself.ports.Input and Output, or None
+        Every signal the type takes and gives, with unit and doc, next to
+        ``parameters``: ``inputs``, ``optional_inputs``, ``multi_inputs``, ``outputs``
+        and ``output_sizes`` are derived from it when the class defines it
+        (:mod:`archself.ports`). None: the tuples are set directly.
     """
 
     type_key: ClassVar[str] = ""
@@ -227,11 +261,18 @@ class RuntimeModule:
     fault_kinds: ClassVar[frozenset[str]] = frozenset()
     direct_feedthrough: ClassVar[bool] = True
     parameters: ClassVar[Mapping[str, Param] | None] = None
+    ports: ClassVar[Sequence[Any] | None] = None
     #: Nominal noise level per output signal (instance attribute of sensors): a noisy
     #: signal repeating itself bit for bit is stale (see :mod:`archself.system`).
     noise_levels: dict[str, float] | None = None
     #: Longest time without a published value before the module counts as silent (s).
     max_silence_s: float | None = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        from archself.ports import declare
+
+        declare(cls)  # the signal tuples from ``ports``, when the class declares them
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         self.name = name
@@ -311,6 +352,21 @@ class RuntimeModule:
         """Start from a predecessor's :meth:`export_state` (keys it does not know are ignored)."""
 
     def set_params(self, values: dict[str, Any]) -> None:
-        """Apply a parameter update at run time (``parameter_update`` action) and re-configure."""
+        """Apply a parameter update at run time (``parameter_update`` action) and re-configure.
+
+        Raises
+        ------
+        SimulationError
+            When a value leaves the range the type declares (:meth:`Param.outside`);
+            nothing is changed then. The planner rejects such an update before it
+            gets here (``limit``).
+        """
+        for key, value in values.items():
+            spec = (self.parameters or {}).get(key)
+            why = spec.outside(value) if isinstance(spec, Param) else None
+            if why:
+                raise SimulationError(
+                    f"{self.name}.{key}: {why}, the range type '{self.type_key}' declares"
+                )
         self.params.update(values)
         self.configure()

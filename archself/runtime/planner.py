@@ -20,7 +20,9 @@ reason; cheap checks come before the costly ones):
    ``Σ_{m in target} resources[resource] ≤ max`` (``budget``) — these depend on
    the target's module set only and are cached per set; then the operating
    ``limits`` (``limit``), evaluated every time: on θ, a parameter update whose new
-   value breaks the module's ``max_<p>``/``min_<p>``; on e, an action a module's
+   value breaks the module's ``max_<p>``/``min_<p>`` or leaves the range its type
+   declares (``Param(min=, max=)``: validate refuses such a file, but an architecture
+   built in Python or edited by a sweep may hold one); on e, an action a module's
    ``blocks`` names (or, with ``blocks: all``, any action whose target keeps that
    module active) while the Monitor measures one of its limits violated (κ);
 4. *dwell time* — a structural change only if ``t − t_last ≥ T_min`` (Eq. 28);
@@ -60,6 +62,7 @@ __all__ = [
     "PlanState",
     "Planner",
     "budget_violations",
+    "declared_ranges",
     "constraint_violations",
     "estimate_improvement",
     "rollout_improvement",
@@ -99,6 +102,47 @@ class PlanState:
     kappa: Mapping[str, ModuleStatus]
     params: Mapping[str, Mapping[str, Any]]
     t_last: float
+
+
+def declared_ranges(arch: Architecture) -> dict[tuple[str, str], tuple[Any, str]]:
+    """``(Param, type)`` per (module, parameter) that a parameter update sets.
+
+    The declaration of the parameter by the module's type, where it gives a range
+    (``Param(min=, max=)``; :meth:`~archself.modules.base.Param.outside` judges a
+    value). Types are looked up in the registry (one it does not know declares
+    nothing).
+
+    Examples
+    --------
+    >>> import json
+    >>> from archself.generate import generate_architecture
+    >>> from archself.loader import load_text
+    >>> data = json.loads(generate_architecture(3, seed=0).split("\\n", 1)[1])
+    >>> data["actions"] = [{"id": "quiet", "module": "m1", "kind": "parameter_update",
+    ...     "set": {"noise": 0.1}, "cost": 0.1,
+    ...     "improvement": {"method": "sensitivity", "delta_theta": -1}}]
+    >>> spec, type_ = declared_ranges(load_text(json.dumps(data)).arch)[("m1", "noise")]
+    >>> spec.outside(-1.0), type_
+    ('-1 is outside [0, ∞]', 'generic.relay')
+    """
+    from archself import registry
+    from archself.modules.base import Param
+
+    out: dict[tuple[str, str], tuple[Any, str]] = {}
+    for a in arch.actions:
+        mod = arch.modules.get(a.module)
+        if a.kind != "parameter_update" or mod is None or not a.set:
+            continue
+        try:
+            cls = registry.lookup(mod.type)
+        except Exception:  # noqa: BLE001 - a broken plugin declares nothing here
+            cls = None
+        params = getattr(cls, "parameters", None) or {}
+        for p in a.set:
+            spec = params.get(p)
+            if isinstance(spec, Param) and (spec.min is not None or spec.max is not None):
+                out[(a.module, p)] = (spec, mod.type)
+    return out
 
 
 def budget_violations(arch: Architecture, modules: Iterable[str]) -> list[str]:
@@ -228,6 +272,8 @@ class Planner:
             if m.constraints.limits and m.constraints.blocks
         }
         self._conf_modules: dict[str, tuple[str, ...]] = {}
+        # θ: the range each parameter an update sets has by its module type's declaration
+        self._declared = declared_ranges(arch)
         self._constrained = frozenset(
             n for n, m in arch.modules.items() if m.constraints.requires or m.constraints.excludes
         )
@@ -343,6 +389,12 @@ class Planner:
                     return "limit", f"θ: {a.module}.{p} = {v:g} would break max_{p} {hi:g}"
                 if lo is not None and v < lo:
                     return "limit", f"θ: {a.module}.{p} = {v:g} would break min_{p} {lo:g}"
+            for p, v in (a.set or {}).items():
+                declared = self._declared.get((a.module, p))
+                if declared is not None and (why := declared[0].outside(v)):
+                    return "limit", (
+                        f"θ: {a.module}.{p} = {why}, the range type '{declared[1]}' declares"
+                    )
         for m, blocks in self._blocking.items():
             if m not in s.active or (a.id not in blocks if blocks != "all" else m not in target):
                 continue

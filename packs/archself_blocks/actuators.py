@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself.ports import Input, Output
 from archself_blocks.lti import as_vector
 
 __all__ = ["Actuator", "ACTUATOR_FAULTS"]
@@ -49,16 +50,20 @@ class Actuator(RuntimeModule):
         "gain": Param(1.0, "", "effectiveness the command is multiplied by"),
         "u_min": Param(None, "", "lower output limit; None: none"),
         "u_max": Param(None, "", "upper output limit; None: none"),
-        "rate_limit": Param(None, "1/s", "largest change per second (output units); None: none"),
-        "time_constant_s": Param(0.0, "s", "first-order lag; 0: none"),
+        "rate_limit": Param(
+            None, "1/s", "largest change per second (output units); None: none", min=0.0
+        ),
+        "time_constant_s": Param(0.0, "s", "first-order lag; 0: none", min=0.0, max=1e7),
         "initial": Param(0.0, "", "output at the start"),
-        "channel": Param(0, "", "plant input driven, with width > 1"),
-        "width": Param(1, "", "length of the output vector; 1: a number"),
+        "channel": Param(0, "", "plant input driven, with width > 1", min=0, max=100000),
+        "width": Param(1, "", "length of the output vector; 1: a number", min=1, max=100000),
     }
     role = "actuator"
-    inputs = ("command",)
-    optional_inputs = ("measurement",)
-    outputs = ("u",)
+    ports = (
+        Input("command", doc="the command (the controller's units)"),
+        Input("measurement", doc="a meter of what it delivers (command_error)", required=False),
+        Output("u", doc="what it delivers: clip(gain·command), rate-limited, lagged"),
+    )
     residual_signals = ("command_error",)
     fault_kinds = ACTUATOR_FAULTS
     main_output = "u"

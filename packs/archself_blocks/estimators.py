@@ -25,6 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself.ports import Input, Output
 from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
 
 __all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]
@@ -70,10 +71,14 @@ class MeanWindow:
 
 
 _COMMON = {
-    "measured_outputs": Param(None, "", "rows of C the measurement holds; None: all"),
+    "measured_outputs": Param(
+        None, "", "rows of C the measurement holds; None: all", min=0, max=100000
+    ),
     "x0": Param(None, "", "initial estimate; None: least squares from the first measurement"),
-    "innovation_window_s": Param(10.0, "s", "window of the innovation monitor"),
-    "settle_s": Param(5.0, "s", "monitor paused this long after a start or hand-over"),
+    "innovation_window_s": Param(10.0, "s", "window of the innovation monitor", min=0.001, max=1e7),
+    "settle_s": Param(
+        5.0, "s", "monitor paused this long after a start or hand-over", min=0.0, max=1e7
+    ),
 }
 
 
@@ -81,9 +86,13 @@ class _ModelEstimator(RuntimeModule):
     """What the Kalman filter and the observer share: inputs, monitor, hand-over."""
 
     role = "estimator"
-    inputs = ("measurement", "model")
-    optional_inputs = ("u",)
-    outputs: ClassVar[tuple[str, ...]] = ("estimate", "state")
+    ports: ClassVar[tuple[Input | Output, ...]] = (
+        Input("measurement", doc="the measured outputs (rows measured_outputs of C)"),
+        Input("model", doc="the LtiModel it predicts with (generic.lti_model)"),
+        Input("u", doc="the plant's applied input, to predict with", required=False),
+        Output("estimate", doc="C x̂"),
+        Output("state", doc="x̂"),
+    )
     residual_signals: ClassVar[tuple[str, ...]] = ("innovation",)
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
@@ -337,13 +346,13 @@ class AugmentedEkf(KalmanFilter):
     parameters = {
         **KalmanFilter.parameters,
         "estimate_effectiveness": Param(True, "", "augment the state with η per input"),
-        "effectiveness_noise": Param(1e-3, "1/s", "random-walk intensity of η"),
-        "effectiveness_p0": Param(0.01, "", "initial variance of η"),
+        "effectiveness_noise": Param(1e-3, "1/s", "random-walk intensity of η", min=0.0),
+        "effectiveness_p0": Param(0.01, "", "initial variance of η", min=0.0),
         "estimate_bias": Param(False, "", "augment the state with a bias per measured output"),
-        "bias_noise": Param(1e-4, "", "random-walk intensity of b (units²/s)"),
-        "bias_p0": Param(1.0, "", "initial variance of b (units²)"),
+        "bias_noise": Param(1e-4, "", "random-walk intensity of b (units²/s)", min=0.0),
+        "bias_p0": Param(1.0, "", "initial variance of b (units²)", min=0.0),
     }
-    outputs: ClassVar[tuple[str, ...]] = ("estimate", "state", "parameters")
+    ports = (*_ModelEstimator.ports, Output("parameters", doc="η̂ per input, then b̂"))
     residual_signals: ClassVar[tuple[str, ...]] = (
         "innovation", "nis", "effectiveness_loss", "bias",
     )

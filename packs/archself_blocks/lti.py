@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself.ports import Input, Output
 
 __all__ = [
     "LtiModel",
@@ -206,14 +207,18 @@ def _model_params(tf: bool) -> dict[str, Param]:
         return {
             "num": Param(doc="numerator coefficients, highest power first", unit=""),
             "den": Param(doc="denominator coefficients, highest power first", unit=""),
-            "sample_time_s": Param(0.0, "s", "0: continuous (ZOH at the step); else the period"),
+            "sample_time_s": Param(
+                0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0
+            ),
         }
     return {
         "A": Param(doc="state matrix (n×n)", unit=""),
         "B": Param(doc="input matrix (n×m)", unit=""),
         "C": Param(None, "", "output matrix (p×n); None: the identity"),
         "D": Param(None, "", "feedthrough matrix (p×m); None: zeros"),
-        "sample_time_s": Param(0.0, "s", "0: continuous (ZOH at the step); else the period"),
+        "sample_time_s": Param(
+            0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0
+        ),
     }
 
 
@@ -249,12 +254,17 @@ class StateSpacePlant(RuntimeModule):
     parameters = {
         **_model_params(False),
         "x0": Param(None, "", "initial state; None: zeros"),
-        "process_noise": Param(0.0, "", "state noise std (per √s continuous, per period discrete)"),
+        "process_noise": Param(
+            0.0, "", "state noise std (per √s continuous, per period discrete)", min=0.0
+        ),
     }
     role = "plant"
-    optional_inputs = ("u",)
-    multi_inputs = ("u",)
-    outputs = ("y", "state", "u")
+    ports = (
+        Input("u", doc="the input; several edges are summed", required=False, multi=True),
+        Output("y", doc="C x + D u, always a vector"),
+        Output("state", doc="x"),
+        Output("u", doc="the input it applied during the last step"),
+    )
     direct_feedthrough = False
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
@@ -356,7 +366,9 @@ class TransferFunctionPlant(StateSpacePlant):
     parameters = {
         **_model_params(True),
         "x0": Param(None, "", "initial state of the realization; None: zeros"),
-        "process_noise": Param(0.0, "", "state noise std (per √s continuous, per period discrete)"),
+        "process_noise": Param(
+            0.0, "", "state noise std (per √s continuous, per period discrete)", min=0.0
+        ),
     }
 
 
@@ -369,7 +381,7 @@ class LtiModelNode(RuntimeModule):
 
     parameters = _model_params(False)
     role = "model"
-    outputs = ("model",)
+    ports = (Output("model", doc="the LtiModel (a model object, not a signal)"),)
     direct_feedthrough = False
 
     def configure(self) -> None:

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself.ports import Input, Output
 from archself_blocks.lti import LtiModel, as_vector
 
 __all__ = ["Pid", "pid_closed_loop"]
@@ -98,23 +99,36 @@ class Pid(RuntimeModule):
         "kp": Param(1.0, "", "proportional gain (command units per feedback unit)"),
         "ki": Param(0.0, "1/s", "integral gain (times kp's unit)"),
         "kd": Param(0.0, "s", "derivative gain (times kp's unit)"),
-        "derivative_filter_rad_s": Param(10.0, "rad/s", "bandwidth N of the derivative filter"),
+        "derivative_filter_rad_s": Param(
+            10.0, "rad/s", "bandwidth N of the derivative filter", min=1e-3, max=1e6
+        ),
         "ff_gain": Param(0.0, "", "feed-forward gain on the reference"),
         "ff_rate_gain": Param(0.0, "s", "feed-forward gain on the reference's rate"),
         "ff_offset": Param(0.0, "", "constant feed-forward (operating-point command)"),
         "u_min": Param(None, "", "lower command limit; None: none"),
         "u_max": Param(None, "", "upper command limit; None: none"),
         "anti_windup": Param("clamp", "", "clamp, back_calculation or none"),
-        "tracking_time_s": Param(1.0, "s", "back-calculation time constant"),
+        "tracking_time_s": Param(1.0, "s", "back-calculation time constant", min=1e-6, max=1e7),
         "initial_integral": Param(0.0, "", "I at the start (command units)"),
-        "feedback_index": Param(0, "", "component of estimate/measurement/y that is fed back"),
-        "reference_index": Param(0, "", "component of the reference vector that is r"),
-        "input_index": Param(0, "", "plant input the command drives (for the linearization)"),
+        "feedback_index": Param(
+            0, "", "component of estimate/measurement/y that is fed back", min=0, max=100000
+        ),
+        "reference_index": Param(
+            0, "", "component of the reference vector that is r", min=0, max=100000
+        ),
+        "input_index": Param(
+            0, "", "plant input the command drives (for the linearization)", min=0, max=100000
+        ),
     }
     role = "controller"
-    inputs = ("reference",)
-    optional_inputs = ("estimate", "measurement", "model")
-    outputs = ("command",)
+    ports = (
+        Input("reference", doc="[r, dr/dt] (component reference_index is r)"),
+        Input("estimate", doc="fed back when connected (component feedback_index)",
+              required=False),
+        Input("measurement", doc="fed back when no estimate is connected", required=False),
+        Input("model", doc="an LtiModel, for its closed-loop linearization", required=False),
+        Output("command", doc="clip(feed-forward + kp·e + I − D, u_min, u_max)"),
+    )
     residual_signals = ("tracking_error",)
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:

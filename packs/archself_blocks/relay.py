@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from archself.modules.base import Param, RuntimeModule
+from archself.ports import Input, Output
 
 
 class Relay(RuntimeModule):
@@ -24,12 +25,13 @@ class Relay(RuntimeModule):
 
     parameters = {
         "gain": Param(1.0, "", "factor on last step's input"),
-        "noise": Param(0.0, "", "standard deviation of the added white noise"),
+        "noise": Param(0.0, "", "standard deviation of the added white noise", min=0.0),
     }
     role = "relay"
-    optional_inputs = ("signal",)
-    multi_inputs = ("signal",)
-    outputs = ("signal",)
+    ports = (
+        Input("signal", doc="upstream values, one per edge", required=False, multi=True),
+        Output("signal", doc="gain times the mean of last step's inputs, plus noise"),
+    )
     residual_signals = ("deviation",)
     fault_kinds = frozenset(
         {"bias", "bias_drift", "effectiveness_loss", "noise_increase", "dropout", "stuck"}

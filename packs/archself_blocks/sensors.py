@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself.ports import Input, Output
 from archself_blocks.lti import as_vector
 
 __all__ = ["Sensor", "SENSOR_FAULTS"]
@@ -38,19 +39,25 @@ class Sensor(RuntimeModule):
     """
 
     parameters = {
-        "index": Param(0, "", "component of the input vector that is measured"),
+        "index": Param(0, "", "component of the input vector that is measured", min=0, max=100000),
         "gain": Param(1.0, "", "scale factor"),
         "bias": Param(0.0, "", "constant offset (units of the measurement)"),
         "drift_per_s": Param(0.0, "1/s", "offset growing with time (units per second)"),
-        "noise": Param(0.0, "", "standard deviation of the white noise"),
-        "resolution": Param(0.0, "", "quantization step; 0: none"),
+        "noise": Param(0.0, "", "standard deviation of the white noise", min=0.0),
+        "resolution": Param(0.0, "", "quantization step; 0: none", min=0.0),
         "min": Param(None, "", "lower end of the range; None: none"),
         "max": Param(None, "", "upper end of the range; None: none"),
-        "dropout_probability": Param(0.0, "", "probability that a sample is lost"),
+        "dropout_probability": Param(
+            0.0, "", "probability that a sample is lost", min=0.0, max=1.0
+        ),
     }
     role = "sensor"
-    optional_inputs = ("y", "u")
-    outputs = ("measurement",)
+    ports = (
+        Input("y", doc="a plant's output vector (component index is measured)", required=False),
+        Input("u", doc="a plant's applied input, for a meter on the input line",
+              required=False),
+        Output("measurement", doc="gain·x + bias + drift + noise, quantized and clipped"),
+    )
     fault_kinds = SENSOR_FAULTS
     main_output = "measurement"
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself.ports import Input, Output
 from archself_blocks.lti import as_matrix, as_vector
 
 __all__ = ["PORTS", "Reference", "Gain", "Sum", "Select"]
@@ -40,11 +41,12 @@ class Reference(RuntimeModule):
     parameters = {
         "table": Param([[0.0, 0.0]], "[s, units]", "rows [t_s, value]"),
         "interpolation": Param("previous", "", "previous (steps) or linear (ramps)"),
-        "max_rate": Param(0.0, "1/s", "rate limit of the steps (units per second); 0: none"),
+        "max_rate": Param(
+            0.0, "1/s", "rate limit of the steps (units per second); 0: none", min=0.0
+        ),
     }
     role = "planner"
-    outputs = ("reference",)
-    output_sizes = {"reference": 2}
+    ports = (Output("reference", doc="[r, dr/dt]", size=2),)
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)
@@ -87,9 +89,11 @@ class _Static(RuntimeModule):
     """A memoryless block on the library's signal names (:data:`PORTS`)."""
 
     role = "static"
-    optional_inputs = PORTS
-    multi_inputs = PORTS
-    outputs = PORTS
+    ports = (
+        *(Input(s, doc="any library signal, several edges", required=False, multi=True)
+          for s in PORTS),
+        *(Output(s, doc="the result, under every library signal name") for s in PORTS),
+    )
     main_output = "signal"
 
     def _values(self, inputs: dict[str, Any]) -> list[np.ndarray | None]:
@@ -220,7 +224,9 @@ class Select(_Static):
     2.0
     """
 
-    parameters = {"index": Param(0, "", "component, or list of components, to pass on")}
+    parameters = {
+        "index": Param(0, "", "component, or list of components, to pass on", min=0, max=100000),
+    }
 
     def configure(self) -> None:
         idx = self.params["index"]

@@ -73,12 +73,20 @@ class LqrController(RuntimeModule):
     """
 
     parameters: ClassVar[dict[str, Param]] = {
-        "q_along": Param(1.0, "", "weight of the along-track error"),
-        "q_lateral": Param(1.0, "", "weight of the lateral error"),
-        "q_heading": Param(1.0, "", "weight of the heading error"),
-        "r_speed": Param(1.0, "", "weight of δv"),
-        "r_turn": Param(1.0, "", "weight of δω"),
-        "design_speed_mps": Param(0.5, "m/s", "linearization speed before a reference"),
+        "q_along": Param(1.0, "", "weight of the along-track error", min=0.0, max=1e6),
+        "q_lateral": Param(1.0, "", "weight of the lateral error", min=0.0, max=1e6),
+        "q_heading": Param(1.0, "", "weight of the heading error", min=0.0, max=1e6),
+        "r_speed": Param(
+            1.0, "", "weight of δv (> 0: the Riccati equation needs R > 0)", min=1e-6, max=1e6
+        ),
+        "r_turn": Param(
+            1.0, "", "weight of δω (> 0: the Riccati equation needs R > 0)", min=1e-6, max=1e6
+        ),
+        "design_speed_mps": Param(
+            0.5, "m/s", "linearization speed before a reference"
+            " (> 0: at rest the error dynamics are uncontrollable)",
+            min=0.01, max=50.0,
+        ),
     }
     role = "controller"
     inputs: ClassVar[tuple[str, ...]] = ("reference", "pose_estimate", "kinematics")
@@ -231,8 +239,12 @@ class AsymLqrController(LqrController):
 
     parameters = {
         **LqrController.parameters,
-        "adaptation_time_s": Param(3.0, "s", "time constant of the effectiveness estimate"),
-        "min_effectiveness": Param(0.3, "", "lower clip of the effectiveness estimate"),
+        "adaptation_time_s": Param(
+            3.0, "s", "time constant of the effectiveness estimate", min=0.01, max=1e4
+        ),
+        "min_effectiveness": Param(
+            0.3, "", "lower clip of the effectiveness estimate", min=0.01, max=1.0
+        ),
     }
     inputs = ("reference", "pose_estimate", "kinematics", "encoder_speeds")
 

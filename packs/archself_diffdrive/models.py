@@ -34,33 +34,39 @@ __all__ = [
 ]
 
 
-def _field(default: float, unit: str, doc: str) -> Any:
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+def _field(default: float, unit: str, doc: str, lo: float, hi: float) -> Any:
+    """A model field with its unit, doc and physically meaningful range [lo, hi]."""
+    return field(default=default, metadata={"unit": unit, "doc": doc, "min": lo, "max": hi})
 
 
 @dataclass(frozen=True)
 class Kinematics:
     """Kinematic model of a differential drive: wheel base and wheel radius (m)."""
 
-    wheel_base_m: float = _field(0.5, "m", "distance between the wheels")
-    wheel_radius_m: float = _field(0.1, "m", "wheel radius")
+    #: 0.01–100 m: a toy robot to a mining truck
+    wheel_base_m: float = _field(0.5, "m", "distance between the wheels", 0.01, 100.0)
+    wheel_radius_m: float = _field(0.1, "m", "wheel radius", 0.001, 10.0)
 
 
 @dataclass(frozen=True)
 class Dynamics:
     """Rigid-body and wheel-speed dynamics: mass, yaw inertia, wheel-speed lag."""
 
-    mass_kg: float = _field(12.0, "kg", "mass")
-    inertia_kg_m2: float = _field(0.6, "kg·m²", "yaw moment of inertia")
-    wheel_time_constant_s: float = _field(0.1, "s", "lag of the wheel speeds behind the commands")
+    mass_kg: float = _field(12.0, "kg", "mass", 0.01, 1e6)
+    inertia_kg_m2: float = _field(0.6, "kg·m²", "yaw moment of inertia", 1e-6, 1e8)
+    wheel_time_constant_s: float = _field(
+        0.1, "s", "lag of the wheel speeds behind the commands (0: none)", 0.0, 100.0
+    )
 
 
 @dataclass(frozen=True)
 class Actuation:
     """Actuator model: symmetric wheel-speed limit (rad/s) and nominal effectiveness."""
 
-    max_wheel_speed_rad_s: float = _field(12.0, "rad/s", "symmetric wheel-speed limit")
-    effectiveness: float = _field(1.0, "", "nominal effectiveness of the wheels")
+    max_wheel_speed_rad_s: float = _field(
+        12.0, "rad/s", "symmetric wheel-speed limit", 0.01, 1e4
+    )
+    effectiveness: float = _field(1.0, "", "nominal effectiveness of the wheels", 0.0, 2.0)
 
 
 def parameters_of(cls: type) -> dict[str, Param]:
@@ -69,10 +75,16 @@ def parameters_of(cls: type) -> dict[str, Param]:
     Examples
     --------
     >>> parameters_of(Kinematics)["wheel_base_m"]
-    Param(default=0.5, unit='m', doc='distance between the wheels', min=None, max=None)
+    Param(default=0.5, unit='m', doc='distance between the wheels', min=0.01, max=100.0)
     """
     return {
-        f.name: Param(f.default, f.metadata.get("unit", ""), f.metadata.get("doc", ""))
+        f.name: Param(
+            f.default,
+            f.metadata.get("unit", ""),
+            f.metadata.get("doc", ""),
+            min=f.metadata.get("min"),
+            max=f.metadata.get("max"),
+        )
         for f in fields(cls)
     }
 

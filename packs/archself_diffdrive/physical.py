@@ -58,13 +58,31 @@ class DiffDrivePlant(RuntimeModule):
 
     parameters = {
         **parameters_of(Kinematics),  # the true geometry
-        "max_wheel_speed_rad_s": Param(math.inf, "rad/s", "per-wheel speed limit"),
-        "initial_pose": Param([0.0, 0.0, 0.0], "m, m, rad", "[x, y, θ] at t = 0"),
+        "max_wheel_speed_rad_s": Param(
+            math.inf, "rad/s", "per-wheel speed limit"
+            " (≤ 10⁴ rad/s ≈ 95,000 rpm; the default inf: none)",
+            min=0.01, max=1e4,
+        ),
+        "initial_pose": Param(
+            [0.0, 0.0, 0.0], "m, m, rad", "[x, y, θ] at t = 0", min=-1e6, max=1e6
+        ),
         "wheel_time_constant_s": parameters_of(Dynamics)["wheel_time_constant_s"],
-        "effectiveness": Param([1.0, 1.0], "", "built-in per-wheel effectiveness [l, r]"),
-        "slip_variance_m": Param(0.0, "m", "wheel-travel variance per metre rolled (slip)"),
-        "lateral_noise_m_sqrt_s": Param(0.0, "m/sqrt(s)", "side-slip noise across the heading"),
-        "yaw_noise_rad_sqrt_s": Param(0.0, "rad/sqrt(s)", "heading noise (ground unevenness)"),
+        "effectiveness": Param(
+            [1.0, 1.0], "", "built-in per-wheel effectiveness [l, r]"
+            " (0: dead; above 1 over-delivers, 2 at most)",
+            min=0.0, max=2.0,
+        ),
+        "slip_variance_m": Param(
+            0.0, "m", "wheel-travel variance per metre rolled (slip)"
+            " (1 m² per metre rolled: no traction)",
+            min=0.0, max=1.0,
+        ),
+        "lateral_noise_m_sqrt_s": Param(
+            0.0, "m/sqrt(s)", "side-slip noise across the heading", min=0.0, max=10.0
+        ),
+        "yaw_noise_rad_sqrt_s": Param(
+            0.0, "rad/sqrt(s)", "heading noise (ground unevenness)", min=0.0, max=10.0
+        ),
     }
     role = "plant"
     inputs = ("wheel_speed_left", "wheel_speed_right")
@@ -186,10 +204,12 @@ class WheelActuator(RuntimeModule):
     parameters = {
         "side": Param("left", "", "'left' or 'right': the entry of wheel_cmd taken"),
         "error_smoothing_s": Param(
-            0.0, "s", "time constant of the command_error average kept at every step (0: raw)"
+            0.0, "s", "time constant of the command_error average kept at every step (0: raw)",
+            min=0.0, max=3600.0,
         ),
         "response_time_s": Param(
-            0.0, "s", "first-order lag the healthy wheel follows its command with (0: none)"
+            0.0, "s", "first-order lag the healthy wheel follows its command with (0: none)",
+            min=0.0, max=100.0,
         ),
     }
     role = "actuator"
@@ -245,7 +265,13 @@ class WheelEncoders(RuntimeModule):
     Input ``wheel_speeds`` (true, from the plant); output ``encoder_speeds`` ``[l, r]``.
     """
 
-    parameters = {"noise_rad_s": Param(0.05, "rad/s", "standard deviation of the speed noise")}
+    parameters = {
+        "noise_rad_s": Param(
+            0.05, "rad/s", "standard deviation of the speed noise"
+            " (above 100 rad/s the reading is all noise)",
+            min=0.0, max=100.0,
+        ),
+    }
     role = "sensor"
     inputs = ("wheel_speeds",)
     outputs = ("encoder_speeds",)
@@ -272,8 +298,11 @@ class Imu(RuntimeModule):
     """
 
     parameters = {
-        "noise_rad": Param(0.005, "rad", "standard deviation of the heading noise"),
-        "bias_rad": Param(0.0, "rad", "constant built-in bias"),
+        "noise_rad": Param(
+            0.005, "rad", "standard deviation of the heading noise (beyond π a heading is uniform)",
+            min=0.0, max=math.pi,
+        ),
+        "bias_rad": Param(0.0, "rad", "constant built-in bias", min=-math.pi, max=math.pi),
     }
     role = "sensor"
     inputs = ("pose",)
@@ -302,8 +331,12 @@ class Gps(RuntimeModule):
     """
 
     parameters = {
-        "rate_hz": Param(1.0, "Hz", "fix rate"),
-        "noise_m": Param(0.3, "m", "standard deviation of each coordinate"),
+        "rate_hz": Param(1.0, "Hz", "fix rate", min=0.001, max=1000.0),
+        "noise_m": Param(
+            0.3, "m", "standard deviation of each coordinate"
+            " (≤ 1 km: a receiver worse than that gives no fix)",
+            min=0.0, max=1000.0,
+        ),
     }
     role = "sensor"
     inputs = ("pose",)

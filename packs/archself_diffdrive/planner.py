@@ -100,9 +100,11 @@ class SplinePlanner(RuntimeModule):
     """
 
     parameters = {
-        "waypoints": Param(unit="m", doc="list of at least two [x, y] points"),
-        "speed_mps": Param(0.5, "m/s", "speed along the path"),
-        "resolution_m": Param(0.02, "m", "arc-length step of the lookup table"),
+        "waypoints": Param(unit="m", doc="list of at least two [x, y] points", min=-1e6, max=1e6),
+        "speed_mps": Param(0.5, "m/s", "speed along the path", min=0.001, max=50.0),
+        "resolution_m": Param(
+            0.02, "m", "arc-length step of the lookup table", min=0.001, max=10.0
+        ),
     }
     role = "planner"
     optional_inputs = ("kinematics",)

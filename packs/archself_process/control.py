@@ -53,11 +53,17 @@ class LevelObserver(RuntimeModule):
     """
 
     parameters = {
-        "correction_gain": Param(0.02, "1/s", "L"),
-        "innovation_window_s": Param(20.0, "s", "window of the innovation monitor"),
-        "initial_level_m": Param(None, "m", "start estimate; None: the first measurement"),
-        "handover_gain": Param(None, "1/s", "L after a start or hand-over; None: 5·L"),
-        "handover_s": Param(15.0, "s", "length of that boost"),
+        "correction_gain": Param(0.02, "1/s", "L", min=0.0, max=100.0),
+        "innovation_window_s": Param(
+            20.0, "s", "window of the innovation monitor", min=0.01, max=1e5
+        ),
+        "initial_level_m": Param(
+            None, "m", "start estimate; None: the first measurement", min=0.0, max=100.0
+        ),
+        "handover_gain": Param(
+            None, "1/s", "L after a start or hand-over; None: 5·L", min=0.0, max=100.0
+        ),
+        "handover_s": Param(15.0, "s", "length of that boost", min=0.0, max=1e5),
     }
     role = "estimator"
     inputs = ("level_measured", "flow_measured", "tank_model")
@@ -142,9 +148,14 @@ class PiController(RuntimeModule):
     """
 
     parameters: ClassVar[dict[str, Param]] = {
-        "kp": Param(1.4, "1/m", "proportional gain"),
-        "ki": Param(0.05, "1/(m·s)", "integral gain"),
-        "initial_output": Param(0.4, "", "initial integrator value as a valve opening"),
+        "kp": Param(
+            1.4, "1/m", "proportional gain (≥ 0: a wider opening raises the level)",
+            min=0.0, max=1e4,
+        ),
+        "ki": Param(0.05, "1/(m·s)", "integral gain", min=0.0, max=1e4),
+        "initial_output": Param(
+            0.4, "", "initial integrator value as a valve opening", min=0.0, max=1.0
+        ),
     }
     role = "controller"
     inputs: ClassVar[tuple[str, ...]] = ("setpoint", "level_estimate")
@@ -234,8 +245,10 @@ class PiFeedforwardController(PiController):
 
     parameters = {
         **PiController.parameters,
-        "adaptation_time_s": Param(5.0, "s", "time constant of the effectiveness estimate"),
-        "min_effectiveness": Param(0.3, "", "lower clip of η̂"),
+        "adaptation_time_s": Param(
+            5.0, "s", "time constant of the effectiveness estimate", min=0.01, max=1e4
+        ),
+        "min_effectiveness": Param(0.3, "", "lower clip of η̂", min=0.01, max=1.0),
     }
     inputs = ("setpoint", "level_estimate", "flow_measured", "tank_model")
     optional_inputs = ()
@@ -322,8 +335,13 @@ class SetpointPlanner(RuntimeModule):
     """
 
     parameters = {
-        "steps": Param([[0.0, 1.0]], "[s, m]", "targets: [t_s, level_m] each"),
-        "max_rate_m_s": Param(0.0, "m/s", "rate limit of the setpoint; 0: steps"),
+        "steps": Param(
+            [[0.0, 1.0]], "[s, m]", "targets: [t_s, level_m] each (times ≤ 10⁷ s, levels ≥ 0)",
+            min=0.0, max=1e7,
+        ),
+        "max_rate_m_s": Param(
+            0.0, "m/s", "rate limit of the setpoint; 0: steps", min=0.0, max=100.0
+        ),
     }
     role = "planner"
     outputs = ("setpoint",)

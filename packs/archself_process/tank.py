@@ -92,15 +92,22 @@ class TankModel:
     Each field's default and unit are also the parameters of ``model.tank``.
     """
 
-    area_m2: float = field(default=0.5, metadata={"unit": "m²", "doc": "cross-section A"})
+    #: ranges: a 1 cm² standpipe to a 100 m × 100 m basin, at most 100 m high
+    area_m2: float = field(
+        default=0.5, metadata={"unit": "m²", "doc": "cross-section A", "min": 1e-4, "max": 1e4}
+    )
     outflow_coeff: float = field(
-        default=0.01, metadata={"unit": "m^2.5/s", "doc": "k of q_out = k·sqrt(h)"}
+        default=0.01,
+        metadata={"unit": "m^2.5/s", "doc": "k of q_out = k·sqrt(h)", "min": 0.0, "max": 100.0},
     )
     max_flow_m3_s: float = field(
-        default=0.025, metadata={"unit": "m³/s", "doc": "inflow of the fully open healthy valve"}
+        default=0.025,
+        metadata={"unit": "m³/s", "doc": "inflow of the fully open healthy valve",
+                  "min": 1e-6, "max": 100.0},
     )
     max_level_m: float = field(
-        default=2.5, metadata={"unit": "m", "doc": "tank height (overflow above it)"}
+        default=2.5,
+        metadata={"unit": "m", "doc": "tank height (overflow above it)", "min": 0.01, "max": 100.0},
     )
 
     def equilibrium_inflow(self, h: float) -> float:
@@ -125,7 +132,11 @@ _DEFAULT_MODEL = TankModel()
 
 #: The fields of :class:`TankModel` as declared parameters (name, default, unit: written once).
 MODEL_PARAMETERS: dict[str, Param] = {
-    f.name: Param(f.default, f.metadata["unit"], f.metadata["doc"]) for f in fields(TankModel)
+    f.name: Param(
+        f.default, f.metadata["unit"], f.metadata["doc"], min=f.metadata["min"],
+        max=f.metadata["max"],
+    )
+    for f in fields(TankModel)
 }
 
 
@@ -238,11 +249,17 @@ class TankPlant(RuntimeModule):
 
     parameters = {
         **{k: v for k, v in MODEL_PARAMETERS.items() if k != "max_flow_m3_s"},
-        "initial_level_m": Param(1.0, "m", "level at t = 0"),
-        "substeps": Param(4, "", "Euler sub-steps per step"),
-        "supply_variation": Param(0.0, "", "relative std of the inflow (supply pressure)"),
-        "outflow_variation": Param(0.0, "", "relative std of the outflow (draw-off)"),
-        "disturbance_time_s": Param(30.0, "s", "correlation time of both disturbances"),
+        "initial_level_m": Param(1.0, "m", "level at t = 0", min=0.0, max=100.0),
+        "substeps": Param(4, "", "Euler sub-steps per step", min=1, max=1000),
+        "supply_variation": Param(
+            0.0, "", "relative std of the inflow (supply pressure)", min=0.0, max=1.0
+        ),
+        "outflow_variation": Param(
+            0.0, "", "relative std of the outflow (draw-off)", min=0.0, max=1.0
+        ),
+        "disturbance_time_s": Param(
+            30.0, "s", "correlation time of both disturbances", min=0.001, max=1e6
+        ),
     }
     role = "plant"
     inputs = ("inflow",)
@@ -328,7 +345,8 @@ class ControlValve(RuntimeModule):
     parameters = {
         "max_flow_m3_s": MODEL_PARAMETERS["max_flow_m3_s"],
         "error_smoothing_s": Param(
-            0.0, "s", "time constant of the command_error average kept at every step (0: raw)"
+            0.0, "s", "time constant of the command_error average kept at every step (0: raw)",
+            min=0.0, max=3600.0,
         ),
     }
     role = "actuator"
@@ -373,7 +391,9 @@ class FlowMeter(RuntimeModule):
     Input ``inflow`` (true, from the plant); output ``flow_measured``.
     """
 
-    parameters = {"noise_m3_s": Param(2e-4, "m³/s", "standard deviation of the noise")}
+    parameters = {
+        "noise_m3_s": Param(2e-4, "m³/s", "standard deviation of the noise", min=0.0, max=100.0),
+    }
     role = "sensor"
     inputs = ("inflow",)
     outputs = ("flow_measured",)
@@ -399,8 +419,8 @@ class LevelSensor(RuntimeModule):
     """
 
     parameters = {
-        "noise_m": Param(0.005, "m", "standard deviation of the noise"),
-        "bias_m": Param(0.0, "m", "built-in calibration offset"),
+        "noise_m": Param(0.005, "m", "standard deviation of the noise", min=0.0, max=100.0),
+        "bias_m": Param(0.0, "m", "built-in calibration offset", min=-100.0, max=100.0),
     }
     role = "sensor"
     inputs = ("level",)
