@@ -87,3 +87,13 @@ def test_a_renamed_port_counts_for_the_target_port() -> None:
     assert any(c == "incomplete" and "needs 'heading'" in m for _, c, m in found)
     assert not any(c == "signal" for _, c, m in found)
 
+
+
+def test_identify_writes_weights_into_edges_that_name_ports() -> None:
+    from archself.calibration.identify import set_weights
+
+    ported = MINIMAL.replace(HEADING, "  - {from: compass.heading, to: dead_reckoning.heading, "
+                             "weight: 0.5}")
+    out = set_weights(ported, "m.yaml", {("compass", "dead_reckoning"): 0.25}, "fitted")
+    e = load_text(out, "m.yaml").arch.edges[7]
+    assert (e.source, e.target, e.weight) == ("compass", "dead_reckoning", 0.25)

@@ -665,6 +665,10 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
     seq = _child(root, "edges")
     if not isinstance(seq, SequenceNode):
         raise LoadError("no edges to write weights into", file, path="edges")
+    from archself.ports import split_ref
+
+    mods = _child(root, "modules")
+    names = {k.value for k, _ in mods.value} if isinstance(mods, MappingNode) else set()
     groups: dict[tuple[str, str], list[tuple[int, Any, float]]] = {}
     for i, item in enumerate(seq.value):
         if not isinstance(item, MappingNode):
@@ -672,7 +676,7 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
         s, t, w = _child(item, "from"), _child(item, "to"), _child(item, "weight")
         if not (isinstance(s, ScalarNode) and isinstance(t, ScalarNode)):
             continue
-        key = (s.value, t.value)
+        key = (split_ref(s.value, names)[0], split_ref(t.value, names)[0])  # module.port ends
         if key in values:
             if not isinstance(w, ScalarNode):
                 raise LoadError("edge weight is not a plain value", file, path=f"edges.{i}.weight")
