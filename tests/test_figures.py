@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,10 @@ def test_delay_histogram_shows_the_spike_of_first_cycle_detections(shipped_campa
     assert len(widths) == 1 and spike.get_width() >= 0.5
     assert spike.get_x() <= 0.5 <= spike.get_x() + spike.get_width()
     assert any(t.get_text() == "168" for t in ax.texts)
+    # the legend's median is the report table's (the mean of the two middle runs)
+    imu = next(b for b in summary.scenarios if b["scenario"] == "imu_drift")
+    label = next(t.get_text() for t in ax.get_legend().get_texts() if "imu_drift" in t.get_text())
+    assert f"median {imu['delay_s']['median']:.3g} s" in label
 
 
 def test_tau_sweep_has_tau_on_x_not_every_point_at_zero(shipped_campaign):
@@ -60,8 +65,12 @@ def test_tau_sweep_has_tau_on_x_not_every_point_at_zero(shipped_campaign):
     xs = {round(float(x), 9) for line in top.get_lines() for x in line.get_xdata()}
     assert len(taus) == 7 and set(np.round(taus, 9)) <= xs
     assert "τ" in bottom.get_xlabel()
-    # the false-switch rates (all 0 in this campaign) are a line with their interval
-    assert any("false switches" in (line.get_label() or "") for line in bottom.get_lines())
+    # the false-switch rates (all 0 in this campaign) are a line with their interval,
+    # drawn once: over the fault-free runs it is the same for both faulted scenarios
+    false = [line for line in bottom.get_lines() if "false switches" in line.get_label()]
+    assert [line.get_label() for line in false] == ["false switches"]
+    # the legend under the figure, none inside the axes (it hid the intervals)
+    assert top.get_legend() is None and bottom.get_legend() is None and fig.legends
 
 
 @pytest.mark.parametrize("metric", ["rms_error", "max_error", "final_error"])
@@ -74,7 +83,13 @@ def test_error_boxes_are_not_clipped(shipped_campaign, metric):
         lo, hi = ax.get_ylim()
         values = [r[metric] for r in rows if r["scenario"] == name]
         assert lo < min(values) and max(values) < hi, name
-        assert [t.get_text() for t in ax.get_xticklabels()] == ["fixed", "adaptive"]
+        # the median under each box (not on it), the table's median (mean of the middle two)
+        ticks = [t.get_text().split("\n") for t in ax.get_xticklabels()]
+        assert [t[0] for t in ticks] == ["fixed", "adaptive"]
+        for mode, (_, written) in zip(("fixed", "adaptive"), ticks, strict=True):
+            runs = [r[metric] for r in rows if r["scenario"] == name and r["mode"] == mode]
+            assert float(written) == pytest.approx(statistics.median(runs), rel=5e-3)
+        assert not ax.texts  # nothing written over the boxes
     assert fig.axes[0].get_ylabel().endswith("[m]")
 
 

@@ -12,18 +12,22 @@ They are made to stay readable on real campaigns of 1,000+ runs
 
 - delays: one set of bins for every scenario, as wide as the delays' quantum (the
   loop period) or 1/40 of the range, so 168 runs detected in the first cycle are one
-  tall bar, not a hairline, and the tallest bar of each scenario is labelled;
+  tall bar, not a hairline, and the tallest bars of each scenario are labelled;
 - errors: one panel per scenario (its own scale, log only when fixed and adaptive
   are a decade apart), every run drawn as a point beside its box and the medians
-  written, so a tight distribution (168 fixed runs within 0.5 %) is still seen;
+  written under the boxes, so a tight distribution (168 fixed runs within 0.5 %) is
+  still seen;
 - τ sweep: τ on the x axis, the median delay (10–90 % band) above and the
   false-switch and detection rates (95 % Wilson intervals) below, so a sweep where
-  no τ ever switches falsely does not pile every point onto x = 0.
+  no τ ever switches falsely does not pile every point onto x = 0; a false-switch
+  rate shared by every scenario (over the fault-free runs) is drawn once, and the
+  legend sits under the figure.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -32,6 +36,7 @@ __all__ = ["fig_delays", "fig_errors", "fig_tau", "plot_delays", "plot_errors", 
 
 COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
 MODE_COLORS = {"fixed": "#999999", "adaptive": "#1f77b4"}
+MARKERS = ["s", "^", "D", "v", "o", "P"]
 
 
 def _figure(width: float = 6.4, height: float = 3.6) -> Any:
@@ -80,14 +85,14 @@ def plot_delays(rows: list[dict[str, Any]], names: list[str]) -> Any:
     ax = fig.add_subplot()
     for k, (n, d) in enumerate(data.items()):
         color = COLORS[k % len(COLORS)]
-        d_sorted = sorted(d)
-        median = d_sorted[len(d) // 2]
+        median = statistics.median(d)  # the table's median (the mean of two when n is even)
         counts, _, _ = ax.hist(d, bins=edges, alpha=0.65, color=color,
-                               label=f"{n} (n = {len(d)}, median {median:g} s)")
-        i = max(range(len(counts)), key=lambda j: counts[j])
-        ax.annotate(f"{int(counts[i])}", ((edges[i] + edges[i + 1]) / 2, counts[i]),
-                    textcoords="offset points", xytext=(0, 2), ha="center", fontsize=7,
-                    color=color)
+                               label=f"{n} (n = {len(d)}, median {median:.3g} s)")
+        top = max(counts)
+        for i in (j for j in range(len(counts)) if counts[j] == top):  # every tallest bar
+            ax.annotate(f"{int(counts[i])}", ((edges[i] + edges[i + 1]) / 2, counts[i]),
+                        textcoords="offset points", xytext=(0, 2), ha="center", fontsize=7,
+                        color=color)
     ax.set_xlabel("detection delay [s]")
     ax.set_ylabel("runs")
     ax.set_ylim(top=ax.get_ylim()[1] * 1.08)
@@ -125,12 +130,12 @@ def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
             # every run, spread sideways by its rank (deterministic, no random jitter)
             xs = [k + 1.33 + 0.12 * ((i * 0.618) % 1.0) for i in range(len(vs))]
             ax.scatter(xs, vs, s=4, color=MODE_COLORS[mode], alpha=0.5, lw=0)
-            med = sorted(vs)[len(vs) // 2]
-            ax.annotate(f"{med:.3g}", (k + 1, med), textcoords="offset points",
-                        xytext=(0, 4), ha="center", fontsize=7)
         for med in parts["medians"]:
             med.set_color("#000000")
-        ax.set_xticks(range(1, len(groups) + 1), [m for m, _ in groups])
+        # the median written under its box, where it covers neither box nor points; the
+        # same number as the report's table (the mean of the two middle runs when n is even)
+        ax.set_xticks(range(1, len(groups) + 1),
+                      [f"{m}\n{statistics.median(vs):.3g}" for m, vs in groups])
         ax.set_xlim(0.5, len(groups) + 0.75)
         if log:
             ax.set_yscale("log")
@@ -140,8 +145,8 @@ def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
             ax.set_ylim(lo - pad, hi + pad)
         ax.set_title(n, fontsize=9)
         ax.grid(axis="y", alpha=0.3)
-    axes[0].set_ylabel(metric.replace("_", " ") + u)
-    fig.suptitle(f"{title} error, fixed vs adaptive (paired seeds; medians written)",
+    axes[0].set_ylabel(f"{title if metric == 'rms_error' else title.lower()} error{u}")
+    fig.suptitle(f"{title} error, fixed vs adaptive (paired seeds; medians under the boxes)",
                  fontsize=10)
     return fig
 
@@ -152,9 +157,10 @@ def plot_tau(tau: Mapping[str, Any]) -> Any:
     curves = [c for c in curves if c["points"]]
     if not curves:
         return None
-    fig = _figure(6.4, 5.2)
+    fig = _figure(6.4, 5.8)
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
     basis = ""
+    false_rates: list[tuple[str, str, list[float], list[dict[str, Any]]]] = []
     for k, curve in enumerate(curves):
         color = COLORS[k % len(COLORS)]
         pts = sorted(curve["points"], key=lambda p: p["value"])
@@ -164,7 +170,7 @@ def plot_tau(tau: Mapping[str, Any]) -> Any:
             top.fill_between([p["value"] for p in ok], [p["delay_s"]["p10"] for p in ok],
                              [p["delay_s"]["p90"] for p in ok], color=color, alpha=0.2, lw=0)
             top.plot([p["value"] for p in ok], [p["delay_s"]["median"] for p in ok], "-o",
-                     color=color, ms=4, label=str(curve["scenario"]))
+                     color=color, ms=4, label=f"{curve['scenario']}: median delay")
         for p in pts:
             if p["delay_s"]["median"] is None:
                 top.plot([p["value"]], [0], "x", color=color, ms=7)
@@ -175,25 +181,41 @@ def plot_tau(tau: Mapping[str, Any]) -> Any:
             basis = pts[0].get("false_switch_basis", "")
             xf = [xi for xi, f in zip(x, fs, strict=True) if f["rate"] is not None]
             ff = [f for f in fs if f["rate"] is not None]
-            bottom.fill_between(xf, [f["lo"] for f in ff], [f["hi"] for f in ff],
-                                color=color, alpha=0.15, lw=0)
-            bottom.plot(xf, [f["rate"] for f in ff], "-o", color=color, ms=4,
-                        label=f"{curve['scenario']}: false switches")
+            false_rates.append((str(curve["scenario"]), color, xf, ff))
         det = [(xi, p["detected"]) for xi, p in zip(x, pts, strict=True)
                if p.get("detected") and p["detected"]["rate"] is not None]
         if det:
-            bottom.plot([d[0] for d in det], [d[1]["rate"] for d in det], ":s", color=color,
-                        ms=3, label=f"{curve['scenario']}: detected")
+            # hollow markers, each scenario its own shape and size: equal rates (all
+            # detected) stay visible one inside the other
+            bottom.plot([d[0] for d in det], [d[1]["rate"] for d in det], ":",
+                        marker=MARKERS[k % len(MARKERS)], mfc="none", color=color,
+                        ms=max(3.0, 8.0 - 1.5 * k), label=f"{curve['scenario']}: detected")
+    # over fault-free runs the false-switch rate is one and the same for every scenario:
+    # drawn once (in grey), not once per scenario with the last one hiding the others
+    same = len(false_rates) > 1 and all(f[2:] == false_rates[0][2:] for f in false_rates)
+    for name, color, xf, ff in false_rates[:1] if same else false_rates:
+        c = "#555555" if same else color
+        bottom.fill_between(xf, [f["lo"] for f in ff], [f["hi"] for f in ff],
+                            color=c, alpha=0.15, lw=0)
+        bottom.plot(xf, [f["rate"] for f in ff], "-o", color=c, ms=4,
+                    label="false switches" if same else f"{name}: false switches")
     top.set_ylabel("detection delay [s]\n(median, 10–90 %)")
     top.set_title(f"τ sweep: {tau['path']}")
     top.grid(alpha=0.3)
     top.set_ylim(bottom=0)
-    top.legend(frameon=False, fontsize=8)
     bottom.set_ylabel("rate (95 % CI)")
-    bottom.set_ylim(-0.05, 1.05)
+    bottom.set_ylim(-0.05, 1.08)
     bottom.set_xlabel(f"τ ({tau['path']})")
     bottom.grid(alpha=0.3)
-    bottom.legend(frameon=False, fontsize=7, ncols=2, loc="center right")
+    # one legend under the figure: inside the axes it covered the rates' intervals
+    handles, labels = [], []
+    for ax in (top, bottom):
+        h, lab = ax.get_legend_handles_labels()
+        handles += h
+        labels += lab
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", fontsize=8, frameon=False,
+                   ncols=2)
     if basis:
         bottom.set_title(f"false switches over {basis}", fontsize=8, loc="left")
     return fig

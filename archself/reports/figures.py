@@ -200,6 +200,10 @@ def plot_error(rep: RunReport) -> Any:
     return fig
 
 
+#: Colours of Fig. 5's channels: matplotlib's tab10 and tab20 without green (the switch
+#: lines) and grey (the fault onsets), so no channel looks like an event line.
+Z_COLORS = ("#1f77b4", "#ff7f0e", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22",
+            "#17becf", "#393b79", "#ad494a", "#8c6d31", "#7b4173", "#3182bd", "#e6550d")
 #: Colours of the rejection reasons in Fig. 5's strip (most frequent first).
 REJECTION_COLORS = ("#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
 
@@ -223,8 +227,9 @@ def plot_influence(rep: RunReport) -> Any:
     if rep.warmup_s > 0:
         ax.axvspan(0, rep.warmup_s, color="#bbbbbb", alpha=0.35,
                    label=f"warm-up ({rep.warmup_s:g} s)")
-    for name, z in rep.z.items():
-        ax.plot(rep.z_t, z, lw=1.3, label=_tex(f"|z| {name}"))
+    for k, (name, z) in enumerate(rep.z.items()):
+        ax.plot(rep.z_t, z, lw=1.3, color=Z_COLORS[k % len(Z_COLORS)],
+                label=_tex(f"|z| {name}"))
     for k, (label, value) in enumerate(rep.tau):
         ax.axhline(value, color="#000000", ls="--" if k == 0 else ":", lw=1.0,
                    label=f"{label} = {value:g}")
@@ -235,7 +240,7 @@ def plot_influence(rep: RunReport) -> Any:
                 transform=ax.transAxes, color="#777777")
     if strip is None:
         ax.set_xlabel("t [s]")
-    ax.set_ylabel("|z_i|  (Eq. 14)")
+    ax.set_ylabel("|z_i| (Eq. 14)")
     ax.set_title(_tex(f"Influence channels: {rep.scenario}"))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
