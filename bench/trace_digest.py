@@ -25,7 +25,7 @@ from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate
 
-ARCHS = ("diffdrive.yaml", "process_plant.yaml")
+ARCHS = ("diffdrive.yaml", "process_plant.yaml", "motor_drive.yaml")
 SEEDS = (1, 2, 3)
 
 
