@@ -133,9 +133,10 @@ def split_ref(ref: str, modules: Iterable[str]) -> tuple[str, str | None]:
     names = modules if isinstance(modules, (set, frozenset, dict)) else set(modules)
     if ref in names:
         return ref, None
-    best = max((m for m in names if ref.startswith(f"{m}.")), key=len, default=None)
-    if best is not None:
-        return best, ref[len(best) + 1 :]
+    cut = len(ref)
+    while (cut := ref.rfind(".", 0, cut)) > 0:  # the longest prefix first: O(dots), not O(M)
+        if ref[:cut] in names and cut + 1 < len(ref):
+            return ref[:cut], ref[cut + 1 :]
     mod, dot, port = ref.partition(".")
     return (mod, port) if dot and mod and port else (ref, None)
 
