@@ -6,7 +6,7 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from archself.system import _topological_order, algebraic_loop
+from archself.dataflow import algebraic_loop, topological_order
 
 NODES = [f"n{i:02d}" for i in range(13)]
 edges_st = st.lists(st.tuples(st.integers(0, 12), st.integers(0, 12)), max_size=40)
@@ -28,7 +28,7 @@ def test_algebraic_loop_and_order_match_networkx(pairs: list[tuple[int, int]]) -
         return
     rank = {n: -k for k, n in enumerate(NODES)}  # ties by a rank that is not the name order
     expected = list(nx.lexicographical_topological_sort(g, key=rank.__getitem__))
-    assert _topological_order(NODES, flow, rank) == expected
+    assert topological_order(NODES, flow, rank) == expected
 
 
 def test_loop_starts_at_the_first_source_and_follows_first_edges() -> None:
