@@ -262,6 +262,7 @@ def _declared_range(ctx: _Ctx, type_: str, pname: str, spec: Any, p: Parameter,
 def _edges(ctx: _Ctx) -> None:
     seen: dict[tuple[str, str, str, str], int] = {}
     modules = ctx.arch.modules
+    ports = ctx.arch.edge_ports  # named ports: archself.ports
     for i, e in enumerate(ctx.arch.edges):
         if e.source in modules and e.target in modules:  # the common case: no call
             ok = True
@@ -270,7 +271,7 @@ def _edges(ctx: _Ctx) -> None:
                   & _ref(ctx, e.target, ("edges", i, "to")))
         if e.source == e.target:
             ctx.add("error", "self-loop", f"edge from '{e.source}' to itself", ("edges", i))
-        key = (e.source, e.target, e.carries, e.into)
+        key = (e.source, e.target, e.carries, ports.into(i))
         if key in seen:
             ctx.add("error", "duplicate",
                     f"duplicate edge {e.source} -> {e.target} carrying '{e.carries}' "
@@ -283,13 +284,14 @@ def _edges(ctx: _Ctx) -> None:
         if ok and e.carries:  # named ports: archself.ports
             src = ctx.types.get(e.source)
             if (src is not None and src.outputs and e.carries not in src.outputs
-                    and e.from_port is None):
+                    and ports.from_port[i] is None):
                 ctx.add("error", "signal",
                         f"'{e.source}' ({ctx.arch.modules[e.source].type}) does not output "
                         f"'{e.carries}'; it outputs: {', '.join(src.outputs)}",
                         ("edges", i, "carries"))
             dst = ctx.types.get(e.target)
-            if (dst is not None and (dst.inputs or dst.optional_inputs) and e.to_port is None
+            if (dst is not None and (dst.inputs or dst.optional_inputs)
+                    and ports.to_port[i] is None
                     and e.carries not in dst.inputs + dst.optional_inputs):
                 ctx.add("warning", "signal",
                         f"'{e.target}' ({ctx.arch.modules[e.target].type}) does not use "
@@ -399,6 +401,7 @@ def _configurations(ctx: _Ctx) -> None:
                 f"{len(initial)} configurations are marked initial ({', '.join(initial)}); "
                 "mark one", ("configurations", initial[1], "initial"))
     edge_pairs = {(e.source, e.target) for e in arch.edges}
+    ports = arch.edge_ports
     obj = arch.runtime.objective
     needed: dict[str, str] = {}  # module -> the objective key that reads it
     for key in ("actual", "reference"):
@@ -436,13 +439,14 @@ def _configurations(ctx: _Ctx) -> None:
         edges = _active_edges(arch, cname)
         delivered: dict[str, dict[str, int]] = {m: {} for m in active}
         for i, e in edges:
-            first_edge = delivered[e.target].setdefault(e.into, i)  # by the target's port
+            into = ports.into(i)  # the target's port
+            first_edge = delivered[e.target].setdefault(into, i)
             target_cls = ctx.types.get(e.target)
-            many = target_cls is not None and e.into in target_cls.multi_inputs
+            many = target_cls is not None and into in target_cls.multi_inputs
             if first_edge != i and not many:
                 other = arch.edges[first_edge].source
                 ctx.add("error", "double-input",
-                        f"configuration '{cname}': '{e.target}' receives '{e.into}' from both "
+                        f"configuration '{cname}': '{e.target}' receives '{into}' from both "
                         f"'{other}' and '{e.source}'; one would overwrite the other (split the "
                         "configuration, or disable one edge with disabled_edges)", ("edges", i))
         for m in names:

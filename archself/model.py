@@ -26,7 +26,7 @@ Algorithm 1 settings      ``runtime``
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Union
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 from pydantic import (
     AfterValidator,
@@ -37,6 +37,9 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+
+if TYPE_CHECKING:
+    from archself.ports import EdgePorts
 
 FORMAT_VERSION = 1
 
@@ -193,7 +196,9 @@ class Edge(_Strict):
 
     ``from``/``to`` may name ports as ``module.port`` (see Named ports): the source's
     output port is then ``carries``, and the target receives the value under its input
-    port. Without a port in ``to`` the target receives it under ``carries``.
+    port. Without a port in ``to`` the target receives it under ``carries``. Once the
+    :class:`Architecture` is built, ``source``/``target`` are module names and the ports
+    are in :attr:`Architecture.edge_ports` (one table, not state on each edge).
     """
 
     # for other JSON Schema validators: carries, or a port in from or to
@@ -223,36 +228,6 @@ class Edge(_Strict):
     latency_s: Seconds = Field(0.0, description="Communication latency in seconds.")
     uncertainty: NonNeg = Field(0.0, description="Standard deviation added to the carried value.")
     description: str | None = None
-    _from_port: str | None = PrivateAttr(None)
-    _to_port: str | None = PrivateAttr(None)
-    _resolved: bool = PrivateAttr(False)
-
-    @property
-    def from_port(self) -> str | None:
-        """The output port ``from`` names (``module.port``), or None."""
-        return self._from_port
-
-    @property
-    def to_port(self) -> str | None:
-        """The input port ``to`` names (``module.port``), or None."""
-        return self._to_port
-
-    @property
-    def into(self) -> str:
-        """The target's input the value arrives at: the port in ``to``, else ``carries``."""
-        return self._to_port or self.carries
-
-    @property
-    def ports_resolved(self) -> bool:
-        """True once :func:`archself.ports.resolve_edges` has split ``from``/``to``."""
-        return self._resolved
-
-    def set_ports(self, from_port: str | None, to_port: str | None) -> None:
-        """Record the ports of ``from``/``to``; ``carries`` defaults to the source port,
-        else the target port."""
-        self._from_port, self._to_port, self._resolved = from_port, to_port, True
-        if not self.carries:
-            self.carries = from_port or to_port or ""
 
 
 # --------------------------------------------------------------------------- configurations
@@ -554,12 +529,28 @@ class Architecture(_Strict):
     scenarios: dict[Name, Scenario] = Field(default_factory=dict, description="Environments e.")
     runtime: Runtime
 
+    _edge_ports: Any = PrivateAttr(None)  # one archself.ports.EdgePorts, not one per edge
+
     @model_validator(mode="after")
     def _ports(self) -> Architecture:
         from archself.ports import resolve_edges
 
-        resolve_edges(self.modules, self.edges)
+        self._edge_ports = resolve_edges(self.modules, self.edges)
         return self
+
+    @property
+    def edge_ports(self) -> EdgePorts:
+        """The ports the edges name (``from``/``to`` as ``module.port``), by edge index.
+
+        Made when the model is built; made again (keeping the ports of the edges it
+        knew) when ``edges`` has changed since. Read it once per pass over the edges.
+        """
+        from archself.ports import resolve_edges
+
+        table = self._edge_ports
+        if table is None or not table.describes(self.edges):
+            table = self._edge_ports = resolve_edges(self.modules, self.edges, table)
+        return table
 
     def initial_configuration(self) -> str:
         """Name of the configuration marked ``initial`` (else the first one)."""

@@ -41,7 +41,8 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-from collections.abc import Iterable, Mapping
+import operator
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 
@@ -141,19 +142,76 @@ def split_ref(ref: str, modules: Iterable[str]) -> tuple[str, str | None]:
     return (mod, port) if dot and mod and port else (ref, None)
 
 
-def resolve_edges(modules: Mapping[str, Any], edges: Iterable[Any]) -> None:
-    """Split ``from``/``to`` of every edge into module and port (in place).
+@dataclasses.dataclass(frozen=True)
+class EdgePorts:
+    """The ports the edges of an architecture name, by edge index (``arch.edge_ports``).
+
+    One plain table per architecture, made once by :func:`resolve_edges`, so the
+    loops over 10^5 edges (``validate``, the executor's routes) index tuples instead
+    of reading per-edge state off the pydantic models.
+
+    Attributes
+    ----------
+    edges : tuple of Edge
+        The edges it describes, in file order (``arch.edge_ports`` rebuilds the table
+        when ``arch.edges`` no longer holds these objects).
+    from_port : tuple of str or None
+        The output port ``from`` names (``module.port``), else None.
+    to_port : tuple of str or None
+        The input port ``to`` names (``module.port``), else None.
+    """
+
+    edges: tuple[Any, ...]
+    from_port: tuple[str | None, ...]
+    to_port: tuple[str | None, ...]
+
+    def into(self, i: int) -> str:
+        """The input of edge ``i``'s target the value arrives at: the port in ``to``, else
+        ``carries``."""
+        return self.to_port[i] or self.edges[i].carries
+
+    def describes(self, edges: Sequence[Any]) -> bool:
+        """True when ``edges`` are exactly the edge objects of this table, in order."""
+        return len(edges) == len(self.edges) and all(map(operator.is_, edges, self.edges))
+
+
+def resolve_edges(modules: Mapping[str, Any], edges: Iterable[Any],
+                  known: EdgePorts | None = None) -> EdgePorts:
+    """Split ``from``/``to`` of every edge into module and port: the :class:`EdgePorts`.
 
     ``carries`` defaults to the source port, else to the target port; an edge's
-    ``source``/``target`` are module names afterwards, whatever the file wrote.
+    ``source``/``target`` are module names afterwards, whatever the file wrote (the
+    edges are changed in place). Edges ``known`` describes keep their ports (they
+    were split before).
     """
-    names = set(modules)
+    names = modules if isinstance(modules, (set, frozenset, dict)) else set(modules)
+    edges = tuple(edges)
+    before: dict[int, tuple[str | None, str | None]] = {}
+    if known is not None:  # known holds its edges, so their ids are not reused meanwhile
+        before = {id(e): (f, t) for e, f, t in
+                  zip(known.edges, known.from_port, known.to_port, strict=True)}
+    from_ports: list[str | None] = []
+    to_ports: list[str | None] = []
     for e in edges:
-        if e.ports_resolved:
-            continue
-        e.source, from_port = split_ref(e.source, names)
-        e.target, to_port = split_ref(e.target, names)
-        e.set_ports(from_port, to_port)
+        ports = before.get(id(e))
+        if ports is None:
+            source, target = e.source, e.target
+            if source in names:  # the common case: a module name, nothing to split
+                from_port = None
+            else:
+                source, from_port = split_ref(source, names)
+                e.source = source
+            if target in names:
+                to_port = None
+            else:
+                target, to_port = split_ref(target, names)
+                e.target = target
+            if not e.carries and (from_port or to_port):
+                e.carries = from_port or to_port
+            ports = from_port, to_port
+        from_ports.append(ports[0])
+        to_ports.append(ports[1])
+    return EdgePorts(edges, tuple(from_ports), tuple(to_ports))
 
 
 def _hint(word: str, options: Iterable[str]) -> str:
@@ -172,20 +230,24 @@ def port_findings(arch: Any, types: Mapping[str, Any]) -> Iterable[tuple[str, st
     named ports against the ports the types declare. (Ports driven twice and
     undriven required inputs are the ``double-input`` and ``incomplete`` rules.)
     """
-    for i, e in enumerate(arch.edges):
+    ports = arch.edge_ports
+    for i, (e, from_port, to_port) in enumerate(zip(arch.edges, ports.from_port, ports.to_port,
+                                                          strict=True)):
         if not e.carries:
             yield ("port", "the edge names no signal: give 'carries', or the ports as "
                    "'from: module.port' / 'to: module.port'", ("edges", i))
             continue
-        if e.from_port is not None and e.carries != e.from_port:
+        if from_port is None and to_port is None:  # the common case: nothing more to check
+            continue
+        if from_port is not None and e.carries != from_port:
             yield ("port", f"'carries: {e.carries}' contradicts the port in 'from' "
-                   f"('{e.source}.{e.from_port}'); give one of them", ("edges", i, "carries"))
+                   f"('{e.source}.{from_port}'); give one of them", ("edges", i, "carries"))
         src, dst = types.get(e.source), types.get(e.target)
-        if e.from_port is not None and src is not None and src.outputs \
-                and e.from_port not in src.outputs:
+        if from_port is not None and src is not None and src.outputs \
+                and from_port not in src.outputs:
             yield ("port", f"'{e.source}' ({arch.modules[e.source].type}) has no output port "
-                   f"'{e.from_port}'; {_hint(e.from_port, src.outputs)}", ("edges", i, "from"))
+                   f"'{from_port}'; {_hint(from_port, src.outputs)}", ("edges", i, "from"))
         takes = (dst.inputs + dst.optional_inputs) if dst is not None else ()
-        if e.to_port is not None and takes and e.to_port not in takes:
+        if to_port is not None and takes and to_port not in takes:
             yield ("port", f"'{e.target}' ({arch.modules[e.target].type}) has no input port "
-                   f"'{e.to_port}'; {_hint(e.to_port, takes)}", ("edges", i, "to"))
+                   f"'{to_port}'; {_hint(to_port, takes)}", ("edges", i, "to"))

@@ -59,17 +59,24 @@ def test_an_edge_with_ports_is_the_edge_with_carries() -> None:
     ported = MINIMAL.replace(HEADING, "  - {from: compass.heading, to: dead_reckoning.heading, "
                              "weight: 0.5}")
     arch = load_text(ported, "m.yaml").arch
-    e = arch.edges[7]
-    assert (e.source, e.target, e.carries, e.into) == ("compass", "dead_reckoning", "heading",
-                                                       "heading")
-    assert (e.from_port, e.to_port) == ("heading", "heading")
+    e, ports = arch.edges[7], arch.edge_ports
+    assert (e.source, e.target, e.carries, ports.into(7)) == ("compass", "dead_reckoning",
+                                                              "heading", "heading")
+    assert (ports.from_port[7], ports.to_port[7]) == ("heading", "heading")
     assert _findings(ported) == _findings(MINIMAL)
     # a port in 'to' alone names the signal on both sides
     only_to = MINIMAL.replace(HEADING, "  - {from: compass, to: dead_reckoning.heading, "
                               "weight: 0.5}")
     assert _findings(only_to) == _findings(MINIMAL)
     # a deep copy keeps the ports (campaign workers copy the model)
-    assert arch.model_copy(deep=True).edges[7].from_port == "heading"
+    assert arch.model_copy(deep=True).edge_ports.from_port[7] == "heading"
+    # the table follows the edge list: an edge added after loading is split on first use
+    copy = arch.model_copy(deep=True)
+    copy.edges.insert(0, copy.edges[7].model_copy(update={"source": "compass.heading",
+                                                          "target": "dead_reckoning.heading"}))
+    assert copy.edge_ports.to_port[0] == "heading"
+    assert copy.edge_ports.from_port[8] == "heading"  # kept for the edges it knew
+    assert copy.edges[0].source == "compass"
 
 
 def test_an_edge_without_a_signal_is_an_error() -> None:

@@ -26,7 +26,8 @@ def test_a_renamed_port_runs_like_the_unit_gain_it_replaces() -> None:
     after = load_text(MOTOR.replace(VIA_GAIN, PORTED), "motor.yaml")
     assert not [f for f in check(after) if f.severity == "error"]
     e = after.arch.edges[10]
-    assert (e.source, e.carries, e.target, e.into) == ("volt_meter", "measurement", "kf_tacho", "u")
+    assert (e.source, e.carries, e.target, after.arch.edge_ports.into(10)) == (
+        "volt_meter", "measurement", "kf_tacho", "u")
     # the filters receive the meter's value under 'u' (a unit gain passed it on exactly)
     for conf, scenario in (("m1", "tacho_drift"), ("m2", "drive_loss")):
         j0 = simulate(before.arch, scenario, seed=2, configuration=conf).series["J"]
