@@ -8,7 +8,7 @@ import pytest
 from archself.check import check
 from archself.loader import load_architecture, load_text
 from archself.runtime import MapeK, explain
-from archself.runtime.monitor import _limit_violations, is_limit_violation
+from archself.runtime.status import is_limit_violation, limit_violations
 from archself.sim.run import simulate
 
 from conftest import FIXTURES
@@ -74,7 +74,7 @@ def test_limits_read_local_signals_then_scalar_outputs() -> None:
     limits = {"max_command_error": 1.0, "min_measurement": 0.2, "max_y": 5.0, "max_gain": 3.0}
     local = {"command_error": 2.0}
     outputs = {"measurement": 0.1, "y": np.array([7.0]), "state": np.array([1.0, 2.0])}
-    found = _limit_violations(limits, local, outputs)
+    found = limit_violations(limits, local, outputs)
     assert found == [
         "max_command_error 1 violated (2)",
         "min_measurement 0.2 violated (0.1)",

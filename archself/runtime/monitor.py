@@ -42,18 +42,32 @@
   the active set is computed once per set. The numbers are those of
   :class:`ResidualFilter` and :func:`module_residual` exactly
   (tests/test_runtime_monitor.py).
+
+The one-module maths is in :mod:`archself.runtime.residuals`, κ_i and the limit
+checks in :mod:`archself.runtime.status`, the per-active-set arrays in
+:mod:`archself.runtime.monitor_layout`; their names are re-exported here.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from archself.model import Architecture
+from archself.runtime.monitor_layout import Layout, active_samples, as_floats
+from archself.runtime.residuals import (
+    ResidualFilter,
+    filter_confidence,
+    filter_gain,
+    is_own_failure,
+    module_residual,
+    to_float,
+    unavailable_residual,
+)
+from archself.runtime.status import ModuleStatus, StatusMap, is_limit_violation, limit_violations
 
 __all__ = [
     "ModuleStatus",
@@ -63,257 +77,10 @@ __all__ = [
     "StatusMap",
     "filter_gain",
     "is_limit_violation",
+    "is_own_failure",
     "module_residual",
     "unavailable_residual",
 ]
-
-
-def filter_gain(dt: float, time_constant: float) -> float:
-    """Gain ``1 − exp(−dt/T)`` of a first-order filter sampled every ``dt`` (1 if T = 0).
-
-    Examples
-    --------
-    >>> filter_gain(1.0, 0.0)
-    1.0
-    >>> round(filter_gain(1.0, 10.0), 4)
-    0.0952
-    """
-    if time_constant <= 0:
-        return 1.0
-    return float(1.0 - math.exp(-max(dt, 0.0) / time_constant))
-
-
-def module_residual(
-    value: float, sensitivity: float, nominal: float, normalization: str = "nominal"
-) -> float:
-    """Local residual r_i (Eq. 12) from a (filtered) local signal value.
-
-    Parameters
-    ----------
-    value : float
-        The filtered local signal s̄.
-    sensitivity : float
-        ∂J/∂θ_i.
-    nominal : float
-        The signal's nominal noise level (> 0).
-    normalization : {"nominal", "none"}
-        See the module docstring.
-
-    Returns
-    -------
-    float
-        ``r_i``; 0 for a non-finite value.
-
-    Examples
-    --------
-    >>> module_residual(0.375, 1.0, 0.25)   # 50 % above nominal
-    0.5
-    >>> module_residual(0.1, 1.0, 0.2)      # inside the noise band
-    0.0
-    >>> module_residual(-0.3, 2.0, 0.2, "none")
-    0.6
-    """
-    if not math.isfinite(value):
-        return 0.0
-    if normalization == "none":
-        return float(sensitivity * abs(value))
-    return float(sensitivity * max(0.0, abs(value) - nominal) / nominal)
-
-
-def unavailable_residual(runtime: Any) -> float:
-    """``r_sat``: the residual of an unavailable module, ``max(1, 2·τ)``.
-
-    τ is ``runtime.threshold`` (or ``hysteresis.on``), so an unavailable module
-    is always a candidate (z_i ≥ r_i with non-negative weights); 1 is "a
-    deviation as large as the nominal level" under ``nominal`` normalization.
-
-    Examples
-    --------
-    >>> from types import SimpleNamespace as NS
-    >>> unavailable_residual(NS(threshold=0.55, hysteresis=None))
-    1.1
-    >>> unavailable_residual(NS(threshold=None, hysteresis=None))
-    1.0
-    """
-    tau = getattr(runtime, "threshold", None)
-    hyst = getattr(runtime, "hysteresis", None)
-    if tau is None and hyst is not None:
-        tau = hyst.on
-    return float(max(1.0, 2.0 * float(tau or 0.0)))
-
-
-def is_own_failure(reason: str | None) -> bool:
-    """Whether an unavailability reason is the module's own (not a lost upstream input)."""
-    return not (reason or "").startswith("lost input")
-
-
-class ResidualFilter:
-    """First-order low-pass filter ``y ← y + g·(s − y)`` holding on missing samples.
-
-    Starts at 0 (a healthy module's nominal residual) so that one noisy first
-    sample cannot raise an alarm.
-
-    Parameters
-    ----------
-    time_constant : float
-        T in seconds; 0 passes the signal through.
-    """
-
-    def __init__(self, time_constant: float) -> None:
-        self.time_constant = float(time_constant)
-        self.value = 0.0
-        self.valid_time = 0.0
-        self.samples = 0
-
-    def update(self, sample: float, dt: float) -> float:
-        """Feed one sample taken ``dt`` seconds after the previous one."""
-        if math.isfinite(sample):
-            if self.samples == 0 and self.time_constant <= 0:
-                self.value = sample
-            else:
-                self.value += filter_gain(dt, self.time_constant) * (sample - self.value)
-            self.samples += 1
-            self.valid_time += max(dt, 0.0)
-        return self.value
-
-    @property
-    def confidence(self) -> float:
-        """How settled the filter is: ``1 − exp(−t_valid/T)`` (1 without smoothing)."""
-        return _confidence(self.samples, self.valid_time, self.time_constant)
-
-    def reset(self) -> None:
-        self.value = 0.0
-        self.valid_time = 0.0
-        self.samples = 0
-
-
-@dataclass
-class ModuleStatus:
-    """κ_i: status indicators of one module (Eq. 17)."""
-
-    active: bool
-    available: bool = True
-    residual_ok: bool = True
-    confidence: float = 1.0
-    violations: list[str] = field(default_factory=list)
-    reason: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "active": self.active,
-            "available": self.available,
-            "residual_ok": self.residual_ok,
-            "confidence": float(self.confidence),
-            "violations": list(self.violations),
-        }
-        if self.reason is not None:
-            out["reason"] = self.reason
-        return out
-
-
-def _confidence(samples: int, valid_time: float, time_constant: float) -> float:
-    """``1 − exp(−t_valid/T)`` of a residual filter (0 before a sample, 1 without smoothing)."""
-    if samples == 0:
-        return 0.0
-    if time_constant <= 0:
-        return 1.0
-    return float(1.0 - math.exp(-valid_time / time_constant))
-
-
-class StatusMap(Mapping[str, ModuleStatus]):
-    """κ of every module (Eq. 17) as a read-only mapping, built on demand.
-
-    The Monitor keeps the status of all modules in arrays; a
-    :class:`ModuleStatus` is only created when a module is looked up (and then
-    kept, so repeated look-ups give the same object). :meth:`findings` lists the
-    modules with something to report without touching the others, which is what
-    keeps a cycle on 10^4 modules cheap.
-
-    Parameters
-    ----------
-    names : list of str
-        All modules, in index order (iteration order of the mapping).
-    index : dict
-        name -> position in ``names``.
-    active, available, residual_ok : numpy.ndarray of bool
-        Per position.
-    confidence : callable
-        position -> confidence of the module's residual filter.
-    violations : dict
-        name -> violated constraints (active modules with at least one).
-    reasons : dict
-        name -> reason of an active unavailable module (may be None).
-    finding : numpy.ndarray of int
-        Positions of the active modules that are unavailable, have an unusable
-        residual signal or violate a constraint, ascending.
-    unavailable : set of str, optional
-        The names where ``available`` is False, if the caller knows them.
-    """
-
-    def __init__(
-        self,
-        names: list[str],
-        index: dict[str, int],
-        active: np.ndarray,
-        available: np.ndarray,
-        residual_ok: np.ndarray,
-        confidence: Callable[[int], float],
-        violations: dict[str, list[str]],
-        reasons: dict[str, str | None],
-        finding: np.ndarray,
-        unavailable: set[str] | None = None,
-    ) -> None:
-        self._names = names
-        self._index = index
-        self._active = active
-        self._available = available
-        self._residual_ok = residual_ok
-        self._confidence = confidence
-        self._violations = violations
-        self._reasons = reasons
-        self._finding = finding
-        self._built: dict[str, ModuleStatus] = {}
-        self._down = unavailable
-
-    def __getitem__(self, name: str) -> ModuleStatus:
-        status = self._built.get(name)
-        if status is None:
-            k = self._index[name]
-            status = ModuleStatus(
-                active=bool(self._active[k]),
-                available=bool(self._available[k]),
-                residual_ok=bool(self._residual_ok[k]),
-                confidence=self._confidence(k),
-                violations=list(self._violations.get(name, ())),
-                reason=self._reasons.get(name),
-            )
-            self._built[name] = status
-        return status
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._index
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._names)
-
-    def __len__(self) -> int:
-        return len(self._names)
-
-    def findings(self) -> list[tuple[str, ModuleStatus]]:
-        """``(name, κ)`` of the active modules with a finding, in index order.
-
-        A finding is: unavailable, residual signal unusable, or a violated
-        constraint (what the decision log records).
-        """
-        names = self._names
-        return [(names[k], self[names[k]]) for k in self._finding.tolist()]
-
-    def unavailable(self) -> set[str]:
-        """Names of the modules the system reports unavailable (active or not)."""
-        if self._down is None:
-            names = self._names
-            self._down = {names[k] for k in (~self._available).nonzero()[0].tolist()}
-        return self._down
 
 
 @dataclass
@@ -354,130 +121,6 @@ class Observation:
         }
 
 
-def _finite(x: Any) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return math.nan
-    return v
-
-
-def _floats(values: list[Any]) -> np.ndarray:
-    """``[_finite(v) for v in values]`` as a float array; one numpy call for plain numbers."""
-    try:
-        a = np.array(values)
-    except (TypeError, ValueError):
-        a = None
-    if a is not None and a.ndim == 1 and a.dtype.kind in "fiub":
-        return a.astype(float, copy=False)
-    return np.array([_finite(v) for v in values], dtype=float)
-
-
-def _samples(local: Mapping[str, Any], lay: _Layout) -> list[Any]:
-    """``(local[m] or {}).get(signal, nan)`` for every active residual module of ``lay``."""
-    empty: dict[str, Any] = {}
-    return [(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs]
-
-
-def _limit_violations(
-    limits: Mapping[str, Any], local: Mapping[str, Any], outputs: Mapping[str, Any] | None = None
-) -> list[str]:
-    """Declared ``max_<signal>``/``min_<signal>`` limits the module's signals break (e).
-
-    The signal is a local (residual) signal, else a scalar output the module published
-    this step; a limit on anything else (a parameter, θ) is judged by the planner.
-    Each line starts with the limit's key (:func:`is_limit_violation`).
-    """
-    out = []
-    for key, limit in limits.items():
-        for prefix, worse in (("max_", float.__gt__), ("min_", float.__lt__)):
-            if key.startswith(prefix):
-                name = key[len(prefix) :]
-                if name in local:
-                    raw = local[name]
-                else:
-                    raw = outputs.get(name) if outputs else None
-                    if isinstance(raw, np.ndarray):
-                        raw = raw.item() if raw.size == 1 else None
-                value = _finite(math.nan if raw is None else raw)
-                if math.isfinite(value) and worse(value, float(limit)):
-                    out.append(f"{key} {limit:g} violated ({value:g})")
-    return out
-
-
-def is_limit_violation(text: str) -> bool:
-    """True for a κ violation line of a measured limit (not ``requires``/``excludes``)."""
-    return text.startswith(("max_", "min_"))
-
-
-class _Layout:
-    """What the Monitor precomputes for one set of active modules, and its filter state.
-
-    The residual filters of the active modules are held here in compact arrays
-    (one entry per active module with a ``residual`` block), replaced by new
-    arrays at every update so that an :class:`Observation` can keep them.
-    """
-
-    def __init__(self, monitor: Monitor, active: frozenset[str]) -> None:
-        names = monitor.names
-        n = len(names)
-        self.key = active
-        self.active = np.fromiter((m in active for m in names), dtype=bool, count=n)
-        on = self.active[monitor.res_pos]
-        self.res_on = np.flatnonzero(on)  # residual slots of the active modules
-        self.res_off = np.flatnonzero(~on)
-        self.on_pos = monitor.res_pos[self.res_on]  # their positions in names
-        self.on_names = [names[k] for k in self.on_pos.tolist()]
-        self.pairs = [
-            (names[k], monitor.res_signal[j])
-            for j, k in zip(self.res_on.tolist(), self.on_pos.tolist(), strict=True)
-        ]
-        self.sensitivity = monitor.sensitivity[self.res_on]
-        self.nominal = monitor.nominal[self.res_on]
-        self.time_constant = monitor.time_constant[self.res_on]
-        self.instant = self.time_constant <= 0
-        self.any_instant = bool(self.instant.any())
-        self.tc_slot = monitor.tc_slot[self.res_on]
-        self.all_ok = np.ones(self.res_on.size, dtype=bool)  # shared, never written
-        # position in names -> -1 (no residual block), -2 (inactive), else compact slot
-        self.slot = np.full(n, -1, dtype=np.intp)
-        self.slot[monitor.res_pos] = -2
-        self.slot[self.on_pos] = np.arange(self.res_on.size, dtype=np.intp)
-        # filter state: the inactive filters restart from 0 (a reset), the others go on
-        monitor.value[self.res_off] = 0.0
-        monitor.valid_time[self.res_off] = 0.0
-        monitor.samples[self.res_off] = 0
-        self.trust_time = monitor.trust_time[self.res_on]
-        self.value = monitor.value[self.res_on]
-        self.valid_time = monitor.valid_time[self.res_on]
-        self.samples = monitor.samples[self.res_on]
-        self._gain_dt: float | None = None
-        self._gain = np.ones(self.res_on.size)
-        # requires/excludes depend on the active set only; limits are read every cycle
-        self.constrained: list[tuple[int, str, list[str], Mapping[str, Any]]] = []
-        for k, name in monitor.constrained:
-            if name not in active:
-                continue
-            cons = monitor.arch.modules[name].constraints
-            fixed = [f"requires {m} (inactive)" for m in cons.requires if m not in active]
-            fixed += [f"excludes {m} (active)" for m in cons.excludes if m in active]
-            self.constrained.append((k, name, fixed, cons.limits))
-
-    def store(self, monitor: Monitor) -> None:
-        """Write the filter state back to the Monitor's arrays (before a new layout)."""
-        monitor.value[self.res_on] = self.value
-        monitor.valid_time[self.res_on] = self.valid_time
-        monitor.samples[self.res_on] = self.samples
-
-    def gains(self, monitor: Monitor, dt: float) -> np.ndarray:
-        """:func:`filter_gain` of every active filter for the sampling interval ``dt``."""
-        if dt != self._gain_dt:
-            per_tc = np.array([filter_gain(dt, tc) for tc in monitor.tc_values], dtype=float)
-            self._gain = per_tc[self.tc_slot] if per_tc.size else np.ones(0)
-            self._gain_dt = dt
-        return self._gain
-
-
 class Monitor:
     """Monitor stage: residual filters per module and the κ_i indicators.
 
@@ -513,7 +156,7 @@ class Monitor:
         self.nominal = np.array([float(spec.nominal) for _, spec in res], dtype=float)
         tc_values, self.tc_slot = np.unique(self.time_constant, return_inverse=True)
         self.tc_values: list[float] = tc_values.tolist()
-        # filter state of every residual-carrying module (see _Layout for the active ones)
+        # filter state of every residual-carrying module (see Layout for the active ones)
         self.value = np.zeros(len(res))
         self.valid_time = np.zeros(len(res))
         self.samples = np.zeros(len(res), dtype=np.int64)
@@ -527,17 +170,17 @@ class Monitor:
             if (c := arch.modules[n].constraints).requires or c.excludes or c.limits
         ]
         self._true = np.ones(len(self.names), dtype=bool)  # shared, never written
-        self._layout: _Layout | None = None
+        self._layout: Layout | None = None
         self._t_prev: float | None = None
         self.r_sat = unavailable_residual(arch.runtime)
 
-    def layout(self, active: frozenset[str]) -> _Layout:
+    def layout(self, active: frozenset[str]) -> Layout:
         """The layout of ``active`` (rebuilt, carrying the filter state, when the set changes)."""
         lay = self._layout
         if lay is None or (lay.key is not active and lay.key != active):
             if lay is not None:
                 lay.store(self)
-            lay = self._layout = _Layout(self, frozenset(active))
+            lay = self._layout = Layout(self, frozenset(active))
         return lay
 
     def observe(self, system: Any, active: frozenset[str]) -> Observation:
@@ -549,7 +192,7 @@ class Monitor:
         self._t_prev = t
 
         try:
-            j_obs = _finite(system.objective_error())
+            j_obs = to_float(system.objective_error())
         except Exception:  # noqa: BLE001 - a failing objective must not stop the loop
             j_obs = math.nan
         j_ref = float(self.arch.runtime.objective.acceptable)
@@ -598,7 +241,7 @@ class Monitor:
         for _k, name, fixed, limits in lay.constrained:
             found = list(fixed)
             if limits:
-                found += _limit_violations(limits, local.get(name) or {}, outputs.get(name))
+                found += limit_violations(limits, local.get(name) or {}, outputs.get(name))
             if found:
                 violations[name] = found
 
@@ -606,7 +249,7 @@ class Monitor:
         residual_ok = self._true
         ok = lay.all_ok
         if lay.pairs:
-            raw = _samples(local, lay)
+            raw = active_samples(local, lay)
             avail_on = available[lay.on_pos] if any_down else None
             ok = self._update(lay, raw, avail_on, dt, r)
             if ok is not lay.all_ok:
@@ -628,7 +271,7 @@ class Monitor:
             j = int(slot[k])
             if j < 0:
                 return 1.0 if j == -1 else 0.0  # no residual block / filter reset
-            return _confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
+            return filter_confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
 
         kappa = StatusMap(
             names,
@@ -645,7 +288,7 @@ class Monitor:
         return Observation(t, j_obs, j_ref, r_global, r, kappa, lay.on_names, lay.value, ok)
 
     def _update(
-        self, lay: _Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray
+        self, lay: Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray
     ) -> np.ndarray:
         """Filter update ``y ← y + g·(s − y)`` and r_i of the active residual modules.
 
@@ -653,7 +296,7 @@ class Monitor:
         elementwise. Returns the usable-sample mask (``lay.all_ok`` when every
         sample was usable).
         """
-        x = _floats(raw)
+        x = as_floats(raw)
         with np.errstate(all="ignore"):
             ok = np.isfinite(x)
             if avail_on is not None:
