@@ -163,3 +163,20 @@ def test_a_pipe_is_refused_before_reading() -> None:
     finally:
         os.close(w)
         os.close(r)
+
+
+def test_loading_leaves_the_garbage_collector_as_it_was() -> None:
+    """The loader pauses the cyclic collector while it works, and restores it, errors or not."""
+    import gc
+
+    assert load_architecture(DIFFDRIVE).arch.edges
+    assert gc.isenabled()
+    with pytest.raises(SchemaError):
+        load_text("archself: 1\nnmae: x\n", "x.yaml")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        load_architecture(DIFFDRIVE)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
