@@ -186,31 +186,26 @@ def resolve_edges(modules: Mapping[str, Any], edges: Iterable[Any],
     """
     names = modules if isinstance(modules, (set, frozenset, dict)) else set(modules)
     edges = tuple(edges)
-    before: dict[int, tuple[str | None, str | None]] = {}
+    from_ports: list[str | None] = [None] * len(edges)
+    to_ports: list[str | None] = [None] * len(edges)
+    before: dict[int, int] = {}  # id of a known edge -> its index in known
     if known is not None:  # known holds its edges, so their ids are not reused meanwhile
-        before = {id(e): (f, t) for e, f, t in
-                  zip(known.edges, known.from_port, known.to_port, strict=True)}
-    from_ports: list[str | None] = []
-    to_ports: list[str | None] = []
-    for e in edges:
-        ports = before.get(id(e))
-        if ports is None:
-            source, target = e.source, e.target
-            if source in names:  # the common case: a module name, nothing to split
-                from_port = None
-            else:
-                source, from_port = split_ref(source, names)
-                e.source = source
-            if target in names:
-                to_port = None
-            else:
-                target, to_port = split_ref(target, names)
-                e.target = target
-            if not e.carries and (from_port or to_port):
-                e.carries = from_port or to_port
-            ports = from_port, to_port
-        from_ports.append(ports[0])
-        to_ports.append(ports[1])
+        before = {id(e): j for j, e in enumerate(known.edges)}
+        for i, e in enumerate(edges):
+            j = before.get(id(e))
+            if j is not None:
+                from_ports[i], to_ports[i] = known.from_port[j], known.to_port[j]
+    # the common case, both ends module names, in one comprehension; the rest split here
+    for i in [i for i, e in enumerate(edges) if e.source not in names or e.target not in names]:
+        e = edges[i]
+        if id(e) in before:  # split before (an undeclared module stays one)
+            continue
+        if e.source not in names:
+            e.source, from_ports[i] = split_ref(e.source, names)
+        if e.target not in names:
+            e.target, to_ports[i] = split_ref(e.target, names)
+        if not e.carries and (from_ports[i] or to_ports[i]):
+            e.carries = from_ports[i] or to_ports[i]
     return EdgePorts(edges, tuple(from_ports), tuple(to_ports))
 
 
