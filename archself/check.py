@@ -89,22 +89,25 @@ __all__ = [
 
 def check(loaded: Loaded) -> list[Finding]:
     """All semantic findings of a loaded architecture, sorted by position."""
+    from archself.linear import gc_paused
+
     ctx = Context(loaded)
-    for rule in (
-        check_types,
-        check_edges,
-        check_ports,
-        check_weights,
-        check_configurations,
-        check_parameters,
-        check_actions,
-        check_scenarios,
-        check_work,
-        check_objective,
-        check_limits,
-        check_stability,
-    ):
-        rule(ctx)
+    with gc_paused():  # a large file's ~10^6 acyclic objects, as in the loader
+        for rule in (
+            check_types,
+            check_edges,
+            check_ports,
+            check_weights,
+            check_configurations,
+            check_parameters,
+            check_actions,
+            check_scenarios,
+            check_work,
+            check_objective,
+            check_limits,
+        ):
+            rule(ctx)
+    check_stability(ctx)  # --verify compiles systems: the collector runs there
     ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
     return ctx.out
 
