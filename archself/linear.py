@@ -39,20 +39,27 @@ A plant ``x⁺ = 0.9 x + u`` under the static feedback ``u = −k y``:
 >>> cl = interconnect({"p": plant, "k": gain}, [Wire("p", "k", "y"), Wire("k", "p", "u")], 0.1)
 >>> cl.A.round(6).tolist()
 [[0.4]]
+
+The wiring and the dense closed loop are here; the discretization is in
+:mod:`archself.discrete`, the sparse assembly in :mod:`archself.assembly`, the
+eigenvalue maths in :mod:`archself.modal` and the result types
+(:class:`~archself.closed_loop.Interconnection`, :class:`~archself.closed_loop.ClosedLoop`)
+in :mod:`archself.closed_loop`; their public names are re-exported here.
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
-import math
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
-import scipy.sparse
 
+from archself.assembly import interconnect_sparse, port_offsets
+from archself.closed_loop import ClosedLoop, Interconnection
+from archself.discrete import LinearizationError, delay_line, discretize
+from archself.modal import eigenvalues, modal_form
 from archself.modules.base import LinearModel
 
 __all__ = [
@@ -70,45 +77,8 @@ __all__ = [
     "wiring",
 ]
 
-#: Floor of |λ| when mapping a discrete eigenvalue to ln|λ|/dt (a pure delay has λ = 0).
-_LAMBDA_FLOOR = 1e-12
-
 #: Interconnections with more states than this are assembled as sparse matrices.
 DENSE_STATES = 400
-
-
-def eigenvalues(A: np.ndarray | scipy.sparse.spmatrix) -> np.ndarray:
-    """The eigenvalues of a dense or ``scipy.sparse`` square matrix (complex).
-
-    A sparse matrix is split into the strong components of its pattern: in their
-    topological order it is block triangular, so its eigenvalues are those of the
-    diagonal blocks (a 1×1 block's is its entry).
-
-    Examples
-    --------
-    >>> import scipy.sparse
-    >>> A = scipy.sparse.csr_matrix([[0.5, 0.0, 0.0], [1.0, 0.0, 2.0], [0.0, -2.0, 0.0]])
-    >>> sorted(eigenvalues(A).round(6).tolist(), key=lambda z: (z.real, z.imag))
-    [-2j, 2j, (0.5+0j)]
-    """
-    if not scipy.sparse.issparse(A):
-        A = np.atleast_2d(np.asarray(A, dtype=float))
-        return np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
-    from scipy.sparse.csgraph import connected_components
-
-    A = scipy.sparse.csr_matrix(A)
-    if A.shape[0] == 0:
-        return np.zeros(0, dtype=complex)
-    count, labels = connected_components(A, directed=True, connection="strong")
-    size = np.bincount(labels, minlength=count)
-    single = size[labels] == 1
-    out = [A.diagonal()[single].astype(complex)]
-    order = np.argsort(labels, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(size)])
-    for c in np.flatnonzero(size > 1).tolist():
-        idx = order[starts[c] : starts[c + 1]]
-        out.append(np.linalg.eigvals(A[idx][:, idx].toarray()))
-    return np.concatenate(out)
 
 
 @contextlib.contextmanager
@@ -139,10 +109,6 @@ def gc_paused() -> Iterator[None]:
             gc.enable()
 
 
-class LinearizationError(ValueError):
-    """The models of a configuration cannot be wired (widths or periods disagree)."""
-
-
 class Wire(NamedTuple):
     """An active edge as the interconnection sees it: ``source --signal--> target``.
 
@@ -154,73 +120,6 @@ class Wire(NamedTuple):
     target: str
     signal: str
     delay: int = 0
-
-
-def discretize(model: LinearModel, dt: float) -> LinearModel:
-    """``model`` at period ``dt``: zero-order hold of a continuous one, a discrete one as is.
-
-    Raises
-    ------
-    LinearizationError
-        For a discrete model whose period is not ``dt``.
-
-    Examples
-    --------
-    >>> m = LinearModel([[-1.0]], [[1.0]], [[1.0]], [[0.0]], [("u", 1)], [("y", 1)])
-    >>> d = discretize(m, 0.1)
-    >>> round(float(d.A[0, 0]), 6), round(float(d.B[0, 0]), 6), d.dt
-    (0.904837, 0.095163, 0.1)
-    """
-    if model.dt > 0:
-        if abs(model.dt - dt) > 1e-9 * max(1.0, dt):
-            raise LinearizationError(
-                f"a discrete model of period {model.dt:g} s in a run with step {dt:g} s"
-            )
-        return model
-    n, m = model.n, model.m
-    if n == 0:
-        Ad, Bd = model.A, model.B
-    else:
-        from scipy.linalg import expm
-
-        big = np.zeros((n + m, n + m))
-        big[:n, :n] = model.A * dt
-        big[:n, n:] = model.B * dt
-        e = expm(big)
-        Ad, Bd = e[:n, :n], e[:n, n:]
-    return LinearModel(Ad, Bd, model.C, model.D, model.inputs, model.outputs, dt, model.states)
-
-
-def _delay_line(signal: str, width: int, steps: int, dt: float) -> LinearModel:
-    """``steps`` unit delays of a ``width``-vector: ``y_k = u_{k−steps}``."""
-    n = width * steps
-    A = np.zeros((n, n))
-    A[width:, :-width] = np.eye(n - width)
-    B = np.zeros((n, width))
-    B[:width] = np.eye(width)
-    C = np.zeros((width, n))
-    C[:, -width:] = np.eye(width)
-    states = [f"{signal}[t-{k + 1}]" for k in range(steps) for _ in range(width)]
-    return LinearModel(
-        A, B, C, np.zeros((width, width)), [(signal, width)], [(signal, width)], dt, states
-    )
-
-
-def _ports(
-    model: LinearModel,
-) -> tuple[list[tuple[str, int, int | None, int]], dict[str, tuple[int, int]]]:
-    """Input ports ``(signal, size, edge, offset)``; outputs signal -> ``(offset, size)``."""
-    ins = []
-    k = 0
-    for sig, size, edge in model.inputs:  # type: ignore[misc]
-        ins.append((sig, size, edge, k))
-        k += size
-    outs: dict[str, tuple[int, int]] = {}
-    k = 0
-    for sig, size in model.outputs:  # type: ignore[misc]
-        outs.setdefault(sig, (k, size))
-        k += size
-    return ins, outs
 
 
 def wiring(models: Mapping[str, LinearModel], wires: Sequence[Wire]) -> list[tuple[Wire, int]]:
@@ -293,28 +192,6 @@ def loop_modules(
     return on
 
 
-@dataclass
-class Interconnection:
-    """The discrete closed loop of wired models.
-
-    Attributes
-    ----------
-    A : numpy.ndarray
-        Closed-loop state matrix (discrete, period ``dt``).
-    dt : float
-        The period.
-    owners : list of str
-        The module (or ``source→target`` delay line) each state belongs to.
-    labels : list of str
-        ``owner.state`` per state.
-    """
-
-    A: np.ndarray
-    dt: float
-    owners: list[str]
-    labels: list[str]
-
-
 def interconnect(
     models: Mapping[str, LinearModel],
     wires: Sequence[Wire],
@@ -351,7 +228,7 @@ def interconnect(
             width = next((s for sig, s in src.outputs if sig == w.signal), None)  # type: ignore[misc]
             if width is not None:
                 line = f"{w.source}→{w.target}"
-                disc[line] = _delay_line(w.signal, width, w.delay, dt)
+                disc[line] = delay_line(w.signal, width, w.delay, dt)
                 plain += [Wire(w.source, line, w.signal), Wire(line, w.target, w.signal)]
                 lines = True
                 continue
@@ -368,7 +245,7 @@ def interconnect(
         xo[name], uo[name], yo[name] = n, m, p
         n, m, p = n + mod.n, m + mod.m, p + mod.p
     if n > DENSE_STATES:
-        return _interconnect_sparse(disc, routes, (xo, uo, yo), (n, m, p), dt)
+        return interconnect_sparse(disc, routes, (xo, uo, yo), (n, m, p), dt)
     A = np.zeros((n, n))
     B = np.zeros((n, m))
     C = np.zeros((p, n))
@@ -385,7 +262,7 @@ def interconnect(
         D[y : y + mod.p, u : u + mod.m] = mod.D
         owners += [name] * mod.n
         labels += [f"{name}.{s}" for s in mod.states]
-        ports[name] = _ports(mod)
+        ports[name] = port_offsets(mod)
     K = np.zeros((m, p))
     for w, j in routes:
         sig, size, _edge, off = ports[w.target][0][j]
@@ -405,269 +282,3 @@ def interconnect(
     except np.linalg.LinAlgError:
         raise LinearizationError("the wired models form an algebraic loop") from None
     return Interconnection(A + B @ K @ Y, dt, owners, labels)
-
-
-def _blocks(
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-    blocks: list[np.ndarray],
-    r0: np.ndarray,
-    c0: np.ndarray,
-) -> None:
-    """Append the nonzero entries of equal-shaped ``blocks`` placed at ``(r0[k], c0[k])``."""
-    arr = np.stack(blocks)  # (count, rows, cols)
-    if not arr.size:
-        return
-    _, r, c = arr.shape
-    rows = np.broadcast_to(r0[:, None, None] + np.arange(r)[None, :, None], arr.shape)
-    cols = np.broadcast_to(c0[:, None, None] + np.arange(c)[None, None, :], arr.shape)
-    nz = arr != 0
-    parts.append((rows[nz], cols[nz], arr[nz]))
-
-
-def _interconnect_sparse(
-    disc: Mapping[str, LinearModel],
-    routes: Sequence[tuple[Wire, int]],
-    offsets: tuple[dict[str, int], dict[str, int], dict[str, int]],
-    sizes: tuple[int, int, int],
-    dt: float,
-) -> Interconnection:
-    """:func:`interconnect` of many states, with ``scipy.sparse`` matrices.
-
-    The block diagonals of A, B, C and D are assembled from arrays: the models are
-    grouped by shape and each group's blocks are stacked and placed at once.
-    """
-    from scipy.sparse.csgraph import connected_components
-
-    xo, uo, yo = offsets
-    n, m, p = sizes
-    parts: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {k: [] for k in "ABCDK"}
-    owners: list[str] = []
-    labels: list[str] = []
-    ports = {}
-    shapes: dict[tuple[int, ...], list[str]] = {}
-    for name, mod in disc.items():
-        shapes.setdefault(mod.B.shape + mod.C.shape[:1], []).append(name)
-        owners += [name] * mod.n
-        labels += [f"{name}.{s}" for s in mod.states]
-        ports[name] = _ports(mod)
-    for names in shapes.values():
-        x = np.array([xo[k] for k in names], dtype=np.intp)
-        u = np.array([uo[k] for k in names], dtype=np.intp)
-        y = np.array([yo[k] for k in names], dtype=np.intp)
-        group = [disc[k] for k in names]
-        _blocks(parts["A"], [g.A for g in group], x, x)
-        _blocks(parts["B"], [g.B for g in group], x, u)
-        _blocks(parts["C"], [g.C for g in group], y, x)
-        _blocks(parts["D"], [g.D for g in group], y, u)
-    krows: list[int] = []
-    kcols: list[int] = []
-    for w, j in routes:
-        sig, size, _edge, off = ports[w.target][0][j]
-        y_off, y_size = ports[w.source][1][w.signal]
-        if y_size != size:
-            raise LinearizationError(
-                f"{w.source}.{w.signal} has {y_size} component(s), {w.target} takes {size}"
-            )
-        r0, c0 = uo[w.target] + off, yo[w.source] + y_off
-        krows += range(r0, r0 + size)
-        kcols += range(c0, c0 + size)
-    k_at = (np.array(krows, dtype=np.intp), np.array(kcols, dtype=np.intp))
-    parts["K"].append((*k_at, np.ones(len(krows))))
-
-    def mat(key: str, shape: tuple[int, int]) -> scipy.sparse.csr_matrix:
-        got = parts[key]
-        rows = np.concatenate([g[0] for g in got]) if got else np.zeros(0, dtype=np.intp)
-        cols = np.concatenate([g[1] for g in got]) if got else np.zeros(0, dtype=np.intp)
-        vals = np.concatenate([g[2] for g in got]) if got else np.zeros(0)
-        coo = (vals.astype(float), (rows.astype(np.intp), cols.astype(np.intp)))
-        return scipy.sparse.csr_matrix(coo, shape=shape)  # duplicates add up, as += does
-
-    A, B, C = mat("A", (n, n)), mat("B", (n, m)), mat("C", (p, n))
-    D, K = mat("D", (p, m)), mat("K", (m, p))
-    DK = (D @ K).tocsr()
-    DK.eliminate_zeros()
-    Y = C  # y = (I − D K)⁻¹ C x
-    if DK.nnz:
-        count, _ = connected_components(DK, directed=True, connection="strong")
-        if count == p and not DK.diagonal().any():
-            # no loop through feed-through models: D K is nilpotent, the series ends
-            term = C
-            for _ in range(p):
-                term = (DK @ term).tocsr()
-                term.eliminate_zeros()
-                if not term.nnz:
-                    break
-                Y = Y + term
-        else:
-            from scipy.sparse.linalg import splu
-
-            try:
-                lu = splu((scipy.sparse.identity(p, format="csc") - DK).tocsc())
-            except RuntimeError:
-                raise LinearizationError("the wired models form an algebraic loop") from None
-            Y = scipy.sparse.csr_matrix(lu.solve(C.toarray()))
-    closed = (A + B @ K @ Y).tocsr()
-    return Interconnection(closed, dt, owners, labels)
-
-
-def modal_form(Ad: np.ndarray, dt: float) -> np.ndarray:
-    """A real matrix whose eigenvalues are ``ln(λ_i)/dt`` for the eigenvalues λ_i of ``Ad``.
-
-    Real λ give 1×1 blocks ``ln|λ|/dt``; a complex pair gives the 2×2 block
-    ``[[a, ω], [−ω, a]]`` with ``a = ln|λ|/dt`` and ``ω = arg(λ)/dt``. Only the real
-    parts matter for Eq. 21; |λ| is floored at 1e-12 (a pure delay).
-
-    Examples
-    --------
-    >>> modal_form(np.array([[0.5]]), 0.1).round(4).tolist()
-    [[-6.9315]]
-    """
-    if scipy.sparse.issparse(Ad):
-        return _modal_sparse(eigenvalues(Ad), dt)
-    lam = np.linalg.eigvals(np.atleast_2d(Ad)) if Ad.size else np.zeros(0)
-    blocks = []
-    for z in lam:
-        a = math.log(max(abs(z), _LAMBDA_FLOOR)) / dt
-        if z.imag > 1e-12:
-            w = math.atan2(z.imag, z.real) / dt
-            blocks.append(np.array([[a, w], [-w, a]]))
-        elif z.imag >= -1e-12:
-            blocks.append(np.array([[a]]))
-    return _block_diag(blocks)
-
-
-def _modal_sparse(lam: np.ndarray, dt: float) -> scipy.sparse.csr_matrix:
-    """:func:`modal_form` of the eigenvalues ``lam``, as a sparse matrix."""
-    a = np.log(np.maximum(np.abs(lam), _LAMBDA_FLOOR)) / dt
-    w = np.arctan2(lam.imag, lam.real) / dt
-    real = np.abs(lam.imag) <= 1e-12
-    pair = lam.imag > 1e-12
-    keep = real | pair
-    width = np.where(pair, 2, 1)[keep]
-    start = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.intp)
-    a, w, pair = a[keep], w[keep], pair[keep]
-    rows = [start, start[pair], start[pair] + 1, start[pair] + 1]
-    cols = [start, start[pair] + 1, start[pair], start[pair] + 1]
-    vals = [a, w[pair], -w[pair], a[pair]]
-    size = int(width.sum())
-    return scipy.sparse.csr_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
-    )
-
-
-def _block_diag(blocks: Sequence[Any]) -> Any:
-    if any(scipy.sparse.issparse(b) for b in blocks):
-        return scipy.sparse.block_diag(blocks, format="csr")
-    size = sum(b.shape[0] for b in blocks)
-    out = np.zeros((size, size))
-    i = 0
-    for b in blocks:
-        k = b.shape[0]
-        out[i : i + k, i : i + k] = b
-        i += k
-    return out
-
-
-@dataclass
-class ClosedLoop:
-    """The closed loop of a configuration: the wired models and the fallback blocks.
-
-    Attributes
-    ----------
-    loop : Interconnection or None
-        The discrete closed loop of the modules that give a linear model.
-    blocks : list of (str, numpy.ndarray)
-        ``(module, A)``: continuous closed-loop matrices of the modules that give
-        only ``linearization()`` (or whose model closes no loop), in file order.
-    """
-
-    loop: Interconnection | None = None
-    blocks: list[tuple[str, np.ndarray]] = field(default_factory=list)
-
-    def matrix(self) -> np.ndarray | None:
-        """The continuous-time A of Eq. 20 the eigenvalue margin tests (None: no model).
-
-        The wired part in :func:`modal_form`, then the blocks on the diagonal.
-        """
-        parts = []
-        if self.loop is not None and self.loop.A.shape[0]:
-            parts.append(modal_form(self.loop.A, self.loop.dt))
-        parts += [b for _, b in self.blocks]
-        if not parts:
-            return None
-        return _block_diag(parts)
-
-    @property
-    def modules(self) -> list[str]:
-        """The modules that contribute states."""
-        seen = dict.fromkeys(self.loop.owners if self.loop is not None else [])
-        seen.update(dict.fromkeys(n for n, _ in self.blocks))
-        return list(seen)
-
-    def worst_mode(self) -> tuple[float, float | None, list[tuple[str, float]]] | None:
-        """``(max Re μ, |λ| or None, [(module, share), ...])`` of the least stable mode.
-
-        ``μ`` is the continuous-equivalent eigenvalue; ``|λ|`` its discrete
-        magnitude when it comes from the wired part (per step). The shares are the
-        fractions of the mode's eigenvector (``|v_j|²``, normalized) in each module's
-        states, largest first. None when there are no states.
-        """
-        best: tuple[float, float | None, list[tuple[str, float]]] | None = None
-        if self.loop is not None and scipy.sparse.issparse(self.loop.A):
-            best = _worst_sparse(self.loop)
-        elif self.loop is not None and self.loop.A.size:
-            lam, vec = np.linalg.eig(self.loop.A)
-            mag = np.maximum(np.abs(lam), _LAMBDA_FLOOR)
-            k = int(np.argmax(mag))
-            best = (
-                math.log(mag[k]) / self.loop.dt,
-                float(np.abs(lam[k])),
-                _shares(np.abs(vec[:, k]) ** 2, self.loop.owners),
-            )
-        for name, b in self.blocks:
-            if not b.size:
-                continue
-            worst = float(np.max(np.linalg.eigvals(b).real))
-            if best is None or worst > best[0]:
-                best = (worst, None, [(name, 1.0)])
-        return best
-
-
-def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, float]]] | None:
-    """``worst_mode`` of a sparse loop: the largest |λ| of the strong components' blocks.
-
-    The shares are those of the eigenvector of the component's own block (the
-    mode's states in that component; its echo in the components downstream is
-    not counted).
-    """
-    from scipy.sparse.csgraph import connected_components
-
-    A = scipy.sparse.csr_matrix(loop.A)
-    if not A.shape[0]:
-        return None
-    _, labels = connected_components(A, directed=True, connection="strong")
-    size = np.bincount(labels)
-    diag = np.abs(A.diagonal())
-    single = size[labels] == 1
-    best: tuple[float, list[int], np.ndarray] | None = None
-    if single.any():
-        i = int(np.flatnonzero(single)[np.argmax(diag[single])])
-        best = (float(diag[i]), [i], np.ones(1))
-    for c in np.flatnonzero(size > 1).tolist():
-        members = np.flatnonzero(labels == c)
-        lam, vec = np.linalg.eig(A[members][:, members].toarray())
-        k = int(np.argmax(np.abs(lam)))
-        if best is None or abs(lam[k]) > best[0]:
-            best = (float(abs(lam[k])), members.tolist(), np.abs(vec[:, k]) ** 2)
-    assert best is not None
-    mag, idx, weight = best
-    owners = [loop.owners[i] for i in idx]
-    return (math.log(max(mag, _LAMBDA_FLOOR)) / loop.dt, mag, _shares(weight, owners))
-
-
-def _shares(weight: np.ndarray, owners: Sequence[str]) -> list[tuple[str, float]]:
-    total = float(weight.sum()) or 1.0
-    acc: dict[str, float] = {}
-    for w, o in zip(weight.tolist(), owners, strict=True):
-        acc[o] = acc.get(o, 0.0) + w / total
-    return sorted(acc.items(), key=lambda kv: -kv[1])
