@@ -53,6 +53,8 @@ and the ``MAX_RUN_*`` caps.
 
 from __future__ import annotations
 
+import gc
+
 from archself.check_context import Context
 from archself.check_graph import (
     check_configurations,
@@ -89,10 +91,12 @@ __all__ = [
 
 def check(loaded: Loaded) -> list[Finding]:
     """All semantic findings of a loaded architecture, sorted by position."""
-    from archself.linear import gc_paused
-
-    ctx = Context(loaded)
-    with gc_paused():  # a large file's ~10^6 acyclic objects, as in the loader
+    # the cyclic collector paused, as in the loader: it would walk a large file's 10^6
+    # acyclic objects again and again (for the imports of the packs and scipy too)
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        ctx = Context(loaded)
         for rule in (
             check_types,
             check_edges,
@@ -107,6 +111,9 @@ def check(loaded: Loaded) -> list[Finding]:
             check_limits,
         ):
             rule(ctx)
+    finally:
+        if was:
+            gc.enable()
     check_stability(ctx)  # --verify compiles systems: the collector runs there
     ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
     return ctx.out
