@@ -7,7 +7,8 @@ file                          role
 ``executors.py``              the ``Executor`` interface: local process pool, Dask
 ``worker.py``                 one job → one results row (architecture cached per process)
 ``results.py``                the Parquet results table and its schema
-``driver.py``                 plan, run, save incrementally, resume, Ctrl-C
+``plan.py``                   validate, size and list the jobs (seeds, run ids)
+``driver.py``                 run, save incrementally, resume, Ctrl-C
 ``report.py``                 ``campaign-report``: rates, distributions, τ sweep (HTML)
 ============================  ==============================================
 
@@ -41,9 +42,9 @@ _LAZY = {
     "write_results": "results",
     "CampaignInterrupted": "driver",
     "CampaignOutcome": "driver",
-    "plan_campaign": "driver",
+    "plan_campaign": "plan",
     "run_campaign": "driver",
-    "run_seeds": "driver",
+    "run_seeds": "plan",
     "campaign_report": "report",
 }
 

@@ -1,0 +1,249 @@
+"""Planning a campaign: the file and every sweep point validated, its size, its jobs.
+
+:func:`plan_campaign` checks the architecture once and each sweep point's copy,
+refuses a campaign past the caps (:func:`estimate_campaign`: :data:`MAX_RUNS`,
+:data:`MAX_STEPS` unless ``--yes``; half the memory always) and lists the jobs:
+scenarios × sweep points × replicates × modes, replicate ``k`` seeded by child ``k``
+of ``SeedSequence(root_seed)`` (:func:`run_seeds`), each with a stable
+:func:`run_id`. :mod:`archself.campaign.driver` runs them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from archself.campaign.sweep import CampaignError, Sweep, apply_values, sweep_points
+from archself.campaign.worker import Job, trace_name
+
+__all__ = [
+    "BYTES_PER_RUN",
+    "CampaignEstimate",
+    "MAX_RUNS",
+    "MAX_STEPS",
+    "MODES",
+    "estimate_campaign",
+    "plan_campaign",
+    "run_id",
+    "run_seeds",
+]
+
+MODES = ("fixed", "adaptive")
+
+
+def run_seeds(root_seed: int, n: int) -> list[int]:
+    """Seeds of replicates ``0 … n−1``: child ``k`` of ``SeedSequence(root_seed)``.
+
+    Child ``k`` does not depend on ``n``, so adding seeds later keeps the old ones.
+
+    Examples
+    --------
+    >>> run_seeds(0, 3)[:2] == run_seeds(0, 2)
+    True
+    """
+    import numpy as np
+
+    children = np.random.SeedSequence(int(root_seed)).spawn(int(n))
+    return [int(c.generate_state(1, dtype=np.uint32)[0]) for c in children]
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.12g}"
+
+
+def run_id(
+    scenario: str, sweeps: Sequence[Sweep], point: Sequence[float], replicate: int, mode: str
+) -> str:
+    """The stable key of a run, e.g. ``imu_drift|runtime.threshold=0.5|3|adaptive``."""
+    parts = [scenario] + [f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True)]
+    return "|".join(parts + [str(replicate), mode])
+
+
+def plan_campaign(
+    arch_path: str | Path,
+    scenarios: Sequence[str],
+    seeds: int,
+    sweeps: Sequence[Sweep] = (),
+    *,
+    modes: Sequence[str] = MODES,
+    root_seed: int = 0,
+    traces: str | Path | None = None,
+    yes: bool = False,
+    trace_format: str = "json",
+) -> tuple[list[Job], dict[str, Any]]:
+    """Validate a campaign and list its jobs (and the metadata of its results file).
+
+    The file is loaded and checked once here, and every sweep point is applied
+    and validated, so user errors are one-line errors before any run starts.
+    The size (:func:`estimate_campaign`) is checked against :data:`MAX_RUNS` and
+    :data:`MAX_STEPS` (lifted by ``yes``) and against the memory (never lifted)
+    before anything is built. With ``traces`` each run's trace goes into that folder,
+    as ``trace_format`` (``json`` or ``parquet``).
+
+    Raises
+    ------
+    CampaignError, LoadError
+        Unknown scenario, bad PATH or value, a file with errors.
+    """
+    from archself.check import check, has_errors
+
+    if trace_format not in ("json", "parquet"):
+        raise CampaignError(f"unknown trace format {trace_format!r}; known: json, parquet")
+    from archself.loader import Loaded, SourceMap, load_text, read_text
+
+    file = str(arch_path)
+    if seeds < 1:
+        raise CampaignError("--seeds must be at least 1")
+    if not scenarios:
+        raise CampaignError("give at least one --scenario")
+    if len(set(scenarios)) != len(scenarios):
+        raise CampaignError("the same --scenario is given twice")
+    bad_modes = [m for m in modes if m not in MODES]
+    if bad_modes or not modes:
+        raise CampaignError(
+            f"unknown mode {bad_modes[0] if bad_modes else ''!r}; known: " + ", ".join(MODES)
+        )
+    if root_seed < 0:
+        raise CampaignError(f"--root-seed must be at least 0, not {root_seed}")
+    text = read_text(arch_path)
+    loaded = load_text(text, file)
+    _no_errors(check(loaded), has_errors, "")
+    arch = loaded.arch
+    missing = [s for s in scenarios if s not in arch.scenarios]
+    if missing:
+        known = ", ".join(arch.scenarios) or "none"
+        raise CampaignError(f"{file}: unknown scenario {missing[0]!r}; known: {known}")
+    est = estimate_campaign(arch, scenarios, sweeps, seeds, modes)
+    est.check(yes)
+    points = sweep_points(sweeps)
+    for point in points if sweeps else []:
+        swept = apply_values(loaded.data, sweeps, point, file)
+        setting = ", ".join(f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True))
+        _no_errors(check(Loaded(swept, SourceMap(file), loaded.data)), has_errors, f"{setting}: ")
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    seed_list = run_seeds(root_seed, seeds)
+    tdir = Path(traces) if traces is not None else None
+    jobs = []
+    for sc in scenarios:
+        for point in points:
+            for rep, seed in enumerate(seed_list):
+                for mode in modes:
+                    trace = None
+                    if tdir is not None:
+                        trace = str(
+                            tdir / trace_name(sc, tuple(point), rep, mode, f".{trace_format}")
+                        )
+                    jobs.append(
+                        Job(
+                            run_id=run_id(sc, sweeps, point, rep, mode),
+                            arch_text=text,
+                            arch_digest=digest,
+                            file=file,
+                            sweeps=tuple(sweeps),
+                            point=tuple(float(v) for v in point),
+                            scenario=sc,
+                            replicate=rep,
+                            seed=seed,
+                            mode=mode,
+                            trace=trace,
+                        )
+                    )
+    meta = {
+        "format": 1,
+        "architecture": arch.name,
+        "file": Path(file).name,
+        "sha256": digest,
+        "root_seed": int(root_seed),
+        "sweeps": [s.path for s in sweeps],
+        "fault_free": sorted(name for name, s in arch.scenarios.items() if not s.faults),
+        "thresholds": _threshold_paths(sweeps),
+        "steps": est.steps,
+    }
+    return jobs, meta
+
+
+#: Caps of a campaign without ``--yes`` (runs, simulated steps) and in any case (memory).
+MAX_RUNS = 100_000
+MAX_STEPS = 1_000_000_000
+#: Bytes the driver holds per run (the job, its row, the futures) — measured ≈ 1.2 KB.
+BYTES_PER_RUN = 2048
+
+
+@dataclass(frozen=True)
+class CampaignEstimate:
+    """The size of a campaign, known before any run starts."""
+
+    runs: int
+    steps: int
+    memory_bytes: int
+
+    def text(self) -> str:
+        """``1,200 runs × 8,000 steps ≈ 9.6e+06 steps, ~2 MB``."""
+        per = self.steps // max(self.runs, 1)
+        return (
+            f"{self.runs:,} runs × {per:,} steps = {self.steps:.3g} steps, "
+            f"~{self.memory_bytes / 1024**2:,.0f} MB"
+        )
+
+    def check(self, yes: bool) -> None:
+        """Refuse past the caps: runs and steps unless ``yes``; memory always."""
+        avail = _memory_bytes()
+        if avail and self.memory_bytes > avail // 2:
+            raise CampaignError(
+                f"the campaign is {self.text()}: more than half of this machine's memory "
+                f"({avail / 1024**3:.1f} GB); use fewer --seeds or sweep values, or split it"
+            )
+        if yes:
+            return
+        if self.runs > MAX_RUNS or self.steps > MAX_STEPS:
+            raise CampaignError(
+                f"the campaign is {self.text()}: more than the cap ({MAX_RUNS:,} runs, "
+                f"{MAX_STEPS:.0e} steps); pass --yes to run it anyway"
+            )
+
+
+def _memory_bytes() -> int:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def estimate_campaign(
+    arch: Any, scenarios: Sequence[str], sweeps: Sequence[Sweep], seeds: int, modes: Sequence[str]
+) -> CampaignEstimate:
+    """Runs, simulated steps and driver memory of a campaign, without building it."""
+    n_points = math.prod(len(s.values) for s in sweeps)
+    per_cell = n_points * int(seeds) * len(modes)
+    # a swept step or duration: the estimate takes its most expensive value
+    dt = float(arch.runtime.step_s)
+    for s in sweeps:
+        if s.keys == ("runtime", "step_s") and min(s.values) > 0:
+            dt = min(dt, min(s.values))
+    durations = {name: float(arch.scenarios[name].duration_s) for name in scenarios}
+    for s in sweeps:
+        if len(s.keys) == 3 and s.keys[0] == "scenarios" and s.keys[2] == "duration_s":
+            if s.keys[1] in durations:
+                durations[str(s.keys[1])] = max(durations[str(s.keys[1])], max(s.values))
+    steps = sum(per_cell * round(d / dt) for d in durations.values())
+    runs = per_cell * len(scenarios)
+    return CampaignEstimate(runs, steps, runs * BYTES_PER_RUN)
+
+
+def _threshold_paths(sweeps: Sequence[Sweep]) -> list[str]:
+    return [
+        s.path
+        for s in sweeps
+        if s.keys in (("runtime", "threshold"), ("runtime", "hysteresis", "on"))
+    ]
+
+
+def _no_errors(findings: list[Any], has_errors: Callable[[list[Any]], bool], prefix: str) -> None:
+    if has_errors(findings):
+        first = next(f for f in findings if f.severity == "error")
+        raise CampaignError(f"{prefix}{first}")
