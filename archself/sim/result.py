@@ -1,0 +1,283 @@
+"""The outcome of one simulation: :class:`RunResult`, its trace, its pandas frames.
+
+A :class:`RunResult` holds a run's recorded series, metrics, switches and decision
+log; it gives them as plain data (:meth:`RunResult.to_dict`, :meth:`RunResult.trace`),
+as tidy pandas frames (:meth:`RunResult.to_pandas`, :meth:`RunResult.decisions_frame`),
+as a notebook summary, and writes the trace file (:mod:`archself.sim.trace`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from archself.jsondata import jsonable
+from archself.sim.metrics import metric_rows
+
+__all__ = ["RunResult"]
+
+
+@dataclasses.dataclass
+class RunResult:
+    """The outcome of one simulation.
+
+    Attributes
+    ----------
+    scenario : str
+    seed : int
+    mode : str
+        ``"fixed"`` (no adaptation loop) or ``"adaptive"``.
+    configuration : str
+        The configuration the run started in.
+    final_configuration : str
+    metrics : dict
+        ``max_error``, ``final_error``, ``rms_error`` (in :attr:`unit`) and
+        ``peak_time_s`` of the objective error J; when the unit is ``m`` also the
+        deprecated ``max_error_m``, ``final_error_m``, ``rms_error_m`` (same values).
+    switches : list of dict
+        Architecture switches ``{t_s, from, to, action, ...}`` (empty when fixed).
+    series : dict of str -> ndarray
+        Recorded time series, one row per step: ``t``, ``J`` (objective error),
+        ``reference`` and ``actual`` (the objective's signals), one series per
+        entry of ``runtime.record`` (the signal of the first active module that
+        publishes it; diffdrive and the process plant record ``estimate`` and
+        ``command``), ``configuration`` (index into :attr:`configurations`) and
+        ``residual.<module>`` (each module's declared residual signal, NaN while
+        inactive).
+    decisions : list
+        The adaptation loop's decision log (its ``decisions`` attribute), if any.
+
+    :meth:`to_pandas` and :meth:`decisions_frame` give the series and the decision
+    log as tidy pandas frames (named columns, configuration names); in a notebook
+    the result shows as a small HTML summary.
+    meta : dict
+        Architecture name, step, period, duration.
+    unit : str or None
+        Unit of the error metrics: ``runtime.objective.unit`` (None if not declared).
+    """
+
+    scenario: str
+    seed: int
+    mode: str
+    configuration: str
+    final_configuration: str
+    metrics: dict[str, float]
+    switches: list[dict[str, Any]]
+    series: dict[str, np.ndarray]
+    decisions: list[Any] = dataclasses.field(default_factory=list)
+    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
+    configurations: list[str] = dataclasses.field(default_factory=list)
+    unit: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary as plain data (one of the ``runs`` of ``archself simulate --json``)."""
+        return {
+            "scenario": self.scenario,
+            "seed": self.seed,
+            "mode": self.mode,
+            "configuration": self.configuration,
+            "final_configuration": self.final_configuration,
+            "unit": self.unit,
+            "metrics": {k: jsonable(v) for k, v in self.metrics.items()},
+            "switches": jsonable(self.switches),
+        }
+
+    def trace(self) -> dict[str, Any]:
+        """The trace document ``{meta, series, decisions}`` as plain JSON data."""
+        series = {name: _series_list(arr) for name, arr in self.series.items()}
+        return {"meta": self.trace_meta(), "series": series,
+                "decisions": jsonable(self.trace_decisions())}
+
+    def trace_meta(self) -> dict[str, Any]:
+        """The trace's ``meta``: :attr:`meta`, :meth:`to_dict` and the configuration names."""
+        return {**self.meta, **self.to_dict(), "configurations": list(self.configurations)}
+
+    def trace_decisions(self) -> list[Any]:
+        """The decision log as plain data (dicts), as the trace stores it."""
+        return [_decision(d) for d in self.decisions]
+
+    # ------------------------------------------------------------------ notebooks
+    def to_pandas(self) -> Any:
+        """The recorded series as a tidy :class:`pandas.DataFrame`, one row per step.
+
+        Columns, in the order of :attr:`series`: ``t`` [s], ``J`` (the objective
+        error, in :attr:`unit`), then every other series; a 2-D series (a vector
+        signal) becomes one column per component, ``<name>_<k>``: ``reference_0`` …,
+        ``actual_0`` … (the objective compares ``runtime.objective.components`` of
+        them), ``estimate_0`` …; ``residual.<module>`` (NaN while inactive) and
+        ``configuration``, the name of the configuration active at that step (a
+        categorical over :attr:`configurations`, in file order). ``attrs`` holds
+        ``scenario``, ``seed``, ``mode``, ``unit`` and ``objective``.
+
+        Requires pandas (``pip install 'archself[pandas]'``). The largest error per
+        configuration: ``res.to_pandas().groupby("configuration", observed=True)["J"].max()``.
+        """
+        pd = _pandas("to_pandas")
+        cols: dict[str, Any] = {}
+        for name, arr in self.series.items():
+            a = np.asarray(arr)
+            if name == "configuration":
+                cols[name] = self._configuration_names(pd, a)
+            elif a.ndim == 2:
+                for k in range(a.shape[1]):
+                    cols[f"{name}_{k}"] = a[:, k]
+            else:
+                cols[name] = a
+        df = pd.DataFrame(cols)
+        df.attrs.update(self._attrs())
+        return df
+
+    def decisions_frame(self) -> Any:
+        """The decision log as a tidy :class:`pandas.DataFrame`: one row per cycle and module.
+
+        One row for every MAPE-K cycle and every module active in it: ``cycle``,
+        ``t`` [s], ``configuration`` (name, categorical as in :meth:`to_pandas`),
+        ``phase`` (``warmup`` or ``adapt``), ``module``, ``r`` (the module's residual
+        r_i, Eq. 12), ``z`` (its influence z_i, Eq. 14) and ``candidate`` (True when
+        the module was in the cycle's candidate set, Eq. 16). Empty (same columns)
+        for a fixed run, which has no loop.
+
+        Requires pandas (``pip install 'archself[pandas]'``).
+        """
+        pd = _pandas("decisions_frame")
+        cycle: list[int] = []
+        t: list[float] = []
+        conf: list[str] = []
+        phase: list[str] = []
+        module: list[str] = []
+        r: list[float] = []
+        z: list[float] = []
+        cand: list[bool] = []
+        for d in self.decisions:
+            zs = _field(d, "z") or {}
+            rs = _field(d, "r") or {}
+            cs = set(_field(d, "candidates") or ())
+            names = list(zs)
+            n = len(names)
+            cycle += [int(_field(d, "cycle") or 0)] * n
+            t += [_float(_field(d, "t"))] * n
+            conf += [str(_field(d, "configuration"))] * n
+            phase += [str(_field(d, "phase"))] * n
+            module += names
+            z += [_float(zs.get(m)) for m in names]
+            r += [_float(rs.get(m)) for m in names]
+            cand += [m in cs for m in names]
+        df = pd.DataFrame({
+            "cycle": np.asarray(cycle, dtype=np.int64),
+            "t": np.asarray(t, dtype=float),
+            "configuration": self._configuration_names(pd, conf),
+            "phase": pd.Series(phase, dtype=object).astype(str),
+            "module": pd.Series(module, dtype=object).astype(str),
+            "r": np.asarray(r, dtype=float),
+            "z": np.asarray(z, dtype=float),
+            "candidate": np.asarray(cand, dtype=bool),
+        })
+        df.attrs.update(self._attrs())
+        return df
+
+    def _configuration_names(self, pd: Any, values: Any) -> Any:
+        """Configuration codes (int array) or names as a categorical over the file's names."""
+        a = np.asarray(values)
+        if a.dtype.kind in "iu":
+            if self.configurations:
+                return pd.Categorical.from_codes(a.astype(np.int64), categories=self.configurations)
+            return a
+        return pd.Categorical(a.tolist(), categories=self.configurations or None)
+
+    def _attrs(self) -> dict[str, Any]:
+        return {"scenario": self.scenario, "seed": self.seed, "mode": self.mode,
+                "unit": self.unit, "objective": dict(self.meta.get("objective") or {})}
+
+    def _repr_html_(self) -> str:
+        """A small HTML summary for notebooks: the run, its configuration path, the metrics."""
+        from html import escape
+
+        path = [self.configuration, *(str(s.get("to")) for s in self.switches)]
+        if path[-1] != self.final_configuration:
+            path.append(self.final_configuration)
+        rows = "".join(
+            f"<tr><td>{escape(label)}</td><td>{self.metrics.get(key, math.nan):.{dec}f}</td></tr>"
+            for label, key, dec in metric_rows(self.unit)
+        )
+        switches = "".join(
+            f"<li>t = {float(s.get('t_s', math.nan)):.1f} s: {escape(str(s.get('from')))} → "
+            f"{escape(str(s.get('to')))} ({escape(str(s.get('action')))})</li>"
+            for s in self.switches
+        )
+        name = self.meta.get("architecture")
+        head = (f"<b>{escape(str(name))}</b> · " if name else "") + (
+            f"scenario <b>{escape(self.scenario)}</b> · seed {int(self.seed)} · "
+            f"{escape(self.mode)}")
+        return (
+            "<div class=\"archself-run\">"
+            f"<p>{head}<br>configurations: {escape(' → '.join(path))}</p>"
+            f"<table><thead><tr><th>metric</th><th>value</th></tr></thead>"
+            f"<tbody>{rows}</tbody></table>"
+            + (f"<p>switches:</p><ul>{switches}</ul>" if switches else "")
+            + "</div>"
+        )
+
+    def write_trace(self, path: str | Path) -> None:
+        """Write the trace to ``path``, atomically and deterministically.
+
+        ``.parquet`` (or ``.pq``) writes Parquet (``pd.read_parquet(path)`` gives the
+        columns of :meth:`to_pandas`; float32 series, the decision log in the schema
+        metadata), any other suffix JSON (:meth:`trace`; NaN as ``null``, series rounded
+        to 1e-6). The same seed gives a byte-identical file; :func:`archself.read_trace`
+        reads either back. See :mod:`archself.sim.trace`.
+
+        Raises
+        ------
+        OutputError
+            If the file cannot be written.
+        """
+        from archself.sim.trace import write_trace
+
+        write_trace(self, path)
+
+
+def _pandas(method: str) -> Any:
+    """pandas, or a one-line ImportError saying how to install it."""
+    try:
+        import pandas
+    except ImportError:
+        raise ImportError(
+            f"RunResult.{method}() needs pandas: pip install 'archself[pandas]'"
+        ) from None
+    return pandas
+
+
+def _field(d: Any, key: str) -> Any:
+    """``d[key]`` of a decision dict (from a trace), or the attribute of a DecisionRecord."""
+    return d.get(key) if isinstance(d, dict) else getattr(d, key, None)
+
+
+def _float(x: Any) -> float:
+    """``float(x)``, NaN for None."""
+    return math.nan if x is None else float(x)
+
+
+def _series_list(arr: np.ndarray) -> list:
+    """A series as JSON lists: integers as is, floats rounded to 1e-6, NaN/inf as None."""
+    a = np.asarray(arr)
+    if a.dtype.kind in "iub":
+        return a.tolist()
+    a = np.round(a.astype(float), 6)
+    if a.ndim == 1:
+        return [None if v != v or v in (math.inf, -math.inf) else v for v in a.tolist()]
+    return [
+        [None if v != v or v in (math.inf, -math.inf) else v for v in row] for row in a.tolist()
+    ]
+
+
+def _decision(d: Any) -> Any:
+    """A decision record as plain data."""
+    if hasattr(d, "to_dict"):
+        return d.to_dict()
+    if dataclasses.is_dataclass(d) and not isinstance(d, type):
+        return dataclasses.asdict(d)
+    return d
