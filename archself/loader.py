@@ -33,6 +33,8 @@ from typing import Any
 from archself.errors import LoadError
 from archself.findings import Finding
 from archself.schema_messages import schema_findings
+from archself.yaml_nodes import Converter as _Converter  # noqa: F401 (bench/test_bench_cli.py)
+from archself.yaml_nodes import parse as _parse  # noqa: F401 (bench/test_bench_cli.py)
 from archself.yaml_source import (
     MAX_ALIASES,
     MAX_DEPTH,
@@ -45,8 +47,6 @@ from archself.yaml_source import (
     load_data,
     read_text,
 )
-from archself.yaml_source import _Converter as _Converter  # noqa: F401 (bench/test_bench_cli.py)
-from archself.yaml_source import _parse as _parse  # noqa: F401 (bench/test_bench_cli.py)
 
 __all__ = [
     "MAX_ALIASES",
