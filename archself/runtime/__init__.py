@@ -10,8 +10,13 @@ file                          role
 ``influence.py``              W (Eq. 13), ρ(W), z = (I − Wᵀ)⁻¹ r (Eq. 14–15)
 ``candidates.py``             candidate set C: τ, top-k, hysteresis (Eq. 16, 28)
 ``monitor.py``                J_obs, r (Eq. 11), r_i (Eq. 12), κ_i
+``residuals.py``              one module's residual maths: filter gain, r_i, r_sat
+``status.py``                 κ_i (``ModuleStatus``, ``StatusMap``), measured limits
+``monitor_layout.py``         the Monitor's per-active-set arrays and filter state
 ``stability.py``              eigenvalue margin (Eq. 21), Lyapunov test (Eq. 24)
 ``planner.py``                s (Eq. 17), Δ (Eq. 18), score (Eq. 25), argmax (Eq. 26–28)
+``constraints.py``            C(a, θ, e) ≤ 0 (Eq. 27): budgets, requires/excludes, ranges
+``improvement.py``            Δ_k (Eq. 18): sensitivity, table, rollout
 ``knowledge.py``              the live architecture graph, t_last
 ``decisions.py``              the decision log and :func:`explain`
 ``mapek.py``                  :class:`MapeK`: one cycle of Algorithm 1

@@ -44,6 +44,9 @@ Improvement estimates Δ (positive = better):
 
 ``z_i`` and ``r_i`` enter as magnitudes: their sign only reflects the sign of a
 declared sensitivity.
+
+The constraints are in :mod:`archself.runtime.constraints`, the Δ estimates in
+:mod:`archself.runtime.improvement`; their names are re-exported here.
 """
 
 from __future__ import annotations
@@ -54,9 +57,15 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.model import Action, Architecture
+from archself.runtime.constraints import (
+    budget_violations,
+    constraint_violations,
+    declared_ranges,
+)
 from archself.runtime.decisions import ActionEvaluation
+from archself.runtime.improvement import estimate_improvement, rollout_improvement
 from archself.runtime.monitor import ModuleStatus, StatusMap, is_limit_violation
-from archself.runtime.stability import StabilityVerdict, check_action_stability, rollout_copy
+from archself.runtime.stability import StabilityVerdict, check_action_stability
 
 __all__ = [
     "PlanState",
@@ -102,135 +111,6 @@ class PlanState:
     kappa: Mapping[str, ModuleStatus]
     params: Mapping[str, Mapping[str, Any]]
     t_last: float
-
-
-def declared_ranges(arch: Architecture) -> dict[tuple[str, str], tuple[Any, str]]:
-    """``(Param, type)`` per (module, parameter) that a parameter update sets.
-
-    The declaration of the parameter by the module's type, where it gives a range
-    (``Param(min=, max=)``; :meth:`~archself.modules.base.Param.outside` judges a
-    value). Types are looked up in the registry (one it does not know declares
-    nothing).
-
-    Examples
-    --------
-    >>> import json
-    >>> from archself.generate import generate_architecture
-    >>> from archself.loader import load_text
-    >>> data = json.loads(generate_architecture(3, seed=0).split("\\n", 1)[1])
-    >>> data["actions"] = [{"id": "quiet", "module": "m1", "kind": "parameter_update",
-    ...     "set": {"noise": 0.1}, "cost": 0.1,
-    ...     "improvement": {"method": "sensitivity", "delta_theta": -1}}]
-    >>> spec, type_ = declared_ranges(load_text(json.dumps(data)).arch)[("m1", "noise")]
-    >>> spec.outside(-1.0), type_
-    ('-1 is outside [0, ∞]', 'generic.relay')
-    """
-    from archself import registry
-    from archself.modules.base import Param
-
-    out: dict[tuple[str, str], tuple[Any, str]] = {}
-    for a in arch.actions:
-        mod = arch.modules.get(a.module)
-        if a.kind != "parameter_update" or mod is None or not a.set:
-            continue
-        try:
-            cls = registry.lookup(mod.type)
-        except Exception:  # noqa: BLE001 - a broken plugin declares nothing here
-            cls = None
-        params = getattr(cls, "parameters", None) or {}
-        for p in a.set:
-            spec = params.get(p)
-            if isinstance(spec, Param) and (spec.min is not None or spec.max is not None):
-                out[(a.module, p)] = (spec, mod.type)
-    return out
-
-
-def budget_violations(arch: Architecture, modules: Iterable[str]) -> list[str]:
-    """Budgets violated by a module set: Σ_{m} resources[resource] − max > 0 (Eq. 27).
-
-    Returns
-    -------
-    list of str
-        One line per violated budget (empty when C(a) ≤ 0 holds).
-    """
-    mods = list(modules)
-    out = []
-    for b in arch.constraints:
-        use = sum(arch.modules[m].resources.get(b.resource, 0.0) for m in mods if m in arch.modules)
-        if use > b.max + 1e-12:
-            out.append(f"{b.resource} {use:g} > {b.max:g}")
-    return out
-
-
-def constraint_violations(
-    arch: Architecture, modules: Iterable[str], constrained: Iterable[str] | None = None
-) -> list[str]:
-    """Module constraints k_i (``requires``/``excludes``) violated by a module set.
-
-    ``constrained``, when given, holds every module of the file that has a
-    constraint (the others cannot violate one): only those are looked at.
-    """
-    on = set(modules)
-    out = []
-    for m in sorted(on if constrained is None else on.intersection(constrained)):
-        if m not in arch.modules:
-            continue
-        cons = arch.modules[m].constraints
-        out += [f"{m} requires {x}" for x in cons.requires if x not in on]
-        out += [f"{m} excludes {x}" for x in cons.excludes if x in on]
-    return out
-
-
-def _apply(system: Any, action: Action) -> None:
-    if action.kind == "parameter_update":
-        system.set_params(action.module, dict(action.set or {}))
-    else:
-        system.apply_configuration(action.to)
-
-
-def _mean_objective(system: Any, steps: int) -> float:
-    total = 0.0
-    for _ in range(steps):
-        system.step()
-        total += float(system.objective_error())
-    return total / steps
-
-
-def rollout_improvement(system: Any, action: Action, horizon_s: float) -> float:
-    """Δ = mean J(no action) − mean J(action) over ``horizon_s`` on two snapshots.
-
-    The live system is not modified. Snapshots share the RNG state, so noise is
-    common to both branches and the difference isolates the action's effect. Each
-    copies only the modules the objective depends on over the horizon when the
-    system says which (:func:`~archself.runtime.stability.rollout_copy`).
-    """
-    steps = max(1, int(round(horizon_s / float(system.dt))))
-    base = rollout_copy(system, system.configuration, steps)
-    target = system.configuration if action.kind == "parameter_update" else action.to
-    trial = rollout_copy(system, target, steps)
-    _apply(trial, action)
-    return _mean_objective(base, steps) - _mean_objective(trial, steps)
-
-
-def estimate_improvement(action: Action, module: str, r_i: float, system: Any = None) -> float:
-    """Δ_k(m_i) of Eq. 18 by the action's declared method.
-
-    Examples
-    --------
-    >>> from archself.model import Action
-    >>> a = Action(id="x", module="m", kind="substitute", to="b", cost=0.1,
-    ...            improvement={"method": "sensitivity", "delta_theta": -0.9})
-    >>> estimate_improvement(a, "m", 2.0)
-    1.8
-    """
-    imp = action.improvement
-    if imp.method == "sensitivity":
-        return float(-imp.delta_theta * abs(r_i))
-    if imp.method == "table":
-        return float(imp.values.get(module, imp.default))
-    if system is None:
-        raise ValueError("a rollout estimate needs the running system")
-    return float(rollout_improvement(system, action, imp.horizon_s))
 
 
 class Planner:
