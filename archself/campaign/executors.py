@@ -14,6 +14,9 @@ arguments, ``map`` a function over items, iterate futures ``as_completed``,
   stops itself. Needs the optional extra ``pip install 'archself[dask]'``.
 
 Both return futures with ``result()``, ``done()`` and ``cancel()``.
+The implementations live in :mod:`~archself.campaign.local_executor`,
+:mod:`~archself.campaign.dask_executor` and :mod:`~archself.campaign.inline_executor`;
+their names are re-exported here.
 
 Examples
 --------
@@ -24,15 +27,21 @@ Examples
 
 from __future__ import annotations
 
-import os
-import signal
-import sys
-from collections.abc import Callable, Iterable, Iterator, MutableMapping
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
+from archself.campaign.dask_executor import DaskExecutor
+from archself.campaign.inline_executor import InlineExecutor
+from archself.campaign.local_executor import (
+    BLAS_THREAD_VARIABLES,
+    LocalExecutor,
+    default_workers,
+    single_thread_blas,
+)
 from archself.campaign.sweep import CampaignError
 
 __all__ = [
+    "BLAS_THREAD_VARIABLES",
     "DaskExecutor",
     "Executor",
     "InlineExecutor",
@@ -41,32 +50,6 @@ __all__ = [
     "make_executor",
     "single_thread_blas",
 ]
-
-#: Environment variables that set the thread count of the BLAS/OpenMP libraries.
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-def single_thread_blas(environ: MutableMapping[str, str] | None = None) -> None:
-    """One BLAS thread for the processes started from now on (unless the user chose a number).
-
-    A run multiplies 3×3 to 5×5 matrices, where a second BLAS thread gains nothing,
-    but OpenBLAS's idle threads spin: one 400 s run took 0.84 s of wall time and
-    1.08 s of CPU, and two runs side by side slowed each other by 16 %. With one
-    thread per process, two workers run at the speed of one each (measured:
-    0.841 s/run alone, 0.843 and 0.846 s/run side by side). The variables are read
-    when a BLAS library loads, so this runs before a worker imports numpy: the
-    local pool's forkserver inherits them (a Dask nanny sets the same by default,
-    ``distributed.nanny.pre-spawn-environ``).
-
-    Parameters
-    ----------
-    environ : mutable mapping, optional
-        Where to set them (default ``os.environ``).
-    """
-    env = os.environ if environ is None else environ
-    for name in BLAS_THREAD_VARIABLES:
-        if not env.get(name):  # unset or empty
-            env[name] = "1"
 
 
 class Executor(Protocol):
@@ -95,347 +78,6 @@ class Executor(Protocol):
     def __enter__(self) -> Executor: ...
 
     def __exit__(self, *exc: object) -> None: ...
-
-
-def default_workers() -> int:
-    """Number of usable cores (the process's CPU affinity where the OS tells it)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
-
-
-#: Set by the driver for the processes it starts: its pid (see :func:`die_with_parent`).
-DRIVER_PID_VARIABLE = "ARCHSELF_DRIVER_PID"
-#: How often a worker's watchdog checks that the driver is still there (seconds).
-WATCHDOG_PERIOD_S = 0.5
-PR_SET_PDEATHSIG = 1
-
-
-def _set_pdeathsig(sig: int) -> bool:
-    """Linux: the kernel sends ``sig`` to this process when its parent dies."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        return int(libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)) == 0
-    except (OSError, AttributeError):
-        return False
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def die_with_parent(driver_pid: int | None = None, watchdog: bool = True) -> None:
-    """Make this process exit when its parent (or the campaign driver) dies.
-
-    Two mechanisms: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux (immediate, when
-    the parent process dies), and a daemon thread that checks every
-    :data:`WATCHDOG_PERIOD_S` that the parent is the same and the driver
-    (``driver_pid``) still exists, and ends the process otherwise (every OS).
-    A pool worker's parent is the forkserver, which itself dies with the driver
-    (this function, run in the forkserver when it imports this module).
-    """
-    parent = os.getppid()
-    _set_pdeathsig(signal.SIGKILL)
-    if os.getppid() != parent or parent == 1:  # the parent died before prctl
-        os._exit(1)
-    if not watchdog:
-        return
-    import threading
-
-    def watch() -> None:
-        import time
-
-        while True:
-            time.sleep(WATCHDOG_PERIOD_S)
-            if os.getppid() != parent or (driver_pid is not None and not _alive(driver_pid)):
-                os._exit(1)
-
-    threading.Thread(target=watch, name="archself-parent-watchdog", daemon=True).start()
-
-
-def _worker_init(driver_pid: int | None = None) -> None:
-    """Initializer of a local pool worker: no SIGINT (the driver stops cleanly), dies with it."""
-    import warnings
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    # a run's numeric trouble shows in its row (NaN metrics, the error column); the
-    # workers' warnings would reach the terminal unlocated, between the driver's lines
-    warnings.simplefilter("ignore", RuntimeWarning)
-    die_with_parent(driver_pid)
-
-
-def _ignore_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-# In the forkserver (it imports this module as a preload, its parent is the driver):
-# die with the driver. The forkserver forks the workers, so no thread is started here.
-def _in_forkserver_of_driver() -> bool:
-    return (
-        os.environ.get(DRIVER_PID_VARIABLE) == str(os.getppid())
-        and sys.argv[:1] == ["-c"]
-        and "multiprocessing.forkserver" in sys.modules
-    )
-
-
-if _in_forkserver_of_driver():
-    die_with_parent(watchdog=False)
-
-
-class LocalExecutor:
-    """A process pool on this machine (the default executor).
-
-    Parameters
-    ----------
-    workers : int, optional
-        Number of processes (default: all usable cores).
-    preload : sequence of str, optional
-        Modules the forkserver imports once, so every worker starts with them.
-    """
-
-    name = "local"
-
-    def __init__(self, workers: int | None = None, preload: Iterable[str] = ()) -> None:
-        import concurrent.futures
-        import multiprocessing
-
-        self.workers = int(workers or default_workers())
-        if self.workers < 1:
-            raise CampaignError("--workers must be at least 1")
-        single_thread_blas()  # before the forkserver (and numpy in it) starts
-        os.environ[DRIVER_PID_VARIABLE] = str(os.getpid())  # the forkserver dies with us
-        methods = multiprocessing.get_all_start_methods()
-        method = "forkserver" if "forkserver" in methods else "spawn"
-        ctx = multiprocessing.get_context(method)
-        if method == "forkserver":
-            ctx.set_forkserver_preload([__name__, *preload])
-        self._cf = concurrent.futures
-        try:
-            self._pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=self.workers,
-                mp_context=ctx,
-                initializer=_worker_init,
-                initargs=(os.getpid(),),
-            )
-        except (OSError, ValueError) as exc:
-            raise CampaignError(f"cannot start the local process pool: {exc}") from None
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
-        return self._pool.submit(fn, *args)
-
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
-        return self._pool.map(fn, items)
-
-    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
-        return self._cf.as_completed(list(futures))
-
-    def cancel(self, futures: Iterable[Any]) -> None:
-        for f in futures:
-            f.cancel()
-
-    def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
-
-    def abort(self) -> None:
-        """Stop at once: cancel the queue and end the workers (their runs are lost)."""
-        # End the workers first, without cancelling futures: the pool's manager then
-        # fails the unfinished futures itself (cancelling them first races with it:
-        # InvalidStateError in its thread, Python 3.11).
-        for p in list(getattr(self._pool, "_processes", None) or {}):
-            try:
-                os.kill(p, signal.SIGTERM)
-            except OSError:
-                pass
-        try:
-            self._pool.shutdown(wait=True, cancel_futures=False)
-        except Exception:  # noqa: BLE001 - a broken pool is fine here
-            pass
-
-    def __enter__(self) -> LocalExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class DaskExecutor:
-    """A dask.distributed client: on a scheduler at ``address`` or on a LocalCluster.
-
-    Parameters
-    ----------
-    address : str, optional
-        Scheduler address, e.g. ``tcp://10.0.0.5:8786``. None starts a
-        :class:`distributed.LocalCluster` of ``workers`` single-threaded
-        processes, closed again by :meth:`close`.
-    workers : int, optional
-        Workers of the LocalCluster (default: all usable cores); ignored with an
-        address (the cluster has what it has).
-
-    Raises
-    ------
-    CampaignError
-        If dask.distributed is not installed or the scheduler cannot be reached.
-    """
-
-    name = "dask"
-
-    def __init__(
-        self, address: str | None = None, workers: int | None = None, timeout_s: float = 30.0
-    ) -> None:
-        try:
-            import distributed
-        except ImportError:
-            raise CampaignError(
-                "--executor dask needs dask.distributed: pip install 'archself[dask]'"
-            ) from None
-        self._distributed = distributed
-        self._cluster: Any = None
-        self._client: Any = None
-        try:
-            if address is None:
-                n = int(workers or default_workers())
-                if n < 1:
-                    raise CampaignError("--workers must be at least 1")
-                self._cluster = distributed.LocalCluster(
-                    n_workers=n,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=50,
-                )
-                self._client = distributed.Client(self._cluster, timeout=timeout_s)
-            else:
-                self._client = distributed.Client(address, timeout=timeout_s)
-        except CampaignError:
-            raise
-        except (OSError, TimeoutError) as exc:
-            self.close()
-            where = address or "a LocalCluster"
-            raise CampaignError(f"cannot connect to the Dask scheduler at {where}: {exc}") from None
-        except (ValueError, TypeError) as exc:  # e.g. "missing port number in address"
-            self.close()
-            raise CampaignError(
-                f"--address {address!r}: not a Dask scheduler address (tcp://HOST:PORT): {exc}"
-            ) from None
-        info = self._client.scheduler_info()
-        threads = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
-        self.workers = max(1, threads)
-        self.address = self._client.scheduler.address
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
-        return self._client.submit(fn, *args, pure=False)
-
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
-        futures = self._client.map(fn, list(items), pure=False)
-        return (f.result() for f in futures)
-
-    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
-        return iter(self._distributed.as_completed(list(futures)))
-
-    def cancel(self, futures: Iterable[Any]) -> None:
-        fs = [f for f in futures if not f.done()]
-        if fs:
-            self._client.cancel(fs)
-
-    def close(self) -> None:
-        client = self._client
-        if client is not None:
-            client.close()
-            self._client = None
-        if self._cluster is not None:
-            self._cluster.close()
-            self._cluster = None
-
-    def __enter__(self) -> DaskExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class _Deferred:
-    """A future of :class:`InlineExecutor`: computed when first asked for."""
-
-    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
-        self._fn, self._args = fn, args
-        self._done = self._cancelled = False
-        self._value: Any = None
-        self._exc: BaseException | None = None
-
-    def _run(self) -> None:
-        if not self._done and not self._cancelled:
-            try:
-                self._value = self._fn(*self._args)
-            except Exception as exc:  # noqa: BLE001 - kept for result(), like a real future
-                self._exc = exc
-            self._done = True
-
-    def result(self) -> Any:
-        if self._cancelled:
-            import concurrent.futures
-
-            raise concurrent.futures.CancelledError()
-        self._run()
-        if self._exc is not None:
-            raise self._exc
-        return self._value
-
-    def done(self) -> bool:
-        return self._done or self._cancelled
-
-    def cancel(self) -> bool:
-        if self._done:
-            return False
-        self._cancelled = True
-        return True
-
-
-class InlineExecutor:
-    """Runs every job in the calling process, one after the other, when its result is asked for.
-
-    For debugging (a breakpoint in a module works) and for tests; not offered by
-    the command line.
-    """
-
-    name = "inline"
-    workers = 1
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Any:
-        return _Deferred(fn, args)
-
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
-        return (fn(x) for x in items)
-
-    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
-        for f in list(futures):
-            if not f._cancelled:
-                f._run()
-                yield f
-
-    def cancel(self, futures: Iterable[Any]) -> None:
-        for f in futures:
-            f.cancel()
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> InlineExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def make_executor(
