@@ -18,7 +18,8 @@ file                          role
 ``constraints.py``            C(a, θ, e) ≤ 0 (Eq. 27): budgets, requires/excludes, ranges
 ``improvement.py``            Δ_k (Eq. 18): sensitivity, table, rollout
 ``knowledge.py``              the live architecture graph, t_last
-``decisions.py``              the decision log and :func:`explain`
+``decisions.py``              the decision log (records, evaluations, ``ValueMap``)
+``explanation.py``            :func:`explain` and ``explain_data``: the log for a person
 ``mapek.py``                  :class:`MapeK`: one cycle of Algorithm 1
 ============================  ==============================================
 """
