@@ -9,7 +9,7 @@ matrices.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,7 +22,7 @@ from archself.modules.base import LinearModel
 if TYPE_CHECKING:
     from archself.linear import Wire
 
-__all__ = ["interconnect_sparse", "port_offsets"]
+__all__ = ["feedback_slices", "interconnect_sparse", "port_offsets"]
 
 
 def port_offsets(
@@ -40,6 +40,32 @@ def port_offsets(
         outs.setdefault(sig, (k, size))
         k += size
     return ins, outs
+
+
+def feedback_slices(
+    routes: Sequence[tuple[Wire, int]],
+    ports: Mapping[str, tuple[list[tuple[str, int, int | None, int]], dict[str, tuple[int, int]]]],
+    uo: Mapping[str, int],
+    yo: Mapping[str, int],
+) -> Iterator[tuple[int, int, int]]:
+    """``(row, column, size)`` of each route's identity block in K (``u = K y``).
+
+    The row is the target's input port in the stacked u, the column the source's
+    output in the stacked y; ``ports`` is :func:`port_offsets` of each model.
+
+    Raises
+    ------
+    LinearizationError
+        When a port's width differs from its source's.
+    """
+    for w, j in routes:
+        _sig, size, _edge, off = ports[w.target][0][j]
+        y_off, y_size = ports[w.source][1][w.signal]
+        if y_size != size:
+            raise LinearizationError(
+                f"{w.source}.{w.signal} has {y_size} component(s), {w.target} takes {size}"
+            )
+        yield uo[w.target] + off, yo[w.source] + y_off, size
 
 
 def _blocks(
@@ -96,14 +122,7 @@ def interconnect_sparse(
         _blocks(parts["D"], [g.D for g in group], y, u)
     krows: list[int] = []
     kcols: list[int] = []
-    for w, j in routes:
-        sig, size, _edge, off = ports[w.target][0][j]
-        y_off, y_size = ports[w.source][1][w.signal]
-        if y_size != size:
-            raise LinearizationError(
-                f"{w.source}.{w.signal} has {y_size} component(s), {w.target} takes {size}"
-            )
-        r0, c0 = uo[w.target] + off, yo[w.source] + y_off
+    for r0, c0, size in feedback_slices(routes, ports, uo, yo):
         krows += range(r0, r0 + size)
         kcols += range(c0, c0 + size)
     k_at = (np.array(krows, dtype=np.intp), np.array(kcols, dtype=np.intp))

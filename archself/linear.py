@@ -56,7 +56,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from archself.assembly import interconnect_sparse, port_offsets
+from archself.assembly import feedback_slices, interconnect_sparse, port_offsets
 from archself.closed_loop import ClosedLoop, Interconnection
 from archself.discrete import LinearizationError, delay_line, discretize
 from archself.modal import eigenvalues, modal_form
@@ -264,15 +264,7 @@ def interconnect(
         labels += [f"{name}.{s}" for s in mod.states]
         ports[name] = port_offsets(mod)
     K = np.zeros((m, p))
-    for w, j in routes:
-        sig, size, _edge, off = ports[w.target][0][j]
-        y_off, y_size = ports[w.source][1][w.signal]
-        if y_size != size:
-            raise LinearizationError(
-                f"{w.source}.{w.signal} has {y_size} component(s), {w.target} takes {size}"
-            )
-        r = uo[w.target] + off
-        c = yo[w.source] + y_off
+    for r, c, size in feedback_slices(routes, ports, uo, yo):
         K[r : r + size, c : c + size] += np.eye(size)
     if n == 0:
         return Interconnection(np.zeros((0, 0)), dt, owners, labels)
