@@ -264,8 +264,8 @@ def test_asym_lqr_learns_effectiveness():
 # ---------------------------------------------------------------- EKF consistency
 def test_ekf_nees_consistency():
     """Normalized estimation error squared inside its χ² band over Monte Carlo runs."""
-    n_runs, n_steps, dt = 25, 600, 0.05
-    sig_enc, r_head, r_gps, q_b = 0.05, 0.005, 0.2, 0.002
+    n_runs, n_steps, dt = 60, 600, 0.05  # 25 runs left ±20 % of sampling spread in ANEES
+    sig_enc, r_head, r_gps, q_b, q_r = 0.05, 0.005, 0.2, 0.002, 1e-4
     params = {
         "q_position_m": 0.0,
         "q_heading_rad": 0.0,
@@ -276,6 +276,8 @@ def test_ekf_nees_consistency():
         "initial_position_std_m": 0.3,
         "initial_heading_std_rad": 0.02,
         "initial_bias_std_rad": 0.02,
+        "q_bias_rate_rad_s": q_r,
+        "initial_bias_rate_std_rad_s": 0.001,
     }
     kin = Kinematics(0.5, 0.1)
     nees = np.zeros((n_runs, n_steps))
@@ -288,10 +290,11 @@ def test_ekf_nees_consistency():
                 0.3 * g.standard_normal(),
                 0.02 * g.standard_normal(),
                 0.02 * g.standard_normal(),
+                0.001 * g.standard_normal(),
             ]
         )
         truth = x0.copy()
-        f.x = np.zeros(4)
+        f.x = np.zeros(5)
         f.started = True
         for k in range(n_steps):
             t = k * dt
@@ -301,8 +304,11 @@ def test_ekf_nees_consistency():
                 kin.wheel_radius_m * (wr - wl) / kin.wheel_base_m,
             )
             mid = truth[2] + 0.5 * w * dt
-            truth = truth + np.array([v * dt * math.cos(mid), v * dt * math.sin(mid), w * dt, 0.0])
+            truth = truth + np.array(
+                [v * dt * math.cos(mid), v * dt * math.sin(mid), w * dt, truth[4] * dt, 0.0]
+            )
             truth[3] += q_b * math.sqrt(dt) * g.standard_normal()
+            truth[4] += q_r * math.sqrt(dt) * g.standard_normal()
             enc = np.array([wl, wr]) + sig_enc * g.standard_normal(2)
             f.predict(dt, enc, kin)
             f.update_heading(truth[2] + truth[3] + r_head * g.standard_normal())
@@ -312,10 +318,10 @@ def test_ekf_nees_consistency():
             e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
             nees[run, k] = e @ np.linalg.solve(f.P, e)
     anees = nees.mean(axis=0)  # average over runs at each step
-    lo, hi = chi2.ppf([0.005, 0.995], 4 * n_runs) / n_runs
+    lo, hi = chi2.ppf([0.005, 0.995], 5 * n_runs) / n_runs
     inside = np.mean((anees >= lo) & (anees <= hi))
     assert inside > 0.9, f"ANEES inside [{lo:.2f}, {hi:.2f}] only {inside:.0%} of the time"
-    assert 3.3 < anees.mean() < 4.7
+    assert 4.2 < anees.mean() < 5.8
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -327,9 +333,9 @@ def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
     g = np.random.default_rng(seed)
     kin = Kinematics()
     f = Ekf("ekf", {"r_heading_rad": 0.01, "encoder_noise_rad_s": 0.07}, g)
-    L = g.normal(size=(4, 4))
-    P0 = L @ L.T + 0.1 * np.eye(4)  # a dense covariance
-    x0 = g.normal(size=4)
+    L = g.normal(size=(5, 5))
+    P0 = L @ L.T + 0.1 * np.eye(5)  # a dense covariance
+    x0 = g.normal(size=5)
     f.x, f.P = x0, P0
     dt, enc = 0.05, np.array([4.0, 5.5]) + g.normal(size=2)
     f.predict(dt, enc, kin)
@@ -337,17 +343,19 @@ def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
     r, b = kin.wheel_radius_m, kin.wheel_base_m
     v, w = r * (enc[0] + enc[1]) / 2, r * (enc[1] - enc[0]) / b
     mid = x0[2] + 0.5 * w * dt
-    F = np.eye(4)
+    F = np.eye(5)
     F[0, 2], F[1, 2] = -v * dt * math.sin(mid), v * dt * math.cos(mid)
+    F[3, 4] = dt  # the bias follows its rate
     G = np.array(  # motion's Jacobian with respect to the two wheel speeds
         [
             [0.5 * r * dt * math.cos(mid)] * 2,
             [0.5 * r * dt * math.sin(mid)] * 2,
             [-r * dt / b, r * dt / b],
             [0.0, 0.0],
+            [0.0, 0.0],
         ]
     )
-    ref = ExtendedKalmanFilter(dim_x=4, dim_z=1)
+    ref = ExtendedKalmanFilter(dim_x=5, dim_z=1)
     ref.x, ref.P, ref.F = x0.copy(), P0.copy(), F
     ref.Q = 0.07**2 * G @ G.T + np.diag(f._q2) * dt
     ref.predict()
@@ -355,16 +363,22 @@ def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
     assert_allclose(f.P, f.P.T, rtol=0, atol=0)  # exactly symmetric
     assert_allclose(
         f.x,
-        [x0[0] + v * dt * math.cos(mid), x0[1] + v * dt * math.sin(mid), x0[2] + w * dt, x0[3]],
+        [
+            x0[0] + v * dt * math.cos(mid),
+            x0[1] + v * dt * math.sin(mid),
+            x0[2] + w * dt,
+            x0[3] + x0[4] * dt,
+            x0[4],
+        ],
         rtol=1e-13,
     )
 
     heading = float(f.x[2] + f.x[3] + 0.02)
-    ref.x = f.x.reshape(4, 1)
+    ref.x = f.x.reshape(5, 1)
     ref.P = f.P
     ref.update(
         np.array([heading]),
-        lambda x: np.array([[0.0, 0.0, 1.0, 1.0]]),
+        lambda x: np.array([[0.0, 0.0, 1.0, 1.0, 0.0]]),
         lambda x: np.array([x[2] + x[3]]).reshape(1, 1),
         R=np.array([[0.01**2]]),
     )
@@ -379,16 +393,16 @@ def test_ekf_gps_update_is_the_kalman_update_and_the_state_is_kept_once():
 
     g = np.random.default_rng(7)
     f = Ekf("ekf", {"r_gps_m": 0.4}, g)
-    L = g.normal(size=(4, 4))
-    P0 = L @ L.T + 0.1 * np.eye(4)
-    x0 = g.normal(size=4)
+    L = g.normal(size=(5, 5))
+    P0 = L @ L.T + 0.1 * np.eye(5)
+    x0 = g.normal(size=5)
     f.x, f.P = x0, P0
     z = x0[:2] + np.array([0.3, -0.2])
     innovation = f.update_position(z)
-    H = np.eye(2, 4)
+    H = np.eye(2, 5)
     R = 0.4**2 * np.eye(2)
     K = P0 @ H.T @ np.linalg.inv(H @ P0 @ H.T + R)
-    I_KH = np.eye(4) - K @ H
+    I_KH = np.eye(5) - K @ H
     assert_allclose(innovation, [0.3, -0.2], rtol=1e-12)
     assert_allclose(f.x, x0 + K @ (z - x0[:2]), rtol=1e-12)
     assert_allclose(f.P, I_KH @ P0 @ I_KH.T + K @ R @ K.T, rtol=1e-10, atol=1e-14)
@@ -403,7 +417,7 @@ def test_ekf_handover_from_odometry():
     odo.import_state({"pose": [3.0, -1.0, 0.4], "covariance": np.diag([0.2, 0.2, 0.01])})
     ekf = Ekf("ekf", {}, rng())
     ekf.import_state(odo.export_state())
-    assert_allclose(ekf.x, [3.0, -1.0, 0.4, 0.0])
+    assert_allclose(ekf.x, [3.0, -1.0, 0.4, 0.0, 0.0])
     assert ekf.P[0, 0] > 0.2 and ekf.P[3, 3] > 0
     st = ekf.export_state()
     assert set(st) >= {"pose", "covariance"}
@@ -552,6 +566,23 @@ def test_odometry_takes_a_handed_over_imu_bias_off_the_heading():
     assert o.bias == 0.0
     o.import_state({"pose": np.zeros(3), "imu_bias": 0.07, "imu_bias_std": 0.012})
     assert o.bias == 0.07
+
+
+def test_odometry_carries_a_handed_over_bias_rate_forward():
+    """A drifting gyro handed over with its rate stays corrected: the pose runs straight."""
+    o = Odometry("o", {}, rng())
+    o.import_state({"pose": np.zeros(3), "imu_bias": 0.02, "imu_bias_std": 0.002,
+                    "imu_bias_rate": 1e-3, "imu_bias_rate_std": 1e-4})
+    kin = Kinematics(0.5, 0.1)
+    for k in range(400):  # 20 s straight ahead; the IMU reads 0.02 + 1e-3·t too much
+        t = k * 0.05
+        out = o.step(t, 0.05, {"encoder_speeds": np.array([5.0, 5.0]),
+                               "heading": 0.02 + 1e-3 * (t + 0.05), "kinematics": kin})
+    assert_allclose(out["pose_estimate"][1:], [0.0, 0.0], atol=1e-9)
+    assert_allclose(o.export_state()["imu_bias"], 0.02 + 1e-3 * 20.0, rtol=1e-9)
+    # an insignificant rate (within 3 standard deviations) is not extrapolated
+    o.import_state({"pose": np.zeros(3), "imu_bias_rate": 2e-4, "imu_bias_rate_std": 1e-4})
+    assert o.bias_rate == 0.0
 
 
 def test_gps_rate_and_gaps():

@@ -72,8 +72,6 @@ def test_shipped_parameters_declare_ranges_that_hold_their_defaults(key: str, cl
             assert p.min < p.max, f"{key}.{name}"
         if not _numeric(p) or name in UNBOUNDED.get(key, ()):
             continue
-        if key in ("estimator.ekf", "estimator.odometry"):
-            continue  # archself_diffdrive/estimators.py: declared apart (being changed)
         assert p.min is not None or p.max is not None, f"{key}.{name} declares no range"
 
 

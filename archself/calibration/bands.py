@@ -12,9 +12,15 @@ only if an admissible action scores above 0).
 
 Bands are n_j = s·b_j: a *shape* b and one common *scale* s.
 
-- Shape: b_j is the (1 − p) quantile of module j's per-run maximum of x_j (the
-  larger of a Gumbel fit's and the empirical one; the largest over the cells in
-  which j is active), so that every channel has about the same tail.
+- Shape: b_j is the band at which module j's residual *alone* raises a
+  candidate in a share p/K of the runs (K the channels active in the cell):
+  the (1 − p/K) quantile of its per-run maximum of x_j (the larger of a Gumbel
+  fit's and the empirical one) divided by its alarm factor 1 + τ/(c_j·σ_j), c_j
+  its largest influence (:func:`channel_scales`); the largest over the cells in
+  which j is active (:func:`channel_shape`). Every channel then alarms at the same
+  tail probability of its own noise — a channel with heavy tails (noise spikes)
+  gets a wide band without widening the others', and a channel whose residual
+  propagates far is not held to a stricter level than one that does not.
 - Scale: z decreases as s grows (σ ≥ 0 and W ≥ 0), so each run has a
   critical scale S = sup{s : the run raises a candidate with bands s·b}: the run
   has a false alarm exactly when s ≤ S. S is a maximum over the run's cycles
@@ -43,6 +49,7 @@ __all__ = [
     "Cell",
     "Prediction",
     "channel_scales",
+    "channel_shape",
     "TailFit",
     "alarm_threshold",
     "critical_scales",
@@ -427,6 +434,33 @@ def scale_for_rate(values: np.ndarray, p: float) -> tuple[float, TailFit]:
     """
     fit = TailFit.fit(values)
     return max(fit.quantile(p), _empirical_level(values, p)), fit
+
+
+def channel_shape(cell: Cell, module: str, p: float, tau: float) -> float:
+    """The band at which ``module``'s residual alone alarms in a share p/K of ``cell``'s runs.
+
+    K is the number of channels of the cell (an equal share of the false-alarm
+    budget each, a Bonferroni split); the level is :func:`quantile_level` of the
+    module's per-run maxima at p/K, divided by its alarm factor 1 + τ/(c_j·σ_j)
+    (the band n_j at which x_j = n_j·(1 + τ/(c_j·σ_j)) raises max_i |z_i| = τ,
+    :func:`channel_scales`). A channel that cannot raise a candidate (c_j·σ_j = 0)
+    keeps its plain level.
+
+    Examples
+    --------
+    One channel, no edges (c = 1), σ = 1, τ = 0.5: alarms at 1.5·n, so n is the
+    level over 1.5.
+
+    >>> cell = Cell("s", "c", ["m"], [np.array([[v]]) for v in np.linspace(1, 2, 200)],
+    ...             np.zeros(200, bool), np.eye(1), np.ones(1))
+    >>> round(channel_shape(cell, "m", 0.01, 0.5) * 1.5, 3) == round(quantile_level(
+    ...     cell.run_max("m"), 0.01), 3)
+    True
+    """
+    j = cell.modules.index(module)
+    level = quantile_level(cell.run_max(module), p / max(len(cell.modules), 1))
+    gain = float(np.abs(cell.m[:, j]).max() * abs(cell.sens[j])) if cell.m.size else 0.0
+    return level / (1.0 + tau / gain) if gain > 0 else level
 
 
 def quantile_level(values: np.ndarray, p: float) -> float:

@@ -25,9 +25,9 @@ from archself.calibration.bands import (
     Cell,
     Prediction,
     alarm_threshold,
+    channel_shape,
     critical_scales,
     influence_block,
-    quantile_level,
 )
 from archself.errors import ArchselfError, LoadError
 
@@ -436,7 +436,7 @@ def calibrate(
             )
 
     old = {m: float(s.residual.nominal) for m, s in arch.modules.items() if s.residual}
-    # shape: the (1 − p) level of each module's per-run maximum, worst cell
+    # shape: each channel alone alarms in a share p/K of the runs, worst cell
     base: dict[str, float] = {}
     where: dict[str, list[str]] = {}
     for c in cells:
@@ -444,8 +444,7 @@ def calibrate(
             where.setdefault(m, [])
             if c.configuration not in where[m]:
                 where[m].append(c.configuration)
-            level = quantile_level(c.run_max(m), p)
-            base[m] = max(base.get(m, 0.0), level)
+            base[m] = max(base.get(m, 0.0), channel_shape(c, m, p, tau))
     notes: dict[str, str] = {}
     for m in old:
         sens = float(arch.modules[m].residual.sensitivity)
