@@ -252,8 +252,9 @@ def init(
     """Write a small, valid architecture file to start from (NAME.yaml).
 
     --template chooses it: a small tank (the default), a generic-blocks LTI loop, or a
-    copy of a shipped example under the new name. The file carries the schema modeline, so an editor with yaml-language-server
-    completes and checks it while you edit. The modeline never points into an
+    copy of a shipped example under the new name. The file carries the schema
+    modeline, so an editor with yaml-language-server completes and checks it while
+    you edit. The modeline never points into an
     installed package (a virtual environment's site-packages moves and goes): it names
     the schema of the project the file is in (a `schemas/architecture.schema.json` in
     its folder or above, as in the archself repository), else the schema's published
