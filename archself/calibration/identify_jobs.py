@@ -92,8 +92,9 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
             raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
         out["mean"] = x[keep].mean(axis=0)
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        out["error"] = f"{type(exc).__name__}: {msg}"[:500]
+        from archself.campaign.worker import run_error
+
+        out["error"] = run_error(exc)
     return out
 
 

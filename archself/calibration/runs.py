@@ -228,8 +228,9 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
         out["forced"] = np.array(rec.forced, dtype=bool)
         out["t"] = np.array(rec.t, dtype=float)
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        out["error"] = f"{type(exc).__name__}: {msg}"[:500]
+        from archself.campaign.worker import run_error
+
+        out["error"] = run_error(exc)
     return out
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from archself.campaign.sweep import Sweep
 
-__all__ = ["Job", "run_job", "summarize_run"]
+__all__ = ["Job", "run_error", "run_job", "summarize_run"]
 
 #: How many validated sweep points a worker keeps.
 CACHE_SIZE = 64
@@ -117,9 +117,18 @@ def run_job(job: Job) -> dict[str, Any]:
             result.write_trace(job.trace)
             row["trace"] = job.trace
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a failed campaign
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        row["error"] = f"{type(exc).__name__}: {msg}"[:500]
+        row["error"] = run_error(exc)
     return row
+
+
+def run_error(exc: BaseException) -> str:
+    """A failed run's error as one line: ``Type: first line of the message`` (≤ 500 chars).
+
+    >>> run_error(ValueError("bad value" + chr(10) + "more"))
+    'ValueError: bad value'
+    """
+    msg = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {msg}"[:500]
 
 
 def _base_row(job: Job) -> dict[str, Any]:
