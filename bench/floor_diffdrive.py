@@ -1,0 +1,610 @@
+"""A hand-written floor for the diff-drive a1 fixed run (issue 16 item 1).
+
+The run of ``archself simulate architectures/diffdrive.yaml --scenario nominal --fixed
+--config a1`` written out as one plain loop: no framework, no ``RuntimeModule``, no
+executor. The same plant (wheel-speed lag, speed limit, wheel slip, lateral and yaw
+noise: ``packs/archself_diffdrive/physical.py``), encoders and IMU, the spline
+reference, dead reckoning and the LQR (gain from ``control.lqr`` on the same error
+dynamics) with the same floating-point operations in the same order, and the same
+random streams: each module draws from ``numpy.random.default_rng([seed,
+blake2b-64(name)])`` (``archself.streams.module_rng``), and a Generator's normals do not
+depend on how many are drawn per call, so the floor draws each stream in blocks and
+reproduces the framework's trace bit for bit (tests/test_floor.py checks it to 1e-9).
+
+What the floor leaves out because it cannot change J: the GPS (in a1 only the
+odometry's residuals read it; its stream is its own), the residual signals
+(``command_error``, ``innovation``, ``innovation_trend``, ``tracking_error``), the
+odometry's covariance, the model nodes (constants here) and the recording of anything
+but J.
+
+Two functions:
+
+- :func:`run_floor` (one seed; Python floats, the per-run floor), and
+- :func:`run_floor_lanes` (N seeds at once: every state a numpy array with a leading
+  lane axis, one loop over the time steps; the "limit" of lane batching).
+
+``python bench/floor_diffdrive.py`` prints, side by side, the framework's a1 fixed run
+(``archself.simulate``, as bench/test_bench_sim.py), the floor's per-run time and step
+cost, the vectorized floor's runs/s for N = 1, 10, 100, 1000 lanes and its memory per
+lane (docs/benchmarks.md, "A hand-written floor").
+"""
+
+from __future__ import annotations
+
+import os
+
+if __name__ == "__main__":  # as the archself command and bench/conftest.py: before numpy
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import hashlib  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from functools import cache  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
+#: The modules of configuration a1 (the floor implements exactly these).
+A1 = frozenset(
+    {
+        "chassis",
+        "wheel_left",
+        "wheel_right",
+        "encoders",
+        "imu",
+        "gps",
+        "planner",
+        "odometry",
+        "lqr",
+        "kinematic_model",
+        "dynamic_model",
+        "actuator_model",
+    }
+)
+PI = math.pi
+TWO_PI = 2.0 * math.pi
+
+
+def stream(seed: int, name: str) -> np.random.Generator:
+    """The random stream of module ``name``: ``default_rng([seed, blake2b-64(name)])``.
+
+    Examples
+    --------
+    >>> float(stream(1, "imu").standard_normal()) == float(stream(1, "imu").standard_normal())
+    True
+    """
+    h = int.from_bytes(hashlib.blake2b(name.encode("utf-8"), digest_size=8).digest(), "little")
+    return np.random.default_rng([int(seed), h])
+
+
+def spline_table(waypoints: Any, ds: float) -> tuple[np.ndarray, ...]:
+    """``x, y, θ, κ`` at equal arc-length steps ``ds`` of the not-a-knot cubic spline.
+
+    The arithmetic of ``archself_diffdrive.planner.spline_path`` (chord-length
+    parameter, trapezoidal arc length, resampled), so the reference is the same to the bit.
+    """
+    from scipy.interpolate import CubicSpline
+
+    pts = np.asarray(waypoints, dtype=float)
+    pts = pts[np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-9]]
+    chord = np.r_[0.0, np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]
+    cs = CubicSpline(chord, pts, axis=0, bc_type="not-a-knot" if len(pts) > 3 else "natural")
+    u = np.linspace(0.0, chord[-1], max(2000, int(chord[-1] / ds) * 4))
+    d1 = cs(u, 1)
+    speed = np.hypot(d1[:, 0], d1[:, 1])
+    arc = np.r_[0.0, np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(u))]
+    s = np.arange(0.0, arc[-1], ds)
+    s = np.r_[s, arc[-1]] if arc[-1] - s[-1] > 1e-9 else s
+    us = np.interp(s, arc, u)
+    xy, d1, d2 = cs(us), cs(us, 1), cs(us, 2)
+    theta = np.unwrap(np.arctan2(d1[:, 1], d1[:, 0]))
+    kappa = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(
+        np.hypot(d1[:, 0], d1[:, 1]) ** 3, 1e-12
+    )
+    return xy[:, 0], xy[:, 1], theta, kappa, float(arc[-1])
+
+
+def lqr_gain(v: float, q: Sequence[float], r: Sequence[float]) -> tuple[float, ...]:
+    """The 2×3 gain of ``control.lqr`` on the tracking-error dynamics at speed ``v``, row by row.
+
+    ``ė = A e + B δu`` with ``A = [[0, 0, 0], [0, 0, v], [0, 0, 0]]``, ``B = [[1, 0], [0, 0],
+    [0, 1]]``, speed floored at 0.05 m/s and weights at 1e-9 (as the pack does).
+    """
+    import control
+
+    v = max(float(v), 0.05)
+    A = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, v], [0.0, 0.0, 0.0]])
+    B = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
+    K, _, _ = control.lqr(A, B, np.diag([max(float(x), 1e-9) for x in q]), np.diag(r))
+    return tuple(np.asarray(K, dtype=float).ravel().tolist())
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Everything of the file the a1 run needs, read once (no seed in it).
+
+    Build it with :func:`load_setup`. ``ref`` is the reference ``[x, y, θ, v, ω]`` at
+    every step's time ``k·dt`` (it depends on time only), as five float arrays.
+    """
+
+    dt: float
+    steps: int
+    # chassis (the true geometry and disturbances)
+    radius: float
+    base: float
+    limit: float
+    tau: float
+    slip: float
+    lateral: float
+    yaw: float
+    pose0: tuple[float, float, float]
+    # sensors
+    enc_noise: float
+    imu_noise: float
+    imu_bias: float
+    # the model nodes as the estimator and controller see them
+    kin_radius: float
+    kin_base: float
+    act_limit: float
+    # controller
+    q: tuple[float, float, float]
+    r: tuple[float, float]
+    design_speed: float
+    ref: tuple[np.ndarray, ...]
+
+
+def _value(mods: dict, module: str, key: str, default: Any) -> Any:
+    spec = (mods[module].get("params") or {}).get(key)
+    return default if spec is None else spec["value"]
+
+
+@cache
+def load_setup(path: str | Path = DIFFDRIVE, scenario: str = "nominal") -> Setup:
+    """The parameters of configuration a1 and the reference of ``scenario``.
+
+    The file is read as plain YAML; a parameter it does not set takes the pack's
+    default. Raises ``ValueError`` for a scenario with faults or a different a1.
+    """
+    from ruamel.yaml import YAML
+
+    raw = YAML(typ="safe").load(Path(path).read_text(encoding="utf-8"))
+    mods = raw["modules"]
+    if set(raw["configurations"]["a1"]["modules"]) != A1:
+        raise ValueError("configuration a1 is not the one the floor implements")
+    sc = raw["scenarios"][scenario]
+    if sc.get("faults"):
+        raise ValueError(f"scenario {scenario!r} has faults; the floor runs fault-free ones")
+    dt = float(raw["runtime"]["step_s"])
+    steps = int(round(float(sc["duration_s"]) / dt))
+
+    def v(module: str, key: str, default: Any) -> Any:
+        return _value(mods, module, key, default)
+
+    # the reference at t = k·dt (planner.spline: linear interpolation of the table)
+    speed = float(v("planner", "speed_mps", 0.5))
+    ds = float(v("planner", "resolution_m", 0.02))
+    x, y, th, kappa, length = spline_table(v("planner", "waypoints", None), ds)
+    t = np.arange(steps) * dt
+    s = speed * t
+    f = np.maximum(s, 0.0) / ds
+    i = np.minimum(f.astype(np.int64), len(x) - 2)
+    a = np.minimum(f - i, 1.0)
+    b = 1.0 - a
+    ref = [
+        b * x[i] + a * x[i + 1],
+        b * y[i] + a * y[i + 1],
+        b * th[i] + a * th[i + 1],
+        np.full(steps, speed),
+        (b * kappa[i] + a * kappa[i + 1]) * speed,
+    ]
+    end = s >= length  # past the end of the path: stop there
+    for arr, last in zip(ref, (x[-1], y[-1], th[-1], 0.0, 0.0), strict=True):
+        arr[end] = last
+    return Setup(
+        dt=dt,
+        steps=steps,
+        radius=float(v("chassis", "wheel_radius_m", 0.1)),
+        base=float(v("chassis", "wheel_base_m", 0.5)),
+        limit=float(v("chassis", "max_wheel_speed_rad_s", math.inf)),
+        tau=float(v("chassis", "wheel_time_constant_s", 0.1)),
+        slip=float(v("chassis", "slip_variance_m", 0.0)),
+        lateral=float(v("chassis", "lateral_noise_m_sqrt_s", 0.0)),
+        yaw=float(v("chassis", "yaw_noise_rad_sqrt_s", 0.0)),
+        pose0=tuple(float(p) for p in v("chassis", "initial_pose", [0.0, 0.0, 0.0])),
+        enc_noise=float(v("encoders", "noise_rad_s", 0.05)),
+        imu_noise=float(v("imu", "noise_rad", 0.005)),
+        imu_bias=float(v("imu", "bias_rad", 0.0)),
+        kin_radius=float(v("kinematic_model", "wheel_radius_m", 0.1)),
+        kin_base=float(v("kinematic_model", "wheel_base_m", 0.5)),
+        act_limit=float(v("actuator_model", "max_wheel_speed_rad_s", 12.0)),
+        q=(
+            float(v("lqr", "q_along", 1.0)),
+            float(v("lqr", "q_lateral", 1.0)),
+            float(v("lqr", "q_heading", 1.0)),
+        ),
+        r=(float(v("lqr", "r_speed", 1.0)), float(v("lqr", "r_turn", 1.0))),
+        design_speed=float(v("lqr", "design_speed_mps", 0.5)),
+        ref=tuple(ref),
+    )
+
+
+def _gain(setup: Setup, v: float) -> tuple[float, ...]:
+    """The LQR gain at reference speed ``v``, cached by speed rounded to 1 cm/s (as the pack)."""
+    return _cached_gain(round(max(float(v), 0.05), 2), setup.q, setup.r)
+
+
+@cache
+def _cached_gain(v: float, q: tuple[float, ...], r: tuple[float, ...]) -> tuple[float, ...]:
+    return lqr_gain(v, q, r)
+
+
+def _metrics(t: np.ndarray, J: np.ndarray) -> dict[str, float]:
+    """The framework's metrics of J (``archself.sim.metrics.error_metrics``) and its mean."""
+    i = int(np.argmax(J))
+    return {
+        "max_error": float(J[i]),
+        "final_error": float(J[-1]),
+        "rms_error": float(np.sqrt(np.mean(J**2))),
+        "mean_error": float(np.mean(J)),
+        "peak_time_s": float(t[i]),
+    }
+
+
+def run_floor(seed: int, setup: Setup | None = None) -> dict[str, Any]:
+    """One a1 fixed run, written out on Python floats.
+
+    Parameters
+    ----------
+    seed : int
+        The seed of every random stream (``archself simulate --seed``).
+    setup : Setup, optional
+        From :func:`load_setup` (default: architectures/diffdrive.yaml, nominal).
+
+    Returns
+    -------
+    dict
+        ``max_error``, ``final_error``, ``rms_error``, ``mean_error`` (m), ``peak_time_s``,
+        and the series ``t`` and ``J`` (as the framework's ``RunResult.series``).
+
+    Examples
+    --------
+    >>> out = run_floor(1)
+    >>> 0.0 < out["max_error"] < 0.5, len(out["J"])
+    (True, 8000)
+    """
+    S = setup or load_setup()
+    n, dt = S.steps, S.dt
+    # the noise of the run, drawn in one block per stream (the same numbers)
+    cha = stream(seed, "chassis").standard_normal((n, 4)).tolist()  # slip l, r; lateral, yaw
+    enc = stream(seed, "encoders").standard_normal((n, 2)).tolist()
+    imu = stream(seed, "imu").standard_normal(n).tolist()
+    rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    sin, cos, sqrt = math.sin, math.cos, math.sqrt
+    # constants
+    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
+    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
+    lag = S.tau > 0
+    rdt = r * dt
+    sq_dt = sqrt(dt)
+    kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
+    v_design = S.design_speed
+    k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
+    # state: true pose and wheel speeds, the odometry's pose
+    px, py, pth = S.pose0
+    wl = wr = 0.0
+    ox, oy, oth = 0.0, 0.0, 0.0
+    J = [0.0] * n
+    for k in range(n):
+        rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+        dx, dy = px - rx, py - ry
+        J[k] = sqrt(dx * dx + dy * dy)  # the objective of the pose published at t
+        # encoders and IMU (sensor.encoders, sensor.imu)
+        e = enc[k]
+        el = wl + sig_e * e[0]
+        er = wr + sig_e * e[1]
+        h = pth + S.imu_bias + sig_h * imu[k]
+        h = (h + PI) % TWO_PI - PI
+        # dead reckoning (estimator.odometry; no handed-over bias in a1)
+        v = kr * (el + er) / 2.0
+        th0 = oth
+        th1 = th0 + ((h - th0 + PI) % (2 * PI) - PI)
+        if k:
+            mid = 0.5 * (th0 + th1)
+            ox += v * dt * cos(mid)
+            oy += v * dt * sin(mid)
+        oth = (th1 + PI) % (2 * PI) - PI
+        # LQR (controller.lqr): gain at the reference speed, feed-forward, limit
+        if abs(rv - v_design) > 0.005:
+            v_design = rv
+            k00, k01, k02, k10, k11, k12 = _gain(S, rv)
+        dx, dy = ox - rx, oy - ry
+        c, s = cos(rth), sin(rth)
+        e0 = c * dx + s * dy
+        e1 = -s * dx + c * dy
+        e2 = (oth - rth + PI) % TWO_PI - PI
+        vc = rv - (k00 * e0 + k01 * e1 + k02 * e2)
+        wc = rw - (k10 * e0 + k11 * e1 + k12 * e2)
+        half = wc * kb / 2.0
+        cl = (vc - half) / kr
+        cr = (vc + half) / kr
+        peak = max(abs(cl), abs(cr))
+        if peak > alim:
+            cl, cr = cl * alim / peak, cr * alim / peak
+        # chassis (plant.diffdrive): lag, slip, exact arc, lateral and yaw noise
+        cl = min(max(cl, -lim), lim)
+        cr = min(max(cr, -lim), lim)
+        wl0, wr0 = wl, wr
+        wl = wl0 + a_lag * (cl - wl0)
+        wr = wr0 + a_lag * (cr - wr0)
+        ul, ur = (0.5 * (wl0 + wl), 0.5 * (wr0 + wr)) if lag else (wl, wr)
+        z = cha[k]
+        ul = ul + sqrt(slip * abs(r * ul * dt)) * z[0] / rdt
+        ur = ur + sqrt(slip * abs(r * ur * dt)) * z[1] / rdt
+        vb = r * (ul + ur) / 2.0
+        wb = r * (ur - ul) / b
+        dth = wb * dt
+        if abs(dth) < 1e-9:
+            m = pth + 0.5 * dth
+            px += vb * dt * cos(m)
+            py += vb * dt * sin(m)
+        else:
+            rad = vb / wb
+            px += rad * (sin(pth + dth) - sin(pth))
+            py -= rad * (cos(pth + dth) - cos(pth))
+        pth = pth + dth
+        lat = S.lateral * (z[2] * sq_dt)
+        px += -sin(pth) * lat
+        py += cos(pth) * lat
+        pth += S.yaw * (z[3] * sq_dt)
+    t = (np.arange(n) + 1) * dt
+    Ja = np.array(J)
+    return {**_metrics(t, Ja), "t": t, "J": Ja}
+
+
+def run_floor_lanes(
+    seeds: Sequence[int], setup: Setup | None = None, *, block: int = 400, record: bool = False
+) -> dict[str, Any]:
+    """The a1 fixed run for N seeds at once: states with a leading lane axis, one time loop.
+
+    Parameters
+    ----------
+    seeds : sequence of int
+        One lane per seed.
+    setup : Setup, optional
+        From :func:`load_setup` (default: architectures/diffdrive.yaml, nominal).
+    block : int
+        Steps of noise drawn per stream and lane at a time (memory per lane ≈ 56·block bytes).
+    record : bool
+        Keep J of every step (``J``, shape (steps, N)); otherwise the metrics are
+        accumulated and nothing grows with the run's length.
+
+    Returns
+    -------
+    dict
+        ``max_error``, ``final_error``, ``rms_error``, ``mean_error``, ``peak_time_s``,
+        each an array of shape (N,) (the metrics of :func:`run_floor` per lane; rms and
+        mean summed in step order, so they may differ from it in the last bits), and
+        ``J`` if ``record``.
+
+    Examples
+    --------
+    >>> out = run_floor_lanes([1, 2])
+    >>> out["max_error"].shape
+    (2,)
+    """
+    S = setup or load_setup()
+    n, dt, N = S.steps, S.dt, len(seeds)
+    streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu")) for s in seeds]
+    cha = np.empty((block, 4, N))
+    enc = np.empty((block, 2, N))
+    imu = np.empty((block, N))
+    rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
+    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
+    lag = S.tau > 0
+    rdt = r * dt
+    sq_dt = math.sqrt(dt)
+    kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
+    v_design = S.design_speed
+    k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
+    sin, cos, sqrt, absolute, where = np.sin, np.cos, np.sqrt, np.abs, np.where
+    px, py, pth = (np.full(N, p) for p in S.pose0)
+    wl, wr = np.zeros(N), np.zeros(N)
+    ox, oy, oth = np.zeros(N), np.zeros(N), np.zeros(N)
+    jmax, tmax = np.full(N, -np.inf), np.zeros(N)
+    jsum, j2sum = np.zeros(N), np.zeros(N)
+    Jrec = np.empty((n, N)) if record else None
+    J = jmax
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(n):
+            j = k % block
+            if j == 0:  # the next block of every lane's streams
+                m = min(block, n - k)
+                for lane, (gc, ge, gi) in enumerate(streams):
+                    cha[:m, :, lane] = gc.standard_normal((m, 4))
+                    enc[:m, :, lane] = ge.standard_normal((m, 2))
+                    imu[:m, lane] = gi.standard_normal(m)
+            rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+            dx, dy = px - rx, py - ry
+            J = sqrt(dx * dx + dy * dy)
+            if Jrec is not None:
+                Jrec[k] = J
+            better = J > jmax
+            jmax = where(better, J, jmax)
+            tmax = where(better, (k + 1) * dt, tmax)
+            jsum += J
+            j2sum += J * J
+            # encoders and IMU
+            el = wl + sig_e * enc[j, 0]
+            er = wr + sig_e * enc[j, 1]
+            h = pth + S.imu_bias + sig_h * imu[j]
+            h = (h + PI) % TWO_PI - PI
+            # dead reckoning
+            v = kr * (el + er) / 2.0
+            th0 = oth
+            th1 = th0 + ((h - th0 + PI) % (2 * PI) - PI)
+            if k:
+                mid = 0.5 * (th0 + th1)
+                vdt = v * dt
+                ox = ox + vdt * cos(mid)
+                oy = oy + vdt * sin(mid)
+            oth = (th1 + PI) % (2 * PI) - PI
+            # LQR
+            if abs(rv - v_design) > 0.005:
+                v_design = rv
+                k00, k01, k02, k10, k11, k12 = _gain(S, rv)
+            dx, dy = ox - rx, oy - ry
+            c, s = math.cos(rth), math.sin(rth)
+            e0 = c * dx + s * dy
+            e1 = -s * dx + c * dy
+            e2 = (oth - rth + PI) % TWO_PI - PI
+            vc = rv - (k00 * e0 + k01 * e1 + k02 * e2)
+            wc = rw - (k10 * e0 + k11 * e1 + k12 * e2)
+            half = wc * kb / 2.0
+            cl = (vc - half) / kr
+            cr = (vc + half) / kr
+            peak = np.maximum(absolute(cl), absolute(cr))
+            over = peak > alim
+            if over.any():
+                cl = where(over, cl * alim / peak, cl)
+                cr = where(over, cr * alim / peak, cr)
+            # chassis
+            cl = np.minimum(np.maximum(cl, -lim), lim)
+            cr = np.minimum(np.maximum(cr, -lim), lim)
+            wl0, wr0 = wl, wr
+            wl = wl0 + a_lag * (cl - wl0)
+            wr = wr0 + a_lag * (cr - wr0)
+            if lag:
+                ul, ur = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
+            else:
+                ul, ur = wl, wr
+            ul = ul + sqrt(slip * absolute(r * ul * dt)) * cha[j, 0] / rdt
+            ur = ur + sqrt(slip * absolute(r * ur * dt)) * cha[j, 1] / rdt
+            vb = r * (ul + ur) / 2.0
+            wb = r * (ur - ul) / b
+            dth = wb * dt
+            th2 = pth + dth
+            straight = absolute(dth) < 1e-9
+            rad = vb / wb
+            ax = rad * (sin(th2) - sin(pth))
+            ay = rad * (cos(th2) - cos(pth))
+            if straight.any():
+                mth = pth + 0.5 * dth
+                vdt = vb * dt
+                ax = where(straight, vdt * cos(mth), ax)
+                ay = where(straight, -(vdt * sin(mth)), ay)
+            px = px + ax
+            py = py - ay
+            pth = th2
+            lat = S.lateral * (cha[j, 2] * sq_dt)
+            px = px + -sin(pth) * lat
+            py = py + cos(pth) * lat
+            pth = pth + S.yaw * (cha[j, 3] * sq_dt)
+    out: dict[str, Any] = {
+        "max_error": jmax,
+        "final_error": J,
+        "rms_error": np.sqrt(j2sum / n),
+        "mean_error": jsum / n,
+        "peak_time_s": tmax,
+    }
+    if Jrec is not None:
+        out["J"] = Jrec
+    return out
+
+
+# ---------------------------------------------------------------------- the measurement
+def _best(fn: Any, rounds: int) -> tuple[float, float]:
+    """Min and median wall time of ``rounds`` calls of ``fn``."""
+    times = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), float(np.median(times))
+
+
+def _peak_bytes(fn: Any) -> int:
+    tracemalloc.start()
+    try:
+        fn()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Measure the framework's a1 fixed run, the floor and the vectorized floor side by side."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=5, help="rounds of each per-run timing")
+    ap.add_argument("--lanes", type=int, nargs="+", default=[1, 10, 100, 1000])
+    args = ap.parse_args(argv)
+
+    import archself
+
+    arch = archself.load(DIFFDRIVE)
+    S = load_setup()
+    n = S.steps
+    t0 = time.perf_counter()
+    load_setup.cache_clear()
+    S = load_setup()
+    setup_s = time.perf_counter() - t0
+    # warm: python-control, scipy, the gain cache
+    fw = archself.simulate(arch, "nominal", configuration="a1", seed=1)
+    fl = run_floor(1, S)
+    dev = float(np.max(np.abs(fw.series["J"] - fl["J"])))
+    print(
+        f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
+        f"{os.getloadavg()[2]:.2f} · {os.cpu_count()} cores · {n} steps of {S.dt} s"
+    )
+    print(
+        f"trace check, seed 1: max |J_framework − J_floor| = {dev:.1e} m "
+        f"(max error {fw.metrics['max_error']:.6f} / {fl['max_error']:.6f} m)"
+    )
+    seeds = iter(range(1000, 100000))
+    fw_min, fw_med = _best(
+        lambda: archself.simulate(arch, "nominal", configuration="a1", seed=next(seeds)),
+        args.rounds,
+    )
+    fl_min, fl_med = _best(lambda: run_floor(next(seeds), S), args.rounds * 4)
+    fw_mem = _peak_bytes(lambda: archself.simulate(arch, "nominal", configuration="a1", seed=2))
+    print()
+    print(f"{'':34} {'per run [s]':>14} {'per step [µs]':>14} {'runs/s':>9}")
+    print(
+        f"{'framework a1 fixed (simulate)':34} {fw_min:>8.3f} ({fw_med:.3f})"
+        f" {fw_min / n * 1e6:>14.1f} {1 / fw_min:>9.2f}"
+    )
+    print(
+        f"{'floor, one run (Python floats)':34} {fl_min:>8.3f} ({fl_med:.3f})"
+        f" {fl_min / n * 1e6:>14.1f} {1 / fl_min:>9.2f}"
+    )
+    print(f"{'framework / floor':34} {fw_min / fl_min:>13.1f}×")
+    for N in args.lanes:
+        lane_seeds = list(range(1, N + 1))
+        r = max(1, min(args.rounds, int(3000 // max(N, 1)) or 1))
+        best, med = _best(lambda lane_seeds=lane_seeds: run_floor_lanes(lane_seeds, S), r)
+        print(
+            f"{f'floor vectorized, N = {N} lanes':34} {best:>8.3f} ({med:.3f})"
+            f" {best / n / N * 1e6:>14.2f} {N / best:>9.1f}"
+        )
+    N = max(args.lanes)
+    peak = _peak_bytes(lambda: run_floor_lanes(list(range(1, N + 1)), S))
+    print()
+    print(
+        f"memory: vectorized floor peak {peak / 1e6:.1f} MB for {N} lanes "
+        f"= {peak / N / 1e3:.1f} kB per lane (noise blocks of 400 steps, J not kept); "
+        f"framework one run peak {fw_mem / 1e6:.1f} MB (tracemalloc)"
+    )
+    print(f"(setup of the floor, once: {setup_s:.3f} s: spline table, reference, LQR gain)")
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,84 @@
+"""The hand-written floor (bench/floor_diffdrive.py, issue 16) is the framework's a1 run.
+
+The floor writes the diff-drive a1 fixed run out as one loop and draws the modules'
+random streams as the framework does, so its J equals the framework's to 1e-9 (in
+fact bit for bit on this machine), per run and vectorized over seeds. No time is
+asserted (``python bench/floor_diffdrive.py`` measures).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from functools import cache
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+import archself
+from archself.streams import module_rng
+
+ROOT = Path(__file__).resolve().parents[1]
+SEEDS = (1, 2)
+METRICS = ("max_error", "final_error", "rms_error", "peak_time_s")
+
+
+@cache
+def floor() -> ModuleType:
+    """Import ``bench/floor_diffdrive.py`` (bench/ is not a package)."""
+    path = ROOT / "bench" / "floor_diffdrive.py"
+    spec = importlib.util.spec_from_file_location("bench_floor_diffdrive", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@cache
+def framework(seed: int) -> archself.RunResult:
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    return archself.simulate(arch, "nominal", configuration="a1", seed=seed)
+
+
+def test_streams_are_the_frameworks() -> None:
+    for name in ("chassis", "encoders", "imu"):
+        assert_allclose(
+            floor().stream(7, name).standard_normal(5),
+            module_rng(7, name).standard_normal(5),
+            rtol=0,
+            atol=0,
+        )
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_run_floor_is_the_framework_run(seed: int) -> None:
+    fw = framework(seed)
+    out = floor().run_floor(seed)
+    assert_allclose(out["t"], fw.series["t"], rtol=0, atol=1e-12)
+    assert_allclose(out["J"], fw.series["J"], rtol=0, atol=1e-9)
+    for key in METRICS:
+        assert out[key] == pytest.approx(fw.metrics[key], rel=0, abs=1e-9), key
+    assert out["mean_error"] == pytest.approx(float(np.mean(fw.series["J"])), abs=1e-9)
+    assert 0.0 < out["max_error"] < 0.5  # the nominal run tracks the path
+
+
+def test_vectorized_floor_is_the_framework_run() -> None:
+    out = floor().run_floor_lanes(list(SEEDS), record=True, block=300)  # blocks cut mid-run
+    assert out["J"].shape == (len(framework(1).series["J"]), len(SEEDS))
+    for lane, seed in enumerate(SEEDS):
+        fw = framework(seed)
+        assert_allclose(out["J"][:, lane], fw.series["J"], rtol=0, atol=1e-9)
+        for key in METRICS:
+            assert out[key][lane] == pytest.approx(fw.metrics[key], rel=0, abs=1e-9), key
+        assert out["mean_error"][lane] == pytest.approx(float(np.mean(fw.series["J"])), abs=1e-9)
+
+
+def test_lanes_do_not_interact() -> None:
+    both = floor().run_floor_lanes([3, 4])
+    alone = floor().run_floor_lanes([4])
+    for key in METRICS:
+        assert both[key][1] == pytest.approx(alone[key][0], rel=0, abs=1e-12), key
