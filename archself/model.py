@@ -26,82 +26,51 @@ Algorithm 1 settings      ``runtime``
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    ConfigDict,
-    Field,
-    PrivateAttr,
-    field_validator,
-    model_validator,
+from pydantic import ConfigDict, Field, PrivateAttr, model_validator
+
+from archself.model_runtime import (
+    Ablation,
+    Hysteresis,
+    Objective,
+    Runtime,
+    Stability,
+)
+from archself.model_values import (
+    FORMAT_VERSION,
+    MAX_HORIZON_STEPS,
+    MAX_MAGNITUDE,
+    MAX_PARAM_NUMBERS,
+    MAX_STEP_S,
+    MAX_TIME_S,
+    MIN_SCALE,
+    MIN_STEP_S,
+    Finite,
+    Name,
+    NonNeg,
+    ParamValue,
+    Positive,
+    PositiveSeconds,
+    Scale,
+    Seconds,
+    StrictModel,
 )
 
 if TYPE_CHECKING:
     from archself.ports import EdgePorts
 
-FORMAT_VERSION = 1
-
-#: No number of a file is larger in magnitude (in its SI unit): 1e9 m is 2.6 times the
-#: distance to the Moon, 1e9 s 31 years. A backstop for quantities without a tighter range:
-#: it keeps squares and sums of file values far from float overflow (1e308).
-MAX_MAGNITUDE = 1e9
-#: The longest time a file states (s): 10^7 s, about 116 days.
-MAX_TIME_S = 1e7
-#: The shortest simulation step or MAPE-K period (s): 1 µs.
-MIN_STEP_S = 1e-6
-#: The longest simulation step (s): one hour.
-MAX_STEP_S = 3600.0
-#: The smallest scale a residual is divided by (``nominal``): below it r_i overflows.
-MIN_SCALE = 1e-12
-#: Numbers in one parameter value (a 316 × 316 matrix, 100,000 waypoint coordinates).
-MAX_PARAM_NUMBERS = 100_000
-#: Steps of one Lyapunov rollout (Eq. 22–24), per candidate action and cycle.
-MAX_HORIZON_STEPS = 10_000
-
-Finite = Annotated[
-    float, Field(allow_inf_nan=False, ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)
-]
-NonNeg = Annotated[float, Field(ge=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
-Seconds = Annotated[float, Field(ge=0, le=MAX_TIME_S, allow_inf_nan=False)]
-PositiveSeconds = Annotated[float, Field(gt=0, le=MAX_TIME_S, allow_inf_nan=False)]
-Scale = Annotated[float, Field(ge=MIN_SCALE, le=MAX_MAGNITUDE, allow_inf_nan=False)]
-Name = Annotated[
-    str,
-    Field(
-        min_length=1,
-        max_length=128,
-        pattern=r"^[^\x00-\x1f\x7f]+$",
-        description="A name: any printable text without control characters.",
-    ),
-]
-def _few_numbers(value: Any) -> Any:
-    if isinstance(value, list):
-        count = sum(len(v) if isinstance(v, list) else 1 for v in value)
-        if count > MAX_PARAM_NUMBERS:
-            raise ValueError(
-                f"{count:,} numbers in one parameter value, more than the cap of "
-                f"{MAX_PARAM_NUMBERS:,}"
-            )
-    return value
-
-
-ParamValue = Annotated[
-    Union[bool, Finite, str, list[Finite], list[list[Finite]]],  # noqa: UP007
-    AfterValidator(_few_numbers),
+__all__ = [
+    "FORMAT_VERSION", "MAX_HORIZON_STEPS", "MAX_MAGNITUDE", "MAX_PARAM_NUMBERS", "MAX_STEP_S",
+    "MAX_TIME_S", "MIN_SCALE", "MIN_STEP_S", "Finite", "Name", "NonNeg", "ParamValue",
+    "Positive", "PositiveSeconds", "Scale", "Seconds", "StrictModel",
+    "Parameter", "Residual", "ModuleConstraints", "Module", "Edge", "Configuration",
+    "SensitivityEstimate", "RolloutEstimate", "TableEstimate", "Improvement", "Action",
+    "Budget", "FaultKind", "Fault", "Scenario",
+    "Stability", "Hysteresis", "Ablation", "Objective", "Runtime", "Architecture",
 ]
 
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, frozen=False)
-
-
-#: Series every run records (archself.sim.run); ``runtime.record`` may not reuse them.
-_SERIES = ("t", "J", "reference", "actual", "configuration")
 _STRUCTURAL = ["substitute", "activate", "deactivate", "rewire"]
-_SELECTORS = ("threshold", "top_k", "hysteresis")
 
 # What the model validators below enforce, stated for other JSON Schema validators too.
 _ACTION_RULES: dict[str, Any] = {
@@ -110,15 +79,10 @@ _ACTION_RULES: dict[str, Any] = {
     "else": {"required": ["set"], "properties": {"set": {"type": "object", "minProperties": 1},
                                                   "to": {"type": "null"}}},
 }
-_ONE_SELECTOR: dict[str, Any] = {
-    "oneOf": [
-        {"required": [k], "properties": {k: {"not": {"type": "null"}}}} for k in _SELECTORS
-    ]
-}
 
 
 # --------------------------------------------------------------------------- modules
-class Parameter(_Strict):
+class Parameter(StrictModel):
     """One dimension of a module's parameter space Θ_i (Eq. 6, 10)."""
 
     value: ParamValue = Field(description="Nominal value; must lie inside the space.")
@@ -129,7 +93,7 @@ class Parameter(_Strict):
     description: str | None = None
 
 
-class Residual(_Strict):
+class Residual(StrictModel):
     """How the module's local residual r_i = (∂J/∂θ_i)·δθ_i is formed (Eq. 12).
 
     δθ_i is approximated by a local signal the module publishes (an estimator
@@ -148,7 +112,7 @@ class Residual(_Strict):
     )
 
 
-class ModuleConstraints(_Strict):
+class ModuleConstraints(StrictModel):
     """Operational and compatibility constraints k_i (Eq. 6)."""
 
     requires: list[Name] = Field(
@@ -173,7 +137,7 @@ class ModuleConstraints(_Strict):
     )
 
 
-class Module(_Strict):
+class Module(StrictModel):
     """A module m_i = (τ_i, Θ_i, k_i) of kind physical, functional or model (Eq. 5–7)."""
 
     kind: Literal["physical", "functional", "model"] = Field(
@@ -191,7 +155,7 @@ class Module(_Strict):
 
 
 # --------------------------------------------------------------------------- edges
-class Edge(_Strict):
+class Edge(StrictModel):
     """A dependency (m_j, m_i) ∈ Γ: m_j provides ``carries`` to m_i (Eq. 8–9).
 
     ``from``/``to`` may name ports as ``module.port`` (see Named ports): the source's
@@ -231,7 +195,7 @@ class Edge(_Strict):
 
 
 # --------------------------------------------------------------------------- configurations
-class Configuration(_Strict):
+class Configuration(StrictModel):
     """An admissible architecture a ∈ A: the active modules (and optionally edges)."""
 
     description: str | None = None
@@ -244,7 +208,7 @@ class Configuration(_Strict):
 
 
 # --------------------------------------------------------------------------- actions
-class SensitivityEstimate(_Strict):
+class SensitivityEstimate(StrictModel):
     """Δ_k ≈ −(∂J/∂θ_i)·Δθ_i^k (Eq. 18), Δθ as a fraction of the module's deviation."""
 
     method: Literal["sensitivity"]
@@ -253,14 +217,14 @@ class SensitivityEstimate(_Strict):
     )
 
 
-class RolloutEstimate(_Strict):
+class RolloutEstimate(StrictModel):
     """Δ_k from a short-horizon rollout of a snapshot of the running system."""
 
     method: Literal["rollout"]
     horizon_s: PositiveSeconds = Field(description="Length of the rollout.")
 
 
-class TableEstimate(_Strict):
+class TableEstimate(StrictModel):
     """Δ_k from a precomputed performance table keyed by candidate module."""
 
     method: Literal["table"]
@@ -273,7 +237,7 @@ Improvement = Annotated[
 ]
 
 
-class Action(_Strict):
+class Action(StrictModel):
     """An admissible action a_k ∈ A(m_i) (paper §4.2, Planning stage).
 
     ``parameter_update`` changes parameters of ``module`` (``set``); the structural
@@ -311,7 +275,7 @@ class Action(_Strict):
 
 
 # --------------------------------------------------------------------------- constraints
-class Budget(_Strict):
+class Budget(StrictModel):
     """A system constraint C(a, θ, e) = Σ_{m_i active} use_i(resource) − max ≤ 0 (Eq. 3, 27)."""
 
     resource: Name = Field(description="Resource summed over active modules, e.g. power_w.")
@@ -325,7 +289,7 @@ FaultKind = Literal[
 ]
 
 
-class Fault(_Strict):
+class Fault(StrictModel):
     """A fault of the environment e acting on one module's output.
 
     ``bias_drift``: an offset growing at ``magnitude`` units/s from onset;
@@ -353,7 +317,7 @@ class Fault(_Strict):
         return self
 
 
-class Scenario(_Strict):
+class Scenario(StrictModel):
     """An environment e: a duration, a seed and the faults injected."""
 
     description: str | None = None
@@ -362,157 +326,8 @@ class Scenario(_Strict):
     faults: list[Fault] = Field(default_factory=list)
 
 
-# --------------------------------------------------------------------------- runtime
-class Stability(_Strict):
-    """Stability-aware action filtering (Eq. 21–24)."""
-
-    margin: Positive = Field(description="ε: require max Re λ(A_k) ≤ −ε (Eq. 21).")
-    lyapunov_alpha: Positive = Field(description="α: require E[ΔV|a_k] ≤ −α‖x_t‖² (Eq. 24).")
-    horizon_steps: int = Field(
-        gt=0, le=MAX_HORIZON_STEPS, description="Rollout length of the Lyapunov test."
-    )
-    verify: Literal["off", "warning", "error"] = Field(
-        "off",
-        description="What `archself validate` does with the closed-loop stability of every "
-        "configuration and of every action's result (Eq. 21 with this margin, where the "
-        "modules give linear models or linearizations): off (default: not checked, and "
-        "validate stays light), warning or error (an unstable configuration is a finding of "
-        "that severity, located at the configuration, naming max Re λ and the modules the "
-        "unstable mode lives in). The check compiles the modules, so it imports what their "
-        "types need (python-control, filterpy); only a file that opts in pays for it.",
-    )
-
-
-class Hysteresis(_Strict):
-    """Hysteresis on the candidate threshold: τ_on > τ_off (Eq. 28, alternative)."""
-
-    on: Positive
-    off: NonNeg
-
-    @model_validator(mode="after")
-    def _order(self) -> Hysteresis:
-        if not self.on > self.off:
-            raise ValueError("hysteresis needs on > off")
-        return self
-
-
-class Ablation(_Strict):
-    """Stages of Algorithm 1 that can be switched off (all on by default)."""
-
-    propagation: bool = Field(True, description="false: z = r (W = 0 in Analyze).")
-    stability: bool = Field(True, description="false: no stability filter (Eq. 21–24).")
-    dwell: bool = Field(True, description="false: no dwell time (T_min = 0).")
-
-
-class Objective(_Strict):
-    """J: the error between an actual and a reference signal (Eq. 11)."""
-
-    actual: Name = Field(description="'module.signal' of the true state, e.g. chassis.pose.")
-    reference: Name = Field(description="'module.signal' of the reference.")
-    components: list[int] = Field(
-        default_factory=lambda: [0], description="Vector components compared."
-    )
-    acceptable: NonNeg = Field(0.0, description="J_ref: the acceptable error level.")
-    unit: str | None = Field(
-        None,
-        description="Unit of J (of the compared components), e.g. m; reports label the error "
-        "metrics with it.",
-    )
-
-
-class Runtime(_Strict):
-    """Settings of Algorithm 1 and of the simulation clock; one selector: τ, top-k or hysteresis."""
-
-    model_config = ConfigDict(json_schema_extra=_ONE_SELECTOR)
-
-    step_s: float = Field(
-        ge=MIN_STEP_S, le=MAX_STEP_S, allow_inf_nan=False,
-        description="Simulation step (1 µs to 1 h).",
-    )
-    period_s: float = Field(
-        ge=MIN_STEP_S, le=MAX_TIME_S, allow_inf_nan=False,
-        description="Period of one MAPE-K cycle.",
-    )
-    objective: Objective
-    record: dict[Name, Name] = Field(
-        default_factory=dict,
-        description="Series a run records besides J and the objective's signals: series name → "
-        "output signal, taken each step from the first active module (file order) whose type "
-        "publishes it.",
-    )
-    threshold: Positive | None = Field(None, description="τ of Eq. 16.")
-    top_k: int | None = Field(
-        None, gt=0, le=10**6, description="Alternative to τ: the k largest |z_i|."
-    )
-    hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
-    localization: Literal["influence", "source"] = Field(
-        "influence",
-        description="What drives candidate selection and the planner's weight: influence, the "
-        "paper's z = (I − Wᵀ)⁻¹ r (Eq. 14: largest downstream of a fault), or source, the local "
-        "faults e ≥ 0 that explain r = (I − Wᵀ)⁻¹ e (largest at the fault's origin). Both are "
-        "logged.",
-    )
-    normalization: Literal["nominal", "none"] = Field(
-        "nominal",
-        description="z channels divided by the nominal level each would have (nominal) or raw.",
-    )
-    warmup_s: Seconds = Field(
-        0.0,
-        description="Seconds from the first cycle without adaptation (the loop still monitors). "
-        "Residuals are also trusted per module, see min_confidence.",
-    )
-    warmup_steps: int = Field(
-        0, ge=0, le=10**9,
-        description="Deprecated (use warmup_s): MAPE-K cycles without adaptation.",
-    )
-    min_confidence: Annotated[float, Field(ge=0, lt=1)] = Field(
-        0.5,
-        description="A module's residual counts only once its filter has settled: confidence "
-        "1 − exp(−t_valid/T) ≥ this (0.5: after T·ln 2 of usable samples). Before, r_i = 0.",
-    )
-    isolate_compensated: bool = Field(
-        True,
-        description="After a structural action keyed to a module, that module's residual is no "
-        "longer propagated through W (its own z_i = r_i still shows it) until an action keyed to "
-        "it applies again: a compensated fault stops pulling z onto other modules.",
-    )
-    ablation: Ablation = Field(
-        default_factory=lambda: Ablation.model_validate({}),
-        description="Stages of Algorithm 1 that can be switched off for an ablation study.",
-    )
-    dwell_s: Seconds = Field(0.0, description="T_min of Eq. 28.")
-    cost_weight: NonNeg = Field(description="λ of Eq. 25.")
-    stability: Stability
-    max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.95, description="ρ(W) must stay below this (Eq. 13)."
-    )
-
-    @property
-    def warmup_time_s(self) -> float:
-        """The warm-up in seconds: ``max(warmup_s, warmup_steps · period_s)``."""
-        return max(float(self.warmup_s), self.warmup_steps * float(self.period_s))
-
-    @field_validator("record")
-    @classmethod
-    def _series_names(cls, record: dict[str, str]) -> dict[str, str]:
-        taken = [k for k in record if k in _SERIES or k.startswith("residual.")]
-        if taken:
-            raise ValueError(
-                f"series name '{taken[0]}' is taken by the run itself "
-                f"({', '.join(_SERIES)}, residual.<module>)"
-            )
-        return record
-
-    @model_validator(mode="after")
-    def _one_selector(self) -> Runtime:
-        chosen = [k for k in ("threshold", "top_k", "hysteresis") if getattr(self, k) is not None]
-        if len(chosen) != 1:
-            raise ValueError("give exactly one of threshold, top_k or hysteresis")
-        return self
-
-
 # --------------------------------------------------------------------------- file
-class Architecture(_Strict):
+class Architecture(StrictModel):
     """An architecture file: a = (M, Γ) with its configurations, actions and scenarios."""
 
     schema_: str | None = Field(None, alias="$schema", description="Optional schema URL.")
