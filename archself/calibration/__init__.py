@@ -4,6 +4,9 @@
   N seeds) on the campaign executors, the Monitor's filtered residuals recorded;
 - :mod:`~archself.calibration.bands` — per-run critical scales, Gumbel tails, bands;
 - :mod:`~archself.calibration.driver` — :func:`calibrate`, the command without output;
+- :mod:`~archself.calibration.prepare` — the checks before the runs (file, scenarios,
+  configurations, ``--envelope``);
+- :mod:`~archself.calibration.result` — :class:`Calibration`, what it found, and its JSON;
 - :mod:`~archself.calibration.edit` — the calibrated copy of the file (text edited in place);
 - :mod:`~archself.calibration.report` — ``--report DIR`` (HTML, Markdown, figures).
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,249 +23,14 @@ import numpy as np
 from archself.calibration.bands import (
     Cell,
     Prediction,
-    alarm_threshold,
     channel_shape,
     critical_scales,
     influence_block,
 )
-from archself.errors import ArchselfError, LoadError
+from archself.calibration.prepare import parse_envelope, prepare
+from archself.calibration.result import Calibration, CalibrationError, CellResult, ModuleBand
 
 __all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand", "calibrate"]
-
-
-class CalibrationError(ArchselfError):
-    """The calibration cannot be done as asked (one-line message, exit 1)."""
-
-
-@dataclass
-class ModuleBand:
-    """The band of one module: old, shape, new, and why it was (not) changed."""
-
-    name: str
-    old: float
-    new: float
-    base: float
-    sensitivity: float
-    signal: str
-    configurations: list[str]
-    calibrated: bool
-    note: str = ""
-
-
-@dataclass
-class CellResult:
-    """False alarms of one (scenario, configuration) cell, old and new bands."""
-
-    scenario: str
-    configuration: str
-    runs: int
-    failed: list[str]
-    forced: int
-    scale_needed: float
-    old_predicted: float
-    old_empirical: float
-    new_predicted: float
-    new_empirical: float
-    fit_old: Prediction
-    fit_new: Prediction
-    verify_runs: int = 0
-    verify_old: float = math.nan
-    verify_new: float = math.nan
-
-
-@dataclass
-class Calibration:
-    """What :func:`calibrate` found."""
-
-    architecture: str
-    file: str
-    tau: float
-    false_switch: float
-    seeds: int
-    root_seed: int
-    scenarios: list[str]
-    configurations: list[str]
-    scale: float
-    modules: dict[str, ModuleBand]
-    cells: list[CellResult]
-    data: list[Cell]
-    text: str
-    comment: str
-    executor: str
-    workers: int | None
-    elapsed_s: float
-    runs: int
-    verify_seeds: int = 0
-    verify_elapsed_s: float = 0.0
-    verify_data: list[Cell] = field(default_factory=list)
-
-    @property
-    def bands(self) -> dict[str, float]:
-        """module -> new band (as written to the file)."""
-        return {m: b.new for m, b in self.modules.items()}
-
-    def rates(self) -> dict[str, float]:
-        """The worst cell's rates (a run of any cell is a run the loop may be in)."""
-
-        def worst(attr: str) -> float:
-            vals = [getattr(c, attr) for c in self.cells]
-            vals = [v for v in vals if v == v]
-            return max(vals) if vals else math.nan
-
-        return {
-            "predicted_new": worst("new_predicted"),
-            "empirical_new": worst("new_empirical"),
-            "predicted_old": worst("old_predicted"),
-            "empirical_old": worst("old_empirical"),
-            "verify_new": worst("verify_new"),
-            "verify_old": worst("verify_old"),
-        }
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain JSON data (``--json``; ``calibration.json`` of the report)."""
-
-        def num(v: float) -> float | None:
-            return float(v) if v == v and not math.isinf(v) else None
-
-        return {
-            "architecture": self.architecture,
-            "file": self.file,
-            "tau": self.tau,
-            "false_switch": self.false_switch,
-            "seeds": self.seeds,
-            "root_seed": self.root_seed,
-            "scenarios": self.scenarios,
-            "configurations": self.configurations,
-            "runs": self.runs,
-            "scale": num(self.scale),
-            "bands": {
-                m: {
-                    "old": b.old,
-                    "new": b.new,
-                    "calibrated": b.calibrated,
-                    "signal": b.signal,
-                    "configurations": b.configurations,
-                    "note": b.note,
-                }
-                for m, b in self.modules.items()
-            },
-            "rates": {k: num(v) for k, v in self.rates().items()},
-            "cells": [
-                {
-                    "scenario": c.scenario,
-                    "configuration": c.configuration,
-                    "runs": c.runs,
-                    "failed": len(c.failed),
-                    "forced": c.forced,
-                    "gumbel": {"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
-                    "tail": {
-                        "u": c.fit_new.all.tail_u,
-                        "beta": c.fit_new.all.tail_beta,
-                        "share": c.fit_new.all.tail_share,
-                    },
-                    "predicted_new": num(c.new_predicted),
-                    "empirical_new": num(c.new_empirical),
-                    "predicted_old": num(c.old_predicted),
-                    "empirical_old": num(c.old_empirical),
-                    "verify_runs": c.verify_runs,
-                    "verify_new": num(c.verify_new),
-                    "verify_old": num(c.verify_old),
-                }
-                for c in self.cells
-            ],
-            "executor": self.executor,
-            "elapsed_s": round(self.elapsed_s, 3),
-            "verify_seeds": self.verify_seeds,
-            "verify_elapsed_s": round(self.verify_elapsed_s, 3),
-        }
-
-
-def _located(loaded: Any, path: tuple[str, ...], message: str) -> LoadError:
-    line, col = loaded.source.locate(path)
-    return LoadError(message, loaded.file, line, col, ".".join(path))
-
-
-def _prepare(
-    arch_path: str | Path, scenarios: Sequence[str] | None, configurations: Sequence[str] | None
-) -> tuple[str, Any, list[str], list[str], float]:
-    from archself.check import check, has_errors
-    from archself.loader import load_text, read_text
-
-    text = read_text(arch_path)
-    loaded = load_text(text, str(arch_path))
-    findings = check(loaded)
-    if has_errors(findings):
-        raise CalibrationError(str(next(f for f in findings if f.severity == "error")))
-    arch = loaded.arch
-    rt = arch.runtime
-    if rt.normalization != "nominal":
-        raise _located(
-            loaded,
-            ("runtime", "normalization"),
-            "calibrate sets the bands of normalization: nominal; with 'none' the bands are "
-            "not used",
-        )
-    try:
-        tau = alarm_threshold(rt)
-    except ValueError as exc:
-        raise _located(loaded, ("runtime", "top_k"), str(exc)) from None
-    if not any(m.residual is not None for m in arch.modules.values()):
-        raise _located(loaded, ("modules",), "no module declares a residual: nothing to calibrate")
-    if scenarios:
-        for s in scenarios:
-            if s not in arch.scenarios:
-                known = ", ".join(arch.scenarios) or "none"
-                raise CalibrationError(f"{loaded.file}: unknown scenario {s!r}; known: {known}")
-            if arch.scenarios[s].faults:
-                raise _located(
-                    loaded,
-                    ("scenarios", s, "faults"),
-                    f"scenario {s!r} has faults; calibration needs fault-free (nominal) scenarios",
-                )
-        if len(set(scenarios)) != len(scenarios):
-            raise CalibrationError("the same --scenario is given twice")
-        chosen = list(scenarios)
-    else:
-        chosen = [n for n, s in arch.scenarios.items() if not s.faults]
-        if not chosen:
-            raise _located(
-                loaded,
-                ("scenarios",),
-                "no fault-free scenario to calibrate on; declare one (no faults)",
-            )
-    if configurations:
-        for c in configurations:
-            if c not in arch.configurations:
-                known = ", ".join(arch.configurations)
-                raise CalibrationError(
-                    f"{loaded.file}: unknown configuration {c!r}; known: {known}"
-                )
-        confs = list(dict.fromkeys(configurations))
-    else:
-        confs = list(arch.configurations)
-    return text, loaded, chosen, confs, tau
-
-
-def _envelope(loaded: Any, specs: Sequence[str]) -> tuple[Any, ...]:
-    """Parse ``--envelope`` specs and check every point gives a valid file."""
-    if not specs:
-        return ()
-    from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
-    from archself.check import check
-    from archself.loader import Loaded, SourceMap
-
-    try:
-        sweeps = tuple(parse_sweep(s) for s in specs)
-        for point in sweep_points(sweeps):
-            swept = apply_values(loaded.data, sweeps, point, loaded.file)
-            bad = [f for f in check(Loaded(swept, SourceMap(loaded.file), loaded.data))
-                   if f.severity == "error"]
-            if bad:
-                setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
-                raise CalibrationError(f"--envelope {setting}: {bad[0]}")
-    except CampaignError as exc:
-        raise CalibrationError(f"--envelope: {exc}") from None
-    return sweeps
 
 
 def _cells(arch: Any, results: list[dict[str, Any]]) -> list[Cell]:
@@ -365,10 +129,10 @@ def calibrate(
         raise CalibrationError("--seeds must be at least 1")
     if verify_seeds < 0:
         raise CalibrationError("--verify-seeds must be at least 0")
-    text, loaded, chosen, confs, tau = _prepare(arch_path, scenarios, configurations)
+    text, loaded, chosen, confs, tau = prepare(arch_path, scenarios, configurations)
     arch = loaded.arch
     file = loaded.file
-    sweeps = _envelope(loaded, envelope)
+    sweeps = parse_envelope(loaded, envelope)
     digest = R.band_free_digest(loaded.data)
     if sweeps:
         digest += "|" + ";".join(f"{s.path}={s.values}" for s in sweeps)

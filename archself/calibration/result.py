@@ -1,0 +1,164 @@
+"""What ``archself calibrate`` found: the bands, the false-alarm rates per cell, its JSON.
+
+:class:`Calibration` is :func:`archself.calibration.driver.calibrate`'s result (the
+report and the terminal summary read it); :class:`ModuleBand` is one module's band
+old and new, :class:`CellResult` one (scenario, configuration) cell's rates.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from archself.calibration.bands import Cell, Prediction
+from archself.errors import ArchselfError
+
+__all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand"]
+
+
+class CalibrationError(ArchselfError):
+    """The calibration cannot be done as asked (one-line message, exit 1)."""
+
+
+@dataclass
+class ModuleBand:
+    """The band of one module: old, shape, new, and why it was (not) changed."""
+
+    name: str
+    old: float
+    new: float
+    base: float
+    sensitivity: float
+    signal: str
+    configurations: list[str]
+    calibrated: bool
+    note: str = ""
+
+
+@dataclass
+class CellResult:
+    """False alarms of one (scenario, configuration) cell, old and new bands."""
+
+    scenario: str
+    configuration: str
+    runs: int
+    failed: list[str]
+    forced: int
+    scale_needed: float
+    old_predicted: float
+    old_empirical: float
+    new_predicted: float
+    new_empirical: float
+    fit_old: Prediction
+    fit_new: Prediction
+    verify_runs: int = 0
+    verify_old: float = math.nan
+    verify_new: float = math.nan
+
+
+@dataclass
+class Calibration:
+    """What :func:`calibrate` found."""
+
+    architecture: str
+    file: str
+    tau: float
+    false_switch: float
+    seeds: int
+    root_seed: int
+    scenarios: list[str]
+    configurations: list[str]
+    scale: float
+    modules: dict[str, ModuleBand]
+    cells: list[CellResult]
+    data: list[Cell]
+    text: str
+    comment: str
+    executor: str
+    workers: int | None
+    elapsed_s: float
+    runs: int
+    verify_seeds: int = 0
+    verify_elapsed_s: float = 0.0
+    verify_data: list[Cell] = field(default_factory=list)
+
+    @property
+    def bands(self) -> dict[str, float]:
+        """module -> new band (as written to the file)."""
+        return {m: b.new for m, b in self.modules.items()}
+
+    def rates(self) -> dict[str, float]:
+        """The worst cell's rates (a run of any cell is a run the loop may be in)."""
+
+        def worst(attr: str) -> float:
+            vals = [getattr(c, attr) for c in self.cells]
+            vals = [v for v in vals if v == v]
+            return max(vals) if vals else math.nan
+
+        return {
+            "predicted_new": worst("new_predicted"),
+            "empirical_new": worst("new_empirical"),
+            "predicted_old": worst("old_predicted"),
+            "empirical_old": worst("old_empirical"),
+            "verify_new": worst("verify_new"),
+            "verify_old": worst("verify_old"),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON data (``--json``; ``calibration.json`` of the report)."""
+
+        def num(v: float) -> float | None:
+            return float(v) if v == v and not math.isinf(v) else None
+
+        return {
+            "architecture": self.architecture,
+            "file": self.file,
+            "tau": self.tau,
+            "false_switch": self.false_switch,
+            "seeds": self.seeds,
+            "root_seed": self.root_seed,
+            "scenarios": self.scenarios,
+            "configurations": self.configurations,
+            "runs": self.runs,
+            "scale": num(self.scale),
+            "bands": {
+                m: {
+                    "old": b.old,
+                    "new": b.new,
+                    "calibrated": b.calibrated,
+                    "signal": b.signal,
+                    "configurations": b.configurations,
+                    "note": b.note,
+                }
+                for m, b in self.modules.items()
+            },
+            "rates": {k: num(v) for k, v in self.rates().items()},
+            "cells": [
+                {
+                    "scenario": c.scenario,
+                    "configuration": c.configuration,
+                    "runs": c.runs,
+                    "failed": len(c.failed),
+                    "forced": c.forced,
+                    "gumbel": {"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
+                    "tail": {
+                        "u": c.fit_new.all.tail_u,
+                        "beta": c.fit_new.all.tail_beta,
+                        "share": c.fit_new.all.tail_share,
+                    },
+                    "predicted_new": num(c.new_predicted),
+                    "empirical_new": num(c.new_empirical),
+                    "predicted_old": num(c.old_predicted),
+                    "empirical_old": num(c.old_empirical),
+                    "verify_runs": c.verify_runs,
+                    "verify_new": num(c.verify_new),
+                    "verify_old": num(c.verify_old),
+                }
+                for c in self.cells
+            ],
+            "executor": self.executor,
+            "elapsed_s": round(self.elapsed_s, 3),
+            "verify_seeds": self.verify_seeds,
+            "verify_elapsed_s": round(self.verify_elapsed_s, 3),
+        }
