@@ -132,7 +132,8 @@ class Setup:
     """Everything of the file the a1 run needs, read once (no seed in it).
 
     Build it with :func:`load_setup`. ``ref`` is the reference ``[x, y, θ, v, ω]`` at
-    every step's time ``k·dt`` (it depends on time only), as five float arrays.
+    every step's time ``k·dt`` (it depends on time only), as five float arrays, and
+    ``ref_cs`` the cosine and sine of its θ (the controller's frame).
     """
 
     dt: float
@@ -159,6 +160,7 @@ class Setup:
     r: tuple[float, float]
     design_speed: float
     ref: tuple[np.ndarray, ...]
+    ref_cs: tuple[np.ndarray, np.ndarray]
 
 
 def _value(mods: dict, module: str, key: str, default: Any) -> Any:
@@ -233,6 +235,7 @@ def load_setup(path: str | Path = DIFFDRIVE, scenario: str = "nominal") -> Setup
         r=(float(v("lqr", "r_speed", 1.0)), float(v("lqr", "r_turn", 1.0))),
         design_speed=float(v("lqr", "design_speed_mps", 0.5)),
         ref=tuple(ref),
+        ref_cs=tuple(np.array([f(x) for x in ref[2].tolist()]) for f in (math.cos, math.sin)),
     )
 
 
@@ -287,6 +290,7 @@ def run_floor(seed: int, setup: Setup | None = None) -> dict[str, Any]:
     enc = stream(seed, "encoders").standard_normal((n, 2)).tolist()
     imu = stream(seed, "imu").standard_normal(n).tolist()
     rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    rc_, rs_ = (a.tolist() for a in S.ref_cs)
     sin, cos, sqrt = math.sin, math.cos, math.sqrt
     # constants
     r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
@@ -326,7 +330,7 @@ def run_floor(seed: int, setup: Setup | None = None) -> dict[str, Any]:
             v_design = rv
             k00, k01, k02, k10, k11, k12 = _gain(S, rv)
         dx, dy = ox - rx, oy - ry
-        c, s = cos(rth), sin(rth)
+        c, s = rc_[k], rs_[k]
         e0 = c * dx + s * dy
         e1 = -s * dx + c * dy
         e2 = (oth - rth + PI) % TWO_PI - PI
@@ -351,18 +355,20 @@ def run_floor(seed: int, setup: Setup | None = None) -> dict[str, Any]:
         vb = r * (ul + ur) / 2.0
         wb = r * (ur - ul) / b
         dth = wb * dt
+        th2 = pth + dth
+        s2, c2 = sin(th2), cos(th2)  # the arc's end, and the frame of the lateral noise
         if abs(dth) < 1e-9:
             m = pth + 0.5 * dth
             px += vb * dt * cos(m)
             py += vb * dt * sin(m)
         else:
             rad = vb / wb
-            px += rad * (sin(pth + dth) - sin(pth))
-            py -= rad * (cos(pth + dth) - cos(pth))
-        pth = pth + dth
+            px += rad * (s2 - sin(pth))
+            py -= rad * (c2 - cos(pth))
+        pth = th2
         lat = S.lateral * (z[2] * sq_dt)
-        px += -sin(pth) * lat
-        py += cos(pth) * lat
+        px += -s2 * lat
+        py += c2 * lat
         pth += S.yaw * (z[3] * sq_dt)
     t = (np.arange(n) + 1) * dt
     Ja = np.array(J)
@@ -381,7 +387,8 @@ def run_floor_lanes(
     setup : Setup, optional
         From :func:`load_setup` (default: architectures/diffdrive.yaml, nominal).
     block : int
-        Steps of noise drawn per stream and lane at a time (memory per lane ≈ 56·block bytes).
+        Steps of noise drawn per stream and lane at a time (memory per lane ≈ 112·block
+        bytes: a lane-major and a step-major copy of 7 normals per step).
     record : bool
         Keep J of every step (``J``, shape (steps, N)); otherwise the metrics are
         accumulated and nothing grows with the run's length.
@@ -403,10 +410,14 @@ def run_floor_lanes(
     S = setup or load_setup()
     n, dt, N = S.steps, S.dt, len(seeds)
     streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu")) for s in seeds]
+    # each lane's block of each stream is drawn into a lane-major buffer (contiguous per
+    # lane), then transposed once per block to step-major for the loop (contiguous per step)
+    draw = (np.empty((N, block, 4)), np.empty((N, block, 2)), np.empty((N, block)))
     cha = np.empty((block, 4, N))
     enc = np.empty((block, 2, N))
     imu = np.empty((block, N))
     rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    rc_, rs_ = (a.tolist() for a in S.ref_cs)
     r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
     a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
     lag = S.tau > 0
@@ -429,17 +440,20 @@ def run_floor_lanes(
             if j == 0:  # the next block of every lane's streams
                 m = min(block, n - k)
                 for lane, (gc, ge, gi) in enumerate(streams):
-                    cha[:m, :, lane] = gc.standard_normal((m, 4))
-                    enc[:m, :, lane] = ge.standard_normal((m, 2))
-                    imu[:m, lane] = gi.standard_normal(m)
+                    gc.standard_normal(out=draw[0][lane, :m])
+                    ge.standard_normal(out=draw[1][lane, :m])
+                    gi.standard_normal(out=draw[2][lane, :m])
+                cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
+                enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
+                imu[:m] = draw[2][:, :m].T
             rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
             dx, dy = px - rx, py - ry
             J = sqrt(dx * dx + dy * dy)
             if Jrec is not None:
                 Jrec[k] = J
-            better = J > jmax
-            jmax = where(better, J, jmax)
-            tmax = where(better, (k + 1) * dt, tmax)
+            better = J > jmax  # the first maximum, as np.argmax
+            np.copyto(jmax, J, where=better)
+            np.copyto(tmax, (k + 1) * dt, where=better)
             jsum += J
             j2sum += J * J
             # encoders and IMU
@@ -462,7 +476,7 @@ def run_floor_lanes(
                 v_design = rv
                 k00, k01, k02, k10, k11, k12 = _gain(S, rv)
             dx, dy = ox - rx, oy - ry
-            c, s = math.cos(rth), math.sin(rth)
+            c, s = rc_[k], rs_[k]
             e0 = c * dx + s * dy
             e1 = -s * dx + c * dy
             e2 = (oth - rth + PI) % TWO_PI - PI
@@ -494,8 +508,9 @@ def run_floor_lanes(
             th2 = pth + dth
             straight = absolute(dth) < 1e-9
             rad = vb / wb
-            ax = rad * (sin(th2) - sin(pth))
-            ay = rad * (cos(th2) - cos(pth))
+            s2, c2 = sin(th2), cos(th2)
+            ax = rad * (s2 - sin(pth))
+            ay = rad * (c2 - cos(pth))
             if straight.any():
                 mth = pth + 0.5 * dth
                 vdt = vb * dt
@@ -505,8 +520,8 @@ def run_floor_lanes(
             py = py - ay
             pth = th2
             lat = S.lateral * (cha[j, 2] * sq_dt)
-            px = px + -sin(pth) * lat
-            py = py + cos(pth) * lat
+            px = px + -s2 * lat
+            py = py + c2 * lat
             pth = pth + S.yaw * (cha[j, 3] * sq_dt)
     out: dict[str, Any] = {
         "max_error": jmax,
@@ -521,17 +536,23 @@ def run_floor_lanes(
 
 
 # ---------------------------------------------------------------------- the measurement
-def _best(fn: Any, rounds: int) -> tuple[float, float]:
-    """Min and median wall time of ``rounds`` calls of ``fn``."""
-    times = []
+def _best(fn: Any, rounds: int) -> tuple[float, float, float]:
+    """Min and median wall time and min CPU time (this process) of ``rounds`` calls of ``fn``.
+
+    On a shared machine the CPU time is the steadier figure: another job's load stretches
+    the wall time but hardly the CPU time a call needs.
+    """
+    walls, cpus = [], []
     for _ in range(rounds):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), float(np.median(times))
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    return min(walls), float(np.median(walls)), min(cpus)
 
 
 def _peak_bytes(fn: Any) -> int:
+    """Peak bytes allocated (tracemalloc; numpy's arrays included) while ``fn`` runs."""
     tracemalloc.start()
     try:
         fn()
@@ -540,70 +561,82 @@ def _peak_bytes(fn: Any) -> int:
         tracemalloc.stop()
 
 
+def _load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Measure the framework's a1 fixed run, the floor and the vectorized floor side by side."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--rounds", type=int, default=5, help="rounds of each per-run timing")
     ap.add_argument("--lanes", type=int, nargs="+", default=[1, 10, 100, 1000])
+    ap.add_argument("--block", type=int, default=400, help="noise block of the vectorized floor")
     args = ap.parse_args(argv)
 
     import archself
 
     arch = archself.load(DIFFDRIVE)
-    S = load_setup()
-    n = S.steps
     t0 = time.perf_counter()
-    load_setup.cache_clear()
     S = load_setup()
     setup_s = time.perf_counter() - t0
-    # warm: python-control, scipy, the gain cache
-    fw = archself.simulate(arch, "nominal", configuration="a1", seed=1)
-    fl = run_floor(1, S)
+    n = S.steps
+
+    def framework(seed: int) -> Any:
+        return archself.simulate(arch, "nominal", configuration="a1", seed=seed)
+
+    # warm (python-control, scipy, the gain cache) and check the trace
+    fw, fl = framework(1), run_floor(1, S)
     dev = float(np.max(np.abs(fw.series["J"] - fl["J"])))
-    print(
-        f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
-        f"{os.getloadavg()[2]:.2f} · {os.cpu_count()} cores · {n} steps of {S.dt} s"
-    )
+    print(f"load average {_load()} · {os.cpu_count()} cores · {n} steps of {S.dt} s")
     print(
         f"trace check, seed 1: max |J_framework − J_floor| = {dev:.1e} m "
         f"(max error {fw.metrics['max_error']:.6f} / {fl['max_error']:.6f} m)"
     )
     seeds = iter(range(1000, 100000))
-    fw_min, fw_med = _best(
-        lambda: archself.simulate(arch, "nominal", configuration="a1", seed=next(seeds)),
-        args.rounds,
-    )
-    fl_min, fl_med = _best(lambda: run_floor(next(seeds), S), args.rounds * 4)
-    fw_mem = _peak_bytes(lambda: archself.simulate(arch, "nominal", configuration="a1", seed=2))
-    print()
-    print(f"{'':34} {'per run [s]':>14} {'per step [µs]':>14} {'runs/s':>9}")
-    print(
-        f"{'framework a1 fixed (simulate)':34} {fw_min:>8.3f} ({fw_med:.3f})"
-        f" {fw_min / n * 1e6:>14.1f} {1 / fw_min:>9.2f}"
-    )
-    print(
-        f"{'floor, one run (Python floats)':34} {fl_min:>8.3f} ({fl_med:.3f})"
-        f" {fl_min / n * 1e6:>14.1f} {1 / fl_min:>9.2f}"
-    )
-    print(f"{'framework / floor':34} {fw_min / fl_min:>13.1f}×")
+    rows = [
+        ("framework a1 fixed (simulate)", 1, _best(lambda: framework(next(seeds)), args.rounds)),
+        (
+            "floor, one run (Python floats)",
+            1,
+            _best(lambda: run_floor(next(seeds), S), args.rounds * 4),
+        ),
+    ]
     for N in args.lanes:
-        lane_seeds = list(range(1, N + 1))
-        r = max(1, min(args.rounds, int(3000 // max(N, 1)) or 1))
-        best, med = _best(lambda lane_seeds=lane_seeds: run_floor_lanes(lane_seeds, S), r)
-        print(
-            f"{f'floor vectorized, N = {N} lanes':34} {best:>8.3f} ({med:.3f})"
-            f" {best / n / N * 1e6:>14.2f} {N / best:>9.1f}"
+        lanes = list(range(1, N + 1))
+        r = max(1, min(args.rounds, 3000 // max(N, 1)))
+        rows.append(
+            (
+                f"floor vectorized, N = {N}",
+                N,
+                _best(lambda lanes=lanes: run_floor_lanes(lanes, S, block=args.block), r),
+            )
         )
-    N = max(args.lanes)
-    peak = _peak_bytes(lambda: run_floor_lanes(list(range(1, N + 1)), S))
     print()
     print(
-        f"memory: vectorized floor peak {peak / 1e6:.1f} MB for {N} lanes "
-        f"= {peak / N / 1e3:.1f} kB per lane (noise blocks of 400 steps, J not kept); "
-        f"framework one run peak {fw_mem / 1e6:.1f} MB (tracemalloc)"
+        f"{'':32} {'wall min (median) [s]':>22} {'CPU [s]':>8} {'CPU/lane-step [µs]':>19}"
+        f" {'runs/s (CPU)':>13}"
     )
-    print(f"(setup of the floor, once: {setup_s:.3f} s: spline table, reference, LQR gain)")
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    for label, N, (wall, med, cpu) in rows:
+        print(
+            f"{label:32} {wall:>10.3f} ({med:8.3f}) {cpu:>8.3f} {cpu / n / N * 1e6:>19.2f}"
+            f" {N / cpu:>13.1f}"
+        )
+    fw_cpu, fl_cpu = rows[0][2][2], rows[1][2][2]
+    print(
+        f"framework / floor per run: {fw_cpu / fl_cpu:.1f}× (CPU), "
+        f"{rows[0][2][0] / rows[1][2][0]:.1f}× (wall)"
+    )
+    N = max(args.lanes)
+    peak = _peak_bytes(lambda: run_floor_lanes(list(range(1, N + 1)), S, block=args.block))
+    fw_mem = _peak_bytes(lambda: framework(2))
+    print()
+    print(
+        f"memory: vectorized floor peak {peak / 1e6:.1f} MB for {N} lanes = "
+        f"{peak / N / 1e3:.1f} kB per lane (noise blocks of {args.block} steps, J not kept); "
+        f"framework, one run: peak {fw_mem / 1e6:.1f} MB (tracemalloc)"
+    )
+    print(f"floor setup, once: {setup_s:.3f} s (spline table, reference, LQR gain)")
+    print(f"load average after: {_load()}")
 
 
 if __name__ == "__main__":
