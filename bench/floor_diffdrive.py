@@ -446,6 +446,12 @@ def run_floor_lanes(
                 cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
                 enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
                 imu[:m] = draw[2][:, :m].T
+                # the modules' scalings of their noise, elementwise (the same products)
+                np.multiply(sig_e, enc, out=enc)
+                np.multiply(sig_h, imu, out=imu)
+                np.multiply(cha[:, 2:], sq_dt, out=cha[:, 2:])
+                np.multiply(S.lateral, cha[:, 2], out=cha[:, 2])
+                np.multiply(S.yaw, cha[:, 3], out=cha[:, 3])
             rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
             dx, dy = px - rx, py - ry
             J = sqrt(dx * dx + dy * dy)
@@ -457,9 +463,9 @@ def run_floor_lanes(
             jsum += J
             j2sum += J * J
             # encoders and IMU
-            el = wl + sig_e * enc[j, 0]
-            er = wr + sig_e * enc[j, 1]
-            h = pth + S.imu_bias + sig_h * imu[j]
+            el = wl + enc[j, 0]
+            er = wr + enc[j, 1]
+            h = (pth + S.imu_bias if S.imu_bias else pth) + imu[j]  # x + 0.0 is x
             h = (h + PI) % TWO_PI - PI
             # dead reckoning
             v = kr * (el + er) / 2.0
@@ -519,10 +525,10 @@ def run_floor_lanes(
             px = px + ax
             py = py - ay
             pth = th2
-            lat = S.lateral * (cha[j, 2] * sq_dt)
-            px = px + -s2 * lat
+            lat = cha[j, 2]
+            px = px - s2 * lat  # x + (−s)·l is x − s·l exactly
             py = py + c2 * lat
-            pth = pth + S.yaw * (cha[j, 3] * sq_dt)
+            pth = pth + cha[j, 3]
     out: dict[str, Any] = {
         "max_error": jmax,
         "final_error": J,

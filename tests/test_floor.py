@@ -75,10 +75,3 @@ def test_vectorized_floor_is_the_framework_run() -> None:
         for key in METRICS:
             assert out[key][lane] == pytest.approx(fw.metrics[key], rel=0, abs=1e-9), key
         assert out["mean_error"][lane] == pytest.approx(float(np.mean(fw.series["J"])), abs=1e-9)
-
-
-def test_lanes_do_not_interact() -> None:
-    both = floor().run_floor_lanes([3, 4])
-    alone = floor().run_floor_lanes([4])
-    for key in METRICS:
-        assert both[key][1] == pytest.approx(alone[key][0], rel=0, abs=1e-12), key
