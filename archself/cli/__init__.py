@@ -8,9 +8,9 @@ filterpy, matplotlib) are imported inside the commands that need them, never at
 start-up.
 
 The app and what the commands share are in :mod:`archself.cli.base`; the commands in
-:mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.campaigns`,
-:mod:`~archself.cli.calibration` and :mod:`~archself.cli.live`. They are registered here,
-in the order ``archself --help`` lists them.
+:mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.reports`,
+:mod:`~archself.cli.campaigns`, :mod:`~archself.cli.calibration` and :mod:`~archself.cli.live`.
+They are registered here, in the order ``archself --help`` lists them.
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ from archself.cli.calibration import calibrate, identify
 from archself.cli.campaigns import campaign, campaign_report_cmd
 from archself.cli.files import docs, export, generate, info, init, schema, validate
 from archself.cli.live import live
-from archself.cli.runs import explain, report, simulate
+from archself.cli.reports import report
+from archself.cli.runs import explain, simulate
 
 app.command()(validate)
 app.command()(schema)

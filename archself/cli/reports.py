@@ -1,0 +1,147 @@
+"""``archself report``: the architecture's report, or a run report rebuilt from traces."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from archself.cli.base import (
+    _RUN_REPORT_FILES,
+    DpiOption,
+    FormatOption,
+    _die,
+    _fail,
+    _formats,
+    _inputs,
+    _load,
+    _numeric,
+)
+from archself.errors import ArchselfError
+
+
+def report(
+    output: Annotated[
+        Path,
+        typer.Option(
+            "-o", "--output", metavar="DIR", help="Folder to write the report into (created)."
+        ),
+    ],
+    arch_path: Annotated[
+        Path | None,
+        typer.Argument(metavar="[ARCH]",
+                       help="Architecture file (optional with --trace: the trace holds it)."),
+    ] = None,
+    trace: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--trace", metavar="TRACE",
+            help="Rebuild the run report of a saved trace (Parquet or JSON) instead; twice "
+            "for a fixed and an adaptive run of the same scenario and seed.",
+        ),
+    ] = None,
+    fig_format: FormatOption = None,
+    dpi: DpiOption = 150,
+    no_render: Annotated[
+        bool, typer.Option("--no-render", help="DOT sources only, even if `dot` is installed.")
+    ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace the report in an existing, non-empty DIR.")
+    ] = False,
+    yes: Annotated[
+        bool, typer.Option("--yes", help="Write even past the cap on the number of files.")
+    ] = False,
+) -> None:
+    """Architecture report: DSMs (HTML, Markdown, CSV), Fig. 1 graphs and configuration diffs.
+
+    Graphs are rendered to SVG and PNG when Graphviz `dot` is on PATH; index.html links all.
+    The report is written beside DIR and swapped in when complete (no half report,
+    no stale files); a non-empty DIR is replaced only with --force.
+
+    With --trace TRACE it is the run report of `simulate --report` instead, rebuilt from
+    the saved trace(s) without running anything (ARCH is then optional).
+    """
+    from archself.atomic import protect
+    from archself.outputs import refuse_input_inside
+
+    if trace:
+        _report_from_traces(arch_path, trace, output, _formats(fig_format), dpi)
+        return
+    if arch_path is None:
+        raise _fail("missing argument ARCH (or --trace TRACE for a run report)", 2)
+    try:
+        _inputs(arch_path)
+        refuse_input_inside([arch_path], output, "-o")
+        with protect([arch_path]), _numeric(arch_path):
+            arch = _load(arch_path)
+            import shutil
+
+            from archself.reports.architecture import (
+                MAX_FILES,
+                count_report_files,
+                write_architecture_report,
+            )
+
+            files = count_report_files(arch, not no_render and shutil.which("dot") is not None)
+            if files > MAX_FILES and not yes:
+                raise _fail(
+                    f"{arch_path}: error: the report would be {files:,} files "
+                    f"({len(arch.configurations):,} configurations), more than the cap of "
+                    f"{MAX_FILES:,}; pass --yes to write them"
+                )
+            if files > MAX_FILES:
+                typer.echo(f"writing {files:,} files into {output}", err=True)
+            rep = write_architecture_report(arch, output, dot=not no_render, force=force)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    if rep.note and not no_render:
+        typer.echo(f"note: {rep.note}", err=True)
+    typer.echo(str(rep.index))
+
+
+def _report_from_traces(
+    arch_path: Path | None, traces: list[Path], output: Path, formats: tuple[str, ...], dpi: int
+) -> None:
+    """``report --trace``: the run report of saved traces (one run, or fixed + adaptive)."""
+    from archself.atomic import protect
+    from archself.outputs import refuse_same_file
+    from archself.sim.trace import read_trace
+
+    if len(traces) > 2:
+        raise _fail("--trace takes one run, or two (fixed and adaptive)", 2)
+    inputs = [*traces, *([arch_path] if arch_path is not None else [])]
+    try:
+        _inputs(*traces, what="a trace")
+        if arch_path is not None:
+            _inputs(arch_path)
+        for name in _RUN_REPORT_FILES:
+            refuse_same_file(inputs, output / name, "-o")
+        with protect(inputs):
+            results = [read_trace(t) for t in traces]
+            if len(results) == 2:
+                a, b = results
+                if {a.mode, b.mode} != {"fixed", "adaptive"} or (a.scenario, a.seed) != (
+                        b.scenario, b.seed):
+                    raise _fail(
+                        f"{traces[1]}: error: two traces must be a fixed and an adaptive run "
+                        f"of one scenario and seed; got {a.mode} {a.scenario} seed {a.seed} "
+                        f"and {b.mode} {b.scenario} seed {b.seed}")
+                results.sort(key=lambda r: r.mode != "fixed")  # fixed first, as --compare
+            arch = None
+            for t, r in zip(traces, results, strict=True):
+                if arch_path is None and not isinstance(r.meta.get("report"), dict):
+                    raise _fail(f"{t}: error: the trace does not hold the run report's "
+                                "settings (written by an older archself); pass the "
+                                "architecture file: archself report ARCH --trace TRACE -o DIR")
+            if arch_path is not None:
+                arch = _load(arch_path)
+                if results[0].scenario not in arch.scenarios:
+                    raise _fail(f"{arch_path}: error: has no scenario "
+                                f"'{results[0].scenario}' of the trace")
+            from archself.reports.run_report import write_run_report
+
+            write_run_report(arch, results, output, formats=formats, dpi=dpi)
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    typer.echo(str(output / "index.html"))
