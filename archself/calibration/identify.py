@@ -69,14 +69,9 @@ __all__ = [
 
 # --------------------------------------------------------------------------- driver
 def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[str] | None):
-    from archself.check import check, has_errors
-    from archself.loader import load_text, read_text
+    from archself.calibration.prepare import load_checked
 
-    text = read_text(path)
-    loaded = load_text(text, str(path))
-    findings = check(loaded)
-    if has_errors(findings):
-        raise IdentifyError(str(next(f for f in findings if f.severity == "error")))
+    text, loaded = load_checked(path, IdentifyError)
     arch = loaded.arch
     if not any(m.residual is not None for m in arch.modules.values()):
         raise IdentifyError(f"{path}: no module declares a residual: nothing to identify")

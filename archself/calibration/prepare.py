@@ -10,9 +10,28 @@ from typing import Any
 
 from archself.calibration.bands import alarm_threshold
 from archself.calibration.result import CalibrationError
-from archself.errors import LoadError
+from archself.errors import ArchselfError, LoadError
 
-__all__ = ["located", "parse_envelope", "prepare"]
+__all__ = ["load_checked", "located", "parse_envelope", "prepare"]
+
+
+def load_checked(path: str | Path, error: type[ArchselfError]) -> tuple[str, Any]:
+    """Read, load and check the file; its first error finding raised as ``error``.
+
+    Returns
+    -------
+    tuple
+        ``(text, loaded)``: the file's text and its :class:`~archself.loader.Loaded`.
+    """
+    from archself.check import check, has_errors
+    from archself.loader import load_text, read_text
+
+    text = read_text(path)
+    loaded = load_text(text, str(path))
+    findings = check(loaded)
+    if has_errors(findings):
+        raise error(str(next(f for f in findings if f.severity == "error")))
+    return text, loaded
 
 
 def located(loaded: Any, path: tuple[str, ...], message: str) -> LoadError:
@@ -39,14 +58,7 @@ def prepare(
         A file with errors, ``normalization: none``, ``top_k``, no residual, an unknown
         or faulty scenario, an unknown configuration.
     """
-    from archself.check import check, has_errors
-    from archself.loader import load_text, read_text
-
-    text = read_text(arch_path)
-    loaded = load_text(text, str(arch_path))
-    findings = check(loaded)
-    if has_errors(findings):
-        raise CalibrationError(str(next(f for f in findings if f.severity == "error")))
+    text, loaded = load_checked(arch_path, CalibrationError)
     arch = loaded.arch
     rt = arch.runtime
     if rt.normalization != "nominal":
