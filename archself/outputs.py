@@ -34,6 +34,7 @@ from archself.errors import LoadError, OutputError
 
 __all__ = [
     "check_input",
+    "file_kind",
     "file_ids",
     "input_inside",
     "refuse_input_inside",
@@ -47,6 +48,20 @@ _KINDS = (
     (stat.S_ISSOCK, "a socket"),
     (stat.S_ISDIR, "a directory"),
 )
+
+
+def file_kind(mode: int) -> str | None:
+    """What a file of ``st_mode`` ``mode`` is when it is not a regular file, else None.
+
+    Examples
+    --------
+    >>> file_kind(stat.S_IFIFO), file_kind(stat.S_IFREG)
+    ('a FIFO (named pipe)', None)
+    """
+    for test, kind in _KINDS:
+        if test(mode):
+            return kind
+    return None
 
 
 def check_input(path: str | Path, what: str = "file") -> None:
@@ -66,9 +81,9 @@ def check_input(path: str | Path, what: str = "file") -> None:
         raise LoadError("no such file", file) from None
     except OSError as exc:
         raise LoadError(f"cannot read: {exc.strerror or exc}", file) from None
-    for test, kind in _KINDS:
-        if test(st.st_mode):
-            raise LoadError(f"is {kind}, expected {what}", file)
+    kind = file_kind(st.st_mode)
+    if kind is not None:
+        raise LoadError(f"is {kind}, expected {what}", file)
 
 
 def file_ids(path: str | Path) -> set[tuple[int, int]]:
