@@ -16,6 +16,12 @@ numpy, scipy, control and filterpy builds), and the tree installed into it
 after the core/packs split, and their entry points with it). Or give ``--python-a`` /
 ``--python-b`` of environments made otherwise.
 
+On a shared machine CPU time moves by ±30 % with the load of others (the runs of one
+tree, taken minutes apart, did); ``--instructions`` counts the instructions a run executes
+under valgrind's callgrind instead (the process with the runs minus the same process
+without them, divided by the runs), which the load does not change, at about 50 times the
+time.
+
 Reported per run (scenario/seed): the median over rounds for A and B, and B/A; then the
 median of the per-run ratios with its spread (min–max over runs, and the ratio of the
 per-round totals, min–max over rounds).
@@ -25,6 +31,8 @@ Usage::
     python bench/per_run_ab.py /tmp/old /tmp/new --setup /tmp/ab --rounds 4
     python bench/per_run_ab.py /tmp/old /tmp/new --python-a /tmp/ab/venv_a/bin/python \\
         --python-b /tmp/ab/venv_b/bin/python --scenarios imu_drift,nominal --seeds 1-5
+    python bench/per_run_ab.py /tmp/old /tmp/new --python-a ... --python-b ... \\
+        --instructions --scenarios nominal,imu_drift --seeds 2
 """
 
 from __future__ import annotations
@@ -46,10 +54,11 @@ import json, sys, time
 from archself.loader import load_architecture
 from archself.runtime import MapeK
 from archself.sim.run import simulate
-path, scenarios = sys.argv[1], sys.argv[2].split(",")
-seeds = [int(s) for s in sys.argv[3].split(",")]
+path, warm = sys.argv[1], sys.argv[2]
+scenarios = [s for s in sys.argv[3].split(",") if s]
+seeds = [int(s) for s in sys.argv[4].split(",") if s]
 arch = load_architecture(path).arch
-simulate(arch, scenarios[0], seed=seeds[0], adapt=MapeK(arch))  # warm-up, untimed
+simulate(arch, warm, seed=1000, adapt=MapeK(arch))  # warm-up, untimed
 out = {}
 for sc in scenarios:
     for seed in seeds:
@@ -93,15 +102,40 @@ def make_venv(tree: Path, where: Path) -> Path:
     return py
 
 
-def run_round(py: str, tree: Path, arch_file: str, scenarios: str, seeds: str) -> dict:
-    """One fresh process of one tree: its runs' CPU times."""
+def run_round(py: str, tree: Path, arch_file: str, scenarios: str, seeds: str,
+              valgrind: Path | None = None) -> dict:
+    """One fresh process of one tree: its runs' CPU times.
+
+    With ``valgrind`` (an output file) the process runs under callgrind and the
+    instructions it executed are returned as ``{"instructions": n}``.
+    """
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     env.pop("PYTHONPATH", None)
+    warm = scenarios.split(",")[0] or "nominal"
+    cmd = [py, "-c", WORKER, str(tree / "architectures" / arch_file), warm, scenarios, seeds]
+    if valgrind is not None:
+        cmd = ["valgrind", "--tool=callgrind", "--cache-sim=no",
+               f"--callgrind-out-file={valgrind}", *cmd]
     with tempfile.TemporaryDirectory() as cwd:  # never import a tree from the working dir
-        out = subprocess.run([py, "-c", WORKER, str(tree / "architectures" / arch_file),
-                              scenarios, seeds], check=True, capture_output=True, text=True,
-                             cwd=cwd, env=env)
+        out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=cwd, env=env)
+    if valgrind is not None:
+        for line in valgrind.read_text().splitlines():
+            if line.startswith("summary:"):
+                return {"instructions": int(line.split()[1])}
+        raise RuntimeError(f"{valgrind}: no summary line")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def instructions(py: str, tree: Path, arch_file: str, scenarios: str, seeds: str,
+                 where: Path) -> float:
+    """Instructions per run (callgrind): (process with the runs − process without) / runs.
+
+    Independent of the machine's load, unlike CPU time; about 50 times slower.
+    """
+    n = len([s for s in scenarios.split(",") if s]) * len([s for s in seeds.split(",") if s])
+    base = run_round(py, tree, arch_file, scenarios.split(",")[0] + ",", "", where / "base.out")
+    full = run_round(py, tree, arch_file, scenarios, seeds, where / "full.out")
+    return (full["instructions"] - base["instructions"]) / n
 
 
 def main() -> int:
@@ -116,6 +150,9 @@ def main() -> int:
     ap.add_argument("--seeds", default="1-5")
     ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--json", type=Path, help="write the raw times here")
+    ap.add_argument("--instructions", action="store_true",
+                    help="count instructions per run under valgrind's callgrind instead of "
+                    "timing (one process pair per tree; the load of the machine does not enter)")
     a = ap.parse_args()
     tree_a, tree_b = a.tree_a.resolve(), a.tree_b.resolve()
     py_a, py_b = a.python_a, a.python_b
@@ -125,6 +162,15 @@ def main() -> int:
     if not (py_a and py_b):
         ap.error("give --setup DIR or both --python-a and --python-b")
     seeds = ",".join(str(s) for s in parse_seeds(a.seeds))
+    if a.instructions:
+        with tempfile.TemporaryDirectory() as tmp:
+            ir = {}
+            for label, py, tree in (("A", py_a, tree_a), ("B", py_b, tree_b)):
+                (Path(tmp) / label).mkdir()
+                ir[label] = instructions(py, tree, a.arch, a.scenarios, seeds, Path(tmp) / label)
+                print(f"{label}: {ir[label] / 1e9:.3f} G instructions per run", flush=True)
+        print(f"B/A: {ir['B'] / ir['A']:.3f}")
+        return 0
     rounds: list[dict[str, dict]] = []
     for r in range(a.rounds):
         pair = {}
