@@ -110,6 +110,22 @@ def test_hidden_residual_of_an_unavailable_module_is_its_own_source():
     assert_allclose(est.estimate(r), [0.0, 3.0, 0.0], atol=1e-12)
 
 
+def test_zero_residuals_give_the_full_paths_result_bit_for_bit():
+    """The shortcut for r = 0 returns what the full path computes, signs of zero too."""
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        n = 9
+        W = _random_dag(n, rng) + np.tril(rng.uniform(0, 0.1, (n, n)), k=-1)  # with cycles
+        observed = rng.random(n) < 0.6
+        r = np.where(rng.random(n) < 0.5, -0.0, 0.0)
+        est = SourceEstimator(W, observed)
+        full = est._estimate_full(r)
+        got = est.estimate(r)
+        assert np.array_equal(got, full)
+        assert np.array_equal(np.signbit(got), np.signbit(full))
+        assert got is not r
+
+
 def test_sparse_large_graph_matches_dense_and_scales():
     rng = np.random.default_rng(7)
     n = 600  # above DENSE_MAX: the sparse factorization of the hidden block

@@ -135,6 +135,17 @@ class SourceEstimator:
             raise ValueError(f"r has shape {r.shape}, expected ({self.n},)")
         if not np.all(np.isfinite(r)):
             raise ValueError("r must be finite")
+        if not r.any():
+            # Nothing to explain (most cycles: residuals inside their bands are 0). Each
+            # (Wᵀ x)_i sums from +0.0, so r − Wᵀ x is r here: the same bits as the full path.
+            e = r.copy()
+            np.maximum(e, 0.0, out=e)
+            e[self.hidden_index] = r[self.hidden_index]
+            return e
+        return self._estimate_full(r)
+
+    def _estimate_full(self, r: np.ndarray) -> np.ndarray:
+        """:meth:`estimate` of a checked ``r`` (float array of shape (n,)), without shortcut."""
         x = r
         if self._solver is not None:
             h, o = self.hidden_index, self.observed_index
