@@ -527,7 +527,9 @@ def test_sigkill_of_the_driver_leaves_no_orphans(tmp_path, arch) -> None:
 def test_sigterm_keeps_the_finished_runs_and_exits_143(tmp_path, arch) -> None:
     from archself.campaign.results import read_results
 
-    proc, kids, err = _start_campaign(tmp_path, arch, seeds=30)
+    # 600 runs: enough that the campaign is still running at its first flush (2 s) even on
+    # an idle machine (with 60 it could finish first and the signal came after the end)
+    proc, kids, err = _start_campaign(tmp_path, arch, seeds=300)
     try:
         t0 = time.monotonic()
         while time.monotonic() - t0 < 60 and not (tmp_path / "r.parquet").exists():
@@ -547,7 +549,7 @@ def test_sigterm_keeps_the_finished_runs_and_exits_143(tmp_path, arch) -> None:
     assert code == 143, text
     assert text.strip().splitlines()[-1].startswith("terminated: ") and "--resume" in text
     table, _ = read_results(tmp_path / "r.parquet")
-    assert 0 < table.num_rows < 60
+    assert 0 < table.num_rows < 600
     assert not left
 
 
