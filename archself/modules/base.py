@@ -267,6 +267,10 @@ class RuntimeModule:
     noise_levels: dict[str, float] | None = None
     #: Longest time without a published value before the module counts as silent (s).
     max_silence_s: float | None = None
+    #: The batched class of this type (a :class:`archself.lanes.LaneModule` subclass built
+    #: from N instances, or its ``"package.module:Class"`` path), or None: lanes of it run
+    #: one by one (:class:`archself.lanes.PerLane`). See docs/lanes.md.
+    lanes: ClassVar[type | str | None] = None
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

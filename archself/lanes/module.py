@@ -1,0 +1,279 @@
+"""The batched module interface: N lanes of one module stepped by one call.
+
+A *lane* is one run — a seed, a sweep point — of the same architecture; a
+:class:`LaneModule` holds the state of one module in every lane, with a leading
+lane axis, so a step of N runs costs one Python call per module instead of N.
+
+It is built from the N per-run instances (:class:`~archself.modules.base.RuntimeModule`,
+one per lane, each with its lane's parameters and random stream) and keeps them:
+they are where a lane's state goes when the per-run API is needed (:meth:`store`,
+then ``export_state``, ``linear_model``, a deep copy …) and where it comes back
+from (:meth:`load`).
+
+Values across the ``L`` lanes a call steps (``lanes``: ``slice(None)`` for all, or
+an index array into ``0 … N−1``):
+
+* ``None`` — absent in every lane (a GPS between fixes);
+* a float array of shape ``(L,)`` (a scalar signal) or ``(L, w)`` (a vector), in
+  which a NaN entry (a NaN row) marks a lane where the value is absent;
+* a list of ``L`` objects — values that are not numbers (model objects).
+
+A batched module therefore never outputs NaN but to say "absent"; a run whose
+value *goes* non-finite (a fault of kind ``nan``, a module that raises) is the
+executor's business (:class:`archself.lanes.system.LaneSystem`).
+
+A module type opts in by naming its batched class: ``lanes = MyTypeLanes`` on the
+:class:`~archself.modules.base.RuntimeModule` subclass. Every other type runs lane
+by lane through :class:`PerLane`, with the same results.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from archself.modules.base import RuntimeModule
+
+__all__ = ["ALL", "LaneModule", "LaneNormals", "PerLane", "lane_count", "row", "stack"]
+
+#: ``lanes`` of a call that steps every lane.
+ALL = slice(None)
+
+
+def lane_count(n: int, lanes: slice | np.ndarray) -> int:
+    """How many of ``n`` lanes ``lanes`` selects.
+
+    Examples
+    --------
+    >>> lane_count(5, ALL), lane_count(5, np.array([0, 3]))
+    (5, 2)
+    """
+    return n if isinstance(lanes, slice) else len(lanes)
+
+
+def row(value: Any, j: int) -> Any:
+    """Lane ``j``'s value of a lane value (None where absent), as a per-run module sees it.
+
+    Examples
+    --------
+    >>> row(np.array([1.0, np.nan]), 0), row(np.array([1.0, np.nan]), 1)
+    (1.0, None)
+    >>> row(np.array([[1.0, 2.0], [np.nan, np.nan]]), 0).tolist()
+    [1.0, 2.0]
+    """
+    if value is None:
+        return None
+    if type(value) is list:
+        return value[j]
+    v = value[j]
+    if value.ndim == 1:
+        f = float(v)
+        return None if f != f else f
+    return None if math.isnan(float(v[0])) else v.copy()
+
+
+def stack(values: Sequence[Any]) -> Any:
+    """The lane value of per-lane values (None → NaN; all None → None).
+
+    Examples
+    --------
+    >>> stack([1.0, None]).tolist()
+    [1.0, nan]
+    >>> stack([np.array([1.0, 2.0]), None]).tolist()
+    [[1.0, 2.0], [nan, nan]]
+    >>> stack([None, None]) is None
+    True
+    """
+    first = next((v for v in values if v is not None), None)
+    if first is None:
+        return None
+    if isinstance(first, np.ndarray) and first.dtype.kind in "fiub":
+        out = np.full((len(values), first.size), math.nan)
+        for j, v in enumerate(values):
+            if v is not None:
+                out[j] = np.asarray(v, dtype=float).ravel()
+        return out
+    if isinstance(first, (float, int, np.floating, np.integer)) and not isinstance(first, bool):
+        return np.array([math.nan if v is None else float(v) for v in values])
+    return list(values)
+
+
+class LaneModule:
+    """One module in N lanes: the batched counterpart of a ``RuntimeModule`` type.
+
+    Subclasses read their parameters from the per-run instances in
+    :meth:`load` (e.g. ``self.noise = self.lane_attr("noise")``, one entry per
+    lane, so a sweep point's parameters hold in its own lane), keep their state
+    as arrays with a leading lane axis, and implement :meth:`output` (modules
+    without direct feedthrough), :meth:`step`, :meth:`local_signals` (types with
+    residual signals) and :meth:`store`.
+
+    Parameters
+    ----------
+    modules : sequence of RuntimeModule
+        The per-run instances, one per lane, of the same type and name.
+
+    Attributes
+    ----------
+    modules : list of RuntimeModule
+    n : int
+        Number of lanes.
+    failed : dict of int to str
+        Lanes (indices into ``0 … N−1``) that failed in the last call and why
+        (``"raised KeyError"``): the executor marks them unavailable and holds
+        their last outputs. Set by the module; cleared by the executor.
+    """
+
+    def __init__(self, modules: Sequence[RuntimeModule]) -> None:
+        self.modules = list(modules)
+        self.n = len(self.modules)
+        self.name = self.modules[0].name
+        self.kind = type(self.modules[0])
+        self.failed: dict[int, str] = {}
+        self.load(ALL)
+
+    def lane_attr(self, attr: str, lanes: slice | np.ndarray = ALL) -> np.ndarray:
+        """``getattr(module, attr)`` of each lane's instance, stacked (float array)."""
+        mods = self.modules if isinstance(lanes, slice) else [self.modules[i] for i in lanes]
+        return np.array([getattr(m, attr) for m in mods], dtype=float)
+
+    def indices(self, lanes: slice | np.ndarray) -> np.ndarray:
+        """The lane indices ``lanes`` selects."""
+        return np.arange(self.n)[lanes] if isinstance(lanes, slice) else np.asarray(lanes)
+
+    # ------------------------------------------------------------------ data flow
+    def output(self, t: float, lanes: slice | np.ndarray) -> dict[str, Any]:
+        """Outputs from the state at ``t`` in ``lanes`` (modules without direct feedthrough)."""
+        return {}
+
+    def step(
+        self, t: float, dt: float, inputs: dict[str, Any], lanes: slice | np.ndarray
+    ) -> dict[str, Any]:
+        """Consume ``inputs`` (lane values) at ``t`` in ``lanes``; outputs or the next state."""
+        return {}
+
+    def local_signals(self, lanes: slice | np.ndarray) -> dict[str, np.ndarray]:
+        """Residual signals (Eq. 12) per lane, NaN where unknown."""
+        return {}
+
+    # ------------------------------------------------------------------ the per-run bridge
+    def store(self, lanes: slice | np.ndarray) -> None:
+        """Write the state of ``lanes`` into their per-run instances."""
+
+    def load(self, lanes: slice | np.ndarray) -> None:
+        """Read the parameters and the state of ``lanes`` from their per-run instances."""
+
+
+class PerLane(LaneModule):
+    """Any module type in N lanes, run lane by lane through its per-run instances.
+
+    The results are the per-run path's by construction: each lane's instance
+    steps with its own values (absent lanes as ``None``). A lane that raises is
+    reported in :attr:`failed`; a non-finite value a lane publishes is reported
+    as ``"non-finite output"`` and published as absent.
+    """
+
+    def output(self, t, lanes):
+        return self._collect([(i, lambda m: m.output(t)) for i in self.indices(lanes)])
+
+    def step(self, t, dt, inputs, lanes):
+        calls = []
+        for j, i in enumerate(self.indices(lanes)):
+            mine = {k: row(v, j) for k, v in inputs.items()}
+            calls.append((i, lambda m, mine=mine: m.step(t, dt, mine)))
+        return self._collect(calls)
+
+    def _collect(self, calls) -> dict[str, Any]:
+        from archself.health import is_bad
+
+        outs: list[dict[str, Any]] = []
+        for i, call in calls:
+            try:
+                out = call(self.modules[i]) or {}
+            except Exception as exc:  # noqa: BLE001 - one lane's failure, the executor's to judge
+                self.failed[int(i)] = f"raised {type(exc).__name__}"
+                out = {}
+            if any(v is not None and is_bad(v) for v in out.values()):
+                self.failed[int(i)] = "non-finite output"
+                out = {}
+            outs.append(out)
+        keys: list[str] = []
+        for out in outs:
+            keys.extend(k for k in out if k not in keys)
+        return {k: stack([o.get(k) for o in outs]) for k in keys}
+
+    def local_signals(self, lanes):
+        sigs = [self.modules[i].local_signals() for i in self.indices(lanes)]
+        keys = list(self.kind.residual_signals) or (list(sigs[0]) if sigs else [])
+        return {
+            k: np.array([float(s.get(k, math.nan)) for s in sigs], dtype=float) for k in keys
+        }
+
+
+class LaneNormals:
+    """Standard normal draws of N per-lane generators, in the per-run order, in blocks.
+
+    Lane ``i`` draws exactly the numbers ``rngs[i].standard_normal(k)`` would give
+    call after call (a generator's normals are one stream however they are
+    chunked), but from a buffer refilled ``block`` numbers at a time, so a step
+    of N lanes is one slice instead of N calls.
+
+    Parameters
+    ----------
+    rngs : sequence of numpy.random.Generator
+        One generator per lane (the per-run instance's ``rng``).
+    block : int
+        Numbers drawn per refill.
+
+    Examples
+    --------
+    >>> a, b = np.random.default_rng(1), np.random.default_rng(1)
+    >>> z = LaneNormals([a], block=4)
+    >>> draws = np.concatenate([z.take(ALL, 3)[0] for _ in range(3)])
+    >>> bool((draws == b.standard_normal(9)).all())
+    True
+    """
+
+    def __init__(self, rngs: Sequence[np.random.Generator], block: int = 512) -> None:
+        self.rngs = list(rngs)
+        self.block = int(block)
+        n = len(self.rngs)
+        self.buf = np.empty((n, self.block))
+        self.pos = np.full(n, self.block)  # every lane starts with an empty buffer
+        self._same = True  # every lane at the same position
+
+    def take(self, lanes: slice | np.ndarray, k: int) -> np.ndarray:
+        """The next ``k`` normals of each lane in ``lanes``: an ``(L, k)`` array."""
+        if self._same and isinstance(lanes, slice) and lanes == ALL:
+            p = int(self.pos[0])
+            if p + k > self.block:
+                self._refill(np.arange(len(self.rngs)), k)
+                p = 0
+            out = self.buf[:, p : p + k]
+            self.pos += k
+            return out
+        self._same = False
+        idx = np.arange(len(self.rngs))[lanes] if isinstance(lanes, slice) else lanes
+        short = idx[self.pos[idx] + k > self.block]
+        if len(short):
+            self._refill(short, k)
+        cols = self.pos[idx][:, None] + np.arange(k)
+        out = self.buf[idx[:, None], cols]
+        self.pos[idx] += k
+        if (self.pos == self.pos[0]).all():
+            self._same = True
+        return out
+
+    def _refill(self, idx: np.ndarray, k: int) -> None:
+        """Keep what lanes ``idx`` have left, then draw; ``k`` at most one block."""
+        if k > self.block:
+            raise ValueError(f"{k} draws at once exceed the block of {self.block}")
+        for i in idx:
+            p = int(self.pos[i])
+            left = self.block - p
+            self.buf[i, :left] = self.buf[i, p:]
+            self.buf[i, left:] = self.rngs[i].standard_normal(self.block - left)
+            self.pos[i] = 0
