@@ -151,3 +151,47 @@ def test_lanes_of_different_structure_are_refused(diffdrive_raw) -> None:
         simulate_lanes(arch, "nope", [1])
     with pytest.raises(SimulationError, match="one seed per lane"):
         simulate_lanes([arch, arch], "nominal", [1])
+
+
+def _rows(path) -> list[dict]:
+    from archself.campaign.results import read_results
+
+    table, _ = read_results(path)
+    rows = sorted(table.to_pylist(), key=lambda r: r["run_id"])
+    for r in rows:
+        r.pop("trace", None)
+    return rows
+
+
+def test_a_campaign_of_lanes_writes_the_rows_of_the_per_run_campaign(tmp_path) -> None:
+    """Default batching, one batch per worker, and a sweep whose points cannot share lanes
+    (another step: the units fall back to single runs) all give the rows of --lanes 1."""
+    from archself.campaign import plan_campaign, run_campaign
+    from archself.campaign.sweep import parse_sweep
+
+    path = data_dir("architectures") / "process_plant.yaml"
+    sweeps = [parse_sweep("runtime.step_s=0.2,0.25")]
+    jobs, meta = plan_campaign(path, ["nominal", "valve_loss"], 3, sweeps, modes=("fixed",))
+    rows = {}
+    for lanes in (1, None, 6):
+        out = tmp_path / f"r{lanes}.parquet"
+        run_campaign(jobs, meta, out, workers=1, lanes=lanes)
+        rows[lanes] = _rows(out)
+    assert len(rows[1]) == 12
+    assert rows[None] == rows[1] and rows[6] == rows[1]
+
+
+def test_lane_units_group_fixed_runs_of_one_scenario_in_order() -> None:
+    from archself.campaign.plan import default_lanes, lane_units
+    from archself.campaign.worker import Job
+
+    def job(i, mode, sc="s"):
+        return Job(str(i), "", "d", "f", (), (), sc, i, i, mode)
+
+    jobs = [job(i, "fixed", "ab"[i % 2]) for i in range(7)] + [job(7, "adaptive")]
+    units = lane_units(jobs, 2)
+    assert [[j.run_id for j in u] for u in units] == [
+        ["0", "2"], ["1", "3"], ["4", "6"], ["5"], ["7"]
+    ]
+    assert default_lanes(jobs, 2) == 4 and default_lanes(jobs * 100, 2) == 64
+    assert default_lanes([job(0, "adaptive")], 2) == 1

@@ -17,6 +17,7 @@ its names are re-exported here.
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import time
@@ -31,13 +32,15 @@ from archself.campaign.plan import (
     MAX_STEPS,
     MODES,
     CampaignEstimate,
+    default_lanes,
     estimate_campaign,
+    lane_units,
     plan_campaign,
     run_id,
     run_seeds,
 )
 from archself.campaign.sweep import CampaignError
-from archself.campaign.worker import Job, run_job
+from archself.campaign.worker import Job, run_job, run_unit
 from archself.errors import ArchselfError, OutputError
 
 __all__ = [
@@ -154,6 +157,7 @@ def run_campaign(
     flush_s: float = 2.0,
     notice: Callable[[str], None] | None = None,
     job_fn: Callable[[Job], dict[str, Any]] = run_job,
+    lanes: int | None = None,
 ) -> CampaignOutcome:
     """Run the jobs on an executor and write the results table to ``out``.
 
@@ -180,6 +184,10 @@ def run_campaign(
     job_fn : callable
         What a worker runs (default :func:`~archself.campaign.worker.run_job`;
         another function for fault injection in tests).
+    lanes : int, optional
+        Fixed runs of one scenario are batched, up to this many per unit of work, and
+        stepped together (:func:`lane_units`, :mod:`archself.lanes`); 1 turns
+        batching off. Default: :func:`default_lanes`.
 
     A local worker that dies (killed, out of memory, a crash in C code) breaks the
     pool and every run on it: the pool is started again and the unfinished runs
@@ -252,12 +260,14 @@ def run_campaign(
         if progress is not None:
             progress(ran, len(todo))
 
+    unit_fn = functools.partial(run_unit, job_fn)
     pending: dict[str, Job] = {j.run_id: j for j in todo}  # in submission order
     suspects: set[str] = set()  # on a worker when the pool broke: retried one at a time
     attempts: dict[str, int] = {}  # pool breaks while a run was alone on it
     restarts = 0
     ex = start()
     n_workers = ex.workers
+    width = default_lanes(todo, n_workers) if lanes is None else max(1, int(lanes))
     futures: dict[Any, Job] = {}
     try:
         if progress is not None:
@@ -265,26 +275,27 @@ def run_campaign(
         last = time.perf_counter()
         while pending:
             alone = [j for j in pending.values() if j.run_id in suspects][:1]
-            batch = alone or list(pending.values())
+            units = [tuple(alone)] if alone else lane_units(list(pending.values()), width)
             try:
-                futures = {ex.submit(job_fn, j): j for j in batch}
+                futures = {ex.submit(unit_fn, u): u for u in units}
             except Exception as exc:  # noqa: BLE001 - a pool that cannot take work
                 if not _worker_died(exc) and not isinstance(exc, OSError):
                     raise
                 raise CampaignError(f"the {executor} workers could not start: {exc}") from None
             died: BaseException | None = None
             for fut in ex.as_completed(list(futures)):
-                job = futures[fut]
+                unit = futures[fut]
                 try:
-                    row = fut.result()
+                    unit_rows = fut.result()
                 except Exception as exc:  # noqa: BLE001 - infrastructure, not the run
                     if _worker_died(exc) and executor != "dask":
                         died = exc
                         break
-                    row = _failed_row(job, f"{type(exc).__name__}: {exc}")
-                pending.pop(job.run_id, None)
-                suspects.discard(job.run_id)
-                keep(row)
+                    unit_rows = [_failed_row(j, f"{type(exc).__name__}: {exc}") for j in unit]
+                for job, row in zip(unit, unit_rows, strict=True):
+                    pending.pop(job.run_id, None)
+                    suspects.discard(job.run_id)
+                    keep(row)
                 now = time.perf_counter()
                 if now - last >= flush_s:
                     flush()
@@ -306,8 +317,9 @@ def run_campaign(
                     pending.pop(rid)
                     suspects.discard(rid)
                     keep(_failed_row(alone[0], f"worker process died ({MAX_ATTEMPTS + 1} tries)"))
-            else:  # FIFO: the first workers + 1 unfinished runs were on a worker or queued
-                suspects.update(list(pending)[: n_workers + 1])
+            else:  # FIFO: the first workers + 1 unfinished units were on a worker or queued
+                left = [u for u in units if u[0].run_id in pending]
+                suspects.update(j.run_id for u in left[: n_workers + 1] for j in u)
             _quiet_close(ex)
             restarts += 1
             if restarts > MAX_POOL_RESTARTS:

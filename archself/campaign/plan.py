@@ -5,7 +5,8 @@ refuses a campaign past the caps (:func:`estimate_campaign`: :data:`MAX_RUNS`,
 :data:`MAX_STEPS` unless ``--yes``; half the memory always) and lists the jobs:
 scenarios × sweep points × replicates × modes, replicate ``k`` seeded by child ``k``
 of ``SeedSequence(root_seed)`` (:func:`run_seeds`), each with a stable
-:func:`run_id`. :mod:`archself.campaign.driver` runs them.
+:func:`run_id`; :func:`lane_units` groups fixed runs into lane batches.
+:mod:`archself.campaign.driver` runs them.
 """
 
 from __future__ import annotations
@@ -24,10 +25,13 @@ from archself.campaign.worker import Job, trace_name
 __all__ = [
     "BYTES_PER_RUN",
     "CampaignEstimate",
+    "MAX_LANES",
     "MAX_RUNS",
     "MAX_STEPS",
     "MODES",
+    "default_lanes",
     "estimate_campaign",
+    "lane_units",
     "plan_campaign",
     "run_id",
     "run_seeds",
@@ -247,3 +251,47 @@ def _no_errors(findings: list[Any], has_errors: Callable[[list[Any]], bool], pre
     if has_errors(findings):
         first = next(f for f in findings if f.severity == "error")
         raise CampaignError(f"{prefix}{first}")
+
+
+#: Most lanes in one unit of work (a batch of fixed runs stepped together).
+MAX_LANES = 64
+
+
+def default_lanes(jobs: Sequence[Job], workers: int) -> int:
+    """Lanes per unit: the fixed runs shared evenly over the workers, at most :data:`MAX_LANES`.
+
+    Every worker gets work (2 workers and 10 fixed runs: units of 5), and a unit's
+    recorded series stay small (a lane of the diff-drive robot records ~2 MB).
+    """
+    fixed = sum(1 for j in jobs if j.mode == "fixed")
+    return max(1, min(MAX_LANES, math.ceil(fixed / max(1, workers))))
+
+
+def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
+    """Units of work: fixed runs of one file and scenario in batches of ``width``, others alone.
+
+    The order of the jobs is kept: a unit stands where its first job stood.
+
+    Examples
+    --------
+    >>> from archself.campaign.worker import Job
+    >>> def job(i, mode, sc="s"):
+    ...     return Job(str(i), "", "d", "f", (), (), sc, i, i, mode)
+    >>> jobs = [job(0, "fixed"), job(1, "adaptive"), job(2, "fixed"), job(3, "fixed", "t"),
+    ...         job(4, "fixed")]
+    >>> [[j.run_id for j in u] for u in lane_units(jobs, 2)]
+    [['0', '2'], ['1'], ['3'], ['4']]
+    """
+    units: list[list[Job]] = []
+    open_: dict[tuple[str, str], list[Job]] = {}
+    for j in jobs:
+        if j.mode != "fixed" or width <= 1:
+            units.append([j])
+            continue
+        key = (j.arch_digest, j.scenario)
+        unit = open_.get(key)
+        if unit is None or len(unit) >= width:
+            unit = open_[key] = []
+            units.append(unit)
+        unit.append(j)
+    return [tuple(u) for u in units]

@@ -21,7 +21,7 @@ from typing import Any
 
 from archself.campaign.sweep import Sweep
 
-__all__ = ["Job", "run_error", "run_job", "summarize_run"]
+__all__ = ["Job", "run_error", "run_job", "run_unit", "summarize_run"]
 
 #: How many validated sweep points a worker keeps.
 CACHE_SIZE = 64
@@ -119,6 +119,38 @@ def run_job(job: Job) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a failed campaign
         row["error"] = run_error(exc)
     return row
+
+
+def run_unit(job_fn: Any, jobs: tuple[Job, ...]) -> list[dict[str, Any]]:
+    """The rows of a unit of work: one job, or fixed runs batched as lanes.
+
+    A unit of several jobs (fixed runs of one file and scenario, from
+    :func:`archself.campaign.driver.lane_units`) runs as one lane-batched simulation
+    (:func:`archself.lanes.simulate_lanes`), with the rows and traces of the per-run
+    path; if the lanes cannot run together (another structure or duration at a
+    sweep point) or any run fails, every job runs on its own. ``job_fn`` other than
+    :func:`run_job` (tests) runs job by job.
+    """
+    if len(jobs) == 1 or job_fn is not run_job:
+        return [job_fn(j) for j in jobs]
+    try:
+        from archself.lanes import simulate_lanes
+
+        archs = [_architecture(j) for j in jobs]
+        results = simulate_lanes(
+            [a.model_copy(deep=True) for a in archs], jobs[0].scenario, [j.seed for j in jobs]
+        )
+        rows = []
+        for job, arch, result in zip(jobs, archs, results, strict=True):
+            row = _base_row(job)
+            row.update(summarize_run(result, arch))
+            if job.trace is not None:
+                result.write_trace(job.trace)
+                row["trace"] = job.trace
+            rows.append(row)
+        return rows
+    except Exception:  # noqa: BLE001 - the per-run path says what failed, run by run
+        return [run_job(j) for j in jobs]
 
 
 def run_error(exc: BaseException) -> str:

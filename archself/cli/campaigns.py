@@ -78,6 +78,11 @@ def campaign(
     yes: Annotated[
         bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
     ] = False,
+    lanes: Annotated[
+        int | None,
+        typer.Option("--lanes", min=1, help="Fixed runs stepped together per batch (1: one "
+                     "by one; default: shared over the workers, at most 64). Same results."),
+    ] = None,
 ) -> None:
     """Run a Monte Carlo campaign: scenarios x sweep values x seeds, fixed and adaptive.
 
@@ -128,6 +133,7 @@ def campaign(
                     force=force,
                     progress=progress if show else None,
                     notice=lambda msg: typer.echo(f"warning: {msg}", err=True),
+                    lanes=lanes,
                 )
             finally:
                 bar.close()
