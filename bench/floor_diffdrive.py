@@ -577,6 +577,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--rounds", type=int, default=5, help="rounds of each per-run timing")
     ap.add_argument("--lanes", type=int, nargs="+", default=[1, 10, 100, 1000])
     ap.add_argument("--block", type=int, default=400, help="noise block of the vectorized floor")
+    ap.add_argument("--framework-lanes", type=int, nargs="*", default=[10, 100],
+                    help="N of the framework's lane-batched runs (archself.lanes.simulate_lanes)")
     args = ap.parse_args(argv)
 
     import archself
@@ -617,6 +619,20 @@ def main(argv: Sequence[str] | None = None) -> None:
                 _best(lambda lanes=lanes: run_floor_lanes(lanes, S, block=args.block), r),
             )
         )
+    from archself.lanes import simulate_lanes
+
+    def framework_lanes(N: int) -> Any:
+        first = next(seeds)
+        return simulate_lanes(arch, "nominal", list(range(first, first + N)), configuration="a1")
+
+    lanes_dev = float(np.max(np.abs(simulate_lanes(arch, "nominal", [1], configuration="a1")[0]
+                                    .series["J"] - fw.series["J"])))
+    print(f"trace check, seed 1: max |J_lanes − J_framework| = {lanes_dev:.1e} m")
+    for N in args.framework_lanes:
+        r = max(1, min(args.rounds, 300 // max(N, 1)))
+        rows.append(
+            (f"framework lanes, N = {N}", N, _best(lambda N=N: framework_lanes(N), r))
+        )
     print()
     print(
         f"{'':32} {'wall min (median) [s]':>22} {'CPU [s]':>8} {'CPU/lane-step [µs]':>19}"
@@ -641,6 +657,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"{peak / N / 1e3:.1f} kB per lane (noise blocks of {args.block} steps, J not kept); "
         f"framework, one run: peak {fw_mem / 1e6:.1f} MB (tracemalloc)"
     )
+    if args.framework_lanes:
+        N = max(args.framework_lanes)
+        lanes_mem = _peak_bytes(lambda: framework_lanes(N))
+        print(
+            f"framework lanes: peak {lanes_mem / 1e6:.1f} MB for {N} lanes = "
+            f"{lanes_mem / N / 1e6:.2f} MB per lane (the recorded series and N RunResults)"
+        )
     print(f"floor setup, once: {setup_s:.3f} s (spline table, reference, LQR gain)")
     print(f"load average after: {_load()}")
 
