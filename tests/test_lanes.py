@@ -141,12 +141,70 @@ def test_a_module_that_raises_holds_its_last_outputs_in_that_lane(diffdrive_raw)
     assert "odometry" not in lanes.failed
 
 
+def test_lanes_in_different_configurations_run_as_groups(diffdrive_raw) -> None:
+    """Two groups (a1 and a3) in one lane system: each lane is its per-run run."""
+    from archself.compiler import compile_system
+
+    arch = Architecture.model_validate(diffdrive_raw)
+    confs = ["a1", "a3", "a1", "a3"]
+    systems = [compile_system(arch, c, seed=5 + i, scenario="actuator_fault")
+               for i, c in enumerate(confs)]
+    twins = [compile_system(arch, c, seed=5 + i, scenario="actuator_fault")
+             for i, c in enumerate(confs)]
+    lanes = LaneSystem(systems)
+    assert {c: g.tolist() for c, g in lanes.groups.items()} == {"a1": [0, 2], "a3": [1, 3]}
+    for _ in range(600):
+        lanes.step()
+        for tw in twins:
+            tw.step()
+    pose = lanes.signal("chassis", "pose")
+    for i, tw in enumerate(twins):
+        assert_allclose(pose[i], tw.signal("chassis.pose"), rtol=0, atol=1e-9)
+        assert lanes.available(i) == tw.available()
+
+
+def test_health_per_lane_is_the_per_run_health(diffdrive_raw) -> None:
+    """Silence (GPS dropout), stale values (stuck encoders), non-finite output (NaN fault),
+    lost inputs downstream: the reason of every module in every lane at every step."""
+    from archself.compiler import compile_system
+
+    raw = copy.deepcopy(diffdrive_raw)
+    raw["scenarios"]["sick"] = {
+        "duration_s": 20,
+        "seed": 1,
+        "faults": [
+            {"module": "gps", "kind": "dropout", "onset_s": 3, "end_s": 8},
+            {"module": "encoders", "kind": "stuck", "onset_s": 9, "end_s": 11},
+            {"module": "imu", "kind": "nan", "onset_s": 12, "end_s": 12.5, "signal": "heading"},
+            {"module": "imu", "kind": "dropout", "onset_s": 15, "end_s": 16,
+             "signal": "heading"},
+        ],
+    }
+    arch = Architecture.model_validate(raw)
+    confs = ["a3", "a1", "a3"]
+    systems = [compile_system(arch, c, seed=i, scenario="sick") for i, c in enumerate(confs)]
+    twins = [compile_system(arch, c, seed=i, scenario="sick") for i, c in enumerate(confs)]
+    lanes = LaneSystem(systems)
+    seen = set()
+    for _ in range(400):
+        lanes.step()
+        for i, tw in enumerate(twins):
+            tw.step()
+            want = tw.health()
+            assert lanes.reasons(i) == want, (lanes.t, i)
+            seen.update(r.split()[0] for r in want.values() if r)
+    assert {"silent", "stale", "non-finite", "lost"} <= seen
+
+
 def test_lanes_of_different_structure_are_refused(diffdrive_raw) -> None:
     from archself.compiler import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
+    raw = copy.deepcopy(diffdrive_raw)
+    raw["runtime"]["step_s"] = 0.1
+    other = Architecture.model_validate(raw)
     with pytest.raises(SimulationError, match="share the architecture"):
-        LaneSystem([compile_system(arch, c, seed=1) for c in ("a1", "a2")])
+        LaneSystem([compile_system(arch, "a1", seed=1), compile_system(other, "a1", seed=1)])
     with pytest.raises(SimulationError, match="unknown scenario"):
         simulate_lanes(arch, "nope", [1])
     with pytest.raises(SimulationError, match="one seed per lane"):

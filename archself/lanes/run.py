@@ -116,7 +116,7 @@ def simulate_lanes(
         (key, src, sig) for key, sig in record
         if (src := _publisher(systems[0], sig)) is not None
     ]
-    active = lanes.plan.active_set
+    active = lanes.plan(start).active_set
 
     t_arr = np.empty(n)
     J = np.empty((n, n_lanes))
@@ -133,8 +133,7 @@ def simulate_lanes(
         arr[i] = val if val.ndim == 2 else val[:, None]
 
     signal = lanes.signal
-    mods = lanes.modules
-    res_idx = [(j, mods[m], s) for j, (m, s) in enumerate(res_mods) if m in active]
+    res_idx = [(j, lanes.module(m), s) for j, (m, s) in enumerate(res_mods) if m in active]
     for i in range(n):
         lanes.step()
         t_arr[i] = lanes.t

@@ -2,38 +2,40 @@
 
 :class:`LaneSystem` takes N per-run systems (:class:`archself.system.LiveSystem`,
 one per lane: its seed, its sweep point's parameters, its scenario's faults) of
-the same structure and steps them as one: for every active module a
+the same structure and steps them as one. Lanes in the same configuration form a
+*group*; for every active module of a group a
 :class:`~archself.lanes.module.LaneModule` (the type's batched class, or
-:class:`~archself.lanes.module.PerLane`) advances all lanes with one call, in the
-order and with the routing of the per-run plan. What the per-run step does per
-value it does per lane: edge noise from each lane's own stream, edge latencies,
-the scenario's faults from each lane's own injectors, and a lane whose module
-raised or whose value a fault made non-finite holds its last outputs.
+:class:`~archself.lanes.module.PerLane`) advances the group's lanes with one call,
+in the order and with the routing of the per-run plan. What the per-run step does
+per value it does per lane: edge noise from each lane's own stream, edge
+latencies, the scenario's faults from each lane's own injectors, a lane whose
+module raised or whose value a fault made non-finite holds its last outputs, and
+every module's availability and its reason (:class:`~archself.lanes.health.LaneHealth`).
+
+:meth:`LaneSystem.move` takes a lane to another configuration (after its per-run
+system made the change: hand-over and parameter updates happen there, on the
+lane's stored state); :mod:`archself.lanes.view` is the per-lane face the
+adaptation loop sees.
 
 Lane values follow :mod:`archself.lanes.module` (NaN = absent in that lane).
-Not yet per lane: the availability bookkeeping (silence, stale signals, lost
-inputs) that only the adaptation loop reads, and configuration changes — a lane
-system runs one configuration, fixed.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from archself.errors import SimulationError
+from archself.lanes.faults import LaneFault
+from archself.lanes.health import LaneHealth
 from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane
 from archself.streams import module_rng
 from archself.system import LiveSystem
 
 __all__ = ["LaneSystem", "lane_module"]
-
-#: Fault kinds applied to all lanes at once; the others go lane by lane.
-_VECTOR_FAULTS = frozenset({"bias_drift", "bias", "effectiveness_loss", "dropout"})
 
 
 def lane_module(modules: Sequence[Any]) -> LaneModule:
@@ -59,77 +61,50 @@ def lane_module(modules: Sequence[Any]) -> LaneModule:
     return cls(modules) if cls is not None else PerLane(modules)
 
 
-class _LaneFault:
-    """One fault of a scenario in every lane (one injector per lane)."""
+class _Delay:
+    """An edge's latency line in every lane: a ring of ``delay`` values per lane."""
 
-    def __init__(self, signal: str, injectors: Sequence[Any]) -> None:
-        self.signal = signal
-        self.injectors = list(injectors)
-        first = self.injectors[0]
-        self.kind = first.kind
-        self.vector = first.kind in _VECTOR_FAULTS and all(
-            i.kind == first.kind for i in self.injectors
-        )
-        self.onset = np.array([i.onset for i in self.injectors])
-        self.end = np.array([i.end for i in self.injectors])
-        self.magnitude = np.array([i.magnitude for i in self.injectors])
+    def __init__(self, n: int, delay: int) -> None:
+        self.n, self.delay = n, delay
+        self.buf: np.ndarray | None = None
+        self.head = np.zeros(n, dtype=np.intp)
 
-    def apply(self, t: float, value: Any) -> tuple[Any, np.ndarray | None]:
-        """The faulty lane value at ``t``, and the lanes made non-finite (or None)."""
-        if value is None or type(value) is list:
-            if self.kind != "dropout" or value is None:
-                return value, None
-        if self.vector:
-            active = (self.onset <= t + 1e-9) & (t < self.end - 1e-9)
-            if not active.any():
-                return value, None
-            out = np.array(value, dtype=float)
-            a = active
-            kind = self.kind
-            if kind == "dropout":
-                out[a] = math.nan
-            elif kind == "bias_drift":
-                add = self.magnitude[a] * (t - self.onset[a])
-                out[a] = out[a] + (add if out.ndim == 1 else add[:, None])
-            elif kind == "bias":
-                add = self.magnitude[a]
-                out[a] = out[a] + (add if out.ndim == 1 else add[:, None])
-            else:  # effectiveness_loss
-                f = 1.0 - self.magnitude[a]
-                out[a] = out[a] * (f if out.ndim == 1 else f[:, None])
-            return out, None
-        from archself.lanes.module import row
+    def exchange(self, val: Any, idx: np.ndarray) -> Any:
+        """Push ``val`` (lanes ``idx``) and return what entered ``delay`` steps before."""
+        if type(val) is list:
+            raise SimulationError("an edge latency on a non-numeric signal cannot run in lanes")
+        if self.buf is None and val is not None:
+            shape = (self.delay, self.n) + (() if val.ndim == 1 else (val.shape[1],))
+            self.buf = np.full(shape, math.nan)
+        h = self.head[idx]
+        self.head[idx] = (h + 1) % self.delay
+        if self.buf is None:
+            return None
+        out = self.buf[h, idx]
+        self.buf[h, idx] = math.nan if val is None else val
+        return None if np.isnan(out).all() else out
 
-        out = np.array(value, dtype=float)
-        bad = []
-        for j, inj in enumerate(self.injectors):
-            before = row(value, j)
-            after = inj.apply(t, before)
-            if after is None:
-                out[j] = math.nan
-                continue
-            arr = np.asarray(after, dtype=float)
-            if before is not None and not np.isfinite(arr).all():
-                bad.append(j)
-                continue
-            out[j] = arr
-        return out, (np.array(bad) if bad else None)
+
+def _plan_key(plan: Any) -> Any:
+    """What lanes must share of a configuration's plan (edge noise may differ)."""
+    routes = {n: [r[:3] + r[4:] for r in rs] for n, rs in plan.routes.items()}
+    return plan.active, plan.order, plan.nonft, routes
 
 
 class LaneSystem:
-    """N lanes of one configuration of an architecture, stepped together.
+    """N lanes of an architecture, grouped by configuration, stepped together.
 
     Parameters
     ----------
     systems : sequence of LiveSystem
         One compiled per-run system per lane, all of the same architecture
-        structure (modules, types, edges) in the same configuration and at t = 0;
-        their parameters, seeds and faults may differ.
+        structure (modules, types, edges) and step, at t = 0; their parameters,
+        seeds, faults and starting configurations may differ.
 
     Raises
     ------
     SimulationError
-        If the systems differ in structure, configuration or step.
+        If the systems differ in structure or step.
     """
 
     def __init__(self, systems: Sequence[LiveSystem]) -> None:
@@ -141,169 +116,265 @@ class LaneSystem:
         self.dt = first.dt
         self.t = 0.0
         self.k = 0
-        self.configuration = first.configuration
-        plan = first._plan
-        for s in self.systems[1:]:
-            p = s._plan
-            same = (
-                s.configuration == self.configuration
-                and s.dt == self.dt
-                and p.active == plan.active
-                and p.order == plan.order
-                and {n: [r[:3] + r[4:] for r in rs] for n, rs in p.routes.items()}
-                == {n: [r[:3] + r[4:] for r in rs] for n, rs in plan.routes.items()}
-            )
-            if not same:
-                raise SimulationError(
-                    "lanes must share the architecture's structure, configuration and step"
-                )
-        self.plan = plan
-        self.modules: dict[str, LaneModule] = {
-            name: lane_module([s._module(name) for s in self.systems]) for name in plan.active
-        }
+        if any(s.dt != self.dt for s in self.systems):
+            raise SimulationError("lanes must share the architecture's structure and step")
+        self.arch = first.arch
+        self.configuration = [s.configuration for s in self.systems]
+        self.plans: dict[str, Any] = {}
+        self.groups: dict[str, np.ndarray] = {}
+        self._regroup()
+        self.modules: dict[str, LaneModule] = {}
         self.outputs: dict[str, dict[str, Any]] = {}
+        self.health = LaneHealth(self.n)
         self.failed: dict[str, np.ndarray] = {}  # module -> lanes that failed in the last step
-        self._faults: dict[str, list[_LaneFault]] = {}
-        for name in plan.active:
+        self._faults: dict[str, list[LaneFault]] = {}
+        for name in self.arch.modules:
             per_lane = [s._faults.get(name, []) for s in self.systems]
             if any(len(f) != len(per_lane[0]) for f in per_lane):
                 raise SimulationError(f"lanes must have the same faults on {name!r}")
-            self._faults[name] = [
-                _LaneFault(per_lane[0][j][0], [f[j][1] for f in per_lane])
-                for j in range(len(per_lane[0]))
-            ]
-        arch = first.arch
-        self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals]] = {}
-        for name in plan.active:
-            for _carries, _src, idx, _unc, _delay in plan.routes[name]:
-                unc = np.array([_route_unc(s, name, idx) for s in self.systems])
-                if (unc > 0).any():
-                    e = arch.edges[idx]
-                    rngs = [
-                        module_rng(s.seed, f"edge:{e.source}->{e.target}:{e.carries}")
-                        for s in self.systems
-                    ]
-                    self._edge_noise[idx] = (unc, LaneNormals(rngs))
-        self._delay: dict[int, deque] = {}
+            if per_lane[0]:
+                self._faults[name] = [
+                    LaneFault(per_lane[0][j][0], [f[j][1] for f in per_lane])
+                    for j in range(len(per_lane[0]))
+                ]
+        self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
+        self._delay: dict[int, _Delay] = {}
+        self._all = np.arange(self.n)
+
+    # ------------------------------------------------------------------ structure
+    def plan(self, configuration: str) -> Any:
+        """The step plan of ``configuration`` (checked once to be the same in every lane)."""
+        plan = self.plans.get(configuration)
+        if plan is None:
+            plans = [s._full_plan(configuration) for s in self.systems]
+            key = _plan_key(plans[0])
+            if any(_plan_key(p) != key for p in plans[1:]):
+                raise SimulationError(
+                    "lanes must share the architecture's structure and step "
+                    f"(configuration {configuration!r} differs)"
+                )
+            plan = self.plans[configuration] = plans[0]
+        return plan
+
+    def _regroup(self) -> None:
+        groups: dict[str, list[int]] = {}
+        for i, c in enumerate(self.configuration):
+            groups.setdefault(c, []).append(i)
+        self.groups = {c: np.array(v, dtype=np.intp) for c, v in groups.items()}
+        for c in self.groups:
+            self.plan(c)
+
+    def module(self, name: str) -> LaneModule:
+        """The lane module of ``name`` (built from the per-run instances on first use)."""
+        mod = self.modules.get(name)
+        if mod is None:
+            mod = self.modules[name] = lane_module([s._module(name) for s in self.systems])
+        return mod
+
+    def move(self, lane: int, configuration: str) -> None:
+        """Lane ``lane`` now runs ``configuration`` (its per-run system switched already).
+
+        The modules the lane leaves drop their outputs and availability in it, as
+        :meth:`LiveSystem.apply_configuration` does; every module of the new
+        configuration reloads the lane from its per-run instance (the hand-over).
+        """
+        old = self.plan(self.configuration[lane])
+        new = self.plan(configuration)
+        one = np.array([lane])
+        for g in old.active:
+            if g in new.active_set:
+                continue
+            out = self.outputs.get(g)
+            if out:
+                self.outputs[g] = {s: _absent_rows(v, one) for s, v in out.items()}
+            self.health.forget(g, one)
+        for m in new.active:
+            self.module(m).load(one)
+        self.configuration[lane] = configuration
+        self._regroup()
+
+    def reload(self, lane: int) -> None:
+        """Every module of ``lane``'s configuration reads the lane back (new parameters)."""
+        one = np.array([lane])
+        for m in self.plan(self.configuration[lane]).active:
+            self.module(m).load(one)
 
     # ------------------------------------------------------------------ a step
-    def _gather(self, name: str) -> dict[str, Any]:
+    def _noise(self, idx: int) -> tuple[np.ndarray, LaneNormals] | None:
+        if idx not in self._edge_noise:
+            e = self.arch.edges[idx]
+            unc = np.array([float(s.arch.edges[idx].uncertainty) for s in self.systems])
+            self._edge_noise[idx] = None
+            if (unc > 0).any():
+                rngs = [
+                    module_rng(s.seed, f"edge:{e.source}->{e.target}:{e.carries}")
+                    for s in self.systems
+                ]
+                self._edge_noise[idx] = (unc, LaneNormals(rngs))
+        return self._edge_noise[idx]
+
+    def _gather(self, name: str, plan: Any, idx: np.ndarray, whole: bool) -> dict[str, Any]:
         outs = self.outputs
-        plan = self.plan
         multi = plan.multi.get(name, ())
         reads = plan.reads
         inputs: dict[str, Any] = {}
-        for carries, src, idx, _unc, delay in plan.routes[name]:
+        for carries, src, e, unc, delay in plan.routes[name]:
             src_out = outs.get(src)
-            sig = reads.get(idx, carries) if reads else carries
+            sig = reads.get(e, carries) if reads else carries
             val = src_out.get(sig) if src_out is not None else None
+            if val is not None and not whole:
+                val = [val[i] for i in idx] if type(val) is list else val[idx]
             if delay:
-                line = self._delay.get(idx)
+                line = self._delay.get(e)
                 if line is None:
-                    line = self._delay[idx] = deque([None] * delay)
-                line.append(val)
-                val = line.popleft()
-            noise = self._edge_noise.get(idx)
-            if noise is not None and val is not None and type(val) is not list:
-                val = _add_noise(val, *noise)
+                    line = self._delay[e] = _Delay(self.n, delay)
+                val = line.exchange(val, idx)
+            if unc and val is not None and type(val) is not list:
+                noise = self._noise(e)
+                if noise is not None:
+                    val = _add_noise(val, idx, *noise)
             if carries in multi:
                 inputs.setdefault(carries, []).append(val)
             elif val is not None or carries not in inputs:
                 inputs[carries] = val
         return inputs
 
-    def _publish(self, name: str, out: dict[str, Any] | None, t: float) -> None:
+    def _publish(self, name: str, out: dict[str, Any], t: float, idx: np.ndarray,
+                 whole: bool) -> dict[int, str]:
+        """Faults, held outputs and the health reasons of one publishing call."""
         mod = self.modules[name]
-        out = dict(out or {})
-        bad = set(mod.failed)
+        failed = dict(mod.failed)
         mod.failed.clear()
+        out = dict(out or {})
         for fault in self._faults.get(name, ()):
-            sig = fault.signal
-            if sig in out:
-                out[sig], broken = fault.apply(t, out[sig])
-                if broken is not None:
-                    bad.update(int(j) for j in broken)
-        if not bad:
-            self.outputs[name] = out
+            if fault.signal in out:
+                out[fault.signal], broken = fault.apply(t, out[fault.signal], idx)
+                for i in broken:
+                    failed.setdefault(int(i), "non-finite output")
+        reasons = self.health.published(name, out, idx, t, failed, mod.modules)
+        if failed:
+            self.failed[name] = np.array(sorted(failed))
+        else:
             self.failed.pop(name, None)
-            return
-        lanes = np.array(sorted(bad))
-        self.failed[name] = lanes
+        if whole and not failed:
+            self.outputs[name] = out
+            return reasons
+        keep = np.array([i not in failed for i in idx.tolist()], dtype=bool)
         old = self.outputs.get(name, {})
-        merged: dict[str, Any] = {}
-        for sig in {*out, *old}:
-            merged[sig] = _hold(out.get(sig), old.get(sig), lanes, self.n)
-        self.outputs[name] = merged
+        self.outputs[name] = {
+            s: _put_rows(old.get(s), out.get(s), idx[keep], keep, self.n)
+            for s in {*old, *out}
+        }
+        return reasons
 
     def step(self) -> None:
         """Advance every lane by one step ``dt``."""
         t, dt = self.t, self.dt
-        mods = self.modules
-        gather = self._gather
-        for name, stepped in self.plan.publishing:
-            mod = mods[name]
-            try:
-                out = mod.step(t, dt, gather(name), ALL) if stepped else mod.output(t, ALL)
-            except Exception as exc:  # noqa: BLE001 - every lane of the module failed
-                mod.failed.update({i: f"raised {type(exc).__name__}" for i in range(self.n)})
-                out = {}
-            self._publish(name, out, t)
-        for name in self.plan.nonft:
-            mod = mods[name]
-            try:
-                mod.step(t, dt, gather(name), ALL)
-            except Exception as exc:  # noqa: BLE001
-                mod.failed.update({i: f"raised {type(exc).__name__}" for i in range(self.n)})
-            mod.failed.clear()
+        health = self.health
+        for conf, idx in list(self.groups.items()):
+            plan = self.plans[conf]
+            whole = len(idx) == self.n
+            lanes = ALL if whole else idx
+            for name, stepped in plan.publishing:
+                mod = self.module(name)
+                inputs = self._gather(name, plan, idx, whole) if stepped else None
+                try:
+                    out = mod.step(t, dt, inputs, lanes) if stepped else mod.output(t, lanes)
+                except Exception as exc:  # noqa: BLE001 - every lane of the call failed
+                    mod.failed.update({int(i): f"raised {type(exc).__name__}" for i in idx})
+                    out = {}
+                reasons = self._publish(name, out, t, idx, whole)
+                if stepped:
+                    health.lost_inputs(inputs, plan.required[name], idx, reasons)
+                health.settle(name, idx, reasons)
+            for name in plan.nonft:
+                mod = self.modules[name]
+                inputs = self._gather(name, plan, idx, whole)
+                try:
+                    mod.step(t, dt, inputs, lanes)
+                except Exception as exc:  # noqa: BLE001
+                    mod.failed.update({int(i): f"raised {type(exc).__name__}" for i in idx})
+                reasons = dict(mod.failed)
+                mod.failed.clear()
+                ok = health.ok[name][idx]
+                later: dict[int, str] = {}
+                health.lost_inputs(inputs, plan.required[name], idx, later)
+                reasons.update({i: r for i, r in later.items() if i not in reasons
+                                and ok[int(np.searchsorted(idx, i))]})
+                if reasons:
+                    ok_arr, why = health.ok[name], health.why[name]
+                    for i, r in reasons.items():
+                        ok_arr[i] = False
+                        why[i] = r
         self.k += 1
         self.t = self.k * dt
 
+    def available(self, lane: int) -> dict[str, bool]:
+        """module -> availability in ``lane`` (its configuration's modules), as
+        :meth:`LiveSystem.available`."""
+        return {n: self.health.available(n, lane)
+                for n in self.plan(self.configuration[lane]).active}
+
+    def reasons(self, lane: int) -> dict[str, str | None]:
+        """module -> why it is unavailable in ``lane`` (None: available), as
+        :meth:`LiveSystem.health`."""
+        return {n: self.health.reason(n, lane)
+                for n in self.plan(self.configuration[lane]).active}
+
     def signal(self, module: str, signal: str) -> Any:
-        """The lane value of ``module.signal`` (None when no lane has it)."""
+        """The lane value of ``module.signal`` in every lane (None when no lane has it)."""
         out = self.outputs.get(module)
         return None if out is None else out.get(signal)
 
-    def store(self) -> None:
-        """Write every lane's state into its per-run system's modules."""
+    def store(self, lanes: slice | np.ndarray = ALL) -> None:
+        """Write ``lanes``' state into their per-run systems' modules."""
         for mod in self.modules.values():
-            mod.store(ALL)
+            mod.store(lanes)
 
 
-def _route_unc(system: LiveSystem, name: str, idx: int) -> float:
-    """The uncertainty of edge ``idx`` into ``name`` in ``system``'s plan."""
-    for _c, _s, i, unc, _d in system._plan.routes[name]:
-        if i == idx:
-            return float(unc)
-    return 0.0
-
-
-def _add_noise(val: np.ndarray, unc: np.ndarray, normals: LaneNormals) -> np.ndarray:
-    """``val + unc·N(0, 1)`` per lane with a value (absent lanes draw nothing)."""
+def _add_noise(val: np.ndarray, idx: np.ndarray, unc: np.ndarray,
+               normals: LaneNormals) -> np.ndarray:
+    """``val + unc·N(0, 1)`` per lane of ``idx`` with a value (absent lanes draw nothing)."""
     width = 1 if val.ndim == 1 else val.shape[1]
     col = val if val.ndim == 1 else val[:, 0]
-    present = ~np.isnan(col) & (unc > 0)
-    if present.all():
-        z = normals.take(ALL, width)
-        return val + (unc[:, None] * z if val.ndim == 2 else unc * z[:, 0])
-    idx = np.flatnonzero(present)
+    u = unc[idx]
+    present = ~np.isnan(col) & (u > 0)
+    sel = np.flatnonzero(present)
     out = val.copy()
-    if len(idx):
-        z = normals.take(idx, width)
-        out[idx] = val[idx] + (unc[idx, None] * z if val.ndim == 2 else unc[idx] * z[:, 0])
+    if len(sel):
+        z = normals.take(idx[sel], width)
+        out[sel] = val[sel] + (u[sel, None] * z if val.ndim == 2 else u[sel] * z[:, 0])
     return out
 
 
-def _hold(new: Any, old: Any, lanes: np.ndarray, n: int) -> Any:
-    """``new`` with the rows of ``lanes`` replaced by ``old``'s (absent if ``old`` is)."""
-    ref = new if new is not None else old
-    if ref is None:
+def _absent_rows(value: Any, lanes: np.ndarray) -> Any:
+    """``value`` with ``lanes`` absent."""
+    if value is None:
         return None
-    if type(ref) is list:
-        out = list(new) if new is not None else [None] * n
-        for j in lanes:
-            out[j] = None if old is None else old[j]
+    if type(value) is list:
+        out = list(value)
+        for i in lanes:
+            out[i] = None
         return out
-    shape = np.shape(ref)
-    out = np.full(shape, math.nan) if new is None else np.array(new, dtype=float)
-    out[lanes] = math.nan if old is None else np.asarray(old, dtype=float)[lanes]
+    out = np.array(value, dtype=float)
+    out[lanes] = math.nan
+    return out
+
+
+def _put_rows(full: Any, new: Any, lanes: np.ndarray, keep: np.ndarray, n: int) -> Any:
+    """``full`` (all lanes) with ``lanes`` set from the rows ``keep`` of ``new`` (None: absent)."""
+    if not len(lanes):
+        return full
+    if new is None and full is None:
+        return None
+    if type(new) is list or type(full) is list:
+        out = list(full) if full is not None else [None] * n
+        rows = [v for v, k in zip(new or [None] * len(keep), keep, strict=True) if k]
+        for i, v in zip(lanes.tolist(), rows, strict=True):
+            out[i] = v
+        return out
+    ref = new if new is not None else full
+    shape = (n,) + tuple(np.shape(ref)[1:])
+    out = np.full(shape, math.nan) if full is None else np.array(full, dtype=float)
+    out[lanes] = math.nan if new is None else new[keep]
     return out

@@ -1,0 +1,190 @@
+"""Per-lane health: what :mod:`archself.health` and the executor say of one run, for N lanes.
+
+:class:`LaneHealth` keeps, for every module and lane, whether the module is
+available and why not — the reasons of the per-run executor, in the same order
+of precedence: ``raised <Exception>`` and ``non-finite output`` (the lanes a
+module or a fault reports; their outputs are held), ``silent for <t> s`` (no
+value for longer than the type's ``max_silence_s``), ``stale <signal> (<n>
+identical values)`` (a signal with a declared noise level repeating itself
+:data:`~archself.health.STALE_REPEATS` times) and ``lost input <signal>`` (a
+required input absent in that lane).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from archself.health import STALE_REPEATS
+
+__all__ = ["LaneHealth"]
+
+
+def _present(value: Any, n: int) -> np.ndarray:
+    """Lanes (of ``n``) where a lane value is present."""
+    if value is None:
+        return np.zeros(n, dtype=bool)
+    if type(value) is list:
+        return np.array([v is not None for v in value], dtype=bool)
+    col = value if value.ndim == 1 else value[:, 0]
+    return ~np.isnan(col)
+
+
+class LaneHealth:
+    """Availability of every module in N lanes (the per-run ``_ok``/``_why`` bookkeeping).
+
+    Parameters
+    ----------
+    n : int
+        Number of lanes.
+    """
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.ok: dict[str, np.ndarray] = {}
+        self.why: dict[str, dict[int, str]] = {}
+        self.heard: dict[str, np.ndarray] = {}  # time of the last value, NaN: none yet
+        self.broken: dict[str, np.ndarray] = {}
+        self.last: dict[tuple[str, str], np.ndarray] = {}
+        self.repeats: dict[tuple[str, str], np.ndarray] = {}
+
+    def _arrays(self, name: str) -> tuple[np.ndarray, dict[int, str]]:
+        ok = self.ok.get(name)
+        if ok is None:
+            ok = self.ok[name] = np.ones(self.n, dtype=bool)
+            self.why[name] = {}
+            self.heard[name] = np.full(self.n, math.nan)
+            self.broken[name] = np.zeros(self.n, dtype=bool)
+        return ok, self.why[name]
+
+    def published(
+        self,
+        name: str,
+        out: dict[str, Any],
+        idx: np.ndarray,
+        t: float,
+        failed: dict[int, str],
+        modules: list[Any],
+    ) -> dict[int, str]:
+        """The reasons (lane → why) of a publishing step of lanes ``idx`` (all lanes' values).
+
+        ``out`` holds the lane values of the lanes ``idx`` (rows in their order);
+        ``failed`` the lanes whose module raised or went non-finite (not published).
+        """
+        self._arrays(name)
+        heard_t = self.heard[name]
+        broken = self.broken[name]
+        reasons: dict[int, str] = {}
+        for i, why in failed.items():
+            reasons[i] = why
+            if why == "non-finite output":
+                broken[i] = True
+        good = np.array([i not in failed for i in idx], dtype=bool)
+        heard = np.zeros(len(idx), dtype=bool)
+        for v in out.values():
+            heard |= _present(v, len(idx))
+        heard &= good
+        lanes_heard = idx[heard]
+        heard_t[lanes_heard] = t
+        broken[lanes_heard] = False
+        first = modules[0]
+        levels = getattr(first, "noise_levels", None)
+        if levels:
+            self._repeats(name, out, idx, good & heard, levels, modules, reasons)
+        quiet_lanes = idx[good & ~heard]
+        for i in quiet_lanes[broken[quiet_lanes]]:
+            reasons.setdefault(int(i), "non-finite output")
+        limit = getattr(first, "max_silence_s", None)
+        if limit is not None:
+            fresh = np.isnan(heard_t[idx])
+            heard_t[idx[fresh]] = t
+            limits = np.array([float(getattr(modules[i], "max_silence_s", limit)) for i in idx])
+            quiet = t - heard_t[idx]
+            for j in np.flatnonzero(good & (quiet > limits + 1e-9)):
+                reasons.setdefault(int(idx[j]), f"silent for {quiet[j]:.3g} s")
+        if levels:
+            for j in np.flatnonzero(good & ~heard):
+                i = int(idx[j])
+                if i in reasons:
+                    continue
+                for sig in levels:
+                    rep = self.repeats.get((name, sig))
+                    if rep is not None and rep[i] >= STALE_REPEATS:
+                        reasons[i] = f"stale {sig} ({int(rep[i]) + 1} identical values)"
+                        break
+        return reasons
+
+    def _repeats(self, name, out, idx, good, levels, modules, reasons) -> None:
+        """Count bit-identical repeats of the noisy signals per lane (per-run _count_repeats).
+
+        ``good``: the lanes that published a value; only they can be stale here.
+        """
+        stale: dict[int, str] = {}
+        for sig in levels:
+            key = (name, sig)
+            rep = self.repeats.get(key)
+            if rep is None:
+                rep = self.repeats[key] = np.zeros(self.n, dtype=np.int64)
+            v = out.get(sig)
+            level = np.array(
+                [float((getattr(modules[i], "noise_levels", None) or {}).get(sig) or 0.0)
+                 for i in idx]
+            )
+            if v is not None and type(v) is not list:
+                rows = v if v.ndim == 2 else v[:, None]
+                use = good & _present(v, len(idx)) & (level > 0)
+                last = self.last.get(key)
+                if last is None:
+                    last = self.last[key] = np.full((self.n, rows.shape[1]), math.nan)
+                lanes = idx[use]
+                if len(lanes):
+                    same = (rows[use] == last[lanes]).all(axis=1)
+                    rep[lanes] = np.where(same, rep[lanes] + 1, 0)
+                    last[lanes] = rows[use]
+            for j in np.flatnonzero(good & (rep[idx] >= STALE_REPEATS)):
+                i = int(idx[j])
+                stale.setdefault(i, f"stale {sig} ({int(rep[i]) + 1} identical values)")
+        for i, why in stale.items():
+            reasons.setdefault(i, why)
+
+    def settle(self, name: str, idx: np.ndarray, reasons: dict[int, str]) -> None:
+        """Set ``ok``/``why`` of lanes ``idx`` from ``reasons`` (the lanes not named are ok)."""
+        ok, why = self._arrays(name)
+        ok[idx] = True
+        for i in idx.tolist():
+            why.pop(i, None)
+        for i, r in reasons.items():
+            ok[i] = False
+            why[i] = r
+
+    def lost_inputs(
+        self, inputs: dict[str, Any], required: tuple[str, ...], idx: np.ndarray,
+        reasons: dict[int, str],
+    ) -> None:
+        """Add ``lost input <s>`` to the lanes of ``idx`` without a reason whose ``s`` is absent."""
+        for s in required:
+            missing = ~_present(inputs.get(s), len(idx))
+            for j in np.flatnonzero(missing):
+                reasons.setdefault(int(idx[j]), f"lost input {s}")
+
+    def forget(self, name: str, lanes: np.ndarray) -> None:
+        """A module deactivated in ``lanes``: its availability and silence clock start over."""
+        if name in self.ok:
+            self.ok[name][lanes] = True
+            for i in lanes.tolist():
+                self.why[name].pop(i, None)
+            self.heard[name][lanes] = math.nan
+            self.broken[name][lanes] = False
+
+    def available(self, name: str, i: int) -> bool:
+        """Whether ``name`` is available in lane ``i``."""
+        ok = self.ok.get(name)
+        return True if ok is None else bool(ok[i])
+
+    def reason(self, name: str, i: int) -> str | None:
+        """Why ``name`` is unavailable in lane ``i`` (None when it is available)."""
+        if self.available(name, i):
+            return None
+        return self.why[name].get(i)
