@@ -25,6 +25,22 @@ def diffdrive_raw() -> dict:
     return _raw("diffdrive")
 
 
+def _close(a, b, path="") -> None:
+    """Equal structure and words; numbers within 1e-9 (the batched classes' last bits)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), path
+        for k in a:
+            _close(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, (list, tuple)):
+        assert isinstance(b, (list, tuple)) and len(a) == len(b), path
+        for k, (x, y) in enumerate(zip(a, b, strict=True)):
+            _close(x, y, f"{path}[{k}]")
+    elif isinstance(a, float) and not isinstance(a, bool):
+        assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=path)
+    else:
+        assert a == b, path
+
+
 def _same(lanes, runs, atol=1e-9) -> None:
     for got, want in zip(lanes, runs, strict=True):
         assert got.seed == want.seed and got.mode == want.mode == "fixed"
@@ -253,3 +269,44 @@ def test_lane_units_group_fixed_runs_of_one_scenario_in_order() -> None:
     ]
     assert default_lanes(jobs, 2) == 4 and default_lanes(jobs * 100, 2) == 64
     assert default_lanes([job(0, "adaptive")], 2) == 1
+
+
+def test_lane_normals_give_the_exact_per_run_stream_state() -> None:
+    rngs = [np.random.default_rng(s) for s in range(3)]
+    z = LaneNormals(rngs, block=8)
+    used = [0, 0, 0]
+    for k, lanes in ((3, ALL), (5, np.array([0, 2])), (7, ALL), (2, np.array([1])), (6, ALL)):
+        z.take(lanes, k)
+        for i in (range(3) if isinstance(lanes, slice) else lanes):
+            used[i] += k
+    for i in range(3):
+        twin = np.random.default_rng(i)
+        twin.standard_normal(used[i])
+        z.pin(i)
+        assert_array_equal(rngs[i].standard_normal(4), twin.standard_normal(4))
+    z.unpin()
+    more = z.take(ALL, 3)  # the buffer goes on where it was
+    for i in range(3):
+        twin = np.random.default_rng(i)
+        assert_array_equal(more[i], twin.standard_normal(used[i] + 3)[-3:])
+
+
+@pytest.mark.parametrize("scenario", ["gps_dropout", "cascading"])
+def test_adaptive_lanes_make_the_per_run_decisions(diffdrive_raw, scenario) -> None:
+    """A MAPE-K loop per lane: the same switches, decision logs and series as per run
+    (the Plan's rollouts see the lane materialized: states, streams, latency lines)."""
+    from archself.runtime import MapeK
+
+    arch = Architecture.model_validate(diffdrive_raw)
+    seeds = [1, 4]
+    lanes = simulate_lanes(arch, scenario, seeds, adapt=True)
+    for got, seed in zip(lanes, seeds, strict=True):
+        want = simulate(arch, scenario, seed=seed, adapt=MapeK(arch))
+        assert got.mode == "adaptive" and len(want.switches) >= 2
+        assert got.switches == want.switches
+        assert got.final_configuration == want.final_configuration
+        assert len(got.decisions) == len(want.decisions)
+        for a, b in zip(got.decisions, want.decisions, strict=True):
+            _close(a.to_dict(), b.to_dict())
+        for key, val in want.series.items():
+            assert_allclose(got.series[key], val, rtol=0, atol=1e-9, err_msg=key)

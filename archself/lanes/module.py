@@ -244,6 +244,12 @@ class LaneNormals:
         self.buf = np.empty((n, self.block))
         self.pos = np.full(n, self.block)  # every lane starts with an empty buffer
         self._same = True  # every lane at the same position
+        self.drawn = np.zeros(n, dtype=np.int64)  # normals drawn from each stream so far
+        # per lane, the last refills' (stream state, normals drawn before it): replay points
+        self.marks: list[list[tuple[dict, int]]] = [
+            [(r.bit_generator.state, 0)] for r in self.rngs
+        ]
+        self._pinned: dict[int, dict] = {}
 
     def take(self, lanes: slice | np.ndarray, k: int) -> np.ndarray:
         """The next ``k`` normals of each lane in ``lanes``: an ``(L, k)`` array."""
@@ -274,6 +280,38 @@ class LaneNormals:
         for i in idx:
             p = int(self.pos[i])
             left = self.block - p
+            rng = self.rngs[i]
+            marks = self.marks[i]
+            marks.append((rng.bit_generator.state, int(self.drawn[i])))
+            del marks[:-3]
             self.buf[i, :left] = self.buf[i, p:]
-            self.buf[i, left:] = self.rngs[i].standard_normal(self.block - left)
+            self.buf[i, left:] = rng.standard_normal(self.block - left)
+            self.drawn[i] += self.block - left
             self.pos[i] = 0
+
+    # ------------------------------------------------------------------ the exact stream
+    def exact_state(self, i: int) -> dict:
+        """The state lane ``i``'s stream would have in the per-run run now.
+
+        The stream itself is ahead (it filled the buffer); the state is replayed from
+        the last refill point before the numbers the lane has used.
+        """
+        used = int(self.drawn[i]) - (self.block - int(self.pos[i]))
+        state, count = next(m for m in reversed(self.marks[i]) if m[1] <= used)
+        g = np.random.Generator(type(self.rngs[i].bit_generator)())
+        g.bit_generator.state = state
+        g.standard_normal(used - count)
+        return g.bit_generator.state
+
+    def pin(self, i: int) -> None:
+        """Put lane ``i``'s stream at its per-run state (for the per-run API) until unpin."""
+        if i not in self._pinned:
+            bg = self.rngs[i].bit_generator
+            self._pinned[i] = bg.state
+            bg.state = self.exact_state(i)
+
+    def unpin(self) -> None:
+        """Give every pinned stream back its state (the buffer's)."""
+        for i, state in self._pinned.items():
+            self.rngs[i].bit_generator.state = state
+        self._pinned.clear()

@@ -1,9 +1,12 @@
-"""N fixed runs of one scenario as one lane-batched simulation.
+"""N runs of one scenario as one lane-batched simulation, fixed or adaptive.
 
 :func:`simulate_lanes` is :func:`archself.sim.run.simulate` for many seeds (and
 sweep points) at once: it compiles one per-run system per lane, steps them
 together in a :class:`~archself.lanes.system.LaneSystem`, records the same series
-and returns the same :class:`~archself.sim.result.RunResult` per lane.
+and returns the same :class:`~archself.sim.result.RunResult` per lane. With
+``adapt=True`` every lane has its own MAPE-K loop, called every ``runtime.period_s``
+with the lane's :class:`~archself.lanes.view.LaneView`: the same decisions, the same
+switches, the lane moving between configuration groups.
 
 Examples
 --------
@@ -57,8 +60,9 @@ def simulate_lanes(
     seeds: Sequence[int],
     *,
     configuration: str | None = None,
+    adapt: bool = False,
 ) -> list[RunResult]:
-    """Simulate ``scenario`` fixed in ``configuration`` for every seed, as lanes.
+    """Simulate ``scenario`` for every seed as lanes, fixed or with a MAPE-K loop per lane.
 
     Parameters
     ----------
@@ -70,13 +74,17 @@ def simulate_lanes(
     seeds : sequence of int
         One seed per lane.
     configuration : str, optional
-        The configuration (default: the file's initial one).
+        The configuration to start in (default: the file's initial one).
+    adapt : bool
+        Run each lane with its own :class:`~archself.runtime.MapeK` (the
+        ``adapt=MapeK(arch)`` of :func:`~archself.sim.run.simulate`).
 
     Returns
     -------
     list of RunResult
         One per lane, in order: what :func:`archself.sim.run.simulate` gives for
-        that architecture and seed (errors within 1e-9).
+        that architecture and seed (errors within 1e-9, the same switches and
+        decision log).
 
     Raises
     ------
@@ -85,10 +93,10 @@ def simulate_lanes(
     CompileError
         The configuration cannot be built.
     """
-    from archself.sim.run import _publisher, _report_context
+    from archself.sim.run import _report_context
 
     archs = [arch] * len(seeds) if isinstance(arch, Architecture) else list(arch)
-    if len(archs) != len(seeds) or not seeds:
+    if len(archs) != len(seeds) or not len(seeds):
         raise SimulationError("simulate_lanes needs one seed per lane (and one architecture)")
     first = archs[0]
     sc = first.scenarios.get(scenario)
@@ -103,53 +111,86 @@ def simulate_lanes(
             raise SimulationError(f"lanes must share scenario {scenario!r} and its duration")
         systems.append(compile_system(a, start, seed=int(seed), scenario=s))
     lanes = LaneSystem(systems)
-    n_lanes = lanes.n
+    N = lanes.n
     rt = first.runtime
     dt = float(rt.step_s)
     n = int(round(sc.duration_s / dt))
+    per = max(1, int(round(rt.period_s / dt)))
     act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
     ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
     comps = list(rt.objective.components)
     record = list(rt.record.items())
     res_mods = [(m, spec.residual.signal) for m, spec in first.modules.items() if spec.residual]
-    sources = [
-        (key, src, sig) for key, sig in record
-        if (src := _publisher(systems[0], sig)) is not None
-    ]
-    active = lanes.plan(start).active_set
+    confs = list(first.configurations)
+    conf_index = {c: k for k, c in enumerate(confs)}
+    loops = views = None
+    if adapt:
+        from archself.lanes.view import LaneView
+        from archself.runtime import MapeK
+
+        loops = [MapeK(a) for a in archs]
+        views = [LaneView(lanes, i) for i in range(N)]
+    switches: list[list[dict[str, Any]]] = [[] for _ in range(N)]
+
+    per_conf: dict[str, tuple[list, list]] = {}
+
+    def layout(conf: str) -> tuple[list, list]:
+        """The recorded sources and residual modules of ``conf`` (per-run: on a change)."""
+        got = per_conf.get(conf)
+        if got is None:
+            active = lanes.plan(conf).active
+            pool = lanes.systems[0]
+            srcs = []
+            for key, sig in record:
+                src = next((m for m in active if sig in pool._module(m).outputs), None)
+                if src is not None:
+                    srcs.append((key, src, sig))
+            res = [(j, m, s) for j, (m, s) in enumerate(res_mods) if m in set(active)]
+            got = per_conf[conf] = (srcs, res)
+        return got
 
     t_arr = np.empty(n)
-    J = np.empty((n, n_lanes))
-    res = np.full((n, n_lanes, len(res_mods)), math.nan)
+    J = np.empty((n, N))
+    res = np.full((n, N, len(res_mods)), math.nan)
+    conf_arr = np.zeros((n, N), dtype=int)
     cols: dict[str, np.ndarray] = {}
 
-    def put(key: str, i: int, val: Any) -> None:
+    def put(key: str, i: int, val: Any, idx: Any) -> None:
         if val is None or type(val) is list:
             return
         arr = cols.get(key)
         if arr is None:
             w = 1 if val.ndim == 1 else val.shape[1]
-            arr = cols[key] = np.full((n, n_lanes, w), math.nan)
-        arr[i] = val if val.ndim == 2 else val[:, None]
+            arr = cols[key] = np.full((n, N, w), math.nan)
+        arr[i, idx] = (val if val.ndim == 2 else val[:, None])[idx]
 
     signal = lanes.signal
-    res_idx = [(j, lanes.module(m), s) for j, (m, s) in enumerate(res_mods) if m in active]
     for i in range(n):
         lanes.step()
         t_arr[i] = lanes.t
         a = signal(act_mod, act_sig)
         r = signal(ref_mod, ref_sig)
-        J[i] = _norms(a, r, comps, n_lanes)
-        put("reference", i, r)
-        put("actual", i, a)
-        for key, src, sig in sources:
-            put(key, i, signal(src, sig))
-        for j, mod, s in res_idx:
-            v = mod.local_signals(ALL).get(s)
-            if v is not None:
-                res[i, :, j] = v
+        J[i] = _norms(a, r, comps, N)
+        put("reference", i, r, ALL)
+        put("actual", i, a, ALL)
+        for conf, idx in lanes.groups.items():
+            whole = len(idx) == N
+            sel = ALL if whole else idx
+            conf_arr[i, sel] = conf_index.get(conf, -1)
+            srcs, res_idx = layout(conf)
+            for key, src, sig in srcs:
+                put(key, i, signal(src, sig), sel)
+            for j, m, s in res_idx:
+                v = lanes.module(m).local_signals(ALL).get(s)
+                if v is not None:
+                    res[i, sel, j] = v[sel]
+        if loops is not None and (i + 1) % per == 0:
+            for lane in range(N):
+                out = loops[lane](views[lane])
+                views[lane].done(len(loops[lane].updates))
+                if out:
+                    switches[lane].extend(dict(s) for s in out)
 
-    conf_index = list(first.configurations).index(start)
     results = []
     for lane, (a, seed) in enumerate(zip(archs, seeds, strict=True)):
         series: dict[str, np.ndarray] = {"t": t_arr.copy(), "J": J[:, lane].copy()}
@@ -157,7 +198,7 @@ def simulate_lanes(
             if key in cols:
                 arr = cols[key][:, lane]
                 series[key] = arr[:, 0].copy() if arr.shape[1] == 1 else arr.copy()
-        series["configuration"] = np.full(n, conf_index, dtype=int)
+        series["configuration"] = conf_arr[:, lane].copy()
         for j, (m, _s) in enumerate(res_mods):
             series[f"residual.{m}"] = res[:, lane, j].copy()
         s = a.scenarios[scenario]
@@ -179,13 +220,13 @@ def simulate_lanes(
             RunResult(
                 scenario=scenario,
                 seed=int(seed),
-                mode="fixed",
+                mode="adaptive" if adapt else "fixed",
                 configuration=start,
-                final_configuration=start,
+                final_configuration=lanes.configuration[lane],
                 metrics=error_metrics(t_arr, J[:, lane], a.runtime.objective.unit),
-                switches=[],
+                switches=switches[lane],
                 series=series,
-                decisions=[],
+                decisions=list(loops[lane].decisions) if loops is not None else [],
                 meta=meta,
                 configurations=list(a.configurations),
                 unit=a.runtime.objective.unit,

@@ -139,7 +139,9 @@ class LaneSystem:
                 ]
         self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
         self._delay: dict[int, _Delay] = {}
-        self._all = np.arange(self.n)
+        self._streams: tuple[int, list[LaneNormals]] | None = None
+        self._signals: dict[str, dict[str, np.ndarray]] = {}
+        self._signals_k = -1
 
     # ------------------------------------------------------------------ structure
     def plan(self, configuration: str) -> Any:
@@ -325,6 +327,27 @@ class LaneSystem:
         """The lane value of ``module.signal`` in every lane (None when no lane has it)."""
         out = self.outputs.get(module)
         return None if out is None else out.get(signal)
+
+    def streams(self) -> list[LaneNormals]:
+        """Every per-lane random stream the lane modules draw from (for :meth:`LaneNormals.pin`)."""
+        if self._streams is None or self._streams[0] != len(self.modules):
+            found = [v for m in self.modules.values() for v in vars(m).values()
+                     if isinstance(v, LaneNormals)]
+            self._streams = (len(self.modules), found)
+        return self._streams[1]
+
+    def local_signals_of(self, lane: int) -> dict[str, dict[str, float]]:
+        """module -> residual signal -> value in ``lane``, as :meth:`LiveSystem.local_signals`."""
+        if self._signals_k != self.k:
+            self._signals.clear()
+            self._signals_k = self.k
+        out = {}
+        for n in self.plan(self.configuration[lane]).active:
+            arrs = self._signals.get(n)
+            if arrs is None:
+                arrs = self._signals[n] = self.module(n).local_signals(ALL)
+            out[n] = {s: float(a[lane]) for s, a in arrs.items()}
+        return out
 
     def store(self, lanes: slice | np.ndarray = ALL) -> None:
         """Write ``lanes``' state into their per-run systems' modules."""

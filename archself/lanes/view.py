@@ -1,0 +1,173 @@
+"""One lane as the adaptation loop sees it: the live-system contract over a lane system.
+
+The MAPE-K loop of a lane (:class:`archself.runtime.MapeK`, one per lane, with its
+own Monitor filters, knowledge and decision log) is called with a :class:`LaneView`.
+Monitor and Analyze read the time, the configuration, the objective error, the
+residual signals, the availability and (for declared limits) the outputs: the view
+answers these from the lane system's arrays, lane ``i``'s entries, without touching
+the per-run system.
+
+Anything else (the Plan's rollouts, snapshots, linear models, the Execute's
+``apply_configuration`` and ``set_params``) needs the lane as a per-run system: the
+view then *materializes* it — every module's state stored into the lane's per-run
+instances, their random streams put at the per-run position
+(:meth:`~archself.lanes.module.LaneNormals.pin`), the outputs, availability, edge
+streams and latency lines copied — and hands the call to that
+:class:`~archself.system.LiveSystem`. After the cycle :meth:`LaneView.done` gives the
+streams back and moves the lane if the loop switched it or changed a parameter.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import numpy as np
+
+from archself.lanes.module import row
+from archself.objective import objective_norm
+
+__all__ = ["LaneView"]
+
+
+class _Outputs(Mapping):
+    """Lane ``i``'s outputs of the active modules, made on demand."""
+
+    def __init__(self, view: LaneView) -> None:
+        self.view = view
+
+    def __getitem__(self, name: str) -> dict[str, Any]:
+        if name not in self.view.active:
+            raise KeyError(name)
+        out = self.view.lanes.outputs.get(name) or {}
+        i = self.view.i
+        return {s: row(v, i) for s, v in out.items()}
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(n for n in self.view.lanes.plan(self.view.configuration).active
+                    if n in self.view.lanes.outputs)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+class LaneView:
+    """Lane ``i`` of a :class:`~archself.lanes.system.LaneSystem` as a live system.
+
+    Parameters
+    ----------
+    lanes : LaneSystem
+    i : int
+        The lane.
+    """
+
+    def __init__(self, lanes: Any, i: int) -> None:
+        self.lanes = lanes
+        self.i = i
+        self.live = lanes.systems[i]
+        self._materialized = False
+        self._params_seen = 0
+        self._cache_k = -1
+        self._signals: dict[str, dict[str, float]] = {}
+
+    # ------------------------------------------------------------------ the quiet path
+    @property
+    def t(self) -> float:
+        return self.lanes.t
+
+    @property
+    def configuration(self) -> str:
+        return self.live.configuration if self._materialized else self.lanes.configuration[self.i]
+
+    @property
+    def active(self) -> set[str]:
+        if self._materialized:
+            return self.live.active
+        return set(self.lanes.plan(self.lanes.configuration[self.i]).active)
+
+    @property
+    def outputs(self) -> Mapping[str, dict[str, Any]]:
+        return self.live.outputs if self._materialized else _Outputs(self)
+
+    def objective_error(self) -> float:
+        """J_obs of the lane (the same function as the per-run system's)."""
+        if self._materialized:
+            return self.live.objective_error()
+        obj = self.lanes.arch.runtime.objective
+        am, asig = obj.actual.rsplit(".", 1)
+        rm, rsig = obj.reference.rsplit(".", 1)
+        return objective_norm(row(self.lanes.signal(am, asig), self.i),
+                              row(self.lanes.signal(rm, rsig), self.i), list(obj.components))
+
+    def local_signals(self) -> dict[str, dict[str, float]]:
+        """module -> residual signals of lane ``i`` (its configuration's modules)."""
+        if self._materialized:
+            return self.live.local_signals()
+        return self.lanes.local_signals_of(self.i)
+
+    def available(self) -> dict[str, bool]:
+        return self.live.available() if self._materialized else self.lanes.available(self.i)
+
+    def health(self) -> dict[str, str | None]:
+        return self.live.health() if self._materialized else self.lanes.reasons(self.i)
+
+    # ------------------------------------------------------------------ everything else
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        self.materialize()
+        return getattr(self.live, name)
+
+    def materialize(self) -> None:
+        """Make the per-run system of the lane what the lane is now (once per cycle)."""
+        if self._materialized:
+            return
+        lanes, i, live = self.lanes, self.i, self.live
+        one = np.array([i])
+        lanes.store(one)
+        for ln in lanes.streams():
+            ln.pin(i)
+        conf = lanes.configuration[i]
+        plan = lanes.plan(conf)
+        live.t, live.k = lanes.t, lanes.k
+        live.outputs = {
+            n: {s: row(v, i) for s, v in lanes.outputs[n].items()}
+            for n in plan.active if n in lanes.outputs
+        }
+        health = lanes.health
+        live._ok = {n: health.available(n, i) for n in plan.active if n in health.ok}
+        live._why = {n: r for n in plan.active if (r := health.reason(n, i)) is not None}
+        live._heard = {n: float(h[i]) for n, h in health.heard.items()
+                       if n in plan.active_set and not math.isnan(h[i])}
+        live._broken = {n for n, b in health.broken.items() if b[i] and n in plan.active_set}
+        for e, noise in lanes._edge_noise.items():
+            if noise is not None:
+                g = np.random.Generator(type(noise[1].rngs[i].bit_generator)())
+                g.bit_generator.state = noise[1].exact_state(i)
+                live._edge_rng[e] = g
+        for e, line in lanes._delay.items():
+            vals = [None] * line.delay
+            if line.buf is not None:
+                h = int(line.head[i])
+                vals = [row(line.buf[(h + j) % line.delay], i) for j in range(line.delay)]
+            live._delay[e] = deque(vals)
+        self._materialized = True
+
+    def done(self, updates: int) -> None:
+        """End of the lane's cycle: streams back, and the lane moved or reloaded if changed.
+
+        ``updates`` is the number of parameter updates the lane's loop has made so far.
+        """
+        if not self._materialized:
+            return
+        for ln in self.lanes.streams():
+            ln.unpin()
+        if self.live.configuration != self.lanes.configuration[self.i]:
+            self.lanes.move(self.i, self.live.configuration)
+        elif updates != self._params_seen:
+            self.lanes.reload(self.i)
+        self._params_seen = updates
+        self._materialized = False
+
