@@ -258,17 +258,16 @@ MAX_LANES = 64
 
 
 def default_lanes(jobs: Sequence[Job], workers: int) -> int:
-    """Lanes per unit: the fixed runs shared evenly over the workers, at most :data:`MAX_LANES`.
+    """Lanes per unit: the runs shared evenly over the workers, at most :data:`MAX_LANES`.
 
-    Every worker gets work (2 workers and 10 fixed runs: units of 5), and a unit's
-    recorded series stay small (a lane of the diff-drive robot records ~2 MB).
+    Every worker gets work (2 workers and 10 runs: units of 5), and a unit's
+    recorded series stay small (a lane of the diff-drive robot records ~5 MB).
     """
-    fixed = sum(1 for j in jobs if j.mode == "fixed")
-    return max(1, min(MAX_LANES, math.ceil(fixed / max(1, workers))))
+    return max(1, min(MAX_LANES, math.ceil(len(jobs) / max(1, workers))))
 
 
 def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
-    """Units of work: fixed runs of one file and scenario in batches of ``width``, others alone.
+    """Units of work: runs of one file, scenario and mode in batches of at most ``width``.
 
     The order of the jobs is kept: a unit stands where its first job stood.
 
@@ -278,17 +277,17 @@ def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
     >>> def job(i, mode, sc="s"):
     ...     return Job(str(i), "", "d", "f", (), (), sc, i, i, mode)
     >>> jobs = [job(0, "fixed"), job(1, "adaptive"), job(2, "fixed"), job(3, "fixed", "t"),
-    ...         job(4, "fixed")]
+    ...         job(4, "fixed"), job(5, "adaptive")]
     >>> [[j.run_id for j in u] for u in lane_units(jobs, 2)]
-    [['0', '2'], ['1'], ['3'], ['4']]
+    [['0', '2'], ['1', '5'], ['3'], ['4']]
     """
     units: list[list[Job]] = []
-    open_: dict[tuple[str, str], list[Job]] = {}
+    open_: dict[tuple[str, str, str], list[Job]] = {}
     for j in jobs:
-        if j.mode != "fixed" or width <= 1:
+        if width <= 1:
             units.append([j])
             continue
-        key = (j.arch_digest, j.scenario)
+        key = (j.arch_digest, j.scenario, j.mode)
         unit = open_.get(key)
         if unit is None or len(unit) >= width:
             unit = open_[key] = []

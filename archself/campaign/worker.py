@@ -122,9 +122,9 @@ def run_job(job: Job) -> dict[str, Any]:
 
 
 def run_unit(job_fn: Any, jobs: tuple[Job, ...]) -> list[dict[str, Any]]:
-    """The rows of a unit of work: one job, or fixed runs batched as lanes.
+    """The rows of a unit of work: one job, or runs batched as lanes.
 
-    A unit of several jobs (fixed runs of one file and scenario, from
+    A unit of several jobs (runs of one file, scenario and mode, from
     :func:`archself.campaign.driver.lane_units`) runs as one lane-batched simulation
     (:func:`archself.lanes.simulate_lanes`), with the rows and traces of the per-run
     path; if the lanes cannot run together (another structure or duration at a
@@ -137,13 +137,20 @@ def run_unit(job_fn: Any, jobs: tuple[Job, ...]) -> list[dict[str, Any]]:
         from archself.lanes import simulate_lanes
 
         archs = [_architecture(j) for j in jobs]
+        adaptive = jobs[0].mode == "adaptive"
         results = simulate_lanes(
-            [a.model_copy(deep=True) for a in archs], jobs[0].scenario, [j.seed for j in jobs]
+            [a.model_copy(deep=True) for a in archs], jobs[0].scenario, [j.seed for j in jobs],
+            adapt=adaptive,
         )
         rows = []
         for job, arch, result in zip(jobs, archs, results, strict=True):
             row = _base_row(job)
             row.update(summarize_run(result, arch))
+            if adaptive:
+                updates = [(d.chosen["action"], d.t) for d in result.decisions
+                           if d.chosen and d.chosen.get("kind") == "parameter_update"]
+                row["n_updates"] = len(updates)
+                row["updates"] = ";".join(f"{a}@{t:g}" for a, t in updates)
             if job.trace is not None:
                 result.write_trace(job.trace)
                 row["trace"] = job.trace
