@@ -49,6 +49,8 @@ class LaneHealth:
         self.broken: dict[str, np.ndarray] = {}
         self.last: dict[tuple[str, str], np.ndarray] = {}
         self.repeats: dict[tuple[str, str], np.ndarray] = {}
+        self._constants: dict[str, tuple[Any, Any]] = {}
+        self._any_broken: dict[str, bool] = {}
 
     def _arrays(self, name: str) -> tuple[np.ndarray, dict[int, str]]:
         ok = self.ok.get(name)
@@ -58,6 +60,29 @@ class LaneHealth:
             self.heard[name] = np.full(self.n, math.nan)
             self.broken[name] = np.zeros(self.n, dtype=bool)
         return ok, self.why[name]
+
+    def constants(self, name: str, modules: list[Any]) -> tuple[Any, Any]:
+        """Per-lane noise levels of the noisy signals and silence limits of ``name`` (cached)."""
+        got = self._constants.get(name)
+        if got is None:
+            first = modules[0]
+            levels = None
+            if getattr(first, "noise_levels", None):
+                levels = {
+                    sig: np.array([float((getattr(m, "noise_levels", None) or {}).get(sig) or 0.0)
+                                   for m in modules])
+                    for sig in first.noise_levels
+                }
+            limit = None
+            if getattr(first, "max_silence_s", None) is not None:
+                limit = np.array([float(getattr(m, "max_silence_s", None) or math.inf)
+                                  for m in modules])
+            got = self._constants[name] = (levels, limit)
+        return got
+
+    def invalidate(self) -> None:
+        """A lane's parameters changed: read the noise levels and silence limits again."""
+        self._constants.clear()
 
     def published(
         self,
@@ -77,36 +102,44 @@ class LaneHealth:
         heard_t = self.heard[name]
         broken = self.broken[name]
         reasons: dict[int, str] = {}
-        for i, why in failed.items():
-            reasons[i] = why
-            if why == "non-finite output":
-                broken[i] = True
-        good = np.array([i not in failed for i in idx], dtype=bool)
-        heard = np.zeros(len(idx), dtype=bool)
+        m = len(idx)
+        if failed:
+            for i, why in failed.items():
+                reasons[i] = why
+                if why == "non-finite output":
+                    broken[i] = True
+                    self._any_broken[name] = True
+            good = np.array([i not in failed for i in idx.tolist()], dtype=bool)
+        else:
+            good = None
+        heard = np.zeros(m, dtype=bool)
         for v in out.values():
-            heard |= _present(v, len(idx))
-        heard &= good
-        lanes_heard = idx[heard]
+            if v is not None:
+                heard |= _present(v, m)
+        if good is not None:
+            heard &= good
+        all_heard = heard.all()
+        lanes_heard = idx if all_heard else idx[heard]
         heard_t[lanes_heard] = t
-        broken[lanes_heard] = False
-        first = modules[0]
-        levels = getattr(first, "noise_levels", None)
+        if self._any_broken.get(name):
+            broken[lanes_heard] = False
+        levels, limit = self.constants(name, modules)
         if levels:
-            self._repeats(name, out, idx, good & heard, levels, modules, reasons)
-        quiet_lanes = idx[good & ~heard]
+            self._repeats(name, out, idx, heard, levels, reasons)
+        if all_heard:
+            return reasons
+        quiet = ~heard if good is None else good & ~heard
+        quiet_lanes = idx[quiet]
         for i in quiet_lanes[broken[quiet_lanes]]:
             reasons.setdefault(int(i), "non-finite output")
-        limit = getattr(first, "max_silence_s", None)
         if limit is not None:
             fresh = np.isnan(heard_t[idx])
             heard_t[idx[fresh]] = t
-            limits = np.array([float(getattr(modules[i], "max_silence_s", limit)) for i in idx])
-            quiet = t - heard_t[idx]
-            for j in np.flatnonzero(good & (quiet > limits + 1e-9)):
-                reasons.setdefault(int(idx[j]), f"silent for {quiet[j]:.3g} s")
+            gap = t - heard_t[idx]
+            for j in np.flatnonzero(quiet & (gap > limit[idx] + 1e-9)):
+                reasons.setdefault(int(idx[j]), f"silent for {gap[j]:.3g} s")
         if levels:
-            for j in np.flatnonzero(good & ~heard):
-                i = int(idx[j])
+            for i in quiet_lanes.tolist():
                 if i in reasons:
                     continue
                 for sig in levels:
@@ -116,45 +149,49 @@ class LaneHealth:
                         break
         return reasons
 
-    def _repeats(self, name, out, idx, good, levels, modules, reasons) -> None:
+    def _repeats(self, name, out, idx, heard, levels, reasons) -> None:
         """Count bit-identical repeats of the noisy signals per lane (per-run _count_repeats).
 
-        ``good``: the lanes that published a value; only they can be stale here.
+        ``heard``: the lanes that published a value; only they can be stale here.
         """
         stale: dict[int, str] = {}
-        for sig in levels:
+        for sig, level in levels.items():
             key = (name, sig)
             rep = self.repeats.get(key)
             if rep is None:
                 rep = self.repeats[key] = np.zeros(self.n, dtype=np.int64)
             v = out.get(sig)
-            level = np.array(
-                [float((getattr(modules[i], "noise_levels", None) or {}).get(sig) or 0.0)
-                 for i in idx]
-            )
             if v is not None and type(v) is not list:
                 rows = v if v.ndim == 2 else v[:, None]
-                use = good & _present(v, len(idx)) & (level > 0)
+                use = heard & _present(v, len(idx)) & (level[idx] > 0)
                 last = self.last.get(key)
                 if last is None:
                     last = self.last[key] = np.full((self.n, rows.shape[1]), math.nan)
-                lanes = idx[use]
-                if len(lanes):
-                    same = (rows[use] == last[lanes]).all(axis=1)
-                    rep[lanes] = np.where(same, rep[lanes] + 1, 0)
-                    last[lanes] = rows[use]
-            for j in np.flatnonzero(good & (rep[idx] >= STALE_REPEATS)):
-                i = int(idx[j])
-                stale.setdefault(i, f"stale {sig} ({int(rep[i]) + 1} identical values)")
+                if use.all():
+                    same = (rows == last[idx]).all(axis=1)
+                    rep[idx] = np.where(same, rep[idx] + 1, 0)
+                    last[idx] = rows
+                else:
+                    lanes = idx[use]
+                    if len(lanes):
+                        same = (rows[use] == last[lanes]).all(axis=1)
+                        rep[lanes] = np.where(same, rep[lanes] + 1, 0)
+                        last[lanes] = rows[use]
+            hit = heard & (rep[idx] >= STALE_REPEATS)
+            if hit.any():
+                for j in np.flatnonzero(hit):
+                    i = int(idx[j])
+                    stale.setdefault(i, f"stale {sig} ({int(rep[i]) + 1} identical values)")
         for i, why in stale.items():
             reasons.setdefault(i, why)
 
     def settle(self, name: str, idx: np.ndarray, reasons: dict[int, str]) -> None:
         """Set ``ok``/``why`` of lanes ``idx`` from ``reasons`` (the lanes not named are ok)."""
         ok, why = self._arrays(name)
-        ok[idx] = True
-        for i in idx.tolist():
-            why.pop(i, None)
+        if why:  # a lane is down: ok is False exactly where why has a reason
+            ok[idx] = True
+            for i in idx.tolist():
+                why.pop(i, None)
         for i, r in reasons.items():
             ok[i] = False
             why[i] = r

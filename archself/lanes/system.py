@@ -193,6 +193,7 @@ class LaneSystem:
         for m in new.active:
             self.module(m).load(one)
         self.configuration[lane] = configuration
+        self.health.invalidate()
         self._regroup()
 
     def reload(self, lane: int) -> None:
@@ -200,6 +201,7 @@ class LaneSystem:
         one = np.array([lane])
         for m in self.plan(self.configuration[lane]).active:
             self.module(m).load(one)
+        self.health.invalidate()
 
     # ------------------------------------------------------------------ a step
     def _noise(self, idx: int) -> tuple[np.ndarray, LaneNormals] | None:
