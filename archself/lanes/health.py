@@ -27,6 +27,8 @@ def _present(value: Any, n: int) -> np.ndarray:
     if value is None:
         return np.zeros(n, dtype=bool)
     if type(value) is list:
+        if None not in value:
+            return np.ones(n, dtype=bool)
         return np.array([v is not None for v in value], dtype=bool)
     col = value if value.ndim == 1 else value[:, 0]
     return ~np.isnan(col)
@@ -202,7 +204,13 @@ class LaneHealth:
     ) -> None:
         """Add ``lost input <s>`` to the lanes of ``idx`` without a reason whose ``s`` is absent."""
         for s in required:
-            missing = ~_present(inputs.get(s), len(idx))
+            v = inputs.get(s)
+            if v is not None and type(v) is not list and v.ndim == 1 and v.dtype.kind == "f":
+                missing = np.isnan(v)
+            else:
+                missing = ~_present(v, len(idx))
+            if not missing.any():
+                continue
             for j in np.flatnonzero(missing):
                 reasons.setdefault(int(idx[j]), f"lost input {s}")
 
