@@ -94,6 +94,7 @@ class LqrController(RuntimeModule):
     outputs = ("wheel_cmd",)
     output_sizes = {"wheel_cmd": 2}
     residual_signals = ("tracking_error",)
+    lanes = "archself_diffdrive.lanes_control:LqrControllerLanes"
 
     def __init__(self, name, params, rng):
         self._gains: dict[float, np.ndarray] = {}
@@ -247,6 +248,7 @@ class AsymLqrController(LqrController):
         ),
     }
     inputs = ("reference", "pose_estimate", "kinematics", "encoder_speeds")
+    lanes = "archself_diffdrive.lanes_control:AsymLqrControllerLanes"
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)

@@ -211,6 +211,7 @@ class Odometry(_PoseEstimator):
         **_COMMON,
     }
     residual_signals = ("innovation", "innovation_trend")
+    lanes = "archself_diffdrive.lanes_estimators:OdometryLanes"
 
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # the windows are set by configure()
@@ -365,6 +366,7 @@ class Ekf(_PoseEstimator):
         **_COMMON,
     }
 
+    lanes = "archself_diffdrive.lanes_estimators:EkfLanes"
     _N = 5  # state size
     _H_GPS = np.eye(2, 5)
 

@@ -1,0 +1,367 @@
+"""The pose estimators in N lanes: dead reckoning and the 5-state EKF, batched.
+
+:class:`OdometryLanes` and :class:`EkfLanes` are the :class:`~archself.lanes.LaneModule`
+classes of :class:`~archself_diffdrive.estimators.Odometry` and
+:class:`~archself_diffdrive.estimators.Ekf`: every lane computes what its per-run
+instance computes from the same inputs, with the same floating-point operations in
+the same order — the EKF's closed-form predict and heading update on ``(L, 5, 5)``
+covariances, its GPS update as filterpy's Joseph form (stacked products, scipy's
+2×2 inverse) — so a lane's pose and covariance are its run's but for an ulp of
+``np.cos`` (none on x86-64 with numpy 2.4: the poses, commands and J of a1–a4 runs
+are the per-run runs' bit for bit). The residual signals may differ in the last
+bits (``np.hypot`` against ``math.hypot``; the trend's sums in another order). The
+parameters come from each lane's instance (a sweep keeps its values per lane). The
+GPS ``position`` is absent in most steps and absent per lane in others (NaN rows):
+the update and the innovation statistics run only in the lanes with a fix; the
+sliding windows are :class:`~archself_diffdrive.lanes_windows.LaneWindows`. A lane
+whose covariance went non-finite is reported as failed at a fix (``raised
+ValueError``, where the per-run update raises). ``covariance`` is published
+flattened, ``(L, 9)``, as :func:`archself.lanes.stack` gives a 3×3 per lane.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import scipy.linalg as linalg
+
+from archself.lanes.module import LaneModule
+from archself_diffdrive.estimators import _DEFAULT_KIN
+from archself_diffdrive.lanes_windows import LaneWindows
+
+__all__ = ["EkfLanes", "ModelFields", "OdometryLanes"]
+
+PI = math.pi
+TWO_PI = 2 * math.pi
+_LOWER = np.tril_indices(5, -1)
+_EYE5 = np.eye(5)
+_H_GPS = np.eye(2, 5)
+
+
+class ModelFields:
+    """Float fields of a model input (one object per lane), re-read only when the objects change.
+
+    Parameters
+    ----------
+    missing : dict of str to float
+        Each field read, and its value in a lane without an object (the input None,
+        or None in that lane).
+
+    Examples
+    --------
+    >>> from archself_diffdrive.models import Kinematics
+    >>> radius = ModelFields({"wheel_radius_m": 0.1})
+    >>> radius([Kinematics(wheel_radius_m=0.2), None], 2)[0].tolist()
+    [0.2, 0.1]
+    """
+
+    def __init__(self, missing: dict[str, float]) -> None:
+        self.missing = dict(missing)
+        self._key: Any = None
+        self._values: list[np.ndarray] = []
+
+    def __call__(self, objs: list[Any] | None, n: int) -> list[np.ndarray]:
+        """The fields, one ``(n,)`` array each, of the lane value ``objs`` (None or a list)."""
+        key = n if objs is None else objs
+        if type(key) is type(self._key) and key == self._key:
+            return self._values
+        lanes = [None] * n if objs is None else objs
+        self._values = [
+            np.array([fill if o is None else float(getattr(o, f)) for o in lanes])
+            for f, fill in self.missing.items()
+        ]
+        self._key = key if objs is None else list(objs)
+        return self._values
+
+
+def kinematics_fields() -> ModelFields:
+    """Wheel radius and base per lane; the per-run modules' default model where absent."""
+    return ModelFields(
+        {"wheel_radius_m": _DEFAULT_KIN.wheel_radius_m, "wheel_base_m": _DEFAULT_KIN.wheel_base_m}
+    )
+
+
+def wheel_body(
+    enc: np.ndarray | None, r: np.ndarray, base: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``(v, ω)`` per lane from encoder speeds (0 where absent), and the absent lanes' mask.
+
+    The mask is None when every lane has a measurement.
+    """
+    if enc is None:
+        return np.zeros(n), np.zeros(n), np.ones(n, dtype=bool)
+    wl, wr = enc[:, 0], enc[:, 1]
+    v = r * (wl + wr) / 2.0
+    w = r * (wr - wl) / base
+    absent = np.isnan(wl)
+    if not absent.any():
+        return v, w, None
+    return np.where(absent, 0.0, v), np.where(absent, 0.0, w), absent
+
+
+class _EstimatorLanes(LaneModule):
+    """What both estimators share: the kinematics input, the non-finite check."""
+
+    def __init__(self, modules: Sequence[Any]) -> None:
+        self.kin = kinematics_fields()
+        self.started = np.zeros(len(modules), dtype=bool)
+        self.monitor = LaneWindows(len(modules))
+        self.innovation = np.full(len(modules), math.nan)
+        super().__init__(modules)
+
+    def _flag_nonfinite(self, idx: np.ndarray | slice, pose: np.ndarray, cov: np.ndarray) -> None:
+        """Report the lanes whose output is not finite (the per-run system's check)."""
+        if math.isfinite(float(pose.sum()) + float(cov.sum())):
+            return
+        bad = ~(np.isfinite(pose).all(1) & np.isfinite(cov).all(1))
+        for i in self.indices(idx)[bad]:
+            self.failed.setdefault(int(i), "non-finite output")  # a raise came first
+
+
+class OdometryLanes(_EstimatorLanes):
+    """:class:`~archself_diffdrive.estimators.Odometry` in N lanes (see the module doc)."""
+
+    def __init__(self, modules: Sequence[Any]) -> None:
+        n = len(modules)
+        self.pose = np.zeros((n, 3))
+        self.var_pos = np.zeros(n)
+        self.bias = np.zeros(n)
+        self.bias_rate = np.zeros(n)
+        self.trend = LaneWindows(n)
+        self.innovation_trend = np.full(n, math.nan)
+        super().__init__(modules)
+
+    def step(self, t, dt, inputs, lanes):
+        pose = self.pose[lanes]
+        x, y, th0 = pose[:, 0], pose[:, 1], pose[:, 2]
+        n = len(x)
+        r, base = self.kin(inputs.get("kinematics"), n)
+        started = self.started[lanes]
+        every = bool(started.all())
+        bias = self.bias[lanes]
+        moved = bias + self.bias_rate[lanes] * dt
+        bias = moved if every else np.where(started, moved, bias)
+        v, w, _ = wheel_body(inputs.get("encoder_speeds"), r, base, n)
+        th1 = th0 + w * dt
+        heading = inputs.get("heading")
+        if heading is not None:
+            measured = th0 + ((heading - bias - th0 + PI) % TWO_PI - PI)
+            has = ~np.isnan(heading)
+            th1 = np.where(has, measured, th1)
+        mid = 0.5 * (th0 + th1)
+        vdt = v * dt
+        var_th = self.var_th[lanes]
+        sv = r * self.sig_enc[lanes] / math.sqrt(2.0)
+        x1 = x + vdt * np.cos(mid)
+        y1 = y + vdt * np.sin(mid)
+        var1 = self.var_pos[lanes] + ((sv * dt) ** 2 + vdt**2 * var_th)
+        if not every:
+            x1, y1 = np.where(started, x1, x), np.where(started, y1, y)
+            var1 = np.where(started, var1, self.var_pos[lanes])
+        out = np.stack([x1, y1, (th1 + PI) % TWO_PI - PI], axis=1)
+        self.pose[lanes] = out
+        self.var_pos[lanes] = var1
+        self.bias[lanes] = bias
+        self.started[lanes] = True
+        pos = inputs.get("position")
+        if pos is not None:
+            has = ~np.isnan(pos[:, 0])
+            if has.any():
+                idx = self.indices(lanes)[has]
+                e = pos[has, :2] - out[has, :2]
+                self.monitor.add(t, idx, e)
+                self.trend.add(t, idx, e)
+                self.innovation[idx] = self.monitor.mean_norm(idx)
+                self.innovation_trend[idx] = self.trend.trend(idx)
+        cov = np.zeros((n, 9))
+        cov[:, 0] = cov[:, 4] = var1
+        cov[:, 8] = var_th
+        self._flag_nonfinite(lanes, out, cov)
+        return {"pose_estimate": out, "covariance": cov}
+
+    def local_signals(self, lanes):
+        return {
+            "innovation": self.innovation[lanes].copy(),
+            "innovation_trend": self.innovation_trend[lanes].copy(),
+        }
+
+    def load(self, lanes):
+        for i in self.indices(lanes):
+            m = self.modules[i]
+            self.pose[i] = (m.x, m.y, m.th)
+            self.var_pos[i] = m.var_pos
+            self.bias[i], self.bias_rate[i] = m.bias, m.bias_rate
+            self.started[i] = m.started
+            self.monitor.load(i, m.monitor)
+            self.trend.load(i, m.trend)
+            self.innovation[i] = m.signals["innovation"]
+            self.innovation_trend[i] = m.signals["innovation_trend"]
+        self.sig_enc = self.lane_attr("sig_enc")
+        self.var_th = self.lane_attr("var_th")
+
+    def store(self, lanes):
+        for i in self.indices(lanes):
+            m = self.modules[i]
+            m.x, m.y, m.th = self.pose[i].tolist()
+            m.var_pos = float(self.var_pos[i])
+            m.bias, m.bias_rate = float(self.bias[i]), float(self.bias_rate[i])
+            m.started = bool(self.started[i])
+            self.monitor.store(i, m.monitor)
+            self.trend.store(i, m.trend)
+            m.signals["innovation"] = float(self.innovation[i])
+            m.signals["innovation_trend"] = float(self.innovation_trend[i])
+
+
+class EkfLanes(_EstimatorLanes):
+    """:class:`~archself_diffdrive.estimators.Ekf` in N lanes: state ``(N, 5)``, P ``(N, 5, 5)``."""
+
+    def __init__(self, modules: Sequence[Any]) -> None:
+        n = len(modules)
+        self.x = np.zeros((n, 5))
+        self.P = np.zeros((n, 5, 5))
+        super().__init__(modules)
+
+    def step(self, t, dt, inputs, lanes):
+        x, P = self.x[lanes], self.P[lanes]  # copies for an index array, views for ALL
+        n = len(x)
+        r, base = self.kin(inputs.get("kinematics"), n)
+        heading = inputs.get("heading")
+        started = self.started[lanes]
+        enc = inputs.get("encoder_speeds")
+        if started.all():
+            x, P = self._predict(x, P, dt, enc, r, base, lanes)
+        else:
+            go = np.flatnonzero(started)
+            if len(go):
+                sub = self.indices(lanes)[go]
+                x[go], P[go] = self._predict(
+                    x[go], P[go], dt, None if enc is None else enc[go], r[go], base[go], sub
+                )
+            if heading is not None:
+                first = ~started & ~np.isnan(heading)
+                x[first, 2] = heading[first] - x[first, 3]
+        self.started[lanes] = True
+        if heading is not None:
+            has = ~np.isnan(heading)
+            if has.all():
+                x, P = self._update_heading(x, P, heading, self.r_head[lanes])
+            elif has.any():
+                x[has], P[has] = self._update_heading(
+                    x[has], P[has], heading[has], self.r_head[lanes][has]
+                )
+        pos = inputs.get("position")
+        if pos is not None:
+            has = ~np.isnan(pos[:, 0])
+            # a covariance gone non-finite makes the per-run update raise (scipy's check)
+            raised = has & ~np.isfinite(P[:, :2, :2]).all((1, 2))
+            if raised.any():
+                for i in self.indices(lanes)[raised]:
+                    self.failed[int(i)] = "raised ValueError"
+                has &= ~raised
+            if has.any():
+                e = pos[has, :2] - x[has, :2]
+                x[has], P[has] = self._update_position(x[has], P[has], pos[has, :2], lanes, has)
+                idx = self.indices(lanes)[has]
+                self.monitor.add(t, idx, e)
+                self.innovation[idx] = self.monitor.mean_norm(idx)
+        self.x[lanes], self.P[lanes] = x, P
+        pose = x[:, :3].copy()
+        cov = P[:, :3, :3].reshape(n, 9)
+        self._flag_nonfinite(lanes, pose, cov)
+        return {"pose_estimate": pose, "covariance": cov}
+
+    def _predict(self, x, P, dt, enc, r, base, lanes):
+        """``Ekf.predict`` of every row: unicycle with midpoint heading, ``F P Fᵀ + Q``."""
+        v, w, absent = wheel_body(enc, r, base, len(x))
+        sig_enc = self.sig_enc[lanes]
+        sig2 = (sig_enc if absent is None else np.where(absent, 10.0, sig_enc)) ** 2
+        th = x[:, 2]
+        mid = th + 0.5 * w * dt
+        c, s = np.cos(mid), np.sin(mid)
+        f0 = (-v * dt * s)[:, None]  # F[0, 2]
+        f1 = (v * dt * c)[:, None]  # F[1, 2]
+        h = 0.5 * r * dt
+        k = r * dt / base
+        u0, u1 = h * c, h * s
+        q = self.q2[lanes]
+        A = P.copy()
+        # F P: rows 0, 1 gain f0, f1 times row 2; row 3 gains dt times row 4
+        A[:, 0] = P[:, 0] + f0 * P[:, 2]
+        A[:, 1] = P[:, 1] + f1 * P[:, 2]
+        A[:, 3] = P[:, 3] + dt * P[:, 4]
+        # (F P) Fᵀ: the same on the columns
+        A[:, :, 0] += f0 * A[:, :, 2]
+        A[:, :, 1] += f1 * A[:, :, 2]
+        A[:, :, 3] += dt * A[:, :, 4]
+        A[:, 0, 0] += q[:, 0] * dt + 2 * sig2 * u0 * u0
+        A[:, 0, 1] += 2 * sig2 * u0 * u1
+        A[:, 1, 1] += q[:, 1] * dt + 2 * sig2 * u1 * u1
+        A[:, 2, 2] += q[:, 2] * dt + 2 * sig2 * k * k
+        A[:, 3, 3] += q[:, 3] * dt
+        A[:, 4, 4] += q[:, 4] * dt
+        A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]  # P stays exactly symmetric
+        vdt = v * dt
+        bd = x[:, 4]
+        x = np.stack([x[:, 0] + vdt * c, x[:, 1] + vdt * s, th + w * dt, x[:, 3] + bd * dt, bd], 1)
+        return x, A
+
+    @staticmethod
+    def _update_heading(x, P, heading, r_head):
+        """``Ekf.update_heading`` of every row (``H = [0, 0, 1, 1, 0]``, Joseph form)."""
+        r2 = r_head**2
+        y = (heading - (x[:, 2] + x[:, 3]) + PI) % TWO_PI - PI
+        hv = P[:, :, 2] + P[:, :, 3]  # P Hᵀ
+        S = hv[:, 2] + hv[:, 3] + r2
+        K = hv / S[:, None]
+        A = P - K[:, :, None] * hv[:, None, :]
+        ci = A[:, :, 2] + A[:, :, 3]
+        A = A - ci[:, :, None] * K[:, None, :] + (r2[:, None] * K)[:, :, None] * K[:, None, :]
+        A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
+        x = x + K * y[:, None]
+        x[:, 2] = (x[:, 2] + PI) % TWO_PI - PI
+        return x, A
+
+    def _update_position(self, x, P, z, lanes, has):
+        """``ExtendedKalmanFilter.update`` with ``H = [I₂ 0]`` of every row (Joseph form).
+
+        The products stacked (numpy's matmul gives each matrix's ``dot`` bit for bit),
+        the 2×2 inverses by scipy one by one, as filterpy takes them (numpy's differ in
+        the last bits; scipy batches only from 1.16). The caller has checked that the
+        covariances are finite (filterpy's ``check_finite``).
+        """
+        R = self.R_gps[lanes][has]
+        PHT = P @ _H_GPS.T
+        S = _H_GPS @ PHT + R
+        K = PHT @ np.array([linalg.inv(s, check_finite=False) for s in S])
+        x = x + (K @ (z - x[:, :2])[:, :, None])[:, :, 0]
+        I_KH = _EYE5 - K @ _H_GPS
+        P = (I_KH @ P) @ I_KH.transpose(0, 2, 1) + (K @ R) @ K.transpose(0, 2, 1)
+        return x, P
+
+    def local_signals(self, lanes):
+        return {"innovation": self.innovation[lanes].copy()}
+
+    def load(self, lanes):
+        for i in self.indices(lanes):
+            m = self.modules[i]
+            self.x[i] = m._xs
+            self.P[i] = np.reshape(m._ps, (5, 5))
+            self.started[i] = m.started
+            self.monitor.load(i, m.monitor)
+            self.innovation[i] = m.signals["innovation"]
+        self.r_head = self.lane_attr("r_head")
+        self.sig_enc = self.lane_attr("sig_enc")
+        self.R_gps = np.array([m.R_gps for m in self.modules], dtype=float)
+        self.q2 = np.array([m._q2 for m in self.modules], dtype=float)
+
+    def store(self, lanes):
+        for i in self.indices(lanes):
+            m = self.modules[i]
+            m._xs = self.x[i].tolist()
+            m._ps = self.P[i].ravel().tolist()
+            m.started = bool(self.started[i])
+            self.monitor.store(i, m.monitor)
+            m.signals["innovation"] = float(self.innovation[i])
