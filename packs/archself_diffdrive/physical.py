@@ -85,6 +85,7 @@ class DiffDrivePlant(RuntimeModule):
         ),
     }
     role = "plant"
+    lanes = "archself_diffdrive.lanes_physical:DiffDrivePlantLanes"
     inputs = ("wheel_speed_left", "wheel_speed_right")
     outputs = ("pose", "wheel_speeds")
     output_sizes = {"pose": 3, "wheel_speeds": 2}
@@ -213,6 +214,7 @@ class WheelActuator(RuntimeModule):
         ),
     }
     role = "actuator"
+    lanes = "archself_diffdrive.lanes_physical:WheelActuatorLanes"
     inputs = ("wheel_cmd",)
     optional_inputs = ("encoder_speeds",)
     outputs = ("wheel_speed_left", "wheel_speed_right")
@@ -275,6 +277,7 @@ class WheelEncoders(RuntimeModule):
     role = "sensor"
     inputs = ("wheel_speeds",)
     outputs = ("encoder_speeds",)
+    lanes = "archself_diffdrive.lanes_physical:WheelEncodersLanes"
     output_sizes = {"encoder_speeds": 2}
     fault_kinds = _SENSOR_FAULTS | {"effectiveness_loss"}
 
@@ -307,6 +310,7 @@ class Imu(RuntimeModule):
     role = "sensor"
     inputs = ("pose",)
     outputs = ("heading",)
+    lanes = "archself_diffdrive.lanes_physical:ImuLanes"
     fault_kinds = _SENSOR_FAULTS
 
     def configure(self) -> None:
@@ -341,6 +345,7 @@ class Gps(RuntimeModule):
     role = "sensor"
     inputs = ("pose",)
     outputs = ("position",)
+    lanes = "archself_diffdrive.lanes_physical:GpsLanes"
     output_sizes = {"position": 2}
     fault_kinds = _SENSOR_FAULTS
 

@@ -109,6 +109,7 @@ class SplinePlanner(RuntimeModule):
     role = "planner"
     optional_inputs = ("kinematics",)
     outputs = ("reference",)
+    lanes = "archself_diffdrive.lanes_physical:SplinePlannerLanes"
     output_sizes = {"reference": 5}  # x, y, θ, v, ω
 
     def configure(self) -> None:
