@@ -271,7 +271,8 @@ def test_lane_units_group_fixed_runs_of_one_scenario_in_order() -> None:
         ["0", "2"], ["1", "3"], ["4", "6"], ["5"], ["7"]
     ]
     assert [len(u) for u in lane_units(jobs, 1)] == [1] * 8
-    assert default_lanes(jobs, 2) == 4 and default_lanes(jobs * 100, 2) == 64
+    assert default_lanes(jobs, 2) == 4 and default_lanes(jobs * 100, 2) == 256
+    assert default_lanes(jobs * 100, 2, steps_per_run=8000, memory=2**30) == 32
     assert default_lanes([job(0, "adaptive")], 2) == 1
 
 

@@ -32,6 +32,7 @@ from archself.campaign.plan import (
     MAX_STEPS,
     MODES,
     CampaignEstimate,
+    available_memory,
     default_lanes,
     estimate_campaign,
     lane_units,
@@ -185,9 +186,10 @@ def run_campaign(
         What a worker runs (default :func:`~archself.campaign.worker.run_job`;
         another function for fault injection in tests).
     lanes : int, optional
-        Fixed runs of one scenario are batched, up to this many per unit of work, and
-        stepped together (:func:`lane_units`, :mod:`archself.lanes`); 1 turns
-        batching off. Default: :func:`default_lanes`.
+        Runs of one scenario and mode are batched, up to this many per unit of work,
+        and stepped together (:func:`lane_units`, :mod:`archself.lanes`); 1 turns
+        batching off. Default: :func:`default_lanes` (the runs shared over the
+        workers, within half the free memory, at most 256).
 
     A local worker that dies (killed, out of memory, a crash in C code) breaks the
     pool and every run on it: the pool is started again and the unfinished runs
@@ -267,7 +269,11 @@ def run_campaign(
     restarts = 0
     ex = start()
     n_workers = ex.workers
-    width = default_lanes(todo, n_workers) if lanes is None else max(1, int(lanes))
+    if lanes is None:
+        steps = int(meta.get("steps", 0)) // max(1, len(jobs))
+        width = default_lanes(todo, n_workers, steps, available_memory())
+    else:
+        width = max(1, int(lanes))
     futures: dict[Any, Job] = {}
     try:
         if progress is not None:

@@ -25,10 +25,12 @@ from archself.campaign.worker import Job, trace_name
 __all__ = [
     "BYTES_PER_RUN",
     "CampaignEstimate",
+    "LANE_BYTES_PER_STEP",
     "MAX_LANES",
     "MAX_RUNS",
     "MAX_STEPS",
     "MODES",
+    "available_memory",
     "default_lanes",
     "estimate_campaign",
     "lane_units",
@@ -253,17 +255,41 @@ def _no_errors(findings: list[Any], has_errors: Callable[[list[Any]], bool], pre
         raise CampaignError(f"{prefix}{first}")
 
 
-#: Most lanes in one unit of work (a batch of fixed runs stepped together).
-MAX_LANES = 64
+#: Most lanes in one unit of work (a batch of runs stepped together).
+MAX_LANES = 256
+#: Bytes a lane holds per simulated step (its recorded series and their per-run copies;
+#: the diff-drive robot: ~650 B, bench/floor_diffdrive.py).
+LANE_BYTES_PER_STEP = 1024
 
 
-def default_lanes(jobs: Sequence[Job], workers: int) -> int:
-    """Lanes per unit: the runs shared evenly over the workers, at most :data:`MAX_LANES`.
+def available_memory() -> int | None:
+    """Bytes of physical memory free now (None where the system does not say)."""
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
 
-    Every worker gets work (2 workers and 10 runs: units of 5), and a unit's
-    recorded series stay small (a lane of the diff-drive robot records ~5 MB).
+
+def default_lanes(
+    jobs: Sequence[Job], workers: int, steps_per_run: int = 0, memory: int | None = None
+) -> int:
+    """Lanes per unit: the runs shared evenly over the workers, within memory and :data:`MAX_LANES`.
+
+    Every worker gets work (2 workers and 10 runs: units of 5), and the units of all
+    workers together hold at most half of ``memory`` (``steps_per_run`` ×
+    :data:`LANE_BYTES_PER_STEP` per lane).
+
+    Examples
+    --------
+    >>> default_lanes(range(1000), 2)
+    256
+    >>> default_lanes(range(1000), 2, steps_per_run=8000, memory=2 * 2**30)
+    65
     """
-    return max(1, min(MAX_LANES, math.ceil(len(jobs) / max(1, workers))))
+    width = min(MAX_LANES, math.ceil(len(jobs) / max(1, workers)))
+    if steps_per_run > 0 and memory:
+        width = min(width, memory // (2 * max(1, workers) * steps_per_run * LANE_BYTES_PER_STEP))
+    return max(1, width)
 
 
 def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:

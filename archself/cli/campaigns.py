@@ -80,8 +80,9 @@ def campaign(
     ] = False,
     lanes: Annotated[
         int | None,
-        typer.Option("--lanes", min=1, help="Fixed runs stepped together per batch (1: one "
-                     "by one; default: shared over the workers, at most 64). Same results."),
+        typer.Option("--lanes", min=1, help="Runs stepped together per batch (1: one "
+                     "by one; default: shared over the workers within memory, at most 256). "
+                     "Same results."),
     ] = None,
 ) -> None:
     """Run a Monte Carlo campaign: scenarios x sweep values x seeds, fixed and adaptive.
