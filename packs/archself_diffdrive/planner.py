@@ -81,6 +81,25 @@ class _Table:
         return self
 
 
+#: Tables of the last paths made: (waypoints, resolution) -> (table, length, rows). A
+#: campaign's runs, and the lanes of a batch, build the same planner again and again.
+_TABLES: dict[bytes, tuple[_Table, float, int]] = {}
+
+
+def _table(waypoints, ds: float) -> tuple[_Table, float, int]:
+    """The lookup table of :func:`spline_path` (made once per path and resolution)."""
+    pts = np.asarray(waypoints, dtype=float)
+    key = pts.tobytes() + repr((pts.shape, ds)).encode()
+    got = _TABLES.get(key)
+    if got is None:
+        path = spline_path(waypoints, ds)
+        got = (_Table(path), path["length"], len(path["x"]))
+        if len(_TABLES) >= 16:
+            _TABLES.pop(next(iter(_TABLES)))
+        _TABLES[key] = got
+    return got
+
+
 class SplinePlanner(RuntimeModule):
     """Smooth cubic-spline reference through ``waypoints`` at ``speed_mps``.
 
@@ -115,10 +134,7 @@ class SplinePlanner(RuntimeModule):
     def configure(self) -> None:
         self.speed = float(self.params["speed_mps"])
         self.ds = float(self.params["resolution_m"])
-        path = spline_path(self.params["waypoints"], self.ds)
-        self.length = path["length"]
-        self._table = _Table(path)
-        self._n = len(path["x"])
+        self._table, self.length, self._n = _table(self.params["waypoints"], self.ds)
 
     @property
     def duration_s(self) -> float:
