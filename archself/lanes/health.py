@@ -223,6 +223,10 @@ class LaneHealth:
             self.heard[name][lanes] = math.nan
             self.broken[name][lanes] = False
 
+    def any_down(self) -> bool:
+        """Whether some module is unavailable in some lane."""
+        return any(self.why.values())
+
     def available(self, name: str, i: int) -> bool:
         """Whether ``name`` is available in lane ``i``."""
         ok = self.ok.get(name)

@@ -185,6 +185,7 @@ def simulate_lanes(
                 if v is not None:
                     res[i, sel, j] = v[sel]
         if loops is not None and (i + 1) % per == 0:
+            lanes.objective = J[i]
             for lane in range(N):
                 out = loops[lane](views[lane])
                 views[lane].done(len(loops[lane].updates))

@@ -140,7 +140,9 @@ class LaneSystem:
         self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
         self._delay: dict[int, _Delay] = {}
         self._streams: tuple[int, list[LaneNormals]] | None = None
-        self._signals: dict[str, dict[str, np.ndarray]] = {}
+        self._signals: dict[str, dict[str, list[float]]] = {}
+        #: J of every lane at the current step (set by the run; the loop's J_obs)
+        self.objective: np.ndarray | None = None
         self._signals_k = -1
 
     # ------------------------------------------------------------------ structure
@@ -316,14 +318,21 @@ class LaneSystem:
     def available(self, lane: int) -> dict[str, bool]:
         """module -> availability in ``lane`` (its configuration's modules), as
         :meth:`LiveSystem.available`."""
-        return {n: self.health.available(n, lane)
-                for n in self.plan(self.configuration[lane]).active}
+        active = self.plan(self.configuration[lane]).active
+        health = self.health
+        if not health.any_down():
+            return dict.fromkeys(active, True)
+        return {n: health.available(n, lane) for n in active}
 
     def reasons(self, lane: int) -> dict[str, str | None]:
         """module -> why it is unavailable in ``lane`` (None: available), as
         :meth:`LiveSystem.health`."""
         return {n: self.health.reason(n, lane)
                 for n in self.plan(self.configuration[lane]).active}
+
+    def active_set(self, lane: int) -> frozenset[str]:
+        """The active modules of ``lane``'s configuration."""
+        return self.plan(self.configuration[lane]).active_set
 
     def signal(self, module: str, signal: str) -> Any:
         """The lane value of ``module.signal`` in every lane (None when no lane has it)."""
@@ -339,16 +348,23 @@ class LaneSystem:
         return self._streams[1]
 
     def local_signals_of(self, lane: int) -> dict[str, dict[str, float]]:
-        """module -> residual signal -> value in ``lane``, as :meth:`LiveSystem.local_signals`."""
+        """module -> residual signal -> value in ``lane``, as :meth:`LiveSystem.local_signals`.
+
+        The modules' arrays are read once per step (as Python floats) for every lane.
+        """
         if self._signals_k != self.k:
             self._signals.clear()
             self._signals_k = self.k
         out = {}
+        table = self._signals
         for n in self.plan(self.configuration[lane]).active:
-            arrs = self._signals.get(n)
-            if arrs is None:
-                arrs = self._signals[n] = self.module(n).local_signals(ALL)
-            out[n] = {s: float(a[lane]) for s, a in arrs.items()}
+            lists = table.get(n)
+            if lists is None:
+                lists = table[n] = {
+                    s: np.asarray(a, dtype=float).tolist()
+                    for s, a in self.module(n).local_signals(ALL).items()
+                }
+            out[n] = {s: v[lane] for s, v in lists.items()}
         return out
 
     def store(self, lanes: slice | np.ndarray = ALL) -> None:

@@ -82,10 +82,10 @@ class LaneView:
         return self.live.configuration if self._materialized else self.lanes.configuration[self.i]
 
     @property
-    def active(self) -> set[str]:
+    def active(self) -> set[str] | frozenset[str]:
         if self._materialized:
             return self.live.active
-        return set(self.lanes.plan(self.lanes.configuration[self.i]).active)
+        return self.lanes.active_set(self.i)
 
     @property
     def outputs(self) -> Mapping[str, dict[str, Any]]:
@@ -95,6 +95,8 @@ class LaneView:
         """J_obs of the lane (the same function as the per-run system's)."""
         if self._materialized:
             return self.live.objective_error()
+        if self.lanes.objective is not None:  # the run's J of this step (the same numbers)
+            return float(self.lanes.objective[self.i])
         obj = self.lanes.arch.runtime.objective
         am, asig = obj.actual.rsplit(".", 1)
         rm, rsig = obj.reference.rsplit(".", 1)
