@@ -94,7 +94,7 @@ class _ModelNode(RuntimeModule):
     direct_feedthrough = False
     _cls: ClassVar[type] = object
     _key: ClassVar[str] = ""
-    lanes = "archself_diffdrive.lanes_physical:ModelNodeLanes"
+    lanes = "archself_diffdrive.lanes_planning:ModelNodeLanes"
 
     def configure(self) -> None:
         names = self.parameters or {}

@@ -128,7 +128,7 @@ class SplinePlanner(RuntimeModule):
     role = "planner"
     optional_inputs = ("kinematics",)
     outputs = ("reference",)
-    lanes = "archself_diffdrive.lanes_physical:SplinePlannerLanes"
+    lanes = "archself_diffdrive.lanes_planning:SplinePlannerLanes"
     output_sizes = {"reference": 5}  # x, y, θ, v, ω
 
     def configure(self) -> None:
