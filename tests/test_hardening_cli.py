@@ -474,8 +474,9 @@ def _running(pid: int) -> bool:
 def _start_campaign(tmp: Path, arch: Path, seeds: int, out: str = "r.parquet"):
     err = open(tmp / "campaign.err", "w")  # noqa: SIM115 - closed by the caller's wait
     proc = subprocess.Popen(
+        # one run per job (--lanes 1): these tests time signals against runs finishing
         ARCHSELF + ["campaign", str(arch), "-s", "calm", "--seeds", str(seeds), "--workers", "2",
-                    "-o", out, "--force"],
+                    "-o", out, "--force", "--lanes", "1"],
         stdout=subprocess.DEVNULL, stderr=err, cwd=tmp,
     )
     # wait until the forkserver has forked both workers (grandchildren of the driver)

@@ -274,7 +274,7 @@ def run_campaign(
         width = default_lanes(todo, n_workers, steps, available_memory())
     else:
         width = max(1, int(lanes))
-    futures: dict[Any, Job] = {}
+    futures: dict[Any, tuple[Job, ...]] = {}
     try:
         if progress is not None:
             progress(0, len(todo))
@@ -309,12 +309,13 @@ def run_campaign(
             if died is None:
                 continue
             # a worker died: keep what finished, then find the run that was on it
-            for fut, job in futures.items():
-                if job.run_id in pending and fut.done() and not fut.cancelled():
+            for fut, unit in futures.items():
+                if unit[0].run_id in pending and fut.done() and not fut.cancelled():
                     if fut.exception() is None:
-                        pending.pop(job.run_id)
-                        suspects.discard(job.run_id)
-                        keep(fut.result())
+                        for job, row in zip(unit, fut.result(), strict=True):
+                            pending.pop(job.run_id)
+                            suspects.discard(job.run_id)
+                            keep(row)
             flush()
             if alone:  # it was alone on the pool: it is the one
                 rid = alone[0].run_id
@@ -391,7 +392,7 @@ def _quiet_close(ex: Any) -> None:
         pass
 
 
-def _abort(ex: Any, futures: dict[Any, Job]) -> None:
+def _abort(ex: Any, futures: dict[Any, tuple[Job, ...]]) -> None:
     """Stop the executor at once (Ctrl-C, SIGTERM, an error), whatever state it is in."""
     try:
         if hasattr(ex, "abort"):  # the local pool: end the workers, no cancel (see abort)
