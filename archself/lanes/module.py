@@ -246,10 +246,10 @@ class LaneNormals:
         self._same = True  # every lane at the same position
         self.drawn = np.zeros(n, dtype=np.int64)  # normals drawn from each stream so far
         # per lane, the last refills' (stream state, normals drawn before it): replay points
-        self.marks: list[list[tuple[dict, int]]] = [
+        self.marks: list[list[tuple[Any, int]]] = [
             [(r.bit_generator.state, 0)] for r in self.rngs
         ]
-        self._pinned: dict[int, dict] = {}
+        self._pinned: dict[int, Any] = {}
 
     def take(self, lanes: slice | np.ndarray, k: int) -> np.ndarray:
         """The next ``k`` normals of each lane in ``lanes``: an ``(L, k)`` array."""
@@ -258,7 +258,7 @@ class LaneNormals:
             if p + k > self.block:
                 self._refill(np.arange(len(self.rngs)), k)
                 p = 0
-            out = self.buf[:, p : p + k]
+            out = self.buf[:, p : p + k].copy()  # the buffer is refilled in place later
             self.pos += k
             return out
         self._same = False
@@ -290,7 +290,7 @@ class LaneNormals:
             self.pos[i] = 0
 
     # ------------------------------------------------------------------ the exact stream
-    def exact_state(self, i: int) -> dict:
+    def exact_state(self, i: int) -> Any:
         """The state lane ``i``'s stream would have in the per-run run now.
 
         The stream itself is ahead (it filled the buffer); the state is replayed from

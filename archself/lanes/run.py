@@ -184,7 +184,7 @@ def simulate_lanes(
                 v = lanes.module(m).local_signals(ALL).get(s)
                 if v is not None:
                     res[i, sel, j] = v[sel]
-        if loops is not None and (i + 1) % per == 0:
+        if loops is not None and views is not None and (i + 1) % per == 0:
             lanes.objective = J[i]
             for lane in range(N):
                 out = loops[lane](views[lane])

@@ -285,12 +285,13 @@ class LaneSystem:
                 mod = self.module(name)
                 inputs = self._gather(name, plan, idx, whole) if stepped else None
                 try:
-                    out = mod.step(t, dt, inputs, lanes) if stepped else mod.output(t, lanes)
+                    out = (mod.step(t, dt, inputs, lanes) if inputs is not None
+                           else mod.output(t, lanes))
                 except Exception as exc:  # noqa: BLE001 - every lane of the call failed
                     mod.failed.update({int(i): f"raised {type(exc).__name__}" for i in idx})
                     out = {}
                 reasons = self._publish(name, out, t, idx, whole)
-                if stepped:
+                if inputs is not None:
                     health.lost_inputs(inputs, plan.required[name], idx, reasons)
                 health.settle(name, idx, reasons)
             for name in plan.nonft:
@@ -393,10 +394,10 @@ def _absent_rows(value: Any, lanes: np.ndarray) -> Any:
     if value is None:
         return None
     if type(value) is list:
-        out = list(value)
+        kept = list(value)
         for i in lanes:
-            out[i] = None
-        return out
+            kept[i] = None
+        return kept
     out = np.array(value, dtype=float)
     out[lanes] = math.nan
     return out
@@ -409,11 +410,11 @@ def _put_rows(full: Any, new: Any, lanes: np.ndarray, keep: np.ndarray, n: int) 
     if new is None and full is None:
         return None
     if type(new) is list or type(full) is list:
-        out = list(full) if full is not None else [None] * n
+        objs = list(full) if full is not None else [None] * n
         rows = [v for v, k in zip(new or [None] * len(keep), keep, strict=True) if k]
         for i, v in zip(lanes.tolist(), rows, strict=True):
-            out[i] = v
-        return out
+            objs[i] = v
+        return objs
     ref = new if new is not None else full
     shape = (n,) + tuple(np.shape(ref)[1:])
     out = np.full(shape, math.nan) if full is None else np.array(full, dtype=float)

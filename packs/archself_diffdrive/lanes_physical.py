@@ -51,6 +51,17 @@ def _lag(dt: float, tau: np.ndarray) -> np.ndarray:
 
 
 class _Lanes(LaneModule):
+    # per-lane parameters and state, set by ``_read`` in ``load`` (arrays over the lanes)
+    limit: np.ndarray
+    response: np.ndarray
+    smoothing: np.ndarray
+    prev: np.ndarray
+    error: np.ndarray
+    expected: np.ndarray
+    speed: np.ndarray
+    ds: np.ndarray
+    length: np.ndarray
+
     """Helpers of the batched types: per-lane attributes, lane masks, the non-finite screen."""
 
     def _mods(self, lanes: slice | np.ndarray) -> list[Any]:

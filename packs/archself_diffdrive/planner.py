@@ -90,14 +90,14 @@ def _table(waypoints, ds: float) -> tuple[_Table, float, int]:
     """The lookup table of :func:`spline_path` (made once per path and resolution)."""
     pts = np.asarray(waypoints, dtype=float)
     key = pts.tobytes() + repr((pts.shape, ds)).encode()
-    got = _TABLES.get(key)
-    if got is None:
+    found = _TABLES.get(key)
+    if found is None:
         path = spline_path(waypoints, ds)
-        got = (_Table(path), path["length"], len(path["x"]))
+        found = (_Table(path), float(path["length"]), len(path["x"]))
         if len(_TABLES) >= 16:
             _TABLES.pop(next(iter(_TABLES)))
-        _TABLES[key] = got
-    return got
+        _TABLES[key] = found
+    return found
 
 
 class SplinePlanner(RuntimeModule):
