@@ -315,3 +315,24 @@ def test_adaptive_lanes_make_the_per_run_decisions(diffdrive_raw, scenario) -> N
             _close(a.to_dict(), b.to_dict())
         for key, val in want.series.items():
             assert_allclose(got.series[key], val, rtol=0, atol=1e-9, err_msg=key)
+
+
+def test_calibration_runs_in_lanes_record_the_per_run_residuals() -> None:
+    """calibrate's runs batched (one unit of sweep points and seeds): the same recorded
+    filtered residuals, unusable flags and times as run by run."""
+    from archself.calibration import runs as R
+    from archself.campaign.sweep import parse_sweep
+
+    path = data_dir("architectures") / "process_plant.yaml"
+    jobs = R.plan_runs(path.read_text(), path.name, ["nominal"], ["p1"], R.seeds_from(0, 0, 2),
+                       envelope=[parse_sweep("modules.level_a.params.noise_m.value=0.002,0.004")])
+    units = R.calibration_units(jobs, 1)
+    assert [len(u) for u in units] == [4]
+    got = R.run_calibration_unit(units[0])
+    for job, lane in zip(jobs, got, strict=True):
+        want = R.run_calibration_job(job)
+        assert lane["error"] is None and lane["seed"] == want["seed"]
+        assert lane["x"].shape == want["x"].shape and lane["x"].any()
+        assert_allclose(lane["x"], want["x"], rtol=0, atol=1e-12)
+        assert_array_equal(lane["forced"], want["forced"])
+        assert_array_equal(lane["t"], want["t"])

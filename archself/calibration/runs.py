@@ -13,8 +13,10 @@ the bands). Raw residuals do not depend on the bands, so the bands can be chosen
 afterwards, offline (:mod:`archself.calibration.bands`).
 
 Jobs run on the campaign executors (:mod:`archself.campaign.executors`): a local
-process pool or Dask, like ``archself campaign``. A worker parses the
-architecture text once per process.
+process pool or Dask, like ``archself campaign``, in lane batches of one scenario
+and configuration (:func:`run_calibration_unit`, :mod:`archself.lanes`). A worker
+parses the architecture text once per process. The saved runs' file format is in
+:mod:`archself.calibration.saved_runs`.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 __all__ = [
@@ -33,10 +34,13 @@ __all__ = [
     "plan_runs",
     "run_calibration_job",
     "run_jobs",
+    "run_calibration_unit",
     "run_on_executor",
     "save_runs",
     "seeds_from",
 ]
+
+from archself.calibration.saved_runs import band_free_digest, load_runs, save_runs
 
 _ARCHS: dict[str, Any] = {}  # text digest -> Architecture (parsed once per process)
 
@@ -234,6 +238,55 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
     return out
 
 
+def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
+    """Jobs of one file, scenario and configuration as lanes: :func:`run_calibration_job`'s
+    results, with one lane-batched simulation (:func:`archself.lanes.simulate_lanes`)
+    and a :class:`Recorder` per lane; if the lanes cannot run together, job by job."""
+    import numpy as np
+
+    if len(jobs) == 1:
+        return [run_calibration_job(jobs[0])]
+    try:
+        from archself.lanes import simulate_lanes
+
+        archs = [_architecture(j) for j in jobs]
+        names = [m for m, spec in archs[0].modules.items() if spec.residual is not None]
+        recorders: list[Recorder] = []
+
+        def recorder(arch: Any) -> Recorder:
+            recorders.append(Recorder(arch, names))
+            return recorders[-1]
+
+        simulate_lanes(
+            [a.model_copy(deep=True) for a in archs], jobs[0].scenario,
+            [j.seed for j in jobs], configuration=jobs[0].configuration, adapt=recorder,
+        )
+    except Exception:  # noqa: BLE001 - the per-run path says what failed, run by run
+        return [run_calibration_job(j) for j in jobs]
+    out = []
+    for job, rec in zip(jobs, recorders, strict=True):
+        out.append({
+            "scenario": job.scenario, "configuration": job.configuration,
+            "replicate": job.replicate, "seed": job.seed, "error": None, "phase": job.phase,
+            "x": np.array(rec.x, dtype=float).reshape(len(rec.x), len(names)),
+            "forced": np.array(rec.forced, dtype=bool),
+            "t": np.array(rec.t, dtype=float),
+        })
+    return out
+
+
+def calibration_units(jobs: Sequence[CalJob], workers: int) -> list[tuple[CalJob, ...]]:
+    """The jobs in lane batches of one file, scenario and configuration (sweep points and
+    seeds mixed), shared evenly over ``workers``, at most 256 lanes each."""
+    import math
+
+    groups: dict[tuple[str, str, str], list[CalJob]] = {}
+    for j in jobs:
+        groups.setdefault((j.arch_digest, j.scenario, j.configuration), []).append(j)
+    width = max(1, min(256, math.ceil(len(jobs) / max(1, workers))))
+    return [tuple(g[k : k + width]) for g in groups.values() for k in range(0, len(g), width)]
+
+
 def run_jobs(
     jobs: Sequence[CalJob],
     *,
@@ -247,100 +300,20 @@ def run_jobs(
     ``executor`` is ``"local"``, ``"dask"`` or ``"inline"`` (in this process; tests).
     Ctrl-C cancels the queued runs and propagates.
     """
+    from archself.campaign.executors import default_workers
+
+    units = calibration_units(jobs, workers or default_workers())
     results = run_on_executor(
-        jobs, run_calibration_job, "archself.calibration.runs",
+        units, run_calibration_unit, "archself.calibration.runs",
         executor=executor, workers=workers, address=address, progress=progress,
     )
     results.sort(key=lambda r: (r["scenario"], r["configuration"], r["replicate"]))
     return results
 
 
-def band_free_digest(data: dict[str, Any]) -> str:
-    """SHA-256 of the architecture's data without its bands (``modules.*.residual.nominal``).
-
-    The nominal runs are fixed, so their residuals do not depend on the bands: runs
-    saved from a file stay valid for the same file with other bands (e.g. its
-    calibrated copy), and for nothing else.
-    """
-    import copy
-    import json
-
-    d = copy.deepcopy(data)
-    for spec in (d.get("modules") or {}).values():
-        if isinstance(spec, dict) and isinstance(spec.get("residual"), dict):
-            spec["residual"].pop("nominal", None)
-    text = json.dumps(d, sort_keys=True, default=str, ensure_ascii=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
-
-
-def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str, Any]]) -> None:
-    """Write runs (``run_calibration_job`` results) and ``meta`` to an ``.npz`` file, atomically.
-
-    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string (no
-    pickles: the file is safe to load).
-    """
-    import io
-    import json
-
-    import numpy as np
-
-    from archself.atomic import write_bytes
-
-    arrays: dict[str, Any] = {}
-    rows = []
-    for k, r in enumerate(results):
-        rows.append(
-            {
-                key: r[key]
-                for key in ("scenario", "configuration", "replicate", "seed", "error", "phase")
-            }
-        )
-        if r["error"] is None:
-            arrays[f"x{k}"] = r["x"]
-            arrays[f"forced{k}"] = r["forced"]
-            arrays[f"t{k}"] = r["t"]
-    arrays["meta"] = np.array(json.dumps({**meta, "runs": rows}, ensure_ascii=False))
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    write_bytes(path, buf.getvalue())
-
-
-def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """``(meta, results)`` of a file written by :func:`save_runs`.
-
-    Raises
-    ------
-    LoadError
-        When the file is missing or not such a file.
-    """
-    import json
-    import zipfile
-
-    import numpy as np
-
-    from archself.errors import LoadError
-
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-            results = []
-            for k, row in enumerate(meta.pop("runs")):
-                r = dict(row)
-                if r["error"] is None:
-                    r["x"], r["forced"], r["t"] = z[f"x{k}"], z[f"forced{k}"], z[f"t{k}"]
-                results.append(r)
-    except FileNotFoundError:
-        raise LoadError("no such file", str(path)) from None
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
-        raise LoadError(
-            f"not a runs file of archself calibrate ({type(exc).__name__})", str(path)
-        ) from None
-    return meta, results
-
-
 def run_on_executor(
     jobs: Sequence[Any],
-    fn: Callable[[Any], dict[str, Any]],
+    fn: Callable[[Any], Any],
     preload: str,
     *,
     executor: str = "local",
@@ -350,8 +323,10 @@ def run_on_executor(
 ) -> list[dict[str, Any]]:
     """``fn(job)`` for every job on a campaign executor, in completion order.
 
-    ``preload`` is the module the workers import first (where ``fn`` lives). Ctrl-C
-    cancels the queued runs and propagates. Used by calibrate and identify.
+    A job may be a tuple of jobs (a unit of lanes) for which ``fn`` returns a list:
+    its items are the results, and ``progress`` counts them. ``preload`` is the module
+    the workers import first (where ``fn`` lives). Ctrl-C cancels the queued runs and
+    propagates. Used by calibrate and identify.
     """
     from archself.campaign.executors import make_executor
 
@@ -361,13 +336,18 @@ def run_on_executor(
     results: list[dict[str, Any]] = []
     futures: list[Any] = []
     try:
+        total = sum(len(j) if isinstance(j, tuple) else 1 for j in jobs)
         futures = [ex.submit(fn, j) for j in jobs]
         if progress is not None:
-            progress(0, len(jobs))
+            progress(0, total)
         for fut in ex.as_completed(futures):
-            results.append(fut.result())
+            got = fut.result()
+            if isinstance(got, list):
+                results.extend(got)
+            else:
+                results.append(got)
             if progress is not None:
-                progress(len(results), len(jobs))
+                progress(len(results), total)
     except BaseException:
         ex.cancel(futures)
         ex.close()

@@ -23,7 +23,7 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -60,7 +60,7 @@ def simulate_lanes(
     seeds: Sequence[int],
     *,
     configuration: str | None = None,
-    adapt: bool = False,
+    adapt: bool | Callable[[Architecture], Any] = False,
 ) -> list[RunResult]:
     """Simulate ``scenario`` for every seed as lanes, fixed or with a MAPE-K loop per lane.
 
@@ -75,9 +75,13 @@ def simulate_lanes(
         One seed per lane.
     configuration : str, optional
         The configuration to start in (default: the file's initial one).
-    adapt : bool
-        Run each lane with its own :class:`~archself.runtime.MapeK` (the
-        ``adapt=MapeK(arch)`` of :func:`~archself.sim.run.simulate`).
+    adapt : bool or callable
+        True: run each lane with its own :class:`~archself.runtime.MapeK` (the
+        ``adapt=MapeK(arch)`` of :func:`~archself.sim.run.simulate`); a callable:
+        ``adapt(arch)`` makes each lane's loop (any ``adapt`` object of
+        ``simulate``: called every ``runtime.period_s`` with the lane's
+        :class:`~archself.lanes.view.LaneView`; its ``updates`` and ``decisions``
+        lists, if it has them, are read as MapeK's).
 
     Returns
     -------
@@ -128,7 +132,8 @@ def simulate_lanes(
         from archself.lanes.view import LaneView
         from archself.runtime import MapeK
 
-        loops = [MapeK(a) for a in archs]
+        make = MapeK if adapt is True else adapt
+        loops = [make(a) for a in archs]
         views = [LaneView(lanes, i) for i in range(N)]
     switches: list[list[dict[str, Any]]] = [[] for _ in range(N)]
 
@@ -188,7 +193,7 @@ def simulate_lanes(
             lanes.objective = J[i]
             for lane in range(N):
                 out = loops[lane](views[lane])
-                views[lane].done(len(loops[lane].updates))
+                views[lane].done(len(getattr(loops[lane], "updates", ())))
                 if out:
                     switches[lane].extend(dict(s) for s in out)
 
@@ -227,7 +232,8 @@ def simulate_lanes(
                 metrics=error_metrics(t_arr, J[:, lane], a.runtime.objective.unit),
                 switches=switches[lane],
                 series=series,
-                decisions=list(loops[lane].decisions) if loops is not None else [],
+                decisions=list(getattr(loops[lane], "decisions", None) or [])
+                if loops is not None else [],
                 meta=meta,
                 configurations=list(a.configurations),
                 unit=a.runtime.objective.unit,
