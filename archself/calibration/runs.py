@@ -152,10 +152,12 @@ class Recorder:
         self.forced: list[bool] = []
         self.t: list[float] = []
 
-    def __call__(self, system: Any) -> list[dict[str, Any]]:
+    def __call__(self, system: Any, observation: Any = None) -> list[dict[str, Any]]:
         from archself.runtime.monitor import is_own_failure
 
-        obs = self.monitor.observe(system, frozenset(system.active))
+        obs = observation if observation is not None else self.monitor.observe(
+            system, frozenset(system.active)
+        )
         if self.t_start is None:
             self.t_start = obs.t
         if obs.t - self.t_start >= self.warmup_s - 1e-9:

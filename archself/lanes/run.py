@@ -127,14 +127,19 @@ def simulate_lanes(
     res_mods = [(m, spec.residual.signal) for m, spec in first.modules.items() if spec.residual]
     confs = list(first.configurations)
     conf_index = {c: k for k, c in enumerate(confs)}
-    loops = views = None
+    loops = views = monitors = None
     if adapt:
+        from archself.lanes.monitor import observe_group
         from archself.lanes.view import LaneView
         from archself.runtime import MapeK
+        from archself.runtime.monitor import Monitor
 
         make = MapeK if adapt is True else adapt
         loops = [make(a) for a in archs]
         views = [LaneView(lanes, i) for i in range(N)]
+        # loops observing with the runtime's Monitor take the lanes' bulk Monitor stage
+        if all(isinstance(getattr(lp, "monitor", None), Monitor) for lp in loops):
+            monitors = [lp.monitor for lp in loops]
     switches: list[list[dict[str, Any]]] = [[] for _ in range(N)]
 
     per_conf: dict[str, tuple[list, list]] = {}
@@ -191,9 +196,15 @@ def simulate_lanes(
                     res[i, sel, j] = v[sel]
         if loops is not None and views is not None and (i + 1) % per == 0:
             lanes.objective = J[i]
+            observed: dict[int, Any] = {}
+            if monitors is not None:
+                for idx in lanes.groups.values():
+                    observed.update(observe_group(monitors, lanes, idx, J[i]))
             for lane in range(N):
-                out = loops[lane](views[lane])
-                views[lane].done(len(getattr(loops[lane], "updates", ())))
+                obs = observed.get(lane)
+                view = views[lane]
+                out = loops[lane](view) if obs is None else loops[lane](view, observation=obs)
+                view.done(len(getattr(loops[lane], "updates", ())))
                 if out:
                     switches[lane].extend(dict(s) for s in out)
 

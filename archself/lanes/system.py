@@ -144,6 +144,8 @@ class LaneSystem:
         #: J of every lane at the current step (set by the run; the loop's J_obs)
         self.objective: np.ndarray | None = None
         self._signals_k = -1
+        self._arrays: dict[str, dict[str, np.ndarray]] = {}
+        self._arrays_k = -1
 
     # ------------------------------------------------------------------ structure
     def plan(self, configuration: str) -> Any:
@@ -367,6 +369,16 @@ class LaneSystem:
                 }
             out[n] = {s: v[lane] for s, v in lists.items()}
         return out
+
+    def signal_arrays(self, name: str) -> dict[str, np.ndarray]:
+        """Residual signal -> its values in every lane, of module ``name`` (once per step)."""
+        if self._arrays_k != self.k:
+            self._arrays.clear()
+            self._arrays_k = self.k
+        got = self._arrays.get(name)
+        if got is None:
+            got = self._arrays[name] = self.module(name).local_signals(ALL)
+        return got
 
     def store(self, lanes: slice | np.ndarray = ALL) -> None:
         """Write ``lanes``' state into their per-run systems' modules."""

@@ -107,13 +107,17 @@ class MapeK:
         self._estimator: SourceEstimator | None = None
 
     # ------------------------------------------------------------------ cycle
-    def __call__(self, system: Any) -> list[dict[str, Any]]:
+    def __call__(self, system: Any, observation: Any = None) -> list[dict[str, Any]]:
         """Run one MAPE-K cycle on ``system``.
 
         Parameters
         ----------
         system : LiveSystem
             The running system (docs/develop.md, "live-system contract").
+        observation : Observation, optional
+            This cycle's Monitor stage, made by the caller with this loop's
+            :attr:`monitor` (lane batches: :func:`archself.lanes.monitor.observe_group`);
+            None: the loop observes ``system`` itself.
 
         Returns
         -------
@@ -129,7 +133,7 @@ class MapeK:
         if self.compensated and k.configuration != self._checked_conf:
             self._still_compensated(k.configuration, k.active)
         # MONITOR (Eq. 11-12)
-        obs = self.monitor.observe(system, k.active)
+        obs = observation if observation is not None else self.monitor.observe(system, k.active)
         # ANALYZE (Eq. 13-16)
         z = self._influence(obs.r, k)
         z_values = z[k.active_index]

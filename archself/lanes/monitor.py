@@ -1,0 +1,144 @@
+"""The Monitor stage of many lanes at once: their residual filters updated as one array.
+
+Every lane keeps its own :class:`~archself.runtime.monitor.Monitor` (inside its
+MAPE-K loop): its filter state, its layout, its clock. :func:`observe_group`
+does what :meth:`Monitor.observe` does for each lane of one configuration group,
+with the filter update, the residuals and the trust test as ``(lanes, modules)``
+array operations — the same elementwise operations, so the same numbers — and
+returns each lane's :class:`~archself.runtime.monitor.Observation`, which the
+lane's loop takes instead of observing (``MapeK(view, observation=...)``).
+
+A lane is left to its own Monitor (no observation returned) whenever the bulk
+path would have to decide more than the common case: a module of the lane is
+unavailable, a sample is missing or not finite, or a module of the configuration
+declares operating ``limits`` (read from its outputs).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from archself.runtime.monitor import Monitor, Observation
+from archself.runtime.residuals import filter_confidence
+from archself.runtime.status import StatusMap
+
+__all__ = ["observe_group"]
+
+_NO_FLAGS = np.zeros(0, dtype=np.intp)
+
+
+def _confidence(lay: Any) -> Any:
+    """κ_i's confidence of ``lay``'s filters as they are now (the Monitor's closure)."""
+    samples, valid_time, tc, slot = lay.samples, lay.valid_time, lay.time_constant, lay.slot
+
+    def confidence(k: int) -> float:
+        j = int(slot[k])
+        if j < 0:
+            return 1.0 if j == -1 else 0.0  # no residual block / filter reset
+        return filter_confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
+
+    return confidence
+
+
+def observe_group(
+    monitors: list[Monitor], lanes: Any, idx: np.ndarray, j_now: np.ndarray
+) -> dict[int, Observation]:
+    """Observations of the lanes ``idx`` (one configuration) that the bulk path can make.
+
+    Parameters
+    ----------
+    monitors : list of Monitor
+        Every lane's Monitor (indexed by lane).
+    lanes : LaneSystem
+    idx : numpy.ndarray
+        The lanes of one configuration group.
+    j_now : numpy.ndarray
+        J of every lane at this step (the loop's J_obs).
+
+    Returns
+    -------
+    dict of int to Observation
+        lane -> its observation; the lanes left out observe on their own.
+    """
+    first = monitors[int(idx[0])]
+    active = lanes.active_set(int(idx[0]))
+    lay0 = first.layout(active)
+    if any(limits for *_, limits in lay0.constrained):
+        return {}
+    health = lanes.health
+    down = {i for why in health.why.values() for i in why}
+    keep = [int(i) for i in idx.tolist() if i not in down]
+    if not keep or not lay0.pairs:
+        return {}
+    table = lanes.signal_arrays
+    cols = [table(m)[sig] for m, sig in lay0.pairs]
+    sel = np.array(keep, dtype=np.intp)
+    X = np.stack([np.asarray(c, dtype=float)[sel] for c in cols], axis=1)
+    finite = np.isfinite(X).all(axis=1)
+    if not finite.all():
+        sel, X = sel[finite], X[finite]
+        keep = sel.tolist()
+        if not keep:
+            return {}
+    t = float(lanes.t)
+    period = first.arch.runtime.period_s
+    prev = first._t_prev
+    dt = period if prev is None else t - prev
+    if dt <= 0:
+        dt = period
+    lays = []
+    for i in keep:
+        mon = monitors[i]
+        if mon._t_prev != prev:  # a lane out of step with the group: it observes alone
+            return {}
+        lays.append(mon.layout(active))
+    V = np.stack([lay.value for lay in lays])
+    S = np.stack([lay.samples for lay in lays])
+    VT = np.stack([lay.valid_time for lay in lays])
+    gain = lay0.gains(first, dt)
+    new = V + gain * (X - V)
+    if lay0.any_instant:
+        f = lay0.instant & (S == 0)
+        if f.any():
+            new = np.where(f, X, new)
+    S1 = S + 1
+    VT1 = VT + max(dt, 0.0)
+    sens, nom = lay0.sensitivity, lay0.nominal
+    with np.errstate(all="ignore"):
+        if first.normalization == "none":
+            res = sens * np.abs(new)
+        else:
+            res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
+        res = np.where(np.isfinite(new), res, 0.0)
+        untrusted = VT1 < lay0.trust_time
+        if untrusted.any():
+            res = np.where(untrusted, 0.0, res)
+    n = len(first.names)
+    R = np.zeros((len(keep), n))
+    R[:, lay0.on_pos] = res
+    violations = {name: list(fixed) for _k, name, fixed, _l in lay0.constrained if fixed}
+    flagged = _NO_FLAGS
+    if violations:
+        finding = np.zeros(n, dtype=bool)
+        finding[[k for k, name, *_ in lay0.constrained if name in violations]] = True
+        flagged = (finding & lay0.active).nonzero()[0]
+    j_ref = float(first.arch.runtime.objective.acceptable)
+    out: dict[int, Observation] = {}
+    for row, (i, lay) in enumerate(zip(keep, lays, strict=True)):
+        mon = monitors[i]
+        mon._t_prev = t
+        lay.value, lay.samples, lay.valid_time = new[row], S1[row], VT1[row]
+        j_obs = float(j_now[i])
+        j_obs = math.nan if j_obs != j_obs else j_obs
+        kappa = StatusMap(
+            mon.names, mon.index, lay.active, mon._true, mon._true, _confidence(lay),
+            dict(violations), {}, flagged, set(),
+        )
+        out[i] = Observation(
+            t, j_obs, j_ref, j_ref - j_obs, R[row].copy(), kappa, lay.on_names, lay.value,
+            lay.all_ok,
+        )
+    return out
