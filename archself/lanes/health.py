@@ -100,6 +100,9 @@ class LaneHealth:
         ``out`` holds the lane values of the lanes ``idx`` (rows in their order);
         ``failed`` the lanes whose module raised or went non-finite (not published).
         """
+        levels, limit = self.constants(name, modules)
+        if not failed and levels is None and limit is None and not self._any_broken.get(name):
+            return {}  # nothing to judge: no failure, no silence limit, no noisy signal
         self._arrays(name)
         heard_t = self.heard[name]
         broken = self.broken[name]
@@ -117,7 +120,11 @@ class LaneHealth:
         heard = np.zeros(m, dtype=bool)
         for v in out.values():
             if v is not None:
-                heard |= _present(v, m)
+                present = _present(v, m)
+                if present.all():
+                    heard = present
+                    break
+                heard |= present
         if good is not None:
             heard &= good
         all_heard = heard.all()
@@ -125,7 +132,6 @@ class LaneHealth:
         heard_t[lanes_heard] = t
         if self._any_broken.get(name):
             broken[lanes_heard] = False
-        levels, limit = self.constants(name, modules)
         if levels:
             self._repeats(name, out, idx, heard, levels, reasons)
         if all_heard:
