@@ -336,3 +336,20 @@ def test_calibration_runs_in_lanes_record_the_per_run_residuals() -> None:
         assert_allclose(lane["x"], want["x"], rtol=0, atol=1e-12)
         assert_array_equal(lane["forced"], want["forced"])
         assert_array_equal(lane["t"], want["t"])
+
+
+@pytest.mark.parametrize(("name", "scenario"), [("motor_drive", "tacho_drift"),
+                                                ("process_plant", "drift_then_valve")])
+def test_every_shipped_architecture_runs_in_lanes_as_per_run(name, scenario) -> None:
+    """The generic blocks (a summing junction's multi-edge input, LTI plants) and the tank's
+    types, all lane by lane through PerLane, fixed and adaptive: the per-run runs."""
+    from archself.runtime import MapeK
+
+    arch = Architecture.model_validate(_raw(name))
+    seeds = [1, 2]
+    _same(simulate_lanes(arch, scenario, seeds), [simulate(arch, scenario, seed=s) for s in seeds])
+    lanes = simulate_lanes(arch, scenario, seeds, adapt=True)
+    for got, seed in zip(lanes, seeds, strict=True):
+        want = simulate(arch, scenario, seed=seed, adapt=MapeK(arch))
+        assert got.switches == want.switches and want.switches
+        assert_allclose(got.series["J"], want.series["J"], rtol=0, atol=1e-9)

@@ -26,6 +26,8 @@ def _present(value: Any, n: int) -> np.ndarray:
     """Lanes (of ``n``) where a lane value is present."""
     if value is None:
         return np.zeros(n, dtype=bool)
+    if type(value) is tuple:  # a multi-edge input is a list per run: never missing
+        return np.ones(n, dtype=bool)
     if type(value) is list:
         if None not in value:
             return np.ones(n, dtype=bool)

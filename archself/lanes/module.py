@@ -16,7 +16,9 @@ an index array into ``0 … N−1``):
 * ``None`` — absent in every lane (a GPS between fixes);
 * a float array of shape ``(L,)`` (a scalar signal) or ``(L, w)`` (a vector), in
   which a NaN entry (a NaN row) marks a lane where the value is absent;
-* a list of ``L`` objects — values that are not numbers (model objects).
+* a list of ``L`` objects — values that are not numbers (model objects);
+* a tuple of lane values, one per active edge — an input the type declares in
+  ``multi_inputs`` (the per-run module receives a list).
 
 A batched module therefore never outputs NaN but to say "absent"; a run whose
 value *goes* non-finite (a fault of kind ``nan``, a module that raises) is the
@@ -68,6 +70,8 @@ def row(value: Any, j: int) -> Any:
         return None
     if type(value) is list:
         return value[j]
+    if type(value) is tuple:  # a multi-edge input: the per-run module's list
+        return [row(v, j) for v in value]
     v = value[j]
     if value.ndim == 1:
         f = float(v)

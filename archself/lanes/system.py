@@ -242,7 +242,7 @@ class LaneSystem:
                 if noise is not None:
                     val = _add_noise(val, idx, *noise)
             if carries in multi:
-                inputs.setdefault(carries, []).append(val)
+                inputs[carries] = (*inputs.get(carries, ()), val)
             elif val is not None or carries not in inputs:
                 inputs[carries] = val
         return inputs
