@@ -240,22 +240,32 @@ def _rows(path) -> list[dict]:
 @pytest.mark.parametrize("sweep", ["scenarios.valve_loss.faults[0].magnitude=0.3,0.45",
                                    "runtime.step_s=0.2,0.25"])
 def test_a_campaign_of_lanes_writes_the_rows_of_the_per_run_campaign(tmp_path, sweep) -> None:
-    """Fixed and adaptive runs batched by default (one batch per worker) give the rows of
-    --lanes 1; so does a sweep whose points cannot share lanes (another step: the units
+    """Fixed and adaptive runs in batches of 8 give the rows of --lanes 1; so does a sweep
+    whose points cannot share lanes (another step: the units
     fall back to single runs)."""
     from archself.campaign import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
 
     path = data_dir("architectures") / "process_plant.yaml"
     jobs, meta = plan_campaign(path, ["nominal", "valve_loss"], 2, [parse_sweep(sweep)])
+    assert meta["lane_types"] is False  # the tank's types run lane by lane: not by default
     rows = {}
-    for lanes in (1, None):
+    for lanes in (1, 8):
         out = tmp_path / f"r{lanes}.parquet"
         run_campaign(jobs, meta, out, workers=1, lanes=lanes)
         rows[lanes] = _rows(out)
-    assert len(rows[1]) == len(rows[None]) == 16 and any(r["n_switches"] for r in rows[1])
-    for got, want in zip(rows[None], rows[1], strict=True):
+    assert len(rows[1]) == len(rows[8]) == 16 and any(r["n_switches"] for r in rows[1])
+    for got, want in zip(rows[8], rows[1], strict=True):
         _close(got, want)
+
+
+def test_files_whose_types_are_all_batched_go_in_lanes_by_default() -> None:
+    from archself.lanes.system import batched_types
+    from archself.loader import load_architecture
+
+    found = {n: batched_types(load_architecture(data_dir("architectures") / f"{n}.yaml").arch)
+             for n in ("diffdrive", "process_plant", "motor_drive")}
+    assert found == {"diffdrive": True, "process_plant": False, "motor_drive": False}
 
 
 def test_lane_units_group_fixed_runs_of_one_scenario_in_order() -> None:

@@ -277,6 +277,12 @@ def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
     return out
 
 
+def _batched(job: CalJob) -> bool:
+    from archself.lanes.system import batched_types
+
+    return batched_types(_architecture(job))
+
+
 def calibration_units(jobs: Sequence[CalJob], workers: int) -> list[tuple[CalJob, ...]]:
     """The jobs in lane batches of one file, scenario and configuration (sweep points and
     seeds mixed), shared evenly over ``workers``, at most 256 lanes each."""
@@ -304,7 +310,10 @@ def run_jobs(
     """
     from archself.campaign.executors import default_workers
 
-    units = calibration_units(jobs, workers or default_workers())
+    if jobs and _batched(jobs[0]):
+        units = calibration_units(jobs, workers or default_workers())
+    else:  # some module type would run lane by lane: lanes would not pay
+        units = [(j,) for j in jobs]
     results = run_on_executor(
         units, run_calibration_unit, "archself.calibration.runs",
         executor=executor, workers=workers, address=address, progress=progress,

@@ -189,7 +189,8 @@ def run_campaign(
         Runs of one scenario and mode are batched, up to this many per unit of work,
         and stepped together (:func:`lane_units`, :mod:`archself.lanes`); 1 turns
         batching off. Default: :func:`default_lanes` (the runs shared over the
-        workers, within half the free memory, at most 256).
+        workers, within half the free memory, at most 256) where every module type of
+        the file is batched (``meta["lane_types"]``), else 1.
 
     A local worker that dies (killed, out of memory, a crash in C code) breaks the
     pool and every run on it: the pool is started again and the unfinished runs
@@ -269,7 +270,9 @@ def run_campaign(
     restarts = 0
     ex = start()
     n_workers = ex.workers
-    if lanes is None:
+    if lanes is None and not meta.get("lane_types", True):
+        width = 1  # some module type would run lane by lane: lanes would not pay
+    elif lanes is None:
         steps = int(meta.get("steps", 0)) // max(1, len(jobs))
         width = default_lanes(todo, n_workers, steps, available_memory())
     else:

@@ -70,6 +70,13 @@ def run_id(
     return "|".join(parts + [str(replicate), mode])
 
 
+def batched_types(arch: Any) -> bool:
+    """:func:`archself.lanes.system.batched_types` (imported when a campaign is planned)."""
+    from archself.lanes.system import batched_types as batched
+
+    return batched(arch)
+
+
 def plan_campaign(
     arch_path: str | Path,
     scenarios: Sequence[str],
@@ -169,6 +176,8 @@ def plan_campaign(
         "fault_free": sorted(name for name, s in arch.scenarios.items() if not s.faults),
         "thresholds": _threshold_paths(sweeps),
         "steps": est.steps,
+        # every module type batched: runs go in lanes by default (archself.lanes)
+        "lane_types": batched_types(arch),
     }
     return jobs, meta
 

@@ -81,7 +81,8 @@ def campaign(
     lanes: Annotated[
         int | None,
         typer.Option("--lanes", min=1, help="Runs stepped together per batch (1: one "
-                     "by one; default: shared over the workers within memory, at most 256). "
+                     "by one; default: shared over the workers within memory, at most 256, "
+                     "where every module type of the file is batched, else 1). "
                      "Same results."),
     ] = None,
 ) -> None:

@@ -35,7 +35,22 @@ from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane
 from archself.streams import module_rng
 from archself.system import LiveSystem
 
-__all__ = ["LaneSystem", "lane_module"]
+__all__ = ["LaneSystem", "batched_types", "lane_module"]
+
+
+def batched_types(arch: Any) -> bool:
+    """Whether every module type of ``arch`` has a batched class (none runs as PerLane).
+
+    Lanes of types that run one by one gain nothing over separate runs (the tank's and
+    the motor drive's campaigns took as long either way) and hold more memory, so
+    campaigns and calibrations batch by default only files for which this holds.
+    """
+    from archself import registry
+
+    return all(
+        getattr(registry.get(spec.type), "lanes", None) is not None
+        for spec in arch.modules.values()
+    )
 
 
 def lane_module(modules: Sequence[Any]) -> LaneModule:
