@@ -11,7 +11,9 @@ the GPS, in units of its own standard error (:class:`InnovationTrend`). A headin
 error ``b`` makes the estimated velocity point the wrong way, so the innovation
 grows at about ``v·b`` per second; a fault-free odometry's slip and noise make it
 wander but not run away, and the statistic is divided by the GPS noise measured
-from the same fixes, so one band holds at any GPS noise level.
+from the same fixes, so one band holds at any GPS noise level. And ``drift_glr``: the
+template-matched test of a heading drift (:mod:`archself_diffdrive.drift_glr`), which
+follows the turns of the path and a drift's quadratic growth over a longer window.
 """
 
 from __future__ import annotations
@@ -23,9 +25,10 @@ from typing import ClassVar
 import numpy as np
 
 from archself.modules.base import Param, RuntimeModule
+from archself_diffdrive.drift_glr import DriftGlr
 from archself_diffdrive.models import Kinematics
 
-__all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf"]
+__all__ = ["DriftGlr", "InnovationTrend", "InnovationWindow", "Odometry", "Ekf"]
 
 _DEFAULT_KIN = Kinematics()
 #: Parameters both estimators take.
@@ -183,8 +186,9 @@ class Odometry(_PoseEstimator):
     keeps being corrected after the GPS is lost.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
-    (GPS) used only for the residuals ``innovation`` and ``innovation_trend``,
-    never for the estimate. Outputs ``pose_estimate`` and ``covariance`` (3×3).
+    (GPS) used only for the residuals ``innovation``, ``innovation_trend`` and
+    ``drift_glr`` (``drift_*`` parameters), never for the estimate. Outputs
+    ``pose_estimate`` and ``covariance`` (3×3).
 
     Examples
     --------
@@ -201,6 +205,16 @@ class Odometry(_PoseEstimator):
         "trend_window_s": Param(
             60.0, "s", "window of the innovation-trend statistic", min=5.0, max=3600.0
         ),
+        "drift_window_s": Param(
+            120.0, "s", "window of the drift GLR statistic", min=10.0, max=3600.0
+        ),
+        "drift_min_span_s": Param(
+            20.0, "s", "the drift GLR is NaN until its fixes span this long", min=1.0,
+            max=3600.0,
+        ),
+        "drift_min_support_s": Param(
+            5.0, "s", "fixes a drift-onset candidate needs after it", min=1.0, max=3600.0
+        ),
         "bias_significance": Param(
             3.0,
             "",
@@ -210,19 +224,21 @@ class Odometry(_PoseEstimator):
         ),
         **_COMMON,
     }
-    residual_signals = ("innovation", "innovation_trend")
+    residual_signals = ("innovation", "innovation_trend", "drift_glr")
     lanes = "archself_diffdrive.lanes_estimators:OdometryLanes"
 
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # the windows are set by configure()
         self.trend = InnovationTrend(math.nan)
+        self.drift = DriftGlr(math.nan, math.nan, math.nan)
         super().__init__(name, params, rng)
         self.x, self.y, self.th = (float(v) for v in self.params["initial_pose"])
         self.var_pos = 0.01
         self.bias = 0.0  # IMU heading bias taken off the heading (from a hand-over)
         self.bias_rate = 0.0  # and its rate (from a hand-over)
         self.started = False
-        self.signals = {"innovation": math.nan, "innovation_trend": math.nan}
+        self.signals = {"innovation": math.nan, "innovation_trend": math.nan,
+                        "drift_glr": math.nan}
 
     def configure(self) -> None:
         p = self.params
@@ -230,6 +246,9 @@ class Odometry(_PoseEstimator):
         self.var_th = float(p["heading_noise_rad"]) ** 2
         self.monitor.window_s = float(p["innovation_window_s"])
         self.trend.window_s = float(p["trend_window_s"])
+        self.drift.window_s = float(p["drift_window_s"])
+        self.drift.min_span_s = float(p["drift_min_span_s"])
+        self.drift.min_support_s = float(p["drift_min_support_s"])
 
     def step(self, t, dt, inputs):
         kin = inputs.get("kinematics") or _DEFAULT_KIN
@@ -250,8 +269,10 @@ class Odometry(_PoseEstimator):
             th1 = th0 + w * dt
         if self.started:
             mid = 0.5 * (th0 + th1)
-            self.x += v * dt * math.cos(mid)
-            self.y += v * dt * math.sin(mid)
+            dx, dy = v * dt * math.cos(mid), v * dt * math.sin(mid)
+            self.x += dx
+            self.y += dy
+            self.drift.move(t, dx, dy)
             sv = kin.wheel_radius_m * self.sig_enc / math.sqrt(2.0)
             self.var_pos += (sv * dt) ** 2 + (v * dt) ** 2 * self.var_th
         self.started = True
@@ -261,8 +282,10 @@ class Odometry(_PoseEstimator):
             ex, ey = float(pos[0]) - self.x, float(pos[1]) - self.y
             self.monitor.add(t, ex, ey)
             self.trend.add(t, ex, ey)
+            self.drift.add(t, ex, ey)
             self.signals["innovation"] = self.monitor.value()
             self.signals["innovation_trend"] = self.trend.value()
+            self.signals["drift_glr"] = self.drift.value()
         return {
             "pose_estimate": np.array([self.x, self.y, self.th]),
             "covariance": self.covariance(),
@@ -299,8 +322,10 @@ class Odometry(_PoseEstimator):
             self.var_pos = float(max(c[0, 0], c[1, 1]))
         self.monitor.clear()
         self.trend.clear()
+        self.drift.clear()
         # no stale residual from an earlier activation
-        self.signals["innovation"] = self.signals["innovation_trend"] = math.nan
+        for key in self.signals:
+            self.signals[key] = math.nan
 
 
 class Ekf(_PoseEstimator):

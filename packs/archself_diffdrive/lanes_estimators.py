@@ -132,6 +132,10 @@ class OdometryLanes(_EstimatorLanes):
         self.bias_rate = np.zeros(n)
         self.trend = LaneWindows(n)
         self.innovation_trend = np.full(n, math.nan)
+        self.drift = LaneWindows(n, width=6)  # DriftGlr's fixes
+        self.drift_moved = np.zeros((n, 4))  # DriftGlr.moved
+        self.drift_last = np.zeros(n)  # DriftGlr.last
+        self.drift_glr = np.full(n, math.nan)
         super().__init__(modules)
 
     def step(self, t, dt, inputs, lanes):
@@ -155,12 +159,15 @@ class OdometryLanes(_EstimatorLanes):
         vdt = v * dt
         var_th = self.var_th[lanes]
         sv = r * self.sig_enc[lanes] / math.sqrt(2.0)
-        x1 = x + vdt * np.cos(mid)
-        y1 = y + vdt * np.sin(mid)
+        dx, dy = vdt * np.cos(mid), vdt * np.sin(mid)
+        x1 = x + dx
+        y1 = y + dy
         var1 = self.var_pos[lanes] + ((sv * dt) ** 2 + vdt**2 * var_th)
         if not every:
             x1, y1 = np.where(started, x1, x), np.where(started, y1, y)
             var1 = np.where(started, var1, self.var_pos[lanes])
+            dx, dy = np.where(started, dx, 0.0), np.where(started, dy, 0.0)
+        self._drift_move(t, lanes, dx, dy)
         out = np.stack([x1, y1, (th1 + PI) % TWO_PI - PI], axis=1)
         self.pose[lanes] = out
         self.var_pos[lanes] = var1
@@ -174,18 +181,35 @@ class OdometryLanes(_EstimatorLanes):
                 e = pos[has, :2] - out[has, :2]
                 self.monitor.add(t, idx, e)
                 self.trend.add(t, idx, e)
+                self.drift.add(t, idx, np.concatenate([e, self.drift_moved[idx]], axis=1))
+                self.drift_moved[idx] = 0.0
+                self.drift_last[idx] = t
                 self.innovation[idx] = self.monitor.mean_norm(idx)
                 self.innovation_trend[idx] = self.trend.trend(idx)
+                self.drift_glr[idx] = self.drift.drift(
+                    idx, self.drift_span[idx], self.drift_support[idx]
+                )
         cov = np.zeros((n, 9))
         cov[:, 0] = cov[:, 4] = var1
         cov[:, 8] = var_th
         self._flag_nonfinite(lanes, out, cov)
         return {"pose_estimate": out, "covariance": cov}
 
+    def _drift_move(self, t: float, lanes, dx: np.ndarray, dy: np.ndarray) -> None:
+        """``DriftGlr.move`` of every lane (a lane not started moves by 0)."""
+        lag = t - self.drift_last[lanes]
+        m = self.drift_moved[lanes]
+        m[:, 0] += dy
+        m[:, 1] -= dx
+        m[:, 2] += lag * dy
+        m[:, 3] -= lag * dx
+        self.drift_moved[lanes] = m
+
     def local_signals(self, lanes):
         return {
             "innovation": self.innovation[lanes].copy(),
             "innovation_trend": self.innovation_trend[lanes].copy(),
+            "drift_glr": self.drift_glr[lanes].copy(),
         }
 
     def load(self, lanes):
@@ -197,10 +221,16 @@ class OdometryLanes(_EstimatorLanes):
             self.started[i] = m.started
             self.monitor.load(i, m.monitor)
             self.trend.load(i, m.trend)
+            self.drift.load(i, m.drift)
+            self.drift_moved[i] = m.drift.moved
+            self.drift_last[i] = m.drift.last
             self.innovation[i] = m.signals["innovation"]
             self.innovation_trend[i] = m.signals["innovation_trend"]
+            self.drift_glr[i] = m.signals["drift_glr"]
         self.sig_enc = self.lane_attr("sig_enc")
         self.var_th = self.lane_attr("var_th")
+        self.drift_span = np.array([m.drift.min_span_s for m in self.modules], dtype=float)
+        self.drift_support = np.array([m.drift.min_support_s for m in self.modules], dtype=float)
 
     def store(self, lanes):
         for i in self.indices(lanes):
@@ -211,8 +241,12 @@ class OdometryLanes(_EstimatorLanes):
             m.started = bool(self.started[i])
             self.monitor.store(i, m.monitor)
             self.trend.store(i, m.trend)
+            self.drift.store(i, m.drift)
+            m.drift.moved = self.drift_moved[i].tolist()
+            m.drift.last = float(self.drift_last[i])
             m.signals["innovation"] = float(self.innovation[i])
             m.signals["innovation_trend"] = float(self.innovation_trend[i])
+            m.signals["drift_glr"] = float(self.drift_glr[i])
 
 
 class EkfLanes(_EstimatorLanes):

@@ -1,0 +1,162 @@
+"""The heading-drift GLR of dead reckoning (:mod:`archself_diffdrive.drift_glr`).
+
+Its suffix-sum algebra against the direct least squares for every onset, its
+distribution on white noise (a t-statistic: N(0, 1) for one onset, the same at any
+GPS noise), and the lane-batched odometry's ``drift_glr`` against the per-run one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.testing import assert_allclose
+
+from archself.lanes import ALL, lane_module, stack
+from archself.streams import module_rng
+from archself_diffdrive.drift_glr import DriftGlr, drift_glr
+from archself_diffdrive.estimators import Odometry
+
+
+def _direct(t, e, moved, n, min_span, min_support) -> float:
+    """max over onsets of |z| by explicit templates and least squares (O(n²))."""
+    t, e, moved = t[:n], e[:n], moved[:n].copy()
+    moved[0] = 0.0
+    tau = t - t[0]
+    if n < 5 or tau[-1] < min_span:
+        return math.nan
+    d = np.cumsum(moved[:, :2], axis=0)
+    a = np.cumsum(moved[:, 2:] + np.r_[0.0, tau[:-1]][:, None] * moved[:, :2], axis=0)
+    var = np.mean(np.diff(e, axis=0) ** 2) / 2.0
+    best = -math.inf
+    for m in range(n):
+        if tau[-1] - tau[m] < min_support:
+            continue
+        g = np.zeros((n, 2))
+        g[m:] = (a[m:] - a[m]) - tau[m] * (d[m:] - d[m])
+        g -= g.mean(axis=0)
+        best = max(best, abs((g * e).sum()) / math.sqrt(var * (g * g).sum()))
+    return best
+
+
+def test_drift_glr_is_the_direct_least_squares() -> None:
+    """Irregular fix times, padded rows of different lengths, random turns."""
+    rng = np.random.default_rng(0)
+    rows, width = 6, 60
+    t = np.cumsum(rng.uniform(0.5, 2.0, (rows, width)), axis=1) + 100.0
+    e = rng.normal(0.0, 0.3, (rows, width, 2))
+    moved = rng.normal(0.0, 0.5, (rows, width, 4))
+    count = np.array([60, 31, 12, 44, 4, 20])
+    span, support = np.full(rows, 5.0), np.full(rows, 3.0)
+    got = drift_glr(t, e, moved, count, span, support)
+    want = [_direct(t[i], e[i], moved[i], count[i], 5.0, 3.0) for i in range(rows)]
+    assert math.isnan(got[4]) and math.isnan(want[4])  # fewer than 5 fixes
+    assert_allclose(got, want, rtol=1e-9)
+
+
+def _white(rng, lanes: int, n: int, sigma: float):
+    t = np.broadcast_to(np.arange(float(n)), (lanes, n))
+    e = rng.normal(0.0, sigma, (lanes, n, 2))
+    heading = np.cumsum(rng.normal(0.0, 0.05, (lanes, n)), axis=1)
+    moved = np.zeros((lanes, n, 4))
+    moved[:, :, 0], moved[:, :, 1] = 0.5 * np.sin(heading), -0.5 * np.cos(heading)
+    moved[:, :, 2:] = 0.5 * moved[:, :, :2]
+    return t, e, moved
+
+
+def test_on_white_noise_one_onset_is_standard_normal_at_any_noise() -> None:
+    """Only the window's start as onset: |z| of N(0, 1) (σ̂ from 119 differences)."""
+    rng = np.random.default_rng(1)
+    lanes, n = 4000, 120
+    t, e, moved = _white(rng, lanes, n, 0.2)
+    count, span = np.full(lanes, n), np.full(lanes, 20.0)
+    z = drift_glr(t, e, moved, count, span, np.full(lanes, n - 1.0))
+    assert_allclose(np.mean(z * z), 1.0, atol=0.08)  # sd of the mean: 0.022
+    assert_allclose(np.mean(z > 1.96), 0.05, atol=0.012)  # sd: 0.0034
+    assert_allclose(np.quantile(z, 0.99), 2.576, atol=0.2)
+    # twice the GPS noise: the same statistic (σ̂ is measured from the fixes)
+    assert_allclose(drift_glr(t, 2.0 * e, moved, count, span, np.full(lanes, n - 1.0)), z,
+                    rtol=1e-12)
+    # every onset: the maximum is larger, but little (neighbouring onsets' templates are
+    # nearly the same test): median 1.2 against 0.67, 99 % quantile 3.0 against 2.6
+    every = drift_glr(t, e, moved, count, span, np.full(lanes, 5.0))
+    assert (every >= z - 1e-12).all()
+    assert_allclose(np.quantile(every, [0.5, 0.99]), [1.2, 3.0], atol=0.15)
+
+
+def test_a_drift_on_a_curve_stands_out_of_the_noise() -> None:
+    """A 2.8·10⁻³ rad/s drift from t = 60 s on a curving path, 0.2 m noise, 120 s window."""
+    rng = np.random.default_rng(2)
+    glr = DriftGlr(120.0, 20.0, 5.0)
+    x = y = th = 0.0
+    off = np.zeros(2)
+    values = []
+    for k in range(1, 2401):  # 120 s in 0.05 s steps, a fix every second
+        s = 0.05 * k
+        th += 0.1 * math.sin(0.05 * s) * 0.05
+        dx, dy = 0.025 * math.cos(th), 0.025 * math.sin(th)
+        x, y = x + dx, y + dy
+        glr.move(s, dx, dy)
+        beta = 2.8e-3 * max(s - 60.0, 0.0)
+        off += beta * np.array([dy, -dx])  # the true position falls off the odometry's
+        if k % 20 == 0:
+            e = off + rng.normal(0.0, 0.2, 2)
+            glr.add(s, float(e[0]), float(e[1]))
+            values.append(glr.value())
+    assert math.isnan(values[0]) and np.nanmax(values[:60]) < 4.0  # before the onset
+    assert values[-1] > 10.0
+
+
+def test_odometry_lanes_give_the_per_run_drift_glr() -> None:
+    """Five lanes with other windows, a hand-over and a lane-subset step: within 1e-9."""
+    params = [
+        {"drift_window_s": 20.0, "drift_min_span_s": 5.0, "drift_min_support_s": 2.0},
+        {"drift_window_s": 12.0, "drift_min_span_s": 6.0, "drift_min_support_s": 1.0},
+        {"drift_window_s": 30.0, "drift_min_span_s": 8.0, "drift_min_support_s": 3.0},
+        {},
+        {"drift_window_s": 15.0, "drift_min_span_s": 5.0, "drift_min_support_s": 4.0},
+    ]
+
+    def build() -> list[Odometry]:
+        return [Odometry("odometry", p, module_rng(20 + i, "odometry"))
+                for i, p in enumerate(params)]
+
+    twins, mods = build(), build()
+    batched = lane_module(mods)
+    rng = np.random.default_rng(3)
+    dt, subset = 0.05, np.array([0, 3])
+    pos = np.zeros((5, 2))
+    finite = 0
+    for k in range(1200):
+        t = k * dt
+        if k == 600:  # a hand-over into lane 2: the window starts anew
+            state = {"pose": np.array([1.0, 2.0, 0.5])}
+            twins[2].import_state(state)
+            batched.store(np.array([2]))
+            mods[2].import_state(state)
+            batched.load(np.array([2]))
+        lanes = subset if k % 97 == 5 else ALL
+        idx = np.arange(5)[lanes]
+        per_run = []
+        for i in idx:
+            pos[i] += 0.025 * np.array([math.cos(0.02 * t + i), math.sin(0.02 * t + i)])
+            fix = k % 20 == 3 and not (i == 4 and k % 60 == 23)
+            per_run.append({
+                "encoder_speeds": np.array([5.0, 5.0 + 0.1 * i]) + rng.normal(0, 0.05, 2),
+                "heading": 0.02 * t + i + 1e-3 * max(t - 20.0, 0.0) + rng.normal(0, 0.005),
+                "position": pos[i] + rng.normal(0, 0.2, 2) if fix else None,
+            })
+        lane_in = {key: stack([p[key] for p in per_run]) for key in per_run[0]}
+        batched.step(t, dt, lane_in, lanes)
+        for i, p in zip(idx, per_run, strict=True):
+            twins[i].step(t, dt, p)
+        got = batched.local_signals(lanes)["drift_glr"]
+        want = [twins[i].local_signals()["drift_glr"] for i in idx]
+        assert_allclose(got, want, rtol=1e-9, atol=1e-12, err_msg=f"step {k}")
+        finite += int(np.isfinite(got).sum())
+    assert finite > 2000
+    batched.store(ALL)
+    for mod, twin in zip(mods, twins, strict=True):
+        assert_allclose(np.array(mod.drift.items), np.array(twin.drift.items), rtol=0,
+                        atol=1e-12)
+        assert_allclose(mod.drift.moved, twin.drift.moved, rtol=0, atol=1e-12)
