@@ -458,10 +458,22 @@ def test_weights_normalized_when_spectral_radius_too_large():
 def test_factorization_reused_across_cycles():
     arch = make_arch()
     loop = MapeK(arch)
-    system = FakeSystem(arch, lambda t, c: {}, linearizations=lin())
-    run_loop(loop, system, 10.0)
+    # a residual just over its band every cycle (r > 0, z below τ): z is solved each cycle
+    system = FakeSystem(arch, high("src", "err", 0.11), linearizations=lin())
+    assert run_loop(loop, system, 10.0) == []
     assert isinstance(loop.knowledge.solver, InfluenceSolver)
     assert loop.knowledge.solver.factorizations == 1
+    assert all(d.z["src"] > 0 for d in loop.decisions[-5:])
+
+
+def test_quiet_cycles_need_no_solve():
+    """r = 0 (every residual inside its band): z = ê = 0 without a factorization."""
+    arch = make_arch()
+    loop = MapeK(arch)
+    run_loop(loop, FakeSystem(arch, lambda t, c: {}, linearizations=lin()), 10.0)
+    assert loop.knowledge.solver.factorizations == 0
+    last = loop.decisions[-1]
+    assert dict(last.z) == dict(last.source) == dict(last.r) == dict.fromkeys(last.r, 0.0)
 
 
 def test_failed_execution_is_logged_not_raised():

@@ -28,10 +28,9 @@ def _present(value: Any, n: int) -> np.ndarray:
         return np.zeros(n, dtype=bool)
     if type(value) is tuple:  # a multi-edge input is a list per run: never missing
         return np.ones(n, dtype=bool)
-    if type(value) is list:
-        if None not in value:
-            return np.ones(n, dtype=bool)
-        return np.array([v is not None for v in value], dtype=bool)
+    if type(value) is list:  # by identity: `None in value` would call each item's __eq__
+        present = [v is not None for v in value]
+        return np.ones(n, dtype=bool) if all(present) else np.array(present, dtype=bool)
     col = value if value.ndim == 1 else value[:, 0]
     return ~np.isnan(col)
 
@@ -148,15 +147,12 @@ class LaneHealth:
             gap = t - heard_t[idx]
             for j in np.flatnonzero(quiet & (gap > limit[idx] + 1e-9)):
                 reasons.setdefault(int(idx[j]), f"silent for {gap[j]:.3g} s")
-        if levels:
-            for i in quiet_lanes.tolist():
-                if i in reasons:
-                    continue
-                for sig in levels:
-                    rep = self.repeats.get((name, sig))
-                    if rep is not None and rep[i] >= STALE_REPEATS:
-                        reasons[i] = f"stale {sig} ({int(rep[i]) + 1} identical values)"
-                        break
+        if levels:  # a quiet lane whose last values repeated: the first such signal
+            for sig in levels:
+                rep = self.repeats.get((name, sig))
+                if rep is not None:
+                    for i in quiet_lanes[rep[quiet_lanes] >= STALE_REPEATS].tolist():
+                        reasons.setdefault(i, f"stale {sig} ({int(rep[i]) + 1} identical values)")
         return reasons
 
     def _repeats(self, name, out, idx, heard, levels, reasons) -> None:

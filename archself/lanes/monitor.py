@@ -10,8 +10,9 @@ lane's loop takes instead of observing (``MapeK(view, observation=...)``).
 
 A lane is left to its own Monitor (no observation returned) whenever the bulk
 path would have to decide more than the common case: a module of the lane is
-unavailable, a sample is missing or not finite, or a module of the configuration
-declares operating ``limits`` (read from its outputs).
+unavailable, or a module of the configuration declares operating ``limits`` (read
+from its outputs). A sample that is missing or not finite is handled here as the
+Monitor does: that filter keeps its value and the module's κ has a finding.
 """
 
 from __future__ import annotations
@@ -77,12 +78,8 @@ def observe_group(
     cols = [table(m)[sig] for m, sig in lay0.pairs]
     sel = np.array(keep, dtype=np.intp)
     X = np.stack([np.asarray(c, dtype=float)[sel] for c in cols], axis=1)
-    finite = np.isfinite(X).all(axis=1)
-    if not finite.all():
-        sel, X = sel[finite], X[finite]
-        keep = sel.tolist()
-        if not keep:
-            return {}
+    F = np.isfinite(X)  # the usable samples; a filter without one keeps its value
+    partial = not F.all()
     t = float(lanes.t)
     period = first.arch.runtime.period_s
     prev = first._t_prev
@@ -99,32 +96,39 @@ def observe_group(
     S = np.stack([lay.samples for lay in lays])
     VT = np.stack([lay.valid_time for lay in lays])
     gain = lay0.gains(first, dt)
-    new = V + gain * (X - V)
-    if lay0.any_instant:
-        f = lay0.instant & (S == 0)
-        if f.any():
-            new = np.where(f, X, new)
-    S1 = S + 1
-    VT1 = VT + max(dt, 0.0)
-    sens, nom = lay0.sensitivity, lay0.nominal
     with np.errstate(all="ignore"):
+        new = V + gain * (X - V)
+        if lay0.any_instant:
+            f = lay0.instant & (S == 0)
+            if f.any():
+                new = np.where(f, X, new)
+        if partial:
+            new = np.where(F, new, V)
+            S1 = S + F
+            VT1 = VT + F * max(dt, 0.0)
+        else:
+            S1 = S + 1
+            VT1 = VT + max(dt, 0.0)
+        sens, nom = lay0.sensitivity, lay0.nominal
         if first.normalization == "none":
             res = sens * np.abs(new)
         else:
             res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
         res = np.where(np.isfinite(new), res, 0.0)
         untrusted = VT1 < lay0.trust_time
+        if partial:
+            untrusted |= ~F  # no residual from a filter that took no sample
         if untrusted.any():
             res = np.where(untrusted, 0.0, res)
     n = len(first.names)
     R = np.zeros((len(keep), n))
     R[:, lay0.on_pos] = res
     violations = {name: list(fixed) for _k, name, fixed, _l in lay0.constrained if fixed}
-    flagged = _NO_FLAGS
+    violated = np.zeros(n, dtype=bool)
     if violations:
-        finding = np.zeros(n, dtype=bool)
-        finding[[k for k, name, *_ in lay0.constrained if name in violations]] = True
-        flagged = (finding & lay0.active).nonzero()[0]
+        violated[[k for k, name, *_ in lay0.constrained if name in violations]] = True
+    flagged = (violated & lay0.active).nonzero()[0] if violations else _NO_FLAGS
+    whole = F.all(axis=1) if partial else None
     j_ref = float(first.arch.runtime.objective.acceptable)
     out: dict[int, Observation] = {}
     for row, (i, lay) in enumerate(zip(keep, lays, strict=True)):
@@ -133,12 +137,17 @@ def observe_group(
         lay.value, lay.samples, lay.valid_time = new[row], S1[row], VT1[row]
         j_obs = float(j_now[i])
         j_obs = math.nan if j_obs != j_obs else j_obs
+        ok, residual_ok, found = lay.all_ok, mon._true, flagged
+        if whole is not None and not whole[row]:  # as Monitor._update with unusable samples
+            ok = F[row]
+            residual_ok = mon._true.copy()
+            residual_ok[lay.on_pos] = ok
+            found = ((violated | ~residual_ok) & lay.active).nonzero()[0]
         kappa = StatusMap(
-            mon.names, mon.index, lay.active, mon._true, mon._true, _confidence(lay),
-            dict(violations), {}, flagged, set(),
+            mon.names, mon.index, lay.active, mon._true, residual_ok, _confidence(lay),
+            dict(violations), {}, found, set(),
         )
         out[i] = Observation(
-            t, j_obs, j_ref, j_ref - j_obs, R[row].copy(), kappa, lay.on_names, lay.value,
-            lay.all_ok,
+            t, j_obs, j_ref, j_ref - j_obs, R[row].copy(), kappa, lay.on_names, lay.value, ok,
         )
     return out

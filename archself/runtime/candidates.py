@@ -48,8 +48,10 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
 
 def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
     """:func:`_ranked` of the keys of ``z`` where the boolean array ``mask`` holds."""
-    keys = list(z)
     index = mask.nonzero()[0].tolist()
+    if not index:  # most cycles: nothing to rank
+        return []
+    keys = list(z)
     keyed = [
         (-float(f"{m:.12g}"), keys[i])
         for m, i in zip(np.abs(values[index]).tolist(), index, strict=True)

@@ -90,6 +90,7 @@ class MapeK:
         self.knowledge = Knowledge(arch)
         self.monitor = Monitor(arch, self.knowledge.names)
         self.selector = selector_from_runtime(arch.runtime)
+        self._selector_text = self.selector.describe()
         self.localization = arch.runtime.localization
         self.planner = Planner(arch)
         self.decisions: list[DecisionRecord] = []
@@ -135,12 +136,16 @@ class MapeK:
         # MONITOR (Eq. 11-12)
         obs = observation if observation is not None else self.monitor.observe(system, k.active)
         # ANALYZE (Eq. 13-16)
-        z = self._influence(obs.r, k)
-        z_values = z[k.active_index]
-        z_active = ValueMap(k.active_names, k.active_pos, z_values)
-        r_active = ValueMap(k.active_names, k.active_pos, obs.r[k.active_index])
-        e_values = self._sources(obs.r, k)[k.active_index]
-        e_active = ValueMap(k.active_names, k.active_pos, e_values)
+        r_values = obs.r[k.active_index]
+        r_active = ValueMap(k.active_names, k.active_pos, r_values)
+        if obs.r.any() or not self.propagate:
+            z_values = self._influence(obs.r, k)[k.active_index]
+            z_active = ValueMap(k.active_names, k.active_pos, z_values)
+            e_values = self._sources(obs.r, k)[k.active_index]
+            e_active = ValueMap(k.active_names, k.active_pos, e_values)
+        else:  # most cycles: nothing to propagate or explain, z = ê = r = 0
+            z_values = e_values = r_values
+            z_active = e_active = r_active
         if self.localization == "source":
             drive, drive_values = e_active, e_values
         else:
@@ -161,11 +166,11 @@ class MapeK:
             r=r_active,
             z=z_active,
             candidates=list(candidates),
-            selector=self.selector.describe(),
+            selector=self._selector_text,
             source=e_active,
             localization=self.localization,
-            kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
-            compensated=sorted(self.compensated),
+            kappa={n: s.to_dict() for n, s in obs.kappa.findings()} if obs.kappa.any() else {},
+            compensated=sorted(self.compensated) if self.compensated else [],
         )
         self.decisions.append(record)
         self.cycle += 1
