@@ -160,3 +160,59 @@ def test_odometry_lanes_give_the_per_run_drift_glr() -> None:
         assert_allclose(np.array(mod.drift.items), np.array(twin.drift.items), rtol=0,
                         atol=1e-12)
         assert_allclose(mod.drift.moved, twin.drift.moved, rtol=0, atol=1e-12)
+
+
+def _drifting_odometry(rate: float, onset: float, duration: float, seed: int = 0) -> Odometry:
+    """Dead reckoning driving straight at 0.5 m/s on a gyro whose bias ramps at ``rate``
+    from ``onset``; the GPS (1 Hz, 0.2 m) sees the true position."""
+    rng = np.random.default_rng(seed)
+    odo = Odometry("odo", {}, module_rng(seed, "odo"))
+    speed = 5.0  # rad/s of both wheels: 0.5 m/s
+    x = 0.0
+    dt = 0.05
+    for k in range(int(round(duration / dt)) + 1):
+        t = k * dt
+        x = 0.5 * t
+        bias = rate * max(t - onset, 0.0)
+        inputs = {"encoder_speeds": np.array([speed, speed]), "heading": bias}
+        if k % 20 == 0:
+            inputs["position"] = np.array([x, 0.0]) + rng.normal(0.0, 0.2, 2)
+        odo.step(t, dt, inputs)
+    return odo
+
+
+def test_drift_fit_recovers_the_rate_onset_and_position_error() -> None:
+    odo = _drifting_odometry(rate=2.8e-3, onset=20.0, duration=70.0)
+    z, rate, rate_std, onset, error = odo.drift.estimate()
+    assert abs(z) > 6.0
+    # rate_std is the error given the onset; the onset itself is found within a few
+    # seconds, which moves the rate by more (seeds 0–4: 16–22 s, 2.31–3.01·10⁻³ rad/s)
+    assert 0 < rate_std < 2e-4
+    assert_allclose(rate, 2.8e-3, rtol=0.2)
+    assert_allclose(onset, 20.0, atol=5.0)
+    # the odometry runs off to the left of the true (y = 0) line: GPS − odometry
+    assert_allclose(error, [0.0 - odo.x + 0.5 * 70.0, -odo.y], atol=0.15)
+
+
+def test_odometry_hands_a_found_drift_over_as_imu_bias() -> None:
+    odo = _drifting_odometry(rate=2.8e-3, onset=20.0, duration=70.0)
+    state = odo.export_state()
+    true_bias = 2.8e-3 * (odo.drift.last - 20.0)
+    assert_allclose(state["imu_bias"], true_bias, atol=3 * state["imu_bias_std"] + 0.01)
+    assert_allclose(state["imu_bias_rate"], 2.8e-3, rtol=0.2)
+    assert_allclose(state["pose"][2], odo.th - state["imu_bias"], atol=1e-12)  # heading = IMU − b
+    assert abs(state["pose"][1]) < 0.15 < abs(odo.y)  # back on the line the GPS sees
+    quiet = _drifting_odometry(rate=0.0, onset=0.0, duration=70.0).export_state()
+    assert quiet["imu_bias"] == 0.0 and "imu_bias_std" not in quiet  # nothing found
+
+
+def test_ekf_starts_at_least_as_unsure_as_the_handed_over_bias() -> None:
+    from archself_diffdrive.estimators import Ekf
+
+    ekf = Ekf("ekf", {}, module_rng(0, "ekf"))
+    prior = ekf.P.copy()
+    ekf.import_state({"pose": np.zeros(3), "imu_bias": 0.1, "imu_bias_std": 1.0,
+                      "imu_bias_rate": 0.01, "imu_bias_rate_std": 1e-9})
+    assert_allclose(ekf.x[3:], [0.1, 0.01])
+    assert_allclose(ekf.P[3, 3], 1.0)  # wider than the prior: taken
+    assert_allclose(ekf.P[4, 4], prior[4, 4])  # surer than the prior: the prior stays

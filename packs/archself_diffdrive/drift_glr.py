@@ -36,7 +36,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["DriftGlr", "drift_glr"]
+__all__ = ["DriftGlr", "drift_fit", "drift_glr"]
 
 #: a template whose projection cancels below this share of its terms counts as none
 _CANCEL = 1e-9
@@ -89,10 +89,72 @@ def drift_glr(
     >>> round(float(z[0]), 1)
     16.4
     """
+    scan = _scan(t, e, moved, count, min_span_s, min_support_s)
+    out = np.full(len(t), math.nan)
+    if scan is not None:
+        z, found = scan[0], scan[4]
+        out[found] = np.abs(z[found]).max(1)
+    return out
+
+
+def drift_fit(
+    t: np.ndarray,
+    e: np.ndarray,
+    moved: np.ndarray,
+    count: np.ndarray,
+    min_span_s: np.ndarray,
+    min_support_s: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The drift that :func:`drift_glr` finds: at its most likely onset, per row.
+
+    Same arguments as :func:`drift_glr`.
+
+    Returns
+    -------
+    z, rate, rate_std, onset : (L,) arrays
+        The signed statistic ``z_m``, the rate ``ḃ`` (rad/s: the IMU's heading bias
+        grows by it, beyond what the odometry takes off), its standard error and the
+        onset time ``t_m`` at the onset ``m`` maximizing ``|z_m|``; NaN where
+        :func:`drift_glr` is NaN. The heading error at time ``t ≥ t_m`` is
+        ``rate·(t − t_m)``.
+    error : (L, 2) array
+        The fitted innovation at the last fix, ``a + ḃ·G_last``: the position error of
+        the odometry (GPS − odometry) with the GPS noise averaged out.
+    """
+    n_rows = len(t)
+    z_out, rate, std, onset = (np.full(n_rows, math.nan) for _ in range(4))
+    error = np.full((n_rows, 2), math.nan)
+    scan = _scan(t, e, moved, count, min_span_s, min_support_s)
+    if scan is None:
+        return z_out, rate, std, onset, error
+    z, num, den, var, found, (a_last, d_last, c, tau, mean_g, mean_e) = scan
+    rows = np.flatnonzero(found)
+    m = np.abs(z[rows]).argmax(1)
+    slope = num[rows, m] / den[rows, m]
+    z_out[rows] = z[rows, m]
+    rate[rows] = slope
+    std[rows] = np.sqrt(var[rows] / den[rows, m])
+    onset[rows] = t[rows, m]
+    # the fit at the last fix: mean(e) + ḃ (G_last − mean(G)), G_last = A_last − τ_m D_last − c_m
+    g_last = a_last[rows] - tau[rows, m][:, None] * d_last[rows] - c[rows, m]
+    error[rows] = mean_e[rows] + slope[:, None] * (g_last - mean_g[rows, m])
+    return z_out, rate, std, onset, error
+
+
+def _scan(
+    t: np.ndarray,
+    e: np.ndarray,
+    moved: np.ndarray,
+    count: np.ndarray,
+    min_span_s: np.ndarray,
+    min_support_s: np.ndarray,
+) -> tuple[np.ndarray, ...] | None:
+    """Per row and onset ``m``: signed ``z_m``, its numerator ``Σ G̃·e`` and denominator
+    ``Σ|G̃|²``, the noise variance per row, the rows with a value, and the sums the fit
+    at the last fix needs (None: no row has a value)."""
     n_rows, width = t.shape
-    out = np.full(n_rows, math.nan)
     if width < 5:
-        return out
+        return None
     rows = np.arange(n_rows)
     slot = np.arange(width)
     valid = slot < count[:, None]
@@ -101,7 +163,7 @@ def drift_glr(
     span = tau[rows, last]
     ok = (count >= 5) & (span >= min_span_s)
     if not ok.any():
-        return out
+        return None
     vmask = valid[:, :, None]
     e = np.where(vmask, e, 0.0)
     step = np.where(vmask & (slot > 0)[None, :, None], moved, 0.0)
@@ -137,10 +199,12 @@ def drift_glr(
     var = pairs / (2.0 * np.maximum(count - 1, 1)) / 2.0
     onset = valid & ((span[:, None] - tau) >= min_support_s[:, None]) & (den > _CANCEL * big)
     with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(onset, np.abs(num) / np.sqrt(np.where(onset, den, 1.0) * var[:, None]), 0.0)
+        z = np.where(onset, num / np.sqrt(np.where(onset, den, 1.0) * var[:, None]), 0.0)
     found = ok & onset.any(1) & (var > 0.0)
-    out[found] = z[found].max(1)
-    return out
+    # what drift_fit needs for the fit's innovation at the last fix
+    at_last = (a[rows, last], d[rows, last], c, tau, s_g / n[:, :, None], mean_e[:, 0])
+    return z, num, den, var, found, at_last
+
 
 
 class DriftGlr:
@@ -201,21 +265,24 @@ class DriftGlr:
         while self.items[0][0] <= t - self.window_s:
             self.items.popleft()
 
+    def _args(self) -> tuple[np.ndarray, ...]:
+        a = np.array(self.items)
+        return (a[None, :, 0], a[None, :, 1:3], a[None, :, 3:], np.array([len(a)]),
+                np.array([self.min_span_s]), np.array([self.min_support_s]))
+
     def value(self) -> float:
         """``max_m |z_m|`` (NaN until the window spans ``min_span_s``)."""
         if len(self.items) < 5:
             return math.nan
-        a = np.array(self.items)
-        return float(
-            drift_glr(
-                a[None, :, 0],
-                a[None, :, 1:3],
-                a[None, :, 3:],
-                np.array([len(a)]),
-                np.array([self.min_span_s]),
-                np.array([self.min_support_s]),
-            )[0]
-        )
+        return float(drift_glr(*self._args())[0])
+
+    def estimate(self) -> tuple[float, float, float, float, np.ndarray]:
+        """``(z, rate, rate_std, onset, error)`` of the most likely drift
+        (:func:`drift_fit`; NaNs until the window spans ``min_span_s``)."""
+        if len(self.items) < 5:
+            return math.nan, math.nan, math.nan, math.nan, np.full(2, math.nan)
+        z, rate, std, onset, error = drift_fit(*self._args())
+        return float(z[0]), float(rate[0]), float(std[0]), float(onset[0]), error[0]
 
     def clear(self) -> None:
         """Forget every fix and displacement."""

@@ -183,7 +183,12 @@ class Odometry(_PoseEstimator):
     indistinguishable from zero would only add a constant heading error. A
     handed-over bias rate (``imu_bias_rate``, ``imu_bias_rate_std``), significant by
     the same test, carries the bias forward (``b ← b + ḃ·dt``), so a drifting gyro
-    keeps being corrected after the GPS is lost.
+    keeps being corrected after the GPS is lost. Handing over itself, it passes on the
+    heading drift its ``drift_glr`` test found (|z| ≥ ``drift_handover_z``): the bias
+    built up since the drift's onset as IMU bias (taken off the pose's heading) and its
+    rate, with their standard errors, and the position corrected by the fitted
+    innovation — the estimator taking over from a drifting dead reckoning starts on
+    the drift instead of learning it from the GPS.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
     (GPS) used only for the residuals ``innovation``, ``innovation_trend`` and
@@ -219,6 +224,13 @@ class Odometry(_PoseEstimator):
             3.0,
             "",
             "a handed-over IMU bias (or rate) is used if ≥ this many standard deviations",
+            min=0.0,
+            max=100.0,
+        ),
+        "drift_handover_z": Param(
+            4.0,
+            "",
+            "the drift found by drift_glr is handed over (IMU bias and rate) if |z| ≥ this",
             min=0.0,
             max=100.0,
         ),
@@ -304,12 +316,28 @@ class Odometry(_PoseEstimator):
         return np.diag([self.var_pos, self.var_pos, self.var_th])
 
     def export_state(self):
-        return {
+        state = {
             "pose": np.array([self.x, self.y, self.th]),
             "covariance": self.covariance(),
             "imu_bias": self.bias,
             "imu_bias_rate": self.bias_rate,
         }
+        z, rate, rate_std, onset, error = self.drift.estimate()
+        if abs(z) >= float(self.params["drift_handover_z"]):  # False for NaN
+            # the heading error the drift has built up by the last fix, taken off the
+            # heading and handed over as IMU bias, and the position error it caused (the
+            # fit's innovation), so that the next estimator starts on the drift
+            seen = self.drift.last - onset
+            extra = rate * seen
+            th = (self.th - extra + math.pi) % (2 * math.pi) - math.pi
+            state.update({
+                "pose": np.array([self.x + error[0], self.y + error[1], th]),
+                "imu_bias": self.bias + extra,
+                "imu_bias_std": abs(seen) * rate_std,
+                "imu_bias_rate": self.bias_rate + rate,
+                "imu_bias_rate_std": rate_std,
+            })
+        return state
 
     def import_state(self, state):
         if "pose" in state:
@@ -350,7 +378,11 @@ class Ekf(_PoseEstimator):
 
     The ``q_*`` parameters are additive process-noise densities, the ``r_*``
     measurement-noise standard deviations, the ``initial_*_std_*`` the initial
-    uncertainty and the inflation added to a handed-over covariance.
+    uncertainty and the inflation added to a handed-over covariance. A handed-over
+    IMU bias or rate comes with its standard error (``imu_bias_std``,
+    ``imu_bias_rate_std``) when the estimator before knew it; the filter starts with
+    at least that uncertainty on it (a drift estimate from dead reckoning's
+    ``drift_glr`` can be rougher than the prior).
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``.
     Outputs ``pose_estimate`` and ``covariance`` (3×3 pose block). Attributes
@@ -575,6 +607,10 @@ class Ekf(_PoseEstimator):
         P = self._initial_covariance()
         if "covariance" in state:
             P[:3, :3] += np.asarray(state["covariance"], dtype=float)[:3, :3]
+        for k, key in ((3, "imu_bias_std"), (4, "imu_bias_rate_std")):
+            std = state.get(key)  # a bias handed over less sure than the prior widens it
+            if std is not None and math.isfinite(std):
+                P[k, k] = max(P[k, k], float(std) ** 2)
         self.P = P
         self.monitor.clear()
         self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
