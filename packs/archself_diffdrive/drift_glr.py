@@ -143,7 +143,7 @@ def drift_fit(
 
 def _scan(
     t: np.ndarray,
-    e: np.ndarray,
+    e_in: np.ndarray,
     moved: np.ndarray,
     count: np.ndarray,
     min_span_s: np.ndarray,
@@ -165,37 +165,39 @@ def _scan(
     if not ok.any():
         return None
     vmask = valid[:, :, None]
-    e = np.where(vmask, e, 0.0)
+    # per fix: e (2), D (2), A (2) and the products the suffix sums need, in one array
+    x = np.empty((n_rows, width, 11))
+    e = x[:, :, 0:2]
+    np.copyto(e, np.where(vmask, e_in, 0.0))
     step = np.where(vmask & (slot > 0)[None, :, None], moved, 0.0)
     prev = np.concatenate([np.zeros((n_rows, 1)), tau[:, :-1]], axis=1)
-    d = np.cumsum(step[:, :, :2], axis=1)  # D_j: Σ d⊥ from the first fix
-    a = np.cumsum(step[:, :, 2:] + prev[:, :, None] * step[:, :, :2], axis=1)  # A_j: Σ τ d⊥
-    d = np.where(vmask, d, 0.0)
-    a = np.where(vmask, a, 0.0)
-
-    def suffix(x: np.ndarray) -> np.ndarray:
-        return np.flip(np.cumsum(np.flip(x, axis=1), axis=1), axis=1)
-
-    r_e, r_a, r_d = suffix(e), suffix(a), suffix(d)
-    r_ae = suffix((a * e).sum(2))
-    r_de = suffix((d * e).sum(2))
-    r_aa = suffix((a * a).sum(2))
-    r_ad = suffix((a * d).sum(2))
-    r_dd = suffix((d * d).sum(2))
+    d, a = x[:, :, 2:4], x[:, :, 4:6]
+    np.cumsum(step[:, :, :2], axis=1, out=d)  # D_j: Σ d⊥ from the first fix
+    np.cumsum(step[:, :, 2:] + prev[:, :, None] * step[:, :, :2], axis=1, out=a)  # A_j: Σ τ d⊥
+    d *= vmask
+    a *= vmask
+    np.einsum("lwk,lwk->lw", a, e, out=x[:, :, 6])
+    np.einsum("lwk,lwk->lw", d, e, out=x[:, :, 7])
+    np.einsum("lwk,lwk->lw", a, a, out=x[:, :, 8])
+    np.einsum("lwk,lwk->lw", a, d, out=x[:, :, 9])
+    np.einsum("lwk,lwk->lw", d, d, out=x[:, :, 10])
+    r = np.cumsum(x[:, ::-1], axis=1)[:, ::-1]  # suffix sums over j ≥ m, every column at once
+    r_e, r_d, r_a = r[:, :, 0:2], r[:, :, 2:4], r[:, :, 4:6]
+    r_ae, r_de, r_aa, r_ad, r_dd = (r[:, :, i] for i in range(6, 11))
     k = (count[:, None] - slot).astype(float)  # fixes j ≥ m
-    c = a - tau[:, :, None] * d  # the template's constant at onset m: A_m − τ_m D_m
     tv = tau[:, :, None]
-    s_ge = r_ae - tau * r_de - (c * r_e).sum(2)
-    s_g = r_a - tv * r_d - k[:, :, None] * c
-    cc = (c * c).sum(2)
-    big = r_aa + tau * tau * r_dd + k * cc
-    s_gg = big - 2 * tau * r_ad - 2 * (c * (r_a - tv * r_d)).sum(2)
+    c = a - tv * d  # the template's constant at onset m: A_m − τ_m D_m
+    s_ge = r_ae - tau * r_de - np.einsum("lwk,lwk->lw", c, r_e)
+    r_ad_m = r_a - tv * r_d  # Σ_{j≥m} (A_j − τ_m D_j)
+    s_g = r_ad_m - k[:, :, None] * c
+    big = r_aa + tau * tau * r_dd + k * np.einsum("lwk,lwk->lw", c, c)
+    s_gg = big - 2 * tau * r_ad - 2 * np.einsum("lwk,lwk->lw", c, r_ad_m)
     n = np.maximum(count, 1).astype(float)[:, None]
     mean_e = r_e[:, :1, :] / n[:, :, None]
-    num = s_ge - (s_g * mean_e).sum(2)
-    den = s_gg - (s_g * s_g).sum(2) / n
+    num = s_ge - np.einsum("lwk,lwk->lw", s_g, np.broadcast_to(mean_e, s_g.shape))
+    den = s_gg - np.einsum("lwk,lwk->lw", s_g, s_g) / n
     dif = np.diff(e, axis=1)
-    pairs = np.where(valid[:, 1:, None], dif * dif, 0.0).sum((1, 2))
+    pairs = np.einsum("lwk,lwk->l", dif, dif * valid[:, 1:, None])
     var = pairs / (2.0 * np.maximum(count - 1, 1)) / 2.0
     onset = valid & ((span[:, None] - tau) >= min_support_s[:, None]) & (den > _CANCEL * big)
     with np.errstate(divide="ignore", invalid="ignore"):
