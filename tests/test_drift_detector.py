@@ -216,3 +216,32 @@ def test_ekf_starts_at_least_as_unsure_as_the_handed_over_bias() -> None:
     assert_allclose(ekf.x[3:], [0.1, 0.01])
     assert_allclose(ekf.P[3, 3], 1.0)  # wider than the prior: taken
     assert_allclose(ekf.P[4, 4], prior[4, 4])  # surer than the prior: the prior stays
+
+
+def test_a_repeated_fix_is_not_a_measurement() -> None:
+    """A stuck receiver repeats its last fix: the odometry's windows skip it (per run and
+    lanes), so a drift test is not fed a robot running away from a frozen point."""
+    def feed(odo_step, fixes):
+        for k, fix in enumerate(fixes):
+            odo_step(0.05 * k, {"encoder_speeds": np.array([5.0, 5.0]), "heading": 0.0,
+                                "position": None if fix is None else np.array(fix)})
+
+    fixes = [None, (0.1, 0.0), (0.1, 0.0), (0.1, 0.0), (0.2, 0.1), (0.2, 0.1), (0.25, 0.0)]
+    odo = Odometry("odo", {}, module_rng(0, "odo"))
+    feed(lambda t, inp: odo.step(t, 0.05, inp), fixes)
+    assert [round(i[0], 2) for i in odo.drift.items] == [0.05, 0.2, 0.3]
+    assert len(odo.monitor.items) == len(odo.trend.items) == 3
+
+    twins = [Odometry("odo", {}, module_rng(s, "odo")) for s in (0, 1)]
+    lanes = lane_module(twins)
+
+    def lane_step(t, inp):
+        pos = inp["position"]
+        rows = np.full((2, 2), math.nan) if pos is None else np.stack([pos, pos + 1.0])
+        lanes.step(t, 0.05, {"encoder_speeds": stack([inp["encoder_speeds"]] * 2),
+                             "heading": np.zeros(2), "position": rows}, ALL)
+
+    feed(lane_step, fixes)
+    lanes.store(ALL)
+    assert [round(i[0], 2) for i in twins[0].drift.items] == [0.05, 0.2, 0.3]
+    assert twins[0].last_fix == (0.25, 0.0) and twins[1].last_fix == (1.25, 1.0)

@@ -249,6 +249,7 @@ class Odometry(_PoseEstimator):
         self.bias = 0.0  # IMU heading bias taken off the heading (from a hand-over)
         self.bias_rate = 0.0  # and its rate (from a hand-over)
         self.started = False
+        self.last_fix = (math.nan, math.nan)  # the last GPS fix used
         self.signals = {"innovation": math.nan, "innovation_trend": math.nan,
                         "drift_glr": math.nan}
 
@@ -290,8 +291,10 @@ class Odometry(_PoseEstimator):
         self.started = True
         self.th = (th1 + math.pi) % (2 * math.pi) - math.pi
         pos = inputs.get("position")
-        if pos is not None:
-            ex, ey = float(pos[0]) - self.x, float(pos[1]) - self.y
+        if pos is not None and (float(pos[0]), float(pos[1])) != self.last_fix:
+            # (a fix equal to the last one is a stuck receiver, not a measurement)
+            self.last_fix = (float(pos[0]), float(pos[1]))
+            ex, ey = self.last_fix[0] - self.x, self.last_fix[1] - self.y
             self.monitor.add(t, ex, ey)
             self.trend.add(t, ex, ey)
             self.drift.add(t, ex, ey)

@@ -136,6 +136,7 @@ class OdometryLanes(_EstimatorLanes):
         self.drift_moved = np.zeros((n, 4))  # DriftGlr.moved
         self.drift_last = np.zeros(n)  # DriftGlr.last
         self.drift_glr = np.full(n, math.nan)
+        self.last_fix = np.full((n, 2), math.nan)  # Odometry.last_fix
         super().__init__(modules)
 
     def step(self, t, dt, inputs, lanes):
@@ -175,9 +176,11 @@ class OdometryLanes(_EstimatorLanes):
         self.started[lanes] = True
         pos = inputs.get("position")
         if pos is not None:
-            has = ~np.isnan(pos[:, 0])
+            last = self.last_fix[lanes]
+            has = ~np.isnan(pos[:, 0]) & ((pos[:, 0] != last[:, 0]) | (pos[:, 1] != last[:, 1]))
             if has.any():
                 idx = self.indices(lanes)[has]
+                self.last_fix[idx] = pos[has, :2]
                 e = pos[has, :2] - out[has, :2]
                 self.monitor.add(t, idx, e)
                 self.trend.add(t, idx, e)
@@ -227,6 +230,7 @@ class OdometryLanes(_EstimatorLanes):
             self.innovation[i] = m.signals["innovation"]
             self.innovation_trend[i] = m.signals["innovation_trend"]
             self.drift_glr[i] = m.signals["drift_glr"]
+            self.last_fix[i] = m.last_fix
         self.sig_enc = self.lane_attr("sig_enc")
         self.var_th = self.lane_attr("var_th")
         self.drift_span = np.array([m.drift.min_span_s for m in self.modules], dtype=float)
@@ -247,6 +251,7 @@ class OdometryLanes(_EstimatorLanes):
             m.signals["innovation"] = float(self.innovation[i])
             m.signals["innovation_trend"] = float(self.innovation_trend[i])
             m.signals["drift_glr"] = float(self.drift_glr[i])
+            m.last_fix = (float(self.last_fix[i, 0]), float(self.last_fix[i, 1]))
 
 
 class EkfLanes(_EstimatorLanes):
