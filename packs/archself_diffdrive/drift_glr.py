@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -148,7 +149,7 @@ def _scan(
     count: np.ndarray,
     min_span_s: np.ndarray,
     min_support_s: np.ndarray,
-) -> tuple[np.ndarray, ...] | None:
+) -> tuple[Any, ...] | None:
     """Per row and onset ``m``: signed ``z_m``, its numerator ``Σ G̃·e`` and denominator
     ``Σ|G̃|²``, the noise variance per row, the rows with a value, and the sums the fit
     at the last fix needs (None: no row has a value)."""
