@@ -198,7 +198,7 @@ class Knowledge:
         active = system.active
         if not isinstance(active, (set, frozenset)):
             active = frozenset(active)
-        if conf == self.configuration and (active is self.active or active == self.active):
+        if conf == self.configuration and active == self.active:  # no copy when unchanged
             return False
         self._set_active(conf, frozenset(active))
         return True

@@ -90,7 +90,6 @@ class MapeK:
         self.knowledge = Knowledge(arch)
         self.monitor = Monitor(arch, self.knowledge.names)
         self.selector = selector_from_runtime(arch.runtime)
-        self._selector_text = self.selector.describe()
         self.localization = arch.runtime.localization
         self.planner = Planner(arch)
         self.decisions: list[DecisionRecord] = []
@@ -166,11 +165,11 @@ class MapeK:
             r=r_active,
             z=z_active,
             candidates=list(candidates),
-            selector=self._selector_text,
+            selector=self.selector.describe(),
             source=e_active,
             localization=self.localization,
-            kappa={n: s.to_dict() for n, s in obs.kappa.findings()} if obs.kappa.any() else {},
-            compensated=sorted(self.compensated) if self.compensated else [],
+            kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
+            compensated=sorted(self.compensated),
         )
         self.decisions.append(record)
         self.cycle += 1

@@ -124,10 +124,6 @@ class StatusMap(Mapping[str, ModuleStatus]):
     def __len__(self) -> int:
         return len(self._names)
 
-    def any(self) -> bool:
-        """Whether an active module has a finding (:meth:`findings` is not empty)."""
-        return bool(len(self._finding))
-
     def findings(self) -> list[tuple[str, ModuleStatus]]:
         """``(name, κ)`` of the active modules with a finding, in index order.
 
