@@ -28,7 +28,7 @@ from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.drift_glr import DriftGlr
 from archself_diffdrive.models import Kinematics
 
-__all__ = ["DriftGlr", "InnovationTrend", "InnovationWindow", "Odometry", "Ekf"]
+__all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf"]
 
 _DEFAULT_KIN = Kinematics()
 #: Parameters both estimators take.
@@ -336,7 +336,7 @@ class Odometry(_PoseEstimator):
             state.update({
                 "pose": np.array([self.x + error[0], self.y + error[1], th]),
                 "imu_bias": self.bias + extra,
-                "imu_bias_std": abs(seen) * rate_std,
+                "imu_bias_std": seen * rate_std,  # seen ≥ 0: the onset is a fix of the window
                 "imu_bias_rate": self.bias_rate + rate,
                 "imu_bias_rate_std": rate_std,
             })
