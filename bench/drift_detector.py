@@ -176,18 +176,16 @@ def trend_stat(t: np.ndarray, e: np.ndarray, window_s: float) -> np.ndarray:
 
 
 def glr_stat(t, e, moved, window_s: float, min_span_s: float, min_support_s: float):
-    """:func:`~archself_diffdrive.drift_glr.drift_glr` at every fix of R runs: (R, F)."""
-    from archself_diffdrive.drift_glr import drift_glr
+    """:class:`~archself_diffdrive.drift_glr.DriftWindows` at every fix of R runs: (R, F)."""
+    from archself_diffdrive.drift_glr import DriftWindows
 
     r = e.shape[0]
-    out = np.full(e.shape[:2], math.nan)
-    span, support = np.full(r, min_span_s), np.full(r, min_support_s)
+    lanes = np.arange(r)
+    w = DriftWindows(r, window_s, min_span_s, min_support_s)
+    out = np.empty(e.shape[:2])
     for k in range(len(t)):
-        lo = int(np.searchsorted(t, t[k] - window_s, side="right"))
-        n = k + 1 - lo
-        tw = np.broadcast_to(t[lo : k + 1], (r, n))
-        out[:, k] = drift_glr(tw, e[:, lo : k + 1], moved[:, lo : k + 1], np.full(r, n), span,
-                              support)
+        w.add(float(t[k]), lanes, e[:, k], moved[:, k])
+        out[:, k] = w.value(lanes)
     return out
 
 

@@ -14,7 +14,7 @@ from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, lane_module, stack
 from archself.streams import module_rng
-from archself_diffdrive.drift_glr import DriftGlr, drift_glr
+from archself_diffdrive.drift_glr import DriftGlr, DriftWindows, drift_glr
 from archself_diffdrive.estimators import Odometry
 
 
@@ -52,6 +52,33 @@ def test_drift_glr_is_the_direct_least_squares() -> None:
     want = [_direct(t[i], e[i], moved[i], count[i], 5.0, 3.0) for i in range(rows)]
     assert math.isnan(got[4]) and math.isnan(want[4])  # fewer than 5 fixes
     assert_allclose(got, want, rtol=1e-9)
+
+
+def test_sliding_windows_and_their_rebased_origin_stay_the_direct_least_squares() -> None:
+    """Fixes dropped from the window and the time origin moved (every two windows): at
+    every fix of 400, each lane's value is that of its window's fixes taken afresh."""
+    rng = np.random.default_rng(4)
+    lanes, fixes = 3, 400
+    windows = np.array([20.0, 35.0, 12.0])
+    w = DriftWindows(lanes, capacity=4)
+    w.window_s[:], w.min_span_s[:], w.min_support_s[:] = windows, 5.0, 2.0
+    t = np.cumsum(rng.uniform(0.5, 1.5, (lanes, fixes)), axis=1) + 1e4  # far from 0
+    e = rng.normal(0.0, 0.3, (lanes, fixes, 2)) + np.linspace(0, 40, fixes)[None, :, None]
+    moved = rng.normal(0.0, 0.5, (lanes, fixes, 4))  # (since the lane's previous fix)
+    origins = set()
+    for j in range(fixes):
+        idx = np.arange(lanes) if j % 7 else np.array([0, 2])  # lane 1 misses some fixes
+        w.add(t[idx, j], idx, e[idx, j], moved[idx, j])
+        origins.update(w.origin.tolist())
+        if j % 5:
+            continue
+        for i in idx:
+            got = w.value(np.array([i]))[0]
+            keep = (t[i, : j + 1] > t[i, j] - windows[i]) & ((np.arange(j + 1) % 7 > 0) | (i != 1))
+            sel = np.flatnonzero(keep)
+            want = _direct(t[i, sel], e[i, sel], moved[i, sel], len(sel), 5.0, 2.0)
+            assert_allclose(got, want, rtol=1e-9, err_msg=f"lane {i}, fix {j}")
+    assert len(origins) > 3 * lanes  # the origins moved
 
 
 def _white(rng, lanes: int, n: int, sigma: float):
@@ -157,8 +184,10 @@ def test_odometry_lanes_give_the_per_run_drift_glr() -> None:
     assert finite > 2000
     batched.store(ALL)
     for mod, twin in zip(mods, twins, strict=True):
-        assert_allclose(np.array(mod.drift.items), np.array(twin.drift.items), rtol=0,
-                        atol=1e-12)
+        assert mod.drift.times() == twin.drift.times()
+        got, want = mod.drift.windows, twin.drift.windows
+        assert_allclose(got.total, want.total, rtol=1e-12)
+        assert_allclose(got.origin, want.origin, rtol=0)
         assert_allclose(mod.drift.moved, twin.drift.moved, rtol=0, atol=1e-12)
 
 
@@ -229,7 +258,7 @@ def test_a_repeated_fix_is_not_a_measurement() -> None:
     fixes = [None, (0.1, 0.0), (0.1, 0.0), (0.1, 0.0), (0.2, 0.1), (0.2, 0.1), (0.25, 0.0)]
     odo = Odometry("odo", {}, module_rng(0, "odo"))
     feed(lambda t, inp: odo.step(t, 0.05, inp), fixes)
-    assert [round(i[0], 2) for i in odo.drift.items] == [0.05, 0.2, 0.3]
+    assert [round(t, 2) for t in odo.drift.times()] == [0.05, 0.2, 0.3]
     assert len(odo.monitor.items) == len(odo.trend.items) == 3
 
     twins = [Odometry("odo", {}, module_rng(s, "odo")) for s in (0, 1)]
@@ -243,5 +272,5 @@ def test_a_repeated_fix_is_not_a_measurement() -> None:
 
     feed(lane_step, fixes)
     lanes.store(ALL)
-    assert [round(i[0], 2) for i in twins[0].drift.items] == [0.05, 0.2, 0.3]
+    assert [round(t, 2) for t in twins[0].drift.times()] == [0.05, 0.2, 0.3]
     assert twins[0].last_fix == (0.25, 0.0) and twins[1].last_fix == (1.25, 1.0)

@@ -22,25 +22,305 @@ any GPS noise level. Unlike a straight-line trend the template follows the turns
 the path and grows quadratically from the onset, so one parameter is tested instead
 of a 2-D slope.
 
-Cost: the sums over ``j ≥ m`` are suffix sums of the per-fix moments (a template
-``G_j(t0) = A_j − A_m − (t_m − t_0)(D_j − D_m)`` expands into the window's running
-sums ``D`` and first moments ``A`` of ``d⊥``), so one value takes O(window). The
-maths is :func:`drift_glr` on arrays with a leading lane axis: the per-run class and
-the lane-batched twin call the same function.
+Cost: the sums over ``j ≥ m`` are suffix sums of per-fix moments (a template
+``G_j(t0) = A_j − A_m − (t_m − t_0)(D_j − D_m)`` expands into the running sums ``D``
+and first moments ``A`` of ``d⊥`` about a time origin). :class:`DriftWindows` keeps,
+per lane, a ring buffer of the fixes with their moments and the *prefix* sums before
+each, so a new fix adds one row and a suffix sum is one subtraction (total − prefix);
+a value still scans every onset of the window, O(window), in one pass of a dozen
+array operations. The origin is moved to the window's oldest fix once it lies two
+windows back (the moments and prefix sums re-based), so the sums stay as small as a
+window's however long the run. The per-run class (:class:`DriftGlr`) and the
+lane-batched odometry hold the same state and call the same code.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import Any
 
 import numpy as np
 
-__all__ = ["DriftGlr", "drift_fit", "drift_glr"]
+__all__ = ["DriftGlr", "DriftWindows", "drift_glr"]
 
 #: a template whose projection cancels below this share of its terms counts as none
 _CANCEL = 1e-9
+#: the channels of a fix: e (2), D (2), A (2), A·e, D·e, A·A, A·D, D·D, |e − e_prev|²
+_WIDTH = 12
+
+
+class DriftWindows:
+    """The drift GLR over sliding windows of GPS fixes in L lanes.
+
+    Per lane a ring buffer of fixes (one capacity for all lanes, doubled when a lane
+    fills it, a head and a count per lane): the fix time, its channels (innovation
+    ``e``, the running sums ``D`` and moments ``A`` of ``d⊥`` about the lane's time
+    origin, their products and the squared step of ``e`` from the previous fix) and
+    the sums of those channels over the lane's earlier fixes since its origin.
+
+    Parameters
+    ----------
+    n : int
+        Number of lanes.
+    window_s, min_span_s, min_support_s : float
+        The window's length; a value is NaN until the fixes span ``min_span_s`` (and
+        at least 5 fixes); an onset candidate needs ``min_support_s`` of fixes after
+        it. Per-lane arrays of the same names after construction (a sweep may set
+        them per lane).
+    capacity : int
+        Fixes per lane before the buffers double.
+
+    Examples
+    --------
+    Two lanes driving straight at 0.5 m/s; in lane 1 the heading error grows by 0.01
+    rad/s from t = 10 s; ±0.1 m of alternating GPS noise in both:
+
+    >>> w = DriftWindows(2, 60.0, 20.0, 5.0)
+    >>> lanes = np.arange(2)
+    >>> moved = np.array([[0.0, -0.5, 0.0, -0.25]] * 2)  # d⊥ = (dy, −dx) over 1 s
+    >>> for s in range(1, 31):
+    ...     fall = 0.01 * 0.5 * max(s - 10.0, 0.0) ** 2 / 2
+    ...     e = np.array([[0.0, 0.1 * (-1) ** s], [0.0, -fall + 0.1 * (-1) ** s]])
+    ...     w.add(float(s), lanes, e, moved)
+    >>> w.value(lanes).round(1).tolist()
+    [0.5, 16.1]
+    """
+
+    def __init__(self, n: int, window_s: float = math.inf, min_span_s: float = 0.0,
+                 min_support_s: float = 0.0, capacity: int = 16) -> None:
+        self.window_s = np.full(n, float(window_s))
+        self.min_span_s = np.full(n, float(min_span_s))
+        self.min_support_s = np.full(n, float(min_support_s))
+        self.t = np.zeros((n, capacity))
+        # channel first: each channel of all lanes and slots is one contiguous array
+        self.x = np.zeros((_WIDTH, n, capacity))  # the channels of each fix
+        self.before = np.zeros((_WIDTH, n, capacity))  # their sums over the earlier fixes
+        self.total = np.zeros((_WIDTH, n))  # ... over all fixes since the origin
+        self.origin = np.zeros(n)
+        self.head = np.zeros(n, dtype=int)
+        self.count = np.zeros(n, dtype=int)
+
+    @property
+    def n(self) -> int:
+        """Number of lanes."""
+        return len(self.count)
+
+    # ---------------------------------------------------------------- the buffers
+    def _slots(self, idx: np.ndarray, width: int) -> np.ndarray:
+        """The first ``width`` slots of lanes ``idx``, oldest first."""
+        return (self.head[idx, None] + np.arange(width)) % self.t.shape[1]
+
+    def _grow(self, size: int) -> None:
+        cap = self.t.shape[1]
+        while cap < size:
+            cap *= 2
+        every = np.arange(self.n)
+        rows, slots = every[:, None], self._slots(every, self.t.shape[1])
+        t = np.zeros((self.n, cap))
+        t[:, : slots.shape[1]] = self.t[rows, slots]
+        self.t = t
+        for name in ("x", "before"):
+            new = np.zeros((_WIDTH, self.n, cap))
+            new[:, :, : slots.shape[1]] = getattr(self, name)[:, rows, slots]
+            setattr(self, name, new)
+        self.head[:] = 0
+
+    def add(self, t: float | np.ndarray, idx: np.ndarray, e: np.ndarray, moved: np.ndarray
+            ) -> None:
+        """Add the fixes of lanes ``idx`` at ``t`` and drop the fixes out of the window.
+
+        Parameters
+        ----------
+        t : float or (k,) array
+            Fix time (per lane).
+        idx : (k,) int array
+            The lanes with a fix.
+        e : (k, 2) array
+            Innovations (GPS − odometry position).
+        moved : (k, 4) array
+            The odometry's turned displacement since each lane's previous fix: its sum
+            ``ΔD`` (2) and moment ``ΔM = Σ (s − t_prev) d⊥`` (2) (ignored for a lane's
+            first fix).
+        """
+        count = self.count[idx]
+        if (count >= self.t.shape[1]).any():
+            self._grow(int(count.max()) + 1)
+        cap = self.t.shape[1]
+        head = self.head[idx]
+        first = count == 0
+        prev_slot = (head + count - 1) % cap
+        prev = self.x[:, idx, prev_slot]
+        lag = self.t[idx, prev_slot] - self.origin[idx]  # the previous fix about the origin
+        self.origin[idx] = np.where(first, t, self.origin[idx])
+        mv = moved.T
+        row = np.empty((_WIDTH, len(idx)))
+        row[0:2] = e.T
+        np.add(prev[2:4], mv[:2], out=row[2:4])  # D
+        np.add(prev[4:6], mv[2:] + lag * mv[:2], out=row[4:6])  # A
+        step = row[0:2] - prev[0:2]
+        row[11] = step[0] * step[0] + step[1] * step[1]
+        if first.any():
+            row[2:6, first] = 0.0
+            row[11, first] = 0.0
+        _products(row)
+        sums = np.where(first, 0.0, self.total[:, idx])
+        slot = (head + count) % cap
+        self.t[idx, slot] = t
+        self.x[:, idx, slot] = row
+        self.before[:, idx, slot] = sums
+        self.total[:, idx] = sums + row
+        count = count + 1
+        cut = t - self.window_s[idx]
+        old = self.t[idx, head] <= cut
+        while old.any():  # (the new fix is never dropped: window_s > 0)
+            head = np.where(old, (head + 1) % cap, head)
+            count = count - old
+            old = self.t[idx, head] <= cut
+        self.head[idx] = head
+        self.count[idx] = count
+        stale = idx[t - self.origin[idx] >= 2.0 * self.window_s[idx]]
+        if len(stale):
+            self._rebase(stale)
+
+    def _rebase(self, idx: np.ndarray) -> None:
+        """Move the origin of lanes ``idx`` to their oldest fix; recompute the sums."""
+        count = self.count[idx]
+        rows, slots = idx[:, None], self._slots(idx, int(count.max()))
+        t, x = self.t[rows, slots], self.x[:, rows, slots]
+        valid = np.arange(slots.shape[1]) < count[:, None]
+        shift = t[:, :1] - self.origin[idx, None]
+        d = x[2:4] - x[2:4, :, :1]
+        x[4:6] = x[4:6] - x[4:6, :, :1] - shift * d  # A about the new origin
+        x[2:4] = d
+        x[11, :, 0] = 0.0  # (the oldest fix's step reaches out of the window)
+        _products(x)
+        x *= valid
+        sums = np.cumsum(x, axis=2)
+        self.x[:, rows, slots] = x
+        self.before[:, rows, slots] = sums - x
+        self.total[:, idx] = sums[:, np.arange(len(idx)), count - 1]
+        self.origin[idx] = t[:, 0]
+
+    def clear(self, idx: np.ndarray) -> None:
+        """Forget every fix of lanes ``idx``."""
+        self.head[idx] = 0
+        self.count[idx] = 0
+
+    def copy_lane(self, i: int, other: DriftWindows, j: int) -> None:
+        """Lane ``i`` becomes lane ``j`` of ``other`` (fixes, sums and settings, bit for bit)."""
+        count = int(other.count[j])
+        if count > self.t.shape[1]:
+            self._grow(count)
+        slots = other._slots(np.array([j]), count)[0]
+        self.t[i, :count] = other.t[j, slots]
+        self.x[:, i, :count] = other.x[:, j, slots]
+        self.before[:, i, :count] = other.before[:, j, slots]
+        self.total[:, i] = other.total[:, j]
+        for name in ("origin", "count", "window_s", "min_span_s", "min_support_s"):
+            getattr(self, name)[i] = getattr(other, name)[j]
+        self.head[i] = 0
+
+    def times(self, i: int) -> list[float]:
+        """Lane ``i``'s fix times in the window, oldest first."""
+        return self.t[i, self._slots(np.array([i]), int(self.count[i]))[0]].tolist()
+
+    # ---------------------------------------------------------------- the statistic
+    def value(self, idx: np.ndarray) -> np.ndarray:
+        """``max_m |z_m|`` of lanes ``idx`` (NaN while too short, without noise or movement)."""
+        out = np.full(len(idx), math.nan)
+        scan = self._scan(idx)
+        if scan is not None:
+            z, found = scan[0], scan[4]
+            out[found] = np.abs(z[found]).max(1)
+        return out
+
+    def estimate(self, idx: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The drift :meth:`value` finds in lanes ``idx``: at its most likely onset.
+
+        Returns
+        -------
+        z, rate, rate_std, onset : (k,) arrays
+            The signed statistic ``z_m``, the rate ``ḃ`` (rad/s: the IMU's heading bias
+            grows by it, beyond what the odometry takes off), its standard error and
+            the onset time ``t_m`` at the onset ``m`` maximizing ``|z_m|``; NaN where
+            :meth:`value` is NaN. The heading error at ``t ≥ t_m`` is ``rate·(t − t_m)``.
+        error : (k, 2) array
+            The fitted innovation at the last fix, ``a + ḃ·G_last``: the position error
+            of the odometry (GPS − odometry) with the GPS noise averaged out.
+        """
+        k = len(idx)
+        z_out, rate, std, onset = (np.full(k, math.nan) for _ in range(4))
+        error = np.full((k, 2), math.nan)
+        scan = self._scan(idx)
+        if scan is None:
+            return z_out, rate, std, onset, error
+        z, num, den, var, found, (t, x, last, tau, c, mean_g, mean_e) = scan
+        rows = np.flatnonzero(found)
+        m = np.abs(z[rows]).argmax(1)
+        slope = num[rows, m] / den[rows, m]
+        z_out[rows] = z[rows, m]
+        rate[rows] = slope
+        std[rows] = np.sqrt(var[rows] / den[rows, m])
+        onset[rows] = t[rows, m]
+        # the fit at the last fix: mean(e) + ḃ (G_last − mean(G)),
+        # G_last = A_last − τ_m D_last − c_m
+        at_last = x[:, rows, last[rows]].T
+        g_last = at_last[:, 4:6] - tau[rows, m][:, None] * at_last[:, 2:4] - c[:, rows, m].T
+        error[rows] = mean_e[rows] + slope[:, None] * (g_last - mean_g[:, rows, m].T)
+        return z_out, rate, std, onset, error
+
+    def _scan(self, idx: np.ndarray) -> tuple[Any, ...] | None:
+        """Per lane and slot ``m`` (onset): signed ``z_m``, its numerator ``Σ G̃·e`` and
+        denominator ``Σ|G̃|²``, the noise variance per lane, the lanes with a value, and
+        what the fit at the last fix needs (None: no lane has a value)."""
+        count, head = self.count[idx], self.head[idx]
+        cap = self.t.shape[1]
+        whole = len(idx) == self.n and (idx == np.arange(self.n)).all()
+        pick = slice(None) if whole else idx
+        t, x = self.t[pick], self.x[:, pick]
+        rows = np.arange(len(idx))
+        last = (head + count - 1) % cap
+        span = t[rows, last] - t[rows, head]
+        ok = (count >= 5) & (span >= self.min_span_s[idx])
+        if not ok.any():
+            return None
+        r = self.total[:, idx, None] - self.before[:, pick]  # suffix sums over j ≥ m
+        tau = t - self.origin[idx, None]
+        n = np.maximum(count, 1).astype(float)
+        k = (count[:, None] - (np.arange(cap) - head[:, None]) % cap).astype(float)
+        valid = k > 0  # the slot holds a fix of the window (k: fixes j ≥ m)
+        cx = x[4] - tau * x[2]  # the template's constant at onset m: A_m − τ_m D_m
+        cy = x[5] - tau * x[3]
+        s_ge = r[6] - tau * r[7] - (cx * r[0] + cy * r[1])
+        sx = r[4] - tau * r[2]  # Σ_{j≥m} (A_j − τ_m D_j)
+        sy = r[5] - tau * r[3]
+        big = r[8] + tau * tau * r[10] + k * (cx * cx + cy * cy)
+        s_gg = big - 2.0 * tau * r[9] - 2.0 * (cx * sx + cy * sy)
+        sx -= k * cx  # Σ G over j ≥ m
+        sy -= k * cy
+        at_head = r[:, rows, head]
+        mean_e = (at_head[0:2] / n).T
+        num = s_ge - (sx * mean_e[:, :1] + sy * mean_e[:, 1:])
+        den = s_gg - (sx * sx + sy * sy) / n[:, None]
+        pairs = at_head[11] - x[11, rows, head]
+        var = pairs / (2.0 * np.maximum(count - 1, 1)) / 2.0
+        onset = valid & ((t[rows, last][:, None] - t) >= self.min_support_s[idx, None])
+        onset &= den > _CANCEL * big
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(onset, num / np.sqrt(np.where(onset, den, 1.0) * var[:, None]), 0.0)
+        found = ok & onset.any(1) & (var > 0.0)
+        c = np.stack([cx, cy])
+        mean_g = np.stack([sx, sy]) / n[:, None]
+        return z, num, den, var, found, (t, x, last, tau, c, mean_g, mean_e)
+
+
+def _products(x: np.ndarray) -> None:
+    """Channels 6–10 of fixes ``x`` (``(12, ...)``) from their ``e``, ``D`` and ``A``."""
+    x[6] = x[4] * x[0] + x[5] * x[1]  # A·e
+    x[7] = x[2] * x[0] + x[3] * x[1]  # D·e
+    x[8] = x[4] * x[4] + x[5] * x[5]  # A·A
+    x[9] = x[4] * x[2] + x[5] * x[3]  # A·D
+    x[10] = x[2] * x[2] + x[3] * x[3]  # D·D
 
 
 def drift_glr(
@@ -51,7 +331,9 @@ def drift_glr(
     min_span_s: np.ndarray,
     min_support_s: np.ndarray,
 ) -> np.ndarray:
-    """The drift GLR of L windows of fixes (the first ``count[l]`` slots of row ``l``).
+    """The drift GLR of L whole windows of fixes (the first ``count[l]`` slots of row ``l``).
+
+    :meth:`DriftWindows.value` after adding every fix of each row (no fix dropped).
 
     Parameters
     ----------
@@ -66,13 +348,12 @@ def drift_glr(
     count : (L,) int array
         Valid slots per row.
     min_span_s, min_support_s : (L,) arrays
-        A row is NaN until its fixes span ``min_span_s`` (and at least 5 fixes); an
-        onset candidate needs ``min_support_s`` of fixes after it.
+        As :class:`DriftWindows`'.
 
     Returns
     -------
     (L,) array
-        ``max_m |z_m|`` per row (NaN while too short, without noise or movement).
+        ``max_m |z_m|`` per row.
 
     Examples
     --------
@@ -90,140 +371,27 @@ def drift_glr(
     >>> round(float(z[0]), 1)
     16.4
     """
-    scan = _scan(t, e, moved, count, min_span_s, min_support_s)
-    out = np.full(len(t), math.nan)
-    if scan is not None:
-        z, found = scan[0], scan[4]
-        out[found] = np.abs(z[found]).max(1)
-    return out
-
-
-def drift_fit(
-    t: np.ndarray,
-    e: np.ndarray,
-    moved: np.ndarray,
-    count: np.ndarray,
-    min_span_s: np.ndarray,
-    min_support_s: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The drift that :func:`drift_glr` finds: at its most likely onset, per row.
-
-    Same arguments as :func:`drift_glr`.
-
-    Returns
-    -------
-    z, rate, rate_std, onset : (L,) arrays
-        The signed statistic ``z_m``, the rate ``ḃ`` (rad/s: the IMU's heading bias
-        grows by it, beyond what the odometry takes off), its standard error and the
-        onset time ``t_m`` at the onset ``m`` maximizing ``|z_m|``; NaN where
-        :func:`drift_glr` is NaN. The heading error at time ``t ≥ t_m`` is
-        ``rate·(t − t_m)``.
-    error : (L, 2) array
-        The fitted innovation at the last fix, ``a + ḃ·G_last``: the position error of
-        the odometry (GPS − odometry) with the GPS noise averaged out.
-    """
-    n_rows = len(t)
-    z_out, rate, std, onset = (np.full(n_rows, math.nan) for _ in range(4))
-    error = np.full((n_rows, 2), math.nan)
-    scan = _scan(t, e, moved, count, min_span_s, min_support_s)
-    if scan is None:
-        return z_out, rate, std, onset, error
-    z, num, den, var, found, (a_last, d_last, c, tau, mean_g, mean_e) = scan
-    rows = np.flatnonzero(found)
-    m = np.abs(z[rows]).argmax(1)
-    slope = num[rows, m] / den[rows, m]
-    z_out[rows] = z[rows, m]
-    rate[rows] = slope
-    std[rows] = np.sqrt(var[rows] / den[rows, m])
-    onset[rows] = t[rows, m]
-    # the fit at the last fix: mean(e) + ḃ (G_last − mean(G)), G_last = A_last − τ_m D_last − c_m
-    g_last = a_last[rows] - tau[rows, m][:, None] * d_last[rows] - c[rows, m]
-    error[rows] = mean_e[rows] + slope[:, None] * (g_last - mean_g[rows, m])
-    return z_out, rate, std, onset, error
-
-
-def _scan(
-    t: np.ndarray,
-    e_in: np.ndarray,
-    moved: np.ndarray,
-    count: np.ndarray,
-    min_span_s: np.ndarray,
-    min_support_s: np.ndarray,
-) -> tuple[Any, ...] | None:
-    """Per row and onset ``m``: signed ``z_m``, its numerator ``Σ G̃·e`` and denominator
-    ``Σ|G̃|²``, the noise variance per row, the rows with a value, and the sums the fit
-    at the last fix needs (None: no row has a value)."""
-    n_rows, width = t.shape
-    if width < 5:
-        return None
-    rows = np.arange(n_rows)
-    slot = np.arange(width)
-    valid = slot < count[:, None]
-    last = np.maximum(count - 1, 0)
-    tau = np.where(valid, t - t[:, :1], 0.0)
-    span = tau[rows, last]
-    ok = (count >= 5) & (span >= min_span_s)
-    if not ok.any():
-        return None
-    vmask = valid[:, :, None]
-    # per fix: e (2), D (2), A (2) and the products the suffix sums need, in one array
-    x = np.empty((n_rows, width, 11))
-    e = x[:, :, 0:2]
-    np.copyto(e, np.where(vmask, e_in, 0.0))
-    step = np.where(vmask & (slot > 0)[None, :, None], moved, 0.0)
-    prev = np.concatenate([np.zeros((n_rows, 1)), tau[:, :-1]], axis=1)
-    d, a = x[:, :, 2:4], x[:, :, 4:6]
-    np.cumsum(step[:, :, :2], axis=1, out=d)  # D_j: Σ d⊥ from the first fix
-    np.cumsum(step[:, :, 2:] + prev[:, :, None] * step[:, :, :2], axis=1, out=a)  # A_j: Σ τ d⊥
-    d *= vmask
-    a *= vmask
-    np.einsum("lwk,lwk->lw", a, e, out=x[:, :, 6])
-    np.einsum("lwk,lwk->lw", d, e, out=x[:, :, 7])
-    np.einsum("lwk,lwk->lw", a, a, out=x[:, :, 8])
-    np.einsum("lwk,lwk->lw", a, d, out=x[:, :, 9])
-    np.einsum("lwk,lwk->lw", d, d, out=x[:, :, 10])
-    r = np.cumsum(x[:, ::-1], axis=1)[:, ::-1]  # suffix sums over j ≥ m, every column at once
-    r_e, r_d, r_a = r[:, :, 0:2], r[:, :, 2:4], r[:, :, 4:6]
-    r_ae, r_de, r_aa, r_ad, r_dd = (r[:, :, i] for i in range(6, 11))
-    k = (count[:, None] - slot).astype(float)  # fixes j ≥ m
-    tv = tau[:, :, None]
-    c = a - tv * d  # the template's constant at onset m: A_m − τ_m D_m
-    s_ge = r_ae - tau * r_de - np.einsum("lwk,lwk->lw", c, r_e)
-    r_ad_m = r_a - tv * r_d  # Σ_{j≥m} (A_j − τ_m D_j)
-    s_g = r_ad_m - k[:, :, None] * c
-    big = r_aa + tau * tau * r_dd + k * np.einsum("lwk,lwk->lw", c, c)
-    s_gg = big - 2 * tau * r_ad - 2 * np.einsum("lwk,lwk->lw", c, r_ad_m)
-    n = np.maximum(count, 1).astype(float)[:, None]
-    mean_e = r_e[:, :1, :] / n[:, :, None]
-    num = s_ge - np.einsum("lwk,lwk->lw", s_g, np.broadcast_to(mean_e, s_g.shape))
-    den = s_gg - np.einsum("lwk,lwk->lw", s_g, s_g) / n
-    dif = np.diff(e, axis=1)
-    pairs = np.einsum("lwk,lwk->l", dif, dif * valid[:, 1:, None])
-    var = pairs / (2.0 * np.maximum(count - 1, 1)) / 2.0
-    onset = valid & ((span[:, None] - tau) >= min_support_s[:, None]) & (den > _CANCEL * big)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(onset, num / np.sqrt(np.where(onset, den, 1.0) * var[:, None]), 0.0)
-    found = ok & onset.any(1) & (var > 0.0)
-    # what drift_fit needs for the fit's innovation at the last fix
-    at_last = (a[rows, last], d[rows, last], c, tau, s_g / n[:, :, None], mean_e[:, 0])
-    return z, num, den, var, found, at_last
-
+    lanes, width = t.shape
+    w = DriftWindows(lanes, capacity=max(width, 1))
+    w.min_span_s[:] = min_span_s
+    w.min_support_s[:] = min_support_s
+    for j in range(width):
+        idx = np.flatnonzero(j < count)
+        if len(idx):
+            w.add(t[idx, j], idx, e[idx, j], moved[idx, j])
+    return w.value(np.arange(lanes))
 
 
 class DriftGlr:
-    """The drift GLR over a sliding window of GPS fixes (:func:`drift_glr`, one lane).
+    """The drift GLR of one run: :class:`DriftWindows` of one lane, fed step by step.
 
     Call :meth:`move` with every odometry displacement and :meth:`add` with every
     innovation (after that step's :meth:`move`).
 
     Parameters
     ----------
-    window_s : float
-        Length of the window (s).
-    min_span_s : float
-        The value is NaN until the fixes span this long (and at least 5 fixes).
-    min_support_s : float
-        An onset candidate needs this long of fixes after it.
+    window_s, min_span_s, min_support_s : float
+        As :class:`DriftWindows`'.
 
     Examples
     --------
@@ -231,7 +399,6 @@ class DriftGlr:
     position falls to the right; ±0.1 m of alternating GPS noise:
 
     >>> g = DriftGlr(60.0, 20.0, 5.0)
-    >>> x = y = 0.0
     >>> for k in range(1, 601):
     ...     s = 0.05 * k
     ...     g.move(s, 0.025, 0.0)
@@ -242,14 +409,17 @@ class DriftGlr:
     16.1
     """
 
+    _ONE = np.zeros(1, dtype=int)
+
     def __init__(self, window_s: float, min_span_s: float, min_support_s: float) -> None:
-        self.window_s = float(window_s)
-        self.min_span_s = float(min_span_s)
-        self.min_support_s = float(min_support_s)
-        #: per fix ``(t, ex, ey, ΔDx, ΔDy, ΔMx, ΔMy)``
-        self.items: deque[tuple[float, ...]] = deque()
+        self.windows = DriftWindows(1, window_s, min_span_s, min_support_s)
         self.moved = [0.0, 0.0, 0.0, 0.0]  # ΔD, ΔM since the last fix
         self.last = 0.0  # time of the last fix
+
+    def configure(self, window_s: float, min_span_s: float, min_support_s: float) -> None:
+        """Set the window's length and the value's minimum span and onset support."""
+        w = self.windows
+        w.window_s[0], w.min_span_s[0], w.min_support_s[0] = window_s, min_span_s, min_support_s
 
     def move(self, t: float, dx: float, dy: float) -> None:
         """The odometry moved by ``(dx, dy)`` in the step ending at ``t``."""
@@ -262,32 +432,25 @@ class DriftGlr:
 
     def add(self, t: float, ex: float, ey: float) -> None:
         """Add the innovation ``(ex, ey)`` observed at ``t`` and drop old fixes."""
-        self.items.append((t, ex, ey, *self.moved))
+        self.windows.add(t, self._ONE, np.array([[ex, ey]]), np.array([self.moved]))
         self.moved = [0.0, 0.0, 0.0, 0.0]
         self.last = t
-        while self.items[0][0] <= t - self.window_s:
-            self.items.popleft()
 
-    def _args(self) -> tuple[np.ndarray, ...]:
-        a = np.array(self.items)
-        return (a[None, :, 0], a[None, :, 1:3], a[None, :, 3:], np.array([len(a)]),
-                np.array([self.min_span_s]), np.array([self.min_support_s]))
+    def times(self) -> list[float]:
+        """The fix times in the window, oldest first."""
+        return self.windows.times(0)
 
     def value(self) -> float:
         """``max_m |z_m|`` (NaN until the window spans ``min_span_s``)."""
-        if len(self.items) < 5:
-            return math.nan
-        return float(drift_glr(*self._args())[0])
+        return float(self.windows.value(self._ONE)[0])
 
     def estimate(self) -> tuple[float, float, float, float, np.ndarray]:
         """``(z, rate, rate_std, onset, error)`` of the most likely drift
-        (:func:`drift_fit`; NaNs until the window spans ``min_span_s``)."""
-        if len(self.items) < 5:
-            return math.nan, math.nan, math.nan, math.nan, np.full(2, math.nan)
-        z, rate, std, onset, error = drift_fit(*self._args())
+        (:meth:`DriftWindows.estimate`; NaNs until the window spans ``min_span_s``)."""
+        z, rate, std, onset, error = self.windows.estimate(self._ONE)
         return float(z[0]), float(rate[0]), float(std[0]), float(onset[0]), error[0]
 
     def clear(self) -> None:
         """Forget every fix and displacement."""
-        self.items.clear()
+        self.windows.clear(self._ONE)
         self.moved = [0.0, 0.0, 0.0, 0.0]

@@ -259,9 +259,8 @@ class Odometry(_PoseEstimator):
         self.var_th = float(p["heading_noise_rad"]) ** 2
         self.monitor.window_s = float(p["innovation_window_s"])
         self.trend.window_s = float(p["trend_window_s"])
-        self.drift.window_s = float(p["drift_window_s"])
-        self.drift.min_span_s = float(p["drift_min_span_s"])
-        self.drift.min_support_s = float(p["drift_min_support_s"])
+        self.drift.configure(float(p["drift_window_s"]), float(p["drift_min_span_s"]),
+                             float(p["drift_min_support_s"]))
 
     def step(self, t, dt, inputs):
         kin = inputs.get("kinematics") or _DEFAULT_KIN

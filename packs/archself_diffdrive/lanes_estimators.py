@@ -29,6 +29,7 @@ import numpy as np
 import scipy.linalg as linalg
 
 from archself.lanes.module import LaneModule
+from archself_diffdrive.drift_glr import DriftWindows
 from archself_diffdrive.estimators import _DEFAULT_KIN
 from archself_diffdrive.lanes_windows import LaneWindows
 
@@ -132,7 +133,7 @@ class OdometryLanes(_EstimatorLanes):
         self.bias_rate = np.zeros(n)
         self.trend = LaneWindows(n)
         self.innovation_trend = np.full(n, math.nan)
-        self.drift = LaneWindows(n, width=6)  # DriftGlr's fixes
+        self.drift = DriftWindows(n)
         self.drift_moved = np.zeros((n, 4))  # DriftGlr.moved
         self.drift_last = np.zeros(n)  # DriftGlr.last
         self.drift_glr = np.full(n, math.nan)
@@ -184,14 +185,12 @@ class OdometryLanes(_EstimatorLanes):
                 e = pos[has, :2] - out[has, :2]
                 self.monitor.add(t, idx, e)
                 self.trend.add(t, idx, e)
-                self.drift.add(t, idx, np.concatenate([e, self.drift_moved[idx]], axis=1))
+                self.drift.add(t, idx, e, self.drift_moved[idx])
                 self.drift_moved[idx] = 0.0
                 self.drift_last[idx] = t
                 self.innovation[idx] = self.monitor.mean_norm(idx)
                 self.innovation_trend[idx] = self.trend.trend(idx)
-                self.drift_glr[idx] = self.drift.drift(
-                    idx, self.drift_span[idx], self.drift_support[idx]
-                )
+                self.drift_glr[idx] = self.drift.value(idx)
         cov = np.zeros((n, 9))
         cov[:, 0] = cov[:, 4] = var1
         cov[:, 8] = var_th
@@ -224,7 +223,7 @@ class OdometryLanes(_EstimatorLanes):
             self.started[i] = m.started
             self.monitor.load(i, m.monitor)
             self.trend.load(i, m.trend)
-            self.drift.load(i, m.drift)
+            self.drift.copy_lane(i, m.drift.windows, 0)
             self.drift_moved[i] = m.drift.moved
             self.drift_last[i] = m.drift.last
             self.innovation[i] = m.signals["innovation"]
@@ -233,8 +232,6 @@ class OdometryLanes(_EstimatorLanes):
             self.last_fix[i] = m.last_fix
         self.sig_enc = self.lane_attr("sig_enc")
         self.var_th = self.lane_attr("var_th")
-        self.drift_span = np.array([m.drift.min_span_s for m in self.modules], dtype=float)
-        self.drift_support = np.array([m.drift.min_support_s for m in self.modules], dtype=float)
 
     def store(self, lanes):
         for i in self.indices(lanes):
@@ -245,7 +242,7 @@ class OdometryLanes(_EstimatorLanes):
             m.started = bool(self.started[i])
             self.monitor.store(i, m.monitor)
             self.trend.store(i, m.trend)
-            self.drift.store(i, m.drift)
+            m.drift.windows.copy_lane(0, self.drift, i)
             m.drift.moved = self.drift_moved[i].tolist()
             m.drift.last = float(self.drift_last[i])
             m.signals["innovation"] = float(self.innovation[i])

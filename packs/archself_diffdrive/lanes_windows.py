@@ -9,8 +9,6 @@ keep their own items. Adding drops the old items by the per-run rule and keeps t
 running sums in the per-run order; the window's value (:meth:`LaneWindows.mean_norm`)
 and the trend statistic (:meth:`LaneWindows.trend`, sums over the lanes' items with
 the other slots masked) are the per-run numbers to the last bits of a sum's order.
-The same buffers, six numbers wide, hold the fixes of
-:class:`~archself_diffdrive.drift_glr.DriftGlr` (:meth:`LaneWindows.drift`).
 """
 
 from __future__ import annotations
@@ -19,8 +17,6 @@ import math
 from typing import Any
 
 import numpy as np
-
-from archself_diffdrive.drift_glr import drift_glr
 
 __all__ = ["LaneWindows"]
 
@@ -39,10 +35,6 @@ class LaneWindows:
         Number of lanes.
     capacity : int
         Items per lane before the buffers double.
-    width : int
-        Numbers per item besides its time: 2 for an innovation; more for
-        :class:`~archself_diffdrive.drift_glr.DriftGlr`'s items (``e`` holds them all,
-        the running sums too).
 
     Examples
     --------
@@ -54,13 +46,13 @@ class LaneWindows:
     [1.0, 1.0]
     """
 
-    def __init__(self, n: int, capacity: int = 32, width: int = 2) -> None:
+    def __init__(self, n: int, capacity: int = 32) -> None:
         self.window = np.full(n, math.nan)
         self.t = np.zeros((n, capacity))
-        self.e = np.zeros((n, capacity, width))
+        self.e = np.zeros((n, capacity, 2))
         self.head = np.zeros(n, dtype=int)
         self.count = np.zeros(n, dtype=int)
-        self.sums = np.zeros((n, width))
+        self.sums = np.zeros((n, 2))
         self.start = np.full(n, math.nan)  # NaN: None (no item since the last clear)
         self.last = np.zeros(n)
 
@@ -76,13 +68,13 @@ class LaneWindows:
         every = np.arange(len(self.head))
         t, e = self._ordered(every, self.t.shape[1])
         self.t = np.zeros((len(every), cap))
-        self.e = np.zeros((len(every), cap, self.e.shape[2]))
+        self.e = np.zeros((len(every), cap, 2))
         self.t[:, : t.shape[1]] = t
         self.e[:, : e.shape[1]] = e
         self.head[:] = 0
 
     def add(self, t: float, idx: np.ndarray, e: np.ndarray) -> None:
-        """Add items ``e`` (``(len(idx), width)``) observed at ``t`` in lanes ``idx``."""
+        """Add innovations ``e`` (``(len(idx), 2)``) observed at ``t`` in lanes ``idx``."""
         count = self.count[idx]
         if (count >= self.t.shape[1]).any():
             self._grow(int(count.max()) + 1)
@@ -142,24 +134,14 @@ class LaneWindows:
         out[ok] = np.where((stt > 0.0) & (var > 0.0), value, math.nan)
         return out
 
-    def drift(self, idx: np.ndarray, min_span_s: np.ndarray, min_support_s: np.ndarray
-              ) -> np.ndarray:
-        """``DriftGlr.value`` of lanes ``idx`` (items ``(t, ex, ey, ΔDx, ΔDy, ΔMx, ΔMy)``)."""
-        n = self.count[idx]
-        width = int(n.max()) if len(n) else 0
-        if width < 5:
-            return np.full(len(idx), math.nan)
-        t, e = self._ordered(idx, width)
-        return drift_glr(t, e[:, :, :2], e[:, :, 2:], n, min_span_s, min_support_s)
-
     # ------------------------------------------------------------------ per-run bridge
     def items(self, i: int) -> list[tuple[float, ...]]:
-        """Lane ``i``'s items ``(t, ex, ey, ...)``, oldest first (the per-run deque's)."""
+        """Lane ``i``'s items ``(t, ex, ey)``, oldest first (the per-run deque's)."""
         t, e = self._ordered(np.array([i]), int(self.count[i]))
         return [(a, *b) for a, b in zip(t[0].tolist(), e[0].tolist(), strict=True)]
 
     def load(self, i: int, window: Any) -> None:
-        """Lane ``i`` from a per-run ``InnovationWindow``, ``InnovationTrend`` or ``DriftGlr``."""
+        """Lane ``i`` from a per-run ``InnovationWindow`` or ``InnovationTrend``."""
         items = list(window.items)
         if len(items) > self.t.shape[1]:
             self._grow(len(items))
@@ -176,7 +158,7 @@ class LaneWindows:
             self.last[i] = window.last
 
     def store(self, i: int, window: Any) -> None:
-        """Lane ``i`` into a per-run ``InnovationWindow``, ``InnovationTrend`` or ``DriftGlr``."""
+        """Lane ``i`` into a per-run ``InnovationWindow`` or ``InnovationTrend``."""
         window.items.clear()
         window.items.extend(self.items(i))
         if hasattr(window, "sx"):
