@@ -69,6 +69,7 @@ class LevelObserver(RuntimeModule):
     inputs = ("level_measured", "flow_measured", "tank_model")
     outputs = ("level_estimate",)
     residual_signals = ("innovation",)
+    lanes = "archself_process.lanes_control:LevelObserverLanes"
 
     def __init__(self, name, params, rng):
         self.monitor = MeanWindow(math.nan)  # configure() sets its window
@@ -162,6 +163,7 @@ class PiController(RuntimeModule):
     optional_inputs: ClassVar[tuple[str, ...]] = ("tank_model",)
     outputs = ("valve_cmd",)
     residual_signals = ("tracking_error",)
+    lanes = "archself_process.lanes_control:PiControllerLanes"
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
@@ -252,6 +254,7 @@ class PiFeedforwardController(PiController):
     }
     inputs = ("setpoint", "level_estimate", "flow_measured", "tank_model")
     optional_inputs = ()
+    lanes = "archself_process.lanes_control:PiFeedforwardControllerLanes"
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
@@ -346,6 +349,7 @@ class SetpointPlanner(RuntimeModule):
     role = "planner"
     outputs = ("setpoint",)
     output_sizes = {"setpoint": 2}  # h_ref, dh_ref/dt
+    lanes = "archself_process.lanes_control:SetpointPlannerLanes"
 
     def configure(self) -> None:
         self.steps = sorted((float(t), float(h)) for t, h in self.params["steps"])

@@ -266,6 +266,7 @@ class TankPlant(RuntimeModule):
     outputs = ("level", "inflow")
     output_sizes = {"level": 1, "inflow": 1}
     direct_feedthrough = False
+    lanes = "archself_process.lanes_tank:TankPlantLanes"
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
@@ -358,6 +359,7 @@ class ControlValve(RuntimeModule):
         {"effectiveness_loss", "stuck", "dropout", "bias", "bias_drift", "noise_increase"}
     )
     main_output = "inflow"
+    lanes = "archself_process.lanes_tank:ControlValveLanes"
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
@@ -398,6 +400,7 @@ class FlowMeter(RuntimeModule):
     inputs = ("inflow",)
     outputs = ("flow_measured",)
     fault_kinds = _SENSOR_FAULTS
+    lanes = "archself_process.lanes_tank:FlowMeterLanes"
 
     def configure(self) -> None:
         self.noise = float(self.params["noise_m3_s"])
@@ -426,6 +429,7 @@ class LevelSensor(RuntimeModule):
     inputs = ("level",)
     outputs = ("level_measured",)
     fault_kinds = _SENSOR_FAULTS
+    lanes = "archself_process.lanes_tank:LevelSensorLanes"
 
     def configure(self) -> None:
         self.noise = float(self.params["noise_m"])
@@ -456,6 +460,7 @@ class TankModelNode(RuntimeModule):
     role = "model"
     outputs = ("tank_model",)
     direct_feedthrough = False
+    lanes = "archself_process.lanes_tank:TankModelNodeLanes"
 
     def configure(self) -> None:
         kw = {k: float(self.params[k]) for k in MODEL_PARAMETERS}
