@@ -67,6 +67,7 @@ class Actuator(RuntimeModule):
     residual_signals = ("command_error",)
     fault_kinds = ACTUATOR_FAULTS
     main_output = "u"
+    lanes = "archself_blocks.lanes_plants:ActuatorLanes"
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)

@@ -231,6 +231,7 @@ class KalmanFilter(_ModelEstimator):
         **_COMMON,
     }
     residual_signals: ClassVar[tuple[str, ...]] = ("innovation", "nis")
+    lanes = "archself_blocks.lanes_estimators:KalmanFilterLanes"
 
     def _matrices(self, dt: float) -> None:
         import filterpy.kalman
@@ -356,6 +357,7 @@ class AugmentedEkf(KalmanFilter):
     residual_signals: ClassVar[tuple[str, ...]] = (
         "innovation", "nis", "effectiveness_loss", "bias",
     )
+    lanes = None  # not KalmanFilter's: runs lane by lane
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)

@@ -266,6 +266,7 @@ class StateSpacePlant(RuntimeModule):
         Output("u", doc="the input it applied during the last step"),
     )
     direct_feedthrough = False
+    lanes = "archself_blocks.lanes_plants:StateSpacePlantLanes"
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)
@@ -383,6 +384,7 @@ class LtiModelNode(RuntimeModule):
     role = "model"
     ports = (Output("model", doc="the LtiModel (a model object, not a signal)"),)
     direct_feedthrough = False
+    lanes = "archself_blocks.lanes_plants:LtiModelNodeLanes"
 
     def configure(self) -> None:
         self._out = {"model": _build_model(self.params)}

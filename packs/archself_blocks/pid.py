@@ -130,6 +130,7 @@ class Pid(RuntimeModule):
         Output("command", doc="clip(feed-forward + kp·e + I − D, u_min, u_max)"),
     )
     residual_signals = ("tracking_error",)
+    lanes = "archself_blocks.lanes_control:PidLanes"
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)

@@ -38,6 +38,7 @@ class Relay(RuntimeModule):
     )
 
     direct_feedthrough = False
+    lanes = "archself_blocks.lanes_static:RelayLanes"
 
     def __init__(self, name: str, params: dict[str, Any], rng: Any) -> None:
         super().__init__(name, params, rng)

@@ -60,6 +60,7 @@ class Sensor(RuntimeModule):
     )
     fault_kinds = SENSOR_FAULTS
     main_output = "measurement"
+    lanes = "archself_blocks.lanes_plants:SensorLanes"
 
     def configure(self) -> None:
         p = self.params

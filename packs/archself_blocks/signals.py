@@ -47,6 +47,7 @@ class Reference(RuntimeModule):
     }
     role = "planner"
     ports = (Output("reference", doc="[r, dr/dt]", size=2),)
+    lanes = "archself_blocks.lanes_control:ReferenceLanes"
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)
@@ -144,6 +145,7 @@ class Gain(_Static):
         "gain": Param(1.0, "", "K: a number or a matrix"),
         "offset": Param(0.0, "", "added after the gain (a number or a vector)"),
     }
+    lanes = "archself_blocks.lanes_static:GainLanes"
 
     def configure(self) -> None:
         self.k = np.asarray(self.params["gain"], dtype=float)
@@ -182,6 +184,7 @@ class Sum(_Static):
     """
 
     parameters = {"weights": Param(None, "", "one weight per input; None: all 1")}
+    lanes = "archself_blocks.lanes_static:SumLanes"
 
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         values = self._values(inputs)
@@ -227,6 +230,7 @@ class Select(_Static):
     parameters = {
         "index": Param(0, "", "component, or list of components, to pass on", min=0, max=100000),
     }
+    lanes = "archself_blocks.lanes_static:SelectLanes"
 
     def configure(self) -> None:
         idx = self.params["index"]
