@@ -102,6 +102,7 @@ def _run(kind: type, params: list[dict], inputs: Callable[..., dict[str, Any]],
     batched = lane_module(mods)
     assert type(batched).__module__.startswith("archself_blocks.lanes_")
     rng = np.random.default_rng(5)
+    published: list[tuple[np.ndarray, np.ndarray]] = []  # (a published array, its copy)
     for k in range(steps):
         t = k * DT
         if hooks and k in hooks:
@@ -120,6 +121,9 @@ def _run(kind: type, params: list[dict], inputs: Callable[..., dict[str, Any]],
         want = [twins[i].step(t, DT, p) for i, p in zip(idx, per_run, strict=True)]
         for key in want[0] or ():
             _same(got.get(key), stack([w[key] for w in want]), f"step {k} {key}")
+        for arr, copy in published:  # what a lane module publishes is no view of its state
+            assert np.array_equal(arr, copy, equal_nan=True), f"step {k}: a published value moved"
+        published = [(v, v.copy()) for v in got.values() if isinstance(v, np.ndarray)]
         sigs = batched.local_signals(lanes)
         for key in kind.residual_signals:
             expect = [twins[i].local_signals().get(key, math.nan) for i in idx]

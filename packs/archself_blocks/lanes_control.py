@@ -85,7 +85,7 @@ class PidLanes(BlockLanes):
             for i, obj in zip(idx.tolist(), objs, strict=True):
                 if obj is not None:
                     self.models[i] = obj
-        last = self.last[lanes]
+        last = self.last[lanes].copy()  # published: not a view of the state
         fi = self.fi[lanes]
         est = self._pick(as_rows(inputs.get("estimate")), fi, True)
         meas = self._pick(as_rows(inputs.get("measurement")), fi, True)
@@ -131,7 +131,7 @@ class PidLanes(BlockLanes):
                           ("last", u)):
             old = getattr(self, name)
             old[lanes] = new if has.all() else np.where(has, new, old[lanes])
-        command = self.last[lanes]
+        command = self.last[lanes].copy()
         self._screen(lanes, has, command)
         return {"command": command}
 

@@ -1,5 +1,8 @@
 """The linear Kalman filter in N lanes: :class:`~archself_blocks.estimators.KalmanFilter`, batched.
 
+:class:`ModelEstimatorLanes` is what the batched estimators share (the model input,
+the last ``u``, the start, the paused monitor, the innovation windows, the per-run
+bridge of :class:`~archself_blocks.estimators._ModelEstimator`);
 :class:`KalmanFilterLanes` keeps every lane's estimate ``(N, n)``, covariance
 ``(N, n, n)`` and filter matrices (from the lane's own model object and
 parameters: ``model.discrete(dt)``, ``Q·dt``, the measured rows of C, ``R``, ``P0``)
@@ -27,7 +30,7 @@ from archself_blocks.lanes_base import BlockLanes, as_rows, matvec, present, zoh
 from archself_blocks.lanes_windows import LaneMeanWindows
 from archself_blocks.lti import vector
 
-__all__ = ["KalmanFilterLanes"]
+__all__ = ["KalmanFilterLanes", "ModelEstimatorLanes"]
 
 
 def _t(a: np.ndarray) -> np.ndarray:
@@ -35,15 +38,19 @@ def _t(a: np.ndarray) -> np.ndarray:
     return a.transpose(0, 2, 1)
 
 
-class KalmanFilterLanes(BlockLanes):
-    """:class:`~archself_blocks.estimators.KalmanFilter` in N lanes (see the module doc).
+class ModelEstimatorLanes(BlockLanes):
+    """An estimator on an LTI model input in N lanes: what the batched estimators share.
 
-    The arrays of the filter are made when the first model (or estimate, or input)
-    arrives, empty until then: the lanes' models must share their sizes.
+    The arrays are made when the first model (or estimate, or input) arrives, empty
+    until then: the lanes' models must share their sizes. Subclasses build their
+    matrices (:meth:`_build`), advance the started lanes (:meth:`_advance`) and carry
+    their own state over the per-run bridge (:meth:`_load_lane`, :meth:`_store_lane`).
     """
 
     settle_s: np.ndarray
     window_s: np.ndarray
+    #: Entries after ν in a window item: the NIS of the Kalman filters, none for an observer.
+    extra_width = 1
 
     def __init__(self, modules) -> None:
         N = len(modules)
@@ -54,12 +61,9 @@ class KalmanFilterLanes(BlockLanes):
         self.u = np.zeros((N, 0))
         self.has_u = np.zeros(N, dtype=bool)
         self.dt_of = np.full(N, math.nan)  # the step of the lane's matrices (NaN: to build)
-        self.dt_last = np.full(N, math.nan)  # the step its covariance was last built for
-        self.has_P = np.zeros(N, dtype=bool)
         self.quiet_until = np.full(N, -math.inf)
         self.pending = np.zeros(N, dtype=bool)  # _pending_settle
-        self.innovation = np.full(N, math.nan)
-        self.nis = np.full(N, math.nan)
+        self.signals = {k: np.full(N, math.nan) for k in type(modules[0]).residual_signals}
         self.window = LaneMeanWindows(N, 0)  # no items before a model
         self._shared: dict[Any, Any] = {}
         super().__init__(modules)
@@ -75,8 +79,8 @@ class KalmanFilterLanes(BlockLanes):
         if not self.u.shape[1]:
             self.u = np.zeros((self.n, m))
 
-    def _size_model(self, model: Any, rows: list[int] | None) -> None:
-        k = model.p if rows is None else len(rows)
+    def _size_model(self, model: Any) -> None:
+        k = model.p if self.rows is None else len(self.rows)
         sizes = (model.n, k, model.m, model.p)
         if self.sizes[0]:
             if sizes != self.sizes:
@@ -86,28 +90,28 @@ class KalmanFilterLanes(BlockLanes):
         N, (n, k, m, p) = self.n, sizes
         self._size_x(n)
         self._size_u(m)
-        self.F, self.B, self.Q = np.zeros((N, n, n)), np.zeros((N, n, m)), np.zeros((N, n, n))
-        self.H, self.R, self.C = np.zeros((N, k, n)), np.zeros((N, k, k)), np.zeros((N, p, n))
-        self.P = np.zeros((N, n, n))
-        self.eye = np.eye(n)
-        self.window = LaneMeanWindows(N, k + 1)
+        self.H, self.C = np.zeros((N, k, n)), np.zeros((N, p, n))
+        self.window = LaneMeanWindows(N, k + self.extra_width)
         self.window.window_s[:] = self.window_s
+        self._alloc()
+
+    def _alloc(self) -> None:
+        """Make the subclass's arrays (``self.sizes`` is known)."""
 
     # ------------------------------------------------------------------ the per-run bridge
     def load(self, lanes):
         mods = self._mods(lanes)
-        idx = self.indices(lanes).tolist()
         self._read(lanes, "settle_s", [m.settle_s for m in mods])
         self._read(lanes, "window_s", [m.window.window_s for m in mods])
         self.rows = self.modules[0].rows
         for m in mods:  # the sizes first: a lane may have its model, another none yet
             if m.model is not None:
-                self._size_model(m.model, m.rows)
+                self._size_model(m.model)
             if m.x is not None:
                 self._size_x(m.x.size)
             if m.u is not None:
                 self._size_u(m.u.size)
-        for i, m in zip(idx, mods, strict=True):
+        for i, m in zip(self.indices(lanes).tolist(), mods, strict=True):
             self.models[i] = m.model
             self.started[i] = m.x is not None
             if m.x is not None:
@@ -115,61 +119,51 @@ class KalmanFilterLanes(BlockLanes):
             self.has_u[i] = m.u is not None
             if m.u is not None:
                 self.u[i] = m.u
-            kf = getattr(m, "kf", None)
-            self.has_P[i] = kf is not None
-            if kf is not None:
-                self.P[i] = kf.P
-            self.dt_of[i] = self.dt_last[i] = math.nan  # rebuilt: the same matrices, P kept
+            self.dt_of[i] = math.nan  # rebuilt at the next step: the same matrices
             self.quiet_until[i], self.pending[i] = m.quiet_until, m._pending_settle
-            self.innovation[i], self.nis[i] = m.signals["innovation"], m.signals["nis"]
+            for key, arr in self.signals.items():
+                arr[i] = m.signals.get(key, math.nan)
             self.window.load(i, m.window)
+            self._load_lane(i, m)
+
+    def _load_lane(self, i: int, m: Any) -> None:
+        """Read the subclass's state of lane ``i`` from its instance ``m``."""
 
     def store(self, lanes):
-        for i, m in zip(self.indices(lanes), self._mods(lanes), strict=True):
+        for i, m in zip(self.indices(lanes).tolist(), self._mods(lanes), strict=True):
             m.model = self.models[i]
             m.x = self.x[i].copy() if self.started[i] else None
             m.u = self.u[i].copy() if self.has_u[i] else None
             m.quiet_until, m._pending_settle = float(self.quiet_until[i]), bool(self.pending[i])
-            m.signals["innovation"] = float(self.innovation[i])
-            m.signals["nis"] = float(self.nis[i])
+            for key, arr in self.signals.items():
+                m.signals[key] = float(arr[i])
             self.window.store(i, m.window)
-            if self.has_P[i]:
-                if not math.isnan(self.dt_last[i]):  # its filterpy object, with the lane's model
-                    m._matrices(float(self.dt_last[i]))
-                m.kf.P = self.P[i].copy()  # (else the instance's own object, loaded from)
-                if m.x is not None:
-                    m.kf.x = m.x.copy()
+            self._store_lane(i, m)
             m._dt = None if math.isnan(self.dt_of[i]) else float(self.dt_of[i])
 
+    def _store_lane(self, i: int, m: Any) -> None:
+        """Write the subclass's state of lane ``i`` into its instance ``m``."""
+
     def local_signals(self, lanes):
-        return {"innovation": self.innovation[lanes].copy(), "nis": self.nis[lanes].copy()}
+        return {k: v[lanes].copy() for k, v in self.signals.items()}
 
     # ------------------------------------------------------------------ a step
-    def _build(self, idx: np.ndarray, dt: float) -> None:
-        """``KalmanFilter._matrices(dt)`` of lanes ``idx``: F, B, H, Q, R, C; P kept or P0."""
-        n, k = self.sizes[0], self.sizes[1]
-        for i in idx.tolist():
-            mod, model = self.modules[i], self.models[i]
-            self.F[i], self.B[i] = zoh(model, dt, self._shared)
-            q = _cov(mod.params["Q"], n)
-            self.Q[i] = q * dt if model.dt == 0 else q
-            self.H[i] = model.C if self.rows is None else model.C[self.rows, :]
-            self.R[i] = _cov(mod.params["R"], k)
-            self.C[i] = model.C
-            if not self.has_P[i]:
-                self.P[i] = _cov(mod.params["P0"], n)
-                self.has_P[i] = True
-            self.dt_of[i] = self.dt_last[i] = dt
-
     def _take_models(self, objs: list[Any] | None, idx: np.ndarray) -> np.ndarray:
         """Lanes ``idx`` take a new model object (its matrices rebuilt); which have one."""
         if objs is not None:
             for i, obj in zip(idx.tolist(), objs, strict=True):
                 if obj is not None and obj is not self.models[i]:
-                    self._size_model(obj, self.rows)
+                    self._size_model(obj)
                     self.models[i] = obj
                     self.dt_of[i] = math.nan
         return np.array([self.models[i] is not None for i in idx.tolist()], dtype=bool)
+
+    def _measured(self, idx: np.ndarray) -> None:
+        """H (the measured rows of C) and C of lanes ``idx`` from their models."""
+        for i in idx.tolist():
+            C = self.models[i].C
+            self.C[i] = C
+            self.H[i] = C if self.rows is None else C[self.rows, :]
 
     def step(self, t, dt, inputs, lanes):
         idx = self.indices(lanes)
@@ -190,29 +184,30 @@ class KalmanFilterLanes(BlockLanes):
             self.quiet_until[idx[wait]] = t + self.settle_s[idx[wait]]
             self.pending[idx[wait]] = False
         if not modeled.any():
-            return {"estimate": None, "state": None}
+            return self._publish(lanes, modeled)
         z = as_rows(inputs.get("measurement"))
         zhas = np.zeros(len(idx), dtype=bool) if z is None else present(z)
         build = modeled & ~(self.dt_of[idx] == dt)
         if build.any():
+            self._measured(idx[build])
             self._build(idx[build], dt)
+            self.dt_of[idx[build]] = dt
         run = modeled & self.started[idx]
         fresh = modeled & ~self.started[idx] & zhas
         if fresh.any():
             self._begin(t, idx[fresh], z[fresh])
         if run.any():
             every = bool(run.all())
-            sel = lanes if every else idx[run]
-            self._advance(t, sel, None if z is None else (z if every else z[run]),
+            self._advance(t, lanes if every else idx[run],
+                          None if z is None else (z if every else z[run]),
                           zhas if every else zhas[run])
-        out = modeled & self.started[idx]
-        x = self.x[idx]
-        est = matvec(self.C[idx], x)
-        if not out.all():
-            x[~out] = math.nan
-            est[~out] = math.nan
-        self._screen(lanes, out, est, x)
-        return {"estimate": est, "state": x}
+        return self._publish(lanes, modeled)
+
+    def _build(self, idx: np.ndarray, dt: float) -> None:
+        """The subclass's matrices of lanes ``idx`` at ``dt`` (per-run ``_matrices``)."""
+
+    def _advance(self, t: float, sel, z: np.ndarray | None, zhas: np.ndarray) -> None:
+        """Advance the started lanes ``sel`` with their measurements ``z`` (rows ``zhas``)."""
 
     def _begin(self, t: float, idx: np.ndarray, z: np.ndarray) -> None:
         """``_begin``: ``x0`` or the least-squares estimate ``pinv(H) z``; the monitor pauses."""
@@ -221,6 +216,82 @@ class KalmanFilterLanes(BlockLanes):
             self.x[i] = vector(x0) if x0 is not None else np.linalg.pinv(self.H[i]) @ z[j]
             self.quiet_until[i] = t + self.settle_s[i]
             self.started[i] = True
+
+    def _publish(self, lanes, modeled: np.ndarray) -> dict[str, Any]:
+        """``estimate`` (C x̂) and ``state`` (x̂) of the lanes with a model and an estimate."""
+        if not modeled.any():
+            return {"estimate": None, "state": None}
+        out = modeled & self.started[lanes]
+        x = self.x[lanes].copy()  # a view for ALL: published, it must not change with the state
+        est = matvec(self.C[lanes], x)
+        if not out.all():
+            x[~out] = math.nan
+            est[~out] = math.nan
+        self._screen(lanes, out, est, x)
+        return {"estimate": est, "state": x}
+
+    def _monitor(self, t: float, idx: np.ndarray, nu: np.ndarray,
+                 nis: np.ndarray | None) -> None:
+        """``_monitor``: the windows of the lanes past their quiet time, and their signals."""
+        on = ~(t < self.quiet_until[idx])
+        if not on.any():
+            return
+        idx, nu = idx[on], nu[on]
+        self.window.add(t, idx, nu if nis is None else np.column_stack([nu, nis[on]]))
+        mean = self.window.value(idx)
+        ready = ~np.isnan(mean[:, 0])
+        if ready.any():
+            k = nu.shape[1]
+            m = mean[ready, :k]
+            norm = np.sqrt((m[:, None, :] @ m[:, :, None])[:, 0, 0])
+            self.signals["innovation"][idx[ready]] = norm
+            if nis is not None:
+                self.signals["nis"][idx[ready]] = mean[ready, k]
+
+
+class KalmanFilterLanes(ModelEstimatorLanes):
+    """:class:`~archself_blocks.estimators.KalmanFilter` in N lanes (see the module doc)."""
+
+    def __init__(self, modules) -> None:
+        N = len(modules)
+        self.dt_last = np.full(N, math.nan)  # the step the lane's filterpy object was built for
+        self.has_P = np.zeros(N, dtype=bool)
+        super().__init__(modules)
+
+    def _alloc(self) -> None:
+        N, (n, k, m, _) = self.n, self.sizes
+        self.F, self.B, self.Q = np.zeros((N, n, n)), np.zeros((N, n, m)), np.zeros((N, n, n))
+        self.R, self.P = np.zeros((N, k, k)), np.zeros((N, n, n))
+        self.eye = np.eye(n)
+
+    def _load_lane(self, i: int, m: Any) -> None:
+        kf = getattr(m, "kf", None)
+        self.has_P[i] = kf is not None
+        if kf is not None:
+            self.P[i] = kf.P
+        self.dt_last[i] = math.nan
+
+    def _store_lane(self, i: int, m: Any) -> None:
+        if self.has_P[i]:
+            if not math.isnan(self.dt_last[i]):  # its filterpy object, with the lane's model
+                m._matrices(float(self.dt_last[i]))
+            m.kf.P = self.P[i].copy()  # (else the instance's own object, loaded from)
+            if m.x is not None:
+                m.kf.x = m.x.copy()
+
+    def _build(self, idx: np.ndarray, dt: float) -> None:
+        """``KalmanFilter._matrices(dt)`` of lanes ``idx``: F, B, Q, R; P kept or P0."""
+        n, k = self.sizes[0], self.sizes[1]
+        for i in idx.tolist():
+            mod, model = self.modules[i], self.models[i]
+            self.F[i], self.B[i] = zoh(model, dt, self._shared)
+            q = _cov(mod.params["Q"], n)
+            self.Q[i] = q * dt if model.dt == 0 else q
+            self.R[i] = _cov(mod.params["R"], k)
+            if not self.has_P[i]:
+                self.P[i] = _cov(mod.params["P0"], n)
+                self.has_P[i] = True
+            self.dt_last[i] = dt
 
     def _advance(self, t: float, sel, z: np.ndarray | None, zhas: np.ndarray) -> None:
         """Predict the lanes ``sel`` (started, with a model); update those with a measurement.
@@ -277,18 +348,3 @@ class KalmanFilterLanes(BlockLanes):
             sol = np.linalg.solve(S, nu[..., None])
             self._monitor(t, idx, nu, (nu[:, None, :] @ sol)[:, 0, 0])
         return x1, P1, keep
-
-    def _monitor(self, t: float, idx: np.ndarray, nu: np.ndarray, nis: np.ndarray) -> None:
-        """``_monitor``: the windows of the lanes past their quiet time, and their signals."""
-        on = ~(t < self.quiet_until[idx])
-        if not on.any():
-            return
-        idx, nu, nis = idx[on], nu[on], nis[on]
-        self.window.add(t, idx, np.column_stack([nu, nis]))
-        mean = self.window.value(idx)
-        ready = ~np.isnan(mean[:, 0])
-        if ready.any():
-            k = nu.shape[1]
-            m = mean[ready, :k]
-            self.innovation[idx[ready]] = np.sqrt((m[:, None, :] @ m[:, :, None])[:, 0, 0])
-            self.nis[idx[ready]] = mean[ready, k]
