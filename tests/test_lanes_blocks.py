@@ -26,7 +26,7 @@ from archself.resources import data_dir
 from archself.sim.run import simulate
 from archself.streams import module_rng
 from archself_blocks.actuators import Actuator
-from archself_blocks.estimators import KalmanFilter
+from archself_blocks.estimators import AugmentedEkf, KalmanFilter, Luenberger
 from archself_blocks.lti import LtiModel, LtiModelNode, StateSpacePlant, TransferFunctionPlant
 from archself_blocks.pid import Pid
 from archself_blocks.relay import Relay
@@ -388,6 +388,84 @@ def test_kalman_lanes_built_from_handed_over_instances() -> None:
         mods[3].import_state({"state": [6.0, 52.0]})
 
     _run(KalmanFilter, KALMANS, _kalman_inputs, steps=40, prepare=prepare)
+
+
+OBSERVERS = [
+    {"poles": [-4.0, -5.0], "x0": [5.0, 50.0], "innovation_window_s": 4.0, "settle_s": 1.0},
+    {"poles": [-4.0, -5.0], "innovation_window_s": 3.0, "settle_s": 0.5},
+    {"gain": [[0.5], [2.0]], "x0": [5.0, 50.0], "innovation_window_s": 2.0, "settle_s": 0.0},
+    {"poles": [[-3.0, 1.0]], "innovation_window_s": 3.0},  # a complex pair
+]
+
+
+def test_luenberger_lanes_are_the_per_run_observers() -> None:
+    """Gains placed once for the lanes that agree; a hand-over and a new gain at run time."""
+    hooks = {60: _hand_over((0, 2), {"state": [4.0, 45.0]}),
+             90: _update(2, {"gain": [[0.3], [1.5]]})}
+    batched, twins = _run(Luenberger, OBSERVERS, _kalman_inputs, hooks)
+    assert len(batched._shared) == 4  # lanes 0 and 1 share theirs; lane 2 has two gains
+    assert np.isfinite(batched.local_signals(ALL)["innovation"]).all()
+    batched.store(ALL)
+    for mod, twin in zip(batched.modules, twins, strict=True):
+        assert_allclose(mod.export_state()["state"], twin.export_state()["state"], **TOL)
+        assert_allclose(mod.linearization(), twin.linearization(), **TOL)
+        assert_allclose(mod._y, twin._y, **TOL)
+
+
+EKFS = [
+    {**KALMANS[0], "effectiveness_noise": 1e-3},
+    {**KALMANS[1], "effectiveness_noise": 1e-2, "effectiveness_p0": 0.05},
+    {**KALMANS[2]},
+    {**KALMANS[3], "effectiveness_noise": 1e-4},
+]
+
+
+@pytest.mark.parametrize("parts", [{}, {"estimate_effectiveness": False, "estimate_bias": True},
+                                   {"estimate_bias": True}])
+def test_ekf_lanes_are_the_per_run_filters(parts) -> None:
+    """η and/or b in the state; a hand-over (the parameters kept) and a retune at run time."""
+    params = [{**p, **parts} for p in EKFS]
+    hooks = {60: _hand_over((0, 2), {"state": [4.0, 45.0]}), 90: _update(3, {"R": 0.2})}
+    batched, twins = _run(AugmentedEkf, params, _kalman_inputs, hooks)
+    assert np.isfinite(batched.local_signals(ALL)["effectiveness_loss"]).sum() >= 3
+    batched.store(ALL)
+    for mod, twin in zip(batched.modules, twins, strict=True):
+        got, want = mod.export_state(), twin.export_state()
+        for key in ("state", "parameters"):
+            assert_allclose(got[key], want[key], err_msg=key, **TOL)
+        assert_allclose(mod.kf.P, twin.kf.P, **TOL)
+
+
+@pytest.mark.parametrize(("kind", "why"), [(KalmanFilter, "non-finite output"),
+                                         (AugmentedEkf, "raised ValueError")])
+def test_a_filter_lane_whose_covariance_broke_fails_alone(kind, why) -> None:
+    """A NaN covariance: numpy's inverse gives NaN (a non-finite estimate), scipy's raises
+    (filterpy's EKF); only that lane fails, the others go on as their twins."""
+    name = kind.__name__
+    twins = [kind(name, p, module_rng(s, name)) for p, s in zip(KALMANS, SEEDS, strict=True)]
+    batched = lane_module([kind(name, p, module_rng(s, name))
+                           for p, s in zip(KALMANS, SEEDS, strict=True)])
+    rng = np.random.default_rng(2)
+    for k in range(12):
+        if k == 8:
+            batched.store(ALL)
+            for m in (batched.modules[1], twins[1]):
+                m.kf.P = np.full_like(m.kf.P, math.nan)
+            batched.load(ALL)
+        per_run = [{**_kalman_inputs(rng, k, i), "measurement": 50.0} for i in range(4)]
+        got = batched.step(k * DT, DT, _lane_inputs(per_run), ALL)
+        for i in range(4):
+            if k >= 8 and i == 1:
+                assert batched.failed == {1: why}
+                if kind is AugmentedEkf:
+                    with pytest.raises(ValueError):
+                        twins[1].step(k * DT, DT, per_run[1])
+                else:
+                    assert not np.isfinite(twins[1].step(k * DT, DT, per_run[1])["estimate"]).all()
+                continue
+            want = twins[i].step(k * DT, DT, per_run[i])["estimate"]
+            _same(got["estimate"][i] if want is not None else None, want, f"{k} {i}")
+        batched.failed.clear()
 
 
 # ---------------------------------------------------------------------- end to end

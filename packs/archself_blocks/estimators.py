@@ -357,7 +357,7 @@ class AugmentedEkf(KalmanFilter):
     residual_signals: ClassVar[tuple[str, ...]] = (
         "innovation", "nis", "effectiveness_loss", "bias",
     )
-    lanes = None  # not KalmanFilter's: runs lane by lane
+    lanes = "archself_blocks.lanes_observers:AugmentedEkfLanes"
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)
@@ -505,6 +505,7 @@ class Luenberger(_ModelEstimator):
         "poles": Param(None, "1/s", "observer poles (numbers, or [re, im] pairs)"),
         **_COMMON,
     }
+    lanes = "archself_blocks.lanes_observers:LuenbergerLanes"
 
     def configure(self) -> None:
         super().configure()
