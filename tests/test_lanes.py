@@ -81,7 +81,7 @@ def test_row_and_stack_are_inverse_with_absent_lanes() -> None:
 
 @pytest.mark.parametrize("scenario", ["nominal", "valve_flicker"])
 def test_process_plant_lanes_equal_the_per_run_runs(scenario) -> None:
-    """Every module type of the tank runs through PerLane: the per-run results, bit for bit."""
+    """The tank's batched types (archself_process.lanes_*): the per-run results, bit for bit."""
     arch = Architecture.model_validate(_raw("process_plant"))
     seeds = [3, 4, 5]
     lanes = simulate_lanes(arch, scenario, seeds)
@@ -248,7 +248,7 @@ def test_a_campaign_of_lanes_writes_the_rows_of_the_per_run_campaign(tmp_path, s
 
     path = data_dir("architectures") / "process_plant.yaml"
     jobs, meta = plan_campaign(path, ["nominal", "valve_loss"], 2, [parse_sweep(sweep)])
-    assert meta["lane_types"] is False  # the tank's types run lane by lane: not by default
+    assert meta["lane_types"] is True  # the tank's types are batched: lanes by default
     rows = {}
     for lanes in (1, 8):
         out = tmp_path / f"r{lanes}.parquet"
@@ -265,7 +265,7 @@ def test_files_whose_types_are_all_batched_go_in_lanes_by_default() -> None:
 
     found = {n: batched_types(load_architecture(data_dir("architectures") / f"{n}.yaml").arch)
              for n in ("diffdrive", "process_plant", "motor_drive")}
-    assert found == {"diffdrive": True, "process_plant": False, "motor_drive": False}
+    assert found == {"diffdrive": True, "process_plant": True, "motor_drive": True}
 
 
 def test_lane_units_group_fixed_runs_of_one_scenario_in_order() -> None:
@@ -352,7 +352,7 @@ def test_calibration_runs_in_lanes_record_the_per_run_residuals() -> None:
                                                 ("process_plant", "drift_then_valve")])
 def test_every_shipped_architecture_runs_in_lanes_as_per_run(name, scenario) -> None:
     """The generic blocks (a summing junction's multi-edge input, LTI plants) and the tank's
-    types, all lane by lane through PerLane, fixed and adaptive: the per-run runs."""
+    types, batched, fixed and adaptive: the per-run runs."""
     from archself.runtime import MapeK
 
     arch = Architecture.model_validate(_raw(name))
