@@ -307,6 +307,26 @@ class LaneNormals:
         g.standard_normal(used - count)
         return g.bit_generator.state
 
+    def direct(self, i: int) -> np.random.Generator:
+        """Lane ``i``'s generator at its per-run position, for draws the buffer cannot give.
+
+        A per-run module that draws other numbers than normals (a dropout's uniform
+        after its normal) draws from the generator itself: the lane's buffered normals
+        are dropped and the stream set back to where the per-run run stands
+        (:meth:`exact_state`). Call :meth:`resume` after the draws.
+        """
+        rng = self.rngs[i]
+        if self.pos[i] < self.block:
+            rng.bit_generator.state = self.exact_state(i)
+            self.drawn[i] -= self.block - int(self.pos[i])
+            self.pos[i] = self.block
+            self._same = False
+        return rng
+
+    def resume(self, i: int) -> None:
+        """After :meth:`direct` draws: lane ``i``'s stream position is its replay point."""
+        self.marks[i] = [(self.rngs[i].bit_generator.state, int(self.drawn[i]))]
+
     def pin(self, i: int) -> None:
         """Put lane ``i``'s stream at its per-run state (for the per-run API) until unpin."""
         if i not in self._pinned:

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from archself.lanes.module import LaneModule, LaneNormals
+from archself.lanes.module import LaneModule
 
 __all__ = [
-    "BlockLanes", "as_rows", "matvec", "present", "factors", "direct_draws", "mark", "zoh",
+    "BlockLanes", "as_rows", "matvec", "present", "factors", "zoh",
 ]
 
 
@@ -97,29 +97,6 @@ def zoh(model: Any, dt: float, shared: dict[Any, Any]) -> tuple[np.ndarray, np.n
         else:
             model._cache[dt] = hit
     return hit
-
-
-def direct_draws(normals: LaneNormals, i: int) -> np.random.Generator:
-    """Lane ``i``'s generator at its per-run position, for draws the buffer cannot give.
-
-    A per-run module that draws other numbers than normals (a sensor's dropout
-    draws a uniform after its normal) must draw from the generator itself: the
-    lane's buffered normals are dropped and the stream set back to where the
-    per-run run stands (:meth:`LaneNormals.exact_state`). Call :func:`mark` after
-    the draws.
-    """
-    rng = normals.rngs[i]
-    if normals.pos[i] < normals.block:
-        rng.bit_generator.state = normals.exact_state(i)
-        normals.drawn[i] -= normals.block - int(normals.pos[i])
-        normals.pos[i] = normals.block
-        normals._same = False
-    return rng
-
-
-def mark(normals: LaneNormals, i: int) -> None:
-    """Lane ``i``'s stream position after direct draws: its replay point for ``pin``."""
-    normals.marks[i] = [(normals.rngs[i].bit_generator.state, int(normals.drawn[i]))]
 
 
 class BlockLanes(LaneModule):

@@ -24,9 +24,7 @@ from archself.lanes.module import ALL, LaneNormals, lane_count
 from archself_blocks.lanes_base import (
     BlockLanes,
     as_rows,
-    direct_draws,
     factors,
-    mark,
     matvec,
     present,
     zoh,
@@ -296,9 +294,9 @@ class SensorLanes(BlockLanes):
         v[~has] = math.nan
         for j in np.flatnonzero(drop):  # the per-run reading: its normal, then its uniform
             i = int(idx[j])
-            direct_draws(self.normals, i)
+            self.normals.direct(i)
             got_one = self.modules[i].measure(t, float(x[j]))
-            mark(self.normals, i)
+            self.normals.resume(i)
             v[j] = math.nan if got_one is None else got_one
         self._screen(lanes, has & ~np.isnan(v), v)
         return {"measurement": v}
