@@ -41,9 +41,10 @@ __all__ = ["LaneSystem", "batched_types", "lane_module"]
 def batched_types(arch: Any) -> bool:
     """Whether every module type of ``arch`` has a batched class (none runs as PerLane).
 
-    Lanes of types that run one by one gain nothing over separate runs (the tank's and
-    the motor drive's campaigns took as long either way) and hold more memory, so
-    campaigns and calibrations batch by default only files for which this holds.
+    Lanes of types that run one by one gain nothing over separate runs (before their
+    packs were batched, the tank's and the motor drive's campaigns took as long either
+    way) and hold more memory, so campaigns and calibrations batch by default only files
+    for which this holds (all three shipped files do).
     """
     from archself import registry
 
