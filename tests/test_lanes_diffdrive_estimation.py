@@ -163,7 +163,9 @@ def test_lane_windows_keep_the_per_run_windows() -> None:
         assert_allclose(lanes.trend(idx), [trends[i].value() for i in idx], **TOL)
     assert lanes.t.shape[1] >= 8
     for i, (monitor, trend) in enumerate(zip(monitors, trends, strict=True)):
-        assert lanes.items(i) == list(monitor.items) == list(trend.items)
+        t, v, *_ = lanes.get(i)
+        items = [(a, *b) for a, b in zip(t, v.tolist(), strict=True)]
+        assert items == list(monitor.items) == list(trend.items)
         assert tuple(lanes.sums[i]) == (monitor.sx, monitor.sy)
 
 

@@ -6,6 +6,7 @@ name                      what it is
 :class:`LaneModule`       the batched module interface a type opts in with (``lanes =``)
 :class:`PerLane`          any type in N lanes, lane by lane (the fallback)
 :class:`LaneNormals`      per-lane random streams drawn in blocks, in the per-run order
+:class:`LaneWindows`      per-lane sliding windows (ring buffers with running sums)
 :class:`LaneSystem`       the executor: N per-run systems stepped as one
 :func:`simulate_lanes`    N fixed runs of a scenario → N ``RunResult`` s
 ========================  ==========================================================
@@ -18,12 +19,14 @@ from __future__ import annotations
 from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, row, stack
 from archself.lanes.run import simulate_lanes
 from archself.lanes.system import LaneSystem, lane_module
+from archself.lanes.windows import LaneWindows
 
 __all__ = [
     "ALL",
     "LaneModule",
     "LaneNormals",
     "LaneSystem",
+    "LaneWindows",
     "PerLane",
     "lane_module",
     "row",

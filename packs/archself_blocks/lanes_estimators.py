@@ -92,7 +92,7 @@ class ModelEstimatorLanes(BlockLanes):
         self._size_u(m)
         self.H, self.C = np.zeros((N, k, n)), np.zeros((N, p, n))
         self.window = LaneMeanWindows(N, k + self.extra_width)
-        self.window.window_s[:] = self.window_s
+        self.window.window[:] = self.window_s
         self._alloc()
 
     def _alloc(self) -> None:

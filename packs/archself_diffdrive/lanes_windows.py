@@ -1,14 +1,12 @@
-"""The innovation windows of the pose estimators in N lanes (ring buffers).
+"""The innovation windows of the pose estimators in N lanes.
 
-:class:`LaneWindows` holds, for every lane, the items ``(t, ex, ey)`` that a per-run
+:class:`LaneWindows` is the core's :class:`archself.lanes.windows.LaneWindows` of 2-D
+innovations ``(ex, ey)``: the items a per-run
 :class:`~archself_diffdrive.estimators.InnovationWindow` or
-:class:`~archself_diffdrive.estimators.InnovationTrend` holds in its deque: a ring
-buffer of one capacity for all lanes with a head and a count per lane (doubled when
-a lane fills it), so lanes whose fixes differ (dropouts, a window per sweep point)
-keep their own items. Adding drops the old items by the per-run rule and keeps the
-running sums in the per-run order; the window's value (:meth:`LaneWindows.mean_norm`)
-and the trend statistic (:meth:`LaneWindows.trend`, sums over the lanes' items with
-the other slots masked) are the per-run numbers to the last bits of a sum's order.
+:class:`~archself_diffdrive.estimators.InnovationTrend` holds in its deque, dropped by
+the same rule, the sums in the same order. The window's value (:meth:`LaneWindows.mean_norm`)
+and the trend statistic (:meth:`LaneWindows.trend`, sums over the lanes' items with the
+other slots masked) are the per-run numbers to the last bits of a sum's order.
 """
 
 from __future__ import annotations
@@ -18,16 +16,17 @@ from typing import Any
 
 import numpy as np
 
+from archself.lanes.windows import LaneWindows as _Windows
+
 __all__ = ["LaneWindows"]
 
 
-class LaneWindows:
+class LaneWindows(_Windows):
     """Sliding windows of 2-D innovations in N lanes (ring buffers, a count per lane).
 
     The lane form of both :class:`~archself_diffdrive.estimators.InnovationWindow`
     (:meth:`mean_norm`, with its running sums, first and last time) and
-    :class:`~archself_diffdrive.estimators.InnovationTrend` (:meth:`trend`): the same
-    items, dropped by the same rule, the sums accumulated in the same order.
+    :class:`~archself_diffdrive.estimators.InnovationTrend` (:meth:`trend`).
 
     Parameters
     ----------
@@ -47,56 +46,7 @@ class LaneWindows:
     """
 
     def __init__(self, n: int, capacity: int = 32) -> None:
-        self.window = np.full(n, math.nan)
-        self.t = np.zeros((n, capacity))
-        self.e = np.zeros((n, capacity, 2))
-        self.head = np.zeros(n, dtype=int)
-        self.count = np.zeros(n, dtype=int)
-        self.sums = np.zeros((n, 2))
-        self.start = np.full(n, math.nan)  # NaN: None (no item since the last clear)
-        self.last = np.zeros(n)
-
-    def _ordered(self, idx: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
-        """The first ``width`` slots of lanes ``idx`` in time order: times and innovations."""
-        slots = (self.head[idx, None] + np.arange(width)) % self.t.shape[1]
-        return self.t[idx[:, None], slots], self.e[idx[:, None], slots]
-
-    def _grow(self, size: int) -> None:
-        cap = self.t.shape[1]
-        while cap < size:
-            cap *= 2
-        every = np.arange(len(self.head))
-        t, e = self._ordered(every, self.t.shape[1])
-        self.t = np.zeros((len(every), cap))
-        self.e = np.zeros((len(every), cap, 2))
-        self.t[:, : t.shape[1]] = t
-        self.e[:, : e.shape[1]] = e
-        self.head[:] = 0
-
-    def add(self, t: float, idx: np.ndarray, e: np.ndarray) -> None:
-        """Add innovations ``e`` (``(len(idx), 2)``) observed at ``t`` in lanes ``idx``."""
-        count = self.count[idx]
-        if (count >= self.t.shape[1]).any():
-            self._grow(int(count.max()) + 1)
-        cap = self.t.shape[1]
-        start = self.start[idx]
-        self.start[idx] = np.where(np.isnan(start), t, start)
-        self.last[idx] = t
-        slot = (self.head[idx] + count) % cap
-        self.t[idx, slot] = t
-        self.e[idx, slot] = e
-        self.count[idx] = count + 1
-        self.sums[idx] = self.sums[idx] + e
-        cut = t - self.window[idx]
-        while True:
-            head = self.head[idx]
-            old = (self.count[idx] > 0) & (self.t[idx, head] <= cut)
-            if not old.any():
-                return
-            k, h = idx[old], head[old]
-            self.sums[k] = self.sums[k] - self.e[k, h]
-            self.head[k] = (h + 1) % cap
-            self.count[k] -= 1
+        super().__init__(n, 2, capacity)
 
     def mean_norm(self, idx: np.ndarray) -> np.ndarray:
         """``InnovationWindow.value`` of lanes ``idx``."""
@@ -115,7 +65,7 @@ class LaneWindows:
         width = int(n.max()) if len(n) else 0
         if width < 5:
             return out
-        t, e = self._ordered(idx, width)
+        t, e = self.ordered(idx, width)
         span = t[np.arange(len(idx)), np.maximum(n - 1, 0)] - t[:, 0]
         ok = (n >= 5) & ~(span < 0.5 * self.window[idx])
         if not ok.any():
@@ -135,34 +85,22 @@ class LaneWindows:
         return out
 
     # ------------------------------------------------------------------ per-run bridge
-    def items(self, i: int) -> list[tuple[float, ...]]:
-        """Lane ``i``'s items ``(t, ex, ey)``, oldest first (the per-run deque's)."""
-        t, e = self._ordered(np.array([i]), int(self.count[i]))
-        return [(a, *b) for a, b in zip(t[0].tolist(), e[0].tolist(), strict=True)]
-
     def load(self, i: int, window: Any) -> None:
         """Lane ``i`` from a per-run ``InnovationWindow`` or ``InnovationTrend``."""
-        items = list(window.items)
-        if len(items) > self.t.shape[1]:
-            self._grow(len(items))
-        self.window[i] = window.window_s
-        self.head[i] = 0
-        self.count[i] = len(items)
-        if items:
-            a = np.array(items, dtype=float)
-            self.t[i, : len(items)] = a[:, 0]
-            self.e[i, : len(items)] = a[:, 1:]
+        items = np.array(list(window.items), dtype=float).reshape(-1, 3)
         if hasattr(window, "sx"):
-            self.sums[i] = (window.sx, window.sy)
-            self.start[i] = math.nan if window.start is None else window.start
-            self.last[i] = window.last
+            self.put(i, items[:, 0].tolist(), items[:, 1:], np.array([window.sx, window.sy]),
+                     window.start, window.last, window.window_s)
+        else:  # the trend keeps no sums
+            self.put(i, items[:, 0].tolist(), items[:, 1:], self.sums[i], None, self.last[i],
+                     window.window_s)
 
     def store(self, i: int, window: Any) -> None:
         """Lane ``i`` into a per-run ``InnovationWindow`` or ``InnovationTrend``."""
+        t, v, sums, start, last = self.get(i)
         window.items.clear()
-        window.items.extend(self.items(i))
+        window.items.extend((a, *b) for a, b in zip(t, v.tolist(), strict=True))
         if hasattr(window, "sx"):
-            window.sx, window.sy = (float(s) for s in self.sums[i])
-            start = float(self.start[i])
-            window.start = None if math.isnan(start) else start
-            window.last = float(self.last[i])
+            window.sx, window.sy = (float(x) for x in sums)
+            window.start = start
+            window.last = last
