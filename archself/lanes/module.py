@@ -113,7 +113,10 @@ class LaneModule:
     lane, so a sweep point's parameters hold in its own lane), keep their state
     as arrays with a leading lane axis, and implement :meth:`output` (modules
     without direct feedthrough), :meth:`step`, :meth:`local_signals` (types with
-    residual signals) and :meth:`store`.
+    residual signals) and :meth:`store`. Helpers for subclasses: ``_mods(lanes)``
+    (the per-run instances), ``_read(lanes, name, values)`` (a per-lane parameter
+    array), ``_masks(**masks)`` / ``_mask(name, lanes)`` (lane masks with their
+    ``any``/``all``, to skip work no lane needs).
 
     Parameters
     ----------
@@ -147,6 +150,30 @@ class LaneModule:
     def indices(self, lanes: slice | np.ndarray) -> np.ndarray:
         """The lane indices ``lanes`` selects."""
         return np.arange(self.n)[lanes] if isinstance(lanes, slice) else np.asarray(lanes)
+
+    # ------------------------------------------------------------------ helpers of subclasses
+    def _mods(self, lanes: slice | np.ndarray) -> list[RuntimeModule]:
+        """The per-run instances of ``lanes``."""
+        return self.modules if isinstance(lanes, slice) else [self.modules[i] for i in lanes]
+
+    def _read(self, lanes: slice | np.ndarray, name: str, values: Sequence[Any],
+              dtype: Any = float) -> None:
+        """Set ``self.<name>[lanes]`` to ``values`` (a new array when ``lanes`` is ALL)."""
+        if isinstance(lanes, slice):
+            setattr(self, name, np.array(values, dtype=dtype))
+        else:
+            getattr(self, name)[lanes] = values
+
+    def _masks(self, **masks: np.ndarray) -> None:
+        """Keep lane masks (e.g. the lanes whose noise is on) with their ``any``/``all``."""
+        self._all_lanes = {k: (m, bool(m.any()), bool(m.all())) for k, m in masks.items()}
+
+    def _mask(self, name: str, lanes: slice | np.ndarray) -> tuple[np.ndarray, bool, bool]:
+        """Mask ``name`` of ``lanes`` and whether any / every lane of them is in it."""
+        if isinstance(lanes, slice):
+            return self._all_lanes[name]
+        m = self._all_lanes[name][0][lanes]
+        return m, bool(m.any()), bool(m.all())
 
     # ------------------------------------------------------------------ data flow
     def output(self, t: float, lanes: slice | np.ndarray) -> dict[str, Any]:

@@ -12,7 +12,7 @@ each lane's ``A @ x`` of the per-run code bit for bit on the platforms tested
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -100,18 +100,7 @@ def zoh(model: Any, dt: float, shared: dict[Any, Any]) -> tuple[np.ndarray, np.n
 
 
 class BlockLanes(LaneModule):
-    """A batched block: per-lane parameter reads and the non-finite screen."""
-
-    def _mods(self, lanes: slice | np.ndarray) -> list[Any]:
-        return self.modules if isinstance(lanes, slice) else [self.modules[i] for i in lanes]
-
-    def _read(self, lanes: slice | np.ndarray, name: str, values: Sequence[Any],
-              dtype: Any = float) -> None:
-        """Set ``self.<name>[lanes]`` (the whole array when ``lanes`` is ALL)."""
-        if isinstance(lanes, slice):
-            setattr(self, name, np.array(values, dtype=dtype))
-        else:
-            getattr(self, name)[lanes] = values
+    """A batched block: the non-finite screen (``_read``: the core's)."""
 
     def _screen(self, lanes: slice | np.ndarray, has: np.ndarray, *values: Any) -> None:
         """Report the lanes in ``has`` whose value is not finite (the per-run check).

@@ -51,6 +51,8 @@ def _lag(dt: float, tau: np.ndarray) -> np.ndarray:
 
 
 class _Lanes(LaneModule):
+    """The pack's batched types: the non-finite screen (``_read``, ``_mask``: the core's)."""
+
     # per-lane parameters and state, set by ``_read`` in ``load`` (arrays over the lanes)
     limit: np.ndarray
     response: np.ndarray
@@ -61,29 +63,6 @@ class _Lanes(LaneModule):
     speed: np.ndarray
     ds: np.ndarray
     length: np.ndarray
-
-    """Helpers of the batched types: per-lane attributes, lane masks, the non-finite screen."""
-
-    def _mods(self, lanes: slice | np.ndarray) -> list[Any]:
-        return self.modules if isinstance(lanes, slice) else [self.modules[i] for i in lanes]
-
-    def _read(self, lanes: slice | np.ndarray, name: str, values: list[Any]) -> None:
-        """Set ``self.<name>[lanes]`` (the whole array when ``lanes`` is ALL)."""
-        if isinstance(lanes, slice):
-            setattr(self, name, np.array(values, dtype=float))
-        else:
-            getattr(self, name)[lanes] = values
-
-    def _masks(self, **masks: np.ndarray) -> None:
-        """Keep lane masks of the parameters, with their ``any``/``all`` over every lane."""
-        self._all_lanes = {k: (m, bool(m.any()), bool(m.all())) for k, m in masks.items()}
-
-    def _mask(self, name: str, lanes: slice | np.ndarray) -> tuple[np.ndarray, bool, bool]:
-        """Mask ``name`` of ``lanes`` and whether any / every lane of them is in it."""
-        if isinstance(lanes, slice):
-            return self._all_lanes[name]
-        m = self._all_lanes[name][0][lanes]
-        return m, bool(m.any()), bool(m.all())
 
     def _screen(self, value: np.ndarray, lanes: slice | np.ndarray) -> np.ndarray:
         """``value`` with present non-finite rows made absent and their lanes failed.
