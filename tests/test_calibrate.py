@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 from typer.testing import CliRunner
 
 from archself.calibration.bands import _max_abs_z, cycle_scales, influence_block
@@ -303,12 +304,19 @@ def test_an_envelope_widens_the_bands_to_its_worst_point(tmp_path: Path) -> None
     from archself.calibration import CalibrationError, calibrate
 
     plant = short_plant(tmp_path, 90)
-    common = dict(seeds=6, false_switch=0.1, configurations=["p1"], executor="inline")
-    quiet = calibrate(plant, **common)
-    noisy = calibrate(plant, envelope=["modules.level_a.params.noise_m.value=0.005,0.02"], **common)
+    common = dict(seeds=6, false_switch=0.1, executor="inline")
+    quiet = calibrate(plant, configurations=["p2"], **common)
+    noisy = calibrate(plant, envelope=["modules.level_b.params.noise_m.value=0.008,0.032"],
+                      configurations=["p2"], **common)
     assert noisy.runs == 2 * quiet.runs  # every point of the envelope gets the same seeds
-    # observer A reads transmitter A: its band grows with the worst noise of the envelope
-    assert noisy.modules["observer_a"].new > 1.5 * quiet.modules["observer_a"].new
+    # observer B's innovation (m) reads transmitter B: its band grows with the worst noise
+    assert noisy.modules["observer_b"].new > 1.5 * quiet.modules["observer_b"].new
     assert "× 2 envelope points" in noisy.text
+    # observer A's transmitter check is in standard errors: the same band at any noise
+    quiet_a = calibrate(plant, configurations=["p1"], **common)
+    noisy_a = calibrate(plant, envelope=["modules.level_a.params.noise_m.value=0.005,0.02"],
+                        configurations=["p1"], **common)
+    assert_allclose(noisy_a.modules["observer_a"].new, quiet_a.modules["observer_a"].new,
+                    rtol=0.25)
     with pytest.raises(CalibrationError, match="--envelope"):
         calibrate(plant, envelope=["modules.nope.params.x.value=1,2"], **common)

@@ -284,17 +284,21 @@ def _observer_inputs(rng: np.random.Generator, k: int, idx: np.ndarray) -> dict[
         "level_measured": None if k in (6, 80) else _absent(rng, level),
         "flow_measured": None if k in (7, 80) else _absent(rng, rng.uniform(0.005, 0.015, n)),
         "tank_model": _models(rng, k, idx),
+        # a second transmitter: absent in some steps and lanes, offset in lane 2
+        "level_check": None if k in (5, 40) else _absent(
+            rng, level + 0.01 * rng.standard_normal(n) + 0.02 * (idx == 2)),
     }
 
 
 def _window(w: MeanWindow) -> dict[str, Any]:
-    return {"items": [list(x) for x in w.items], "total": w.total, "start": w.start,
-            "last": w.last, "window": w.window_s}
+    return {"items": [list(x) for x in w.items], "total": w.total, "steps": w.steps,
+            "start": w.start, "last": w.last, "window": w.window_s}
 
 
 def _observer_state(m: LevelObserver) -> dict[str, Any]:
     return {"h": m.h, "boost": [m.boost_until, float(m._boost_pending)],
-            "signals": m.signals, "monitor": _window(m.monitor), **m.export_state()}
+            "signals": m.signals, "monitor": _window(m.monitor), "check": _window(m.check),
+            **m.export_state()}
 
 
 def test_observer_lanes_are_the_per_run_observers() -> None:
@@ -304,6 +308,8 @@ def test_observer_lanes_are_the_per_run_observers() -> None:
     batched, _ = _run(LevelObserver, "observer_a", OBSERVERS, _observer_inputs,
                       _observer_state, change=hand_over, steps=2 * STEPS)
     assert batched.monitor.t.shape[1] > 64  # the 50 s window made the ring buffers grow
+    assert np.isfinite(batched.disagreement).sum() >= 3  # the second transmitter was read
+    assert batched.disagreement[2] > 3.0  # lane 2's transmitters differ by 2 cm
 
 
 def test_lane_means_are_mean_windows_in_any_order_of_lanes() -> None:
@@ -319,6 +325,7 @@ def test_lane_means_are_mean_windows_in_any_order_of_lanes() -> None:
         if len(idx):
             means.add(0.1 * k, idx, v)
         assert_allclose(means.value(np.arange(3)), [w.value() for w in windows], **EXACT)
+        assert_allclose(means.t_values(np.arange(3)), [w.t_value() for w in windows], **EXACT)
     twin = MeanWindow(0.0)
     means.store(1, twin)
     assert _window(twin) == _window(windows[1]) | {"window": 0.0}

@@ -31,6 +31,9 @@ class LaneWindows:
         Numbers per item.
     capacity : int
         Items per lane before the buffers double.
+    diffs : bool
+        Also keep ``steps``, the sum of the squared differences of consecutive items
+        (the noise estimate of :meth:`t_value`).
 
     Attributes
     ----------
@@ -40,6 +43,8 @@ class LaneWindows:
         The running sum of each lane's items.
     start, last : (n,) arrays
         The time of the first item since the last clear (NaN: none) and of the last one.
+    steps : (n, width) array
+        With ``diffs``: Σ (v_k − v_{k−1})² over each lane's consecutive items.
 
     Examples
     --------
@@ -52,7 +57,10 @@ class LaneWindows:
     [[1.0], [2.0]]
     """
 
-    def __init__(self, n: int, width: int = 1, capacity: int = 32) -> None:
+    def __init__(self, n: int, width: int = 1, capacity: int = 32, diffs: bool = False
+                 ) -> None:
+        self.diffs = diffs
+        self.steps = np.zeros((n, width))
         self.window = np.full(n, math.nan)
         self.t = np.zeros((n, capacity))
         self.v = np.zeros((n, capacity, width))
@@ -88,6 +96,10 @@ class LaneWindows:
         self.start[idx] = np.where(np.isnan(start), t, start)
         self.last[idx] = t
         head = self.head[idx]
+        if self.diffs:  # (v − the last item)² where there is one, in the per-run order
+            step = v - self.v[idx, (head + count - 1) % cap]
+            steps = np.where((count > 0)[:, None], self.steps[idx] + step * step,
+                             self.steps[idx])
         self.t[idx, (head + count) % cap] = t
         self.v[idx, (head + count) % cap] = v
         count = count + 1
@@ -95,13 +107,19 @@ class LaneWindows:
         cut = t - self.window[idx]
         old = self.t[idx, head] <= cut  # (the new item is never dropped: window > 0)
         while old.any():
-            sums = np.where(old[:, None], sums - self.v[idx, head], sums)
+            gone = self.v[idx, head]
+            sums = np.where(old[:, None], sums - gone, sums)
             head = np.where(old, (head + 1) % cap, head)
             count = count - old
+            if self.diffs:
+                step = self.v[idx, head] - gone
+                steps = np.where((old & (count > 0))[:, None], steps - step * step, steps)
             old = (count > 0) & (self.t[idx, head] <= cut)
         self.head[idx] = head
         self.count[idx] = count
         self.sums[idx] = sums
+        if self.diffs:
+            self.steps[idx] = steps
 
     def mean(self, idx: np.ndarray) -> np.ndarray:
         """The mean item of lanes ``idx``, ``(len(idx), width)``; NaN rows until the items
@@ -114,17 +132,28 @@ class LaneWindows:
         mean[early] = math.nan
         return mean
 
+    def t_value(self, idx: np.ndarray) -> np.ndarray:
+        """|mean| over its standard error, per lane and number (``diffs`` needed): the noise
+        σ̂² = steps / (2 (n − 1)); NaN where :meth:`mean` is or without noise."""
+        n = self.count[idx][:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            var = np.where(n > 1, self.steps[idx] / (2.0 * (n - 1)), 0.0)
+            z = np.abs(self.mean(idx)) / np.sqrt(var / n)
+        return np.where(var > 0.0, z, math.nan)
+
     def clear(self, idx: np.ndarray) -> None:
         """Forget the items of lanes ``idx`` (``last`` stays, as per run)."""
         self.count[idx] = 0
         self.sums[idx] = 0.0
+        self.steps[idx] = 0.0
         self.start[idx] = math.nan
 
     # ------------------------------------------------------------------ per-run bridge
     def put(self, i: int, t: list[float], v: np.ndarray, sums: np.ndarray, start: float | None,
-            last: float, window: float) -> None:
+            last: float, window: float, steps: np.ndarray | float = 0.0) -> None:
         """Set lane ``i``: its items' times ``t`` and values ``v`` (``(len(t), width)``),
-        oldest first, running sum, first and last time (``start`` None: no item) and window."""
+        oldest first, running sum, first and last time (``start`` None: no item), window
+        and (``diffs``) the sum of squared steps."""
         if len(t) > self.t.shape[1]:
             self._grow(len(t))
         self.window[i] = window
@@ -133,6 +162,7 @@ class LaneWindows:
         self.t[i, : len(t)] = t
         self.v[i, : len(t)] = np.reshape(v, (len(t), self.v.shape[2]))
         self.sums[i] = sums
+        self.steps[i] = steps
         self.start[i] = math.nan if start is None else start
         self.last[i] = last
 

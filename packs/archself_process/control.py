@@ -37,9 +37,16 @@ class LevelObserver(RuntimeModule):
     gain is ``handover_gain``, so the estimate converges fast to the own sensor; the
     innovation monitor ignores these seconds.
 
-    Inputs ``level_measured``, ``flow_measured``, ``tank_model``. Output
-    ``level_estimate`` (m). Residual signal ``innovation``: |window mean of ν| (m);
-    zero-mean sensor noise averages out, a bias or drift does not.
+    Inputs ``level_measured``, ``flow_measured``, ``tank_model``; optional
+    ``level_check``: a second transmitter on the same tank. Output ``level_estimate``
+    (m). Residual signals ``innovation``: |window mean of ν| (m); zero-mean sensor
+    noise averages out, a bias or drift does not; and ``disagreement``: the window
+    mean of ``level_measured − level_check`` over its standard error (unitless; the
+    noise measured from the window's own first differences, so one band holds at any
+    transmitter noise). Two transmitters of the same level differ by their noise
+    alone, so a bias or drift of either shows without the slow model error that the
+    innovation carries; it does not say which of the two moved (the innovation does,
+    weakly).
 
     Examples
     --------
@@ -67,23 +74,25 @@ class LevelObserver(RuntimeModule):
     }
     role = "estimator"
     inputs = ("level_measured", "flow_measured", "tank_model")
+    optional_inputs = ("level_check",)
     outputs = ("level_estimate",)
-    residual_signals = ("innovation",)
+    residual_signals = ("innovation", "disagreement")
     lanes = "archself_process.lanes_control:LevelObserverLanes"
 
     def __init__(self, name, params, rng):
-        self.monitor = MeanWindow(math.nan)  # configure() sets its window
+        self.monitor = MeanWindow(math.nan)  # configure() sets the windows
+        self.check = MeanWindow(math.nan)
         super().__init__(name, params, rng)
         h0 = self.params["initial_level_m"]
         self.h: float | None = None if h0 is None else float(h0)
         self.boost_until = -math.inf
         self._boost_pending = False
-        self.signals = {"innovation": math.nan}
+        self.signals = {"innovation": math.nan, "disagreement": math.nan}
 
     def configure(self) -> None:
         p = self.params
         self.gain = float(p["correction_gain"])
-        self.monitor.window_s = float(p["innovation_window_s"])
+        self.monitor.window_s = self.check.window_s = float(p["innovation_window_s"])
         boost = p["handover_gain"]
         self.handover_gain = 5.0 * self.gain if boost is None else float(boost)
         self.handover_s = float(p["handover_s"])
@@ -95,6 +104,10 @@ class LevelObserver(RuntimeModule):
         if self._boost_pending:
             self.boost_until = t + self.handover_s
             self._boost_pending = False
+        other = _f(inputs.get("level_check"))
+        if y is not None and other is not None:  # the transmitters' difference: no model
+            self.check.add(t, y - other)
+            self.signals["disagreement"] = self.check.t_value()
         if self.h is None:
             if y is None:
                 return {"level_estimate": None}
@@ -124,7 +137,8 @@ class LevelObserver(RuntimeModule):
             self.h = float(state["level"])
             self._boost_pending = True
         self.monitor.clear()
-        self.signals["innovation"] = math.nan
+        self.check.clear()
+        self.signals["innovation"] = self.signals["disagreement"] = math.nan
 
 
 class PiController(RuntimeModule):

@@ -73,11 +73,13 @@ class LevelObserverLanes(ProcessLanes):
 
     State: the estimate ``h`` (NaN: None, before the first reading), the end of the
     boosted gain ``boost_until``, a hand-over's ``pending`` boost, the innovation
-    window (:class:`LaneMeans`) and the residual ``innovation``.
+    window (:class:`LaneMeans`), the transmitters' difference window and the residuals
+    ``innovation`` and ``disagreement``.
     """
 
     def __init__(self, modules: Sequence[Any]) -> None:
         self.monitor = LaneMeans(len(modules))
+        self.check = LaneMeans(len(modules))
         self.fields = ModelFields(("area_m2", "outflow_coeff", "max_level_m"))
         super().__init__(modules)
 
@@ -90,8 +92,10 @@ class LevelObserverLanes(ProcessLanes):
         self._read(lanes, "boost_until", [m.boost_until for m in mods])
         self._read(lanes, "pending", [m._boost_pending for m in mods], dtype=bool)
         self._read(lanes, "innovation", [m.signals["innovation"] for m in mods])
+        self._read(lanes, "disagreement", [m.signals["disagreement"] for m in mods])
         for i, m in zip(self.indices(lanes), mods, strict=True):
             self.monitor.load(int(i), m.monitor)
+            self.check.load(int(i), m.check)
         self._gains: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     def store(self, lanes):
@@ -101,10 +105,13 @@ class LevelObserverLanes(ProcessLanes):
             m.boost_until = float(self.boost_until[i])
             m._boost_pending = bool(self.pending[i])
             m.signals["innovation"] = float(self.innovation[i])
+            m.signals["disagreement"] = float(self.disagreement[i])
             self.monitor.store(int(i), m.monitor)
+            self.check.store(int(i), m.check)
 
     def local_signals(self, lanes):
-        return {"innovation": self.innovation[lanes].copy()}
+        return {"innovation": self.innovation[lanes].copy(),
+                "disagreement": self.disagreement[lanes].copy()}
 
     def step(self, t, dt, inputs, lanes):
         idx = self.indices(lanes)
@@ -117,6 +124,14 @@ class LevelObserverLanes(ProcessLanes):
             sel = idx[pending]
             self.boost_until[sel] = t + self.handover_s[sel]
             self.pending[sel] = False
+        check = inputs.get("level_check")
+        if check is not None:  # the transmitters' difference: no model
+            other = scalar(check, n)
+            both = ~np.isnan(y) & ~np.isnan(other)
+            if both.any():
+                sel = idx[both]
+                self.check.add(t, sel, (y - other)[both])
+                self.disagreement[sel] = self.check.t_values(sel)
         h0 = self.h[idx]
         h = np.minimum(np.maximum(h0 + dt * ((q - k * np.sqrt(np.maximum(h0, 0.0))) / area),
                                   0.0), h_max)
@@ -155,6 +170,17 @@ class PiControllerLanes(ProcessLanes):
     ``tracking_error``. A lane without a setpoint or an estimate repeats its last
     command.
     """
+
+    # per-lane parameters and state, set by ``_read`` in ``load``
+    area: np.ndarray
+    h_op: np.ndarray
+    integral: np.ndarray
+    k: np.ndarray
+    ki: np.ndarray
+    kp: np.ndarray
+    last_cmd: np.ndarray
+    q_max: np.ndarray
+    tracking_error: np.ndarray
 
     def __init__(self, modules: Sequence[Any]) -> None:
         self.models: list[Any] = [None] * len(modules)
@@ -261,6 +287,14 @@ class PiFeedforwardControllerLanes(PiControllerLanes):
     ``den``, the command sent in the last step ``sent`` (NaN: None) and the last
     feed-forward ``ff``.
     """
+
+    # per-lane parameters and state, set by ``_read`` in ``load``
+    den: np.ndarray
+    emin: np.ndarray
+    eta: np.ndarray
+    num: np.ndarray
+    sent: np.ndarray
+    tau: np.ndarray
 
     def load(self, lanes):
         super().load(lanes)

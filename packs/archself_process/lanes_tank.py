@@ -100,6 +100,11 @@ class TankPlantLanes(_Drawing):
     number of Euler sub-steps.
     """
 
+    # per-lane parameters and state, set by ``_read`` in ``load``
+    d_in: np.ndarray
+    d_out: np.ndarray
+    t_dist: np.ndarray
+
     def load(self, lanes):
         mods = self._mods(lanes)
         self._read(lanes, "area", [m.area for m in mods])
@@ -170,6 +175,11 @@ class ControlValveLanes(ProcessLanes):
     ``command_error`` (NaN until known), averaged at the step rate in the lanes with
     ``error_smoothing_s > 0`` once it has a value.
     """
+
+    # per-lane parameters and state, set by ``_read`` in ``load``
+    error: np.ndarray
+    prev: np.ndarray
+    smoothing: np.ndarray
 
     def load(self, lanes):
         mods = self._mods(lanes)

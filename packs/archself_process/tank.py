@@ -170,24 +170,28 @@ def pi_closed_loop(a: float, b: float, kp: float, ki: float) -> np.ndarray:
 
 
 class MeanWindow:
-    """Sliding-window mean of a scalar over ``window_s`` seconds.
+    """Sliding-window mean of a scalar over ``window_s`` seconds, and its t-statistic.
 
     The value is NaN until the samples span at least half the window (a mean of a
-    few noisy samples would look like a bias).
+    few noisy samples would look like a bias). :meth:`t_value` divides the mean by
+    its standard error, the noise measured from the same samples by their first
+    differences (σ̂² = mean of Δv² / 2): white noise of any size gives the same
+    statistic, a bias stands out by how many samples carry it.
 
     Examples
     --------
     >>> w = MeanWindow(4.0)
     >>> for t, v in [(0.0, 1.0), (1.0, -1.0), (2.0, 3.0)]:
     ...     w.add(t, v)
-    >>> w.value()
-    1.0
+    >>> w.value(), round(w.t_value(), 3)
+    (1.0, 0.775)
     """
 
     def __init__(self, window_s: float) -> None:
         self.window_s = float(window_s)
         self.items: deque[tuple[float, float]] = deque()
         self.total = 0.0
+        self.steps = 0.0  # Σ (v_k − v_{k−1})² over the window's consecutive samples
         self.start: float | None = None
         self.last = 0.0
 
@@ -195,10 +199,16 @@ class MeanWindow:
         if self.start is None:
             self.start = t
         self.last = t
-        self.items.append((t, v))
+        items = self.items
+        if items:
+            self.steps += (v - items[-1][1]) ** 2
+        items.append((t, v))
         self.total += v
-        while self.items and self.items[0][0] <= t - self.window_s:
-            self.total -= self.items.popleft()[1]
+        while items and items[0][0] <= t - self.window_s:
+            old = items.popleft()[1]
+            self.total -= old
+            if items:
+                self.steps -= (items[0][1] - old) ** 2
 
     def value(self) -> float:
         n = len(self.items)
@@ -206,9 +216,20 @@ class MeanWindow:
             return math.nan
         return self.total / n
 
+    def t_value(self) -> float:
+        """|mean| / (σ̂/√n), σ̂ from the first differences (NaN as :meth:`value`, or
+        without noise)."""
+        mean = self.value()
+        n = len(self.items)
+        var = self.steps / (2.0 * (n - 1)) if n > 1 else 0.0
+        if math.isnan(mean) or var <= 0.0:
+            return math.nan
+        return abs(mean) / math.sqrt(var / n)
+
     def clear(self) -> None:
         self.items.clear()
         self.total = 0.0
+        self.steps = 0.0
         self.start = None
 
 
