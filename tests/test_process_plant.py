@@ -180,6 +180,37 @@ def test_observer_innovation_shows_a_bias_not_noise():
     assert biased.local_signals()["innovation"] > 0.01
 
 
+def test_transmitter_disagreement_sees_a_small_bias_at_any_noise():
+    """The A − B check in standard errors: the same value at 1× and 4× noise, and a 6 mm
+    bias of A (a third of where the innovation alarms) past the shipped alarm (4.58)."""
+    model = tank.TankModel()
+
+    def run(scale: float, bias: float) -> float:
+        rng = np.random.default_rng(0)
+        obs = control.LevelObserver("o", {}, np.random.default_rng(1))
+        for k in range(200):
+            a, b = scale * 0.005 * rng.standard_normal(), scale * 0.008 * rng.standard_normal()
+            obs.step(0.2 * k, 0.2, {"flow_measured": 0.01, "tank_model": model,
+                                    "level_measured": 1.0 + a + bias, "level_check": 1.0 + b})
+        return obs.local_signals()["disagreement"]
+
+    quiet = run(1.0, 0.0)
+    assert quiet < 3.0
+    np.testing.assert_allclose(run(4.0, 0.0), quiet, rtol=1e-9)  # noise divides out
+    assert run(1.0, 0.006) > 4.58
+
+
+def test_a_gain_update_is_bumpless():
+    """raise_pi_gain in steady state: the command does not jump (the integral action
+    ki·∫e is kept when ki changes)."""
+    ctl = control.PiController("c", {"kp": 3.0, "ki": 0.128}, np.random.default_rng(0))
+    inputs = {"setpoint": np.array([1.0, 0.0]), "level_estimate": 1.0,
+              "tank_model": tank.TankModel()}
+    before = ctl.step(0.0, 0.2, inputs)["valve_cmd"]
+    ctl.set_params({"kp": 5.0, "ki": 0.213})
+    np.testing.assert_allclose(ctl.step(0.2, 0.2, inputs)["valve_cmd"], before, rtol=1e-12)
+
+
 def test_feedforward_controller_estimates_valve_effectiveness():
     ctl = control.PiFeedforwardController("c", {"kp": 3.0, "ki": 0.128}, np.random.default_rng(0))
     model = tank.TankModel()

@@ -101,10 +101,10 @@ def live(
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
     typer.echo(f"{arch.name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")
-    for s in loop.switches:
-        typer.echo(f"  t = {s['t_s']:g} s: {s['from']} → {s['to']} ({s['action']})")
-    for u in loop.updates:
-        typer.echo(f"  t = {u['t_s']:g} s: {u['module']} ← {u['set']} ({u['action']})")
+    lines = [(s["t_s"], f"{s['from']} → {s['to']} ({s['action']})") for s in loop.switches]
+    lines += [(u["t_s"], f"{u['module']} ← {u['set']} ({u['action']})") for u in loop.updates]
+    for t_s, what in sorted(lines, key=lambda line: line[0]):  # in time order
+        typer.echo(f"  t = {t_s:g} s: {what}")
 
 
 def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:

@@ -189,8 +189,12 @@ class PiController(RuntimeModule):
         self.integral = u0 / self.ki if self.ki > 0 else 0.0
 
     def configure(self) -> None:
+        old = getattr(self, "ki", 0.0)
         self.kp = float(self.params["kp"])
         self.ki = float(self.params["ki"])
+        if old > 0 and self.ki > 0 and hasattr(self, "integral"):
+            # a gain update keeps the integral action ki·∫e: bumpless (the opening holds)
+            self.integral *= old / self.ki
 
     def effectiveness(self) -> float:
         """The valve effectiveness the controller assumes (1: healthy)."""
