@@ -49,6 +49,7 @@ class ModelEstimatorLanes(BlockLanes):
 
     settle_s: np.ndarray
     window_s: np.ndarray
+    eye: np.ndarray  # the identity of the filtered state (the Kalman filters')
     #: Entries after ν in a window item: the NIS of the Kalman filters, none for an observer.
     extra_width = 1
 
@@ -230,6 +231,42 @@ class ModelEstimatorLanes(BlockLanes):
         self._screen(lanes, out, est, x)
         return {"estimate": est, "state": x}
 
+    def _joseph(self, t, idx, x, P, nu, H, R, inv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The Kalman update in Joseph form of lanes ``idx`` with innovation ``nu``, and
+        the innovation monitor; which lanes did not raise.
+
+        ``inv`` is the per-run filter's inverse (filterpy's ``KalmanFilter``: numpy's;
+        its ``ExtendedKalmanFilter``: scipy's), batched where it can be, else matrix by
+        matrix; a lane whose ``S`` it cannot invert fails and keeps its rows.
+        """
+        PHT = P @ _t(H)
+        S = H @ PHT + R
+        keep = np.ones(len(idx), dtype=bool)
+        try:
+            SI = inv(S)
+            if SI.shape != S.shape:
+                raise ValueError("not batched")
+        except (ValueError, np.linalg.LinAlgError):  # one by one; a lane that raises fails
+            SI = np.zeros_like(S)
+            for j in range(len(S)):
+                try:
+                    SI[j] = inv(S[j])
+                except (ValueError, np.linalg.LinAlgError) as exc:
+                    keep[j] = False
+                    self.failed[int(idx[j])] = f"raised {type(exc).__name__}"
+        K = PHT @ SI
+        x1 = x + matvec(K, nu)
+        I_KH = self.eye - K @ H
+        P1 = (I_KH @ P) @ _t(I_KH) + (K @ R) @ _t(K)
+        if not keep.all():
+            x1 = np.where(keep[:, None], x1, x)
+            P1 = np.where(keep[:, None, None], P1, P)
+            idx, nu, S = idx[keep], nu[keep], S[keep]
+        if len(idx):
+            sol = np.linalg.solve(S, nu[..., None])
+            self._monitor(t, idx, nu, (nu[:, None, :] @ sol)[:, 0, 0])
+        return x1, P1, keep
+
     def _monitor(self, t: float, idx: np.ndarray, nu: np.ndarray,
                  nis: np.ndarray | None) -> None:
         """``_monitor``: the windows of the lanes past their quiet time, and their signals."""
@@ -321,30 +358,5 @@ class KalmanFilterLanes(ModelEstimatorLanes):
         A lane whose ``S`` is singular raises per run (``numpy.linalg.inv``): its rows
         come back as given.
         """
-        H, R = self.H[idx], self.R[idx]
-        nu = z - matvec(H, x)
-        PHT = P @ _t(H)
-        S = H @ PHT + R
-        keep = np.ones(len(idx), dtype=bool)
-        try:
-            SI = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            SI = np.zeros_like(S)
-            for j in range(len(S)):
-                try:
-                    SI[j] = np.linalg.inv(S[j])
-                except np.linalg.LinAlgError:
-                    keep[j] = False
-                    self.failed[int(idx[j])] = "raised LinAlgError"
-        K = PHT @ SI
-        x1 = x + matvec(K, nu)
-        I_KH = self.eye - K @ H
-        P1 = (I_KH @ P) @ _t(I_KH) + (K @ R) @ _t(K)
-        if not keep.all():
-            x1 = np.where(keep[:, None], x1, x)
-            P1 = np.where(keep[:, None, None], P1, P)
-            idx, nu, S = idx[keep], nu[keep], S[keep]
-        if len(idx):
-            sol = np.linalg.solve(S, nu[..., None])
-            self._monitor(t, idx, nu, (nu[:, None, :] @ sol)[:, 0, 0])
-        return x1, P1, keep
+        H = self.H[idx]
+        return self._joseph(t, idx, x, P, z - matvec(H, x), H, self.R[idx], np.linalg.inv)

@@ -214,32 +214,5 @@ class AugmentedEkfLanes(ModelEstimatorLanes):
 
     def _update(self, t, idx, xa, P, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``ExtendedKalmanFilter.update`` with H = h (Joseph form); which lanes did not raise."""
-        H, R = self.h[idx], self.R[idx]
-        PHT = P @ _t(H)
-        S = H @ PHT + R
-        keep = np.ones(len(idx), dtype=bool)
-        try:
-            SI = linalg.inv(S)
-            if SI.shape != S.shape:
-                raise ValueError("not batched")
-        except (ValueError, np.linalg.LinAlgError):  # one by one; a lane that raises fails
-            SI = np.zeros_like(S)
-            for j in range(len(S)):
-                try:
-                    SI[j] = linalg.inv(S[j])
-                except (ValueError, np.linalg.LinAlgError) as exc:
-                    keep[j] = False
-                    self.failed[int(idx[j])] = f"raised {type(exc).__name__}"
-        K = PHT @ SI
-        y = z - matvec(H, xa)
-        xa1 = xa + matvec(K, y)
-        I_KH = self.eye - K @ H
-        P1 = (I_KH @ P) @ _t(I_KH) + (K @ R) @ _t(K)
-        if not keep.all():
-            xa1 = np.where(keep[:, None], xa1, xa)
-            P1 = np.where(keep[:, None, None], P1, P)
-            idx, y, S = idx[keep], y[keep], S[keep]
-        if len(idx):
-            sol = np.linalg.solve(S, y[..., None])
-            self._monitor(t, idx, y, (y[:, None, :] @ sol)[:, 0, 0])
-        return xa1, P1, keep
+        H = self.h[idx]
+        return self._joseph(t, idx, xa, P, z - matvec(H, xa), H, self.R[idx], linalg.inv)
