@@ -7,6 +7,7 @@ name                      what it is
 :class:`PerLane`          any type in N lanes, lane by lane (the fallback)
 :class:`LaneNormals`      per-lane random streams drawn in blocks, in the per-run order
 :class:`LaneWindows`      per-lane sliding windows (ring buffers with running sums)
+:class:`ModelFields`      float fields of a model input's per-lane objects, cached
 :class:`LaneSystem`       the executor: N per-run systems stepped as one
 :func:`simulate_lanes`    N fixed runs of a scenario → N ``RunResult`` s
 ========================  ==========================================================
@@ -16,7 +17,7 @@ See ``docs/lanes.md`` for the interface and how to add batching to a plugin.
 
 from __future__ import annotations
 
-from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, row, stack
+from archself.lanes.module import ALL, LaneModule, LaneNormals, ModelFields, PerLane, row, stack
 from archself.lanes.run import simulate_lanes
 from archself.lanes.system import LaneSystem, lane_module
 from archself.lanes.windows import LaneWindows
@@ -27,6 +28,7 @@ __all__ = [
     "LaneNormals",
     "LaneSystem",
     "LaneWindows",
+    "ModelFields",
     "PerLane",
     "lane_module",
     "row",

@@ -105,6 +105,45 @@ def stack(values: Sequence[Any]) -> Any:
     return list(values)
 
 
+class ModelFields:
+    """Float fields of a model input (one object per lane), re-read only when the objects change.
+
+    A model node publishes an object per lane (a list of L objects, or None); a batched
+    type that reads a few numbers from it keeps them as ``(L,)`` arrays here.
+
+    Parameters
+    ----------
+    missing : dict of str to float
+        Each field read, and its value in a lane without an object (the input None,
+        or None in that lane): the per-run module's default model's.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> radius = ModelFields({"wheel_radius_m": 0.1})
+    >>> radius([SimpleNamespace(wheel_radius_m=0.2), None], 2)[0].tolist()
+    [0.2, 0.1]
+    """
+
+    def __init__(self, missing: dict[str, float]) -> None:
+        self.missing = dict(missing)
+        self._key: Any = None
+        self._values: list[np.ndarray] = []
+
+    def __call__(self, objs: list[Any] | None, n: int) -> list[np.ndarray]:
+        """The fields, one ``(n,)`` array each, of the lane value ``objs`` (None or a list)."""
+        key = n if objs is None else objs
+        if type(key) is type(self._key) and key == self._key:
+            return self._values
+        lanes = [None] * n if objs is None else objs
+        self._values = [
+            np.array([fill if o is None else float(getattr(o, f)) for o in lanes])
+            for f, fill in self.missing.items()
+        ]
+        self._key = key if objs is None else list(objs)
+        return self._values
+
+
 class LaneModule:
     """One module in N lanes: the batched counterpart of a ``RuntimeModule`` type.
 

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from archself.lanes.module import LaneModule
-from archself_diffdrive.lanes_estimators import ModelFields, kinematics_fields
+from archself.lanes.module import LaneModule, ModelFields
+from archself_diffdrive.lanes_estimators import kinematics_fields
 
 __all__ = ["AsymLqrControllerLanes", "LqrControllerLanes"]
 

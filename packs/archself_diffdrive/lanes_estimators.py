@@ -28,54 +28,18 @@ from typing import Any
 import numpy as np
 import scipy.linalg as linalg
 
-from archself.lanes.module import LaneModule
+from archself.lanes.module import LaneModule, ModelFields
 from archself_diffdrive.drift_glr import DriftWindows
 from archself_diffdrive.estimators import _DEFAULT_KIN
 from archself_diffdrive.lanes_windows import LaneWindows
 
-__all__ = ["EkfLanes", "ModelFields", "OdometryLanes"]
+__all__ = ["EkfLanes", "OdometryLanes", "kinematics_fields"]
 
 PI = math.pi
 TWO_PI = 2 * math.pi
 _LOWER = np.tril_indices(5, -1)
 _EYE5 = np.eye(5)
 _H_GPS = np.eye(2, 5)
-
-
-class ModelFields:
-    """Float fields of a model input (one object per lane), re-read only when the objects change.
-
-    Parameters
-    ----------
-    missing : dict of str to float
-        Each field read, and its value in a lane without an object (the input None,
-        or None in that lane).
-
-    Examples
-    --------
-    >>> from archself_diffdrive.models import Kinematics
-    >>> radius = ModelFields({"wheel_radius_m": 0.1})
-    >>> radius([Kinematics(wheel_radius_m=0.2), None], 2)[0].tolist()
-    [0.2, 0.1]
-    """
-
-    def __init__(self, missing: dict[str, float]) -> None:
-        self.missing = dict(missing)
-        self._key: Any = None
-        self._values: list[np.ndarray] = []
-
-    def __call__(self, objs: list[Any] | None, n: int) -> list[np.ndarray]:
-        """The fields, one ``(n,)`` array each, of the lane value ``objs`` (None or a list)."""
-        key = n if objs is None else objs
-        if type(key) is type(self._key) and key == self._key:
-            return self._values
-        lanes = [None] * n if objs is None else objs
-        self._values = [
-            np.array([fill if o is None else float(getattr(o, f)) for o in lanes])
-            for f, fill in self.missing.items()
-        ]
-        self._key = key if objs is None else list(objs)
-        return self._values
 
 
 def kinematics_fields() -> ModelFields:

@@ -24,48 +24,17 @@ from typing import Any
 
 import numpy as np
 
+from archself.lanes.module import ModelFields
 from archself_process.lanes_tank import ProcessLanes, exp_factors, scalar
 from archself_process.lanes_windows import LaneMeans
 from archself_process.tank import _DEFAULT_MODEL
 
 __all__ = [
     "LevelObserverLanes",
-    "ModelFields",
     "PiControllerLanes",
     "PiFeedforwardControllerLanes",
     "SetpointPlannerLanes",
 ]
-
-
-class ModelFields:
-    """Float fields of the ``tank_model`` input per lane, re-read only when the objects change.
-
-    Lanes without an object (the input None, or None in that lane) take the per-run
-    default model's fields.
-
-    Examples
-    --------
-    >>> from archself_process.tank import TankModel
-    >>> area, = ModelFields(("area_m2",))([TankModel(area_m2=0.2), None], 2)
-    >>> area.tolist()
-    [0.2, 0.5]
-    """
-
-    def __init__(self, names: Sequence[str]) -> None:
-        self.names = tuple(names)
-        self._key: Any = None
-        self._values: list[np.ndarray] = []
-
-    def __call__(self, objs: list[Any] | None, n: int) -> list[np.ndarray]:
-        """One ``(n,)`` array per field of the lane value ``objs`` (None or a list)."""
-        key = n if objs is None else objs
-        if type(key) is type(self._key) and key == self._key:
-            return self._values
-        given = [None] * n if objs is None else objs
-        lanes = [_DEFAULT_MODEL if o is None else o for o in given]
-        self._values = [np.array([float(getattr(o, f)) for o in lanes]) for f in self.names]
-        self._key = key if objs is None else list(objs)
-        return self._values
 
 
 class LevelObserverLanes(ProcessLanes):
@@ -80,7 +49,8 @@ class LevelObserverLanes(ProcessLanes):
     def __init__(self, modules: Sequence[Any]) -> None:
         self.monitor = LaneMeans(len(modules))
         self.check = LaneMeans(len(modules))
-        self.fields = ModelFields(("area_m2", "outflow_coeff", "max_level_m"))
+        self.fields = ModelFields({f: float(getattr(_DEFAULT_MODEL, f))
+                                   for f in ("area_m2", "outflow_coeff", "max_level_m")})
         super().__init__(modules)
 
     def load(self, lanes):
