@@ -50,6 +50,9 @@ class ModelEstimatorLanes(BlockLanes):
     settle_s: np.ndarray
     window_s: np.ndarray
     eye: np.ndarray  # the identity of the filtered state (the Kalman filters')
+    has_P: np.ndarray
+    P: np.ndarray
+    dt_last: np.ndarray
     #: Entries after ν in a window item: the NIS of the Kalman filters, none for an observer.
     extra_width = 1
 
@@ -231,6 +234,25 @@ class ModelEstimatorLanes(BlockLanes):
         self._screen(lanes, out, est, x)
         return {"estimate": est, "state": x}
 
+    # the filterpy object's covariance (Kalman filters): ``has_P``, ``P``, ``dt_last``
+    def _load_cov(self, i: int, m: Any) -> None:
+        """Lane ``i``'s covariance from its instance's filterpy object (if it has one)."""
+        kf = getattr(m, "kf", None)
+        self.has_P[i] = kf is not None
+        if kf is not None:
+            self.P[i] = kf.P
+        self.dt_last[i] = math.nan
+
+    def _store_cov(self, i: int, m: Any) -> bool:
+        """Lane ``i``'s covariance into its instance's filterpy object, built with the
+        lane's model for the step it was last built for; whether the lane has one."""
+        if not self.has_P[i]:
+            return False
+        if not math.isnan(self.dt_last[i]):
+            m._matrices(float(self.dt_last[i]))
+        m.kf.P = self.P[i].copy()  # (else the instance's own object, loaded from)
+        return True
+
     def _joseph(self, t, idx, x, P, nu, H, R, inv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The Kalman update in Joseph form of lanes ``idx`` with innovation ``nu``, and
         the innovation monitor; which lanes did not raise.
@@ -302,19 +324,11 @@ class KalmanFilterLanes(ModelEstimatorLanes):
         self.eye = np.eye(n)
 
     def _load_lane(self, i: int, m: Any) -> None:
-        kf = getattr(m, "kf", None)
-        self.has_P[i] = kf is not None
-        if kf is not None:
-            self.P[i] = kf.P
-        self.dt_last[i] = math.nan
+        self._load_cov(i, m)
 
     def _store_lane(self, i: int, m: Any) -> None:
-        if self.has_P[i]:
-            if not math.isnan(self.dt_last[i]):  # its filterpy object, with the lane's model
-                m._matrices(float(self.dt_last[i]))
-            m.kf.P = self.P[i].copy()  # (else the instance's own object, loaded from)
-            if m.x is not None:
-                m.kf.x = m.x.copy()
+        if self._store_cov(i, m) and m.x is not None:
+            m.kf.x = m.x.copy()
 
     def _build(self, idx: np.ndarray, dt: float) -> None:
         """``KalmanFilter._matrices(dt)`` of lanes ``idx``: F, B, Q, R; P kept or P0."""

@@ -132,18 +132,11 @@ class AugmentedEkfLanes(ModelEstimatorLanes):
         self.has_aug[i] = m.aug is not None
         if m.aug is not None:
             self.aug[i] = m.aug
-        kf = getattr(m, "kf", None)
-        self.has_P[i] = kf is not None
-        if kf is not None:
-            self.P[i] = kf.P
-        self.dt_last[i] = math.nan
+        self._load_cov(i, m)
 
     def _store_lane(self, i: int, m: Any) -> None:
         m.aug = self.aug[i].copy() if self.has_aug[i] else None
-        if self.has_P[i]:
-            if not math.isnan(self.dt_last[i]):  # its filterpy object, with the lane's model
-                m._matrices(float(self.dt_last[i]))
-            m.kf.P = self.P[i].copy()
+        self._store_cov(i, m)
 
     def _build(self, idx: np.ndarray, dt: float) -> None:
         """``AugmentedEkf._matrices(dt)`` of lanes ``idx``: Q, h, R; P kept or P0; η = 1, b = 0."""
