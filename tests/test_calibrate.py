@@ -320,3 +320,38 @@ def test_an_envelope_widens_the_bands_to_its_worst_point(tmp_path: Path) -> None
                     rtol=0.25)
     with pytest.raises(CalibrationError, match="--envelope"):
         calibrate(plant, envelope=["modules.nope.params.x.value=1,2"], **common)
+
+
+# ------------------------------------------------------------------ weighted budget
+def test_a_weight_gives_a_channel_a_larger_share_of_the_same_budget() -> None:
+    """Weighted Bonferroni: channel j alone alarms in a share p·w_j/Σw of the runs."""
+    from archself.calibration.bands import Cell, channel_shape, quantile_level
+
+    rng = np.random.default_rng(0)
+    runs = [rng.gumbel(1.0, 0.1, (1, 2)) for _ in range(400)]
+    cell = Cell("s", "c", ["a", "b"], runs, np.zeros(400, bool), np.zeros((2, 2)), np.ones(2))
+    even = channel_shape(cell, "a", 0.01, 0.5)  # no influence: plain levels
+    assert_allclose(even, quantile_level(cell.run_max("a"), 0.005), rtol=1e-12)
+    heavy = {"a": 3.0}
+    assert_allclose(channel_shape(cell, "a", 0.01, 0.5, heavy),
+                    quantile_level(cell.run_max("a"), 0.0075), rtol=1e-12)
+    assert_allclose(channel_shape(cell, "b", 0.01, 0.5, heavy),
+                    quantile_level(cell.run_max("b"), 0.0025), rtol=1e-12)
+    assert channel_shape(cell, "a", 0.01, 0.5, heavy) < even < channel_shape(
+        cell, "b", 0.01, 0.5, heavy)
+
+
+def test_a_weighted_calibration_narrows_that_band_and_says_so(tmp_path: Path, cal) -> None:
+    from archself.calibration import CalibrationError, calibrate
+
+    plant = short_plant(tmp_path)
+    heavy = calibrate(plant, seeds=16, false_switch=0.1, configurations=["p1"],
+                      executor="inline", weights={"observer_a": 4.0})
+    assert heavy.modules["observer_a"].new < cal.modules["observer_a"].new
+    assert "weight observer_a 4," in heavy.text
+    with pytest.raises(CalibrationError, match="--weight nope=2: .* no module 'nope'"):
+        calibrate(plant, seeds=1, executor="inline", weights={"nope": 2.0})
+    with pytest.raises(CalibrationError, match="expected a weight > 0"):
+        calibrate(plant, seeds=1, executor="inline", weights={"observer_a": 0.0})
+    assert CliRunner().invoke(app, ["calibrate", str(plant), "--weight", "observer_a"]
+                              ).exit_code == 2

@@ -13,12 +13,13 @@ only if an admissible action scores above 0).
 Bands are n_j = s·b_j: a *shape* b and one common *scale* s.
 
 - Shape: b_j is the band at which module j's residual *alone* raises a
-  candidate in a share p/K of the runs (K the channels active in the cell):
-  the (1 − p/K) quantile of its per-run maximum of x_j (the larger of a Gumbel
-  fit's and the empirical one) divided by its alarm factor 1 + τ/(c_j·σ_j), c_j
-  its largest influence (:func:`channel_scales`); the largest over the cells in
-  which j is active (:func:`channel_shape`). Every channel then alarms at the same
-  tail probability of its own noise — a channel with heavy tails (noise spikes)
+  candidate in a share p/K of the runs (K the channels active in the cell; or
+  p·w_j/Σw with weights w, a weighted Bonferroni split): the (1 − p/K) quantile
+  of its per-run maximum of x_j (the larger of a Gumbel fit's and the empirical
+  one) divided by its alarm factor 1 + τ/(c_j·σ_j), c_j its largest influence
+  (:func:`channel_scales`); the largest over the cells in which j is active
+  (:func:`channel_shape`). Every channel then alarms at the same tail
+  probability of its own noise — a channel with heavy tails (noise spikes)
   gets a wide band without widening the others', and a channel whose residual
   propagates far is not held to a stricter level than one that does not.
 - Scale: z decreases as s grows (σ ≥ 0 and W ≥ 0), so each run has a
@@ -39,7 +40,7 @@ All functions are pure numpy/scipy on arrays; nothing here runs a simulation.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -312,15 +313,16 @@ class Prediction:
 
 
 
-def channel_shape(cell: Cell, module: str, p: float, tau: float) -> float:
-    """The band at which ``module``'s residual alone alarms in a share p/K of ``cell``'s runs.
+def channel_shape(cell: Cell, module: str, p: float, tau: float,
+                  weights: Mapping[str, float] | None = None) -> float:
+    """The band at which ``module``'s residual alone alarms in its share of ``cell``'s runs.
 
-    K is the number of channels of the cell (an equal share of the false-alarm
-    budget each, a Bonferroni split); the level is :func:`quantile_level` of the
-    module's per-run maxima at p/K, divided by its alarm factor 1 + τ/(c_j·σ_j)
-    (the band n_j at which x_j = n_j·(1 + τ/(c_j·σ_j)) raises max_i |z_i| = τ,
-    :func:`channel_scales`). A channel that cannot raise a candidate (c_j·σ_j = 0)
-    keeps its plain level.
+    The share is p·w_j/Σw over the cell's channels (a weighted Bonferroni split of the
+    false-alarm budget; every weight 1 by default: p/K each, K the channels); the
+    level is :func:`quantile_level` of the module's per-run maxima at that share,
+    divided by its alarm factor 1 + τ/(c_j·σ_j) (the band n_j at which
+    x_j = n_j·(1 + τ/(c_j·σ_j)) raises max_i |z_i| = τ, :func:`channel_scales`). A
+    channel that cannot raise a candidate (c_j·σ_j = 0) keeps its plain level.
 
     Examples
     --------
@@ -334,6 +336,9 @@ def channel_shape(cell: Cell, module: str, p: float, tau: float) -> float:
     True
     """
     j = cell.modules.index(module)
-    level = quantile_level(cell.run_max(module), p / max(len(cell.modules), 1))
+    w = weights or {}
+    total = sum(float(w.get(m, 1.0)) for m in cell.modules)
+    share = p * float(w.get(module, 1.0)) / total if total > 0 else p
+    level = quantile_level(cell.run_max(module), share)
     gain = float(np.abs(cell.m[:, j]).max() * abs(cell.sens[j])) if cell.m.size else 0.0
     return level / (1.0 + tau / gain) if gain > 0 else level

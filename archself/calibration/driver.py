@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +77,7 @@ def calibrate(
     save_runs: str | Path | None = None,
     from_runs: str | Path | None = None,
     envelope: Sequence[str] = (),
+    weights: Mapping[str, float] | None = None,
 ) -> Calibration:
     """Run the nominal scenarios and derive bands for a false-alarm rate per run.
 
@@ -111,6 +112,11 @@ def calibrate(
         (``PATH=v1,v2`` or ``PATH=START:STOP:NUM``): every point of their product
         is run with the same seeds, and the bands hold the rate in the worst of
         them (e.g. ``modules.gps.params.noise_m.value=0.2,0.3,0.4``).
+    weights : mapping of str to float, optional
+        A module's weight in the split of the false-alarm budget between the channels
+        of a configuration (default 1 each: an equal share p/K): module j alone
+        alarms in a share p·w_j/Σw of the runs. A heavier weight gives a channel a
+        narrower band and the others wider ones; the total stays p.
 
     Raises
     ------
@@ -132,6 +138,13 @@ def calibrate(
     text, loaded, chosen, confs, tau = prepare(arch_path, scenarios, configurations)
     arch = loaded.arch
     file = loaded.file
+    weights = dict(weights or {})
+    for m, w in weights.items():
+        if m not in arch.modules or arch.modules[m].residual is None:
+            raise CalibrationError(f"--weight {m}={w:g}: {file} has no module {m!r} "
+                                   "with a residual")
+        if not (w > 0 and math.isfinite(w)):
+            raise CalibrationError(f"--weight {m}={w:g}: expected a weight > 0")
     sweeps = parse_envelope(loaded, envelope)
     digest = R.band_free_digest(loaded.data)
     if sweeps:
@@ -208,7 +221,7 @@ def calibrate(
             where.setdefault(m, [])
             if c.configuration not in where[m]:
                 where[m].append(c.configuration)
-            base[m] = max(base.get(m, 0.0), channel_shape(c, m, p, tau))
+            base[m] = max(base.get(m, 0.0), channel_shape(c, m, p, tau, weights))
     notes: dict[str, str] = {}
     for m in old:
         sens = float(arch.modules[m].residual.sensitivity)
@@ -282,7 +295,8 @@ def calibrate(
     if sweeps:
         n_points = len(sweep_points(sweeps))
         cells_text += f" × {n_points} envelope point{'s' * (n_points != 1)}"
-    comment = f"p = {p:g}/run, {seeds} nominal runs × {cells_text} (archself calibrate)"
+    weighted = "".join(f", weight {m} {w:g}" for m, w in sorted(weights.items()) if w != 1)
+    comment = f"p = {p:g}/run{weighted}, {seeds} nominal runs × {cells_text} (archself calibrate)"
     changed = {m: new[m] for m in calibrated}
     new_text = set_nominals(text, file, changed, comment)
     modules = {

@@ -83,6 +83,15 @@ def calibrate(
             "modules.gps.params.noise_m.value=0.2,0.4; the bands hold in the worst point.",
         ),
     ] = None,
+    weight: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--weight",
+            metavar="MODULE=W",
+            help="A module's weight in the split of the false-alarm budget between the "
+            "channels of a configuration (default 1 each; repeatable).",
+        ),
+    ] = None,
 ) -> None:
     """Derive residual bands (residual.nominal) for a target false-switch rate from nominal runs.
 
@@ -98,6 +107,13 @@ def calibrate(
         raise _fail(f"--false-switch {false_switch:g}: expected a rate between 0 and 1", 2)
     if in_place and output is not None:
         raise _fail("--in-place and --output exclude each other", 2)
+    weights: dict[str, float] = {}
+    for spec in weight or ():
+        name, _, value = spec.partition("=")
+        try:
+            weights[name.strip()] = float(value)
+        except ValueError:
+            raise _fail(f"--weight {spec}: expected MODULE=W, e.g. odometry=4", 2) from None
     if in_place and not force:
         raise _fail("--in-place overwrites ARCH: pass --force as well", 2)
     target = arch_path if in_place else output
@@ -116,7 +132,7 @@ def calibrate(
                 configurations=configurations, root_seed=root_seed, executor=executor.value,
                 workers=workers, address=address, verify_seeds=verify_seeds,
                 progress=progress if show else None, save_runs=save_runs, from_runs=from_runs,
-                envelope=envelope or (),
+                envelope=envelope or (), weights=weights,
             )
         finally:
             bar.close()

@@ -185,10 +185,12 @@ class Odometry(_PoseEstimator):
     the same test, carries the bias forward (``b ← b + ḃ·dt``), so a drifting gyro
     keeps being corrected after the GPS is lost. Handing over itself, it passes on the
     heading drift its ``drift_glr`` test found (|z| ≥ ``drift_handover_z``): the bias
-    built up since the drift's onset as IMU bias (taken off the pose's heading) and its
-    rate, with their standard errors, and the position corrected by the fitted
-    innovation — the estimator taking over from a drifting dead reckoning starts on
-    the drift instead of learning it from the GPS.
+    built up since the drift's onset as IMU bias (taken off the pose's heading, whose
+    variance grows by the bias's), with a standard error that covers every onset the
+    fixes cannot rule out, and the position corrected by the fitted innovation — the
+    estimator taking over from a drifting dead reckoning starts on the drift instead
+    of learning it from the GPS. The drift's rate is too uncertain just after an alarm
+    to be handed over.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
     (GPS) used only for the residuals ``innovation``, ``innovation_trend`` and
@@ -220,6 +222,11 @@ class Odometry(_PoseEstimator):
         "drift_min_support_s": Param(
             5.0, "s", "fixes a drift-onset candidate needs after it", min=1.0, max=3600.0
         ),
+        "drift_walk_m_sqrt_s": Param(
+            0.0, "m/√s", "random walk of dead reckoning against the true position (per"
+            " coordinate; slip): part of the drift GLR's noise, 0 = the GPS noise alone",
+            min=0.0, max=10.0,
+        ),
         "bias_significance": Param(
             3.0,
             "",
@@ -230,7 +237,7 @@ class Odometry(_PoseEstimator):
         "drift_handover_z": Param(
             4.0,
             "",
-            "the drift found by drift_glr is handed over (IMU bias and rate) if |z| ≥ this",
+            "the drift found by drift_glr is handed over (IMU bias) if |z| ≥ this",
             min=0.0,
             max=100.0,
         ),
@@ -260,7 +267,7 @@ class Odometry(_PoseEstimator):
         self.monitor.window_s = float(p["innovation_window_s"])
         self.trend.window_s = float(p["trend_window_s"])
         self.drift.configure(float(p["drift_window_s"]), float(p["drift_min_span_s"]),
-                             float(p["drift_min_support_s"]))
+                             float(p["drift_min_support_s"]), float(p["drift_walk_m_sqrt_s"]) ** 2)
 
     def step(self, t, dt, inputs):
         kin = inputs.get("kinematics") or _DEFAULT_KIN
@@ -324,20 +331,24 @@ class Odometry(_PoseEstimator):
             "imu_bias": self.bias,
             "imu_bias_rate": self.bias_rate,
         }
-        z, rate, rate_std, onset, error = self.drift.estimate()
+        z, _, _, _, error, extra, extra_std = self.drift.estimate()
         if abs(z) >= float(self.params["drift_handover_z"]):  # False for NaN
             # the heading error the drift has built up by the last fix, taken off the
             # heading and handed over as IMU bias, and the position error it caused (the
-            # fit's innovation), so that the next estimator starts on the drift
-            seen = self.drift.last - onset
-            extra = rate * seen
+            # fit's innovation), so that the next estimator starts on the drift. The
+            # heading is as unsure as the bias taken off it. The rate is not handed
+            # over: just after an alarm it is the fit's weakest part (a later onset, a
+            # steeper rate: ±50–100 % over the onsets the fixes cannot rule out), and
+            # a wrong rate, or a wide one, keeps turning the next estimator's heading
+            # (docs/robustness.md); the next estimator's own rate prior does better.
             th = (self.th - extra + math.pi) % (2 * math.pi) - math.pi
+            cov = self.covariance()
+            cov[2, 2] += extra_std**2
             state.update({
                 "pose": np.array([self.x + error[0], self.y + error[1], th]),
+                "covariance": cov,
                 "imu_bias": self.bias + extra,
-                "imu_bias_std": seen * rate_std,  # seen ≥ 0: the onset is a fix of the window
-                "imu_bias_rate": self.bias_rate + rate,
-                "imu_bias_rate_std": rate_std,
+                "imu_bias_std": extra_std,
             })
         return state
 
