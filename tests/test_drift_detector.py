@@ -242,12 +242,12 @@ def test_drift_fit_recovers_the_rate_onset_and_position_error() -> None:
     odo = _drifting_odometry(rate=2.8e-3, onset=20.0, duration=70.0)
     z, rate, rate_std, onset, error, bias, bias_std = odo.drift.estimate()
     assert abs(z) > 6.0
-    # the standard errors cover the onsets the data cannot tell apart (seeds 0–7: 16–22 s,
-    # 2.31–3.05·10⁻³ rad/s, all within one standard error)
-    assert 0 < rate_std < 1e-3
-    assert abs(rate - 2.8e-3) < 2.0 * rate_std
+    # the heading error's standard error covers the onsets the data cannot tell apart
+    # (seeds 0–7: best onsets 16–22 s, all within one standard error); the rate is the
+    # slowest of them (seeds 0–7: 0.64–0.84 of the true rate)
+    assert 0 < rate_std < 2e-4
+    assert 0.5 * 2.8e-3 < rate < 2.8e-3
     assert_allclose(onset, 20.0, atol=5.0)
-    assert_allclose(bias, rate * (odo.drift.last - onset), rtol=1e-12)
     assert abs(bias - 2.8e-3 * (odo.drift.last - 20.0)) < 2.0 * bias_std
     # the odometry runs off to the left of the true (y = 0) line: GPS − odometry
     assert_allclose(error, [0.0 - odo.x + 0.5 * 70.0, -odo.y], atol=0.15)
@@ -260,18 +260,19 @@ def test_a_drift_just_found_hands_over_an_honest_heading_error(seed: int) -> Non
     0.035 to 0.16 rad for a true 0.073 rad: its standard error must say so, or the
     estimator taking over trusts a heading two or three times too far off (the
     robustness matrix had such a run: 1.15 m after the switch, 0.55 m with this). The
-    rate is worse still (±50–100 %) and is not handed over."""
+    best onset's rate is worse still; the slowest rate of the set is handed over."""
     odo = _drifting_odometry(rate=2.8e-3, onset=20.0, duration=46.0, seed=seed)
     z, rate, rate_std, onset, error, bias, bias_std = odo.drift.estimate()
     true_bias = 2.8e-3 * (odo.drift.last - 20.0)
     assert abs(z) > 4.0
     assert abs(bias - true_bias) < 2.0 * bias_std
-    assert abs(rate - 2.8e-3) < 2.0 * rate_std
+    # the best onset's rate spans 0.8–10·10⁻³ rad/s here; the slowest of the set is
+    # never much faster than the true one (0.23–1.04 of it)
+    assert 0.0 < rate < 1.2 * 2.8e-3
     state = odo.export_state()
     assert_allclose(state["imu_bias_std"], bias_std, rtol=1e-12)
-    # the rate is not handed over (it spans 0.8–10·10⁻³ rad/s here)
-    assert state["imu_bias_rate"] == odo.bias_rate == 0.0
-    assert "imu_bias_rate_std" not in state
+    assert_allclose([state["imu_bias_rate"], state["imu_bias_rate_std"]], [rate, rate_std],
+                    rtol=1e-12)
     # the heading is as unsure as the bias taken off it
     assert_allclose(state["covariance"][2, 2], odo.covariance()[2, 2] + bias_std**2, rtol=1e-12)
 
@@ -281,7 +282,7 @@ def test_odometry_hands_a_found_drift_over_as_imu_bias() -> None:
     state = odo.export_state()
     true_bias = 2.8e-3 * (odo.drift.last - 20.0)
     assert_allclose(state["imu_bias"], true_bias, atol=2 * state["imu_bias_std"])
-    assert state["imu_bias_rate"] == 0.0  # (not handed over: the EKF learns it)
+    assert 0.5 * 2.8e-3 < state["imu_bias_rate"] < 2.8e-3  # the slowest likely rate
     assert_allclose(state["pose"][2], odo.th - state["imu_bias"], atol=1e-12)  # heading = IMU − b
     assert abs(state["pose"][1]) < 0.15 < abs(odo.y)  # back on the line the GPS sees
     quiet = _drifting_odometry(rate=0.0, onset=0.0, duration=70.0).export_state()

@@ -254,18 +254,23 @@ class DriftWindows:
         The onset is the weakest part of the fit: a later onset with a steeper rate
         explains the same fall of the innovation almost as well, and the heading error
         now, ``rate·(t − onset)``, differs between them by a factor of several (the
-        maximum over onsets also favours the short, noisy fits). The standard errors
-        therefore cover every onset the data cannot tell from the best, the
-        profile-likelihood set ``z_m² ≥ z_max² − χ²₁(0.95)`` of the same sign: each is
-        the larger of the error given the best onset and half the set's range.
+        maximum over onsets also favours the short, noisy fits). The onsets the data
+        cannot tell from the best form its profile-likelihood set,
+        ``z_m² ≥ z_max² − χ²₁(0.95)`` of the same sign. The heading error is the best
+        onset's, with a standard error that covers the set (the larger of the error
+        given the onset and half the set's range); the rate is the set's *slowest*,
+        with its error given its onset: just after an alarm the best onset's rate is
+        often several times the true one, and a rate too fast keeps turning an
+        estimator that takes it over, where one too slow is learned from the GPS.
 
         Returns
         -------
-        z, rate, rate_std, onset : (k,) arrays
-            The signed statistic ``z_m``, the rate ``ḃ`` (rad/s: the IMU's heading bias
-            grows by it, beyond what the odometry takes off), its standard error and
-            the onset time ``t_m`` at the onset ``m`` maximizing ``|z_m|``; NaN where
-            :meth:`value` is NaN.
+        z, onset : (k,) arrays
+            The signed statistic ``z_m`` and the onset time ``t_m`` at the onset ``m``
+            maximizing ``|z_m|``; NaN where :meth:`value` is NaN.
+        rate, rate_std : (k,) arrays
+            The slowest rate ``ḃ`` of the set (rad/s: the IMU's heading bias grows by
+            it, beyond what the odometry takes off) and its standard error.
         error : (k, 2) array
             The fitted innovation at the last fix, ``a + ḃ·G_last``: the position error
             of the odometry (GPS − odometry) with the GPS noise averaged out.
@@ -284,7 +289,6 @@ class DriftWindows:
         m = np.abs(z[rows]).argmax(1)
         slope = num[rows, m] / den[rows, m]
         z_out[rows] = z[rows, m]
-        rate[rows] = slope
         se = np.sqrt(noise[rows, m]) / den[rows, m]
         onset[rows] = t[rows, m]
         seen = t[rows, last[rows]] - onset[rows]
@@ -295,7 +299,10 @@ class DriftWindows:
         with np.errstate(divide="ignore", invalid="ignore"):
             rates = np.where(near, num[rows] / np.where(near, den[rows], 1.0), np.nan)
         biases = rates * (t[rows, last[rows], None] - t[rows])
-        std[rows] = np.maximum(se, 0.5 * (np.nanmax(rates, 1) - np.nanmin(rates, 1)))
+        # the rate: the slowest of the set, with its error given that onset
+        slow = np.nanargmin(np.where(near, np.abs(rates), np.inf), 1)
+        rate[rows] = rates[np.arange(len(rows)), slow]
+        std[rows] = np.sqrt(noise[rows, slow]) / den[rows, slow]
         bias_std[rows] = np.maximum(seen * se, 0.5 * (np.nanmax(biases, 1) - np.nanmin(biases, 1)))
         # the fit at the last fix: mean(e) + ḃ (G_last − mean(G)),
         # G_last = A_last − τ_m D_last − c_m

@@ -179,8 +179,9 @@ class Odometry(_PoseEstimator):
     set the covariance only. An IMU bias handed over by the estimator it replaces
     (the EKF's ``imu_bias`` state, e.g. when the GPS is lost) is taken off the IMU
     heading — when it is significant: ``|b| ≥ bias_significance · σ_b`` with
-    ``σ_b`` the estimate's standard deviation (``imu_bias_std``); a bias
-    indistinguishable from zero would only add a constant heading error. A
+    ``σ_b`` the estimate's standard deviation (``imu_bias_std``; 1 by default: the
+    EKF's estimate is already its posterior mean, shrunk by its prior — a 3σ test
+    threw away a drift the EKF had 2σ of after 25 s, docs/hardening.md). A
     handed-over bias rate (``imu_bias_rate``, ``imu_bias_rate_std``), significant by
     the same test, carries the bias forward (``b ← b + ḃ·dt``), so a drifting gyro
     keeps being corrected after the GPS is lost. Handing over itself, it passes on the
@@ -189,8 +190,9 @@ class Odometry(_PoseEstimator):
     variance grows by the bias's), with a standard error that covers every onset the
     fixes cannot rule out, and the position corrected by the fitted innovation — the
     estimator taking over from a drifting dead reckoning starts on the drift instead
-    of learning it from the GPS. The drift's rate is too uncertain just after an alarm
-    to be handed over.
+    of learning it from the GPS. Its rate is the slowest the fixes allow
+    (:meth:`~archself_diffdrive.drift_glr.DriftWindows.estimate`): just after an alarm
+    the best fit's rate is often several times the true one.
 
     Inputs ``encoder_speeds``, ``heading``, ``kinematics``; optional ``position``
     (GPS) used only for the residuals ``innovation``, ``innovation_trend`` and
@@ -228,7 +230,7 @@ class Odometry(_PoseEstimator):
             min=0.0, max=10.0,
         ),
         "bias_significance": Param(
-            3.0,
+            1.0,
             "",
             "a handed-over IMU bias (or rate) is used if ≥ this many standard deviations",
             min=0.0,
@@ -331,16 +333,12 @@ class Odometry(_PoseEstimator):
             "imu_bias": self.bias,
             "imu_bias_rate": self.bias_rate,
         }
-        z, _, _, _, error, extra, extra_std = self.drift.estimate()
+        z, rate, rate_std, _, error, extra, extra_std = self.drift.estimate()
         if abs(z) >= float(self.params["drift_handover_z"]):  # False for NaN
             # the heading error the drift has built up by the last fix, taken off the
-            # heading and handed over as IMU bias, and the position error it caused (the
-            # fit's innovation), so that the next estimator starts on the drift. The
-            # heading is as unsure as the bias taken off it. The rate is not handed
-            # over: just after an alarm it is the fit's weakest part (a later onset, a
-            # steeper rate: ±50–100 % over the onsets the fixes cannot rule out), and
-            # a wrong rate, or a wide one, keeps turning the next estimator's heading
-            # (docs/robustness.md); the next estimator's own rate prior does better.
+            # heading and handed over as IMU bias (the heading as unsure as the bias
+            # taken off it), its slowest likely rate, and the position error it caused
+            # (the fit's innovation), so that the next estimator starts on the drift
             th = (self.th - extra + math.pi) % (2 * math.pi) - math.pi
             cov = self.covariance()
             cov[2, 2] += extra_std**2
@@ -349,6 +347,8 @@ class Odometry(_PoseEstimator):
                 "covariance": cov,
                 "imu_bias": self.bias + extra,
                 "imu_bias_std": extra_std,
+                "imu_bias_rate": self.bias_rate + rate,
+                "imu_bias_rate_std": rate_std,
             })
         return state
 
