@@ -179,9 +179,9 @@ class Odometry(_PoseEstimator):
     set the covariance only. An IMU bias handed over by the estimator it replaces
     (the EKF's ``imu_bias`` state, e.g. when the GPS is lost) is taken off the IMU
     heading — when it is significant: ``|b| ≥ bias_significance · σ_b`` with
-    ``σ_b`` the estimate's standard deviation (``imu_bias_std``; 1 by default: the
-    EKF's estimate is already its posterior mean, shrunk by its prior — a 3σ test
-    threw away a drift the EKF had 2σ of after 25 s, docs/hardening.md). A
+    ``σ_b`` the estimate's standard deviation (``imu_bias_std``; 2 by default, the
+    95 % level: at 3 a drift the EKF had 2σ of after 25 s was thrown away, at 1 a
+    wheel fault's transient taken for a bias, docs/hardening.md). A
     handed-over bias rate (``imu_bias_rate``, ``imu_bias_rate_std``), significant by
     the same test, carries the bias forward (``b ← b + ḃ·dt``), so a drifting gyro
     keeps being corrected after the GPS is lost. Handing over itself, it passes on the
@@ -230,7 +230,7 @@ class Odometry(_PoseEstimator):
             min=0.0, max=10.0,
         ),
         "bias_significance": Param(
-            1.0,
+            2.0,
             "",
             "a handed-over IMU bias (or rate) is used if ≥ this many standard deviations",
             min=0.0,
