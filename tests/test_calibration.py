@@ -107,4 +107,6 @@ def test_residuals_separate_the_faults(seed):
     wl = smoothed(act, "wheel_left")
     assert wl[int(25 / 0.05)] > 2 * nominal_level["wheel_left"]
     assert np.nanmax(smoothed(act, "wheel_right")[late]) < nominal_level["wheel_right"]
-    assert np.nanmax(smoothed(act, "odometry")[late]) < nominal_level["odometry"] * 1.2
+    odo = arch.modules["odometry"].residual
+    odo_alarm = nominal_level["odometry"] * (1.0 + tau / odo.sensitivity)
+    assert np.nanmax(smoothed(act, "odometry")[late]) < odo_alarm
