@@ -349,6 +349,13 @@ def test_a_weighted_calibration_narrows_that_band_and_says_so(tmp_path: Path, ca
                       executor="inline", weights={"observer_a": 4.0})
     assert heavy.modules["observer_a"].new < cal.modules["observer_a"].new
     assert "weight observer_a 4," in heavy.text
+    assert heavy.modules["observer_a"].weight == 4.0
+    assert heavy.to_dict()["bands"]["observer_a"]["weight"] == 4.0
+    from archself.calibration.report import write_report
+
+    write_report(heavy, tmp_path / "report")
+    assert "per nominal run, weight observer_a 4 ·" in (
+        tmp_path / "report" / "calibration.md").read_text(encoding="utf-8")
     with pytest.raises(CalibrationError, match="--weight nope=2: .* no module 'nope'"):
         calibrate(plant, seeds=1, executor="inline", weights={"nope": 2.0})
     with pytest.raises(CalibrationError, match="expected a weight > 0"):

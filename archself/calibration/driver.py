@@ -310,6 +310,7 @@ def calibrate(
             configurations=where.get(m, []),
             calibrated=m in calibrated,
             note=notes.get(m, ""),
+            weight=float(weights.get(m, 1.0)),
         )
         for m in old
     }

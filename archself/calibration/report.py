@@ -124,6 +124,9 @@ def report_model(cal: Calibration) -> dict[str, Any]:
         "tau": _fmt(cal.tau),
         "p": _pct(cal.false_switch),
         "p_value": cal.false_switch,
+        "weights": "".join(
+            f", weight {b.name} {b.weight:g}" for b in cal.modules.values() if b.weight != 1
+        ),
         "seeds": cal.seeds,
         "root_seed": cal.root_seed,
         "runs": cal.runs,

@@ -34,6 +34,7 @@ class ModuleBand:
     configurations: list[str]
     calibrated: bool
     note: str = ""
+    weight: float = 1.0  # its weight in the split of the false-alarm budget
 
 
 @dataclass
@@ -130,6 +131,7 @@ class Calibration:
                     "signal": b.signal,
                     "configurations": b.configurations,
                     "note": b.note,
+                    "weight": b.weight,
                 }
                 for m, b in self.modules.items()
             },
