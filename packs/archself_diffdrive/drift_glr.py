@@ -275,8 +275,8 @@ class DriftWindows:
             The fitted innovation at the last fix, ``a + ḃ·G_last``: the position error
             of the odometry (GPS − odometry) with the GPS noise averaged out.
         bias, bias_std : (k,) arrays
-            The heading error the drift has built up by the last fix,
-            ``rate·(t_last − onset)``, and its standard error.
+            The heading error the drift has built up by the last fix, the best onset's
+            ``ḃ_m·(t_last − t_m)``, and its standard error.
         """
         k = len(idx)
         z_out, rate, std, onset, bias, bias_std = (np.full(k, math.nan) for _ in range(6))

@@ -239,7 +239,7 @@ class Odometry(_PoseEstimator):
         "drift_handover_z": Param(
             4.0,
             "",
-            "the drift found by drift_glr is handed over (IMU bias) if |z| ≥ this",
+            "the drift found by drift_glr is handed over (IMU bias and rate) if |z| ≥ this",
             min=0.0,
             max=100.0,
         ),
