@@ -54,6 +54,11 @@ __all__ = ["DriftGlr", "DriftWindows", "drift_glr"]
 _CANCEL = 1e-9
 #: χ²₁ at 0.95: the onsets within it of the best one form its 95 % profile-likelihood set
 _CHI2_95 = 3.841
+#: the rate found at an alarm is known to within this share of itself at best: an alarm
+#: comes when the latest fixes' noise lies along the template (a stopping time), so the
+#: fits are biased towards late onsets and steep rates even inside the likelihood set
+#: (a 1× drift handed over at 14× its rate ± 16 %, docs/robustness.md)
+_RATE_REL_STD = 0.5
 #: the channels of a fix: e (2), D (2), A (2), A·e, D·e, A·A, A·D, D·D, |e − e_prev|²
 _WIDTH = 12
 
@@ -261,7 +266,10 @@ class DriftWindows:
         given the onset and half the set's range); the rate is the set's *slowest*,
         with its error given its onset: just after an alarm the best onset's rate is
         often several times the true one, and a rate too fast keeps turning an
-        estimator that takes it over, where one too slow is learned from the GPS.
+        estimator that takes it over, where one too slow is learned from the GPS. Even
+        the slowest can be far too fast (the alarm selects noise along the template),
+        so its error is at least half of it: an estimator that trusts it less unlearns
+        a wrong one from the GPS.
 
         Returns
         -------
@@ -270,7 +278,8 @@ class DriftWindows:
             maximizing ``|z_m|``; NaN where :meth:`value` is NaN.
         rate, rate_std : (k,) arrays
             The slowest rate ``ḃ`` of the set (rad/s: the IMU's heading bias grows by
-            it, beyond what the odometry takes off) and its standard error.
+            it, beyond what the odometry takes off) and its standard error given its
+            onset, at least half the rate (``_RATE_REL_STD``).
         error : (k, 2) array
             The fitted innovation at the last fix, ``a + ḃ·G_last``: the position error
             of the odometry (GPS − odometry) with the GPS noise averaged out.
@@ -303,6 +312,7 @@ class DriftWindows:
         slow = np.nanargmin(np.where(near, np.abs(rates), np.inf), 1)
         rate[rows] = rates[np.arange(len(rows)), slow]
         std[rows] = np.sqrt(noise[rows, slow]) / den[rows, slow]
+        std[rows] = np.maximum(std[rows], _RATE_REL_STD * np.abs(rate[rows]))
         bias_std[rows] = np.maximum(seen * se, 0.5 * (np.nanmax(biases, 1) - np.nanmin(biases, 1)))
         # the fit at the last fix: mean(e) + ḃ (G_last − mean(G)),
         # G_last = A_last − τ_m D_last − c_m
