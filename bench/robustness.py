@@ -23,9 +23,9 @@ onsets 2/50/120 s.
 The fault scenarios are added to a temporary copy of the file (``m_*``), so the matrix
 needs nothing the file does not already declare. Its seeds are children of
 ``SeedSequence(1)`` (``--root-seed``); ``archself calibrate`` draws from
-``SeedSequence(0)``, so no nominal run of the matrix is one the bands were fitted to. Everything runs through
-:func:`archself.campaign.plan_campaign` / :func:`~archself.campaign.run_campaign`
-(``--executor dask --address …`` for a cluster).
+``SeedSequence(0)``, so no nominal run of the matrix is one the bands were fitted to.
+Everything runs through :func:`archself.campaign.plan_campaign` /
+:func:`~archself.campaign.run_campaign` (``--executor dask --address …`` for a cluster).
 
 Usage::
 
