@@ -260,7 +260,7 @@ def test_a_campaign_of_lanes_writes_the_rows_of_the_per_run_campaign(tmp_path, s
 
 
 def test_files_whose_types_are_all_batched_go_in_lanes_by_default() -> None:
-    from archself.lanes.system import batched_types
+    from archself.lanes.batching import batched_types
     from archself.loader import load_architecture
 
     found = {n: batched_types(load_architecture(data_dir("architectures") / f"{n}.yaml").arch)

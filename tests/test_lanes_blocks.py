@@ -475,7 +475,7 @@ def motor_drive():
 
 
 def test_every_motor_drive_type_is_batched(motor_drive) -> None:
-    from archself.lanes.system import batched_types
+    from archself.lanes.batching import batched_types
 
     assert batched_types(motor_drive)
 

@@ -22,7 +22,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, PerLane, lane_module, row, simulate_lanes, stack
-from archself.lanes.system import batched_types
+from archself.lanes.batching import batched_types
 from archself.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK

@@ -278,7 +278,7 @@ def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
 
 
 def _batched(job: CalJob) -> bool:
-    from archself.lanes.system import batched_types
+    from archself.lanes.batching import batched_types
 
     return batched_types(_architecture(job))
 

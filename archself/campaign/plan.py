@@ -71,8 +71,8 @@ def run_id(
 
 
 def batched_types(arch: Any) -> bool:
-    """:func:`archself.lanes.system.batched_types` (imported when a campaign is planned)."""
-    from archself.lanes.system import batched_types as batched
+    """:func:`archself.lanes.batching.batched_types` (imported when a campaign is planned)."""
+    from archself.lanes.batching import batched_types as batched
 
     return batched(arch)
 

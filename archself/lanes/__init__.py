@@ -17,9 +17,10 @@ See ``docs/lanes.md`` for the interface and how to add batching to a plugin.
 
 from __future__ import annotations
 
+from archself.lanes.batching import lane_module
 from archself.lanes.module import ALL, LaneModule, LaneNormals, ModelFields, PerLane, row, stack
 from archself.lanes.run import simulate_lanes
-from archself.lanes.system import LaneSystem, lane_module
+from archself.lanes.system import LaneSystem
 from archself.lanes.windows import LaneWindows
 
 __all__ = [

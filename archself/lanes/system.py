@@ -29,76 +29,15 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
+from archself.lanes.batching import lane_module
+from archself.lanes.edges import Delay, add_noise
 from archself.lanes.faults import LaneFault
 from archself.lanes.health import LaneHealth
-from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane
+from archself.lanes.module import ALL, LaneModule, LaneNormals
 from archself.streams import module_rng
 from archself.system import LiveSystem
 
-__all__ = ["LaneSystem", "batched_types", "lane_module"]
-
-
-def batched_types(arch: Any) -> bool:
-    """Whether every module type of ``arch`` has a batched class (none runs as PerLane).
-
-    Lanes of types that run one by one gain nothing over separate runs (before their
-    packs were batched, the tank's and the motor drive's campaigns took as long either
-    way) and hold more memory, so campaigns and calibrations batch by default only files
-    for which this holds (all three shipped files do).
-    """
-    from archself import registry
-
-    return all(
-        getattr(registry.get(spec.type), "lanes", None) is not None
-        for spec in arch.modules.values()
-    )
-
-
-def lane_module(modules: Sequence[Any]) -> LaneModule:
-    """The batched module of N per-run instances: the type's ``lanes`` class or PerLane.
-
-    ``lanes`` is a :class:`~archself.lanes.module.LaneModule` subclass or its
-    ``"package.module:Class"`` path (imported on first use: a pack's batched code
-    costs nothing to a run that does not batch).
-    """
-    kind = type(modules[0])
-    cls = getattr(kind, "lanes", None)
-    if isinstance(cls, str):
-        import importlib
-
-        where, _, attr = cls.partition(":")
-        try:
-            cls = getattr(importlib.import_module(where), attr)
-        except (ImportError, AttributeError) as exc:
-            raise SimulationError(
-                f"module type {kind.__name__}: its lanes class {kind.lanes!r} "
-                f"cannot be imported: {exc}"
-            ) from None
-    return cls(modules) if cls is not None else PerLane(modules)
-
-
-class _Delay:
-    """An edge's latency line in every lane: a ring of ``delay`` values per lane."""
-
-    def __init__(self, n: int, delay: int) -> None:
-        self.n, self.delay = n, delay
-        self.buf: np.ndarray | None = None
-        self.head = np.zeros(n, dtype=np.intp)
-
-    def exchange(self, val: Any, idx: np.ndarray) -> Any:
-        """Push ``val`` (lanes ``idx``) and return what entered ``delay`` steps before."""
-        if type(val) is list:
-            raise SimulationError("an edge latency on a non-numeric signal cannot run in lanes")
-        if self.buf is None and val is not None:
-            shape = (self.delay, self.n) + (() if val.ndim == 1 else (val.shape[1],))
-            self.buf = np.full(shape, math.nan)
-        h = self.head[idx]
-        self.head[idx] = (h + 1) % self.delay
-        if self.buf is None:
-            return None
-        out = self.buf[h, idx]
-        self.buf[h, idx] = math.nan if val is None else val
-        return None if np.isnan(out).all() else out
+__all__ = ["LaneSystem"]
 
 
 def _plan_key(plan: Any) -> Any:
@@ -154,7 +93,7 @@ class LaneSystem:
                     for j in range(len(per_lane[0]))
                 ]
         self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
-        self._delay: dict[int, _Delay] = {}
+        self._delay: dict[int, Delay] = {}
         self._streams: tuple[int, list[LaneNormals]] | None = None
         self._signals: dict[str, dict[str, list[float]]] = {}
         #: J of every lane at the current step (set by the run; the loop's J_obs)
@@ -251,12 +190,12 @@ class LaneSystem:
             if delay:
                 line = self._delay.get(e)
                 if line is None:
-                    line = self._delay[e] = _Delay(self.n, delay)
+                    line = self._delay[e] = Delay(self.n, delay)
                 val = line.exchange(val, idx)
             if unc and val is not None and type(val) is not list:
                 noise = self._noise(e)
                 if noise is not None:
-                    val = _add_noise(val, idx, *noise)
+                    val = add_noise(val, idx, *noise)
             if carries in multi:
                 inputs[carries] = (*inputs.get(carries, ()), val)
             elif val is not None or carries not in inputs:
@@ -400,21 +339,6 @@ class LaneSystem:
         """Write ``lanes``' state into their per-run systems' modules."""
         for mod in self.modules.values():
             mod.store(lanes)
-
-
-def _add_noise(val: np.ndarray, idx: np.ndarray, unc: np.ndarray,
-               normals: LaneNormals) -> np.ndarray:
-    """``val + unc·N(0, 1)`` per lane of ``idx`` with a value (absent lanes draw nothing)."""
-    width = 1 if val.ndim == 1 else val.shape[1]
-    col = val if val.ndim == 1 else val[:, 0]
-    u = unc[idx]
-    present = ~np.isnan(col) & (u > 0)
-    sel = np.flatnonzero(present)
-    out = val.copy()
-    if len(sel):
-        z = normals.take(idx[sel], width)
-        out[sel] = val[sel] + (u[sel, None] * z if val.ndim == 2 else u[sel] * z[:, 0])
-    return out
 
 
 def _absent_rows(value: Any, lanes: np.ndarray) -> Any:
