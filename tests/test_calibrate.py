@@ -308,7 +308,7 @@ def test_an_envelope_widens_the_bands_to_its_worst_point(tmp_path: Path) -> None
     quiet = calibrate(plant, configurations=["p2"], **common)
     noisy = calibrate(plant, envelope=["modules.level_b.params.noise_m.value=0.008,0.032"],
                       configurations=["p2"], **common)
-    assert noisy.runs == 2 * quiet.runs  # every point of the envelope gets the same seeds
+    assert noisy.runs == 2 * quiet.runs  # every point of the envelope gets as many seeds
     # observer B's innovation (m) reads transmitter B: its band grows with the worst noise
     assert noisy.modules["observer_b"].new > 1.5 * quiet.modules["observer_b"].new
     assert "× 2 envelope points" in noisy.text
@@ -320,6 +320,26 @@ def test_an_envelope_widens_the_bands_to_its_worst_point(tmp_path: Path) -> None
                     rtol=0.25)
     with pytest.raises(CalibrationError, match="--envelope"):
         calibrate(plant, envelope=["modules.nope.params.x.value=1,2"], **common)
+
+
+def test_each_envelope_point_runs_seeds_of_its_own() -> None:
+    """The runs of all points are pooled into one tail fit, so each must be a fresh
+    draw: with one set of seeds for every point, a statistic that does not depend on
+    the noise (the robot's drift test) repeated its maximum at every point."""
+    from archself.calibration.runs import plan_runs
+    from archself.campaign import parse_sweep
+
+    text = (ROOT / "architectures" / "process_plant.yaml").read_text()
+    env = [parse_sweep("modules.level_b.params.noise_m.value=0.008,0.032")]
+    seeds = seeds_from(0, 0, 6)
+    jobs = plan_runs(text, "plant.yaml", ["nominal"], ["p1"], seeds, envelope=env)
+    by_point: dict[tuple[float, ...], list[int]] = {}
+    for job in jobs:
+        by_point.setdefault(job.point, []).append(job.seed)
+    assert by_point == {(0.008,): seeds[:3], (0.032,): seeds[3:]}
+    assert sorted(job.replicate for job in jobs) == [0, 0, 1, 1, 2, 2]
+    with pytest.raises(ValueError, match="do not split"):
+        plan_runs(text, "plant.yaml", ["nominal"], ["p1"], seeds[:5], envelope=env)
 
 
 # ------------------------------------------------------------------ weighted budget

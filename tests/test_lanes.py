@@ -328,13 +328,13 @@ def test_adaptive_lanes_make_the_per_run_decisions(diffdrive_raw, scenario) -> N
 
 
 def test_calibration_runs_in_lanes_record_the_per_run_residuals() -> None:
-    """calibrate's runs batched (one unit of sweep points and seeds): the same recorded
+    """calibrate's runs batched (one unit of sweep points and seeds, 2 each): the same recorded
     filtered residuals, unusable flags and times as run by run."""
     from archself.calibration import runs as R
     from archself.campaign.sweep import parse_sweep
 
     path = data_dir("architectures") / "process_plant.yaml"
-    jobs = R.plan_runs(path.read_text(), path.name, ["nominal"], ["p1"], R.seeds_from(0, 0, 2),
+    jobs = R.plan_runs(path.read_text(), path.name, ["nominal"], ["p1"], R.seeds_from(0, 0, 4),
                        envelope=[parse_sweep("modules.level_a.params.noise_m.value=0.002,0.004")])
     units = R.calibration_units(jobs, 1)
     assert [len(u) for u in units] == [4]

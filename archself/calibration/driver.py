@@ -110,8 +110,9 @@ def calibrate(
     envelope : sequence of str
         The operating envelope, as ``archself campaign --sweep`` specs
         (``PATH=v1,v2`` or ``PATH=START:STOP:NUM``): every point of their product
-        is run with the same seeds, and the bands hold the rate in the worst of
-        them (e.g. ``modules.gps.params.noise_m.value=0.2,0.3,0.4``).
+        is run with seeds of its own (children ``p·seeds …`` of the root for point
+        ``p``), and the bands hold the rate in the worst of them (e.g.
+        ``modules.gps.params.noise_m.value=0.2,0.3,0.4``).
     weights : mapping of str to float, optional
         A module's weight in the split of the false-alarm budget between the channels
         of a configuration (default 1 each: an equal share p/K): module j alone
@@ -166,8 +167,10 @@ def calibrate(
         executor = f"{meta['executor']}, runs from {Path(from_runs).name}"
     else:
         t0 = time.perf_counter()
+        n_points = len(sweep_points(sweeps))  # each point its own seeds (R.plan_runs)
         jobs = R.plan_runs(
-            text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds), envelope=sweeps
+            text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds * n_points),
+            envelope=sweeps,
         )
         results = R.run_jobs(
             jobs, executor=executor, workers=workers, address=address, progress=progress
@@ -181,7 +184,7 @@ def calibrate(
                 file,
                 chosen,
                 confs,
-                R.seeds_from(root_seed, seeds, verify_seeds),
+                R.seeds_from(root_seed, seeds * n_points, verify_seeds * n_points),
                 first_replicate=seeds,
                 phase="verify",
                 envelope=sweeps,
