@@ -87,7 +87,7 @@ def edges_csv(arch: Architecture) -> str:
     >>> for line in edges_csv(arch).splitlines()[:2]:
     ...     print(line)
     source,target,weight,carries,latency_s,uncertainty,active_in
-    lqr,wheel_left,0.3,wheel_cmd,0.0,0.0,a1 a2
+    lqr,wheel_left,0.3,wheel_cmd,0.0,0.0,a1
     """
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")

@@ -7,9 +7,9 @@ Examples
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> s = summarize(arch)
 >>> s["counts"]
-{'modules': 14, 'edges': 33, 'configurations': 4, 'actions': 7, 'scenarios': 6}
+{'modules': 15, 'edges': 39, 'configurations': 4, 'actions': 7, 'scenarios': 6}
 >>> print(summary_text(s).splitlines()[0][:58])
-diffdrive: 14 modules (6 physical, 5 functional, 3 model),
+diffdrive: 15 modules (6 physical, 6 functional, 3 model),
 """
 
 from __future__ import annotations

@@ -120,7 +120,7 @@ def test_dependencies_follow_required_inputs_and_requires(arch):
     assert "gps" not in a1["odometry"]  # GPS: optional input, innovation monitoring only
     assert {"encoders", "imu", "kinematic_model"} <= a1["odometry"]
     assert "gps" in a2["ekf"]  # constraints.requires
-    assert "ekf" in a2["lqr"] and "odometry" in a4["asym_lqr"]
+    assert "ekf" in a2["lqr_fused"] and "odometry" in a4["asym_lqr"]
     assert s.configuration == "a1"
 
 

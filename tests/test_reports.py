@@ -175,9 +175,9 @@ def test_diff_pairs_and_diff(diffdrive) -> None:
         assert any(act.to == b and (act.applies_in is None or a in act.applies_in)
                    for act in diffdrive.actions)
     d = config_diff(diffdrive, "a2", "a3")
-    assert d.added_modules == ("asym_lqr",) and d.removed_modules == ("lqr",)
+    assert d.added_modules == ("asym_lqr",) and d.removed_modules == ("lqr_fused",)
     assert ("ekf", "asym_lqr", "pose_estimate") in d.added_edges
-    assert ("ekf", "lqr", "pose_estimate") in d.removed_edges
+    assert ("ekf", "lqr_fused", "pose_estimate") in d.removed_edges
     assert d.actions[:2] == ("compensate_left_wheel", "compensate_right_wheel")
 
 

@@ -21,7 +21,7 @@ Examples
 [('a1', 'a2'), ('a1', 'a3'), ('a2', 'a1'), ('a2', 'a3'), ('a3', 'a4'), ('a4', 'a3')]
 >>> d = config_diff(arch, "a1", "a2")
 >>> d.added_modules, d.removed_modules
-(('ekf',), ('odometry',))
+(('ekf', 'lqr_fused'), ('odometry', 'lqr'))
 """
 
 from __future__ import annotations
