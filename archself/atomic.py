@@ -8,20 +8,13 @@ running command): ``--force`` allows replacing an old output, never an input.
 from __future__ import annotations
 
 import os
+import secrets
 import stat
-import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from archself.errors import OutputError
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
 
 #: ``(st_dev, st_ino)`` of the files no write may replace (see :func:`protect`).
 _PROTECTED: dict[tuple[int, int], str] = {}
@@ -108,22 +101,23 @@ def write_bytes(path: str | Path, data: bytes) -> None:
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"{p}: cannot write: folder {folder} does not exist")
+    # named first and made inside the clean-up block: a signal between making it and
+    # entering the block would leave it behind
+    tmp = folder / f".{p.name}.{secrets.token_hex(8)}.tmp"
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
-    except OSError as exc:
-        raise OutputError(f"{p}: cannot write: {exc.strerror or exc}") from None
-    try:
+        # O_EXCL: never an existing file; mode 0666 less the umask, like any new file
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
         os.replace(tmp, p)
     except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        if not isinstance(exc, FileExistsError):  # that one is someone else's file
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
         if isinstance(exc, OSError):
             raise OutputError(f"{p}: cannot write: {exc.strerror or exc}") from None
         raise

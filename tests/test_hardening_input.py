@@ -5,7 +5,6 @@ from __future__ import annotations
 import errno
 import os
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -111,12 +110,12 @@ OUTPUT_COMMANDS = {
 }
 
 
-@pytest.mark.parametrize("where", ["mkstemp", "replace"])
+@pytest.mark.parametrize("where", ["create", "replace"])
 @pytest.mark.parametrize("command", sorted(OUTPUT_COMMANDS))
 def test_unwritable_output_through_the_cli(tmp_path: Path, monkeypatch, command, where) -> None:
     """What test_read_only_folder checks, also as root (CI): the folder refuses the write.
 
-    The temporary file cannot be created (``mkstemp``) or cannot be renamed over the
+    The temporary file cannot be created (``os.open``) or cannot be renamed over the
     target (``os.replace``): one line on stderr, exit 1, no traceback, the good file kept
     and no temporary file left behind.
     """
@@ -124,8 +123,15 @@ def test_unwritable_output_through_the_cli(tmp_path: Path, monkeypatch, command,
 
     target = tmp_path / "out.json"
     target.write_text("good")
-    if where == "mkstemp":
-        monkeypatch.setattr(atomic, "tempfile", SimpleNamespace(mkstemp=_denied))
+    if where == "create":  # only the exclusive create of the temporary file is refused
+        real_open = os.open
+
+        def create_denied(path, flags, *args, **kwargs):
+            if flags & os.O_EXCL:
+                _denied()
+            return real_open(path, flags, *args, **kwargs)
+
+        monkeypatch.setattr(atomic.os, "open", create_denied)
     else:
         monkeypatch.setattr(atomic.os, "replace", _denied)
     result = CliRunner().invoke(app, OUTPUT_COMMANDS[command](target))

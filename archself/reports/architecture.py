@@ -29,6 +29,7 @@ not empty is replaced only with ``force`` and only if it holds a report (an
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 import subprocess
 import tempfile
@@ -142,7 +143,11 @@ def swap_in(new: Path, out: Path) -> None:
 
 
 def _prepare(out: Path, force: bool, shown: Path) -> Path:
-    """Check ``out`` and make the temporary folder the report is written into."""
+    """Check ``out`` and name the temporary folder the report is written into.
+
+    The folder is named here and made by the caller inside its clean-up block: a signal
+    between making it and entering that block would leave it behind (seen under load).
+    """
     if out.exists() and not out.is_dir():
         raise OutputError(f"{shown}: not a folder")
     if out.is_dir() and any(out.iterdir()):
@@ -160,14 +165,7 @@ def _prepare(out: Path, force: bool, shown: Path) -> Path:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{shown}: cannot create folder: {exc.strerror or exc}") from None
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o777 & ~mask)  # mkdtemp makes 0700
-    except OSError as exc:
-        raise OutputError(f"{shown}: cannot write: {exc.strerror or exc}") from None
-    return tmp
+    return parent / f".{out.name}.{secrets.token_hex(8)}.tmp"
 
 
 def write_architecture_report(
@@ -203,11 +201,19 @@ def write_architecture_report(
     """
     final = Path(os.path.abspath(out_dir))
     tmp = _prepare(final, force, Path(out_dir))
+    ours: Path | None = tmp  # what the clean-up may delete
     try:
+        try:
+            tmp.mkdir()  # mode 0777 less the umask, like any new folder
+        except OSError as exc:
+            if isinstance(exc, FileExistsError):
+                ours = None  # someone else's
+            raise OutputError(f"{out_dir}: cannot write: {exc.strerror or exc}") from None
         rep = _write(arch, tmp, dot)
         swap_in(tmp, final)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if ours is not None:
+            shutil.rmtree(ours, ignore_errors=True)
         raise
     rep.out_dir = Path(out_dir)
     return rep
