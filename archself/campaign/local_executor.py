@@ -133,10 +133,6 @@ def _worker_init(driver_pid: int | None = None) -> None:
     die_with_parent(driver_pid)
 
 
-def _ignore_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 # In the forkserver (it imports this module as a preload, its parent is the driver):
 # die with the driver. The forkserver forks the workers, so no thread is started here.
 def _in_forkserver_of_driver() -> bool:

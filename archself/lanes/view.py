@@ -69,7 +69,6 @@ class LaneView:
         self.live = lanes.systems[i]
         self._materialized = False
         self._params_seen = 0
-        self._cache_k = -1
         self._signals: dict[str, dict[str, float]] = {}
 
     # ------------------------------------------------------------------ the quiet path
