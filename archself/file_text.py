@@ -11,7 +11,7 @@ from pathlib import Path
 
 from archself.errors import LoadError
 
-__all__ = ["MAX_FILE_BYTES", "read_text"]
+__all__ = ["MAX_FILE_BYTES", "decode_text", "read_text"]
 
 #: Any document (JSON text, which the json module parses at tens of MB/s).
 MAX_FILE_BYTES = 64 * 1024 * 1024
@@ -55,6 +55,12 @@ def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
         raise LoadError(f"cannot read: {exc.strerror}", file) from None
     finally:
         os.close(fd)
+    return decode_text(raw, file, max_bytes)
+
+
+def decode_text(raw: bytes, file: str, max_bytes: int = MAX_FILE_BYTES) -> str:
+    """``raw`` (read up to ``max_bytes + 1``) as UTF-8 text; over the cap or not UTF-8 is a
+    :class:`LoadError` located at ``file`` (the line of the first bad byte)."""
     if len(raw) > max_bytes:
         raise LoadError(f"input is larger than the {max_bytes}-byte cap", file)
     try:

@@ -200,6 +200,8 @@ def _cases(tmp: Path, arch: Path) -> list[list[str]]:
              str(tmp / "n.parquet")],
             ["generate", "10", "--seed", v],
             ["generate", "10", "--feedback", v],
+            ["calibrate", a, "--seeds", "1", "--root-seed", v],
+            ["identify", a, "--seeds", "1", "--root-seed", v],
         ]
     for v in ["0", *wrong]:  # for options that need at least 1 (or 2)
         cases += [

@@ -46,13 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.tails import (
-    TailFit,
-    empirical_level,
-    quantile_level,
-    rate_at,
-    scale_for_rate,
-)
+from archself.calibration.tails import TailFit, empirical_level, quantile_level
 
 __all__ = [
     "Cell",
@@ -65,8 +59,6 @@ __all__ = [
     "cycle_scales",
     "influence_block",
     "quantile_level",
-    "rate_at",
-    "scale_for_rate",
 ]
 
 
@@ -278,10 +270,6 @@ class Prediction:
             [TailFit.fit(per[:, j]) for j in range(per.shape[1])],
         )
 
-    @property
-    def values(self) -> np.ndarray:
-        return self.all.values
-
     def predicted(self, s: float) -> float:
         """max(P_all(S ≥ s), Σ_j P_j(S_j ≥ s)), at most 1."""
         parts = sum(ch.predicted(s) for ch in self.channels)
@@ -310,7 +298,6 @@ class Prediction:
             else:
                 lo = mid
         return hi
-
 
 
 def channel_shape(cell: Cell, module: str, p: float, tau: float,

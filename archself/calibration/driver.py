@@ -126,7 +126,9 @@ def calibrate(
         scenario, a rate that no band can give, every run failing.
     """
     from archself.calibration import runs as R
-    from archself.calibration.edit import set_nominals
+    from archself.calibration.edit import format_band, set_nominals
+    from archself.calibration.saved_runs import band_free_digest, load_runs
+    from archself.calibration.saved_runs import save_runs as write_runs
     from archself.campaign.sweep import sweep_points
 
     p = float(false_switch)
@@ -147,12 +149,13 @@ def calibrate(
         if not (w > 0 and math.isfinite(w)):
             raise CalibrationError(f"--weight {m}={w:g}: expected a weight > 0")
     sweeps = parse_envelope(loaded, envelope)
-    digest = R.band_free_digest(loaded.data)
+    n_points = len(sweep_points(sweeps))
+    digest = band_free_digest(loaded.data)
     if sweeps:
         digest += "|" + ";".join(f"{s.path}={s.values}" for s in sweeps)
     elapsed = verify_elapsed = 0.0
     if from_runs is not None:
-        meta, saved = R.load_runs(from_runs)
+        meta, saved = load_runs(from_runs)
         if meta.get("digest") != digest:
             raise CalibrationError(
                 f"{from_runs}: runs of another architecture (not only the bands differ from "
@@ -166,33 +169,22 @@ def calibrate(
         vres = [r for r in saved if r["phase"] == "verify"]
         executor = f"{meta['executor']}, runs from {Path(from_runs).name}"
     else:
-        t0 = time.perf_counter()
-        n_points = len(sweep_points(sweeps))  # each point its own seeds (R.plan_runs)
-        jobs = R.plan_runs(
-            text, file, chosen, confs, R.seeds_from(root_seed, 0, seeds * n_points),
-            envelope=sweeps,
-        )
-        results = R.run_jobs(
-            jobs, executor=executor, workers=workers, address=address, progress=progress
-        )
-        elapsed = time.perf_counter() - t0
+        def run(phase: str, first: int, n: int) -> tuple[list[dict[str, Any]], float]:
+            """Replicates ``first … first+n−1`` (each envelope point its own seeds)."""
+            t0 = time.perf_counter()
+            jobs = R.plan_runs(
+                text, file, chosen, confs, R.seeds_from(root_seed, first * n_points, n * n_points),
+                first_replicate=first, phase=phase, envelope=sweeps,
+            )
+            got = R.run_jobs(
+                jobs, executor=executor, workers=workers, address=address, progress=progress
+            )
+            return got, time.perf_counter() - t0
+
+        results, elapsed = run("calibration", 0, seeds)
         vres = []
         if verify_seeds:
-            t1 = time.perf_counter()
-            vjobs = R.plan_runs(
-                text,
-                file,
-                chosen,
-                confs,
-                R.seeds_from(root_seed, seeds * n_points, verify_seeds * n_points),
-                first_replicate=seeds,
-                phase="verify",
-                envelope=sweeps,
-            )
-            vres = R.run_jobs(
-                vjobs, executor=executor, workers=workers, address=address, progress=progress
-            )
-            verify_elapsed = time.perf_counter() - t1
+            vres, verify_elapsed = run("verify", seeds, verify_seeds)
         if save_runs is not None:
             meta = {
                 "format": 1,
@@ -207,7 +199,7 @@ def calibrate(
                 "elapsed_s": elapsed,
                 "verify_elapsed_s": verify_elapsed,
             }
-            R.save_runs(save_runs, meta, results + vres)
+            write_runs(save_runs, meta, results + vres)
     cells = _cells(arch, results)
     for c in cells:
         if c.runs == 0:
@@ -240,22 +232,17 @@ def calibrate(
     shape = {m: (base[m] if m in calibrated else old[m]) for m in old}
 
     # scale: every cell's runs at most p false alarms (predicted and empirical)
-    scale = 0.0
-    needed: list[float] = []
-    for c in cells:
-        s_c = Prediction.of(c, shape, tau).quantile(p)
-        needed.append(s_c)
+    needed = [Prediction.of(c, shape, tau).quantile(p) for c in cells]
+    for c, s_c in zip(cells, needed, strict=True):
         if math.isinf(s_c):
             raise CalibrationError(
                 f"{file}: {int(c.forced.sum())} of {c.runs} nominal runs of {c.scenario} in "
                 f"{c.configuration} have a module unavailable after the warm-up: no band gives "
                 f"a false-switch rate of {p:g}"
             )
-        scale = max(scale, s_c)
+    scale = max([0.0, *needed])
     if scale <= 0:
         raise CalibrationError(f"{file}: the nominal residuals raise no candidate at any band")
-
-    from archself.calibration.edit import format_band
 
     new = {m: (float(format_band(scale * shape[m])) if m in calibrated else old[m]) for m in old}
     results_cells = []
@@ -296,12 +283,10 @@ def calibrate(
         else f"{len(cells)} (scenario, configuration)"
     )
     if sweeps:
-        n_points = len(sweep_points(sweeps))
         cells_text += f" × {n_points} envelope point{'s' * (n_points != 1)}"
     weighted = "".join(f", weight {m} {w:g}" for m, w in sorted(weights.items()) if w != 1)
     comment = f"p = {p:g}/run{weighted}, {seeds} nominal runs × {cells_text} (archself calibrate)"
-    changed = {m: new[m] for m in calibrated}
-    new_text = set_nominals(text, file, changed, comment)
+    new_text = set_nominals(text, file, {m: new[m] for m in calibrated}, comment)
     modules = {
         m: ModuleBand(
             name=m,

@@ -61,10 +61,10 @@ def _child(node: Any, key: str) -> Any:
     return None
 
 
-def _comment_start(line: str, start: int) -> int:
-    """Index of a ``#`` comment in ``line`` at or after ``start`` (outside quotes), or -1."""
+def _comment_start(line: str) -> int:
+    """Index of a ``#`` comment in ``line`` (outside quotes), or -1."""
     quote = None
-    i = start
+    i = 0
     while i < len(line):
         ch = line[i]
         if quote:
@@ -138,20 +138,15 @@ def set_nominals(
             )
         edits[id(node)] = (start.index, end.index, new, name)
     result = replace_scalars(text, [(s, e, new) for s, e, new, _ in edits.values()], comment)
-    if verify:
-        _verify(result, file, {name: float(format_band(v)) for name, v in values.items()})
+    if verify:  # the new text holds exactly the new values
+        from archself.loader import load_text
+
+        arch = load_text(result, file).arch
+        for name, value in values.items():
+            got, v = arch.modules[name].residual.nominal, float(format_band(value))
+            if got != v:  # pragma: no cover - a bug of the editor, not of the file
+                raise LoadError(f"writing the band of {name} failed ({got} != {v})", file)
     return result
-
-
-def _verify(text: str, file: str, expect: dict[str, float]) -> None:
-    """Load the new text and check it holds exactly the new values."""
-    from archself.loader import load_text
-
-    arch = load_text(text, file).arch
-    for name, v in expect.items():
-        got = arch.modules[name].residual.nominal
-        if got != v:  # pragma: no cover - a bug of the editor, not of the file
-            raise LoadError(f"writing the band of {name} failed ({got} != {v})", file)
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:
@@ -205,7 +200,7 @@ def replace_scalars(
     note = f"{tag} {comment}".rstrip()
     for i in sorted(changed_lines):
         line = lines[i]
-        cut = _comment_start(line, 0)
+        cut = _comment_start(line)
         if cut < 0:
             lines[i] = f"{line.rstrip()}  {note}"
         elif line[cut:].startswith(tag):

@@ -18,7 +18,8 @@ See docs/identify.md. The result types are in
 :mod:`~archself.calibration.identify_results`, the runs in
 :mod:`~archself.calibration.identify_jobs`, the tables in
 :mod:`~archself.calibration.identify_report` and the write-back in
-:mod:`~archself.calibration.identify_write`; their public names are re-exported here.
+:mod:`~archself.calibration.identify_write` (:func:`set_weights` and
+:func:`written_copy` are re-exported here).
 """
 
 from __future__ import annotations
@@ -32,44 +33,17 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.identify_fit import EdgeEstimate, TargetFit, delta_residuals, fit_edges
-from archself.calibration.identify_jobs import IdJob, run_identify_job, run_jobs
-from archself.calibration.identify_report import markdown_table, summary_text
-from archself.calibration.identify_results import (
-    FLAG_SE,
-    EdgeRow,
-    Experiment,
-    Identification,
-    IdentifyError,
-)
-from archself.calibration.identify_write import (
-    COMMENT_TAG,
-    format_weight,
-    set_weights,
-    written_copy,
-)
+from archself.calibration.identify_fit import TargetFit, delta_residuals, fit_edges
+from archself.calibration.identify_jobs import IdJob, run_identify_job
+from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
+from archself.calibration.identify_write import set_weights, written_copy
 
-__all__ = [
-    "COMMENT_TAG",
-    "FLAG_SE",
-    "EdgeRow",
-    "Experiment",
-    "IdJob",
-    "Identification",
-    "IdentifyError",
-    "format_weight",
-    "identify",
-    "markdown_table",
-    "run_identify_job",
-    "set_weights",
-    "summary_text",
-    "written_copy",
-]
+__all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
 
 # --------------------------------------------------------------------------- driver
 def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[str] | None):
-    from archself.calibration.prepare import load_checked
+    from archself.calibration.prepare import chosen_configurations, load_checked
 
     text, loaded = load_checked(path, IdentifyError)
     arch = loaded.arch
@@ -88,14 +62,7 @@ def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[st
         if not free:
             raise IdentifyError(f"{path}: no fault-free scenario; declare one (no faults)")
         scenario = "nominal" if "nominal" in free else free[0]
-    if configurations:
-        for c in configurations:
-            if c not in arch.configurations:
-                known = ", ".join(arch.configurations)
-                raise IdentifyError(f"{path}: unknown configuration {c!r}; known: {known}")
-        confs = list(dict.fromkeys(configurations))
-    else:
-        confs = list(arch.configurations)
+    confs = chosen_configurations(arch, str(path), configurations, IdentifyError)
     return text, arch, scenario, confs
 
 
@@ -181,7 +148,7 @@ def identify(
         A file with errors, no residual, no fault-free scenario, an unknown
         configuration, or no experiment possible.
     """
-    from archself.calibration.runs import seeds_from
+    from archself.calibration.runs import run_on_executor, seeds_from
     from archself.runtime.knowledge import Knowledge, active_edges
 
     if seeds < 1:
@@ -218,7 +185,10 @@ def identify(
             f"{path}: no active module takes a {kind!r} fault; choose another --kind or --perturb"
         )
     t0 = time.perf_counter()
-    results = run_jobs(jobs, executor, workers, address, progress)
+    results = run_on_executor(
+        jobs, run_identify_job, "archself.calibration.identify_jobs",
+        executor=executor, workers=workers, address=address, progress=progress,
+    )
     elapsed = time.perf_counter() - t0
 
     failed = [
@@ -262,30 +232,13 @@ def identify(
                     Experiment(c, m, k, mag, len(deltas), own, float(np.abs(mean).max()))
                 )
         dr = np.array(dr_rows, dtype=float).reshape(len(dr_rows), len(observed))
-        estimates, target_fits = fit_edges(
-            dr, exp_of, observed, pairs, min_excitation=min_excitation
-        )
-        fits[c] = target_fits
-        est_of: dict[tuple[str, str], EdgeEstimate] = {(e.source, e.target): e for e in estimates}
-        for s, t in pairs:
-            e = est_of[(s, t)]
+        estimates, fits[c] = fit_edges(dr, exp_of, observed, pairs, min_excitation=min_excitation)
+        for e in estimates:  # in the order of pairs
+            s, t = e.source, e.target
             carries = [cr for (a, b, cr) in keys if (a, b) == (s, t)]
             declared = sum(knowledge.arch_weight(s, t, cr) for cr in carries)
-            rows.append(
-                EdgeRow(
-                    c,
-                    s,
-                    t,
-                    carries,
-                    declared,
-                    declared * knowledge.w_scale,
-                    e.weight,
-                    e.se,
-                    e.identifiable,
-                    e.reason,
-                )
-            )
-    runs = len(jobs)
+            rows.append(EdgeRow(c, s, t, carries, declared, declared * knowledge.w_scale,
+                                e.weight, e.se, e.identifiable, e.reason))
     return Identification(
         architecture=arch.name,
         file=str(path),
@@ -300,7 +253,7 @@ def identify(
         experiments=experiments,
         skipped={c: plan[c][1] for c in confs},
         failed=failed,
-        runs=runs,
+        runs=len(jobs),
         elapsed_s=elapsed,
         executor=executor,
         text=text,

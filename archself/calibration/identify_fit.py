@@ -252,45 +252,36 @@ def fit_target(
     n, p = X.shape
     weights = np.full(p, math.nan)
     se = np.full(p, math.nan)
-    ok = np.zeros(p, dtype=bool)
-    if n:
-        ok = np.abs(X).max(axis=0) > min_excitation
+    excited = np.abs(X).max(axis=0) > min_excitation if n else np.zeros(p, dtype=bool)
     # drop columns that are (near) combinations of others, greedily in column order
     cols: list[int] = []
-    for k in np.flatnonzero(ok).tolist():
-        trial = X[:, cols + [k]]
-        s = np.linalg.svd(trial, compute_uv=False)
+    for k in np.flatnonzero(excited).tolist():
+        s = np.linalg.svd(X[:, cols + [k]], compute_uv=False)
         if s.size and s[-1] > rcond * max(s[0], 1e-300):
             cols.append(k)
     ok = np.zeros(p, dtype=bool)
     ok[cols] = True
     ss = float(y @ y)
-    moved = float(np.abs(y).max()) if n else math.nan
-    if not cols:
-        rss = ss
-        return TargetFit(
-            weights,
-            se,
-            ok,
-            n,
-            math.nan if ss == 0 else 1.0 - rss / ss,
-            math.sqrt(rss / n) if n else math.nan,
-            moved,
-        )
-    A = X[:, cols]
-    if nonnegative:
-        w, _ = nnls(A, y)
-    else:
-        w = np.linalg.lstsq(A, y, rcond=None)[0]
-    res = y - A @ w
-    rss = float(res @ res)
-    dof = n - len(cols)
-    if dof > 0:
-        cov = (rss / dof) * np.linalg.inv(A.T @ A)
-        se[cols] = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    weights[cols] = w
-    r2 = math.nan if ss == 0 else 1.0 - rss / ss
-    return TargetFit(weights, se, ok, n, r2, math.sqrt(rss / n), moved)
+    rss = ss
+    if cols:
+        A = X[:, cols]
+        w = nnls(A, y)[0] if nonnegative else np.linalg.lstsq(A, y, rcond=None)[0]
+        res = y - A @ w
+        rss = float(res @ res)
+        dof = n - len(cols)
+        if dof > 0:
+            cov = (rss / dof) * np.linalg.inv(A.T @ A)
+            se[cols] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        weights[cols] = w
+    return TargetFit(
+        weights,
+        se,
+        ok,
+        n,
+        math.nan if ss == 0 else 1.0 - rss / ss,
+        math.sqrt(rss / n) if n else math.nan,
+        float(np.abs(y).max()) if n else math.nan,
+    )
 
 
 @dataclass
@@ -312,7 +303,6 @@ def fit_edges(
     edges: Sequence[tuple[str, str]],
     *,
     min_excitation: float = 0.0,
-    nonnegative: bool = True,
 ) -> tuple[list[EdgeEstimate], dict[str, TargetFit]]:
     """Fit every edge's weight from pooled experiments.
 
@@ -327,9 +317,7 @@ def fit_edges(
     edges : sequence of (source, target)
         The active edges (pairs; parallel edges counted once).
     min_excitation : float
-        See :func:`fit_target`.
-    nonnegative : bool
-        See :func:`fit_target`.
+        See :func:`fit_target` (non-negative least squares).
 
     Returns
     -------
@@ -362,33 +350,22 @@ def fit_edges(
         rows = [r for r, x in enumerate(experiments) if t in usable[x]]
         X = dr[np.ix_(rows, [col[s] for s in srcs])]
         y = dr[rows, col[t]]
-        fit = fit_target(X, y, min_excitation=min_excitation, nonnegative=nonnegative)
-        fits[t] = fit
+        fits[t] = fit = fit_target(X, y, min_excitation=min_excitation)
         for k, s in enumerate(srcs):
             ident = bool(fit.identifiable[k])
-            out_of[(s, t)] = EdgeEstimate(
-                s,
-                t,
-                float(fit.weights[k]),
-                float(fit.se[k]),
-                ident,
-                ""
-                if ident
-                else (
-                    "no usable experiment"
-                    if not rows
-                    else "source not excited"
-                    if not np.abs(X[:, k]).max(initial=0.0) > min_excitation
-                    else "collinear with another source"
-                ),
-            )
-    result = []
+            if ident:
+                why = ""
+            elif not rows:
+                why = "no usable experiment"
+            elif not np.abs(X[:, k]).max(initial=0.0) > min_excitation:
+                why = "source not excited"
+            else:
+                why = "collinear with another source"
+            out_of[(s, t)] = EdgeEstimate(s, t, float(fit.weights[k]), float(fit.se[k]), ident, why)
     for s, t in pairs:
-        est = out_of.get((s, t))
-        if est is None:
+        if (s, t) not in out_of:
             why = "target has no residual" if t not in col else "source has no residual"
             if s not in col and t not in col:
                 why = "neither end has a residual"
-            est = EdgeEstimate(s, t, math.nan, math.nan, False, why)
-        result.append(est)
-    return result, fits
+            out_of[(s, t)] = EdgeEstimate(s, t, math.nan, math.nan, False, why)
+    return [out_of[e] for e in pairs], fits

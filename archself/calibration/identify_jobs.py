@@ -9,18 +9,12 @@ through :func:`archself.calibration.runs.run_on_executor`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from archself.calibration.identify_results import IdentifyError
 
-__all__ = ["IdJob", "run_identify_job", "run_jobs"]
-
-
-_ARCHS: dict[str, Any] = {}  # text digest -> Architecture (parsed once per process)
+__all__ = ["IdJob", "run_identify_job"]
 
 
 @dataclass(frozen=True)
@@ -41,17 +35,6 @@ class IdJob:
     settle_s: float
 
 
-def _architecture(job: IdJob) -> Any:
-    arch = _ARCHS.get(job.arch_digest)
-    if arch is None:
-        from archself.loader import load_text
-
-        arch = load_text(job.arch_text, job.file).arch
-        _ARCHS.clear()
-        _ARCHS[job.arch_digest] = arch
-    return arch
-
-
 def run_identify_job(job: IdJob) -> dict[str, Any]:
     """Run one job; never raises for a failed run.
 
@@ -62,7 +45,7 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         module or None), ``mean`` (time-averaged |s̄| per residual module after
         ``settle_s``, float64, in the file's module order), ``error``.
     """
-    from archself.calibration.runs import Recorder
+    from archself.calibration.runs import Recorder, parsed
     from archself.model import Fault
     from archself.sim.run import simulate
 
@@ -74,7 +57,7 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         "error": None,
     }
     try:
-        arch = _architecture(job).model_copy(deep=True)
+        arch = parsed(job.arch_text, job.arch_digest, job.file).model_copy(deep=True)
         if job.perturb is not None:
             module, kind, magnitude = job.perturb
             arch.scenarios[job.scenario].faults.append(
@@ -82,38 +65,16 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
                     {"module": module, "kind": kind, "onset_s": 0.0, "magnitude": magnitude}
                 )
             )
-        names = [m for m, spec in arch.modules.items() if spec.residual is not None]
-        rec = Recorder(arch, names)
+        rec = Recorder(arch)
         simulate(arch, job.scenario, configuration=job.configuration, seed=job.seed, adapt=rec)
-        x = np.array(rec.x, dtype=float).reshape(len(rec.x), len(names))
-        t = np.array(rec.t, dtype=float)
-        keep = t >= job.settle_s - 1e-9
+        got = rec.arrays()
+        keep = got["t"] >= job.settle_s - 1e-9
         if not keep.any():
             raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
-        out["mean"] = x[keep].mean(axis=0)
+        out["mean"] = got["x"][keep].mean(axis=0)
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
         from archself.campaign.worker import run_error
 
         out["error"] = run_error(exc)
     return out
 
-
-def run_jobs(
-    jobs: Sequence[IdJob],
-    executor: str,
-    workers: int | None,
-    address: str | None,
-    progress: Callable[[int, int], None] | None,
-) -> list[dict[str, Any]]:
-    """``run_identify_job`` of every job on the executor (completion order)."""
-    from archself.calibration.runs import run_on_executor
-
-    return run_on_executor(
-        jobs,
-        run_identify_job,
-        "archself.calibration.identify_jobs",
-        executor=executor,
-        workers=workers,
-        address=address,
-        progress=progress,
-    )

@@ -35,8 +35,7 @@ def summary_text(ident: Identification, *, all_edges: bool = False) -> str:
     for c in ident.configurations:
         rows = [r for r in ident.rows if r.configuration == c]
         shown = [r for r in rows if r.identifiable or all_edges]
-        lines.append("")
-        lines.append(f"configuration {c}")
+        lines += ["", f"configuration {c}"]
         width = max([len(f"{r.source} -> {r.target}") for r in shown] + [4])
         lines.append(f"  {'edge':<{width}}  {'declared':>8}  {'fitted':>8}  {'SE':>7}  flag")
         for r in shown:
@@ -64,8 +63,7 @@ def summary_text(ident: Identification, *, all_edges: bool = False) -> str:
         if skipped:
             lines.append(f"  not perturbed: {', '.join(skipped)}")
     if ident.failed:
-        lines.append("")
-        lines.append(f"{len(ident.failed)} failed run(s); first: {ident.failed[0]}")
+        lines += ["", f"{len(ident.failed)} failed run(s); first: {ident.failed[0]}"]
     return "\n".join(lines) + "\n"
 
 

@@ -9,7 +9,7 @@ refusal of the command.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -84,7 +84,6 @@ class Identification:
     elapsed_s: float
     executor: str
     text: str = ""
-    meta: dict[str, Any] = field(default_factory=dict)
 
     def fitted_weights(self) -> dict[tuple[str, str], tuple[float, float]]:
         """(source, target) -> (weight, SE) pooled over configurations.

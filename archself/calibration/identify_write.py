@@ -49,13 +49,13 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
     from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
     from archself.calibration.edit import _child, replace_scalars
+    from archself.loader import load_text
+    from archself.ports import split_ref
 
     root = YAML(typ="rt").compose(text)
     seq = _child(root, "edges")
     if not isinstance(seq, SequenceNode):
         raise LoadError("no edges to write weights into", file, path="edges")
-    from archself.ports import split_ref
-
     mods = _child(root, "modules")
     names = {k.value for k, _ in mods.value} if isinstance(mods, MappingNode) else set()
     groups: dict[tuple[str, str], list[tuple[int, Any, float]]] = {}
@@ -88,8 +88,6 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
             edits[id(node)] = (node.start_mark.index, node.end_mark.index, new)
             expect[i] = float(new)
     result = replace_scalars(text, list(edits.values()), comment, COMMENT_TAG)
-    from archself.loader import load_text
-
     arch = load_text(result, file).arch
     for i, w in expect.items():
         if arch.edges[i].weight != w:  # pragma: no cover - a bug of the editor
@@ -99,8 +97,7 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
 
 def written_copy(ident: Identification) -> str:
     """The file's text with the fitted weights (pooled over configurations) written in."""
-    pooled = ident.fitted_weights()
-    values = {k: w for k, (w, _) in pooled.items()}
+    values = {k: w for k, (w, _) in ident.fitted_weights().items()}
     if not values:
         raise IdentifyError(f"{ident.file}: no edge was identifiable; nothing to write back")
     comment = (

@@ -12,7 +12,7 @@ from archself.calibration.bands import alarm_threshold
 from archself.calibration.result import CalibrationError
 from archself.errors import ArchselfError, LoadError
 
-__all__ = ["load_checked", "located", "parse_envelope", "prepare"]
+__all__ = ["chosen_configurations", "load_checked", "located", "parse_envelope", "prepare"]
 
 
 def load_checked(path: str | Path, error: type[ArchselfError]) -> tuple[str, Any]:
@@ -38,6 +38,17 @@ def located(loaded: Any, path: tuple[str, ...], message: str) -> LoadError:
     """A one-line error at the node of ``path`` in the loaded file."""
     line, col = loaded.source.locate(path)
     return LoadError(message, loaded.file, line, col, ".".join(path))
+
+
+def chosen_configurations(
+    arch: Any, file: str, configurations: Sequence[str] | None, error: type[ArchselfError]
+) -> list[str]:
+    """The configurations asked for (each once, in order), or all; an unknown one raised."""
+    for c in configurations or ():
+        if c not in arch.configurations:
+            known = ", ".join(arch.configurations)
+            raise error(f"{file}: unknown configuration {c!r}; known: {known}")
+    return list(dict.fromkeys(configurations or arch.configurations))
 
 
 def prepare(
@@ -96,16 +107,7 @@ def prepare(
                 ("scenarios",),
                 "no fault-free scenario to calibrate on; declare one (no faults)",
             )
-    if configurations:
-        for c in configurations:
-            if c not in arch.configurations:
-                known = ", ".join(arch.configurations)
-                raise CalibrationError(
-                    f"{loaded.file}: unknown configuration {c!r}; known: {known}"
-                )
-        confs = list(dict.fromkeys(configurations))
-    else:
-        confs = list(arch.configurations)
+    confs = chosen_configurations(arch, loaded.file, configurations, CalibrationError)
     return text, loaded, chosen, confs, tau
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.driver import Calibration
+from archself.calibration.result import Calibration
 
 __all__ = ["report_model", "summary_text", "write_report"]
 
@@ -151,16 +151,10 @@ def _figure(width: float = 6.4, height: float = 3.2) -> Any:
 
 
 def _save(fig: Any, path: Path) -> None:
-    import io
-
-    import matplotlib
-
     from archself.atomic import write_bytes
+    from archself.reports.figures import figure_bytes
 
-    buf = io.BytesIO()
-    with matplotlib.rc_context({"svg.hashsalt": "archself", "svg.fonttype": "none"}):
-        fig.savefig(buf, format="svg", metadata={"Date": None})
-    write_bytes(path, buf.getvalue())
+    write_bytes(path, figure_bytes(fig, "svg"))
 
 
 def _fig_module(cal: Calibration, module: str, path: Path) -> bool:
@@ -200,31 +194,22 @@ def _fig_tail(cal: Calibration, path: Path) -> bool:
     ax = fig.add_subplot()
     drawn = False
     for c in cal.cells:
-        v = np.sort(c.fit_new.values[np.isfinite(c.fit_new.values)])
+        fit = c.fit_new.all
+        v = np.sort(fit.values[np.isfinite(fit.values)])
         if not v.size:
             continue
         surv = 1.0 - np.arange(v.size) / v.size  # share of runs ≥ v
-        line = ax.step(v, surv, where="post", label=f"{c.scenario}/{c.configuration}")[0]
-        if c.fit_new.all.loc is not None and c.fit_new.all.scale is not None:
+        label = f"{c.scenario}/{c.configuration}"
+        color = ax.step(v, surv, where="post", label=label)[0].get_color()
+        if fit.loc is not None and fit.scale is not None:
             grid = np.linspace(float(v.min()), max(1.2, float(v.max()) * 1.2), 200)
-            body = 1 - c.fit_new.all.f0 - c.fit_new.all.finf
-            ax.plot(
-                grid,
-                c.fit_new.all.finf
-                + body * gumbel_r.sf(grid, c.fit_new.all.loc, c.fit_new.all.scale),
-                color=line.get_color(),
-                linestyle=":",
-                linewidth=1,
-            )
-        if c.fit_new.all.tail_u is not None:
-            grid = np.linspace(c.fit_new.all.tail_u, max(1.2, float(v.max()) * 1.2), 100)
-            ax.plot(
-                grid,
-                [c.fit_new.predicted(float(g)) for g in grid],
-                color=line.get_color(),
-                linestyle="--",
-                linewidth=1,
-            )
+            body = 1 - fit.f0 - fit.finf
+            ax.plot(grid, fit.finf + body * gumbel_r.sf(grid, fit.loc, fit.scale), color=color,
+                    linestyle=":", linewidth=1)
+        if fit.tail_u is not None:
+            grid = np.linspace(fit.tail_u, max(1.2, float(v.max()) * 1.2), 100)
+            ax.plot(grid, [c.fit_new.predicted(float(g)) for g in grid], color=color,
+                    linestyle="--", linewidth=1)
         drawn = True
     if not drawn:
         return False
@@ -265,10 +250,8 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
     try:
         import matplotlib  # noqa: F401
     except ImportError:
-        have_mpl = False
+        pass
     else:
-        have_mpl = True
-    if have_mpl:
         for d in model["dists"]:
             name = f"residual-{d['slug']}.svg"
             if _fig_module(cal, d["module"], out / name):

@@ -29,18 +29,14 @@ from typing import Any
 __all__ = [
     "CalJob",
     "Recorder",
-    "band_free_digest",
-    "load_runs",
+    "parsed",
     "plan_runs",
     "run_calibration_job",
     "run_jobs",
     "run_calibration_unit",
     "run_on_executor",
-    "save_runs",
     "seeds_from",
 ]
-
-from archself.calibration.saved_runs import band_free_digest, load_runs, save_runs
 
 _ARCHS: dict[str, Any] = {}  # text digest -> Architecture (parsed once per process)
 
@@ -132,8 +128,8 @@ class Recorder:
     Parameters
     ----------
     arch : Architecture
-    residual_modules : list of str
-        Column order of :attr:`x` (the modules with a ``residual`` block).
+    residual_modules : list of str, optional
+        Column order of :attr:`x` (default: the modules with a ``residual`` block).
 
     Attributes
     ----------
@@ -148,16 +144,17 @@ class Recorder:
         Time of each recorded cycle.
     """
 
-    def __init__(self, arch: Any, residual_modules: list[str]) -> None:
+    def __init__(self, arch: Any, residual_modules: list[str] | None = None) -> None:
         from archself.runtime.monitor import Monitor
 
+        if residual_modules is None:
+            residual_modules = [m for m, s in arch.modules.items() if s.residual is not None]
         self.monitor = Monitor(arch, list(arch.modules))
         self.warmup_s = arch.runtime.warmup_time_s
         self.t_start: float | None = None
         self.trust = float(arch.runtime.min_confidence)
         self.column = {m: j for j, m in enumerate(residual_modules)}
         self.width = len(residual_modules)
-        self.cycle = 0
         self.x: list[list[float]] = []
         self.forced: list[bool] = []
         self.t: list[float] = []
@@ -185,26 +182,53 @@ class Recorder:
                 )
             )
             self.t.append(float(obs.t))
-        self.cycle += 1
         return []
 
+    def arrays(self) -> dict[str, Any]:
+        """``x`` (cycles × modules, float64), ``forced`` (bool) and ``t`` as arrays."""
+        import numpy as np
 
-def _architecture(job: CalJob) -> Any:
-    key = f"{job.arch_digest}:{job.point}"
+        return {
+            "x": np.array(self.x, dtype=float).reshape(len(self.x), self.width),
+            "forced": np.array(self.forced, dtype=bool),
+            "t": np.array(self.t, dtype=float),
+        }
+
+
+def parsed(
+    text: str, digest: str, file: str, sweeps: tuple[Any, ...] = (), point: tuple[float, ...] = ()
+) -> Any:
+    """The architecture of ``text`` (at a sweep point), parsed once per process."""
+    key = f"{digest}:{point}"
     arch = _ARCHS.get(key)
     if arch is None:
         from archself.loader import load_text
 
-        loaded = load_text(job.arch_text, job.file)
+        loaded = load_text(text, file)
         arch = loaded.arch
-        if job.sweeps:
+        if sweeps:
             from archself.campaign.sweep import apply_values
 
-            arch = apply_values(loaded.data, job.sweeps, job.point, job.file)
+            arch = apply_values(loaded.data, sweeps, point, file)
         if len(_ARCHS) > 16:
             _ARCHS.clear()
         _ARCHS[key] = arch
     return arch
+
+
+def _architecture(job: CalJob) -> Any:
+    return parsed(job.arch_text, job.arch_digest, job.file, job.sweeps, job.point)
+
+
+def _row(job: CalJob) -> dict[str, Any]:
+    return {
+        "scenario": job.scenario,
+        "configuration": job.configuration,
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "error": None,
+        "phase": job.phase,
+    }
 
 
 def run_calibration_job(job: CalJob) -> dict[str, Any]:
@@ -217,22 +241,12 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
         residual modules, float64), ``forced`` (bool per cycle), ``t`` and
         ``error`` (None, or why the run failed).
     """
-    import numpy as np
-
-    out: dict[str, Any] = {
-        "scenario": job.scenario,
-        "configuration": job.configuration,
-        "replicate": job.replicate,
-        "seed": job.seed,
-        "error": None,
-        "phase": job.phase,
-    }
+    out = _row(job)
     try:
         arch = _architecture(job)
         from archself.sim.run import simulate
 
-        names = [m for m, spec in arch.modules.items() if spec.residual is not None]
-        rec = Recorder(arch, names)
+        rec = Recorder(arch)
         simulate(
             arch.model_copy(deep=True),
             job.scenario,
@@ -240,9 +254,7 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
             seed=job.seed,
             adapt=rec,
         )
-        out["x"] = np.array(rec.x, dtype=float).reshape(len(rec.x), len(names))
-        out["forced"] = np.array(rec.forced, dtype=bool)
-        out["t"] = np.array(rec.t, dtype=float)
+        out.update(rec.arrays())
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
         from archself.campaign.worker import run_error
 
@@ -254,19 +266,16 @@ def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
     """Jobs of one file, scenario and configuration as lanes: :func:`run_calibration_job`'s
     results, with one lane-batched simulation (:func:`archself.lanes.simulate_lanes`)
     and a :class:`Recorder` per lane; if the lanes cannot run together, job by job."""
-    import numpy as np
-
     if len(jobs) == 1:
         return [run_calibration_job(jobs[0])]
     try:
         from archself.lanes import simulate_lanes
 
         archs = [_architecture(j) for j in jobs]
-        names = [m for m, spec in archs[0].modules.items() if spec.residual is not None]
         recorders: list[Recorder] = []
 
         def recorder(arch: Any) -> Recorder:
-            recorders.append(Recorder(arch, names))
+            recorders.append(Recorder(arch))
             return recorders[-1]
 
         simulate_lanes(
@@ -275,22 +284,7 @@ def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
         )
     except Exception:  # noqa: BLE001 - the per-run path says what failed, run by run
         return [run_calibration_job(j) for j in jobs]
-    out = []
-    for job, rec in zip(jobs, recorders, strict=True):
-        out.append({
-            "scenario": job.scenario, "configuration": job.configuration,
-            "replicate": job.replicate, "seed": job.seed, "error": None, "phase": job.phase,
-            "x": np.array(rec.x, dtype=float).reshape(len(rec.x), len(names)),
-            "forced": np.array(rec.forced, dtype=bool),
-            "t": np.array(rec.t, dtype=float),
-        })
-    return out
-
-
-def _batched(job: CalJob) -> bool:
-    from archself.lanes.batching import batched_types
-
-    return batched_types(_architecture(job))
+    return [{**_row(job), **rec.arrays()} for job, rec in zip(jobs, recorders, strict=True)]
 
 
 def calibration_units(jobs: Sequence[CalJob], workers: int) -> list[tuple[CalJob, ...]]:
@@ -319,8 +313,9 @@ def run_jobs(
     Ctrl-C cancels the queued runs and propagates.
     """
     from archself.campaign.executors import default_workers
+    from archself.lanes.batching import batched_types
 
-    if jobs and _batched(jobs[0]):
+    if jobs and batched_types(_architecture(jobs[0])):
         units = calibration_units(jobs, workers or default_workers())
     else:  # some module type would run lane by lane: lanes would not pay
         units = [(j,) for j in jobs]
@@ -371,7 +366,7 @@ def run_on_executor(
                 progress(len(results), total)
     except BaseException:
         ex.cancel(futures)
-        ex.close()
         raise
-    ex.close()
+    finally:
+        ex.close()
     return results

@@ -57,9 +57,7 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
             }
         )
         if r["error"] is None:
-            arrays[f"x{k}"] = r["x"]
-            arrays[f"forced{k}"] = r["forced"]
-            arrays[f"t{k}"] = r["t"]
+            arrays.update({f"{name}{k}": r[name] for name in ("x", "forced", "t")})
     arrays["meta"] = np.array(json.dumps({**meta, "runs": rows}, ensure_ascii=False))
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)

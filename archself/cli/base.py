@@ -109,6 +109,9 @@ AddressOption = Annotated[
 WorkersOption = Annotated[
     int | None, typer.Option("--workers", min=1, help="Processes (default: all cores).")
 ]
+RootSeedOption = Annotated[
+    int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
+]
 
 
 class TraceFormat(StrEnum):
@@ -124,17 +127,9 @@ STDIN_NAME = "<stdin>"
 
 def _read_stdin() -> str:
     """Standard input as UTF-8 text, capped like a file (``yaml_source.MAX_FILE_BYTES``)."""
-    from archself.errors import LoadError
-    from archself.yaml_source import MAX_FILE_BYTES
+    from archself.file_text import MAX_FILE_BYTES, decode_text
 
-    raw = sys.stdin.buffer.read(MAX_FILE_BYTES + 1)
-    if len(raw) > MAX_FILE_BYTES:
-        raise LoadError(f"input is larger than the {MAX_FILE_BYTES}-byte cap", STDIN_NAME)
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise LoadError("not UTF-8 text", STDIN_NAME, line, 1) from None
+    return decode_text(sys.stdin.buffer.read(MAX_FILE_BYTES + 1), STDIN_NAME)
 
 
 def color_enabled(stream: Any = None) -> bool:

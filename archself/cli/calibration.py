@@ -15,6 +15,7 @@ from archself.cli.base import (
     Executor,
     ExecutorOption,
     IdentifyExecutor,
+    RootSeedOption,
     RunProgress,
     WorkersOption,
     _die,
@@ -49,7 +50,7 @@ def calibrate(
     executor: ExecutorOption = Executor.local,
     address: AddressOption = None,
     workers: WorkersOption = None,
-    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    root_seed: RootSeedOption = 0,
     output: Annotated[
         Path | None,
         typer.Option("-o", "--output", metavar="FILE", help="Write the calibrated copy."),
@@ -124,14 +125,12 @@ def calibrate(
             check_output(arch_path, save_runs, in_place=False, force=force)
         show = sys.stderr.isatty() and not json_out
         bar = RunProgress("{total:,} runs")
-        progress = bar.update
-
         try:
             cal = run_calibration(
                 arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
                 configurations=configurations, root_seed=root_seed, executor=executor.value,
                 workers=workers, address=address, verify_seeds=verify_seeds,
-                progress=progress if show else None, save_runs=save_runs, from_runs=from_runs,
+                progress=bar.update if show else None, save_runs=save_runs, from_runs=from_runs,
                 envelope=envelope or (), weights=weights,
             )
         finally:
@@ -215,7 +214,7 @@ def identify(
     ] = IdentifyExecutor.local,
     address: AddressOption = None,
     workers: WorkersOption = None,
-    root_seed: Annotated[int, typer.Option("--root-seed", help="Root of the seed sequence.")] = 0,
+    root_seed: RootSeedOption = 0,
     json_out: Annotated[
         bool, typer.Option("--json", help="Print the fitted and declared W as one JSON object "
                      "(docs/json.md).")
@@ -244,6 +243,8 @@ def identify(
     """
     from archself.calibration.edit import check_output
     from archself.calibration.identify import identify as run_identify
+    from archself.calibration.identify import written_copy
+    from archself.calibration.identify_report import markdown_table, summary_text
 
     if not math.isfinite(magnitude):
         raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
@@ -264,15 +265,9 @@ def identify(
                 min_excitation=min_excitation, root_seed=root_seed, executor=executor.value,
                 workers=workers, address=address,
             )
-        copy = None
-        if write_back is not None:
-            from archself.calibration.identify import written_copy
-
-            copy = written_copy(ident)
+        copy = written_copy(ident) if write_back is not None else None
     except ArchselfError as exc:
         raise _die(exc) from None
-    from archself.calibration.identify import markdown_table, summary_text
-
     if json_out:
         typer.echo(json.dumps(ident.to_dict(), indent=2, ensure_ascii=False))
     elif output is None or str(output) != "-":

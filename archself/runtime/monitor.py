@@ -57,10 +57,9 @@ from typing import Any
 import numpy as np
 
 from archself.model import Architecture
-from archself.runtime.monitor_layout import Layout, active_samples, as_floats
+from archself.runtime.monitor_layout import Layout, active_samples, as_floats, confidence_reader
 from archself.runtime.residuals import (
     ResidualFilter,
-    filter_confidence,
     filter_gain,
     is_own_failure,
     module_residual,
@@ -265,21 +264,13 @@ class Monitor:
         else:
             flagged = np.zeros(0, dtype=np.intp)
 
-        samples, valid_time, tc, slot = lay.samples, lay.valid_time, lay.time_constant, lay.slot
-
-        def confidence(k: int) -> float:
-            j = int(slot[k])
-            if j < 0:
-                return 1.0 if j == -1 else 0.0  # no residual block / filter reset
-            return filter_confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
-
         kappa = StatusMap(
             names,
             index,
             lay.active,
             available,
             residual_ok,
-            confidence,
+            confidence_reader(lay),
             violations,
             reasons,
             flagged,

@@ -9,17 +9,17 @@ modules' slots, sensitivities, nominal levels, time constants and trust times, t
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from archself.runtime.residuals import filter_gain, to_float
+from archself.runtime.residuals import filter_confidence, filter_gain, to_float
 
 if TYPE_CHECKING:
     from archself.runtime.monitor import Monitor
 
-__all__ = ["Layout", "active_samples", "as_floats"]
+__all__ = ["Layout", "active_samples", "as_floats", "confidence_reader"]
 
 
 def as_floats(values: list[Any]) -> np.ndarray:
@@ -37,6 +37,19 @@ def active_samples(local: Mapping[str, Any], lay: Layout) -> list[Any]:
     """``(local[m] or {}).get(signal, nan)`` for every active residual module of ``lay``."""
     empty: dict[str, Any] = {}
     return [(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs]
+
+
+def confidence_reader(lay: Layout) -> Callable[[int], float]:
+    """κ_i's confidence of module ``k`` from ``lay``'s residual filters as they are now."""
+    samples, valid_time, tc, slot = lay.samples, lay.valid_time, lay.time_constant, lay.slot
+
+    def confidence(k: int) -> float:
+        j = int(slot[k])
+        if j < 0:
+            return 1.0 if j == -1 else 0.0  # no residual block / filter reset
+        return filter_confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
+
+    return confidence
 
 
 class Layout:
