@@ -26,12 +26,11 @@ draws them.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from archself.campaign.results import OLD_METRIC_COLUMNS
 from archself.campaign.sweep import CampaignError
 
 __all__ = ["ERROR_METRICS", "CampaignSummary", "parse_expect", "summarize", "wilson"]
@@ -84,6 +83,11 @@ def _rate(k: int, n: int) -> dict[str, Any]:
         "lo": None if math.isnan(lo) else lo,
         "hi": None if math.isnan(hi) else hi,
     }
+
+
+def _share(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, Any]:
+    """:func:`_rate` of the rows whose ``key`` is true."""
+    return _rate(sum(1 for r in rows if r[key]), len(rows))
 
 
 # --------------------------------------------------------------------------- summary
@@ -173,8 +177,8 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
         "scenario": name,
         "faulted": faulted,
         "runs": {"fixed": len(fix), "adaptive": len(ada)},
-        "correct": _rate(sum(1 for r in ada if r["correct"]), len(ada)),
-        "false_switch": _rate(sum(1 for r in ada if r["false_any"]), len(ada)),
+        "correct": _share(ada, "correct"),
+        "false_switch": _share(ada, "false_any"),
         "false_switches_per_run": (sum(r["false_switches"] or 0 for r in ada) / len(ada))
         if ada
         else None,
@@ -187,28 +191,22 @@ def _scenario_block(name: str, rows: list[dict[str, Any]], sweeps: Sequence[str]
         delays = [r["detection_delay_s"] for r in ada]
         block["detected"] = _rate(sum(1 for d in delays if d is not None), len(ada))
         block["delay_s"] = _quantiles([d for d in delays if d is not None])
-    errors: dict[str, Any] = {}
-    for metric in ERROR_METRICS:
-        errors[metric] = {
+    block["errors"] = {
+        metric: {
             "fixed": _quantiles([r[metric] for r in fix]),
             "adaptive": _quantiles([r[metric] for r in ada]),
         }
-    block["errors"] = errors
+        for metric in ERROR_METRICS
+    }
     fixed = {_pair_key(r, sweeps): r for r in fix}
     pairs = [(r, fixed[_pair_key(r, sweeps)]) for r in ada if _pair_key(r, sweeps) in fixed]
-    if pairs:
-        block["adaptive_better_rms"] = _rate(
-            sum(1 for a, f in pairs if _lt(a["rms_error"], f["rms_error"])), len(pairs)
-        )
-    else:
-        block["adaptive_better_rms"] = None
+    better = sum(1 for a, f in pairs if _lt(a["rms_error"], f["rms_error"]))
+    block["adaptive_better_rms"] = _rate(better, len(pairs)) if pairs else None
     return block
 
 
 def _counts(values: Any) -> list[dict[str, Any]]:
-    c: dict[str, int] = defaultdict(int)
-    for v in values:
-        c[str(v)] += 1
+    c = Counter(str(v) for v in values)
     return [{"value": k, "n": n} for k, n in sorted(c.items(), key=lambda kv: (-kv[1], kv[0]))]
 
 
@@ -224,20 +222,17 @@ def _by_value(path: str, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         faulted = [r for r in g if r["faulted"]]
         free = [r for r in g if not r["faulted"]]
         delays = [r["detection_delay_s"] for r in faulted if r["detection_delay_s"] is not None]
-        if free:
-            fs = _rate(sum(1 for r in free if r["false_any"]), len(free))
-            fs_basis = "fault-free scenarios"
-        else:
-            fs = _rate(sum(1 for r in faulted if r["false_any"]), len(faulted))
-            fs_basis = "before the onset"
+        fs_rows, fs_basis = (
+            (free, "fault-free scenarios") if free else (faulted, "before the onset")
+        )
         out.append(
             {
                 "value": value,
                 "runs": len(g),
-                "correct": _rate(sum(1 for r in faulted if r["correct"]), len(faulted)),
+                "correct": _share(faulted, "correct"),
                 "detected": _rate(len(delays), len(faulted)),
                 "delay_s": _quantiles(delays),
-                "false_switch": fs,
+                "false_switch": _share(fs_rows, "false_any"),
                 "false_switch_basis": fs_basis,
                 "rms_error": _quantiles([r["rms_error"] for r in g]),
             }
@@ -269,7 +264,7 @@ def summarize(
     CampaignError
         If ``tau_path`` is not a swept column.
     """
-    rows = [_current(r) for r in (table if isinstance(table, list) else table.to_pylist())]
+    rows = table if isinstance(table, list) else table.to_pylist()
     sweeps = list(meta.get("sweeps", []))
     expect = dict(expect or {})
     ok = [dict(r) for r in rows if r.get("error") is None]
@@ -308,11 +303,3 @@ def summarize(
         dict(meta), len(rows), failed, scenarios, tau, by_sweep, expect, errors, unit
     )
 
-
-def _current(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A row with today's metric names (a row of an old table: ``max_error_m`` ... in m)."""
-    if "max_error" in row or "max_error_m" not in row:
-        return dict(row)
-    out = {OLD_METRIC_COLUMNS.get(k, k): v for k, v in row.items()}
-    out["unit"] = "m"
-    return out

@@ -15,6 +15,9 @@ from archself.campaign.sweep import CampaignError
 
 __all__ = ["DaskExecutor"]
 
+#: How long the client waits for the scheduler (seconds).
+TIMEOUT_S = 30.0
+
 
 class DaskExecutor:
     """A dask.distributed client: on a scheduler at ``address`` or on a LocalCluster.
@@ -37,9 +40,7 @@ class DaskExecutor:
 
     name = "dask"
 
-    def __init__(
-        self, address: str | None = None, workers: int | None = None, timeout_s: float = 30.0
-    ) -> None:
+    def __init__(self, address: str | None = None, workers: int | None = None) -> None:
         try:
             import distributed
         except ImportError:
@@ -61,11 +62,9 @@ class DaskExecutor:
                     dashboard_address=None,
                     silence_logs=50,
                 )
-                self._client = distributed.Client(self._cluster, timeout=timeout_s)
+                self._client = distributed.Client(self._cluster, timeout=TIMEOUT_S)
             else:
-                self._client = distributed.Client(address, timeout=timeout_s)
-        except CampaignError:
-            raise
+                self._client = distributed.Client(address, timeout=TIMEOUT_S)
         except (OSError, TimeoutError) as exc:
             self.close()
             where = address or "a LocalCluster"
@@ -96,9 +95,8 @@ class DaskExecutor:
             self._client.cancel(fs)
 
     def close(self) -> None:
-        client = self._client
-        if client is not None:
-            client.close()
+        if self._client is not None:
+            self._client.close()
             self._client = None
         if self._cluster is not None:
             self._cluster.close()

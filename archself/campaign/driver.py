@@ -12,11 +12,13 @@ Results are written atomically to the Parquet file every few seconds and at
 the end; an interrupted campaign keeps every finished run and ``resume``
 continues it, skipping the runs already in the file (failed runs are retried).
 The planning (validation, size, seeds, jobs) is in :mod:`archself.campaign.plan`;
-its names are re-exported here.
+:func:`plan_campaign`, :func:`run_seeds` and :class:`CampaignEstimate` are
+re-exported here.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
@@ -27,35 +29,23 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.plan import (
-    BYTES_PER_RUN,
-    MAX_RUNS,
-    MAX_STEPS,
-    MODES,
     CampaignEstimate,
     available_memory,
     default_lanes,
-    estimate_campaign,
     lane_units,
     plan_campaign,
-    run_id,
     run_seeds,
 )
 from archself.campaign.sweep import CampaignError
-from archself.campaign.worker import Job, run_job, run_unit
+from archself.campaign.worker import Job, _base_row, run_job, run_unit
 from archself.errors import ArchselfError, OutputError
 
 __all__ = [
-    "BYTES_PER_RUN",
     "CampaignEstimate",
     "CampaignInterrupted",
     "CampaignOutcome",
-    "MAX_RUNS",
-    "MAX_STEPS",
-    "MODES",
-    "estimate_campaign",
     "plan_campaign",
     "run_campaign",
-    "run_id",
     "run_seeds",
 ]
 
@@ -112,9 +102,10 @@ def _check_outputs(jobs: Sequence[Job], out: Path) -> None:
 
     inputs = sorted({j.file for j in jobs})
     refuse_same_file(inputs, out, "--out")
-    folders = sorted({str(Path(j.trace).parent) for j in jobs if j.trace is not None})
-    for folder in folders:
-        d = Path(folder)
+    traces = [Path(j.trace) for j in jobs if j.trace is not None]
+    names = {t.name for t in traces}
+    input_ids = set().union(*(file_ids(i) for i in inputs))
+    for d in sorted({t.parent for t in traces}):
         try:
             d.mkdir(parents=True, exist_ok=True)
             fd, probe = tempfile.mkstemp(prefix=".archself-probe.", dir=d)
@@ -124,13 +115,11 @@ def _check_outputs(jobs: Sequence[Job], out: Path) -> None:
             raise OutputError(
                 f"{d}: error: --traces folder cannot be written: {exc.strerror or exc}"
             ) from None
-        ids = set().union(*(file_ids(i) for i in inputs))
-        if ids & file_ids(d):
+        if input_ids & file_ids(d):
             continue
-        names = {Path(j.trace).name for j in jobs if j.trace is not None}
         for inp in inputs:
             cand = d / Path(inp).name
-            if Path(inp).name in names and file_ids(cand) & file_ids(inp):
+            if cand.name in names and file_ids(cand) & file_ids(inp):
                 raise OutputError(
                     f"{cand}: error: a trace would overwrite the input file; "
                     "choose another --traces folder"
@@ -237,6 +226,11 @@ def run_campaign(
     def flush() -> None:
         write_results(out, rows, sweep_paths, meta)
 
+    def saved() -> str:
+        n = len(rows)
+        return (f"{n} run{'s' * (n != 1)} saved in {out}; "
+                "run the same command with --resume to continue")
+
     if not todo:
         flush()
         return CampaignOutcome(out, len(jobs), len(jobs), 0, 0, len(rows), 0, executor, 0.0)
@@ -252,8 +246,10 @@ def run_campaign(
         except (OSError, RuntimeError) as exc:
             raise CampaignError(f"cannot start the {executor} workers: {exc}") from None
 
-    def keep(row: dict[str, Any]) -> None:
+    def keep(job: Job, row: dict[str, Any]) -> None:
         nonlocal ran, failed
+        pending.pop(job.run_id, None)
+        suspects.discard(job.run_id)
         rows.append(row)
         ran += 1
         if row.get("error"):
@@ -302,9 +298,7 @@ def run_campaign(
                         break
                     unit_rows = [_failed_row(j, f"{type(exc).__name__}: {exc}") for j in unit]
                 for job, row in zip(unit, unit_rows, strict=True):
-                    pending.pop(job.run_id, None)
-                    suspects.discard(job.run_id)
-                    keep(row)
+                    keep(job, row)
                 now = time.perf_counter()
                 if now - last >= flush_s:
                     flush()
@@ -316,28 +310,23 @@ def run_campaign(
                 if unit[0].run_id in pending and fut.done() and not fut.cancelled():
                     if fut.exception() is None:
                         for job, row in zip(unit, fut.result(), strict=True):
-                            pending.pop(job.run_id)
-                            suspects.discard(job.run_id)
-                            keep(row)
+                            keep(job, row)
             flush()
             if alone:  # it was alone on the pool: it is the one
-                rid = alone[0].run_id
-                attempts[rid] = attempts.get(rid, 0) + 1
-                if attempts[rid] >= MAX_ATTEMPTS:
-                    pending.pop(rid)
-                    suspects.discard(rid)
-                    keep(_failed_row(alone[0], f"worker process died ({MAX_ATTEMPTS + 1} tries)"))
+                job = alone[0]
+                attempts[job.run_id] = attempts.get(job.run_id, 0) + 1
+                if attempts[job.run_id] >= MAX_ATTEMPTS:
+                    keep(job, _failed_row(job, f"worker process died ({MAX_ATTEMPTS + 1} tries)"))
             else:  # FIFO: the first workers + 1 unfinished units were on a worker or queued
                 left = [u for u in units if u[0].run_id in pending]
                 suspects.update(j.run_id for u in left[: n_workers + 1] for j in u)
-            _quiet_close(ex)
+            with contextlib.suppress(Exception):  # the pool is broken already
+                getattr(ex, "abort", ex.close)()
             restarts += 1
             if restarts > MAX_POOL_RESTARTS:
                 flush()
                 raise CampaignError(
-                    f"worker processes died {restarts} times ({type(died).__name__}); "
-                    f"{len(rows)} run{'s' * (len(rows) != 1)} saved in {out}; "
-                    "run the same command with --resume to continue"
+                    f"worker processes died {restarts} times ({type(died).__name__}); {saved()}"
                 )
             say(
                 f"a worker process died ({type(died).__name__}); pool restarted "
@@ -353,11 +342,7 @@ def run_campaign(
         _abort(ex, futures)
         flush()
         terminated = isinstance(exc, Terminated)
-        err = CampaignInterrupted(
-            f"{'terminated' if terminated else 'interrupted'}: {len(rows)} "
-            f"run{'s' * (len(rows) != 1)} saved in {out}; "
-            "run the same command with --resume to continue"
-        )
+        err = CampaignInterrupted(f"{'terminated' if terminated else 'interrupted'}: {saved()}")
         err.exit_code = 143 if terminated else 130
         raise err from None
     except BaseException:
@@ -365,43 +350,21 @@ def run_campaign(
         flush()
         raise
     ex.close()
-    elapsed = time.perf_counter() - t0
     return CampaignOutcome(
-        out,
-        len(jobs),
-        len(jobs) - len(todo),
-        ran,
-        failed,
-        len(rows),
-        n_workers,
-        ex.name,
-        elapsed,
-        errors,
+        out, len(jobs), len(jobs) - len(todo), ran, failed, len(rows), n_workers, ex.name,
+        time.perf_counter() - t0, errors,
     )
 
 
 def _failed_row(job: Job, error: str) -> dict[str, Any]:
-    from archself.campaign.worker import _base_row
-
-    row = _base_row(job)
-    row["error"] = error[:500]
-    return row
-
-
-def _quiet_close(ex: Any) -> None:
-    try:
-        getattr(ex, "abort", ex.close)()
-    except Exception:  # noqa: BLE001 - the pool is broken already
-        pass
+    return {**_base_row(job), "error": error[:500]}
 
 
 def _abort(ex: Any, futures: dict[Any, tuple[Job, ...]]) -> None:
     """Stop the executor at once (Ctrl-C, SIGTERM, an error), whatever state it is in."""
-    try:
+    with contextlib.suppress(BaseException):  # a second Ctrl-C, a broken pool
         if hasattr(ex, "abort"):  # the local pool: end the workers, no cancel (see abort)
             ex.abort()
         else:
             ex.cancel(list(futures))
             ex.close()
-    except BaseException:  # noqa: BLE001 - a second Ctrl-C, a broken pool
-        pass

@@ -2,10 +2,9 @@
 
 Drawn with matplotlib's object-oriented API (:class:`matplotlib.figure.Figure`, no
 pyplot), imported inside the functions: only ``campaign-report`` loads matplotlib.
-``plot_*`` return the Figure (None when there is nothing to draw); ``fig_*`` write it
-to a file in the format of its suffix (SVG, PNG or PDF, deterministic bytes:
-:func:`archself.reports.figures.figure_bytes`) and return False when there is nothing
-to draw.
+``plot_*`` return the Figure (None when there is nothing to draw);
+:func:`archself.campaign.report.campaign_report` writes it as SVG, PNG or PDF
+(deterministic bytes: :func:`archself.reports.figures.figure_bytes`).
 
 They are made to stay readable on real campaigns of 1,000+ runs
 (``docs/campaign/``, 1,008 runs):
@@ -29,10 +28,9 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
-__all__ = ["fig_delays", "fig_errors", "fig_tau", "plot_delays", "plot_errors", "plot_tau"]
+__all__ = ["plot_delays", "plot_errors", "plot_tau"]
 
 COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
 MODE_COLORS = {"fixed": "#999999", "adaptive": "#1f77b4"}
@@ -43,14 +41,6 @@ def _figure(width: float = 6.4, height: float = 3.6) -> Any:
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width, height), layout="constrained")
-
-
-def _save(fig: Any, path: Path, dpi: int = 150) -> None:
-    from archself.atomic import write_bytes
-    from archself.reports.figures import figure_bytes
-
-    fmt = Path(path).suffix.lstrip(".").lower() or "svg"
-    write_bytes(path, figure_bytes(fig, fmt, dpi))
 
 
 def _ok(r: Mapping[str, Any], metric: str) -> bool:
@@ -219,31 +209,3 @@ def plot_tau(tau: Mapping[str, Any]) -> Any:
     if basis:
         bottom.set_title(f"false switches over {basis}", fontsize=8, loc="left")
     return fig
-
-
-def fig_delays(rows: list[dict[str, Any]], names: list[str], path: Path, dpi: int = 150) -> bool:
-    """:func:`plot_delays` written to ``path`` (format from its suffix); False if empty."""
-    fig = plot_delays(rows, names)
-    if fig is None:
-        return False
-    _save(fig, path, dpi)
-    return True
-
-
-def fig_errors(rows: list[dict[str, Any]], names: list[str], metric: str, path: Path,
-               unit: str | None = None, dpi: int = 150) -> bool:
-    """:func:`plot_errors` written to ``path``; False if there is nothing to draw."""
-    fig = plot_errors(rows, names, metric, unit)
-    if fig is None:
-        return False
-    _save(fig, path, dpi)
-    return True
-
-
-def fig_tau(tau: Mapping[str, Any], path: Path, dpi: int = 150) -> bool:
-    """:func:`plot_tau` written to ``path``; False if there is nothing to draw."""
-    fig = plot_tau(tau)
-    if fig is None:
-        return False
-    _save(fig, path, dpi)
-    return True

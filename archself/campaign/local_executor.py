@@ -11,6 +11,7 @@ first, which makes it die with the driver too.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -69,17 +70,13 @@ WATCHDOG_PERIOD_S = 0.5
 PR_SET_PDEATHSIG = 1
 
 
-def _set_pdeathsig(sig: int) -> bool:
+def _set_pdeathsig(sig: int) -> None:
     """Linux: the kernel sends ``sig`` to this process when its parent dies."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
+    if sys.platform.startswith("linux"):
         import ctypes
 
-        libc = ctypes.CDLL(None, use_errno=True)
-        return int(libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)) == 0
-    except (OSError, AttributeError):
-        return False
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
 
 
 def _alive(pid: int) -> bool:
@@ -135,15 +132,11 @@ def _worker_init(driver_pid: int | None = None) -> None:
 
 # In the forkserver (it imports this module as a preload, its parent is the driver):
 # die with the driver. The forkserver forks the workers, so no thread is started here.
-def _in_forkserver_of_driver() -> bool:
-    return (
-        os.environ.get(DRIVER_PID_VARIABLE) == str(os.getppid())
-        and sys.argv[:1] == ["-c"]
-        and "multiprocessing.forkserver" in sys.modules
-    )
-
-
-if _in_forkserver_of_driver():
+if (
+    os.environ.get(DRIVER_PID_VARIABLE) == str(os.getppid())
+    and sys.argv[:1] == ["-c"]
+    and "multiprocessing.forkserver" in sys.modules
+):
     die_with_parent(watchdog=False)
 
 
@@ -207,14 +200,10 @@ class LocalExecutor:
         # fails the unfinished futures itself (cancelling them first races with it:
         # InvalidStateError in its thread, Python 3.11).
         for p in list(getattr(self._pool, "_processes", None) or {}):
-            try:
+            with contextlib.suppress(OSError):
                 os.kill(p, signal.SIGTERM)
-            except OSError:
-                pass
-        try:
+        with contextlib.suppress(Exception):  # a broken pool is fine here
             self._pool.shutdown(wait=True, cancel_futures=False)
-        except Exception:  # noqa: BLE001 - a broken pool is fine here
-            pass
 
     def __enter__(self) -> LocalExecutor:
         return self

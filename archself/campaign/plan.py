@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,13 +70,6 @@ def run_id(
     return "|".join(parts + [str(replicate), mode])
 
 
-def batched_types(arch: Any) -> bool:
-    """:func:`archself.lanes.batching.batched_types` (imported when a campaign is planned)."""
-    from archself.lanes.batching import batched_types as batched
-
-    return batched(arch)
-
-
 def plan_campaign(
     arch_path: str | Path,
     scenarios: Sequence[str],
@@ -103,12 +96,12 @@ def plan_campaign(
     CampaignError, LoadError
         Unknown scenario, bad PATH or value, a file with errors.
     """
-    from archself.check import check, has_errors
+    from archself.check import check
+    from archself.lanes.batching import batched_types
+    from archself.loader import Loaded, SourceMap, load_text, read_text
 
     if trace_format not in ("json", "parquet"):
         raise CampaignError(f"unknown trace format {trace_format!r}; known: json, parquet")
-    from archself.loader import Loaded, SourceMap, load_text, read_text
-
     file = str(arch_path)
     if seeds < 1:
         raise CampaignError("--seeds must be at least 1")
@@ -125,7 +118,7 @@ def plan_campaign(
         raise CampaignError(f"--root-seed must be at least 0, not {root_seed}")
     text = read_text(arch_path)
     loaded = load_text(text, file)
-    _no_errors(check(loaded), has_errors, "")
+    _no_errors(check(loaded), "")
     arch = loaded.arch
     missing = [s for s in scenarios if s not in arch.scenarios]
     if missing:
@@ -137,10 +130,11 @@ def plan_campaign(
     for point in points if sweeps else []:
         swept = apply_values(loaded.data, sweeps, point, file)
         setting = ", ".join(f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True))
-        _no_errors(check(Loaded(swept, SourceMap(file), loaded.data)), has_errors, f"{setting}: ")
+        _no_errors(check(Loaded(swept, SourceMap(file), loaded.data)), f"{setting}: ")
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     seed_list = run_seeds(root_seed, seeds)
     tdir = Path(traces) if traces is not None else None
+    suffix = f".{trace_format}"
     jobs = []
     for sc in scenarios:
         for point in points:
@@ -148,9 +142,7 @@ def plan_campaign(
                 for mode in modes:
                     trace = None
                     if tdir is not None:
-                        trace = str(
-                            tdir / trace_name(sc, tuple(point), rep, mode, f".{trace_format}")
-                        )
+                        trace = str(tdir / trace_name(sc, tuple(point), rep, mode, suffix))
                     jobs.append(
                         Job(
                             run_id=run_id(sc, sweeps, point, rep, mode),
@@ -207,7 +199,7 @@ class CampaignEstimate:
 
     def check(self, yes: bool) -> None:
         """Refuse past the caps: runs and steps unless ``yes``; memory always."""
-        avail = _memory_bytes()
+        avail = _memory_bytes("SC_PHYS_PAGES")
         if avail and self.memory_bytes > avail // 2:
             raise CampaignError(
                 f"the campaign is {self.text()}: more than half of this machine's memory "
@@ -222,29 +214,20 @@ class CampaignEstimate:
             )
 
 
-def _memory_bytes() -> int:
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):
-        return 0
-
-
 def estimate_campaign(
     arch: Any, scenarios: Sequence[str], sweeps: Sequence[Sweep], seeds: int, modes: Sequence[str]
 ) -> CampaignEstimate:
     """Runs, simulated steps and driver memory of a campaign, without building it."""
     n_points = math.prod(len(s.values) for s in sweeps)
     per_cell = n_points * int(seeds) * len(modes)
-    # a swept step or duration: the estimate takes its most expensive value
     dt = float(arch.runtime.step_s)
-    for s in sweeps:
+    durations = {name: float(arch.scenarios[name].duration_s) for name in scenarios}
+    for s in sweeps:  # a swept step or duration: the estimate takes its most expensive value
+        name = str(s.keys[1]) if len(s.keys) == 3 else ""
         if s.keys == ("runtime", "step_s") and min(s.values) > 0:
             dt = min(dt, min(s.values))
-    durations = {name: float(arch.scenarios[name].duration_s) for name in scenarios}
-    for s in sweeps:
-        if len(s.keys) == 3 and s.keys[0] == "scenarios" and s.keys[2] == "duration_s":
-            if s.keys[1] in durations:
-                durations[str(s.keys[1])] = max(durations[str(s.keys[1])], max(s.values))
+        elif s.keys == ("scenarios", name, "duration_s") and name in durations:
+            durations[name] = max(durations[name], max(s.values))
     steps = sum(per_cell * round(d / dt) for d in durations.values())
     runs = per_cell * len(scenarios)
     return CampaignEstimate(runs, steps, runs * BYTES_PER_RUN)
@@ -258,9 +241,9 @@ def _threshold_paths(sweeps: Sequence[Sweep]) -> list[str]:
     ]
 
 
-def _no_errors(findings: list[Any], has_errors: Callable[[list[Any]], bool], prefix: str) -> None:
-    if has_errors(findings):
-        first = next(f for f in findings if f.severity == "error")
+def _no_errors(findings: list[Any], prefix: str) -> None:
+    first = next((f for f in findings if f.severity == "error"), None)
+    if first is not None:
         raise CampaignError(f"{prefix}{first}")
 
 
@@ -271,12 +254,17 @@ MAX_LANES = 256
 LANE_BYTES_PER_STEP = 1024
 
 
-def available_memory() -> int | None:
-    """Bytes of physical memory free now (None where the system does not say)."""
+def _memory_bytes(pages: str) -> int | None:
+    """``os.sysconf(pages)`` pages in bytes (None where the system does not say)."""
     try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+        return int(os.sysconf(pages)) * int(os.sysconf("SC_PAGE_SIZE"))
     except (AttributeError, ValueError, OSError):
         return None
+
+
+def available_memory() -> int | None:
+    """Bytes of physical memory free now (None where the system does not say)."""
+    return _memory_bytes("SC_AVPHYS_PAGES")
 
 
 def default_lanes(
@@ -316,12 +304,11 @@ def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
     >>> [[j.run_id for j in u] for u in lane_units(jobs, 2)]
     [['0', '2'], ['1', '5'], ['3'], ['4']]
     """
+    if width <= 1:
+        return [(j,) for j in jobs]
     units: list[list[Job]] = []
     open_: dict[tuple[str, str, str], list[Job]] = {}
     for j in jobs:
-        if width <= 1:
-            units.append([j])
-            continue
         key = (j.arch_digest, j.scenario, j.mode)
         unit = open_.get(key)
         if unit is None or len(unit) >= width:

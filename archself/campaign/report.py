@@ -15,17 +15,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from archself.campaign.aggregate import CampaignSummary, parse_expect, summarize, wilson
+from archself.campaign.aggregate import CampaignSummary, summarize
 from archself.jsondata import jsonable
 
-__all__ = [
-    "CampaignSummary",
-    "campaign_report",
-    "parse_expect",
-    "summarize",
-    "summary_text",
-    "wilson",
-]
+__all__ = ["campaign_report", "summary_text"]
 
 
 def _pct(rate: Mapping[str, Any] | None) -> str:

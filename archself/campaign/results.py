@@ -50,9 +50,7 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError
 
-__all__ = [
-    "META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "sort_key", "write_results"
-]
+__all__ = ["META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "write_results"]
 
 META_KEY = b"archself.campaign"
 
@@ -97,24 +95,12 @@ def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = Non
     return pa.schema(fields, metadata=metadata)
 
 
-def sort_key(sweep_paths: Sequence[str]) -> Any:
-    """Key ordering rows by scenario, sweep values, replicate, mode (deterministic)."""
-
-    def key(row: dict[str, Any]) -> tuple[Any, ...]:
-        return (
-            row["scenario"],
-            tuple(row[p] for p in sweep_paths),
-            row["replicate"],
-            row["mode"],
-        )
-
-    return key
-
-
 def write_results(
     path: str | Path, rows: list[dict[str, Any]], sweep_paths: Sequence[str], meta: dict[str, Any]
 ) -> None:
-    """Write ``rows`` as Parquet to ``path`` atomically, sorted by :func:`sort_key`.
+    """Write ``rows`` as Parquet to ``path`` atomically.
+
+    The rows are sorted by scenario, sweep values, replicate and mode (deterministic).
 
     Raises
     ------
@@ -126,9 +112,9 @@ def write_results(
 
     from archself.atomic import write_bytes
 
-    schema = results_schema(sweep_paths, meta)
-    ordered = sorted(rows, key=sort_key(sweep_paths))
-    table = pa.Table.from_pylist(ordered, schema=schema)
+    ordered = sorted(rows, key=lambda r: (
+        r["scenario"], tuple(r[p] for p in sweep_paths), r["replicate"], r["mode"]))
+    table = pa.Table.from_pylist(ordered, schema=results_schema(sweep_paths, meta))
     buf = io.BytesIO()
     pq.write_table(table, buf, compression="zstd")
     write_bytes(path, buf.getvalue())

@@ -187,13 +187,11 @@ def set_path(data: Any, path: Path_, value: Any) -> Any:
     out = copy.deepcopy(data)
     parent = get_path(out, path[:-1])
     last = path[-1]
-    if isinstance(last, int):
-        old = _step(parent, last, path, len(path) - 1)
-        parent[last] = _coerce(old, value)
+    if isinstance(last, str) and isinstance(parent, dict):
+        old = parent.get(last)  # a new key: the model decides
     else:
-        if not isinstance(parent, dict):
-            raise CampaignError(f"sweep PATH {_where(path, len(path) - 1)}: not a mapping")
-        parent[last] = _coerce(parent.get(last), value)
+        old = _step(parent, last, path, len(path) - 1)
+    parent[last] = _coerce(old, value)
     return out
 
 

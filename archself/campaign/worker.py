@@ -109,16 +109,25 @@ def run_job(job: Job) -> dict[str, Any]:
             adapt = MapeK(arch)
         # the cached model is shared by the runs of this process: give each run its own copy
         result = simulate(arch.model_copy(deep=True), job.scenario, seed=job.seed, adapt=adapt)
-        row.update(summarize_run(result, arch))
+        updates = None
         if adapt is not None:
-            row["n_updates"] = len(adapt.updates)
-            row["updates"] = ";".join(f"{u['action']}@{u['t_s']:g}" for u in adapt.updates)
-        if job.trace is not None:
-            result.write_trace(job.trace)
-            row["trace"] = job.trace
+            updates = [(u["action"], u["t_s"]) for u in adapt.updates]
+        _fill(row, job, arch, result, updates)
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a failed campaign
         row["error"] = run_error(exc)
     return row
+
+
+def _fill(row: dict[str, Any], job: Job, arch: Any, result: Any,
+          updates: list[tuple[str, float]] | None) -> None:
+    """Complete a run's row: its summary, its parameter updates (adaptive), its trace."""
+    row.update(summarize_run(result, arch))
+    if updates is not None:
+        row["n_updates"] = len(updates)
+        row["updates"] = ";".join(f"{a}@{t:g}" for a, t in updates)
+    if job.trace is not None:
+        result.write_trace(job.trace)
+        row["trace"] = job.trace
 
 
 def run_unit(job_fn: Any, jobs: tuple[Job, ...]) -> list[dict[str, Any]]:
@@ -144,16 +153,12 @@ def run_unit(job_fn: Any, jobs: tuple[Job, ...]) -> list[dict[str, Any]]:
         )
         rows = []
         for job, arch, result in zip(jobs, archs, results, strict=True):
-            row = _base_row(job)
-            row.update(summarize_run(result, arch))
+            updates = None
             if adaptive:
                 updates = [(d.chosen["action"], d.t) for d in result.decisions
                            if d.chosen and d.chosen.get("kind") == "parameter_update"]
-                row["n_updates"] = len(updates)
-                row["updates"] = ";".join(f"{a}@{t:g}" for a, t in updates)
-            if job.trace is not None:
-                result.write_trace(job.trace)
-                row["trace"] = job.trace
+            row = _base_row(job)
+            _fill(row, job, arch, result, updates)
             rows.append(row)
         return rows
     except Exception:  # noqa: BLE001 - the per-run path says what failed, run by run
@@ -172,37 +177,31 @@ def run_error(exc: BaseException) -> str:
 
 def _base_row(job: Job) -> dict[str, Any]:
     nan = math.nan
-    row: dict[str, Any] = {
+    return {
         "run_id": job.run_id,
         "scenario": job.scenario,
+        **{s.path: float(v) for s, v in zip(job.sweeps, job.point, strict=True)},
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "mode": job.mode,
+        "start_configuration": None,
+        "final_configuration": None,
+        "configuration_path": None,
+        "switch_times_s": [],
+        "n_switches": 0,
+        "first_fault_onset_s": None,
+        "detection_delay_s": None,
+        "false_switches": 0,
+        "n_updates": 0,
+        "updates": "",
+        "max_error": nan,
+        "final_error": nan,
+        "rms_error": nan,
+        "peak_time_s": nan,
+        "unit": None,
+        "trace": None,
+        "error": None,
     }
-    for s, v in zip(job.sweeps, job.point, strict=True):
-        row[s.path] = float(v)
-    row.update(
-        {
-            "replicate": job.replicate,
-            "seed": job.seed,
-            "mode": job.mode,
-            "start_configuration": None,
-            "final_configuration": None,
-            "configuration_path": None,
-            "switch_times_s": [],
-            "n_switches": 0,
-            "first_fault_onset_s": None,
-            "detection_delay_s": None,
-            "false_switches": 0,
-            "n_updates": 0,
-            "updates": "",
-            "max_error": nan,
-            "final_error": nan,
-            "rms_error": nan,
-            "peak_time_s": nan,
-            "unit": None,
-            "trace": None,
-            "error": None,
-        }
-    )
-    return row
 
 
 def summarize_run(result: Any, arch: Any) -> dict[str, Any]:

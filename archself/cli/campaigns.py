@@ -17,6 +17,7 @@ from archself.cli.base import (
     ExecutorOption,
     FormatOption,
     Mode,
+    RootSeedOption,
     RunProgress,
     TraceFormat,
     WorkersOption,
@@ -67,9 +68,7 @@ def campaign(
         typer.Option("--trace-format", help="Format of the --traces files (parquet: ~6× "
                      "smaller, pd.read_parquet; both read by explain and report --trace)."),
     ] = TraceFormat.json,
-    root_seed: Annotated[
-        int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
-    ] = 0,
+    root_seed: RootSeedOption = 0,
     json_out: Annotated[
         bool,
         typer.Option("--json", help="Print the outcome as one JSON object {out, skipped, ran, "
@@ -93,14 +92,13 @@ def campaign(
     the same table whatever the number of workers. A campaign larger than the cap
     (runs, steps) needs --yes; --out is never the architecture file.
     """
+    from archself.atomic import protect
     from archself.campaign.driver import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
+    from archself.outputs import refuse_same_file
 
-    modes = {"both": ("fixed", "adaptive"), "fixed": ("fixed",), "adaptive": ("adaptive",)}
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
-    from archself.atomic import protect
-    from archself.outputs import refuse_same_file
 
     try:
         _inputs(arch_path)
@@ -112,7 +110,7 @@ def campaign(
                 scenarios,
                 seeds,
                 sweeps,
-                modes=modes[mode.value],
+                modes=("fixed", "adaptive") if mode is Mode.both else (mode.value,),
                 root_seed=root_seed,
                 traces=traces,
                 trace_format=trace_format.value,
@@ -121,8 +119,6 @@ def campaign(
             show = sys.stderr.isatty() and not json_out
             per = int(meta.get("steps", 0)) // max(len(jobs), 1)
             bar = RunProgress(f"{{total:,}} runs × {per:,} steps")
-            progress = bar.update
-
             try:
                 outcome = run_campaign(
                     jobs,
@@ -133,7 +129,7 @@ def campaign(
                     address=address,
                     resume=resume,
                     force=force,
-                    progress=progress if show else None,
+                    progress=bar.update if show else None,
                     notice=lambda msg: typer.echo(f"warning: {msg}", err=True),
                     lanes=lanes,
                 )
@@ -195,7 +191,8 @@ def campaign_report_cmd(
     DIR/summary.json.
     """
     from archself.atomic import protect
-    from archself.campaign.report import campaign_report, parse_expect, summary_text
+    from archself.campaign.aggregate import parse_expect
+    from archself.campaign.report import campaign_report, summary_text
     from archself.outputs import refuse_same_file
 
     try:
