@@ -66,18 +66,9 @@ def validate(
         except SchemaError as exc:
             findings = exc.findings
         except ArchselfError as exc:
-            e = exc
-            findings = [
-                Finding(
-                    "error",
-                    "load",
-                    getattr(e, "message", str(e)),
-                    getattr(e, "path", ""),
-                    str(path),
-                    getattr(e, "line", None),
-                    getattr(e, "col", None),
-                )
-            ]
+            findings = [Finding("error", "load", getattr(exc, "message", str(exc)),
+                                getattr(exc, "path", ""), str(path), getattr(exc, "line", None),
+                                getattr(exc, "col", None))]
         bad = [f for f in findings if f.severity == "error" or (strict and f.severity == "warning")]
         failed |= bool(bad)
         if json_out:
@@ -132,10 +123,7 @@ def schema(
     from archself.schema import schema_text
 
     regen = "archself schema --builtin -o" if builtin else "archself schema -o"
-    _write_or_check(
-        {"architecture.schema.json": schema_text(installed=not builtin)}, output, check_file,
-        regen,
-    )
+    _write_or_check(schema_text(installed=not builtin), output, check_file, regen)
 
 
 def docs(
@@ -148,16 +136,16 @@ def docs(
     for name, text in reference_pages(app).items():  # docgen never imports this module
         target = folder / name
         if check:
-            _write_or_check({name: text}, None, target, f"archself docs {folder}")
+            _write_or_check(text, None, target, f"archself docs {folder}")
         else:
-            _write_or_check({name: text}, target, None, "")
+            _write_or_check(text, target, None, "")
 
 
-def _write_or_check(
-    pages: dict[str, str], output: Path | None, check_file: Path | None, regen: str
-) -> None:
+def _write_or_check(text: str, output: Path | None, check_file: Path | None, regen: str) -> None:
+    """Write ``text`` to ``output`` (stdout if None), or with ``check_file`` compare it.
 
-    (text,) = pages.values()
+    A stale ``check_file`` exits 1 with the command (``regen``) that regenerates it.
+    """
     if check_file is not None:
         try:
             _inputs(check_file, what="a file")
@@ -269,7 +257,7 @@ def init(
     target = Path(name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
     if target.exists() and not force:
         raise _fail(f"{target}: error: exists; pass --force to overwrite it")
-    folder = target.parent if str(target.parent) else Path(".")
+    folder = target.parent
     copy_to = folder / "architecture.schema.json" if schema_ref == "copy" else None
     if copy_to is not None:
         schema = copy_to.name

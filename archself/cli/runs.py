@@ -53,6 +53,8 @@ def _check_simulation_size(arch: Any, scenario: str, runs: int, yes: bool) -> No
 def _run(
     arch, scenario: str, config: str | None, seed: int | None, adaptive: bool, show_progress: bool
 ):
+    from contextlib import ExitStack
+
     from archself.sim.run import simulate as run_simulation
 
     adapt = None
@@ -60,9 +62,6 @@ def _run(
         from archself.runtime import MapeK
 
         adapt = MapeK(arch)
-    if not show_progress:
-        return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt)
-    from contextlib import ExitStack
 
     steps, size = _simulation_estimate(arch, scenario, 1)
     label = (
@@ -84,9 +83,8 @@ def _run(
                 state["bar"].update(pct - state["done"])
                 state["done"] = pct
 
-        return run_simulation(
-            arch, scenario, configuration=config, seed=seed, adapt=adapt, progress=progress
-        )
+        return run_simulation(arch, scenario, configuration=config, seed=seed, adapt=adapt,
+                              progress=progress if show_progress else None)
 
 
 def _switches_text(switches: list[dict]) -> str:
@@ -98,7 +96,7 @@ def _switches_text(switches: list[dict]) -> str:
 
 
 def _summary(results: list) -> str:
-    from archself.sim.run import metric_rows
+    from archself.sim.metrics import metric_rows
 
     rows = metric_rows(results[0].unit)  # labels carry the unit of runtime.objective
     first = results[0]
@@ -176,7 +174,7 @@ def simulate(
         raise _fail("--trace - and --json both write to stdout: choose one", 2)
     if to_stdout:
         trace = None
-    if trace is not None and not (trace.parent if str(trace.parent) else Path(".")).is_dir():
+    if trace is not None and not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
     from archself.atomic import protect
     from archself.outputs import refuse_same_file
@@ -184,9 +182,9 @@ def simulate(
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
     try:
         _inputs(arch_path)
-        for target, what in ((trace, "--trace"), (fixed_trace if compare else None, "--trace")):
+        for target in (trace, fixed_trace if compare else None):
             if target is not None:
-                refuse_same_file([arch_path], target, what)
+                refuse_same_file([arch_path], target, "--trace")
         if report is not None:
             for name in _RUN_REPORT_FILES:
                 refuse_same_file([arch_path], report / name, "--report")
@@ -201,10 +199,7 @@ def simulate(
             results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
             if trace is not None:
                 for r in results:
-                    target = trace
-                    if compare and r.mode == "fixed" and fixed_trace is not None:
-                        target = fixed_trace
-                    r.write_trace(target)
+                    r.write_trace(fixed_trace if compare and r.mode == "fixed" else trace)
             if report is not None:
                 from archself.reports.run_report import write_run_report
 

@@ -78,8 +78,6 @@ def ensure_dir(path: Path) -> None:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{path}: cannot create folder: {exc.strerror}") from None
-    if not path.is_dir():
-        raise OutputError(f"{path}: not a folder")
 
 
 def render_dot(dot_file: Path, fmt: str, dot: str) -> tuple[bytes | None, str]:
@@ -245,8 +243,9 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
             put(name, render("dsm.csv.j2", ordering=o, rows=rows))
             csvs.append((o.title, name))
         seq = views[1][0]
+        scope = "whole architecture" if conf is None else conf
         dsm_rows.append({
-            "scope": "whole architecture" if conf is None else conf,
+            "scope": scope,
             "description": dsm.description,
             "modules": len(dsm.modules),
             "edges": len(dsm.weights),
@@ -258,8 +257,7 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         })
         g = build_graph(arch, conf)
         put(f"graph-{stem}.dot", render("graph.dot.j2", graph=g))
-        graphs.append({"scope": "whole architecture" if conf is None else conf,
-                       "subtitle": g.subtitle, "stem": f"graph-{stem}",
+        graphs.append({"scope": scope, "subtitle": g.subtitle, "stem": f"graph-{stem}",
                        "nodes": sum(n.status != "hidden" for n in g.nodes),
                        "edges": sum(e.status != "hidden" for e in g.edges)})
 
@@ -300,6 +298,6 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         diffs=diffs,
         images=images,
         note=rep.note,
-        actions=[a for a in arch.actions],
+        actions=arch.actions,
     ))
     return rep

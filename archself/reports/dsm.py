@@ -269,29 +269,25 @@ def build_dsm(arch: Architecture, configuration: str | None = None) -> Dsm:
 
 
 def _kind_key(dsm: Dsm) -> dict[str, tuple[int, int]]:
-    return {
-        m.name: (KINDS.index(m.kind), k) for k, m in enumerate(dsm.modules)
-    }
+    return {m.name: (KINDS.index(m.kind), k) for k, m in enumerate(dsm.modules)}
+
+
+def _ordering(dsm: Dsm, key: str, title: str, explanation: str, blocks: Iterable[Block],
+              coupled_blocks: tuple[Block, ...]) -> Ordering:
+    """The :class:`Ordering` of ``blocks``, their members one block after the other."""
+    blocks = tuple(blocks)
+    order = tuple(n for b in blocks for n in b.members)
+    return Ordering(key, title, explanation, order, blocks, tuple(dsm.module(n) for n in order),
+                    coupled_blocks)
 
 
 def order_by_kind(dsm: Dsm) -> Ordering:
     """Modules grouped by kind (physical, functional, model), file order inside a kind."""
-    key = _kind_key(dsm)
-    order = tuple(sorted(dsm.names, key=key.__getitem__))
-    blocks = tuple(
-        Block(KIND_TITLES[kind], tuple(n for n in order if dsm.module(n).kind == kind))
-        for kind in KINDS
-        if any(m.kind == kind for m in dsm.modules)
-    )
-    return Ordering(
-        "kind",
-        "grouped by kind",
-        "Physical, functional and model modules in file order.",
-        order,
-        blocks,
-        tuple(dsm.module(n) for n in order),
-        sequence(dsm).coupled_blocks,
-    )
+    blocks = [Block(KIND_TITLES[kind], names) for kind in KINDS
+              if (names := tuple(m.name for m in dsm.modules if m.kind == kind))]
+    return _ordering(dsm, "kind", "grouped by kind",
+                     "Physical, functional and model modules in file order.", blocks,
+                     sequence(dsm).coupled_blocks)
 
 
 def _eades(g: nx.DiGraph, nodes: list[str], key: dict[str, tuple[int, int]]) -> list[str]:
@@ -342,17 +338,11 @@ def sequence(dsm: Dsm) -> Ordering:
             blocks.append(Block(f"coupled block {n_coupled}", mem, coupled=True))
         else:
             blocks.append(Block(mem[0], mem, coupled=False))
-    order = tuple(n for b in blocks for n in b.members)
-    return Ordering(
-        "sequenced",
-        "sequenced",
+    return _ordering(
+        dsm, "sequenced", "sequenced",
         "Strongly connected blocks in topological order (providers before users); "
         "marks below the diagonal are feedback and only occur inside coupled blocks.",
-        order,
-        tuple(blocks),
-        tuple(dsm.module(n) for n in order),
-        tuple(b for b in blocks if b.coupled),
-    )
+        blocks, tuple(b for b in blocks if b.coupled))
 
 
 def cluster(dsm: Dsm, seed: int = CLUSTER_SEED) -> Ordering:
@@ -366,19 +356,13 @@ def cluster(dsm: Dsm, seed: int = CLUSTER_SEED) -> Ordering:
         comms = nx.community.louvain_communities(g, weight="weight", seed=seed)
     groups = [sorted(c, key=pos.__getitem__) for c in comms]
     groups.sort(key=lambda grp: (-len(grp), pos[grp[0]]))
-    blocks = tuple(Block(f"cluster {k + 1}", tuple(grp)) for k, grp in enumerate(groups))
-    order = tuple(n for b in blocks for n in b.members)
-    return Ordering(
-        "clustered",
-        "clustered",
+    return _ordering(
+        dsm, "clustered", "clustered",
         f"Weighted communities (networkx Louvain, seed {seed}), largest first. A cluster "
         "may mix coupled and uncoupled modules: only pairs of modules of one coupled "
         "(strongly connected) block are shaded as coupled.",
-        order,
-        blocks,
-        tuple(dsm.module(n) for n in order),
-        seq.coupled_blocks,
-    )
+        (Block(f"cluster {k + 1}", tuple(grp)) for k, grp in enumerate(groups)),
+        seq.coupled_blocks)
 
 
 def orderings(dsm: Dsm) -> tuple[Ordering, Ordering, Ordering]:

@@ -3,8 +3,8 @@
 matplotlib is imported inside the functions (never at ``archself`` start-up) and
 used through :class:`matplotlib.figure.Figure` with the Agg canvas: no pyplot,
 no global backend switch, no display needed. ``plot_*`` return the Figure,
-``*_figure`` its PNG bytes (no ``Software`` metadata, so the bytes depend only on
-the data and the matplotlib version). Legends sit where they cover no label: outside
+:func:`figure_bytes` its bytes (no date or software metadata, so the bytes depend only
+on the data and the matplotlib version). Legends sit where they cover no label: outside
 the axes wherever switch labels ("a1 → a2") are drawn at the top of the axes.
 
 Text from the architecture file (module names) is passed through :func:`_tex`
@@ -22,13 +22,10 @@ from archself.reports.run import RunReport
 
 __all__ = [
     "FORMATS",
-    "error_figure",
     "figure_bytes",
-    "influence_figure",
     "plot_error",
     "plot_influence",
     "plot_trajectory",
-    "trajectory_figure",
 ]
 
 COLORS = {"fixed": "#c0392b", "adaptive": "#1f77b4", "reference": "#222222"}
@@ -72,10 +69,6 @@ def figure_bytes(fig: Any, fmt: str = "png", dpi: int = 150) -> bytes:
     return buf.getvalue()
 
 
-def _png(fig: Any) -> bytes:
-    return figure_bytes(fig, "png", 100)
-
-
 def _comp(arr: np.ndarray, c: int) -> np.ndarray:
     a = np.asarray(arr, dtype=float)
     return a if a.ndim == 1 else a[:, c]
@@ -111,21 +104,6 @@ def _fault_lines(ax: Any, rep: RunReport) -> None:
                    label=("fault onset" if k == 0 else None))
 
 
-def trajectory_figure(rep: RunReport) -> bytes:
-    """Fig. 2–4 as PNG bytes (:func:`plot_trajectory`)."""
-    return _png(plot_trajectory(rep))
-
-
-def error_figure(rep: RunReport) -> bytes:
-    """Fig. 6 as PNG bytes (:func:`plot_error`)."""
-    return _png(plot_error(rep))
-
-
-def influence_figure(rep: RunReport) -> bytes:
-    """Fig. 5 as PNG bytes (:func:`plot_influence`)."""
-    return _png(plot_influence(rep))
-
-
 def _unit(rep: RunReport) -> str:
     return f" [{_tex(rep.unit)}]" if rep.unit else ""
 
@@ -142,38 +120,38 @@ def plot_trajectory(rep: RunReport) -> Any:
     ax = fig.add_subplot()
     first = next(iter(rep.series.values()))
     xy = len(comps) >= 2 and "reference" in first and np.ndim(first["reference"]) == 2
-    ref_style = {"color": COLORS["reference"], "ls": (0, (4, 3)), "lw": 1.1, "zorder": 4,
-                 "label": "reference"}
+
+    def curve(s: dict[str, Any], key: str) -> tuple[np.ndarray, np.ndarray]:
+        """x and y of the series ``key``: its first two components, or the first against t."""
+        if xy:
+            return _comp(s[key], comps[0]), _comp(s[key], comps[1])
+        return np.asarray(s["t"]), _comp(s[key], comps[0])
+
+    for mode, s in rep.series.items():
+        if "actual" not in s:
+            continue
+        x, y = curve(s, "actual")
+        ax.plot(x, y, color=COLORS.get(mode), lw=2.0, alpha=0.85, zorder=2,
+                label=LABELS.get(mode, mode))
+        if xy and mode == "adaptive":
+            t = np.asarray(s["t"])
+            for k, sw in enumerate(rep.switches):
+                i = int(np.searchsorted(t, sw["t_s"]))
+                if i < len(t):
+                    ax.plot(x[i], y[i], "o", color="#2ca02c", ms=7, zorder=5,
+                            mec="white", mew=0.8, label=("switch" if k == 0 else None))
+    if "reference" in first:
+        ax.plot(*curve(first, "reference"), color=COLORS["reference"], ls=(0, (4, 3)), lw=1.1,
+                zorder=4, label="reference")
+    actual = rep.objective["actual"]
     if xy:
-        cx, cy = comps[0], comps[1]
-        for mode, s in rep.series.items():
-            if "actual" not in s:
-                continue
-            x, y = _comp(s["actual"], cx), _comp(s["actual"], cy)
-            ax.plot(x, y, color=COLORS.get(mode), lw=2.0, alpha=0.85, zorder=2,
-                    label=LABELS.get(mode, mode))
-            if mode == "adaptive":
-                t = np.asarray(s["t"])
-                for k, sw in enumerate(rep.switches):
-                    i = int(np.searchsorted(t, sw["t_s"]))
-                    if i < len(t):
-                        ax.plot(x[i], y[i], "o", color="#2ca02c", ms=7, zorder=5,
-                                mec="white", mew=0.8, label=("switch" if k == 0 else None))
-        ax.plot(_comp(first["reference"], cx), _comp(first["reference"], cy), **ref_style)
-        ax.set_xlabel(_tex(f"{rep.objective['actual']}[{cx}]") + _unit(rep))
-        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{cy}]") + _unit(rep))
+        ax.set_xlabel(_tex(f"{actual}[{comps[0]}]") + _unit(rep))
+        ax.set_ylabel(_tex(f"{actual}[{comps[1]}]") + _unit(rep))
         ax.set_aspect("equal", adjustable="datalim")
     else:
-        c = comps[0]
-        for mode, s in rep.series.items():
-            if "actual" in s:
-                ax.plot(np.asarray(s["t"]), _comp(s["actual"], c), color=COLORS.get(mode),
-                        lw=2.0, alpha=0.85, zorder=2, label=LABELS.get(mode, mode))
-        if "reference" in first:
-            ax.plot(np.asarray(first["t"]), _comp(first["reference"], c), **ref_style)
         _switch_lines(ax, rep, label=False)
         ax.set_xlabel("t [s]")
-        ax.set_ylabel(_tex(f"{rep.objective['actual']}[{c}]") + _unit(rep))
+        ax.set_ylabel(_tex(f"{actual}[{comps[0]}]") + _unit(rep))
     ax.set_title(_tex(f"Trajectory: {rep.scenario}"))
     ax.grid(alpha=0.3)
     _legend_below(fig, ax, first="reference")  # outside: it hides no curve at any size
@@ -193,7 +171,7 @@ def plot_error(rep: RunReport) -> Any:
     _fault_lines(ax, rep)
     _switch_lines(ax, rep)
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("tracking error" + (f" [{_tex(rep.unit)}]" if rep.unit else ""))
+    ax.set_ylabel("tracking error" + _unit(rep))
     ax.set_title(_tex(f"Tracking error: {rep.scenario}"))
     ax.grid(alpha=0.3)
     _legend_below(fig, ax)
@@ -254,8 +232,8 @@ def _rejection_strip(fig: Any, ax: Any, rep: RunReport, rej: list[Any]) -> None:
     width = rep.period_s if rep.period_s == rep.period_s and rep.period_s > 0 else 1.0
     total = sum(len(r.t) for r in rep.rejections)
     for k, r in enumerate(rej):
-        color = REJECTION_COLORS[k]
-        ax.broken_barh([(t - width, width) for t in r.t], (k - 0.35, 0.7), color=color,
+        ax.broken_barh([(t - width, width) for t in r.t], (k - 0.35, 0.7),
+                       color=REJECTION_COLORS[k],
                        label=_tex(f"{len(r.t)} cycles: {r.label}"))
     ax.set_yticks(range(len(rej)), [_tex(f"{r.reason} ({len(r.t)})") for r in rej],
                   fontsize=7)

@@ -26,6 +26,7 @@ Examples
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from archself.model import Architecture
@@ -89,23 +90,22 @@ class ConfigDiff:
     added_edges: tuple[tuple[str, str, str], ...]  # (source, target, carries)
     removed_edges: tuple[tuple[str, str, str], ...]
 
-    @property
-    def empty(self) -> bool:
-        return not (self.added_modules or self.removed_modules or self.added_edges
-                    or self.removed_edges)
+
+def _nodes(arch: Architecture, status: Callable[[str], str]) -> tuple[GraphNode, ...]:
+    """Every module of the file in file order, ``status(name)`` each."""
+    return tuple(GraphNode(n, m.kind, m.type, m.description or "", status(n))
+                 for n, m in arch.modules.items())
 
 
-def _penwidth(w: float, wmax: float) -> float:
-    return round(0.8 + 4.2 * (w / wmax if wmax > 0 else 0.0), 2)
-
-
-def _wmax(arch: Architecture) -> float:
-    return max((float(e.weight) for e in arch.edges), default=0.0)
-
-
-def _node(arch: Architecture, name: str, status: str = "normal") -> GraphNode:
-    m = arch.modules[name]
-    return GraphNode(name, m.kind, m.type, m.description or "", status)
+def _edges(arch: Architecture, status: Callable[[tuple[str, str, str]], str]
+           ) -> tuple[GraphEdge, ...]:
+    """Every edge of the file in file order, ``status((source, target, carries))`` each."""
+    wmax = max((float(e.weight) for e in arch.edges), default=0.0)
+    return tuple(
+        GraphEdge(s, t, w, c, round(0.8 + 4.2 * (w / wmax if wmax > 0 else 0.0), 2),
+                  status((s, t, c)))
+        for s, t, w, c in scope_edges(arch)
+    )
 
 
 def build_graph(arch: Architecture, configuration: str | None = None) -> ArchGraph:
@@ -116,7 +116,6 @@ def build_graph(arch: Architecture, configuration: str | None = None) -> ArchGra
     the same label sizes each time, so a module sits at the same place in the drawing of
     every configuration, of every diff and of the whole architecture.
     """
-    wmax = _wmax(arch)
     if configuration is None:
         active = set(arch.modules)
         title, sub = arch.name, "all modules and edges"
@@ -125,12 +124,8 @@ def build_graph(arch: Architecture, configuration: str | None = None) -> ArchGra
         active = set(conf.modules)
         title, sub = f"{arch.name}: {configuration}", conf.description or ""
     shown = {(s, t, c) for s, t, _w, c in scope_edges(arch, configuration)}
-    edges = tuple(
-        GraphEdge(s, t, w, c, _penwidth(w, wmax),
-                  "normal" if (s, t, c) in shown else "hidden")
-        for s, t, w, c in scope_edges(arch, None)
-    )
-    nodes = tuple(_node(arch, n, "normal" if n in active else "hidden") for n in arch.modules)
+    edges = _edges(arch, lambda key: "normal" if key in shown else "hidden")
+    nodes = _nodes(arch, lambda n: "normal" if n in active else "hidden")
     return ArchGraph(title, sub, nodes, edges)
 
 
@@ -174,22 +169,12 @@ def config_diff(arch: Architecture, a: str, b: str) -> ConfigDiff:
 
 def diff_graph(arch: Architecture, d: ConfigDiff) -> ArchGraph:
     """The union of both configurations, every node and edge marked kept, added or removed."""
-    wmax = _wmax(arch)
-    added, removed = set(d.added_modules), set(d.removed_modules)
-    kept_modules = set(d.kept_modules)
-    nodes = tuple(
-        _node(arch, n, "added" if n in added else "removed" if n in removed
-              else "kept" if n in kept_modules else "hidden")
-        for n in arch.modules
-    )
+    added, removed, kept_modules = set(d.added_modules), set(d.removed_modules), set(d.kept_modules)
+    nodes = _nodes(arch, lambda n: "added" if n in added else "removed" if n in removed
+                   else "kept" if n in kept_modules else "hidden")
     ea, eb = set(d.removed_edges), set(d.added_edges)
     kept = {(s, t, c) for s, t, _w, c in scope_edges(arch, d.a)} - ea
-    edges = []
-    for e in arch.edges:  # every edge, as in build_graph: the same layout
-        key = (e.source, e.target, e.carries)
-        status = ("added" if key in eb else "removed" if key in ea else "kept" if key in kept
-                  else "hidden")
-        w = float(e.weight)
-        edges.append(GraphEdge(e.source, e.target, w, e.carries, _penwidth(w, wmax), status))
+    edges = _edges(arch, lambda key: "added" if key in eb else "removed" if key in ea
+                   else "kept" if key in kept else "hidden")
     via = ", ".join(d.actions) if d.actions else "consecutive configurations"
-    return ArchGraph(f"{arch.name}: {d.a} → {d.b}", f"via {via}", nodes, tuple(edges), diff=True)
+    return ArchGraph(f"{arch.name}: {d.a} → {d.b}", f"via {via}", nodes, edges, diff=True)

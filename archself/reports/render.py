@@ -20,6 +20,7 @@ a\|b &lt;i&gt;
 
 from __future__ import annotations
 
+import functools
 import re
 import unicodedata
 from typing import Any
@@ -137,34 +138,29 @@ def unique_slugs(names: list[str]) -> dict[str, str]:
     return out
 
 
-_ENV: Any = None
-
-
+@functools.cache
 def environment() -> Any:
     """The sandboxed Jinja environment over ``templates/`` (built once)."""
-    global _ENV
-    if _ENV is None:
-        from jinja2 import FileSystemLoader, StrictUndefined, select_autoescape
-        from jinja2.sandbox import SandboxedEnvironment
+    from jinja2 import FileSystemLoader, StrictUndefined, select_autoescape
+    from jinja2.sandbox import SandboxedEnvironment
 
-        from archself.resources import data_dir
+    from archself.resources import data_dir
 
-        env = SandboxedEnvironment(
-            loader=FileSystemLoader(str(data_dir("templates"))),
-            undefined=StrictUndefined,
-            autoescape=select_autoescape(
-                enabled_extensions=("html", "html.j2"), default_for_string=True, default=False
-            ),
-            keep_trailing_newline=True,
-            trim_blocks=True,
-            lstrip_blocks=True,
-        )
-        env.filters.update(
-            dot_quote=dot_quote, dot_label=dot_label, md_cell=md_cell, csv_field=csv_field,
-            num=num, yaml_string=yaml_string,
-        )
-        _ENV = env
-    return _ENV
+    env = SandboxedEnvironment(
+        loader=FileSystemLoader(str(data_dir("templates"))),
+        undefined=StrictUndefined,
+        autoescape=select_autoescape(
+            enabled_extensions=("html", "html.j2"), default_for_string=True, default=False
+        ),
+        keep_trailing_newline=True,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters.update(
+        dot_quote=dot_quote, dot_label=dot_label, md_cell=md_cell, csv_field=csv_field,
+        num=num, yaml_string=yaml_string,
+    )
+    return env
 
 
 def render(template: str, **context: Any) -> str:

@@ -22,7 +22,7 @@ significant digits), the file the docs test compares.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -45,10 +45,6 @@ def _round(x: Any) -> Any:
         v = float(x)
         return float(f"{v:.6g}") if math.isfinite(v) else None
     return x
-
-
-def _as_dict(d: Any) -> dict[str, Any]:
-    return d.to_dict() if hasattr(d, "to_dict") else dict(d)
 
 
 @dataclass(frozen=True)
@@ -176,13 +172,6 @@ def _selector(ctx: dict[str, Any]) -> tuple[str, list[tuple[str, float]]]:
     return f"|z| ≥ τ = {threshold:g}", [("τ", threshold)]
 
 
-def run_context(arch: Architecture, scenario: str) -> dict[str, Any]:
-    """What the report needs of the file beyond the runs (a trace's ``meta.report``)."""
-    from archself.sim.run import _report_context
-
-    return _report_context(arch, arch.scenarios[scenario])
-
-
 def _outcome(d: dict[str, Any]) -> tuple[str, str]:
     chosen = d.get("chosen")
     if chosen:
@@ -225,10 +214,7 @@ def _decision_rows(decisions: list[dict[str, Any]]) -> list[DecisionRow]:
         sig = (d.get("configuration"), tuple(c for c, _ in cands), outcome, detail)
         t = float(d.get("t", math.nan))
         if sig == prev_sig and outcome not in ("switch", "update") and rows:
-            last = rows[-1]
-            rows[-1] = DecisionRow(last.t_from, t, last.cycles + 1, last.configuration,
-                                   last.phase, last.j_obs, last.candidates, last.outcome,
-                                   last.detail)
+            rows[-1] = replace(rows[-1], t_to=t, cycles=rows[-1].cycles + 1)
             continue
         rows.append(DecisionRow(t, t, 1, str(d.get("configuration")), str(d.get("phase")),
                                 d.get("j_obs"), cands, outcome, detail))
@@ -276,7 +262,9 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
     first = results[0]
     meta = dict(first.meta)
     if arch is not None:
-        ctx = run_context(arch, first.scenario)
+        from archself.sim.run import _report_context
+
+        ctx = _report_context(arch, arch.scenarios[first.scenario])  # a trace's meta.report
         name = arch.name
         objective = {"actual": arch.runtime.objective.actual,
                      "reference": arch.runtime.objective.reference,
@@ -302,7 +290,7 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
     series = {}
     decisions: list[dict[str, Any]] = []
     for r in results:
-        recs = [_as_dict(d) for d in r.decisions]
+        recs = r.trace_decisions()
         updates = tuple(
             {"t_s": d["t"], "action": d["chosen"]["action"], "module": d["chosen"].get("module"),
              "set": d["chosen"].get("set")}

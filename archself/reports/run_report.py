@@ -43,7 +43,7 @@ def write_run_report(arch: Architecture | None, results: list[Any], out_dir: str
         If the folder or a file cannot be written.
     """
     from archself.reports import figures
-    from archself.sim.run import metric_rows
+    from archself.sim.metrics import metric_rows
 
     out = Path(out_dir)
     ensure_dir(out)

@@ -96,13 +96,10 @@ class FaultInjector:
         self.magnitude = float(magnitude)
         self.signal = signal
         self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.sigma = 0.0  # of the added noise (noise_increase)
         if kind == "noise_increase":
-            if base_noise is not None and base_noise > 0:
-                self.sigma = base_noise * math.sqrt(max(self.magnitude**2 - 1.0, 0.0))
-            else:
-                self.sigma = abs(self.magnitude)
-        else:
-            self.sigma = 0.0
+            self.sigma = (base_noise * math.sqrt(max(self.magnitude**2 - 1.0, 0.0))
+                          if base_noise is not None and base_noise > 0 else abs(self.magnitude))
         self.held: Any = None
 
     def active(self, t: float) -> bool:
@@ -115,9 +112,7 @@ class FaultInjector:
             self.held = None
             return value
         kind = self.kind
-        if kind == "dropout":
-            return None
-        if value is None:
+        if kind == "dropout" or value is None:
             return None
         if kind == "bias_drift":
             return value + self.magnitude * (t - self.onset)

@@ -144,28 +144,15 @@ class RunResult:
         Requires pandas (``pip install 'archself[pandas]'``).
         """
         pd = _pandas("decisions_frame")
-        cycle: list[int] = []
-        t: list[float] = []
-        conf: list[str] = []
-        phase: list[str] = []
-        module: list[str] = []
-        r: list[float] = []
-        z: list[float] = []
-        cand: list[bool] = []
+        rows: list[tuple[Any, ...]] = []
         for d in self.decisions:
             zs = _field(d, "z") or {}
             rs = _field(d, "r") or {}
             cs = set(_field(d, "candidates") or ())
-            names = list(zs)
-            n = len(names)
-            cycle += [int(_field(d, "cycle") or 0)] * n
-            t += [_float(_field(d, "t"))] * n
-            conf += [str(_field(d, "configuration"))] * n
-            phase += [str(_field(d, "phase"))] * n
-            module += names
-            z += [_float(zs.get(m)) for m in names]
-            r += [_float(rs.get(m)) for m in names]
-            cand += [m in cs for m in names]
+            head = (int(_field(d, "cycle") or 0), _float(_field(d, "t")),
+                    str(_field(d, "configuration")), str(_field(d, "phase")))
+            rows += [(*head, m, _float(rs.get(m)), _float(zs.get(m)), m in cs) for m in zs]
+        cycle, t, conf, phase, module, r, z, cand = list(zip(*rows, strict=True)) or [()] * 8
         df = pd.DataFrame({
             "cycle": np.asarray(cycle, dtype=np.int64),
             "t": np.asarray(t, dtype=float),
@@ -268,10 +255,8 @@ def _series_list(arr: np.ndarray) -> list:
         return a.tolist()
     a = np.round(a.astype(float), 6)
     if a.ndim == 1:
-        return [None if v != v or v in (math.inf, -math.inf) else v for v in a.tolist()]
-    return [
-        [None if v != v or v in (math.inf, -math.inf) else v for v in row] for row in a.tolist()
-    ]
+        return [v if math.isfinite(v) else None for v in a.tolist()]
+    return [[v if math.isfinite(v) else None for v in row] for row in a.tolist()]
 
 
 def _decision(d: Any) -> Any:

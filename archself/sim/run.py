@@ -132,7 +132,6 @@ def simulate(
     t_arr = np.empty(n)
     J = np.full(n, np.nan)
     conf_arr = np.zeros(n, dtype=int)
-    res = np.full((n, len(res_mods)), np.nan)
     cols: dict[str, np.ndarray] = {}
     widths: dict[str, int] = {}
 
@@ -194,8 +193,7 @@ def simulate(
 
     for k, (first, index) in enumerate(conf_from):
         conf_arr[first : conf_from[k + 1][0] if k + 1 < len(conf_from) else n] = index
-    if res_rows and res_mods:
-        res[:] = np.array(res_rows, dtype=float)
+    res = np.array(res_rows, dtype=float).reshape(n, len(res_mods))
     series: dict[str, np.ndarray] = {"t": t_arr, "J": J}
     for key in ("reference", "actual", *(k for k, _ in record)):
         if key in cols:
@@ -204,7 +202,7 @@ def simulate(
     series["configuration"] = conf_arr
     for j, (m, _s) in enumerate(res_mods):
         series[f"residual.{m}"] = res[:, j]
-    decisions = list(getattr(adapt, "decisions", []) or []) if adapt is not None else []
+    decisions = list(getattr(adapt, "decisions", None) or [])
     meta = {
         "architecture": arch.name,
         "step_s": dt,
@@ -216,7 +214,7 @@ def simulate(
             "components": comps,
             "unit": rt.objective.unit,
         },
-        "residuals": {m: s for m, s in res_mods},
+        "residuals": dict(res_mods),
         "report": _report_context(arch, sc),
     }
     return RunResult(

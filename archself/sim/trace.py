@@ -79,10 +79,8 @@ def write_trace(result: Any, path: str | Path) -> None:
     """
     from archself.atomic import write_bytes
 
-    if is_parquet_name(path):
-        write_bytes(path, parquet_bytes(result))
-    else:
-        write_bytes(path, json_text(result).encode("utf-8"))
+    write_bytes(path, parquet_bytes(result) if is_parquet_name(path)
+                else json_text(result).encode("utf-8"))
 
 
 def json_text(result: Any) -> str:
@@ -100,6 +98,7 @@ def parquet_bytes(result: Any) -> bytes:
     widths: list[list[Any]] = []
     for name, arr in result.series.items():
         a = np.asarray(arr)
+        widths.append([name, int(a.shape[1]) if a.ndim == 2 and name != "configuration" else 0])
         if name == "configuration":
             names = list(result.configurations)
             codes = a.astype(np.int32)
@@ -108,18 +107,13 @@ def parquet_bytes(result: Any) -> bytes:
                     pa.array(codes, type=pa.int32()), pa.array(names, type=pa.string()))
             else:
                 columns[name] = pa.array(codes)
-            widths.append([name, 0])
         elif a.ndim == 2:
             for k in range(a.shape[1]):
                 columns[f"{name}_{k}"] = pa.array(a[:, k].astype(np.float32))
-            widths.append([name, int(a.shape[1])])
         elif name == "t":
             columns[name] = pa.array(a.astype(np.float64))
-            widths.append([name, 0])
         else:
-            col = a.astype(np.float32) if a.dtype.kind == "f" else a
-            columns[name] = pa.array(col)
-            widths.append([name, 0])
+            columns[name] = pa.array(a.astype(np.float32) if a.dtype.kind == "f" else a)
     decisions = json.dumps(jsonable(result.trace_decisions()), separators=(",", ":"),
                            allow_nan=False)
     head = {"format": FORMAT, "meta": jsonable(doc_meta), "series": widths}
@@ -211,10 +205,8 @@ def _read_parquet(source: Any, p: str) -> Any:
     for name, width in head["series"]:
         if name == "configuration":
             col = table.column(name).combine_chunks()
-            if hasattr(col, "indices"):
-                arrays[name] = np.asarray(col.indices.to_numpy(zero_copy_only=False), dtype=int)
-            else:
-                arrays[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=int)
+            col = getattr(col, "indices", col)  # the codes of a dictionary-encoded column
+            arrays[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=int)
         elif width:
             arrays[name] = np.column_stack([
                 np.asarray(table.column(f"{name}_{k}").to_numpy(zero_copy_only=False),
@@ -226,7 +218,7 @@ def _read_parquet(source: Any, p: str) -> Any:
 
 
 def _result(meta: dict[str, Any], series: dict[str, np.ndarray], decisions: list) -> Any:
-    from archself.sim.run import RunResult
+    from archself.sim.result import RunResult
 
     keep = {k: v for k, v in meta.items()
             if k not in ("scenario", "seed", "mode", "configuration", "final_configuration",
