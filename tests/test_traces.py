@@ -172,3 +172,19 @@ def test_campaign_writes_parquet_traces(tmp_path: Path) -> None:
     assert trace.suffix == ".parquet" and read_trace(trace).mode == "adaptive"
     table = pd.read_parquet(tmp_path / "c.parquet")
     assert table["trace"].tolist() == [str(trace)]
+
+
+def test_cli_report_names_the_old_trace_whatever_the_order(tmp_path: Path) -> None:
+    """Adaptive first, an old fixed trace second: the message names the old file."""
+    new = tmp_path / "new.json"
+    ran = CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--compare",
+                                   "--trace", str(new)])
+    assert ran.exit_code == 0, ran.stderr
+    old = tmp_path / "old.json"
+    doc = json.loads((tmp_path / "new.fixed.json").read_text())
+    del doc["meta"]["report"]
+    old.write_text(json.dumps(doc))
+    out = CliRunner().invoke(app, ["report", "--trace", str(new), "--trace", str(old),
+                                   "-o", str(tmp_path / "r")])
+    assert out.exit_code == 1
+    assert out.stderr.startswith(f"{old}: error: the trace does not hold"), out.stderr

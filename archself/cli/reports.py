@@ -119,6 +119,11 @@ def _report_from_traces(
             refuse_same_file(inputs, output / name, "-o")
         with protect(inputs):
             results = [read_trace(t) for t in traces]
+            for t, r in zip(traces, results, strict=True):
+                if arch_path is None and not isinstance(r.meta.get("report"), dict):
+                    raise _fail(f"{t}: error: the trace does not hold the run report's "
+                                "settings (written by an older archself); pass the "
+                                "architecture file: archself report ARCH --trace TRACE -o DIR")
             if len(results) == 2:
                 a, b = results
                 if {a.mode, b.mode} != {"fixed", "adaptive"} or (a.scenario, a.seed) != (
@@ -129,11 +134,6 @@ def _report_from_traces(
                         f"and {b.mode} {b.scenario} seed {b.seed}")
                 results.sort(key=lambda r: r.mode != "fixed")  # fixed first, as --compare
             arch = None
-            for t, r in zip(traces, results, strict=True):
-                if arch_path is None and not isinstance(r.meta.get("report"), dict):
-                    raise _fail(f"{t}: error: the trace does not hold the run report's "
-                                "settings (written by an older archself); pass the "
-                                "architecture file: archself report ARCH --trace TRACE -o DIR")
             if arch_path is not None:
                 arch = _load(arch_path)
                 if results[0].scenario not in arch.scenarios:
