@@ -304,6 +304,13 @@ def _numeric_warning(w: Any) -> bool:
     )
 
 
+def _known_configuration(arch: Any, config: str | None, path: Path) -> None:
+    """``--config`` must name a configuration of the file (one-line error, exit 1)."""
+    if config is not None and config not in arch.configurations:
+        known = ", ".join(arch.configurations)
+        raise _fail(f"{path}: unknown configuration '{config}'; known: {known}")
+
+
 def _load(path: Path):
     from archself.check import check, has_errors
     from archself.loader import load_architecture
@@ -333,20 +340,21 @@ def main() -> None:
     from archself.errors import Terminated, raise_terminated
 
     signal.signal(signal.SIGTERM, raise_terminated)  # the clean-up of Ctrl-C, exit 143
+    def stopped(exc: KeyboardInterrupt) -> SystemExit:
+        terminated = isinstance(exc, Terminated)
+        typer.echo("terminated" if terminated else "interrupted", err=True)
+        return SystemExit(143 if terminated else 130)
+
     try:
         app()
     except SystemExit as exc:
         # typer turns Ctrl-C into a silent exit 130: say what happened
         cause = exc.__context__.__cause__ if exc.__context__ is not None else None
         if exc.code == 130 and isinstance(cause, KeyboardInterrupt):
-            terminated = isinstance(cause, Terminated)
-            typer.echo("terminated" if terminated else "interrupted", err=True)
-            raise SystemExit(143 if terminated else 130) from None
+            raise stopped(cause) from None
         raise
     except KeyboardInterrupt as exc:
-        terminated = isinstance(exc, Terminated)
-        typer.echo("terminated" if terminated else "interrupted", err=True)
-        raise SystemExit(143 if terminated else 130) from None
+        raise stopped(exc) from None
     except ArchselfError as exc:
         _err(str(exc))
         raise SystemExit(exc.exit_code) from None

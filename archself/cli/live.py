@@ -8,7 +8,7 @@ from typing import Annotated, Any
 
 import typer
 
-from archself.cli.base import _die, _fail, _inputs, _load, _numeric
+from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
 
 
@@ -69,9 +69,7 @@ def live(
             refuse_same_file([arch_path], log, "--log")
         with _numeric(arch_path):
             arch = _load(arch_path)
-            if config is not None and config not in arch.configurations:
-                known = ", ".join(arch.configurations)
-                raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
+            _known_configuration(arch, config, arch_path)
             loop = LiveLoop(arch, configuration=config, rollout=rollout)
             start = loop.configuration
             loop.on_command(lambda c: typer.echo(

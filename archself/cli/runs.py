@@ -17,6 +17,7 @@ from archself.cli.base import (
     _fail,
     _formats,
     _inputs,
+    _known_configuration,
     _load,
     _numeric,
 )
@@ -190,9 +191,7 @@ def simulate(
                 refuse_same_file([arch_path], report / name, "--report")
         with protect([arch_path]), _numeric(arch_path):
             arch = _load(arch_path)
-            if config is not None and config not in arch.configurations:
-                known = ", ".join(arch.configurations)
-                raise _fail(f"{arch_path}: unknown configuration '{config}'; known: {known}")
+            _known_configuration(arch, config, arch_path)
             _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
             show = sys.stderr.isatty() and not json_out
             modes = [False, True] if compare else [not fixed]
