@@ -80,17 +80,10 @@ class LaneFault:
         out = None if value is None else np.array(value, dtype=float)
         bad = []
         for j, i in enumerate(idx.tolist()):
-            before = row(value, j)
-            after = self.injectors[i].apply(t, before)
-            if after is None:
-                if out is not None:
-                    out[j] = math.nan
-                continue
-            arr = np.asarray(after, dtype=float)
-            if not np.isfinite(arr).all():
+            after = self.injectors[i].apply(t, row(value, j))
+            arr = math.nan if after is None else np.asarray(after, dtype=float)
+            if after is not None and not np.isfinite(arr).all():
                 bad.append(i)
-                continue
-            if out is None:  # a value where there was none (cannot happen for these kinds)
-                continue
-            out[j] = arr
+            elif out is not None:  # (no value before: none after, for these kinds)
+                out[j] = arr
         return out, np.array(bad, dtype=np.intp)

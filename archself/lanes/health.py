@@ -107,17 +107,15 @@ class LaneHealth:
         self._arrays(name)
         heard_t = self.heard[name]
         broken = self.broken[name]
-        reasons: dict[int, str] = {}
+        reasons = dict(failed)
         m = len(idx)
+        good = None
         if failed:
             for i, why in failed.items():
-                reasons[i] = why
                 if why == "non-finite output":
                     broken[i] = True
                     self._any_broken[name] = True
             good = np.array([i not in failed for i in idx.tolist()], dtype=bool)
-        else:
-            good = None
         heard = np.zeros(m, dtype=bool)
         for v in out.values():
             if v is not None:
@@ -160,7 +158,6 @@ class LaneHealth:
 
         ``heard``: the lanes that published a value; only they can be stale here.
         """
-        stale: dict[int, str] = {}
         for sig, level in levels.items():
             key = (name, sig)
             rep = self.repeats.get(key)
@@ -183,13 +180,8 @@ class LaneHealth:
                         same = (rows[use] == last[lanes]).all(axis=1)
                         rep[lanes] = np.where(same, rep[lanes] + 1, 0)
                         last[lanes] = rows[use]
-            hit = heard & (rep[idx] >= STALE_REPEATS)
-            if hit.any():
-                for j in np.flatnonzero(hit):
-                    i = int(idx[j])
-                    stale.setdefault(i, f"stale {sig} ({int(rep[i]) + 1} identical values)")
-        for i, why in stale.items():
-            reasons.setdefault(i, why)
+            for i in idx[heard & (rep[idx] >= STALE_REPEATS)].tolist():
+                reasons.setdefault(i, f"stale {sig} ({int(rep[i]) + 1} identical values)")
 
     def settle(self, name: str, idx: np.ndarray, reasons: dict[int, str]) -> None:
         """Set ``ok``/``why`` of lanes ``idx`` from ``reasons`` (the lanes not named are ok)."""
@@ -208,15 +200,8 @@ class LaneHealth:
     ) -> None:
         """Add ``lost input <s>`` to the lanes of ``idx`` without a reason whose ``s`` is absent."""
         for s in required:
-            v = inputs.get(s)
-            if v is not None and type(v) is not list and v.ndim == 1 and v.dtype.kind == "f":
-                missing = np.isnan(v)
-            else:
-                missing = ~_present(v, len(idx))
-            if not missing.any():
-                continue
-            for j in np.flatnonzero(missing):
-                reasons.setdefault(int(idx[j]), f"lost input {s}")
+            for i in idx[~_present(inputs.get(s), len(idx))].tolist():
+                reasons.setdefault(i, f"lost input {s}")
 
     def forget(self, name: str, lanes: np.ndarray) -> None:
         """A module deactivated in ``lanes``: its availability and silence clock start over."""

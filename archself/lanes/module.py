@@ -181,10 +181,9 @@ class LaneModule:
         self.failed: dict[int, str] = {}
         self.load(ALL)
 
-    def lane_attr(self, attr: str, lanes: slice | np.ndarray = ALL) -> np.ndarray:
+    def lane_attr(self, attr: str) -> np.ndarray:
         """``getattr(module, attr)`` of each lane's instance, stacked (float array)."""
-        mods = self.modules if isinstance(lanes, slice) else [self.modules[i] for i in lanes]
-        return np.array([getattr(m, attr) for m in mods], dtype=float)
+        return np.array([getattr(m, attr) for m in self.modules], dtype=float)
 
     def indices(self, lanes: slice | np.ndarray) -> np.ndarray:
         """The lane indices ``lanes`` selects."""
@@ -247,32 +246,29 @@ class PerLane(LaneModule):
     """
 
     def output(self, t, lanes):
-        return self._collect([(i, lambda m: m.output(t)) for i in self.indices(lanes)])
+        return self._collect(lanes, lambda m, j: m.output(t))
 
     def step(self, t, dt, inputs, lanes):
-        calls = []
-        for j, i in enumerate(self.indices(lanes)):
-            mine = {k: row(v, j) for k, v in inputs.items()}
-            calls.append((i, lambda m, mine=mine: m.step(t, dt, mine)))
-        return self._collect(calls)
+        return self._collect(
+            lanes, lambda m, j: m.step(t, dt, {k: row(v, j) for k, v in inputs.items()})
+        )
 
-    def _collect(self, calls) -> dict[str, Any]:
+    def _collect(self, lanes, call) -> dict[str, Any]:
+        """``call(instance, j)`` for the ``j``-th lane of ``lanes``; the outputs stacked."""
         from archself.health import is_bad
 
         outs: list[dict[str, Any]] = []
-        for i, call in calls:
+        for j, i in enumerate(self.indices(lanes).tolist()):
             try:
-                out = call(self.modules[i]) or {}
+                out = call(self.modules[i], j) or {}
             except Exception as exc:  # noqa: BLE001 - one lane's failure, the executor's to judge
-                self.failed[int(i)] = f"raised {type(exc).__name__}"
+                self.failed[i] = f"raised {type(exc).__name__}"
                 out = {}
             if any(v is not None and is_bad(v) for v in out.values()):
-                self.failed[int(i)] = "non-finite output"
+                self.failed[i] = "non-finite output"
                 out = {}
             outs.append(out)
-        keys: list[str] = []
-        for out in outs:
-            keys.extend(k for k in out if k not in keys)
+        keys = dict.fromkeys(k for out in outs for k in out)
         return {k: stack([o.get(k) for o in outs]) for k in keys}
 
     def local_signals(self, lanes):

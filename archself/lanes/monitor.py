@@ -23,25 +23,12 @@ from typing import Any
 import numpy as np
 
 from archself.runtime.monitor import Monitor, Observation
-from archself.runtime.residuals import filter_confidence
+from archself.runtime.monitor_layout import confidence_reader
 from archself.runtime.status import StatusMap
 
 __all__ = ["observe_group"]
 
 _NO_FLAGS = np.zeros(0, dtype=np.intp)
-
-
-def _confidence(lay: Any) -> Any:
-    """κ_i's confidence of ``lay``'s filters as they are now (the Monitor's closure)."""
-    samples, valid_time, tc, slot = lay.samples, lay.valid_time, lay.time_constant, lay.slot
-
-    def confidence(k: int) -> float:
-        j = int(slot[k])
-        if j < 0:
-            return 1.0 if j == -1 else 0.0  # no residual block / filter reset
-        return filter_confidence(int(samples[j]), float(valid_time[j]), float(tc[j]))
-
-    return confidence
 
 
 def observe_group(
@@ -86,12 +73,9 @@ def observe_group(
     dt = period if prev is None else t - prev
     if dt <= 0:
         dt = period
-    lays = []
-    for i in keep:
-        mon = monitors[i]
-        if mon._t_prev != prev:  # a lane out of step with the group: it observes alone
-            return {}
-        lays.append(mon.layout(active))
+    if any(monitors[i]._t_prev != prev for i in keep):
+        return {}  # a lane out of step with the group: every lane observes alone
+    lays = [monitors[i].layout(active) for i in keep]
     V = np.stack([lay.value for lay in lays])
     S = np.stack([lay.samples for lay in lays])
     VT = np.stack([lay.valid_time for lay in lays])
@@ -144,7 +128,7 @@ def observe_group(
             residual_ok[lay.on_pos] = ok
             found = ((violated | ~residual_ok) & lay.active).nonzero()[0]
         kappa = StatusMap(
-            mon.names, mon.index, lay.active, mon._true, residual_ok, _confidence(lay),
+            mon.names, mon.index, lay.active, mon._true, residual_ok, confidence_reader(lay),
             dict(violations), {}, found, set(),
         )
         out[i] = Observation(

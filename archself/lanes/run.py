@@ -97,7 +97,7 @@ def simulate_lanes(
     CompileError
         The configuration cannot be built.
     """
-    from archself.sim.run import _report_context
+    from archself.sim.run import run_meta
 
     archs = [arch] * len(seeds) if isinstance(arch, Architecture) else list(arch)
     if len(archs) != len(seeds) or not len(seeds):
@@ -125,13 +125,12 @@ def simulate_lanes(
     comps = list(rt.objective.components)
     record = list(rt.record.items())
     res_mods = [(m, spec.residual.signal) for m, spec in first.modules.items() if spec.residual]
-    confs = list(first.configurations)
-    conf_index = {c: k for k, c in enumerate(confs)}
+    conf_index = {c: k for k, c in enumerate(first.configurations)}
     loops = views = monitors = None
     if adapt:
         from archself.lanes.monitor import observe_group
         from archself.lanes.view import LaneView
-        from archself.runtime import MapeK
+        from archself.runtime.mapek import MapeK
         from archself.runtime.monitor import Monitor
 
         make = MapeK if adapt is True else adapt
@@ -148,14 +147,14 @@ def simulate_lanes(
         """The recorded sources and residual modules of ``conf`` (per-run: on a change)."""
         got = per_conf.get(conf)
         if got is None:
-            active = lanes.plan(conf).active
+            plan = lanes.plan(conf)
             pool = lanes.systems[0]
             srcs = []
             for key, sig in record:
-                src = next((m for m in active if sig in pool._module(m).outputs), None)
+                src = next((m for m in plan.active if sig in pool._module(m).outputs), None)
                 if src is not None:
                     srcs.append((key, src, sig))
-            res = [(j, m, s) for j, (m, s) in enumerate(res_mods) if m in set(active)]
+            res = [(j, m, s) for j, (m, s) in enumerate(res_mods) if m in plan.active_set]
             got = per_conf[conf] = (srcs, res)
         return got
 
@@ -184,14 +183,13 @@ def simulate_lanes(
         put("reference", i, r, ALL)
         put("actual", i, a, ALL)
         for conf, idx in lanes.groups.items():
-            whole = len(idx) == N
-            sel = ALL if whole else idx
+            sel = ALL if len(idx) == N else idx
             conf_arr[i, sel] = conf_index.get(conf, -1)
             srcs, res_idx = layout(conf)
             for key, src, sig in srcs:
                 put(key, i, signal(src, sig), sel)
             for j, m, s in res_idx:
-                v = lanes.module(m).local_signals(ALL).get(s)
+                v = lanes.signal_arrays(m).get(s)
                 if v is not None:
                     res[i, sel, j] = v[sel]
         if loops is not None and views is not None and (i + 1) % per == 0:
@@ -218,21 +216,6 @@ def simulate_lanes(
         series["configuration"] = conf_arr[:, lane].copy()
         for j, (m, _s) in enumerate(res_mods):
             series[f"residual.{m}"] = res[:, lane, j].copy()
-        s = a.scenarios[scenario]
-        meta = {
-            "architecture": a.name,
-            "step_s": dt,
-            "period_s": float(a.runtime.period_s),
-            "duration_s": float(s.duration_s),
-            "objective": {
-                "actual": a.runtime.objective.actual,
-                "reference": a.runtime.objective.reference,
-                "components": comps,
-                "unit": a.runtime.objective.unit,
-            },
-            "residuals": {m: sig for m, sig in res_mods},
-            "report": _report_context(a, s),
-        }
         results.append(
             RunResult(
                 scenario=scenario,
@@ -245,7 +228,7 @@ def simulate_lanes(
                 series=series,
                 decisions=list(getattr(loops[lane], "decisions", None) or [])
                 if loops is not None else [],
-                meta=meta,
+                meta=run_meta(a, a.scenarios[scenario], dt, comps, res_mods),
                 configurations=list(a.configurations),
                 unit=a.runtime.objective.unit,
             )

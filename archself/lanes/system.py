@@ -87,18 +87,16 @@ class LaneSystem:
             per_lane = [s._faults.get(name, []) for s in self.systems]
             if any(len(f) != len(per_lane[0]) for f in per_lane):
                 raise SimulationError(f"lanes must have the same faults on {name!r}")
-            if per_lane[0]:
+            if per_lane[0]:  # the j-th fault of every lane: (signal, injector) pairs
                 self._faults[name] = [
-                    LaneFault(per_lane[0][j][0], [f[j][1] for f in per_lane])
-                    for j in range(len(per_lane[0]))
+                    LaneFault(fs[0][0], [f[1] for f in fs])
+                    for fs in zip(*per_lane, strict=True)
                 ]
         self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
         self._delay: dict[int, Delay] = {}
         self._streams: tuple[int, list[LaneNormals]] | None = None
-        self._signals: dict[str, dict[str, list[float]]] = {}
         #: J of every lane at the current step (set by the run; the loop's J_obs)
         self.objective: np.ndarray | None = None
-        self._signals_k = -1
         self._arrays: dict[str, dict[str, np.ndarray]] = {}
         self._arrays_k = -1
 
@@ -149,10 +147,8 @@ class LaneSystem:
             if out:
                 self.outputs[g] = {s: _absent_rows(v, one) for s, v in out.items()}
             self.health.forget(g, one)
-        for m in new.active:
-            self.module(m).load(one)
         self.configuration[lane] = configuration
-        self.health.invalidate()
+        self.reload(lane)
         self._regroup()
 
     def reload(self, lane: int) -> None:
@@ -260,16 +256,13 @@ class LaneSystem:
                     mod.failed.update({int(i): f"raised {type(exc).__name__}" for i in idx})
                 reasons = dict(mod.failed)
                 mod.failed.clear()
-                ok = health.ok[name][idx]
+                ok, why = health.ok[name], health.why[name]
                 later: dict[int, str] = {}
                 health.lost_inputs(inputs, plan.required[name], idx, later)
-                reasons.update({i: r for i, r in later.items() if i not in reasons
-                                and ok[int(np.searchsorted(idx, i))]})
-                if reasons:
-                    ok_arr, why = health.ok[name], health.why[name]
-                    for i, r in reasons.items():
-                        ok_arr[i] = False
-                        why[i] = r
+                reasons.update({i: r for i, r in later.items() if i not in reasons and ok[i]})
+                for i, r in reasons.items():
+                    ok[i] = False
+                    why[i] = r
         self.k += 1
         self.t = self.k * dt
 
@@ -306,24 +299,9 @@ class LaneSystem:
         return self._streams[1]
 
     def local_signals_of(self, lane: int) -> dict[str, dict[str, float]]:
-        """module -> residual signal -> value in ``lane``, as :meth:`LiveSystem.local_signals`.
-
-        The modules' arrays are read once per step (as Python floats) for every lane.
-        """
-        if self._signals_k != self.k:
-            self._signals.clear()
-            self._signals_k = self.k
-        out = {}
-        table = self._signals
-        for n in self.plan(self.configuration[lane]).active:
-            lists = table.get(n)
-            if lists is None:
-                lists = table[n] = {
-                    s: np.asarray(a, dtype=float).tolist()
-                    for s, a in self.module(n).local_signals(ALL).items()
-                }
-            out[n] = {s: v[lane] for s, v in lists.items()}
-        return out
+        """module -> residual signal -> value in ``lane``, as :meth:`LiveSystem.local_signals`."""
+        return {n: {s: float(v[lane]) for s, v in self.signal_arrays(n).items()}
+                for n in self.plan(self.configuration[lane]).active}
 
     def signal_arrays(self, name: str) -> dict[str, np.ndarray]:
         """Residual signal -> its values in every lane, of module ``name`` (once per step)."""

@@ -27,7 +27,6 @@ from typing import Any
 import numpy as np
 
 from archself.lanes.module import row
-from archself.objective import objective_norm
 
 __all__ = ["LaneView"]
 
@@ -69,7 +68,6 @@ class LaneView:
         self.live = lanes.systems[i]
         self._materialized = False
         self._params_seen = 0
-        self._signals: dict[str, dict[str, float]] = {}
 
     # ------------------------------------------------------------------ the quiet path
     @property
@@ -91,16 +89,10 @@ class LaneView:
         return self.live.outputs if self._materialized else _Outputs(self)
 
     def objective_error(self) -> float:
-        """J_obs of the lane (the same function as the per-run system's)."""
+        """J_obs of the lane: the run's J of this step (the per-run system's number)."""
         if self._materialized:
             return self.live.objective_error()
-        if self.lanes.objective is not None:  # the run's J of this step (the same numbers)
-            return float(self.lanes.objective[self.i])
-        obj = self.lanes.arch.runtime.objective
-        am, asig = obj.actual.rsplit(".", 1)
-        rm, rsig = obj.reference.rsplit(".", 1)
-        return objective_norm(row(self.lanes.signal(am, asig), self.i),
-                              row(self.lanes.signal(rm, rsig), self.i), list(obj.components))
+        return float(self.lanes.objective[self.i])
 
     def local_signals(self) -> dict[str, dict[str, float]]:
         """module -> residual signals of lane ``i`` (its configuration's modules)."""
@@ -130,8 +122,7 @@ class LaneView:
         lanes.store(one)
         for ln in lanes.streams():
             ln.pin(i)
-        conf = lanes.configuration[i]
-        plan = lanes.plan(conf)
+        plan = lanes.plan(lanes.configuration[i])
         live.t, live.k = lanes.t, lanes.k
         live.outputs = {
             n: {s: row(v, i) for s, v in lanes.outputs[n].items()}

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import queue
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from archself.live.system import LiveError, MeasuredSystem
@@ -81,15 +81,7 @@ class Command:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON data (the wire format of :mod:`archself.live.wire`)."""
-        return {
-            "t_s": self.t_s,
-            "kind": self.kind,
-            "action": self.action,
-            "module": self.module,
-            "configuration": self.configuration,
-            "previous": self.previous,
-            "values": dict(self.values),
-        }
+        return asdict(self)
 
     def ros2_mode(self, system: str) -> tuple[str, str]:
         """``(part, mode)`` to request from a ROS 2 system_modes mode manager.
@@ -363,8 +355,6 @@ class LiveLoop:
 
     def _annotate(self, record: Any) -> None:
         """Say in the cycle's record which methods gave Δ and stability (no snapshot)."""
-        if not record.evaluations:
-            return
         deltas: set[str] = set()
         stab: set[str] = set()
         for ev in record.evaluations:
@@ -374,12 +364,9 @@ class LiveLoop:
                 ev.stability["source"] = "models"
                 method = str(ev.stability.get("method"))
                 stab.add(_STABILITY_NAMES.get(method, method))
-        if not deltas and not stab:
+        parts = [f"{what} by {', '.join(sorted(got))}"
+                 for what, got in (("Δ", deltas), ("stability", stab)) if got]
+        if not parts:
             return
-        parts = []
-        if deltas:
-            parts.append("Δ by " + ", ".join(sorted(deltas)))
-        if stab:
-            parts.append("stability by " + ", ".join(sorted(stab)))
         note = "live (no plant snapshot): " + "; ".join(parts)
         record.note = f"{record.note}; {note}" if record.note else note

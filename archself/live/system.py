@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from archself.closed_loop import ClosedLoop
 from archself.errors import ArchselfError
-from archself.linear import ClosedLoop
 from archself.model import Architecture
 from archself.modules.base import RuntimeModule
 from archself.objective import objective_norm
@@ -181,15 +181,12 @@ class MeasuredSystem:
             if value is not None and not isinstance(value, Mapping):
                 raise LiveError(f"measurement {what} must be a mapping of modules")
         self.t = t
-        if outputs:
-            for m, sigs in outputs.items():
-                self.outputs[str(m)] = {str(k): _value(v) for k, v in (sigs or {}).items()}
-        if signals:
-            for m, sigs in signals.items():
-                self._signals[str(m)] = {str(k): _float(v) for k, v in (sigs or {}).items()}
-        if health:
-            for m, why in health.items():
-                self._health[str(m)] = None if why is None else str(why)
+        for m, sigs in (outputs or {}).items():
+            self.outputs[str(m)] = {str(k): _value(v) for k, v in (sigs or {}).items()}
+        for m, sigs in (signals or {}).items():
+            self._signals[str(m)] = {str(k): _float(v) for k, v in (sigs or {}).items()}
+        for m, why in (health or {}).items():
+            self._health[str(m)] = None if why is None else str(why)
         if configuration is not None and configuration != self.configuration:
             if configuration not in self.arch.configurations:
                 known = ", ".join(self.arch.configurations)

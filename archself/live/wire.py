@@ -207,7 +207,9 @@ class PlantLink:
         ``outputs`` may be a system's raw outputs: only their numeric part is sent
         (:func:`measured`).
         """
-        ch = self._require()
+        ch = self._channel
+        if ch is None:
+            raise LiveError("no loop connected (call accept first)")
         ch.send({
             "type": "measurement",
             "t": float(t),
@@ -234,11 +236,6 @@ class PlantLink:
                 self._channel.close()
         finally:
             self._server.close()
-
-    def _require(self) -> _Channel:
-        if self._channel is None:
-            raise LiveError("no loop connected (call accept first)")
-        return self._channel
 
     def __enter__(self) -> PlantLink:
         return self

@@ -40,6 +40,28 @@ from archself.sim.result import RunResult
 __all__ = ["METRICS", "METRE_ALIASES", "RunResult", "simulate", "error_metrics", "metric_rows"]
 
 
+def run_meta(
+    arch: Architecture, sc: Any, dt: float, comps: Any, res_mods: list[tuple[str, str]]
+) -> dict[str, Any]:
+    """A run's ``meta``: the file's clock and objective, the residual signals recorded
+    and :func:`_report_context` (shared by :func:`simulate` and the lane batches)."""
+    rt = arch.runtime
+    return {
+        "architecture": arch.name,
+        "step_s": dt,
+        "period_s": float(rt.period_s),
+        "duration_s": float(sc.duration_s),
+        "objective": {
+            "actual": rt.objective.actual,
+            "reference": rt.objective.reference,
+            "components": comps,
+            "unit": rt.objective.unit,
+        },
+        "residuals": dict(res_mods),
+        "report": _report_context(arch, sc),
+    }
+
+
 def _report_context(arch: Architecture, sc: Any) -> dict[str, Any]:
     """What a run report needs of the file beyond the run (``archself report --trace``)."""
     rt = arch.runtime
@@ -203,20 +225,6 @@ def simulate(
     for j, (m, _s) in enumerate(res_mods):
         series[f"residual.{m}"] = res[:, j]
     decisions = list(getattr(adapt, "decisions", None) or [])
-    meta = {
-        "architecture": arch.name,
-        "step_s": dt,
-        "period_s": float(rt.period_s),
-        "duration_s": float(sc.duration_s),
-        "objective": {
-            "actual": rt.objective.actual,
-            "reference": rt.objective.reference,
-            "components": comps,
-            "unit": rt.objective.unit,
-        },
-        "residuals": dict(res_mods),
-        "report": _report_context(arch, sc),
-    }
     return RunResult(
         scenario=scenario,
         seed=seed,
@@ -227,7 +235,7 @@ def simulate(
         switches=switches,
         series=series,
         decisions=decisions,
-        meta=meta,
+        meta=run_meta(arch, sc, dt, comps, res_mods),
         configurations=confs,
         unit=rt.objective.unit,
     )
