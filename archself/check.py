@@ -29,9 +29,9 @@ offending node. The rules:
   file's ``min``/``max``) lies in the range the type declares (``Param.min``/``max``);
 * ``fault``: faults target modules whose type accepts that fault kind and signal,
   and that are in at least one configuration (else the fault never acts);
-* ``work``: each scenario's run fits the caps: :data:`MAX_RUN_STEPS` simulation
-  steps, :data:`MAX_RUN_BYTES` of recorded series, :data:`MAX_RUN_WORK`
-  module-steps with the rollouts and Lyapunov tests (:func:`run_estimate`);
+* ``work``: each scenario's run fits the caps of :mod:`archself.check_runs`:
+  ``MAX_RUN_STEPS`` simulation steps, ``MAX_RUN_BYTES`` of recorded series,
+  ``MAX_RUN_WORK`` module-steps with the rollouts and Lyapunov tests (:func:`run_estimate`);
 * ``action``: actions lead to declared configurations, their kind matches the
   change, parameter updates name parameters of the module and stay in bounds;
   the module an action addresses is active where it applies (a warning);
@@ -47,13 +47,10 @@ The rules live by what they judge: the modules and their parameters in
 :mod:`archself.check_modules`, edges, W and configurations in
 :mod:`archself.check_graph`, actions, faults, work, the objective and stability in
 :mod:`archself.check_runs`, on the shared :class:`~archself.check_context.Context`.
-This module runs them in order and re-exports ``run_estimate``, ``spectrum_summary``
-and the ``MAX_RUN_*`` caps.
+This module runs them in order and re-exports ``run_estimate`` and ``spectrum_summary``.
 """
 
 from __future__ import annotations
-
-import gc
 
 from archself.check_context import Context
 from archself.check_graph import (
@@ -65,9 +62,6 @@ from archself.check_graph import (
 )
 from archself.check_modules import check_limits, check_parameters, check_types
 from archself.check_runs import (
-    MAX_RUN_BYTES,
-    MAX_RUN_STEPS,
-    MAX_RUN_WORK,
     check_actions,
     check_objective,
     check_scenarios,
@@ -76,26 +70,15 @@ from archself.check_runs import (
     run_estimate,
 )
 from archself.findings import Finding
-from archself.loader import Loaded
+from archself.loader import Loaded, gc_paused
 
-__all__ = [
-    "MAX_RUN_BYTES",
-    "MAX_RUN_STEPS",
-    "MAX_RUN_WORK",
-    "check",
-    "has_errors",
-    "run_estimate",
-    "spectrum_summary",
-]
+__all__ = ["check", "has_errors", "run_estimate", "spectrum_summary"]
 
 
 def check(loaded: Loaded) -> list[Finding]:
     """All semantic findings of a loaded architecture, sorted by position."""
-    # the cyclic collector paused, as in the loader: it would walk a large file's 10^6
-    # acyclic objects again and again (for the imports of the packs and scipy too)
-    was = gc.isenabled()
-    gc.disable()
-    try:
+    # the collector paused, as in the loader (for the imports of the packs and scipy too)
+    with gc_paused():
         ctx = Context(loaded)
         for rule in (
             check_types,
@@ -111,9 +94,6 @@ def check(loaded: Loaded) -> list[Finding]:
             check_limits,
         ):
             rule(ctx)
-    finally:
-        if was:
-            gc.enable()
     check_stability(ctx)  # --verify compiles systems: the collector runs there
     ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
     return ctx.out

@@ -11,8 +11,9 @@ from __future__ import annotations
 from typing import Any
 
 from archself.findings import Finding
-from archself.loader import Loaded, Path_, dotted
+from archself.loader import Loaded
 from archself.model import Architecture
+from archself.yaml_source import Path_, dotted
 
 __all__ = ["Context", "closest", "refers"]
 
@@ -26,12 +27,9 @@ class Context:
         self.arch: Architecture = loaded.arch
         self.src = loaded.source
         self.out: list[Finding] = []
-        by_type: dict[str, Any] = {}
-        self.types: dict[str, Any] = {}
-        for name, mod in self.arch.modules.items():
-            if mod.type not in by_type:
-                by_type[mod.type] = registry.lookup(mod.type)
-            self.types[name] = by_type[mod.type]
+        modules = self.arch.modules
+        by_type = {t: registry.lookup(t) for t in dict.fromkeys(m.type for m in modules.values())}
+        self.types: dict[str, Any] = {name: by_type[mod.type] for name, mod in modules.items()}
 
     def add(self, sev: str, code: str, msg: str, path: Path_, *, key: bool = False) -> None:
         line, col = self.src.locate(path, key=key)
@@ -51,9 +49,7 @@ def refers(ctx: Context, name: str, path: Path_, what: str = "module") -> bool:
     pool = ctx.arch.modules if what == "module" else ctx.arch.configurations
     if name in pool:
         return True
-    import difflib
-
-    close = difflib.get_close_matches(name, list(pool), n=1)
-    hint = f"; did you mean '{close[0]}'?" if close else ""
+    close = closest(name, pool)
+    hint = f"; did you mean '{close}'?" if close else ""
     ctx.add("error", "reference", f"unknown {what} '{name}'{hint}", path)
     return False

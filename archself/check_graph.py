@@ -13,8 +13,8 @@ from __future__ import annotations
 from typing import Any
 
 from archself.check_context import Context, refers
-from archself.loader import Path_
 from archself.model import Architecture
+from archself.yaml_source import Path_
 
 __all__ = [
     "active_edges",

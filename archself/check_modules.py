@@ -12,8 +12,8 @@ from collections.abc import Iterator
 from typing import Any
 
 from archself.check_context import Context, closest, refers
-from archself.loader import Path_
 from archself.model import Parameter
+from archself.yaml_source import Path_
 
 __all__ = [
     "check_limits",
@@ -43,10 +43,8 @@ def check_types(ctx: Context) -> None:
     for name, mod in ctx.arch.modules.items():
         cls = ctx.types[name]
         if cls is None:
-            import difflib
-
-            close = difflib.get_close_matches(mod.type, known, n=1)
-            hint = f"did you mean '{close[0]}'? " if close else ""
+            close = closest(mod.type, known)
+            hint = f"did you mean '{close}'? " if close else ""
             ctx.add(
                 "error", "unknown-type",
                 f"unknown module type '{mod.type}'; {hint}{_known_types_text(mod.type, known)}",

@@ -10,13 +10,10 @@ objective's signals and components) and the opt-in ``stability``
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from typing import Any
-
 from archself.check_context import Context, refers
 from archself.check_modules import outside_declared, outside_space
-from archself.loader import Path_
 from archself.model import Architecture
+from archself.yaml_source import Path_
 
 __all__ = [
     "MAX_RUN_BYTES",
@@ -134,45 +131,36 @@ def check_actions(ctx: Context) -> None:
                         (*base, "kind"))
 
 
-def _fault_targets(arch: Architecture) -> Iterator[tuple[Path_, Any]]:
-    for sname, sc in arch.scenarios.items():
-        for i, f in enumerate(sc.faults):
-            yield ("scenarios", sname, "faults", i), f
-
-
 def check_scenarios(ctx: Context) -> None:
     arch = ctx.arch
-    placed: set[str] = set()
-    for conf in arch.configurations.values():
-        placed.update(conf.modules)
-    for path, f in _fault_targets(arch):
-        if not refers(ctx, f.module, (*path, "module")):
-            continue
-        if f.module not in placed:
-            ctx.add("error", "fault",
-                    f"'{f.module}' is in no configuration, so the fault would never act; aim it "
-                    "at a module of a configuration (or add the module to one)",
-                    (*path, "module"))
-            continue
-        cls = ctx.types.get(f.module)
-        if cls is None:
-            continue
-        if f.kind not in cls.fault_kinds:
-            can = ", ".join(sorted(cls.fault_kinds)) or "no faults"
-            ctx.add("error", "fault",
-                    f"'{f.module}' ({arch.modules[f.module].type}) cannot take fault kind "
-                    f"'{f.kind}' "
-                    f"(it takes: {can})", (*path, "kind"))
-        if f.signal is not None and cls.outputs and f.signal not in cls.outputs:
-            ctx.add("error", "fault",
-                    f"'{f.module}' has no output '{f.signal}' "
-                    f"(it outputs: {', '.join(cls.outputs)})",
-                    (*path, "signal"))
-        duration = arch.scenarios[path[1]].duration_s  # type: ignore[index]
-        if f.onset_s >= duration:
-            ctx.add("warning", "fault",
-                    f"onset {f.onset_s:g} s is after the end of the scenario ({duration:g} s)",
-                    (*path, "onset_s"))
+    placed = {m for conf in arch.configurations.values() for m in conf.modules}
+    for sname, sc in arch.scenarios.items():
+        for i, f in enumerate(sc.faults):
+            path: Path_ = ("scenarios", sname, "faults", i)
+            if not refers(ctx, f.module, (*path, "module")):
+                continue
+            if f.module not in placed:
+                ctx.add("error", "fault",
+                        f"'{f.module}' is in no configuration, so the fault would never act; "
+                        "aim it at a module of a configuration (or add the module to one)",
+                        (*path, "module"))
+                continue
+            cls = ctx.types.get(f.module)
+            if cls is None:
+                continue
+            if f.kind not in cls.fault_kinds:
+                can = ", ".join(sorted(cls.fault_kinds)) or "no faults"
+                ctx.add("error", "fault",
+                        f"'{f.module}' ({arch.modules[f.module].type}) cannot take fault kind "
+                        f"'{f.kind}' (it takes: {can})", (*path, "kind"))
+            if f.signal is not None and cls.outputs and f.signal not in cls.outputs:
+                ctx.add("error", "fault",
+                        f"'{f.module}' has no output '{f.signal}' "
+                        f"(it outputs: {', '.join(cls.outputs)})", (*path, "signal"))
+            if f.onset_s >= sc.duration_s:
+                ctx.add("warning", "fault",
+                        f"onset {f.onset_s:g} s is after the end of the scenario "
+                        f"({sc.duration_s:g} s)", (*path, "onset_s"))
 
 
 def check_work(ctx: Context) -> None:

@@ -63,12 +63,11 @@ def format_reference() -> str:
         req = set(s.get("required", []))
         props = []
         for pname, p in s["properties"].items():
-            default = p.get("default")
             props.append({
                 "name": pname,
                 "type": _cell(_type(p)),
                 "required": pname in req,
-                "default": "" if "default" not in p else _cell(f"`{json.dumps(default)}`"),
+                "default": _cell(f"`{json.dumps(p['default'])}`") if "default" in p else "",
                 "description": _cell(p.get("description", "")),
             })
         title = "Architecture (top level)" if name == "Architecture" else name

@@ -33,6 +33,7 @@ import io
 import json
 from typing import Any
 
+from archself.check_graph import active_edges
 from archself.model import Architecture
 
 __all__ = ["FORMATS", "architecture_graph", "edges_csv", "export", "ros2_modes"]
@@ -42,12 +43,11 @@ FORMATS = ("graphml", "node-link", "edges-csv", "ros2-modes")
 DEFAULT_MODE = "__DEFAULT__"  #: the system_modes name of a part's default mode
 
 
-def _active_edges(arch: Architecture, conf: str) -> set[int]:
-    c = arch.configurations[conf]
-    active = set(c.modules)
-    off = {tuple(p) for p in c.disabled_edges}
-    return {i for i, e in enumerate(arch.edges)
-            if e.source in active and e.target in active and (e.source, e.target) not in off}
+def _active_in(arch: Architecture) -> list[str]:
+    """Per edge, the configurations it is active in (space-separated names)."""
+    active = {c: {i for i, _ in active_edges(arch, c)} for c in arch.configurations}
+    return [" ".join(c for c in arch.configurations if i in active[c])
+            for i in range(len(arch.edges))]
 
 
 def architecture_graph(arch: Architecture) -> Any:
@@ -63,16 +63,12 @@ def architecture_graph(arch: Architecture) -> Any:
     g = nx.DiGraph(name=arch.name, initial=arch.initial_configuration())
     members = {c: set(conf.modules) for c, conf in arch.configurations.items()}
     for name, mod in arch.modules.items():
-        attrs: dict[str, Any] = {"kind": mod.kind, "type": mod.type,
-                                 "description": mod.description or ""}
-        for c, mods in members.items():
-            attrs[f"in_{c}"] = name in mods
-        g.add_node(name, **attrs)
-    active = {c: _active_edges(arch, c) for c in arch.configurations}
-    for i, e in enumerate(arch.edges):
+        g.add_node(name, kind=mod.kind, type=mod.type, description=mod.description or "",
+                   **{f"in_{c}": name in mods for c, mods in members.items()})
+    for e, active_in in zip(arch.edges, _active_in(arch), strict=True):
         g.add_edge(e.source, e.target, weight=float(e.weight), carries=e.carries,
                    latency_s=float(e.latency_s), uncertainty=float(e.uncertainty),
-                   active_in=" ".join(c for c in arch.configurations if i in active[c]))
+                   active_in=active_in)
     return g
 
 
@@ -92,10 +88,9 @@ def edges_csv(arch: Architecture) -> str:
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(["source", "target", "weight", "carries", "latency_s", "uncertainty", "active_in"])
-    active = {c: _active_edges(arch, c) for c in arch.configurations}
-    for i, e in enumerate(arch.edges):
+    for e, active_in in zip(arch.edges, _active_in(arch), strict=True):
         w.writerow([e.source, e.target, e.weight, e.carries, e.latency_s, e.uncertainty,
-                    " ".join(c for c in arch.configurations if i in active[c])])
+                    active_in])
     return out.getvalue()
 
 

@@ -10,7 +10,7 @@ The work is split by job:
   returns a :class:`Loaded` (model, data, positions) or raises :class:`SchemaError`.
 
 The names of those modules that other code uses (``load_data``, ``read_text``,
-``SourceMap``, ``dotted``, ``Path_``, ``MAX_FILE_BYTES``, ``schema_findings``) are
+``SourceMap``, ``dotted``, ``MAX_FILE_BYTES``, ``schema_findings``) are
 importable from here too.
 
 Examples
@@ -25,7 +25,9 @@ x.yaml:2:1: error: nmae: unknown key 'nmae'; did you mean 'name'?
 
 from __future__ import annotations
 
+import contextlib
 import gc
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,12 +38,8 @@ from archself.schema_messages import schema_findings
 from archself.yaml_nodes import Converter as _Converter  # noqa: F401 (bench/test_bench_cli.py)
 from archself.yaml_nodes import parse as _parse  # noqa: F401 (bench/test_bench_cli.py)
 from archself.yaml_source import (
-    MAX_ALIASES,
-    MAX_DEPTH,
     MAX_FILE_BYTES,
-    MAX_NODES,
     MAX_YAML_BYTES,
-    Path_,
     SourceMap,
     dotted,
     load_data,
@@ -49,13 +47,9 @@ from archself.yaml_source import (
 )
 
 __all__ = [
-    "MAX_ALIASES",
-    "MAX_DEPTH",
     "MAX_FILE_BYTES",
-    "MAX_NODES",
     "MAX_YAML_BYTES",
     "Loaded",
-    "Path_",
     "SchemaError",
     "SourceMap",
     "dotted",
@@ -65,6 +59,25 @@ __all__ = [
     "read_text",
     "schema_findings",
 ]
+
+
+@contextlib.contextmanager
+def gc_paused() -> Iterator[None]:
+    """Pause the cyclic garbage collector while the block runs (restored after).
+
+    Reading and validating a file, and checking it, make many small objects and none
+    in a reference cycle (10^5 modules are some 10^6): each burst of allocations made
+    the collector walk every one of them again (3.1 of the model's 4.2 s of CPU at
+    10^5 modules; :func:`archself.linear.gc_paused` does the same for the closed
+    loop). Reference counting frees everything as before.
+    """
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 class SchemaError(LoadError):
@@ -103,23 +116,14 @@ def load_text(text: str, file: str = "<input>") -> Loaded:
 
     from archself.model import Architecture
 
-    # The cyclic garbage collector is paused while the file is read and validated: 10^5
-    # modules are some 10^6 small objects, none in a reference cycle, and each burst of
-    # allocations made the collector walk every one of them again (3.1 of the model's
-    # 4.2 s of CPU at 10^5 modules; archself.linear.gc_paused does the same for the
-    # closed loop). Reference counting frees everything as before.
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        data, src = load_data(text, file)
-        arch = Architecture.model_validate(data)
-    except ValidationError as exc:
-        raise SchemaError(schema_findings(data, exc, src)) from None
-    except RecursionError:
-        raise LoadError("document nested too deeply", file) from None
-    finally:
-        if was:
-            gc.enable()
+    with gc_paused():
+        try:
+            data, src = load_data(text, file)
+            arch = Architecture.model_validate(data)
+        except ValidationError as exc:
+            raise SchemaError(schema_findings(data, exc, src)) from None
+        except RecursionError:
+            raise LoadError("document nested too deeply", file) from None
     return Loaded(arch, src, data)
 
 

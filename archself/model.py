@@ -38,7 +38,6 @@ from archself.model_runtime import (
     Stability,
 )
 from archself.model_values import (
-    FORMAT_VERSION,
     MAX_HORIZON_STEPS,
     MAX_MAGNITUDE,
     MAX_PARAM_NUMBERS,
@@ -61,7 +60,7 @@ if TYPE_CHECKING:
     from archself.ports import EdgePorts
 
 __all__ = [
-    "FORMAT_VERSION", "MAX_HORIZON_STEPS", "MAX_MAGNITUDE", "MAX_PARAM_NUMBERS", "MAX_STEP_S",
+    "MAX_HORIZON_STEPS", "MAX_MAGNITUDE", "MAX_PARAM_NUMBERS", "MAX_STEP_S",
     "MAX_TIME_S", "MIN_SCALE", "MIN_STEP_S", "Finite", "Name", "NonNeg", "ParamValue",
     "Positive", "PositiveSeconds", "Scale", "Seconds", "StrictModel",
     "Parameter", "Residual", "ModuleConstraints", "Module", "Edge", "Configuration",
@@ -369,7 +368,5 @@ class Architecture(StrictModel):
 
     def initial_configuration(self) -> str:
         """Name of the configuration marked ``initial`` (else the first one)."""
-        for name, conf in self.configurations.items():
-            if conf.initial:
-                return name
-        return next(iter(self.configurations))
+        return next((name for name, conf in self.configurations.items() if conf.initial),
+                    next(iter(self.configurations)))

@@ -179,7 +179,7 @@ class Runtime(StrictModel):
 
     @model_validator(mode="after")
     def _one_selector(self) -> Runtime:
-        chosen = [k for k in ("threshold", "top_k", "hysteresis") if getattr(self, k) is not None]
+        chosen = [k for k in _SELECTORS if getattr(self, k) is not None]
         if len(chosen) != 1:
             raise ValueError("give exactly one of threshold, top_k or hysteresis")
         return self

@@ -11,8 +11,6 @@ from typing import Annotated, Any, Union
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-FORMAT_VERSION = 1
-
 #: No number of a file is larger in magnitude (in its SI unit): 1e9 m is 2.6 times the
 #: distance to the Moon, 1e9 s 31 years. A backstop for quantities without a tighter range:
 #: it keeps squares and sums of file values far from float overflow (1e308).

@@ -58,10 +58,7 @@ def file_kind(mode: int) -> str | None:
     >>> file_kind(stat.S_IFIFO), file_kind(stat.S_IFREG)
     ('a FIFO (named pipe)', None)
     """
-    for test, kind in _KINDS:
-        if test(mode):
-            return kind
-    return None
+    return next((kind for test, kind in _KINDS if test(mode)), None)
 
 
 def check_input(path: str | Path, what: str = "file") -> None:

@@ -43,12 +43,8 @@ def module_types(installed: bool = True) -> list[str]:
     """
     from archself.registry import _points
 
-    out = set()
-    for name, ep in _points().items():
-        dist = getattr(ep, "dist", None)
-        if installed or (dist is not None and dist.name == BUILTIN_DIST):
-            out.add(name)
-    return sorted(out)
+    return sorted(name for name, ep in _points().items()
+                  if installed or getattr(ep.dist, "name", None) == BUILTIN_DIST)
 
 
 @cache

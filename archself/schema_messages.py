@@ -98,6 +98,9 @@ _EXPECT = {
     "finite_number": "a finite number",
 }
 
+_COMPARE = {"greater_than": ">", "greater_than_equal": "≥", "less_than": "<",
+            "less_than_equal": "≤"}
+
 
 @functools.cache
 def _bound_reasons() -> dict[float, str]:
@@ -112,7 +115,7 @@ def _bound_reasons() -> dict[float, str]:
     }
 
 
-def _message(err: dict[str, Any], value: Any, schema: dict[str, Any], parent: Path_) -> str:
+def _message(err: dict[str, Any], value: Any) -> str:
     typ = err["type"]
     ctx = err.get("ctx", {}) or {}
     if typ in _EXPECT:
@@ -126,18 +129,16 @@ def _message(err: dict[str, Any], value: Any, schema: dict[str, Any], parent: Pa
             if close:
                 hint = f"; did you mean '{close[0]}'?"
         return f"expected {exp}, got {describe(value)}{hint}"
-    if typ in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
-        sym = {"greater_than": ">", "greater_than_equal": "≥", "less_than": "<",
-               "less_than_equal": "≤"}[typ]
+    if typ in _COMPARE:
         bound = next(iter(ctx.values()), "?")
         why = ""
         if isinstance(bound, float) and not bound.is_integer() or (
                 isinstance(bound, (int, float)) and abs(bound) >= 1e5):
             why = _bound_reasons().get(float(bound), "")
             bound = f"{bound:g}"
-        return f"expected a number {sym} {bound}{why}, got {describe(value)}"
+        return f"expected a number {_COMPARE[typ]} {bound}{why}, got {describe(value)}"
     if typ in ("too_short", "too_long"):
-        return f"{err['msg'].lower()}"
+        return str(err["msg"]).lower()
     if typ == "string_pattern_mismatch":
         return f"expected a name without control characters, got {describe(value)}"
     if typ == "string_too_short":
@@ -175,40 +176,38 @@ def schema_findings(data: dict[str, Any], exc: Any, src: SourceMap) -> list[Find
 
     findings: list[Finding] = []
     for (path, absent_key), errs in grouped.items():
-        if absent_key is not None:
-            err = errs[0]
-            if err["type"] == "extra_forbidden":
-                allowed = _schema_keys(schema, path)
-                close = difflib.get_close_matches(absent_key, sorted(allowed), n=1)
-                hint = f"; did you mean '{close[0]}'?" if close else ""
-                if not close and allowed:
-                    hint = "; expected one of: " + ", ".join(sorted(allowed))
-                msg = f"unknown key '{absent_key}'{hint}"
-                line, col = src.locate((*path, absent_key))
-                findings.append(Finding("error", "schema", msg, dotted((*path, absent_key)),
-                                        src.file, line, col))
-            else:
-                msg = f"missing required key '{absent_key}'"
-                line, col = src.locate(path)
-                findings.append(Finding("error", "schema", msg, dotted(path), src.file, line, col))
-            continue
-        value = _value_at(data, path)
-        if len(errs) == 1:
-            msg = _message(errs[0], value, schema, path)
+        where, at_key = path, True  # located at the key, except a wrong value
+        if absent_key is not None and errs[0]["type"] == "extra_forbidden":
+            allowed = sorted(_schema_keys(schema, path))
+            close = difflib.get_close_matches(absent_key, allowed, n=1)
+            hint = f"; did you mean '{close[0]}'?" if close else ""
+            if not close and allowed:
+                hint = "; expected one of: " + ", ".join(allowed)
+            msg = f"unknown key '{absent_key}'{hint}"
+            where = (*path, absent_key)
+        elif absent_key is not None:
+            msg = f"missing required key '{absent_key}'"
         else:
-            # a union: every member failed. Prefer a member error deeper than a type mismatch.
-            exp = sorted({_EXPECT.get(e["type"], "") for e in errs} - {""})
-            specific = [e for e in errs if e["type"] not in _EXPECT]
-            if isinstance(value, float) and not math.isfinite(value):
-                msg = f"expected a finite number, got {describe(value)}"
-            elif specific:
-                msg = _message(specific[0], value, schema, path)
-            else:
-                msg = f"expected {' or '.join(exp)}, got {describe(value)}"
-        line, col = src.locate(path, key=False)
-        findings.append(Finding("error", "schema", msg, dotted(path), src.file, line, col))
+            msg, at_key = _value_message(data, path, errs), False
+        line, col = src.locate(where, key=at_key)
+        findings.append(Finding("error", "schema", msg, dotted(where), src.file, line, col))
     findings.sort(key=lambda f: (f.line or 0, f.col or 0))
     return findings
+
+
+def _value_message(data: Any, path: Path_, errs: list[dict[str, Any]]) -> str:
+    """The message of the errors of one value (the members of a union folded into one)."""
+    _, value, _ = _data_path(data, path)
+    if len(errs) == 1:
+        return _message(errs[0], value)
+    # a union: every member failed. Prefer a member error deeper than a type mismatch.
+    specific = [e for e in errs if e["type"] not in _EXPECT]
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"expected a finite number, got {describe(value)}"
+    if specific:
+        return _message(specific[0], value)
+    exp = sorted({_EXPECT[e["type"]] for e in errs})
+    return f"expected {' or '.join(exp)}, got {describe(value)}"
 
 
 def _union_tag_index(data: Any, loc: tuple[Any, ...]) -> int | None:
@@ -235,28 +234,17 @@ def _deepest_union_branches(data: Any, errors: list[dict[str, Any]]) -> list[dic
     coordinate under ``list[list[float]]``. The member whose error lies deepest is the
     one the value was meant to be; its errors alone are reported.
     """
-    tags: list[int | None] = [_union_tag_index(data, tuple(e["loc"])) for e in errors]
+    tagged = []
+    for e in errors:
+        loc = tuple(e["loc"])
+        tagged.append((e, loc, _union_tag_index(data, loc)))
     best: dict[tuple[Any, ...], int] = {}
-    for e, i in zip(errors, tags, strict=True):
+    for _, loc, i in tagged:
         if i is not None:
-            loc = tuple(e["loc"])
             best[loc[:i]] = max(best.get(loc[:i], 0), len(loc) - i - 1)
     keep_branch: dict[tuple[Any, ...], set[Any]] = {}
-    for e, i in zip(errors, tags, strict=True):
-        if i is not None:
-            loc = tuple(e["loc"])
-            if len(loc) - i - 1 == best[loc[:i]]:
-                keep_branch.setdefault(loc[:i], set()).add(loc[i])
-    out = []
-    for e, i in zip(errors, tags, strict=True):
-        loc = tuple(e["loc"])
-        if i is None or best[loc[:i]] == 0 or loc[i] in keep_branch[loc[:i]]:
-            out.append(e)
-    return out
-
-
-def _value_at(data: Any, path: Path_) -> Any:
-    cur = data
-    for p in path:
-        cur = cur[p]
-    return cur
+    for _, loc, i in tagged:
+        if i is not None and len(loc) - i - 1 == best[loc[:i]]:
+            keep_branch.setdefault(loc[:i], set()).add(loc[i])
+    return [e for e, loc, i in tagged
+            if i is None or best[loc[:i]] == 0 or loc[i] in keep_branch[loc[:i]]]

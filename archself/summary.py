@@ -14,6 +14,7 @@ diffdrive: 15 modules (6 physical, 6 functional, 3 model),
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Any
 
 from archself.model import Architecture
@@ -24,9 +25,8 @@ __all__ = ["summarize", "summary_text"]
 def summarize(arch: Architecture) -> dict[str, Any]:
     """A JSON-ready summary: counts, modules, configurations, actions, scenarios, runtime."""
     rt = arch.runtime
-    selector = ("threshold", rt.threshold) if rt.threshold is not None else (
-        ("top_k", rt.top_k) if rt.top_k is not None else
-        ("hysteresis", rt.hysteresis.model_dump() if rt.hysteresis else None))
+    chosen = next(k for k in ("threshold", "top_k", "hysteresis") if getattr(rt, k) is not None)
+    value = rt.hysteresis.model_dump() if rt.hysteresis else getattr(rt, chosen)
     initial = arch.initial_configuration()
     return {
         "name": arch.name,
@@ -47,9 +47,9 @@ def summarize(arch: Architecture) -> dict[str, Any]:
                        "faults": [f"{f.kind} on {f.module} at {f.onset_s:g} s" for f in s.faults]}
                       for n, s in arch.scenarios.items()],
         # one shape whatever the selector: the two not chosen are null
-        "runtime": {"step_s": rt.step_s, "period_s": rt.period_s, "selector": selector[0],
+        "runtime": {"step_s": rt.step_s, "period_s": rt.period_s, "selector": chosen,
                     "threshold": None, "top_k": None, "hysteresis": None,
-                    selector[0]: selector[1], "warmup_steps": rt.warmup_steps,
+                    chosen: value, "warmup_steps": rt.warmup_steps,
                     "dwell_s": rt.dwell_s, "objective": rt.objective.model_dump()},
     }
 
@@ -57,9 +57,7 @@ def summarize(arch: Architecture) -> dict[str, Any]:
 def summary_text(s: dict[str, Any]) -> str:
     """The summary as a few aligned lines for a terminal."""
     c = s["counts"]
-    kinds: dict[str, int] = {}
-    for m in s["modules"]:
-        kinds[m["kind"]] = kinds.get(m["kind"], 0) + 1
+    kinds = Counter(m["kind"] for m in s["modules"])
     by_kind = ", ".join(f"{v} {k}" for k, v in kinds.items())
     lines = [f"{s['name']}: {c['modules']} modules ({by_kind}), {c['edges']} edges, "
              f"{c['configurations']} configurations, {c['actions']} actions, "

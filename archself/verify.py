@@ -104,7 +104,6 @@ def verify_stability(arch: Architecture) -> Iterator[Unstable]:
             try:
                 verdict = _judge(_compiled(arch, name), name, margin)
             except Exception as exc:  # noqa: BLE001 - any failure leaves it unverified
-                verdicts[name] = None
                 yield Unstable(path, f"configuration '{name}': stability not verified: "
                                      f"{_why(exc)}")
                 continue
@@ -119,8 +118,7 @@ def verify_stability(arch: Architecture) -> Iterator[Unstable]:
                                    f"action '{a.id}' leads to configuration '{a.to}', which is "
                                    f"not stable: {verdict[1]}")
                 continue
-            confs = a.applies_in or list(arch.configurations)
-            for name in confs:
+            for name in a.applies_in or list(arch.configurations):
                 conf = arch.configurations.get(name)
                 if conf is None or a.module not in conf.modules:
                     continue

@@ -37,7 +37,6 @@ def is_scalar(node: Any) -> bool:
     return isinstance(node, ScalarNode)
 
 
-
 _PLAIN_TAG = "tag:archself,2026:plain"
 _PLAIN: Any = None
 
@@ -109,8 +108,6 @@ _FLOAT = re.compile(
 def scalar(node: Any, file: str) -> Any:
     """Resolve a scalar node by the YAML 1.2 core schema (explicit tags honoured)."""
     tag, v = node.tag, node.value
-    if tag == _TAG + "str":
-        return v
     if tag == _PLAIN_TAG:
         tag = (
             _TAG + "null" if _NULL.match(v) else
@@ -125,20 +122,11 @@ def scalar(node: Any, file: str) -> Any:
     if tag == _TAG + "bool" and _BOOL.match(v):
         return v.lower() == "true"
     if tag == _TAG + "int" and _INT.match(v):
-        if v.startswith("0o"):
-            return int(v[2:], 8)
-        if v.startswith("0x"):
-            return int(v[2:], 16)
-        return int(v)
+        return int(v, 0) if v.startswith(("0o", "0x")) else int(v)
     if tag == _TAG + "float" and (_FLOAT.match(v) or _INT.match(v)):
-        low = v.lower().lstrip("+")
-        if low in (".inf", "-.inf"):
-            return float("-inf") if low.startswith("-") else float("inf")
-        if low == ".nan":
-            return float("nan")
-        return float(v)
-    m = node.start_mark
-    raise LoadError(f"unsupported YAML tag {tag!r} for {v!r}", file, m.line + 1, m.column + 1)
+        # .inf, -.inf, .nan (any case) are Python's inf, -inf, nan without the dot
+        return float(v.replace(".", "", 1) if v.lower().endswith((".inf", ".nan")) else v)
+    raise LoadError(f"unsupported YAML tag {tag!r} for {v!r}", file, *mark(node))
 
 
 class Converter:
@@ -169,10 +157,10 @@ class Converter:
         cls = type(node)
         if depth > MAX_DEPTH:
             raise self._error(f"nesting deeper than {MAX_DEPTH} levels", node)
+        self.nodes += 1
+        if self.nodes > MAX_NODES:
+            raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.file)
         if cls is self._scalar_t or isinstance(node, self._scalar_t):
-            self.nodes += 1
-            if self.nodes > MAX_NODES:
-                raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.file)
             ctag = node.ctag
             if ctag is _PLAIN:
                 v = node.value
@@ -184,9 +172,6 @@ class Converter:
             if ctag is self._str_tag:
                 return node.value
             return scalar(node, self.file)
-        self.nodes += 1
-        if self.nodes > MAX_NODES:
-            raise LoadError(f"document expands to more than {MAX_NODES} nodes", self.file)
         if id(node) in self.seen:
             self.aliases += 1
             if self.aliases > MAX_ALIASES:

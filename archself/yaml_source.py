@@ -24,7 +24,7 @@ it is opened for reading (a FIFO would block the reader forever).
 :mod:`archself.loader` builds the architecture model on top of this module;
 :mod:`archself.schema_messages` turns schema violations into located findings. The
 node graph and its conversion are in :mod:`archself.yaml_nodes`, reading a file in
-:mod:`archself.file_text`; their caps and ``read_text`` are re-exported here.
+:mod:`archself.file_text` (``read_text`` and its cap are re-exported here).
 
 Examples
 --------
@@ -47,19 +47,10 @@ from typing import Any
 
 from archself.errors import LoadError
 from archself.file_text import MAX_FILE_BYTES, read_text
-from archself.yaml_nodes import (
-    MAX_ALIASES,
-    MAX_DEPTH,
-    MAX_NODES,
-    Converter,
-    is_scalar,
-    mark,
-    parse,
-    scalar,
-)
+from archself.yaml_nodes import Converter, is_scalar, mark, parse, scalar
 
-__all__ = ["MAX_ALIASES", "MAX_DEPTH", "MAX_FILE_BYTES", "MAX_NODES", "MAX_YAML_BYTES", "Path_",
-           "SourceMap", "describe", "dotted", "load_data", "read_text"]
+__all__ = ["MAX_FILE_BYTES", "MAX_YAML_BYTES", "Path_", "SourceMap", "describe", "dotted",
+           "load_data", "read_text"]
 
 #: YAML that is not JSON (libyaml through Python: about 1 MB/s on a slow machine).
 MAX_YAML_BYTES = 8 * 1024 * 1024
@@ -72,16 +63,13 @@ _PLAIN_KEY = re.compile(r"^[A-Za-z_$][A-Za-z0-9_$-]*$")
 class SourceMap:
     """Positions (1-based line, column) of the nodes of a loaded file.
 
-    ``keys`` and ``values`` map a data path to the position of a mapping key (or
-    sequence item) and of its value. A map made by :func:`load_data` holds the
-    composed YAML node graph instead and finds positions in it on demand, so
-    loading a large file records nothing on the happy path; explicit entries in
-    ``keys``/``values`` take precedence.
+    A map made by :func:`load_data` holds the composed YAML node graph (``root``),
+    or the text of a JSON document to compose when a position is first asked for,
+    and finds positions in it on demand, so loading a large file records nothing on
+    the happy path. A map of neither locates everything at the document (1, 1).
     """
 
     file: str
-    keys: dict[Path_, tuple[int, int]] = field(default_factory=dict)
-    values: dict[Path_, tuple[int, int]] = field(default_factory=dict)
     root: Any = field(default=None, repr=False, compare=False)
     text: str | None = field(default=None, repr=False, compare=False)
     _index: dict[int, dict[Any, tuple[Any, Any]]] = field(
@@ -90,24 +78,16 @@ class SourceMap:
 
     def locate(self, path: Path_, *, key: bool = True) -> tuple[int | None, int | None]:
         """Position of ``path``: the key (or value), else the nearest enclosing node."""
-        p = tuple(path)
         if self.root is None and self.text is not None:  # a JSON document: compose on demand
             try:
                 self.root = parse(self.text, self.file)
             except LoadError:
                 self.text = None
-        found = self._walk(p) if self.root is not None else []
-        while True:
-            table = (self.keys, self.values) if key else (self.values, self.keys)
-            for t in table:
-                if p in t:
-                    return t[p]
-            if p and len(p) <= len(found):
-                kpos, vpos = found[len(p) - 1]
-                return kpos if key else vpos
-            if not p:
-                return (1, 1)  # the document itself
-            p = p[:-1]
+        found = self._walk(tuple(path)) if self.root is not None else []
+        if not found:
+            return (1, 1)  # the document itself
+        kpos, vpos = found[-1]  # the longest prefix of path in the document
+        return kpos if key else vpos
 
     def _walk(self, path: Path_) -> list[tuple[tuple[int, int], tuple[int, int]]]:
         """(key, value) positions of the longest prefix of ``path`` in the node graph."""
@@ -146,7 +126,6 @@ class SourceMap:
         return out
 
 
-
 def dotted(path: Path_) -> str:
     """``('edges', 3, 'from')`` → ``edges[3].from``."""
     out = ""
@@ -158,7 +137,6 @@ def dotted(path: Path_) -> str:
         else:
             out += "[" + json.dumps(str(p), ensure_ascii=False) + "]"
     return out
-
 
 
 _COMMENT_LINE = re.compile(r"^[ \t]*#[^\n]*", re.M)
@@ -186,8 +164,6 @@ def _json_document(text: str, file: str) -> Any:
     speed. A document that starts like JSON but is over :data:`MAX_YAML_BYTES` and
     not JSON gets the JSON parser's located error (YAML would be refused by size).
     """
-    import json
-
     body = _COMMENT_LINE.sub("", text) if "#" in text else text
     if not body.lstrip().startswith("{"):
         raise _NotJson("not an object")
@@ -216,9 +192,8 @@ def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceM
         return data, SourceMap(file, text=text)
     if size > MAX_YAML_BYTES:
         cut = text.encode("utf-8", "surrogatepass")[:MAX_YAML_BYTES].decode("utf-8", "ignore")
-        line = cut.count("\n") + 1
-        col = len(cut) - (cut.rfind("\n") + 1) + 1
         start = cut.rfind("\n") + 1
+        line, col = cut.count("\n") + 1, len(cut) - start + 1
         head = text[start:start + 200].split("\n", 1)[0].strip()
         head = head if len(head) <= 30 else head[:27] + "..."
         raise LoadError(
@@ -228,21 +203,13 @@ def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceM
             f"(YAML 1.2 includes JSON; up to {MAX_FILE_BYTES // 2**20} MiB), as `archself "
             "generate` does", file, line, col)
     node = parse(text, file)
-    src = SourceMap(file, root=node)
     if node is None:
-        raise LoadError(
-            "file is empty; expected a mapping with keys archself, name, modules, "
-            "configurations, runtime",
-            file,
-            1,
-            1,
-        )
+        raise LoadError("file is empty; expected a mapping with keys archself, name, modules, "
+                        "configurations, runtime", file, 1, 1)
     data = Converter(file).convert(node)
     if not isinstance(data, dict):
-        raise LoadError(
-            f"expected a mapping at the top level, got {describe(data)}", file, 1, 1
-        )
-    return data, src
+        raise LoadError(f"expected a mapping at the top level, got {describe(data)}", file, 1, 1)
+    return data, SourceMap(file, root=node)
 
 
 def describe(v: Any) -> str:
