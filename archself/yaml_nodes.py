@@ -123,6 +123,11 @@ def scalar(node: Any, file: str) -> Any:
         return v.lower() == "true"
     if tag == _TAG + "int" and _INT.match(v):
         return int(v, 0) if v.startswith(("0o", "0x")) else int(v)
+    if tag == _TAG + "float" and v.startswith(("0o", "0x")) and _INT.match(v):
+        try:
+            return float(int(v, 0))
+        except OverflowError:
+            raise LoadError(f"{v} is out of the range of a float", file, *mark(node)) from None
     if tag == _TAG + "float" and (_FLOAT.match(v) or _INT.match(v)):
         # .inf, -.inf, .nan (any case) are Python's inf, -inf, nan without the dot
         return float(v.replace(".", "", 1) if v.lower().endswith((".inf", ".nan")) else v)

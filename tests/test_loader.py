@@ -120,6 +120,14 @@ def test_explicit_core_tags_are_honoured() -> None:
     assert data == {"a": "5", "b": 1.0, "c": "1", "d": "1_000"}
 
 
+def test_float_tag_on_hex_and_octal_is_the_number_or_a_located_error() -> None:
+    data, _ = load_data("a: !!float 0x1F\nb: !!float 0o17\n")
+    assert data == {"a": 31.0, "b": 15.0} and isinstance(data["a"], float)
+    with pytest.raises(LoadError, match="out of the range of a float") as info:
+        load_data("a: !!float 0x" + "F" * 300 + "\n", "t.yaml")
+    assert str(info.value).startswith("t.yaml:1:4:")
+
+
 def test_diffdrive_loads_with_positions() -> None:
     loaded = load_architecture(DIFFDRIVE)
     assert loaded.arch.name == "diffdrive"
