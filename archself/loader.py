@@ -35,8 +35,6 @@ from typing import Any
 from archself.errors import LoadError
 from archself.findings import Finding
 from archself.schema_messages import schema_findings
-from archself.yaml_nodes import Converter as _Converter  # noqa: F401 (bench/test_bench_cli.py)
-from archself.yaml_nodes import parse as _parse  # noqa: F401 (bench/test_bench_cli.py)
 from archself.yaml_source import (
     MAX_FILE_BYTES,
     MAX_YAML_BYTES,
