@@ -28,13 +28,10 @@ def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
     import os
     import stat
 
+    from archself.outputs import stat_input
+
     file = str(path)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise LoadError("no such file", file) from None
-    except OSError as exc:
-        raise LoadError(f"cannot read: {exc.strerror}", file) from None
+    st = stat_input(path)
     if stat.S_ISDIR(st.st_mode):
         raise LoadError("is a directory, expected an architecture file", file)
     if not stat.S_ISREG(st.st_mode):

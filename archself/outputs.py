@@ -39,6 +39,7 @@ __all__ = [
     "input_inside",
     "refuse_input_inside",
     "refuse_same_file",
+    "stat_input",
 ]
 
 _KINDS = (
@@ -71,16 +72,19 @@ def check_input(path: str | Path, what: str = "file") -> None:
     LoadError
         ``PATH: error: no such file`` or ``PATH: error: is a FIFO (named pipe), expected ...``.
     """
-    file = str(path)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise LoadError("no such file", file) from None
-    except OSError as exc:
-        raise LoadError(f"cannot read: {exc.strerror or exc}", file) from None
-    kind = file_kind(st.st_mode)
+    kind = file_kind(stat_input(path).st_mode)
     if kind is not None:
-        raise LoadError(f"is {kind}, expected {what}", file)
+        raise LoadError(f"is {kind}, expected {what}", str(path))
+
+
+def stat_input(path: str | Path) -> os.stat_result:
+    """``os.stat`` of an input; a missing or unreadable one is a :class:`LoadError`."""
+    try:
+        return os.stat(path)
+    except FileNotFoundError:
+        raise LoadError("no such file", str(path)) from None
+    except OSError as exc:
+        raise LoadError(f"cannot read: {exc.strerror or exc}", str(path)) from None
 
 
 def file_ids(path: str | Path) -> set[tuple[int, int]]:
