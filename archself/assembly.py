@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse
 
-from archself.closed_loop import Interconnection
 from archself.discrete import LinearizationError
 from archself.modules.base import LinearModel
 
@@ -87,13 +86,14 @@ def _blocks(
 
 def interconnect_sparse(
     disc: Mapping[str, LinearModel],
-    routes: Sequence[tuple[Wire, int]],
     offsets: tuple[dict[str, int], dict[str, int], dict[str, int]],
     sizes: tuple[int, int, int],
-    dt: float,
-) -> Interconnection:
-    """:func:`interconnect` of many states, with ``scipy.sparse`` matrices.
+    feedback: Sequence[tuple[int, int, int]],
+) -> scipy.sparse.csr_matrix:
+    """The closed-loop A of :func:`interconnect` for many states, as a ``scipy.sparse`` matrix.
 
+    ``disc`` are the discrete models at their state, input and output ``offsets``,
+    ``sizes`` the stacked widths (n, m, p) and ``feedback`` :func:`feedback_slices`.
     The block diagonals of A, B, C and D are assembled from arrays: the models are
     grouped by shape and each group's blocks are stacked and placed at once.
     """
@@ -102,15 +102,9 @@ def interconnect_sparse(
     xo, uo, yo = offsets
     n, m, p = sizes
     parts: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {k: [] for k in "ABCDK"}
-    owners: list[str] = []
-    labels: list[str] = []
-    ports = {}
     shapes: dict[tuple[int, ...], list[str]] = {}
     for name, mod in disc.items():
         shapes.setdefault(mod.B.shape + mod.C.shape[:1], []).append(name)
-        owners += [name] * mod.n
-        labels += [f"{name}.{s}" for s in mod.states]
-        ports[name] = port_offsets(mod)
     for names in shapes.values():
         x = np.array([xo[k] for k in names], dtype=np.intp)
         u = np.array([uo[k] for k in names], dtype=np.intp)
@@ -122,17 +116,16 @@ def interconnect_sparse(
         _blocks(parts["D"], [g.D for g in group], y, u)
     krows: list[int] = []
     kcols: list[int] = []
-    for r0, c0, size in feedback_slices(routes, ports, uo, yo):
+    for r0, c0, size in feedback:
         krows += range(r0, r0 + size)
         kcols += range(c0, c0 + size)
     k_at = (np.array(krows, dtype=np.intp), np.array(kcols, dtype=np.intp))
     parts["K"].append((*k_at, np.ones(len(krows))))
 
     def mat(key: str, shape: tuple[int, int]) -> scipy.sparse.csr_matrix:
-        got = parts[key]
-        rows = np.concatenate([g[0] for g in got]) if got else np.zeros(0, dtype=np.intp)
-        cols = np.concatenate([g[1] for g in got]) if got else np.zeros(0, dtype=np.intp)
-        vals = np.concatenate([g[2] for g in got]) if got else np.zeros(0)
+        if not parts[key]:
+            return scipy.sparse.csr_matrix(shape)
+        rows, cols, vals = (np.concatenate(g) for g in zip(*parts[key], strict=True))
         coo = (vals.astype(float), (rows.astype(np.intp), cols.astype(np.intp)))
         return scipy.sparse.csr_matrix(coo, shape=shape)  # duplicates add up, as += does
 
@@ -160,5 +153,4 @@ def interconnect_sparse(
             except RuntimeError:
                 raise LinearizationError("the wired models form an algebraic loop") from None
             Y = scipy.sparse.csr_matrix(lu.solve(C.toarray()))
-    closed = (A + B @ K @ Y).tocsr()
-    return Interconnection(closed, dt, owners, labels)
+    return (A + B @ K @ Y).tocsr()

@@ -72,13 +72,6 @@ class ClosedLoop:
             return None
         return block_diag(parts)
 
-    @property
-    def modules(self) -> list[str]:
-        """The modules that contribute states."""
-        seen = dict.fromkeys(self.loop.owners if self.loop is not None else [])
-        seen.update(dict.fromkeys(n for n, _ in self.blocks))
-        return list(seen)
-
     def worst_mode(self) -> tuple[float, float | None, list[tuple[str, float]]] | None:
         """``(max Re μ, |λ| or None, [(module, share), ...])`` of the least stable mode.
 
@@ -88,16 +81,17 @@ class ClosedLoop:
         states, largest first. None when there are no states.
         """
         best: tuple[float, float | None, list[tuple[str, float]]] | None = None
-        if self.loop is not None and scipy.sparse.issparse(self.loop.A):
-            best = _worst_sparse(self.loop)
-        elif self.loop is not None and self.loop.A.size:
-            lam, vec = np.linalg.eig(self.loop.A)
+        loop = self.loop
+        if loop is not None and loop.A.shape[0] and scipy.sparse.issparse(loop.A):
+            best = _worst_sparse(loop)
+        elif loop is not None and loop.A.shape[0]:  # dense
+            lam, vec = np.linalg.eig(loop.A)
             mag = np.maximum(np.abs(lam), LAMBDA_FLOOR)
             k = int(np.argmax(mag))
             best = (
-                math.log(mag[k]) / self.loop.dt,
+                math.log(mag[k]) / loop.dt,
                 float(np.abs(lam[k])),
-                _shares(np.abs(vec[:, k]) ** 2, self.loop.owners),
+                _shares(np.abs(vec[:, k]) ** 2, loop.owners),
             )
         for name, b in self.blocks:
             if not b.size:
@@ -108,8 +102,8 @@ class ClosedLoop:
         return best
 
 
-def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, float]]] | None:
-    """``worst_mode`` of a sparse loop: the largest |λ| of the strong components' blocks.
+def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, float]]]:
+    """``worst_mode`` of a sparse loop with states: the largest |λ| of its components' blocks.
 
     The shares are those of the eigenvector of the component's own block (the
     mode's states in that component; its echo in the components downstream is
@@ -118,8 +112,6 @@ def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, 
     from scipy.sparse.csgraph import connected_components
 
     A = scipy.sparse.csr_matrix(loop.A)
-    if not A.shape[0]:
-        return None
     _, labels = connected_components(A, directed=True, connection="strong")
     size = np.bincount(labels)
     diag = np.abs(A.diagonal())

@@ -21,21 +21,17 @@ Examples
 
 from __future__ import annotations
 
-from typing import Any
+from functools import partial
 
 from archself import registry
 from archself.errors import ArchselfError, CompileError, SimulationError
 from archself.model import Architecture, Scenario
 from archself.modules.base import RuntimeModule
 from archself.sim.faults import FaultInjector, default_signal
-from archself.system import LiveSystem, module_rng
+from archself.streams import module_rng
+from archself.system import LiveSystem
 
-__all__ = ["compile_system", "build_module", "nominal_params"]
-
-
-def nominal_params(arch: Architecture, name: str) -> dict[str, Any]:
-    """The nominal values of module ``name``'s parameters."""
-    return {k: p.value for k, p in arch.modules[name].params.items()}
+__all__ = ["compile_system", "build_module"]
 
 
 def build_module(arch: Architecture, name: str, seed: int) -> RuntimeModule:
@@ -53,35 +49,12 @@ def build_module(arch: Architecture, name: str, seed: int) -> RuntimeModule:
         raise CompileError(f"unknown module {name!r}")
     cls = registry.get(spec.type)
     try:
-        return cls(name, nominal_params(arch, name), module_rng(seed, name))
+        params = {k: p.value for k, p in spec.params.items()}  # the nominal values
+        return cls(name, params, module_rng(seed, name))
     except ArchselfError:
         raise
     except Exception as exc:
         raise CompileError(f"module {name!r} ({spec.type}) could not be built: {exc}") from exc
-
-
-class _Factory:
-    """Picklable/deep-copyable module factory bound to an architecture and a seed."""
-
-    def __init__(self, arch: Architecture, seed: int) -> None:
-        self.arch = arch
-        self.seed = seed
-
-    def __call__(self, name: str) -> RuntimeModule:
-        return build_module(self.arch, name, self.seed)
-
-    def __deepcopy__(self, memo: dict) -> _Factory:
-        return self
-
-
-def _resolve_scenario(arch: Architecture, scenario: str | Scenario | None) -> Scenario | None:
-    if scenario is None or isinstance(scenario, Scenario):
-        return scenario
-    try:
-        return arch.scenarios[scenario]
-    except KeyError:
-        known = ", ".join(arch.scenarios) or "none"
-        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}") from None
 
 
 def compile_system(
@@ -120,35 +93,37 @@ def compile_system(
     if configuration not in arch.configurations:
         known = ", ".join(arch.configurations)
         raise CompileError(f"unknown configuration {configuration!r}; known: {known}")
-    factory = _Factory(arch, int(seed))
-    sc = _resolve_scenario(arch, scenario)
+    factory = partial(build_module, arch, seed=int(seed))  # snapshots share it
+    sc = arch.scenarios.get(scenario) if isinstance(scenario, str) else scenario
+    if sc is None and scenario is not None:
+        known = ", ".join(arch.scenarios) or "none"
+        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}")
     faults: dict[str, list[tuple[str, FaultInjector]]] = {}
-    if sc is not None:
-        for i, f in enumerate(sc.faults):
-            if f.module not in arch.modules:
-                raise CompileError(f"fault {i} targets unknown module {f.module!r}")
-            cls = registry.get(arch.modules[f.module].type)
-            if f.kind not in cls.fault_kinds:
-                raise CompileError(
-                    f"fault {i}: module {f.module!r} ({cls.type_key}) does not take "
-                    f"{f.kind!r} faults (it takes: {', '.join(sorted(cls.fault_kinds)) or 'none'})"
-                )
-            probe = build_module(arch, f.module, seed)
-            signal = f.signal or default_signal(probe)
-            if signal is None or signal not in cls.outputs:
-                raise CompileError(
-                    f"fault {i}: module {f.module!r} has no output {signal!r} "
-                    f"(outputs: {', '.join(cls.outputs)})"
-                )
-            base = (getattr(probe, "noise_levels", None) or {}).get(signal)
-            inj = FaultInjector(
-                f.kind,
-                onset_s=f.onset_s,
-                magnitude=f.magnitude,
-                end_s=f.end_s,
-                signal=signal,
-                rng=module_rng(seed, f"fault:{f.module}:{i}"),
-                base_noise=base,
+    for i, f in enumerate(sc.faults if sc is not None else ()):
+        if f.module not in arch.modules:
+            raise CompileError(f"fault {i} targets unknown module {f.module!r}")
+        cls = registry.get(arch.modules[f.module].type)
+        if f.kind not in cls.fault_kinds:
+            raise CompileError(
+                f"fault {i}: module {f.module!r} ({cls.type_key}) does not take "
+                f"{f.kind!r} faults (it takes: {', '.join(sorted(cls.fault_kinds)) or 'none'})"
             )
-            faults.setdefault(f.module, []).append((signal, inj))
+        probe = build_module(arch, f.module, seed)
+        signal = f.signal or default_signal(probe)
+        if signal is None or signal not in cls.outputs:
+            raise CompileError(
+                f"fault {i}: module {f.module!r} has no output {signal!r} "
+                f"(outputs: {', '.join(cls.outputs)})"
+            )
+        base = (getattr(probe, "noise_levels", None) or {}).get(signal)
+        inj = FaultInjector(
+            f.kind,
+            onset_s=f.onset_s,
+            magnitude=f.magnitude,
+            end_s=f.end_s,
+            signal=signal,
+            rng=module_rng(seed, f"fault:{f.module}:{i}"),
+            base_noise=base,
+        )
+        faults.setdefault(f.module, []).append((signal, inj))
     return LiveSystem(arch, configuration, factory, seed=int(seed), faults=faults)

@@ -41,11 +41,8 @@ def algebraic_loop(flow: Sequence[tuple[str, str]]) -> list[str] | None:
     for s, t in flow:
         if s == t:
             return [s]
-    index: dict[str, int] = {}
-    for s, _ in flow:
-        index.setdefault(s, len(index))
-    for _, t in flow:
-        index.setdefault(t, len(index))
+    names = list(dict.fromkeys([s for s, _ in flow] + [t for _, t in flow]))  # sources first
+    index = {name: i for i, name in enumerate(names)}
     n = len(index)
     rows = [index[s] for s, _ in flow]
     cols = [index[t] for _, t in flow]
@@ -56,7 +53,6 @@ def algebraic_loop(flow: Sequence[tuple[str, str]]) -> list[str] | None:
     if ncomp == n:
         return None
     on_cycle = np.bincount(labels)[labels] > 1
-    names = list(index)
     start = names[int(np.flatnonzero(on_cycle)[0])]
     comp = labels[index[start]]
     succ: dict[str, list[str]] = {}

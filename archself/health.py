@@ -94,33 +94,27 @@ class Publishing:
             heard = True
         self.outputs[name] = out
         mod = self._pool[name]
-        levels = getattr(mod, "noise_levels", None)
         if heard:
             self._heard[name] = t
             if self._broken:
                 self._broken.discard(name)
-            if levels:
-                stale = self._count_repeats(name, levels, out)
-                if stale is not None:
-                    return stale
         elif name in self._broken:  # its last value was NaN: broken until a good one comes
             return "non-finite output"
         limit = getattr(mod, "max_silence_s", None)
-        if limit is not None:
+        if limit is not None:  # (quiet is 0 when heard now)
             quiet = t - self._heard.setdefault(name, t)
             if quiet > float(limit) + 1e-9:
                 return f"silent for {quiet:.3g} s"
-        if not heard and levels and self._repeats:
-            for sig in levels:
-                n = self._repeats.get((name, sig), 0)
-                if n >= STALE_REPEATS:
-                    return f"stale {sig} ({n + 1} identical values)"
-        return None
+        levels = getattr(mod, "noise_levels", None)
+        return self._count_repeats(name, levels, out) if levels else None
 
     def _count_repeats(
         self, name: str, levels: dict[str, float], out: dict[str, Any]
     ) -> str | None:
-        """Count bit-identical repeats of the noisy signals; the stale reason, or None."""
+        """Count bit-identical repeats of the noisy signals; the stale reason, or None.
+
+        A signal without a value this step keeps its count (and stays stale).
+        """
         last = self._last
         repeats = self._repeats
         reason = None

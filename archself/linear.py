@@ -136,12 +136,7 @@ def wiring(models: Mapping[str, LinearModel], wires: Sequence[Wire]) -> list[tup
     """
     into: dict[tuple[str, str], list[Wire]] = {}
     for w in wires:
-        key = (w.target, w.signal)
-        found = into.get(key)
-        if found is None:
-            into[key] = [w]
-        else:
-            found.append(w)
+        into.setdefault((w.target, w.signal), []).append(w)
     gives = {name: {o[0] for o in model.outputs} for name, model in models.items()}
     out = []
     for name, model in models.items():
@@ -221,7 +216,6 @@ def interconnect(
             raise LinearizationError(f"{name}: {exc}") from None
     # latency: a delay line between the two models, wired in place of the edge
     plain: list[Wire] = []
-    lines = False
     for w in wires:
         if w.delay > 0 and w.source in disc and w.target in disc:
             src = disc[w.source]
@@ -230,47 +224,44 @@ def interconnect(
                 line = f"{w.source}→{w.target}"
                 disc[line] = delay_line(w.signal, width, w.delay, dt)
                 plain += [Wire(w.source, line, w.signal), Wire(line, w.target, w.signal)]
-                lines = True
                 continue
         plain.append(w)
-    if routes is None or lines:
+    if routes is None or len(plain) > len(wires):  # not made, or delay lines added
         routes = wiring(disc, plain)
     else:  # made for these models or more: those between these models
         routes = [r for r in routes if r[0].source in disc and r[0].target in disc]
-    names = list(disc)
     xo, uo, yo = {}, {}, {}
     n = m = p = 0
-    for name in names:
-        mod = disc[name]
+    owners: list[str] = []
+    labels: list[str] = []
+    ports = {}
+    for name, mod in disc.items():
         xo[name], uo[name], yo[name] = n, m, p
         n, m, p = n + mod.n, m + mod.m, p + mod.p
+        owners += [name] * mod.n
+        labels += [f"{name}.{s}" for s in mod.states]
+        ports[name] = port_offsets(mod)
+    feedback = list(feedback_slices(routes, ports, uo, yo))
+    if n == 0:
+        return Interconnection(np.zeros((0, 0)), dt, owners, labels)
     if n > DENSE_STATES:
-        return interconnect_sparse(disc, routes, (xo, uo, yo), (n, m, p), dt)
+        closed = interconnect_sparse(disc, (xo, uo, yo), (n, m, p), feedback)
+        return Interconnection(closed, dt, owners, labels)
     A = np.zeros((n, n))
     B = np.zeros((n, m))
     C = np.zeros((p, n))
     D = np.zeros((p, m))
-    owners: list[str] = []
-    labels: list[str] = []
-    ports = {}
-    for name in names:
-        mod = disc[name]
+    for name, mod in disc.items():
         x, u, y = xo[name], uo[name], yo[name]
         A[x : x + mod.n, x : x + mod.n] = mod.A
         B[x : x + mod.n, u : u + mod.m] = mod.B
         C[y : y + mod.p, x : x + mod.n] = mod.C
         D[y : y + mod.p, u : u + mod.m] = mod.D
-        owners += [name] * mod.n
-        labels += [f"{name}.{s}" for s in mod.states]
-        ports[name] = port_offsets(mod)
     K = np.zeros((m, p))
-    for r, c, size in feedback_slices(routes, ports, uo, yo):
+    for r, c, size in feedback:
         K[r : r + size, c : c + size] += np.eye(size)
-    if n == 0:
-        return Interconnection(np.zeros((0, 0)), dt, owners, labels)
-    M = np.eye(p) - D @ K
     try:
-        Y = np.linalg.solve(M, C)  # y = (I − D K)⁻¹ C x
+        Y = np.linalg.solve(np.eye(p) - D @ K, C)  # y = (I − D K)⁻¹ C x
     except np.linalg.LinAlgError:
         raise LinearizationError("the wired models form an algebraic loop") from None
     return Interconnection(A + B @ K @ Y, dt, owners, labels)

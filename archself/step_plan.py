@@ -38,6 +38,7 @@ class StepPlan:
         required: dict[str, tuple[str, ...]],
         edges: list[int],
         multi: dict[str, frozenset[str]],
+        reads: dict[int, str],
     ) -> None:
         self.name = name
         self.active = active
@@ -47,13 +48,16 @@ class StepPlan:
         self.routes = routes
         self.required = required
         self.edges = edges
+        # edge index -> the source's output it reads, where the target's input port is
+        # named otherwise (archself.ports: routes are keyed by the target's port)
+        self.reads = reads
         # (module, whether it steps) of the publishing phases of a step
         self.publishing = [(n, False) for n in nonft] + [(n, True) for n in order]
         # (signal, source) pairs of the modules whose inputs pass unchanged (no edge
-        # latency or noise): the step gathers them without the general path
+        # latency, noise or renamed port): the step gathers them without the general path
         self.direct: dict[str, tuple[tuple[str, str], ...] | None] = {
             n: None
-            if n in multi or any(unc or delay for *_, unc, delay in r)
+            if n in multi or any(unc or delay or i in reads for _, _, i, unc, delay in r)
             else tuple((carries, src) for carries, src, *_ in r)
             for n, r in routes.items()
         }
@@ -63,9 +67,6 @@ class StepPlan:
         # some module type overrides linear_model or linearization (set by the system)
         self.linearizable = True
         self._wires: list[Wire] | None = None
-        # edge index -> the source's output it reads, where the target's input port is
-        # named otherwise (archself.ports: routes are keyed by the target's port)
-        self.reads: dict[int, str] = {}
 
     def wires(self) -> list[Wire]:
         """The active edges as :class:`~archself.linear.Wire` s (made once)."""
@@ -89,10 +90,9 @@ class StepPlan:
             {n: self.required[n] for n in active},
             sorted(r[2] for n in active for r in self.routes[n]),
             {n: v for n, v in self.multi.items() if n in keep},
+            self.reads,
         )
         plan.linearizable = self.linearizable
-        plan.reads = self.reads
-        plan.direct.update({n: None for n in active if self.direct[n] is None})
         return plan
 
     def reach(self, starts: Collection[str], steps: int) -> set[str]:
@@ -151,11 +151,14 @@ def build_plan(
     routes: dict[str, list[tuple[str, str, int, float, int]]] = {n: [] for n in active}
     flow: list[tuple[str, str]] = []  # the data flow of a step: edges into feedthrough
     edges: list[int] = []
+    reads: dict[int, str] = {}
     ports = arch.edge_ports  # named ports: archself.ports
     for i, e in enumerate(arch.edges):
         if e.source not in act or e.target not in act or (e.source, e.target) in disabled:
             continue
         edges.append(i)
+        if ports.to_port[i] not in (None, e.carries):  # read as the source's output
+            reads[i] = e.carries
         delay = int(round(e.latency_s / dt)) if e.latency_s > 0 else 0
         routes[e.target].append((ports.into(i), e.source, i, float(e.uncertainty), delay))
         if e.target not in nonft_set:
@@ -167,16 +170,10 @@ def build_plan(
             f"configuration {configuration!r} has an algebraic loop: {path} "
             "(a loop needs a module with direct_feedthrough = False)"
         )
-    order = topological_order(active, flow, index)
-    order = [n for n in order if n not in nonft_set]
+    order = [n for n in topological_order(active, flow, index) if n not in nonft_set]
     required = {n: tuple(classes[n].inputs) for n in active}
     multi = {n: frozenset(classes[n].multi_inputs) for n in active if classes[n].multi_inputs}
-    plan = StepPlan(configuration, active, nonft, order, routes, required, edges, multi)
-    for i in edges:  # named ports: read as the source's output, delivered as the port
-        e = arch.edges[i]
-        if ports.to_port[i] not in (None, e.carries):
-            plan.reads[i] = e.carries
-            plan.direct[e.target] = None
+    plan = StepPlan(configuration, active, nonft, order, routes, required, edges, multi, reads)
     plan.linearizable = any(
         cls.linear_model is not RuntimeModule.linear_model
         or cls.linearization is not RuntimeModule.linearization

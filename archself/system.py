@@ -57,7 +57,7 @@ from archself.errors import SimulationError
 from archself.health import NOT_NUMERIC, STALE_REPEATS, Publishing
 from archself.model import Architecture
 from archself.modules.base import RuntimeModule
-from archself.objective import objective_norm
+from archself.objective import component_error, objective_norm
 from archself.step_plan import StepPlan, build_plan
 from archself.streams import module_rng, stable_hash
 from archself.system_linear import Linearizing
@@ -124,9 +124,7 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
         self._obj_comp = list(obj.components)
         self._scope: frozenset[str] | None = None  # a partial copy's modules (snapshot(only=))
         self._scoped: dict[str, StepPlan] = {}  # its plans, restricted to them
-        self._plan = self._make_plan(configuration)
-        for name in self._plan.active:
-            self._module(name)
+        self._plan = self._make_plan(configuration)  # instantiates the active modules
         self.configuration = configuration
 
     # ------------------------------------------------------------------ plans
@@ -135,8 +133,7 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
         if mod is None:
             if name not in self.arch.modules:
                 raise SimulationError(f"unknown module {name!r}")
-            mod = self._factory(name)
-            self._pool[name] = mod
+            mod = self._pool[name] = self._factory(name)
         return mod
 
     def _make_plan(self, configuration: str) -> StepPlan:
@@ -149,11 +146,11 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
         return found
 
     def _full_plan(self, configuration: str) -> StepPlan:
-        cached = self._plans.get(configuration)
-        if cached is not None:
-            return cached
-        plan = build_plan(self.arch, configuration, self._module, self.dt)
-        self._plans[configuration] = plan
+        plan = self._plans.get(configuration)
+        if plan is None:
+            plan = self._plans[configuration] = build_plan(
+                self.arch, configuration, self._module, self.dt
+            )
         return plan
 
     # ------------------------------------------------------------------ contract
@@ -318,15 +315,9 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
 
     def state_error(self) -> np.ndarray:
         """``x − x_ref`` of the ``runtime.objective`` components (NaN when unknown, Eq. 22)."""
-        a = self.signal(self._obj_actual)
-        r = self.signal(self._obj_ref)
-        n = len(self._obj_comp)
-        if a is None or r is None:
-            return np.full(n, np.nan)
-        a = np.atleast_1d(np.asarray(a, dtype=float))  # a scalar signal is a 1-vector
-        r = np.atleast_1d(np.asarray(r, dtype=float))
-        c = self._obj_comp
-        return a[c] - r[c]
+        return component_error(
+            self.signal(self._obj_actual), self.signal(self._obj_ref), self._obj_comp
+        )
 
     def objective_error(self) -> float:
         """J_obs: norm of :meth:`state_error` (NaN before the first step).

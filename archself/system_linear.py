@@ -12,6 +12,7 @@ the system's plans (:class:`~archself.step_plan.StepPlan`), pool and outputs.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -31,12 +32,8 @@ class Linearizing:
     outputs: dict[str, dict[str, Any]]
     _plan: StepPlan
     _pool: dict[str, RuntimeModule]
-
-    def _module(self, name: str) -> RuntimeModule:  # pragma: no cover - LiveSystem's
-        raise NotImplementedError
-
-    def _make_plan(self, configuration: str) -> StepPlan:  # pragma: no cover - LiveSystem's
-        raise NotImplementedError
+    _module: Callable[[str], RuntimeModule]  # LiveSystem's methods
+    _make_plan: Callable[[str], StepPlan]
 
     def _linear_module(self, name: str, plan: StepPlan) -> RuntimeModule:
         """The module as it would run in ``plan``: live if active now, else a hand-over copy.

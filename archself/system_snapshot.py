@@ -43,15 +43,9 @@ class Snapshots:
     _edge_rng: dict[int, Any]
     _obj_actual: Any
     _obj_ref: Any
-
-    def _module(self, name: str) -> RuntimeModule:  # pragma: no cover - LiveSystem's
-        raise NotImplementedError
-
-    def _make_plan(self, configuration: str) -> StepPlan:  # pragma: no cover - LiveSystem's
-        raise NotImplementedError
-
-    def _full_plan(self, configuration: str) -> StepPlan:  # pragma: no cover - LiveSystem's
-        raise NotImplementedError
+    _module: Callable[[str], RuntimeModule]  # LiveSystem's methods
+    _make_plan: Callable[[str], StepPlan]
+    _full_plan: Callable[[str], StepPlan]
 
     def snapshot(self, only: Collection[str] | None = None) -> Self:
         """An independent deep copy (same RNG states, so a rollout is deterministic).
@@ -65,10 +59,7 @@ class Snapshots:
         created from the file and never stepped.
         """
         memo = {id(self.arch): self.arch, id(self._factory): self._factory}
-        for p in self._plans.values():
-            memo[id(p)] = p
-        for p in self._scoped.values():
-            memo[id(p)] = p
+        memo.update((id(p), p) for p in (*self._plans.values(), *self._scoped.values()))
         if only is None:
             return copy.deepcopy(self, memo)
         keep = frozenset(only) if self._scope is None else self._scope.intersection(only)
@@ -81,7 +72,7 @@ class Snapshots:
             "_heard": {n: v for n, v in self._heard.items() if n in keep},
             "_last": {k: v for k, v in self._last.items() if k[0] in keep},
             "_repeats": {k: v for k, v in self._repeats.items() if k[0] in keep},
-            "_broken": {n for n in self._broken if n in keep},
+            "_broken": self._broken & keep,
             "_faults": {n: v for n, v in self._faults.items() if n in keep},
             "_delay": {i: v for i, v in self._delay.items() if edges[i].target in keep},
             "_edge_rng": {i: v for i, v in self._edge_rng.items() if edges[i].target in keep},
