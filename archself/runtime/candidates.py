@@ -46,17 +46,13 @@ def _ranked(z: Mapping[str, float], names: Iterable[str]) -> list[str]:
     return sorted(names, key=lambda n: (-float(f"{abs(z[n]):.12g}"), n))
 
 
-def _ranked_where(z: Mapping[str, float], values: np.ndarray, mask: np.ndarray) -> list[str]:
+def _ranked_where(z: Mapping[str, float], mask: np.ndarray) -> list[str]:
     """:func:`_ranked` of the keys of ``z`` where the boolean array ``mask`` holds."""
     index = mask.nonzero()[0].tolist()
     if not index:  # most cycles: nothing to rank
         return []
     keys = list(z)
-    keyed = [
-        (-float(f"{m:.12g}"), keys[i])
-        for m, i in zip(np.abs(values[index]).tolist(), index, strict=True)
-    ]
-    return [n for _, n in sorted(keyed)]
+    return _ranked(z, [keys[i] for i in index])
 
 
 def threshold_candidates(z: Mapping[str, float], tau: float) -> list[str]:
@@ -113,7 +109,7 @@ class ThresholdSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return threshold_candidates(z, self.tau)
-        return _ranked_where(z, values, np.abs(values) >= self.tau)
+        return _ranked_where(z, np.abs(values) >= self.tau)
 
     def describe(self) -> str:
         return f"|{self.symbol}| >= {self.tau:g}"
@@ -129,7 +125,7 @@ class TopKSelector(CandidateSelector):
     def select(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
         if values is None:
             return top_k_candidates(z, self.k)
-        return _ranked_where(z, values, values != 0.0)[: self.k]
+        return _ranked_where(z, values != 0.0)[: self.k]
 
     def describe(self) -> str:
         return f"top {self.k} by |{self.symbol}|"

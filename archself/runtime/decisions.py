@@ -19,13 +19,13 @@ numbers.
 from __future__ import annotations
 
 from collections.abc import ItemsView, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from archself.jsondata import jsonable
 from archself.runtime.explanation import explain, explain_data
 
-__all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "explain_data", "jsonable"]
+__all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "explain_data"]
 
 
 class _ValueItems(ItemsView[str, float]):
@@ -118,21 +118,7 @@ class ActionEvaluation:
     detail: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return jsonable(
-            {
-                "action": self.action,
-                "module": self.module,
-                "kind": self.kind,
-                "to": self.to,
-                "z": self.z,
-                "delta": self.delta,
-                "cost": self.cost,
-                "score": self.score,
-                "stability": self.stability,
-                "rejected": self.rejected,
-                "detail": self.detail,
-            }
-        )
+        return jsonable({f.name: getattr(self, f.name) for f in fields(self)})
 
 
 @dataclass

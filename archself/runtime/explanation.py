@@ -55,11 +55,6 @@ def _largest(values: Mapping[str, Any]) -> str | None:
     return best
 
 
-def _weight_symbol(d: dict[str, Any]) -> str:
-    """The planner's weight in a record's scores: z, or the source estimate ê."""
-    return "ê" if d.get("localization") == "source" else "z"
-
-
 def _describe_eval(e: dict[str, Any], weight: str = "z") -> str:
     target = f" → {e['to']}" if e.get("to") else ""
     head = f"{e.get('action')} ({e.get('kind')} on {e.get('module')}{target})"
@@ -112,17 +107,16 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
             "  compensated (own z only, not propagated through W): "
             + ", ".join(d["compensated"])
         )
-    weight = _weight_symbol(d)
+    weight = "ê" if d.get("localization") == "source" else "z"  # the planner's weight
+    ch = d.get("chosen") or {}
+    chosen_id = ch.get("action")
     for e in d.get("evaluations") or []:
-        chosen_id = (d.get("chosen") or {}).get("action")
         mark = "  ← chosen" if chosen_id is not None and chosen_id == e.get("action") else ""
         lines.append("    - " + _describe_eval(e, weight) + mark)
-    ch = d.get("chosen")
-    if ch:
-        if ch.get("kind") == "parameter_update":
-            lines.append(f"  ⇒ updated {ch.get('module')} {ch.get('set')} by {ch.get('action')}")
-        else:
-            lines.append(f"  ⇒ switched {ch.get('from')} → {ch.get('to')} by {ch.get('action')}")
+    if ch.get("kind") == "parameter_update":
+        lines.append(f"  ⇒ updated {ch.get('module')} {ch.get('set')} by {ch.get('action')}")
+    elif ch:
+        lines.append(f"  ⇒ switched {ch.get('from')} → {ch.get('to')} by {ch.get('action')}")
     if d.get("note"):
         lines.append(f"  note: {d['note']}")
     return lines

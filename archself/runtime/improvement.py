@@ -10,17 +10,9 @@ from __future__ import annotations
 from typing import Any
 
 from archself.model import Action
-from archself.runtime.stability import rollout_copy
+from archself.runtime.stability import action_target, apply_action, rollout_copy
 
 __all__ = ["estimate_improvement", "rollout_improvement"]
-
-
-def _apply(system: Any, action: Action) -> None:
-    """Apply ``action`` to ``system`` (a parameter update or a configuration change)."""
-    if action.kind == "parameter_update":
-        system.set_params(action.module, dict(action.set or {}))
-    else:
-        system.apply_configuration(action.to)
 
 
 def _mean_objective(system: Any, steps: int) -> float:
@@ -42,9 +34,8 @@ def rollout_improvement(system: Any, action: Action, horizon_s: float) -> float:
     """
     steps = max(1, int(round(horizon_s / float(system.dt))))
     base = rollout_copy(system, system.configuration, steps)
-    target = system.configuration if action.kind == "parameter_update" else action.to
-    trial = rollout_copy(system, target, steps)
-    _apply(trial, action)
+    trial = rollout_copy(system, action_target(system, action), steps)
+    apply_action(trial, action)
     return _mean_objective(base, steps) - _mean_objective(trial, steps)
 
 

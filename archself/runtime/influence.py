@@ -145,10 +145,9 @@ def spectral_radius(W: Any, *, dense_max: int = DENSE_MAX, tol: float = 1e-9) ->
     S = scipy.sparse.csr_matrix(A)
     S.eliminate_zeros()
     ncomp, labels = scipy.sparse.csgraph.connected_components(S, directed=True, connection="strong")
-    rho = 0.0
     diag = S.diagonal()
     if ncomp == n:  # acyclic apart from self-loops: triangular up to a permutation
-        return float(np.max(np.abs(diag))) if diag.size else 0.0
+        return float(np.max(np.abs(diag)))
     sizes = np.bincount(labels, minlength=ncomp)
     rho = float(np.max(np.abs(diag[sizes[labels] == 1]), initial=0.0))
     for comp in np.flatnonzero(sizes > 1):

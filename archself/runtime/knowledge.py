@@ -121,7 +121,6 @@ class Knowledge:
             key = (e.source, e.target, e.carries)
             self._weights[key] = self._weights.get(key, 0.0) + e.weight
         self.t_last = -math.inf
-        self.history: list[dict[str, Any]] = []
         self.solver = InfluenceSolver()
         # Normalize W so that ρ(W) stays below the declared bound (paper: "the
         # weights are normalized such that ρ(W) < 1"). W of any active subset is
@@ -131,18 +130,12 @@ class Knowledge:
         bound = arch.runtime.max_spectral_radius
         self.w_scale = 1.0 if self.rho_full <= bound else bound / self.rho_full
         conf = configuration or arch.initial_configuration()
-        self.configuration = conf
-        self.active: frozenset[str] = frozenset(arch.configurations[conf].modules)
-        self.edges: frozenset[EdgeKey] = frozenset()
-        self.active_index = np.zeros(0, dtype=np.intp)
-        self.active_names: list[str] = []
-        self.active_pos: dict[str, int] = {}
-        self._set_active(conf, self.active)
+        self._set_active(conf, arch.configurations[conf].modules)
 
     # ------------------------------------------------------------------ state
     def _set_active(self, configuration: str, active: Iterable[str]) -> None:
         self.configuration = configuration
-        self.active = frozenset(active)
+        self.active: frozenset[str] = frozenset(active)
         index = self.index
         on = np.zeros(len(self.names) + 1, dtype=bool)  # the last slot: unknown names
         on[[index[n] for n in self.active if n in index]] = True
@@ -152,9 +145,9 @@ class Knowledge:
         conf = self.arch.configurations.get(configuration)
         off = {tuple(pair) for pair in (conf.disabled_edges if conf is not None else [])}
         ends = self._edge_ends
-        live = (on[ends[:, 0]] & on[ends[:, 1]]).tolist() if len(ends) else []
+        live = (on[ends[:, 0]] & on[ends[:, 1]]).tolist()
         keys = self._edge_keys
-        self.edges = frozenset(
+        self.edges: frozenset[EdgeKey] = frozenset(
             keys[i] for i, ok in enumerate(live) if ok and keys[i][:2] not in off
         )
 
@@ -186,34 +179,22 @@ class Knowledge:
             self._graph_state = state
         return g
 
-    def sync(self, system: Any) -> bool:
-        """Read configuration and active modules from the running system.
-
-        Returns
-        -------
-        bool
-            True when something changed.
-        """
+    def sync(self, system: Any) -> None:
+        """Read configuration and active modules from the running system."""
         conf = str(system.configuration)
         active = system.active
         if not isinstance(active, (set, frozenset)):
             active = frozenset(active)
-        if conf == self.configuration and active == self.active:  # no copy when unchanged
-            return False
-        self._set_active(conf, frozenset(active))
-        return True
+        if conf != self.configuration or active != self.active:  # no copy when unchanged
+            self._set_active(conf, active)
 
-    def record_structural(self, t: float, action_id: str, before: str, after: str) -> None:
+    def record_structural(self, t: float) -> None:
         """Note an executed architectural change; sets ``t_last`` (Eq. 28)."""
         self.t_last = float(t)
-        self.history.append({"t_s": float(t), "action": action_id, "from": before, "to": after})
 
-    def record_parameters(self, t: float, action_id: str, module: str, values: dict) -> None:
+    def record_parameters(self, module: str, values: dict) -> None:
         """Note an executed parameter update."""
         self.params.setdefault(module, {}).update(values)
-        self.history.append(
-            {"t_s": float(t), "action": action_id, "module": module, "set": dict(values)}
-        )
 
     # ------------------------------------------------------------------ analysis
     def weight_matrix(self) -> scipy.sparse.csr_matrix:

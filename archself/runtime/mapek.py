@@ -51,6 +51,7 @@ from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
 from archself.runtime.sources import SourceEstimator
+from archself.runtime.stability import apply_action
 
 __all__ = ["MapeK"]
 
@@ -196,11 +197,7 @@ class MapeK:
         # EXECUTE (step 9)
         before = k.configuration
         try:
-            if action.kind == "parameter_update":
-                values = dict(action.set or {})
-                system.set_params(action.module, values)
-            else:
-                system.apply_configuration(action.to)
+            apply_action(system, action)
         except Exception as exc:  # noqa: BLE001 - a failed execution is logged, not fatal
             ev.rejected, ev.detail = "unavailable", f"execution failed: {exc}"
             record.note = f"execution of {action.id} failed: {exc}"
@@ -218,7 +215,8 @@ class MapeK:
             "score": ev.score,
         }
         if action.kind == "parameter_update":
-            k.record_parameters(t, action.id, action.module, values)
+            values = dict(action.set or {})
+            k.record_parameters(action.module, values)
             chosen["set"] = values
             self.updates.append(
                 {"t_s": t, "action": action.id, "module": action.module, "set": values}
@@ -226,7 +224,7 @@ class MapeK:
             record.chosen = chosen
             return []
         after = k.configuration
-        k.record_structural(t, action.id, before, after)
+        k.record_structural(t)
         if self.arch.runtime.isolate_compensated and action.module in k.active:
             self.compensated[action.module] = after
             self._checked_conf = after

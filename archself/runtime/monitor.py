@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from archself.model import Architecture
-from archself.runtime.monitor_layout import Layout, active_samples, as_floats, confidence_reader
+from archself.runtime.monitor_layout import Layout, as_floats, confidence_reader
 from archself.runtime.residuals import (
     ResidualFilter,
     filter_gain,
@@ -80,6 +80,14 @@ __all__ = [
     "module_residual",
     "unavailable_residual",
 ]
+
+
+def _reported(system: Any, method: str) -> Any:
+    """``system.<method>()``; {} if the system lacks the method, it gives None or it fails."""
+    try:
+        return getattr(system, method)() or {}
+    except Exception:  # noqa: BLE001 - a failing report must not stop the loop
+        return {}
 
 
 @dataclass
@@ -160,7 +168,7 @@ class Monitor:
         self.valid_time = np.zeros(len(res))
         self.samples = np.zeros(len(res), dtype=np.int64)
         # trust: valid time a filter needs before its residual counts (min_confidence)
-        c_min = float(getattr(arch.runtime, "min_confidence", 0.0))
+        c_min = float(arch.runtime.min_confidence)
         tc = self.time_constant
         self.trust_time = np.where(tc > 0, -tc * math.log1p(-c_min), 0.0)
         self.constrained = [
@@ -197,14 +205,8 @@ class Monitor:
         j_ref = float(self.arch.runtime.objective.acceptable)
         r_global = j_ref - j_obs
 
-        try:
-            local = system.local_signals() or {}
-        except Exception:  # noqa: BLE001
-            local = {}
-        try:
-            avail = system.available() or {}
-        except Exception:  # noqa: BLE001
-            avail = {}
+        local = _reported(system, "local_signals")
+        avail = _reported(system, "available")
 
         names, index = self.names, self.index
         n = len(names)
@@ -223,11 +225,7 @@ class Monitor:
             available[down] = False
             down_active = sorted(k for k in down if lay.active[k])
             if down_active:
-                health = getattr(system, "health", None)
-                try:
-                    why = (health() or {}) if health is not None else {}
-                except Exception:  # noqa: BLE001
-                    why = {}
+                why = _reported(system, "health")
                 for k in down_active:
                     reason = why.get(names[k])
                     reasons[names[k]] = reason
@@ -248,7 +246,7 @@ class Monitor:
         residual_ok = self._true
         ok = lay.all_ok
         if lay.pairs:
-            raw = active_samples(local, lay)
+            raw = [(local.get(m) or {}).get(sig, math.nan) for m, sig in lay.pairs]
             avail_on = available[lay.on_pos] if any_down else None
             ok = self._update(lay, raw, avail_on, dt, r)
             if ok is not lay.all_ok:

@@ -8,7 +8,6 @@ modules' slots, sensitivities, nominal levels, time constants and trust times, t
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -19,7 +18,7 @@ from archself.runtime.residuals import filter_confidence, filter_gain, to_float
 if TYPE_CHECKING:
     from archself.runtime.monitor import Monitor
 
-__all__ = ["Layout", "active_samples", "as_floats", "confidence_reader"]
+__all__ = ["Layout", "as_floats", "confidence_reader"]
 
 
 def as_floats(values: list[Any]) -> np.ndarray:
@@ -31,12 +30,6 @@ def as_floats(values: list[Any]) -> np.ndarray:
     if a is not None and a.ndim == 1 and a.dtype.kind in "fiub":
         return a.astype(float, copy=False)
     return np.array([to_float(v) for v in values], dtype=float)
-
-
-def active_samples(local: Mapping[str, Any], lay: Layout) -> list[Any]:
-    """``(local[m] or {}).get(signal, nan)`` for every active residual module of ``lay``."""
-    empty: dict[str, Any] = {}
-    return [(local.get(m) or empty).get(sig, math.nan) for m, sig in lay.pairs]
 
 
 def confidence_reader(lay: Layout) -> Callable[[int], float]:
@@ -115,6 +108,6 @@ class Layout:
         """:func:`filter_gain` of every active filter for the sampling interval ``dt``."""
         if dt != self._gain_dt:
             per_tc = np.array([filter_gain(dt, tc) for tc in monitor.tc_values], dtype=float)
-            self._gain = per_tc[self.tc_slot] if per_tc.size else np.ones(0)
+            self._gain = per_tc[self.tc_slot]
             self._gain_dt = dt
         return self._gain

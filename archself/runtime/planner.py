@@ -64,8 +64,8 @@ from archself.runtime.constraints import (
 )
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.improvement import estimate_improvement, rollout_improvement
-from archself.runtime.monitor import ModuleStatus, StatusMap, is_limit_violation
 from archself.runtime.stability import StabilityVerdict, check_action_stability
+from archself.runtime.status import StatusMap, is_limit_violation
 
 __all__ = [
     "PlanState",
@@ -94,7 +94,7 @@ class PlanState:
         Γ: active edges (source, target, carries).
     z, r : dict
         Influence and local residual per module.
-    kappa : dict
+    kappa : StatusMap
         Module status κ_i.
     params : dict
         Current parameter values per module.
@@ -108,7 +108,7 @@ class PlanState:
     edges: frozenset
     z: Mapping[str, float]
     r: Mapping[str, float]
-    kappa: Mapping[str, ModuleStatus]
+    kappa: StatusMap
     params: Mapping[str, Mapping[str, Any]]
     t_last: float
 
@@ -151,7 +151,8 @@ class Planner:
             for n, m in arch.modules.items()
             if m.constraints.limits and m.constraints.blocks
         }
-        self._conf_modules: dict[str, tuple[str, ...]] = {}
+        # the modules of every configuration, the targets of the structural actions
+        self._conf_modules = {c: tuple(conf.modules) for c, conf in arch.configurations.items()}
         # θ: the range each parameter an update sets has by its module type's declaration
         self._declared = declared_ranges(arch)
         self._constrained = frozenset(
@@ -170,14 +171,14 @@ class Planner:
 
     # ------------------------------------------------------------------ checks
     def _admissible(
-        self, a: Action, s: PlanState, system: Any = None
+        self, a: Action, s: PlanState, system: Any
     ) -> tuple[str | None, str, tuple[str, ...]]:
         """(rejection, detail, target modules) of the cheap checks 1–4.
 
         ``system`` gives the target configuration's dependency map (module ->
         modules it needs, :meth:`dependencies`), asked for only when a target
-        module is unavailable; without it (or when it has none) the strict rule
-        holds: every target module must be available.
+        module is unavailable; when it has none the strict rule holds: every
+        target module must be available.
         """
         applies = self._applies.get(a.id)
         if applies is not None and s.configuration not in applies[0]:
@@ -192,17 +193,13 @@ class Planner:
         else:
             if a.to == s.configuration:
                 return "not applicable", f"already in {a.to}", ()
-            if a.to not in self.arch.configurations:
+            if a.to not in self._conf_modules:
                 return "not applicable", f"unknown configuration {a.to}", ()
-            target = self._modules_of(a.to)
-        kappa = s.kappa
-        if isinstance(kappa, StatusMap):  # no κ object built for the available modules
-            off = kappa.unavailable()
-            down = [m for m in target if m in off] if off else []
-        else:
-            down = [m for m in target if m in kappa and not kappa[m].available]
+            target = self._conf_modules[a.to]
+        off = s.kappa.unavailable()  # no κ object built for the available modules
+        down = [m for m in target if m in off] if off else []
         deps = None
-        if down and system is not None:
+        if down:
             dest = s.configuration if a.kind == "parameter_update" else a.to
             deps = self.dependencies(system, dest) if dest else None
         if down and deps is not None:
@@ -229,29 +226,18 @@ class Planner:
             )
         return None, "", target
 
-    def _modules_of(self, configuration: str) -> tuple[str, ...]:
-        """The modules of a declared configuration (cached: the file does not change)."""
-        found = self._conf_modules.get(configuration)
-        if found is None:
-            found = self._conf_modules[configuration] = tuple(
-                self.arch.configurations[configuration].modules
-            )
-        return found
-
     def _constraints(self, target: tuple[str, ...]) -> tuple[str | None, str]:
         """(``"constraint"``/``"budget"``/None, detail) of a module set, cached per set."""
-        key = target
-        found = self._static.get(key)
+        found = self._static.get(target)
         if found is None:
             bad = constraint_violations(self.arch, target, self._constrained)
-            over = budget_violations(self.arch, target) if not bad else []
             if bad:
                 found = ("constraint", "; ".join(bad))
-            elif over:
+            elif over := budget_violations(self.arch, target):
                 found = ("budget", "; ".join(over))
             else:
                 found = (None, "")
-            self._static[key] = found
+            self._static[target] = found
         return found
 
     def _limits(self, a: Action, s: PlanState, target: tuple[str, ...]) -> tuple[str | None, str]:
@@ -278,8 +264,7 @@ class Planner:
         for m, blocks in self._blocking.items():
             if m not in s.active or (a.id not in blocks if blocks != "all" else m not in target):
                 continue
-            status = s.kappa[m] if m in s.kappa else None
-            bad = [v for v in status.violations if is_limit_violation(v)] if status else []
+            bad = [v for v in s.kappa[m].violations if is_limit_violation(v)]
             if bad:
                 return "limit", f"e: {m} {'; '.join(bad)} blocks {a.id}"
         return None, ""

@@ -89,10 +89,9 @@ def unavailable_residual(runtime: Any) -> float:
     >>> unavailable_residual(NS(threshold=None, hysteresis=None))
     1.0
     """
-    tau = getattr(runtime, "threshold", None)
-    hyst = getattr(runtime, "hysteresis", None)
-    if tau is None and hyst is not None:
-        tau = hyst.on
+    tau = runtime.threshold
+    if tau is None and runtime.hysteresis is not None:
+        tau = runtime.hysteresis.on
     return float(max(1.0, 2.0 * float(tau or 0.0)))
 
 
@@ -115,6 +114,10 @@ class ResidualFilter:
 
     def __init__(self, time_constant: float) -> None:
         self.time_constant = float(time_constant)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start again from 0, with no sample."""
         self.value = 0.0
         self.valid_time = 0.0
         self.samples = 0
@@ -135,11 +138,6 @@ class ResidualFilter:
         """How settled the filter is: ``1 − exp(−t_valid/T)`` (1 without smoothing)."""
         return filter_confidence(self.samples, self.valid_time, self.time_constant)
 
-    def reset(self) -> None:
-        self.value = 0.0
-        self.valid_time = 0.0
-        self.samples = 0
-
 
 def filter_confidence(samples: int, valid_time: float, time_constant: float) -> float:
     """``1 − exp(−t_valid/T)`` of a residual filter (0 before a sample, 1 without smoothing)."""
@@ -153,7 +151,6 @@ def filter_confidence(samples: int, valid_time: float, time_constant: float) -> 
 def to_float(x: Any) -> float:
     """``float(x)``, NaN when ``x`` is no number."""
     try:
-        v = float(x)
+        return float(x)
     except (TypeError, ValueError):
         return math.nan
-    return v

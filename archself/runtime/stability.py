@@ -48,6 +48,8 @@ import numpy as np
 
 __all__ = [
     "StabilityVerdict",
+    "action_target",
+    "apply_action",
     "check_action_stability",
     "eigenvalue_margin",
     "lyapunov_decrease",
@@ -196,13 +198,6 @@ def lyapunov_decrease(v: Any, alpha: float, floor: float) -> StabilityVerdict:
     return StabilityVerdict(False, "lyapunov", mean_dv, bound, why)
 
 
-def _apply(system: Any, action: Any) -> None:
-    if action.kind == "parameter_update":
-        system.set_params(action.module, dict(action.set or {}))
-    else:
-        system.apply_configuration(action.to)
-
-
 def rollout_copy(system: Any, configuration: str | None, steps: int) -> Any:
     """A snapshot of ``system`` for a rollout of ``steps`` steps in ``configuration``.
 
@@ -217,7 +212,16 @@ def rollout_copy(system: Any, configuration: str | None, steps: int) -> Any:
     return system.snapshot(only=scope(configuration, steps))
 
 
-def _target(system: Any, action: Any) -> str:
+def apply_action(system: Any, action: Any) -> None:
+    """Apply ``action`` to ``system`` (a parameter update or a configuration change)."""
+    if action.kind == "parameter_update":
+        system.set_params(action.module, dict(action.set or {}))
+    else:
+        system.apply_configuration(action.to)
+
+
+def action_target(system: Any, action: Any) -> str:
+    """The configuration ``system`` is in after ``action``."""
     return system.configuration if action.kind == "parameter_update" else action.to
 
 
@@ -257,7 +261,7 @@ def check_action_stability(
     try:
         if action.kind == "parameter_update":
             snap = system.snapshot()
-            snap.set_params(action.module, dict(action.set or {}))
+            apply_action(snap, action)
             A = snap.linearization(snap.configuration)
         else:
             snap = None
@@ -268,8 +272,8 @@ def check_action_stability(
         return eigenvalue_margin(A, margin)
     try:
         if snap is None:
-            snap = rollout_copy(system, _target(system, action), horizon_steps)
-            _apply(snap, action)
+            snap = rollout_copy(system, action_target(system, action), horizon_steps)
+            apply_action(snap, action)
         v = [_v(snap)]
         for _ in range(horizon_steps):
             snap.step()

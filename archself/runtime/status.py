@@ -71,8 +71,8 @@ class StatusMap(Mapping[str, ModuleStatus]):
     finding : numpy.ndarray of int
         Positions of the active modules that are unavailable, have an unusable
         residual signal or violate a constraint, ascending.
-    unavailable : set of str, optional
-        The names where ``available`` is False, if the caller knows them.
+    unavailable : set of str
+        The names where ``available`` is False.
     """
 
     def __init__(
@@ -86,7 +86,7 @@ class StatusMap(Mapping[str, ModuleStatus]):
         violations: dict[str, list[str]],
         reasons: dict[str, str | None],
         finding: np.ndarray,
-        unavailable: set[str] | None = None,
+        unavailable: set[str],
     ) -> None:
         self._names = names
         self._index = index
@@ -135,9 +135,6 @@ class StatusMap(Mapping[str, ModuleStatus]):
 
     def unavailable(self) -> set[str]:
         """Names of the modules the system reports unavailable (active or not)."""
-        if self._down is None:
-            names = self._names
-            self._down = {names[k] for k in (~self._available).nonzero()[0].tolist()}
         return self._down
 
 
