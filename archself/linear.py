@@ -49,9 +49,7 @@ in :mod:`archself.closed_loop`; their public names are re-exported here.
 
 from __future__ import annotations
 
-import contextlib
-import gc
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -59,6 +57,7 @@ import numpy as np
 from archself.assembly import feedback_slices, interconnect_sparse, port_offsets
 from archself.closed_loop import ClosedLoop, Interconnection
 from archself.discrete import LinearizationError, delay_line, discretize
+from archself.loader import gc_paused
 from archself.modal import eigenvalues, modal_form
 from archself.modules.base import LinearModel
 
@@ -79,34 +78,6 @@ __all__ = [
 
 #: Interconnections with more states than this are assembled as sparse matrices.
 DENSE_STATES = 400
-
-
-@contextlib.contextmanager
-def gc_paused() -> Iterator[None]:
-    """Pause Python's cyclic garbage collector while the block runs (restored after).
-
-    Wiring the models of 10^4 modules allocates some 10^5 small objects (models,
-    ports, wires, index lists), none of them in a reference cycle; each allocation
-    burst makes the collector walk every object of the process again (the running
-    system's 10^5 and more), which cost a third of the closed loop's CPU at 10^4
-    modules. Reference counting frees everything as before.
-
-    Examples
-    --------
-    >>> import gc
-    >>> with gc_paused():
-    ...     gc.isenabled()
-    False
-    >>> gc.isenabled()
-    True
-    """
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
 
 
 class Wire(NamedTuple):

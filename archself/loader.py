@@ -63,11 +63,21 @@ __all__ = [
 def gc_paused() -> Iterator[None]:
     """Pause the cyclic garbage collector while the block runs (restored after).
 
-    Reading and validating a file, and checking it, make many small objects and none
-    in a reference cycle (10^5 modules are some 10^6): each burst of allocations made
-    the collector walk every one of them again (3.1 of the model's 4.2 s of CPU at
-    10^5 modules; :func:`archself.linear.gc_paused` does the same for the closed
-    loop). Reference counting frees everything as before.
+    Reading, validating and checking a file, and wiring the linear models of a
+    closed loop (:mod:`archself.linear`), make many small objects and none in a
+    reference cycle (10^5 modules are some 10^6): each burst of allocations made the
+    collector walk every object of the process again (3.1 of the model's 4.2 s of CPU
+    at 10^5 modules, a third of the closed loop's at 10^4). Reference counting frees
+    everything as before.
+
+    Examples
+    --------
+    >>> import gc
+    >>> with gc_paused():
+    ...     gc.isenabled()
+    False
+    >>> gc.isenabled()
+    True
     """
     was = gc.isenabled()
     gc.disable()

@@ -71,7 +71,7 @@ class Linearizing:
         plan = self._make_plan(conf_name)
         if not plan.linearizable:  # no type of the configuration gives a model or a matrix
             return ClosedLoop(None, [])
-        with gc_paused():  # many small acyclic objects (archself.linear.gc_paused)
+        with gc_paused():  # many small acyclic objects (archself.loader.gc_paused)
             return self._closed_loop(plan)
 
     def _closed_loop(self, plan: StepPlan) -> ClosedLoop:

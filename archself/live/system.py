@@ -44,7 +44,7 @@ from archself.closed_loop import ClosedLoop
 from archself.errors import ArchselfError
 from archself.model import Architecture
 from archself.modules.base import RuntimeModule
-from archself.objective import objective_norm
+from archself.objective import component_error, objective_norm
 
 __all__ = ["LiveError", "MeasuredSystem", "ModelSnapshot", "NO_ROLLOUT"]
 
@@ -246,13 +246,8 @@ class MeasuredSystem:
 
     def state_error(self) -> np.ndarray:
         """``x − x_ref`` of the objective components from the pushed signals (NaN if unknown)."""
-        a = self.signal(self._actual)
-        r = self.signal(self._reference)
-        if a is None or r is None:
-            return np.full(len(self._components), np.nan)
-        a = np.atleast_1d(np.asarray(a, dtype=float))
-        r = np.atleast_1d(np.asarray(r, dtype=float))
-        return a[self._components] - r[self._components]
+        a, r = self.signal(self._actual), self.signal(self._reference)
+        return component_error(a, r, self._components)
 
     # ------------------------------------------------------------------ models
     def _sync_models(self) -> None:
