@@ -12,7 +12,18 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["jsonable"]
+__all__ = ["finite_or_none", "jsonable"]
+
+
+def finite_or_none(v: float) -> float | None:
+    """``v`` as a float, or None when it is NaN or infinite (JSON has neither).
+
+    Examples
+    --------
+    >>> finite_or_none(2), finite_or_none(float("nan"))
+    (2.0, None)
+    """
+    return float(v) if v == v and not math.isinf(v) else None
 
 
 def jsonable(x: Any) -> Any:

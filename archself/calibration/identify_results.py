@@ -16,6 +16,7 @@ import numpy as np
 
 from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
+from archself.jsondata import finite_or_none
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentifyError"]
 
@@ -109,9 +110,7 @@ class Identification:
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON data (``--json``)."""
 
-        def num(v: float) -> float | None:
-            return float(v) if v == v and not math.isinf(v) else None
-
+        num = finite_or_none
         return {
             "architecture": self.architecture,
             "file": self.file,

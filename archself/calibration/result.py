@@ -13,6 +13,7 @@ from typing import Any
 
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
+from archself.jsondata import finite_or_none
 
 __all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand"]
 
@@ -109,9 +110,7 @@ class Calibration:
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON data (``--json``; ``calibration.json`` of the report)."""
 
-        def num(v: float) -> float | None:
-            return float(v) if v == v and not math.isinf(v) else None
-
+        num = finite_or_none
         return {
             "architecture": self.architecture,
             "file": self.file,
