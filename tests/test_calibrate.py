@@ -299,6 +299,44 @@ def test_user_errors_are_located_one_liners(tmp_path: Path) -> None:
     assert run(app, ["calibrate", str(src), "--executor", "ray"]).exit_code == 2
 
 
+def test_a_damaged_runs_file_is_a_one_line_error(tmp_path: Path) -> None:
+    """--from-runs with the right digest but damaged metadata or arrays: exit 1, not 3."""
+    from archself.calibration import calibrate
+
+    src = short_plant(tmp_path, 30)
+    good = tmp_path / "runs.npz"
+    calibrate(src, seeds=1, false_switch=0.1, configurations=["p1"], executor="inline",
+              save_runs=good)
+    z = dict(np.load(good, allow_pickle=False))
+    meta = json.loads(str(z.pop("meta")))
+    cases = {
+        "meta_text": (z, "x", "its metadata is not an object"),
+        "no_seeds": (z, {k: v for k, v in meta.items() if k != "seeds"}, "'seeds'"),
+        "no_phase": (z, {**meta, "runs": [{k: v for k, v in r.items() if k != "phase"}
+                                          for r in meta["runs"]]}, "run 0 is not a saved run"),
+        "x_1d": ({**z, "x0": z["x0"][:, 0]}, meta, "arrays of run 0"),
+        "x_narrow": ({**z, "x0": z["x0"][:, :2]}, meta, "does not fit"),
+        "unknown_conf": (z, {**meta, "runs": [dict(r, configuration="zz")
+                                              for r in meta["runs"]]}, "does not fit"),
+    }
+    for name, (arrays, m, msg) in cases.items():
+        bad = tmp_path / f"{name}.npz"
+        np.savez(bad, **arrays, meta=np.array(json.dumps(m)))
+        result = CliRunner().invoke(app, ["calibrate", str(src), "--from-runs", str(bad)])
+        assert result.exit_code == 1 and msg in result.stderr, (name, result.output)
+        assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args", [["--seeds", "1000000000000"],
+                                  ["--seeds", "1", "--verify-seeds", "1000000000000"]])
+def test_too_many_runs_are_refused_before_any_starts(tmp_path: Path, args: list[str]) -> None:
+    """They grew the driver past 1.8 GB in 30 s (every job built, no run started)."""
+    result = CliRunner().invoke(app, ["calibrate", str(short_plant(tmp_path)), "-c", "p1", *args])
+    assert result.exit_code == 1, result.output
+    assert "more than half of this machine's memory" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
 # ------------------------------------------------------------------ operating envelope
 def test_an_envelope_widens_the_bands_to_its_worst_point(tmp_path: Path) -> None:
     from archself.calibration import CalibrationError, calibrate

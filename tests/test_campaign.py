@@ -182,6 +182,24 @@ def test_plan_rejects_user_errors(tmp_path: Path) -> None:
     assert len({j.seed for j in jobs if j.replicate == 0}) == 1
 
 
+@pytest.mark.parametrize(
+    ("spec", "msg"),
+    [  # located at the swept value in the file, worded as `validate` words it
+        ("runtime.threshold=-1", "minimal.yaml:43:14: error: runtime.threshold: expected a "
+         "number > 0.0, got number -1"),
+        ("modules.path.params.waypoints.value[1][0]=1e300", "minimal.yaml:16:36: error: "
+         "modules.path.params.waypoints.value[1][0]: expected a number ≤ 1e+09"),
+        ("runtime.objective.components[0]=5", "minimal.yaml:42:74: error: "
+         "runtime.objective.components[0]: component 5 is out of range"),
+    ],
+)
+def test_plan_locates_a_refused_sweep_value(spec: str, msg: str) -> None:
+    with pytest.raises(CampaignError) as info:
+        plan_campaign(MINIMAL, ["calm"], 1, [parse_sweep(spec)])
+    assert msg in str(info.value) and ":1:1:" not in str(info.value)
+    assert "bool" not in str(info.value) and "1000000000000000" not in str(info.value)
+
+
 # --------------------------------------------------------------------------- running
 SCHEMA = {
     "run_id": "string",
@@ -511,6 +529,42 @@ def test_old_results_are_read_reported_and_resumed(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["campaign-report", str(out), "-o", str(tmp_path / "rep")])
     assert res.exit_code == 0, res.output
     assert "median RMS fixed" in res.stdout
+
+
+def test_damaged_results_are_one_line_errors(tmp_path: Path) -> None:
+    """A results table with the metadata but odd columns or metadata: exit 1, not exit 3."""
+    import pyarrow.parquet as pq
+
+    jobs, meta = plan_campaign(MINIMAL, ["calm"], 2, modes=("fixed",))
+    good = tmp_path / "r.parquet"
+    run_campaign(jobs[:1], meta, good, executor="inline")
+    table = pq.read_table(good)
+    md = table.schema.metadata
+    rep = table.column_names.index("replicate")
+    cases = {
+        "no_replicate": (table.drop_columns(["replicate"]), md, "no column 'replicate'"),
+        "seed_text": (table.set_column(table.column_names.index("seed"), "seed",
+                                       pa.array(["a"])), md, "column 'seed' holds string"),
+        "null_replicate": (table.set_column(rep, "replicate", pa.array([None], pa.int32())),
+                           md, "column 'replicate' has 1 empty value"),
+        "meta_list": (table, {b"archself.campaign": b"[1]"}, "damaged campaign metadata"),
+        "sweeps_text": (table, {b"archself.campaign": json.dumps(
+            {**meta, "sweeps": "runtime.threshold"}).encode()}, "damaged campaign metadata"),
+    }
+    for name, (t, metadata, msg) in cases.items():
+        bad = tmp_path / f"{name}.parquet"
+        pq.write_table(t.replace_schema_metadata(metadata), bad)
+        before = bad.read_bytes()
+        res = CliRunner().invoke(app, ["campaign-report", str(bad), "-o", str(tmp_path / name)])
+        assert res.exit_code == 1 and msg in res.output, (name, res.output)
+        with pytest.raises(CampaignError, match=msg):
+            run_campaign(jobs, meta, bad, executor="inline", resume=True)
+        assert bad.read_bytes() == before  # the user's table is left as it was
+    # a column rewritten in a type that converts (int64 replicates) is read as before
+    wide = tmp_path / "int64.parquet"
+    pq.write_table(table.set_column(rep, "replicate", table.column("replicate").cast(pa.int64()))
+                   .replace_schema_metadata(md), wide)
+    assert read_results(wide)[0].equals(read_results(good)[0])
 
 
 # --------------------------------------------------------------------------- Dask

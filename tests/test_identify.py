@@ -76,6 +76,14 @@ def test_nonnegative_and_unexcited_sources() -> None:
     assert col.identifiable.tolist() == [True, False]
 
 
+def test_no_usable_experiment_is_no_fit() -> None:
+    """Every perturbed run failed (or none was usable): an empty fit, not a reshape error."""
+    fit = fit_target(np.zeros((0, 2)), np.zeros(0))
+    assert fit.rows == 0 and fit.identifiable.tolist() == [False, False]
+    (est,), _ = fit_edges(np.zeros((0, 2)), [], ["a", "b"], [("a", "b")])
+    assert not est.identifiable and est.reason == "no usable experiment"
+
+
 def test_hidden_paths_exclude_equations() -> None:
     edges = [("w", "chassis"), ("chassis", "enc"), ("enc", "odo"), ("enc", "w"),
              ("odo", "lqr"), ("lqr", "w"), ("imu", "odo")]
@@ -295,3 +303,24 @@ def test_cli_identify_errors_are_one_line(tmp_path) -> None:
     assert missing.stderr.strip().count("\n") == 0 and "no such file" in missing.stderr
     bad = CliRunner().invoke(app, ["identify", str(tmp_path / "x.yaml"), "--perturb", "imu"])
     assert bad.exit_code == 2 and "MODULE=KIND:MAGNITUDE" in bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "msg"),
+    [  # refused before any run: every run failed, or the fit crashed, or jobs filled memory
+        (["--magnitude", "1e308"], "--magnitude 1e+308: fault magnitude: "),
+        (["--perturb", "a=bias:1e308"], "--perturb a=bias:1e+308: fault magnitude: "),
+        (["--settle", "-1"], "--settle -1: expected a time ≥ 0 s"),
+        (["--settle", "nan"], "--settle nan: expected a time ≥ 0 s"),
+        (["--min-excitation", "nan"], "--min-excitation nan: expected a number ≥ 0"),
+        (["--seeds", "10000000000000"], "more than half of this machine's memory"),
+    ],
+)
+def test_cli_identify_refuses_bad_values(toy_file, args, msg) -> None:
+    from typer.testing import CliRunner
+
+    from archself.cli import app
+
+    res = CliRunner().invoke(app, ["identify", str(toy_file), "--executor", "inline", *args])
+    assert res.exit_code == 1 and msg in res.stderr, res.output
+    assert res.stderr.strip().count("\n") == 0

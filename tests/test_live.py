@@ -118,6 +118,10 @@ def test_measured_system_reads_what_was_pushed(arch) -> None:
         ({"t": "soon"}, "not a number"),
         ({"t": 1.0, "configuration": "p9"}, "unknown configuration 'p9'"),
         ({"t": 1.0, "outputs": [1, 2]}, "outputs must be a mapping"),
+        # each was an internal error (AttributeError, unhashable list)
+        ({"t": 1.0, "outputs": {"tank": 5}}, "outputs of module 'tank' must be a mapping"),
+        ({"t": 1.0, "signals": {"observer_a": 5}}, "signals of module 'observer_a' must be"),
+        ({"t": 1.0, "configuration": ["p1"]}, r"configuration \['p1'\], not a name"),
     ],
 )
 def test_measured_system_refuses_bad_measurements(arch, kwargs, message) -> None:
@@ -304,6 +308,34 @@ def test_loop_gives_up_on_a_silent_plant(arch) -> None:
     finally:
         accepted.join(timeout=10.0)
         link.close()
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [  # a plant's malformed lines: one-line LiveErrors (a deep nesting was a RecursionError)
+        (b'{"type":"measurement","t":0,"outputs":' + b'{"a":' * 100_000 + b"1"
+         + b"}" * 100_000 + b"}", "nested too deeply"),
+        (b"\xff\xfe{}", "'utf-8' codec can't decode"),
+        (b'{"type":"measurement","t":0,"outputs":{"tank":5}}', "must be a mapping of signals"),
+    ],
+)
+def test_loop_refuses_a_malformed_line(arch, line: bytes, message: str) -> None:
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+
+        def plant() -> None:
+            conn, _ = server.accept()
+            with conn:
+                conn.makefile("rb").readline()  # hello
+                conn.sendall(line + b"\n")
+                conn.recv(1)  # until the loop closes the connection
+
+        t = threading.Thread(target=plant, daemon=True)
+        t.start()
+        with pytest.raises(LiveError, match=message):
+            run_remote(LiveLoop(arch), "127.0.0.1", server.getsockname()[1], timeout_s=10.0)
+        t.join(timeout=10.0)
 
 
 def test_loop_reports_a_plant_that_is_not_there(arch) -> None:

@@ -61,6 +61,31 @@ def _cells(arch: Any, results: list[dict[str, Any]]) -> list[Cell]:
     return cells
 
 
+def _check_size(
+    arch: Any, file: str, per_cell: int, scenarios: Sequence[str], confs: Sequence[str]
+) -> None:
+    """Refuse runs whose recorded residuals would not fit in half of the memory.
+
+    Every run's residuals (one row a cycle, a column per residual module) are kept
+    until the bands are fitted: ``--seeds 100000000`` grew past 1.8 GB in 30 s
+    before a single run started, and would have ended out of memory.
+    """
+    from archself.campaign.plan import BYTES_PER_RUN, _memory_bytes
+
+    runs = per_cell * len(scenarios) * len(confs)
+    width = sum(1 for spec in arch.modules.values() if spec.residual is not None)
+    cycles = max(float(arch.scenarios[s].duration_s) for s in scenarios) / float(
+        arch.runtime.period_s)
+    need = runs * (BYTES_PER_RUN + 8 * (width + 2) * (cycles + 1))
+    avail = _memory_bytes("SC_PHYS_PAGES")
+    if avail and need > avail // 2:
+        raise CalibrationError(
+            f"{file}: {runs:,} runs would hold ~{need / 1024**3:,.1f} GB of residuals, more "
+            f"than half of this machine's memory ({avail / 1024**3:.1f} GB); use fewer "
+            "--seeds, --verify-seeds, configurations or --envelope points"
+        )
+
+
 def calibrate(
     arch_path: str | Path,
     *,
@@ -154,6 +179,8 @@ def calibrate(
     if sweeps:
         digest += "|" + ";".join(f"{s.path}={s.values}" for s in sweeps)
     elapsed = verify_elapsed = 0.0
+    if from_runs is None:
+        _check_size(arch, file, (seeds + verify_seeds) * n_points, chosen, confs)
     if from_runs is not None:
         meta, saved = load_runs(from_runs)
         if meta.get("digest") != digest:
@@ -161,6 +188,15 @@ def calibrate(
                 f"{from_runs}: runs of another architecture (not only the bands differ from "
                 f"{file}); run them again without --from-runs"
             )
+        width = sum(1 for spec in arch.modules.values() if spec.residual is not None)
+        for one in saved:  # the digest matched: only a damaged file gets here
+            if (one["scenario"] not in arch.scenarios
+                    or one["configuration"] not in arch.configurations
+                    or (one["error"] is None and one["x"].shape[1] != width)):
+                raise CalibrationError(
+                    f"{from_runs}: a run of {one['scenario']!r} in {one['configuration']!r} does "
+                    f"not fit {file} (a damaged runs file); run them again without --from-runs"
+                )
         seeds, verify_seeds = int(meta["seeds"]), int(meta["verify_seeds"])
         chosen, confs = list(meta["scenarios"]), list(meta["configurations"])
         root_seed = int(meta["root_seed"])

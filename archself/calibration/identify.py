@@ -91,6 +91,22 @@ def _experiments(
     return chosen, skipped
 
 
+def _check_fault(path: str | Path, module: str, kind: str, magnitude: float, own: bool) -> None:
+    """Refuse a perturbation the fault model refuses, before any run (each run failed)."""
+    from pydantic import ValidationError
+
+    from archself.model import Fault
+
+    try:
+        Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,
+                              "magnitude": magnitude})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        opt = f"--perturb {module}={kind}:{magnitude:g}" if own else f"--magnitude {magnitude:g}"
+        where = ".".join(str(x) for x in err.get("loc", ()))
+        raise IdentifyError(f"{path}: {opt}: fault {where}: {err.get('msg', 'invalid')}") from None
+
+
 def identify(
     path: str | Path,
     *,
@@ -153,6 +169,10 @@ def identify(
 
     if seeds < 1:
         raise IdentifyError("--seeds must be at least 1")
+    if settle_s is not None and not (math.isfinite(settle_s) and settle_s >= 0):
+        raise IdentifyError(f"--settle {settle_s:g}: expected a time ≥ 0 s")
+    if not (math.isfinite(min_excitation) and min_excitation >= 0):
+        raise IdentifyError(f"--min-excitation {min_excitation:g}: expected a number ≥ 0")
     text, arch, scen, confs = _prepare(path, scenario, configurations)
     perturb = dict(perturb or {})
     for m in perturb:
@@ -170,12 +190,26 @@ def identify(
             f"{path}: settling time {settle_s:g} s is not shorter than scenario {scen!r} "
             f"({duration:g} s)"
         )
+    # at most one run a seed per module and the unperturbed one, each held by the driver:
+    # refused when past half the memory (--seeds 100000000 grew for minutes, no run started)
+    from archself.campaign.plan import BYTES_PER_RUN, _memory_bytes
+
+    most = seeds * sum(1 + len(arch.configurations[c].modules) for c in confs)
+    avail = _memory_bytes("SC_PHYS_PAGES")
+    if avail and most * BYTES_PER_RUN > avail // 2:
+        raise IdentifyError(
+            f"{path}: up to {most:,} runs would need ~{most * BYTES_PER_RUN / 1024**3:,.1f} GB, "
+            f"more than half of this machine's memory ({avail / 1024**3:.1f} GB); use fewer "
+            "--seeds or configurations"
+        )
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     seed_list = seeds_from(root_seed, 0, seeds)
     plan: dict[str, tuple[list[tuple[str, str, float]], list[str]]] = {}
     jobs: list[IdJob] = []
     for c in confs:
         exps, skipped = _experiments(arch, c, kind, magnitude, perturb)
+        for m, k, mag in exps:  # what every run would refuse (a magnitude past 1e9)
+            _check_fault(path, m, k, mag, m in perturb)
         plan[c] = (exps, skipped)
         for rep, sd in enumerate(seed_list):
             for p in [None, *exps]:

@@ -247,7 +247,9 @@ def fit_target(
     """
     from scipy.optimize import nnls
 
-    X = np.asarray(X, dtype=float).reshape(len(y), -1)
+    X = np.asarray(X, dtype=float)
+    if X.ndim != 2:  # a 2-D X may have no rows (no usable experiment): (0, p), not (0, -1)
+        X = X.reshape(len(y), -1)
     y = np.asarray(y, dtype=float)
     n, p = X.shape
     weights = np.full(p, math.nan)

@@ -117,13 +117,13 @@ def parse_envelope(loaded: Any, specs: Sequence[str]) -> tuple[Any, ...]:
         return ()
     from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
     from archself.check import check
-    from archself.loader import Loaded, SourceMap
+    from archself.loader import Loaded
 
     try:
         sweeps = tuple(parse_sweep(s) for s in specs)
         for point in sweep_points(sweeps):
-            swept = apply_values(loaded.data, sweeps, point, loaded.file)
-            bad = [f for f in check(Loaded(swept, SourceMap(loaded.file), loaded.data))
+            swept = apply_values(loaded.data, sweeps, point, loaded.file, loaded.source)
+            bad = [f for f in check(Loaded(swept, loaded.source, loaded.data))
                    if f.severity == "error"]
             if bad:
                 setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))

@@ -82,11 +82,19 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
+            problem = _meta_problem(meta)
+            if problem:
+                raise LoadError(f"not a runs file of archself calibrate ({problem})", str(path))
             results = []
             for k, row in enumerate(meta.pop("runs")):
                 r = dict(row)
                 if r["error"] is None:
                     r["x"], r["forced"], r["t"] = z[f"x{k}"], z[f"forced{k}"], z[f"t{k}"]
+                    x, forced, t = r["x"], r["forced"], r["t"]
+                    if (x.ndim != 2 or x.dtype.kind not in "fiu" or forced.ndim != 1
+                            or t.ndim != 1 or not len(x) == len(forced) == len(t)):
+                        raise LoadError(f"not a runs file of archself calibrate (the arrays "
+                                        f"of run {k} have the wrong shape or type)", str(path))
                 results.append(r)
     except FileNotFoundError:
         raise LoadError("no such file", str(path)) from None
@@ -95,3 +103,31 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
             f"not a runs file of archself calibrate ({type(exc).__name__})", str(path)
         ) from None
     return meta, results
+
+
+def _meta_problem(meta: Any) -> str:
+    """What is wrong with a runs file's metadata ('' if nothing)."""
+    if not isinstance(meta, dict):
+        return "its metadata is not an object"
+    for key in ("seeds", "verify_seeds", "root_seed"):
+        if not isinstance(meta.get(key), int) or isinstance(meta.get(key), bool):
+            return f"metadata {key!r} is not an integer"
+    for key in ("elapsed_s", "verify_elapsed_s"):
+        if not isinstance(meta.get(key), int | float) or isinstance(meta.get(key), bool):
+            return f"metadata {key!r} is not a number"
+    for key in ("scenarios", "configurations"):
+        if not isinstance(meta.get(key), list) or not all(isinstance(x, str) for x in meta[key]):
+            return f"metadata {key!r} is not a list of names"
+    if not isinstance(meta.get("executor"), str):
+        return "metadata 'executor' is not a name"
+    runs = meta.get("runs")
+    if not isinstance(runs, list):
+        return "metadata 'runs' is not a list"
+    for k, r in enumerate(runs):
+        if not (isinstance(r, dict) and isinstance(r.get("scenario"), str)
+                and isinstance(r.get("configuration"), str)
+                and isinstance(r.get("seed"), int) and isinstance(r.get("replicate"), int)
+                and (r.get("error") is None or isinstance(r.get("error"), str))
+                and r.get("phase") in ("calibration", "verify")):
+            return f"run {k} is not a saved run"
+    return ""

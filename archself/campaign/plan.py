@@ -98,7 +98,7 @@ def plan_campaign(
     """
     from archself.check import check
     from archself.lanes.batching import batched_types
-    from archself.loader import Loaded, SourceMap, load_text, read_text
+    from archself.loader import Loaded, load_text, read_text
 
     if trace_format not in ("json", "parquet"):
         raise CampaignError(f"unknown trace format {trace_format!r}; known: json, parquet")
@@ -128,9 +128,9 @@ def plan_campaign(
     est.check(yes)
     points = sweep_points(sweeps)
     for point in points if sweeps else []:
-        swept = apply_values(loaded.data, sweeps, point, file)
+        swept = apply_values(loaded.data, sweeps, point, file, loaded.source)
         setting = ", ".join(f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True))
-        _no_errors(check(Loaded(swept, SourceMap(file), loaded.data)), f"{setting}: ")
+        _no_errors(check(Loaded(swept, loaded.source, loaded.data)), f"{setting}: ")
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     seed_list = run_seeds(root_seed, seeds)
     tdir = Path(traces) if traces is not None else None

@@ -145,7 +145,56 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
         meta = json.loads(raw)
     except ValueError:
         raise CampaignError(f"{p}: damaged campaign metadata") from None
-    return _upgrade(table), meta
+    lists = ("sweeps", "fault_free", "thresholds")
+    if not isinstance(meta, dict) or not all(
+        isinstance(meta.get(k, []), list) and all(isinstance(x, str) for x in meta.get(k, []))
+        for k in lists
+    ):
+        raise CampaignError(f"{p}: damaged campaign metadata (expected an object whose "
+                            f"{', '.join(lists)} are lists of strings)")
+    return _checked(p, _upgrade(table), meta["sweeps"] if "sweeps" in meta else []), meta
+
+
+#: Columns a results table may lack (written before they were added); null when resumed.
+OPTIONAL_COLUMNS = frozenset({"n_updates", "updates", "unit", "trace", "error"})
+#: Columns no row leaves empty (the keys of a run; the sweep columns too).
+KEY_COLUMNS = ("run_id", "scenario", "replicate", "mode")
+
+
+def _checked(p: Path, table: Any, sweep_paths: Sequence[str]) -> Any:
+    """``table`` with every column of :func:`results_schema` in its type, or a one-line error.
+
+    A column another tool rewrote in a type that converts (``int64`` replicates, numbers
+    as strings) is converted; a missing column, one that does not convert and an empty
+    key (:data:`KEY_COLUMNS`, the sweep columns) are refused: resuming or reporting such
+    a table failed deep inside with an internal error.
+    """
+    import pyarrow as pa
+
+    names = table.column_names
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise CampaignError(f"{p}: column {twice[0]!r} appears twice; not the results of an "
+                            "archself campaign")
+    for f in results_schema(sweep_paths):
+        if f.name not in names:
+            if f.name in OPTIONAL_COLUMNS:
+                continue
+            raise CampaignError(f"{p}: no column {f.name!r}; not the results of an archself "
+                                "campaign")
+        col = table.column(f.name)
+        if col.type != f.type:
+            try:
+                col = col.cast(f.type)
+            except (pa.ArrowException, ValueError, TypeError):
+                raise CampaignError(
+                    f"{p}: column {f.name!r} holds {col.type}, expected {f.type}"
+                ) from None
+            table = table.set_column(names.index(f.name), f.name, col)
+        if (f.name in KEY_COLUMNS or f.name in sweep_paths) and col.null_count:
+            raise CampaignError(f"{p}: column {f.name!r} has {col.null_count} empty "
+                                f"value{'s' * (col.null_count != 1)}; every run has one")
+    return table
 
 
 #: Columns of tables written before the metrics took their unit from the file.

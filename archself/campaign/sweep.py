@@ -199,7 +199,7 @@ def _coerce(old: Any, value: Any) -> Any:
     if isinstance(old, list | dict):
         raise CampaignError("sweep PATH must lead to a single value, not a list or mapping")
     if isinstance(old, int) and not isinstance(old, bool) and isinstance(value, float):
-        if math.isfinite(value) and value == int(value):
+        if math.isfinite(value) and value == int(value) and abs(value) < 2**53:
             return int(value)
     return value
 
@@ -286,9 +286,13 @@ def sweep_points(sweeps: Sequence[Sweep]) -> list[tuple[float, ...]]:
 
 
 def apply_values(
-    data: dict[str, Any], sweeps: Sequence[Sweep], point: Sequence[float], file: str = "<campaign>"
+    data: dict[str, Any], sweeps: Sequence[Sweep], point: Sequence[float], file: str = "<campaign>",
+    source: Any = None,
 ) -> Any:
     """Apply one sweep point to the plain data and validate the result through the model.
+
+    ``source`` (the :class:`archself.yaml_source.SourceMap` of ``data``) locates a
+    refused value in the file, as ``validate`` would.
 
     Returns
     -------
@@ -323,8 +327,14 @@ def apply_values(
                     f"{_hint(str(last), dict.fromkeys(known))}"
                 ) from None
 
-        where = dotted(tuple(err.get("loc", ()))) or "<root>"
         setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
+        if source is not None:  # located and worded as the loader's (not a union member's)
+            from archself.schema_messages import schema_findings
+
+            found = schema_findings(out, exc, source)
+            if found:
+                raise CampaignError(f"{setting}: {found[0]}") from None
+        where = dotted(tuple(err.get("loc", ()))) or "<root>"
         raise CampaignError(
             f"{file}: {setting}: {where}: {err.get('msg', 'invalid value')}"
         ) from None

@@ -180,6 +180,12 @@ class MeasuredSystem:
         for what, value in (("outputs", outputs), ("signals", signals), ("health", health)):
             if value is not None and not isinstance(value, Mapping):
                 raise LiveError(f"measurement {what} must be a mapping of modules")
+            for m, sigs in (value or {}).items() if what != "health" else ():
+                if sigs is not None and not isinstance(sigs, Mapping):
+                    raise LiveError(f"measurement {what} of module {str(m)!r} must be a "
+                                    "mapping of signals")
+        if configuration is not None and not isinstance(configuration, str):
+            raise LiveError(f"the plant reports configuration {configuration!r}, not a name")
         self.t = t
         for m, sigs in (outputs or {}).items():
             self.outputs[str(m)] = {str(k): _value(v) for k, v in (sigs or {}).items()}

@@ -123,9 +123,11 @@ class _Channel:
         if len(line) > MAX_MESSAGE:
             raise LiveError(f"message longer than {MAX_MESSAGE} bytes")
         try:
-            msg = json.loads(line)
+            msg = json.loads(line.decode("utf-8"))  # UTF-8 only (not guessed from a BOM)
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise LiveError(f"malformed message: {exc}") from None
+        except RecursionError:
+            raise LiveError("malformed message: nested too deeply") from None
         if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
             raise LiveError("malformed message: not an object with a 'type'")
         return msg
