@@ -210,6 +210,20 @@ def test_cycles_follow_the_plant_clock(arch) -> None:
     assert loop.measurements == 7
 
 
+def test_a_huge_finite_residual_signal_is_capped_not_a_crash(arch) -> None:
+    """1e308 over a nominal of 2.47 overflowed r to inf; the influence solve refused it."""
+    from archself.runtime.residuals import MAX_RESIDUAL
+
+    loop = LiveLoop(arch)
+    out = {"tank": {"level": 1.0}, "setpoint": {"setpoint": [1.0, 0.0]}}
+    for k in range(1, 40):
+        loop.push(float(k), outputs=out, signals={"observer_a": {"disagreement": 1e308}})
+    logs = [d.to_dict() for d in loop.decisions]
+    assert max(d["r"].get("observer_a", 0.0) for d in logs) == MAX_RESIDUAL
+    assert all(np.isfinite(v) for d in logs for v in d["z"].values())
+    assert loop.switches and loop.switches[0]["from"] == "p1"  # the fault is acted on
+
+
 # ---------------------------------------------------------------------- refusals
 def _with_rollout(action: str) -> str:
     """The plant's text with ``action``'s Δ estimated by rollout."""

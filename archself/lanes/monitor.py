@@ -24,6 +24,7 @@ import numpy as np
 
 from archself.runtime.monitor import Monitor, Observation
 from archself.runtime.monitor_layout import confidence_reader
+from archself.runtime.residuals import MAX_RESIDUAL
 from archself.runtime.status import StatusMap
 
 __all__ = ["observe_group"]
@@ -98,7 +99,7 @@ def observe_group(
             res = sens * np.abs(new)
         else:
             res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
-        res = np.where(np.isfinite(new), res, 0.0)
+        res = np.where(np.isfinite(new), np.minimum(res, MAX_RESIDUAL), 0.0)
         untrusted = VT1 < lay0.trust_time
         if partial:
             untrusted |= ~F  # no residual from a filter that took no sample

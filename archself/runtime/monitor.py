@@ -59,6 +59,7 @@ import numpy as np
 from archself.model import Architecture
 from archself.runtime.monitor_layout import Layout, as_floats, confidence_reader
 from archself.runtime.residuals import (
+    MAX_RESIDUAL,
     ResidualFilter,
     filter_gain,
     is_own_failure,
@@ -330,5 +331,6 @@ class Monitor:
             out = sens * np.abs(value)
         else:  # max(0, |s̄| − nominal); never −0.0 since nominal > 0
             out = sens * np.maximum(np.abs(value) - nom, 0.0) / nom
+        out = np.minimum(out, MAX_RESIDUAL)
         fin = np.isfinite(value)
         return out if fin.all() else np.where(fin, out, 0.0)

@@ -12,6 +12,7 @@ import math
 from typing import Any
 
 __all__ = [
+    "MAX_RESIDUAL",
     "ResidualFilter",
     "filter_confidence",
     "filter_gain",
@@ -20,6 +21,11 @@ __all__ = [
     "to_float",
     "unavailable_residual",
 ]
+
+
+#: r_i is capped here: a finite but huge signal (1e308 over a nominal of 0.1) would
+#: overflow to inf, which the influence solve cannot take; any band is far below.
+MAX_RESIDUAL = 1e12
 
 
 def filter_gain(dt: float, time_constant: float) -> float:
@@ -56,7 +62,7 @@ def module_residual(
     Returns
     -------
     float
-        ``r_i``; 0 for a non-finite value.
+        ``r_i``, at most :data:`MAX_RESIDUAL`; 0 for a non-finite value.
 
     Examples
     --------
@@ -70,8 +76,8 @@ def module_residual(
     if not math.isfinite(value):
         return 0.0
     if normalization == "none":
-        return float(sensitivity * abs(value))
-    return float(sensitivity * max(0.0, abs(value) - nominal) / nominal)
+        return float(min(sensitivity * abs(value), MAX_RESIDUAL))
+    return float(min(sensitivity * max(0.0, abs(value) - nominal) / nominal, MAX_RESIDUAL))
 
 
 def unavailable_residual(runtime: Any) -> float:
