@@ -216,8 +216,9 @@ def test_a_huge_finite_residual_signal_is_capped_not_a_crash(arch) -> None:
 
     loop = LiveLoop(arch)
     out = {"tank": {"level": 1.0}, "setpoint": {"setpoint": [1.0, 0.0]}}
+    huge = {"observer_a": {"disagreement": 1e308}, "observer_b": {"innovation": 1e308}}
     for k in range(1, 40):
-        loop.push(float(k), outputs=out, signals={"observer_a": {"disagreement": 1e308}})
+        loop.push(float(k), outputs=out, signals=huge)
     logs = [d.to_dict() for d in loop.decisions]
     assert max(d["r"].get("observer_a", 0.0) for d in logs) == MAX_RESIDUAL
     assert all(np.isfinite(v) for d in logs for v in d["z"].values())
