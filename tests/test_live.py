@@ -452,3 +452,52 @@ def test_commands_name_the_exported_ros2_modes(arch) -> None:
         part, mode = c.ros2_mode(arch.name)
         assert part == a.module
         assert doc[part]["ros__parameters"]["modes"][mode]["ros__parameters"] == a.set
+
+
+def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatch) -> None:
+    """A --log in a missing folder is refused before connecting; a log that cannot be
+    written after the run is kept in a temporary file the message names."""
+    import threading
+
+    from typer.testing import CliRunner
+
+    import archself.atomic
+    from archself.cli import app
+    from archself.errors import OutputError
+
+    arch_file = tmp_path / "plant.yaml"
+    arch_file.write_text(_plant_text(), encoding="utf-8")
+    early = CliRunner().invoke(app, ["live", str(arch_file), "--connect", "127.0.0.1:9",
+                                     "--log", str(tmp_path / "no" / "log.json")])
+    assert early.exit_code == 1 and "does not exist" in early.stderr
+    assert "connect" not in early.stderr.lower()
+
+    link = PlantLink(port=0, timeout_s=30.0)
+
+    def plant() -> None:
+        link.accept()
+        for k in range(1, 6):
+            link.send(0.2 * k, outputs={"tank": {"level": 1.0},
+                                        "setpoint": {"setpoint": [1.0, 0.0]}})
+        link.close()
+
+    thread = threading.Thread(target=plant, daemon=True)
+    thread.start()
+
+    def refuse(path, text):
+        raise OutputError("disk full", str(path))
+
+    monkeypatch.setattr(archself.atomic, "write_text", refuse)
+    log = tmp_path / "log.json"
+    late = CliRunner().invoke(app, ["live", str(arch_file), "--connect",
+                                    f"127.0.0.1:{link.port}", "--log", str(log)])
+    thread.join(timeout=HANG_GUARD_S)
+    assert late.exit_code == 1, late.stderr
+    line = late.stderr.strip()
+    assert "\n" not in line and "disk full" in line
+    kept = Path(line.rsplit("the decision log is kept in ", 1)[1])
+    try:
+        doc = json.loads(kept.read_text(encoding="utf-8"))
+        assert doc["meta"]["measurements"] == 5 and doc["meta"]["mode"] == "live"
+    finally:
+        kept.unlink()

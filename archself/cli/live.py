@@ -10,6 +10,7 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
+from archself.jsondata import jsonable
 
 
 def live(
@@ -67,6 +68,9 @@ def live(
             from archself.outputs import refuse_same_file
 
             refuse_same_file([arch_path], log, "--log")
+            if log.is_dir() or not log.parent.is_dir():  # found out before the run, not after
+                what = "is a folder" if log.is_dir() else f"folder {log.parent} does not exist"
+                raise _fail(f"{log}: error: --log {what}; the decision log needs a file")
         with _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
@@ -78,10 +82,7 @@ def live(
                 f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
             served = run_remote(loop, host, port, timeout_s=timeout)
             if log is not None:
-                from archself.atomic import write_text
-                from archself.jsondata import jsonable
-
-                write_text(log, json.dumps(jsonable(_log(loop, arch_path, start, served)),
+                _write_log(log, json.dumps(jsonable(_log(loop, arch_path, start, served)),
                                            separators=(",", ":")) + "\n")
     except ArchselfError as exc:
         raise _die(exc) from None
@@ -103,6 +104,26 @@ def live(
     lines += [(u["t_s"], f"{u['module']} ← {u['set']} ({u['action']})") for u in loop.updates]
     for t_s, what in sorted(lines, key=lambda line: line[0]):  # in time order
         typer.echo(f"  t = {t_s:g} s: {what}")
+
+
+def _write_log(log: Path, text: str) -> None:
+    """Write the decision log; if FILE cannot be written, keep it in a temporary file.
+
+    A live run cannot be repeated (the plant went its own way), so its log is never
+    dropped: the one-line error names where it was kept.
+    """
+    from archself.atomic import write_text
+
+    try:
+        write_text(log, text)
+    except ArchselfError as exc:
+        import os
+        import tempfile
+
+        fd, spare = tempfile.mkstemp(prefix="archself-live-", suffix=".json")
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        raise _fail(f"{exc}; the decision log is kept in {spare}") from None
 
 
 def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
