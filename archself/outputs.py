@@ -77,8 +77,35 @@ def check_input(path: str | Path, what: str = "file") -> None:
         raise LoadError(f"is {kind}, expected {what}", str(path))
 
 
+def path_problem(path: object) -> str | None:
+    """Why ``path`` (an argument of the Python API) names no file, or None.
+
+    ``os.stat`` takes an ``int`` as a file descriptor and YAML text as a long name;
+    ``None``, an :class:`~archself.model.Architecture` or a list are not paths.
+
+    Examples
+    --------
+    >>> path_problem("a.yaml") is None
+    True
+    >>> path_problem(None)
+    'expected the path of a file (str or Path), got NoneType'
+    """
+    if not isinstance(path, str | bytes | os.PathLike):
+        return f"expected the path of a file (str or Path), got {type(path).__name__}"
+    text = os.fsdecode(path)
+    if not text:
+        return "expected the path of a file, got an empty string"
+    if "\n" in text:
+        return (f"expected the path of a file, got a text of {text.count(chr(10)) + 1} lines "
+                "(the file's content?)")
+    return None
+
+
 def stat_input(path: str | Path) -> os.stat_result:
     """``os.stat`` of an input; a missing or unreadable one is a :class:`LoadError`."""
+    problem = path_problem(path)
+    if problem is not None:
+        raise LoadError(problem, "<argument>")
     try:
         return os.stat(path)
     except FileNotFoundError:

@@ -209,3 +209,12 @@ def test_progress_bar_starts_with_the_first_step(monkeypatch) -> None:
     cli._run(arch, "calm", None, 1, False, True)
     assert events[:2] == ["build", "bar"]
     assert sum(int(e[1:]) for e in events if e.startswith("+")) == 100
+
+
+@pytest.mark.parametrize("name", ["", "."])
+def test_trace_without_a_file_name_is_a_one_line_error(name: str) -> None:
+    """--trace '' (Path('.'), no name for the '.fixed' twin) was an internal error."""
+    out = CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--compare",
+                                   "--trace", name])
+    assert out.exit_code == 1, (out.stderr, out.exception)
+    assert out.stderr == ".: cannot write: is a folder; --trace takes a file name\n"

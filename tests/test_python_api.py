@@ -152,3 +152,32 @@ def test_missing_pandas_is_a_one_line_error(run: Any, monkeypatch: pytest.Monkey
             method()
         assert "pip install 'archself[pandas]'" in str(info.value)
         assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("call", [
+    lambda: archself.load(None),
+    lambda: archself.load(5),  # os.stat would take it as a file descriptor
+    lambda: archself.load(""),
+    lambda: archself.load("archself: 1\nname: x\n"),  # the text, not its path
+    lambda: archself.load(archself.load(DIFFDRIVE)),
+    lambda: archself.simulate(None, "nominal"),
+    lambda: archself.simulate(DIFFDRIVE, "nominal", seed=-1),
+    lambda: archself.simulate(DIFFDRIVE, "nominal", seed="x"),
+    lambda: archself.simulate(DIFFDRIVE, "nominal", seed=1.5),
+    lambda: archself.simulate(DIFFDRIVE, "nominal", adapt=5),
+    lambda: archself.simulate(DIFFDRIVE, "nominal", progress="x"),
+    lambda: archself.MapeK(str(DIFFDRIVE)),
+    lambda: archself.read_trace(None),
+    lambda: archself.read_trace(""),
+    lambda: archself.explain(str(DIFFDRIVE)),
+])
+def test_odd_arguments_are_one_line_archself_errors(call: Any) -> None:
+    """Not a TypeError from deep inside: an ArchselfError saying what was expected."""
+    with pytest.raises(archself.ArchselfError) as info:
+        call()
+    assert "\n" not in str(info.value) and "expected" in str(info.value), str(info.value)
+
+
+def test_validate_of_a_non_path_gives_a_finding() -> None:
+    (finding,) = archself.validate(None)
+    assert finding.severity == "error" and "expected the path of a file" in finding.message

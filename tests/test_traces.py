@@ -188,3 +188,67 @@ def test_cli_report_names_the_old_trace_whatever_the_order(tmp_path: Path) -> No
                                    "-o", str(tmp_path / "r")])
     assert out.exit_code == 1
     assert out.stderr.startswith(f"{old}: error: the trace does not hold"), out.stderr
+
+
+@pytest.mark.parametrize(("where", "value", "message"), [
+    (("decisions",), {"a": 1}, "decisions: expected a list of decision records"),
+    (("decisions", 0), 5, "decisions[0]: expected a decision record"),
+    (("decisions", 0, "candidates"), 5, "decisions[0].candidates: expected a list"),
+    (("decisions", 0, "chosen"), "x", "decisions[0].chosen: expected an object"),
+    (("decisions", 0, "z"), [1], "decisions[0].z: expected an object of modules"),
+    (("decisions", 0, "z", "imu"), "x", "decisions[0].z.imu: expected a number"),
+    (("decisions", 0, "evaluations"), [5], "decisions[0].evaluations[0]: expected an object"),
+    (("meta", "report"), {}, "meta.report: expected a threshold"),
+    (("meta", "report", "faults"), 5, "meta.report.faults: expected a list"),
+    (("meta", "objective", "components"), "ab", "meta.objective.components"),
+    (("meta", "switches"), [{}], "meta.switches[0].t_s: expected a number"),
+    (("meta", "seed"), "x", "meta.seed: expected an integer, got a string"),
+    (("series", "J"), [0.0] * 3, "series.J: 3 rows, but series.t has"),
+    (("series", "J"), 5, "series.J: expected a list"),
+    (("series", "configuration"), None, "series.configuration: expected a list"),
+])
+def test_edited_traces_are_one_line_errors(switching_run, tmp_path: Path, where, value,
+                                           message) -> None:
+    """A trace edited by hand: a located one-line error from explain and report --trace."""
+    _, res = switching_run
+    doc = json.loads(json.dumps(res.trace()))  # a copy: the run's meta is shared
+    parent = doc
+    for key in where[:-1]:
+        parent = parent[key]
+    parent[where[-1]] = value
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(doc))
+    for args in (["explain", str(path)], ["explain", "--json", str(path)],
+                 ["report", "--trace", str(path), "-o", str(tmp_path / "r")]):
+        out = CliRunner().invoke(app, args)
+        assert out.exit_code == 1, (args, out.stderr, out.exception)
+        assert out.stderr.startswith(f"{path}: error: not an archself trace: ")
+        assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_broken_traces_are_one_line_errors(switching_run, tmp_path: Path) -> None:
+    """Truncated JSON is located; nesting deeper than Python's stack is not a crash."""
+    _, res = switching_run
+    cut = tmp_path / "cut.json"
+    cut.write_text(json.dumps(res.trace())[:5000])
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    no_series = tmp_path / "no_series.json"
+    doc = json.loads(json.dumps(res.trace()))
+    doc["series"] = {}  # a live run's decision log has no series
+    no_series.write_text(json.dumps(doc))
+    for path, message in ((cut, f"{cut}:1:5001: error: not an archself trace: invalid JSON"),
+                          (deep, f"{deep}: error: not an archself trace")):
+        out = CliRunner().invoke(app, ["explain", str(path)])
+        assert out.exit_code == 1 and out.stderr.startswith(message), out.stderr
+    out = CliRunner().invoke(app, ["report", "--trace", str(no_series), "-o",
+                                   str(tmp_path / "r")])
+    assert out.exit_code == 1 and "has no series t and J" in out.stderr, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("decisions", [None, 5, "abc", {"a": 1}, [1, 2], [{"z": [1]}],
+                                       [{"candidates": 5}], [{"chosen": "x"}]])
+def test_explain_api_refuses_what_is_not_a_log(decisions) -> None:
+    with pytest.raises(archself.ArchselfError, match="not a decision log: decisions"):
+        archself.explain(decisions)

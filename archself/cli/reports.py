@@ -117,9 +117,12 @@ def _report_from_traces(
             _inputs(arch_path)
         for name in _RUN_REPORT_FILES:
             refuse_same_file(inputs, output / name, "-o")
-        with protect(inputs):
+        with protect(inputs), _numeric(traces[0]):
             results = [read_trace(t) for t in traces]
             for t, r in zip(traces, results, strict=True):
+                if not {"t", "J"} <= set(r.series):
+                    raise _fail(f"{t}: error: the trace has no series t and J (a live run's "
+                                "decision log?); a run report needs a trace of simulate --trace")
                 if arch_path is None and not isinstance(r.meta.get("report"), dict):
                     raise _fail(f"{t}: error: the trace does not hold the run report's "
                                 "settings (written by an older archself); pass the "

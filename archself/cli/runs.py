@@ -175,6 +175,8 @@ def simulate(
         raise _fail("--trace - and --json both write to stdout: choose one", 2)
     if to_stdout:
         trace = None
+    if trace is not None and not trace.name:  # '' or '.': no file name to write
+        raise _fail(f"{trace}: cannot write: is a folder; --trace takes a file name")
     if trace is not None and not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
     from archself.atomic import protect

@@ -33,6 +33,87 @@ def _as_dict(d: Any) -> dict[str, Any]:
     return d.to_dict() if hasattr(d, "to_dict") else dict(d)
 
 
+def _num(x: Any) -> bool:
+    """A number of a record (or None: a non-finite one)."""
+    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
+
+
+def _kind(x: Any) -> str:
+    """What ``x`` is, for a message."""
+    return {dict: "an object", list: "a list", str: "a string", type(None): "null"}.get(
+        type(x), type(x).__name__)
+
+
+def _record_problem(d: Any) -> str | None:
+    """What is wrong with one record of a decision log (``to_dict()`` form), or None."""
+    if not isinstance(d, Mapping):
+        return f": expected a decision record (an object), got {_kind(d)}"
+    for key in ("t", "j_obs", "j_ref", "r_global", "cycle"):
+        if not _num(d.get(key)):
+            return f".{key}: expected a number, got {_kind(d.get(key))}"
+    for key in ("r", "z", "source", "kappa"):
+        m = d.get(key)
+        if m is not None and not isinstance(m, Mapping):
+            return f".{key}: expected an object of modules, got {_kind(m)}"
+        bad = None if key == "kappa" else next((n for n, v in (m or {}).items() if not _num(v)),
+                                                None)
+        if bad is not None:
+            return f".{key}.{bad}: expected a number, got {_kind(m[bad])}"  # type: ignore[index]
+    for key in ("candidates", "compensated"):
+        names = d.get(key)
+        if names is not None and (not isinstance(names, list)
+                                  or not all(isinstance(n, str) for n in names)):
+            return f".{key}: expected a list of module names"
+    evals = d.get("evaluations")
+    if evals is not None and not isinstance(evals, list):
+        return f".evaluations: expected a list, got {_kind(evals)}"
+    for i, e in enumerate(evals or []):
+        if not isinstance(e, Mapping) or "action" not in e:
+            return f".evaluations[{i}]: expected an object with an action, got {_kind(e)}"
+        bad = next((k for k in ("z", "delta", "cost", "score") if not _num(e.get(k))), None)
+        if bad is not None:
+            return f".evaluations[{i}].{bad}: expected a number, got {_kind(e[bad])}"
+        if e.get("stability") is not None and not isinstance(e["stability"], Mapping):
+            return f".evaluations[{i}].stability: expected an object, got {_kind(e['stability'])}"
+    ch = d.get("chosen")
+    if ch is not None and not isinstance(ch, Mapping) or ch and "action" not in ch:
+        return f".chosen: expected an object with an action, or null, got {_kind(ch)}"
+    bad = next((k for k in ("z", "score", "source") if not _num((ch or {}).get(k))), None)
+    if bad is not None:
+        return f".chosen.{bad}: expected a number, got {_kind(ch[bad])}"  # type: ignore[index]
+    return None
+
+
+def decision_log_problem(decisions: Any) -> str | None:
+    """What makes ``decisions`` not a decision log (``decisions[3].z: expected …``), or None.
+
+    A log is a list of records (:class:`~archself.runtime.decisions.DecisionRecord` or
+    their ``to_dict()`` form, as a trace stores them); a field may be missing, but one
+    that is there has its type.
+    """
+    if isinstance(decisions, str | bytes | Mapping) or not isinstance(decisions, Iterable):
+        hint = (" (a run's are its .decisions; a trace's: read_trace(path).decisions)"
+                if isinstance(decisions, str) or hasattr(decisions, "decisions") else "")
+        return f"decisions: expected a list of decision records, got {_kind(decisions)}{hint}"
+    for i, d in enumerate(decisions):
+        problem = None if hasattr(d, "to_dict") else _record_problem(d)
+        if problem is not None:
+            return f"decisions[{i}]{problem}"
+    return None
+
+
+def _records(decisions: Any) -> list[dict[str, Any]]:
+    """The records of a log as dicts; a one-line TraceError for anything else."""
+    if isinstance(decisions, Iterator):
+        decisions = list(decisions)
+    problem = decision_log_problem(decisions)
+    if problem is not None:
+        from archself.sim.trace import TraceError
+
+        raise TraceError(f"error: not a decision log: {problem}")
+    return [_as_dict(d) for d in decisions]
+
+
 def _signature(d: dict[str, Any]) -> tuple:
     """What makes two quiet cycles "the same" for summarizing."""
     evals = tuple((e.get("action"), e.get("rejected")) for e in d.get("evaluations") or [])
@@ -140,7 +221,7 @@ def explain(decisions: Iterable[Any]) -> str:
     str
         Plain text, one block per notable cycle.
     """
-    recs = [_as_dict(d) for d in decisions]
+    recs = _records(decisions)
     if not recs:
         return "No MAPE-K decisions were logged."
     chosen = [d for d in recs if d.get("chosen")]
@@ -216,7 +297,7 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
         (``{"kind": "repeat", "t_from", "t_to", "cycles", "phase", "configuration",
         "candidates", "max_abs_z"}`` and ``max_source`` when the log has ê).
     """
-    recs = [_as_dict(d) for d in decisions]
+    recs = _records(decisions)
     switches, updates = [], []
     for d in recs:
         ch = d.get("chosen")

@@ -87,6 +87,11 @@ class MapeK:
     """
 
     def __init__(self, arch: Architecture) -> None:
+        if not isinstance(arch, Architecture):
+            from archself.errors import SimulationError
+
+            raise SimulationError(f"MapeK: expected an Architecture (archself.load(path)), "
+                                  f"got {type(arch).__name__}")
         self.arch = arch
         self.knowledge = Knowledge(arch)
         self.monitor = Monitor(arch, self.knowledge.names)

@@ -130,6 +130,14 @@ def simulate(
 
         arch = load_architecture(arch).arch
     assert isinstance(arch, Architecture)
+    if seed is not None and (not isinstance(seed, int | np.integer) or isinstance(seed, bool)
+                             or seed < 0):
+        raise SimulationError(f"seed: expected an integer ≥ 0 or None, got {seed!r}")
+    for name, fn in (("adapt", adapt), ("progress", progress)):
+        if fn is not None and not callable(fn):
+            raise SimulationError(f"{name}: expected a callable or None"
+                                  + (" (adapt=MapeK(arch))" if name == "adapt" else "")
+                                  + f", got {type(fn).__name__}")
     sc = arch.scenarios.get(scenario)
     if sc is None:
         known = ", ".join(arch.scenarios) or "none"

@@ -29,6 +29,7 @@ import io
 import json
 import lzma
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -147,8 +148,13 @@ def read_trace(path: str | Path) -> Any:
     TraceError
         ``PATH: error: not an archself trace (…)`` for any other file.
     """
+    from archself.outputs import path_problem
+
+    problem = path_problem(path)
+    if problem is not None:
+        raise TraceError(f"<argument>: error: {problem}")
     try:
-        raw = Path(path).read_bytes()
+        raw = Path(os.fsdecode(path)).read_bytes()
     except FileNotFoundError:
         raise TraceError(f"{path}: error: no such file") from None
     except OSError as exc:
@@ -158,29 +164,147 @@ def read_trace(path: str | Path) -> Any:
 
 def trace_from_bytes(raw: bytes, name: str = "<trace>") -> Any:
     """:func:`read_trace` of a trace's bytes (stdin: ``archself explain -``)."""
+    parquet = raw[:4] == b"PAR1"
     try:
-        if raw[:4] == b"PAR1":
-            return _read_parquet(io.BytesIO(raw), name)
-        return _read_json(raw)
-    except TraceError:
-        raise
+        return _read_parquet(io.BytesIO(raw), name) if parquet else _read_json(raw)
+    except TraceError as exc:
+        error = TraceError(str(exc))
+    except _Malformed as exc:
+        error = TraceError(f"{name}: error: not an archself trace: {exc}")
+    except json.JSONDecodeError as exc:  # where the JSON breaks (a truncated trace)
+        where = f"{name}:{exc.lineno}:{exc.colno}" if not parquet else name
+        error = TraceError(f"{where}: error: not an archself trace: invalid JSON"
+                           + (" in its archself metadata" if parquet else "") + f" ({exc.msg})")
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, IndexError,
-            AttributeError, lzma.LZMAError) as exc:
-        raise TraceError(
-            f"{name}: error: not an archself trace ({type(exc).__name__})") from None
+            AttributeError, lzma.LZMAError, RecursionError) as exc:
+        error = TraceError(f"{name}: error: not an archself trace ({type(exc).__name__})")
+    raise error  # outside the handlers: without the failed read's exception as context
+
+
+class _Malformed(Exception):
+    """A trace document whose ``meta``, ``series`` or ``decisions`` has a wrong shape."""
+
+
+def _kind(x: Any) -> str:
+    return {dict: "an object", list: "a list", str: "a string", type(None): "null"}.get(
+        type(x), type(x).__name__)
+
+
+def _number(x: Any) -> bool:
+    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
+
+
+def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
+    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless the parts have their types.
+
+    What the readers (``explain``, ``report --trace``, the frames) index into is checked
+    here, so that a truncated, edited or foreign trace is a one-line error, not a crash.
+    """
+    from archself.runtime.explanation import decision_log_problem
+
+    def bad(where: str, expected: str, got: Any) -> _Malformed:
+        return _Malformed(f"{where}: expected {expected}, got {_kind(got)}")
+
+    if not isinstance(meta, dict):
+        raise bad("meta", "an object", meta)
+    for key in ("scenario", "mode", "configuration", "final_configuration"):
+        if not isinstance(meta.get(key), str):
+            raise bad(f"meta.{key}", "a string", meta.get(key))
+    if not isinstance(meta.get("seed"), int) or isinstance(meta.get("seed"), bool):
+        raise bad("meta.seed", "an integer", meta.get("seed"))
+    metrics = meta.get("metrics")
+    if not isinstance(metrics, dict):
+        raise bad("meta.metrics", "an object", metrics)
+    for k, v in metrics.items():
+        if not _number(v):
+            raise bad(f"meta.metrics.{k}", "a number", v)
+    for key in ("configurations", "switches"):
+        if not isinstance(meta.get(key) or [], list):
+            raise bad(f"meta.{key}", "a list", meta.get(key))
+    if not all(isinstance(c, str) for c in meta.get("configurations") or []):
+        raise _Malformed("meta.configurations: expected a list of names")
+    for i, sw in enumerate(meta.get("switches") or []):
+        if not isinstance(sw, dict):
+            raise bad(f"meta.switches[{i}]", "an object", sw)
+        if not _number(sw.get("t_s")) or sw.get("t_s") is None:
+            raise bad(f"meta.switches[{i}].t_s", "a number", sw.get("t_s"))
+    if meta.get("unit") is not None and not isinstance(meta["unit"], str):
+        raise bad("meta.unit", "a string", meta["unit"])
+    for key in ("step_s", "period_s", "duration_s"):
+        if not _number(meta.get(key)):
+            raise bad(f"meta.{key}", "a number", meta.get(key))
+    obj = meta.get("objective")
+    if obj is not None:
+        if not isinstance(obj, dict):
+            raise bad("meta.objective", "an object", obj)
+        for key in ("actual", "reference"):
+            if not isinstance(obj.get(key), str):
+                raise bad(f"meta.objective.{key}", "a string", obj.get(key))
+        comps = obj.get("components")
+        if not isinstance(comps, list) or not all(
+                isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in comps):
+            raise _Malformed("meta.objective.components: expected a list of indices")
+    rep = meta.get("report")
+    if isinstance(rep, dict):
+        for key in ("acceptable", "threshold", "warmup_s", "min_confidence", "top_k"):
+            if not _number(rep.get(key)):
+                raise bad(f"meta.report.{key}", "a number", rep.get(key))
+        if not isinstance(rep.get("faults") or [], list):
+            raise bad("meta.report.faults", "a list", rep.get("faults"))
+        for i, f in enumerate(rep.get("faults") or []):
+            if not isinstance(f, dict):
+                raise bad(f"meta.report.faults[{i}]", "an object", f)
+            if not _number(f.get("onset_s")) or f.get("onset_s") is None:
+                raise bad(f"meta.report.faults[{i}].onset_s", "a number", f.get("onset_s"))
+        hyst = rep.get("hysteresis")
+        if hyst is not None and not (isinstance(hyst, dict) and all(
+                _number(hyst.get(k)) and hyst.get(k) is not None for k in ("on", "off"))):
+            raise _Malformed("meta.report.hysteresis: expected an object {on, off}")
+        if hyst is None and rep.get("top_k") is None and rep.get("threshold") is None:
+            raise _Malformed("meta.report: expected a threshold, top_k or hysteresis")
+    if not isinstance(series, dict):
+        raise bad("series", "an object", series)
+    problem = decision_log_problem(decisions)
+    if problem is not None:
+        raise _Malformed(problem)
+
+
+def _check_series(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+    """Every series one row per step; configuration codes index ``meta.configurations``."""
+    lengths = {name: len(a) for name, a in arrays.items()}
+    if len(set(lengths.values())) > 1:
+        first = next(iter(lengths))
+        other = next(n for n in lengths if lengths[n] != lengths[first])
+        raise _Malformed(f"series.{other}: {lengths[other]} rows, but series.{first} has "
+                         f"{lengths[first]}; expected one row per step in every series")
+    codes = arrays.get("configuration")
+    names = meta.get("configurations") or []
+    if codes is not None and len(codes) and names and (
+            int(codes.min()) < -1 or int(codes.max()) >= len(names)):
+        raise _Malformed(f"series.configuration: expected indices into meta.configurations "
+                         f"(0 to {len(names) - 1}), got {int(codes.min())} to {int(codes.max())}")
 
 
 def _read_json(raw: bytes) -> Any:
     doc = json.loads(raw.decode("utf-8"))
+    if not isinstance(doc, dict) or not {"meta", "series", "decisions"} <= set(doc):
+        raise _Malformed("expected an object {meta, series, decisions}, got "
+                         + (f"keys {', '.join(sorted(doc)) or 'none'}" if isinstance(doc, dict)
+                            else _kind(doc)))
     meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
+    _check_doc(meta, series, decisions)
     arrays: dict[str, np.ndarray] = {}
     for name, values in series.items():
+        if not isinstance(values, list):
+            raise _Malformed(f"series.{name}: expected a list (one value per step), got "
+                             f"{_kind(values)}")
         if name == "configuration":
             arrays[name] = np.asarray(values, dtype=int)
         else:
             arrays[name] = np.array(
                 [[math.nan if v is None else v for v in row] if isinstance(row, list)
                  else (math.nan if row is None else row) for row in values], dtype=float)
+    _check_series(meta, arrays)
     return _result(meta, arrays, list(decisions))
 
 
@@ -201,6 +325,7 @@ def _read_parquet(source: Any, p: str) -> Any:
     meta = head["meta"]
     decisions = json.loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
         if DECISIONS_KEY in md else []
+    _check_doc(meta, {}, decisions)
     arrays: dict[str, np.ndarray] = {}
     for name, width in head["series"]:
         if name == "configuration":
@@ -214,6 +339,7 @@ def _read_parquet(source: Any, p: str) -> Any:
         else:
             arrays[name] = np.asarray(table.column(name).to_numpy(zero_copy_only=False),
                                       dtype=float)
+    _check_series(meta, arrays)
     return _result(meta, arrays, list(decisions))
 
 
