@@ -38,6 +38,7 @@ __all__ = [
     "file_ids",
     "input_inside",
     "refuse_input_inside",
+    "refuse_foreign_folder",
     "refuse_same_file",
     "stat_input",
 ]
@@ -173,3 +174,39 @@ def refuse_input_inside(inputs: Iterable[str | Path], folder: str | Path, what: 
             f"{folder}: error: {what} folder holds the input file {inp}; it would be "
             "replaced with the folder: choose another folder (even --force does not)"
         )
+
+
+def refuse_foreign_folder(folder: str | Path, marker: str, what: str) -> None:
+    """Refuse to write a report into a folder that holds other files and no earlier report.
+
+    A run or calibration report writes fixed names (``index.html``, ``summary.json``,
+    figures) into ``folder``; over files of the user's own (``-o .``) they would be
+    overwritten. A new or empty folder, or one holding an earlier report of the same
+    kind (its ``marker`` file), is fine. Called before any run starts.
+
+    Raises
+    ------
+    OutputError
+        ``DIR: error: --report holds other files and no earlier report ...``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> refuse_foreign_folder(d / "new", "summary.json", "--report")   # new: fine
+    >>> _ = (d / "notes.txt").write_text("mine")
+    >>> try:
+    ...     refuse_foreign_folder(d, "summary.json", "--report")
+    ... except OutputError as err:
+    ...     print(str(err).split(": ", 1)[1])
+    error: --report holds other files and no earlier report (summary.json); choose a new or empty folder
+    """
+    p = Path(folder)
+    try:
+        busy = p.is_dir() and any(p.iterdir())
+    except OSError:
+        return  # unreadable: the write says why
+    if busy and not (p / marker).is_file():
+        raise OutputError(f"{p}: error: {what} holds other files and no earlier report "
+                          f"({marker}); choose a new or empty folder")
+

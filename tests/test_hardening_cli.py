@@ -700,3 +700,30 @@ def test_nan_inside_a_list_is_one_located_line(tmp_path, monkeypatch, capsys) ->
     code, _, err = run(["validate", bad], monkeypatch, capsys)
     assert code == 1
     assert "expected a finite number, got .nan" in one_line(err)
+
+
+def test_a_run_report_never_lands_on_the_users_own_files(arch, tmp_path, monkeypatch,
+                                                         capsys) -> None:
+    """simulate --report, report --trace and calibrate --report write fixed names
+    (index.html, summary.json, ...): a folder of other files is refused before any run,
+    an earlier report of the same kind is replaced, report --trace --force goes ahead."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "index.html").write_text("my own page")
+    code, _, err = run(["simulate", arch, "-s", "calm", "--report", mine], monkeypatch, capsys)
+    assert code == 1 and "holds other files and no earlier report" in one_line(err)
+    assert (mine / "index.html").read_text() == "my own page"
+    trace, rep = tmp_path / "t.json", tmp_path / "rep"
+    code, _, err = run(["simulate", arch, "-s", "calm", "--trace", trace, "--report", rep],
+                       monkeypatch, capsys)
+    assert code == 0, err
+    code, _, err = run(["simulate", arch, "-s", "calm", "--report", rep], monkeypatch, capsys)
+    assert code == 0, err  # an earlier run report is replaced
+    code, _, err = run(["report", "--trace", trace, "-o", mine], monkeypatch, capsys)
+    assert code == 1 and "holds other files" in one_line(err)
+    assert (mine / "index.html").read_text() == "my own page"
+    code, _, err = run(["report", "--trace", trace, "-o", mine, "--force"], monkeypatch, capsys)
+    assert code == 0, err
+    code, _, err = run(["calibrate", arch, "--seeds", "1", "--report", tmp_path / "rep"],
+                       monkeypatch, capsys)
+    assert code == 1 and "no earlier report (calibration.json)" in one_line(err)

@@ -123,6 +123,10 @@ def calibrate(
             check_output(arch_path, target, in_place=in_place, force=force)
         if save_runs is not None:
             check_output(arch_path, save_runs, in_place=False, force=force)
+        if report_dir is not None:
+            from archself.outputs import refuse_foreign_folder
+
+            refuse_foreign_folder(report_dir, "calibration.json", "--report")
         show = sys.stderr.isatty() and not json_out
         bar = RunProgress("{total:,} runs")
         try:

@@ -60,13 +60,14 @@ def report(
     no stale files); a non-empty DIR is replaced only with --force.
 
     With --trace TRACE it is the run report of `simulate --report` instead, rebuilt from
-    the saved trace(s) without running anything (ARCH is then optional).
+    the saved trace(s) without running anything (ARCH is then optional); a DIR that holds
+    other files and no earlier run report needs --force.
     """
     from archself.atomic import protect
     from archself.outputs import refuse_input_inside
 
     if trace:
-        _report_from_traces(arch_path, trace, output, _formats(fig_format), dpi)
+        _report_from_traces(arch_path, trace, output, _formats(fig_format), dpi, force)
         return
     if arch_path is None:
         raise _fail("missing argument ARCH (or --trace TRACE for a run report)", 2)
@@ -101,11 +102,12 @@ def report(
 
 
 def _report_from_traces(
-    arch_path: Path | None, traces: list[Path], output: Path, formats: tuple[str, ...], dpi: int
+    arch_path: Path | None, traces: list[Path], output: Path, formats: tuple[str, ...], dpi: int,
+    force: bool = False,
 ) -> None:
     """``report --trace``: the run report of saved traces (one run, or fixed + adaptive)."""
     from archself.atomic import protect
-    from archself.outputs import refuse_same_file
+    from archself.outputs import refuse_foreign_folder, refuse_same_file
     from archself.sim.trace import read_trace
 
     if len(traces) > 2:
@@ -117,6 +119,8 @@ def _report_from_traces(
             _inputs(arch_path)
         for name in _RUN_REPORT_FILES:
             refuse_same_file(inputs, output / name, "-o")
+        if not force:
+            refuse_foreign_folder(output, "summary.json", "-o")
         with protect(inputs), _numeric(traces[0]):
             results = [read_trace(t) for t in traces]
             for t, r in zip(traces, results, strict=True):

@@ -180,7 +180,7 @@ def simulate(
     if trace is not None and not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
     from archself.atomic import protect
-    from archself.outputs import refuse_same_file
+    from archself.outputs import refuse_foreign_folder, refuse_same_file
 
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
     try:
@@ -191,6 +191,7 @@ def simulate(
         if report is not None:
             for name in _RUN_REPORT_FILES:
                 refuse_same_file([arch_path], report / name, "--report")
+            refuse_foreign_folder(report, "summary.json", "--report")
         with protect([arch_path]), _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
