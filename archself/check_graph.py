@@ -74,16 +74,17 @@ def spectrum_summary(
     ρ is :func:`archself.runtime.influence.spectral_radius` (the runtime's: dense
     eigenvalues up to 400 modules, per strongly connected component and ARPACK
     beyond). Self-loops are left out (the ``self-loop`` rule reports them). W has
-    the eigenvalue 1 only if ρ ≥ 1; then the LU factorization the runtime would
-    use (:class:`~archself.runtime.influence.InfluenceSolver`) tells whether
-    ``I − Wᵀ`` is singular.
+    the eigenvalue 1 only if ρ ≥ 1, but the LU factorization the runtime uses
+    (:class:`~archself.runtime.influence.InfluenceSolver`) also refuses an ``I − Wᵀ``
+    that is singular in floating point (weights like 1e9 beside 0.1: condition ~1e18,
+    which validated and then stopped the run with exit 3): it is tried whatever ρ.
 
     Returns
     -------
     rho : float
         The spectral radius ρ(W).
     singular : bool
-        True when W has the eigenvalue 1, i.e. I − Wᵀ is singular.
+        True when I − Wᵀ is singular (W has the eigenvalue 1) or numerically so.
 
     Examples
     --------
@@ -110,11 +111,10 @@ def spectrum_summary(
                                 shape=(n, n)).tocsr()  # parallel edges add up
     rho = spectral_radius(W)
     singular = False
-    if rho >= 1.0 - 1e-9:
-        try:
-            InfluenceSolver().set_matrix(W, key=0)
-        except np.linalg.LinAlgError:
-            singular = True
+    try:
+        InfluenceSolver().set_matrix(W, key=0)
+    except np.linalg.LinAlgError:
+        singular = True
     return rho, singular
 
 
@@ -130,7 +130,13 @@ def check_weights(ctx: Context) -> None:
     edges = [(e.source, e.target, e.weight) for e in arch.edges]
     rho, singular = spectrum_summary(list(arch.modules), edges)
     limit = arch.runtime.max_spectral_radius
-    if singular:
+    if singular and rho < 1.0 - 1e-9:
+        top = max((abs(float(e.weight)) for e in arch.edges), default=0.0)
+        ctx.add("error", "singular",
+                "I − Wᵀ is singular in floating point (the weights span too many orders of "
+                f"magnitude, the largest {top:g}): z = (I − Wᵀ)⁻¹ r cannot be computed "
+                "(Eq. 14); lower the largest weights", ("edges",), key=True)
+    elif singular:
         ctx.add("error", "singular",
                 "I − Wᵀ is singular (W has the eigenvalue 1): z = (I − Wᵀ)⁻¹ r is undefined "
                 "(Eq. 14); lower the weights on the cycles", ("edges",), key=True)

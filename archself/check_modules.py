@@ -21,6 +21,7 @@ __all__ = [
     "check_types",
     "outside_declared",
     "outside_space",
+    "wrong_kind",
 ]
 
 
@@ -107,8 +108,44 @@ def outside_declared(spec: Any, value: Any) -> str | None:
     return None
 
 
+def wrong_kind(spec: Any, value: Any) -> str | None:
+    """Why ``value`` cannot be the parameter ``spec`` (a ``Param``) declares, or None.
+
+    The kind is the default's: a number's takes numbers (or lists of them), a text's a
+    text, a flag's a flag (or a number); a parameter without a default is not checked.
+    (A string for a number validated and failed only when the module was built.)
+
+    Examples
+    --------
+    >>> from archself.modules.base import Param
+    >>> wrong_kind(Param(1.0), "abc")
+    'expected a number (or a list of numbers), got string "abc"'
+    >>> wrong_kind(Param(1.0), [1.0, 2.0]) is None
+    True
+    """
+    from archself.modules.base import REQUIRED
+    from archself.yaml_source import describe
+
+    default = getattr(spec, "default", None)
+    if default is None or default is REQUIRED:
+        return None
+    if isinstance(default, bool):
+        ok, want = isinstance(value, (bool, int, float)), "true or false"
+    elif isinstance(default, (int, float)):
+        ok, want = not isinstance(value, (bool, str)), "a number (or a list of numbers)"
+    elif isinstance(default, str):
+        ok, want = isinstance(value, str), "a string"
+    else:
+        return None
+    return None if ok else f"expected {want}, got {describe(value)}"
+
+
 def _declared_range(ctx: Context, type_: str, pname: str, spec: Any, p: Parameter,
                     path: Path_) -> None:
+    if why := wrong_kind(spec, p.value):
+        ctx.add("error", "parameter", f"{why} (type '{type_}', parameter '{pname}')",
+                (*path, "value"))
+        return
     for key, value in (("value", p.value), ("min", p.min), ("max", p.max)):
         if value is None:
             continue
@@ -152,6 +189,11 @@ def check_limits(ctx: Context) -> None:
         path: Path_ = ("modules", name, "constraints", "blocks")
         if cons.blocks and not cons.limits:
             ctx.add("warning", "limits", "'blocks' has no effect without 'limits'", path)
+        for key in cons.limits:  # anything else was never judged, silently
+            if not key.startswith(("max_", "min_")) or key in ("max_", "min_"):
+                ctx.add("error", "limits", f"expected a limit named max_<x> or min_<x> (x a "
+                        f"parameter or a signal of '{name}'), got '{key}'",
+                        ("modules", name, "constraints", "limits", key), key=True)
         if cons.blocks == "all":
             continue
         for j, aid in enumerate(cons.blocks):

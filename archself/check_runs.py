@@ -11,7 +11,7 @@ objective's signals and components) and the opt-in ``stability``
 from __future__ import annotations
 
 from archself.check_context import Context, refers
-from archself.check_modules import outside_declared, outside_space
+from archself.check_modules import outside_declared, outside_space, wrong_kind
 from archself.model import Architecture
 from archself.yaml_source import Path_
 
@@ -95,6 +95,9 @@ def check_actions(ctx: Context) -> None:
                         ctx.add("error", "action",
                                 f"'{a.module}' has no parameter '{pname}' "
                                 f"(it has: {', '.join(params) or 'none'})", (*base, "set", pname))
+                    elif (cls := ctx.types.get(a.module)) is not None and (
+                            why := wrong_kind((cls.parameters or {}).get(pname), value)):
+                        ctx.add("error", "action", f"new value: {why}", (*base, "set", pname))
                     elif why := outside_space(params[pname], value):
                         ctx.add("error", "action", f"new value {value!r} is {why}",
                                 (*base, "set", pname))
@@ -187,10 +190,29 @@ def check_work(ctx: Context) -> None:
                     f"{rt.period_s:g} s, more than the cap of {MAX_RUN_WORK:.0e}; shorten "
                     "duration_s, the rollout horizons or runtime.stability.horizon_steps, or "
                     "raise runtime.period_s", path)
+    # an edge's latency is a line of latency_s / step_s values, copied with the snapshot
+    # of every action evaluated every cycle (latency_s: 1e7 hung simulate)
+    import math
+
+    longest = max((float(s.duration_s) for s in arch.scenarios.values()), default=0.0)
+    snapshots = 1 + math.ceil(longest / float(rt.period_s) - 1e-9) * len(arch.actions)
+    for i, e in enumerate(arch.edges):
+        delay = round(float(e.latency_s) / float(rt.step_s))
+        if delay > MAX_RUN_STEPS or delay * snapshots > MAX_RUN_WORK:
+            what = (f"more than the cap of {MAX_RUN_STEPS:,}" if delay > MAX_RUN_STEPS else
+                    f"a line of values copied by each of about {snapshots:,} snapshots of a "
+                    f"run, more than the cap of {MAX_RUN_WORK:.0e} in all")
+            ctx.add("error", "work",
+                    f"a latency of {delay:,} steps (latency_s {e.latency_s:g} s / runtime.step_s "
+                    f"{rt.step_s:g} s), {what}; shorten latency_s or raise runtime.step_s",
+                    ("edges", i, "latency_s"))
 
 
 def check_objective(ctx: Context) -> None:
     obj = ctx.arch.runtime.objective
+    if not obj.components:  # J would be 0 at every step: no error ever measured
+        ctx.add("error", "objective", "expected at least one component index (e.g. [0]), "
+                "got an empty list", ("runtime", "objective", "components"))
     for key in ("actual", "reference"):
         ref = getattr(obj, key)
         path = ("runtime", "objective", key)

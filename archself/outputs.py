@@ -198,8 +198,8 @@ def refuse_foreign_folder(folder: str | Path, marker: str, what: str) -> None:
     >>> try:
     ...     refuse_foreign_folder(d, "summary.json", "--report")
     ... except OutputError as err:
-    ...     print(str(err).split(": ", 1)[1])
-    error: --report holds other files and no earlier report (summary.json); choose a new or empty folder
+    ...     print(str(err).split(": ", 1)[1].split(";")[0])
+    error: --report holds other files and no earlier report (summary.json)
     """
     p = Path(folder)
     try:

@@ -16,6 +16,7 @@ from archself_process.control import LevelObserver
 from conftest import DIFFDRIVE, FIXTURES
 
 MINIMAL = (FIXTURES / "valid" / "minimal.yaml").read_text(encoding="utf-8")
+MOTOR = (DIFFDRIVE.parent / "motor_drive.yaml").read_text(encoding="utf-8")
 
 
 def _findings(text: str, code: str | None = None) -> list[str]:
@@ -93,6 +94,33 @@ def test_configuration_without_the_objective_modules_is_an_error() -> None:
                and ": error: " in m for m in msgs), msgs
     assert any("'a0' has no module of role 'actuator', 'controller', 'estimator', 'plant', "
                "'sensor'" in m and ": warning: " in m for m in msgs), msgs
+
+
+def test_an_empty_objective_component_list_is_a_located_error() -> None:
+    # components: [] validated and J was 0 at every step (max_error 0.0 whatever happened)
+    text = MINIMAL.replace("components: [0, 1]", "components: []")
+    (msg,) = _findings(text, "objective")
+    assert msg.startswith("t.yaml:42:73:") and ": error: runtime.objective.components:" in msg
+    assert "expected at least one component" in msg
+
+
+def test_a_parameter_of_the_wrong_kind_is_a_located_error() -> None:
+    # a string for a number validated; simulate failed building the module, unlocated
+    text = MINIMAL.replace("{value: 0.5, min: 0.1, max: 2.0, unit: m/s}",
+                           "{value: fast, unit: m/s}")
+    (msg,) = _findings(text, "parameter")
+    assert msg.startswith("t.yaml:15:26:") and "modules.path.params.speed_mps.value" in msg
+    assert 'expected a number (or a list of numbers), got string "fast"' in msg
+    text = MINIMAL.replace("{value: left, choices: [left, right]}", "{value: 1}")
+    (msg,) = _findings(text, "parameter")
+    assert "modules.left.params.side.value: expected a string, got number" in msg
+
+
+def test_an_action_setting_a_value_of_the_wrong_kind_is_a_located_error() -> None:
+    text = MOTOR.replace("set: {kp: 1.6, ki: 1.6}", "set: {kp: high, ki: 1.6}")
+    (msg,) = _findings(text, "action")
+    assert ": error: actions[6].set.kp: new value: expected a number" in msg
+    assert 'got string "high"' in msg
 
 
 def test_action_on_a_module_inactive_where_it_applies_is_a_warning() -> None:
@@ -185,3 +213,18 @@ def test_unknown_type_message_does_not_depend_on_other_plugins() -> None:
     finally:
         registry.unregister("zz_thirdparty.other")
     assert "sensor.* types: sensor.encoders" in before[0] and "zz_thirdparty" not in before[0]
+
+
+def test_an_i_minus_w_singular_in_floating_point_is_refused_as_the_runtime_refuses_it() -> None:
+    # ρ(W) < 1, so validate said ok; the runtime's LU of I − Wᵀ (condition ~1e18) refused it
+    # and simulate stopped with `internal error: LinAlgError`, exit 3
+    from archself.runtime.mapek import MapeK
+    from archself.sim.run import simulate
+
+    edge = "{from: speed_ref.reference, to: pi.reference, weight: 0.2}"
+    text = MOTOR.replace(edge, edge.replace("0.2}", "1e9}"))
+    (msg,) = _findings(text, "singular")
+    assert ": error: edges: I − Wᵀ is singular in floating point" in msg and "1e+09" in msg
+    arch = load_text(text, "t.yaml").arch
+    with pytest.raises(np.linalg.LinAlgError):
+        simulate(arch, "drive_loss", seed=1, adapt=MapeK(arch))

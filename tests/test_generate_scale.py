@@ -85,6 +85,15 @@ def test_generate_command(tmp_path: Path) -> None:
     assert res.exit_code == 1 and "does not exist" in res.stderr
 
 
+@pytest.mark.parametrize("args", [["99999999999999999999", "--yes"],
+                                  ["5", "--feedback", "1000000000", "--yes"]])
+def test_generate_past_the_hard_cap_is_one_line_even_with_yes(args: list[str]) -> None:
+    # N > 2**64 was `internal error: TypeError` (np.sqrt), 10^9 feedback edges a hang
+    res = CliRunner().invoke(app, ["generate", *args])
+    assert res.exit_code == 1 and "hard cap" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+
+
 def test_one_mapek_cycle_on_generated_1k() -> None:
     """Load → compile → one MAPE-K cycle on a generated 10^3-module architecture."""
     from archself.compiler import compile_system

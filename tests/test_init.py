@@ -47,6 +47,18 @@ def test_init_quotes_the_name(tmp_path: Path, monkeypatch) -> None:
     assert load_architecture(tmp_path / 'odd: "name".yaml').arch.name == 'odd: "name"'
 
 
+@pytest.mark.parametrize("args", [["a\tb"], ["a\nb"], ["x" * 129], ["t", "--schema", "a\nb"]])
+def test_init_refuses_a_name_or_schema_its_file_could_not_hold(tmp_path: Path, monkeypatch,
+                                                             args: list[str]) -> None:
+    # the name went into `name:` (no control characters, <= 128) and the comments, the
+    # schema into the modeline: the file written did not validate (a newline broke the YAML)
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["init", *args])
+    assert result.exit_code == 2, result.output
+    assert len(result.stderr.strip().splitlines()) == 1 and "expected" in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_init_points_at_the_project_schema_never_into_a_venv(tmp_path: Path, monkeypatch):
     project = tmp_path / "proj"
     (project / "schemas").mkdir(parents=True)

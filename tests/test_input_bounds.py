@@ -158,3 +158,23 @@ def test_the_work_estimate_matches_the_run() -> None:
     assert steps == 400  # 20 s / 0.05 s
     assert size == 400 * 250  # no residual modules
     assert work == 9 * 400  # 9 modules, no actions
+
+
+@pytest.mark.parametrize("arch_file, latency, cap", [
+    ("tests/fixtures/valid/minimal.yaml", "1e7", "more than the cap of 100,000,000"),
+    ("architectures/motor_drive.yaml", "1e7", "copied by each of about 3,201 snapshots"),
+])
+def test_an_edge_latency_past_the_work_cap_is_a_located_error(arch_file: str, latency: str,
+                                                               cap: str) -> None:
+    # latency_s: 1e7 validated; its line of 1e8 values, copied by every action's snapshot
+    # each cycle, kept motor_drive's simulate busy for hours
+    from archself.check import check
+
+    text = (ROOT / arch_file).read_text(encoding="utf-8")
+    first = "weight: 0.3, carries: wheel_cmd}" if "minimal" in arch_file else "weight: 0.3}"
+    text = text.replace(first, first[:-1] + f", latency_s: {latency}}}", 1)
+    (f,) = [f for f in check(load_text(text, "x.yaml")) if f.code == "work"]
+    assert f.severity == "error" and f.path == "edges[0].latency_s" and f.line is not None
+    assert cap in f.message and "shorten latency_s or raise runtime.step_s" in f.message
+    ok = text.replace(f"latency_s: {latency}", "latency_s: 1e4")  # 1e5 steps: runs in seconds
+    assert [f for f in check(load_text(ok, "x.yaml")) if f.code == "work"] == []

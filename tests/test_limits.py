@@ -99,3 +99,13 @@ def test_blocks_are_checked(old: str, new: str, code: str, message: str) -> None
     found = [f for f in check(load_text(text.replace(old, new), "x.yaml")) if f.code == code]
     assert [f.message for f in found] == [message]
     assert found[0].path.startswith("modules.meter.constraints.blocks")
+
+
+@pytest.mark.parametrize("key", ["measurement", "maximum_gain", "max_"])
+def test_a_limit_without_max_or_min_is_a_located_error(key: str) -> None:
+    # it validated and was never judged: neither the planner nor κ reads such a key
+    text = LIMITS.read_text(encoding="utf-8").replace("{min_measurement: 0.2}", f"{{{key}: 0.2}}")
+    (f,) = [f for f in check(load_text(text, "x.yaml")) if f.code == "limits"]
+    assert f.severity == "error" and f.line == 44
+    assert f.path == f"modules.meter.constraints.limits.{key}"
+    assert "expected a limit named max_<x> or min_<x>" in f.message and f"got '{key}'" in f.message

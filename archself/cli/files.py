@@ -255,6 +255,13 @@ def init(
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
     target = Path(name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
+    if any(ord(c) < 32 or ord(c) == 127 for c in name) or len(target.stem) > 128:
+        # the stem is the file's `name` (a Name: printable, ≤ 128) and goes into comments
+        raise _fail(f"NAME {name!r}: expected at most 128 printable characters "
+                    "(no control characters) before .yaml", 2)
+    if schema_ref is not None and any(ord(c) < 32 or ord(c) == 127 for c in schema_ref):
+        raise _fail(f"--schema {schema_ref!r}: expected a path or URL without control "
+                    "characters", 2)
     if target.exists() and not force:
         raise _fail(f"{target}: error: exists; pass --force to overwrite it")
     folder = target.parent
@@ -348,6 +355,8 @@ def info(
 
 #: ``generate`` refuses more modules than this without --yes (≈ 27 MB of JSON-compatible YAML).
 GENERATE_MAX = 100_000
+#: ... and more than this even with --yes (≈ 27 GB: more than the memory that builds it).
+GENERATE_HARD_MAX = 100_000_000
 
 
 def generate(
@@ -368,6 +377,10 @@ def generate(
     from archself.generate import generate_architecture
     from archself.yaml_source import MAX_FILE_BYTES
 
+    for what, count in (("N", n), ("--feedback", feedback)):
+        if count > GENERATE_HARD_MAX:  # np.sqrt of a huge int raised TypeError (exit 3)
+            raise _fail(f"error: {what} = {count:,} is more than the hard cap of "
+                        f"{GENERATE_HARD_MAX:,}, even with --yes")
     if n > GENERATE_MAX and not yes:
         raise _fail(
             f"error: N = {n:,} modules is more than the cap of {GENERATE_MAX:,} (about "
