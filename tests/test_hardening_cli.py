@@ -727,3 +727,23 @@ def test_a_run_report_never_lands_on_the_users_own_files(arch, tmp_path, monkeyp
     code, _, err = run(["calibrate", arch, "--seeds", "1", "--report", tmp_path / "rep"],
                        monkeypatch, capsys)
     assert code == 1 and "no earlier report (calibration.json)" in one_line(err)
+
+
+def test_schema_export_generate_never_write_over_an_architecture_file(
+    arch, tmp_path, monkeypatch, capsys
+) -> None:
+    """``-o`` pointed at the user's architecture file by mistake: refused, file intact.
+    An earlier output of the command (a schema, a generated file) is written over."""
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(arch.read_text())
+    before = mine.read_bytes()
+    for args in (["schema", "-o", mine], ["generate", "5", "-o", mine],
+                 ["export", arch, "--to", "graphml", "-o", mine]):
+        code, _, err = run(args, monkeypatch, capsys)
+        assert code == 1 and "is an architecture file; refusing" in one_line(err), args
+        assert mine.read_bytes() == before
+    gen, schema = tmp_path / "g.yaml", tmp_path / "s.json"
+    for args in (["generate", "5", "-o", gen], ["generate", "6", "-o", gen],
+                 ["schema", "-o", schema], ["schema", "-o", schema]):
+        code, _, err = run(args, monkeypatch, capsys)
+        assert code == 0, err

@@ -9,6 +9,7 @@ live in the sibling modules and are registered in :mod:`archself.cli`.
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -233,13 +234,31 @@ def _die(err: ArchselfError) -> typer.Exit:
     return typer.Exit(err.exit_code)
 
 
+#: The top-level key of an architecture file, YAML or JSON (``archself: 1``).
+_ARCH_KEY = re.compile(r'^\s*\{?\s*"?archself"?\s*:\s*1\b', re.MULTILINE)
+
+
 def _emit(text: str, output: Path | None, done: str) -> None:
-    """Write ``text`` to stdout (no ``output``, or ``-``) or atomically to ``output``."""
+    """Write ``text`` to stdout (no ``output``, or ``-``) or atomically to ``output``.
+
+    An existing architecture file is never written over (``schema -o``, ``export -o``,
+    ``generate -o`` pointed at the user's file by mistake), except one that
+    ``archself generate`` wrote (``name: generated-N``).
+    """
     if output is None or str(output) == "-":
         sys.stdout.write(text)
         return
     from archself.atomic import write_text
 
+    if output.is_file():
+        try:
+            with open(output, "rb") as fh:
+                head = fh.read(65536).decode("utf-8", "replace")
+        except OSError:
+            head = ""
+        if _ARCH_KEY.search(head) and '"name": "generated-' not in head:
+            raise _fail(f"{output}: error: is an architecture file; refusing to write over "
+                        "it (choose another name)")
     try:
         write_text(output, text)
     except ArchselfError as exc:
