@@ -75,6 +75,10 @@ class SimulationError(ArchselfError):
     """A simulation was asked for something the file does not declare."""
 
 
+class TraceError(ArchselfError):
+    """A file (or a decision log) that is not an archself trace."""
+
+
 class OutputError(ArchselfError):
     """An output file or folder cannot be written."""
 

@@ -273,7 +273,7 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
         period_s = float(arch.runtime.period_s)
         modules = list(arch.modules)
     else:
-        from archself.sim.trace import TraceError
+        from archself.errors import TraceError
 
         if not isinstance(meta.get("report"), dict) or "objective" not in meta:
             raise TraceError("error: the trace does not hold the run report's settings "

@@ -76,7 +76,7 @@ def _record_problem(d: Any) -> str | None:
         if e.get("stability") is not None and not isinstance(e["stability"], Mapping):
             return f".evaluations[{i}].stability: expected an object, got {_kind(e['stability'])}"
     ch = d.get("chosen")
-    if ch is not None and not isinstance(ch, Mapping) or ch and "action" not in ch:
+    if (ch is not None and not isinstance(ch, Mapping)) or (ch and "action" not in ch):
         return f".chosen: expected an object with an action, or null, got {_kind(ch)}"
     bad = next((k for k in ("z", "score", "source") if not _num((ch or {}).get(k))), None)
     if bad is not None:
@@ -108,7 +108,7 @@ def _records(decisions: Any) -> list[dict[str, Any]]:
         decisions = list(decisions)
     problem = decision_log_problem(decisions)
     if problem is not None:
-        from archself.sim.trace import TraceError
+        from archself.errors import TraceError
 
         raise TraceError(f"error: not a decision log: {problem}")
     return [_as_dict(d) for d in decisions]

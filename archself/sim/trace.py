@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.errors import ArchselfError
+from archself.errors import TraceError
 from archself.jsondata import jsonable
 
 __all__ = [
@@ -53,10 +53,6 @@ TRACE_KEY = b"archself.trace"
 DECISIONS_KEY = b"archself.decisions"
 FORMAT = 1
 _SUFFIXES = (".parquet", ".pq")
-
-
-class TraceError(ArchselfError):
-    """A file that is not an archself trace."""
 
 
 def is_parquet_name(path: str | Path) -> bool:
