@@ -70,19 +70,18 @@ def _check_size(
     until the bands are fitted: ``--seeds 100000000`` grew past 1.8 GB in 30 s
     before a single run started, and would have ended out of memory.
     """
-    from archself.campaign.plan import BYTES_PER_RUN, _memory_bytes
+    from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
 
     runs = per_cell * len(scenarios) * len(confs)
     width = sum(1 for spec in arch.modules.values() if spec.residual is not None)
     cycles = max(float(arch.scenarios[s].duration_s) for s in scenarios) / float(
         arch.runtime.period_s)
     need = runs * (BYTES_PER_RUN + 8 * (width + 2) * (cycles + 1))
-    avail = _memory_bytes("SC_PHYS_PAGES")
-    if avail and need > avail // 2:
+    if too_much := past_half_memory(need):
         raise CalibrationError(
-            f"{file}: {runs:,} runs would hold ~{need / 1024**3:,.1f} GB of residuals, more "
-            f"than half of this machine's memory ({avail / 1024**3:.1f} GB); use fewer "
-            "--seeds, --verify-seeds, configurations or --envelope points"
+            f"{file}: {runs:,} runs would hold ~{need / 1024**3:,.1f} GB of residuals, "
+            f"{too_much}; use fewer --seeds, --verify-seeds, configurations or --envelope "
+            "points"
         )
 
 

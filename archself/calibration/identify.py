@@ -192,15 +192,13 @@ def identify(
         )
     # at most one run a seed per module and the unperturbed one, each held by the driver:
     # refused when past half the memory (--seeds 100000000 grew for minutes, no run started)
-    from archself.campaign.plan import BYTES_PER_RUN, _memory_bytes
+    from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
 
     most = seeds * sum(1 + len(arch.configurations[c].modules) for c in confs)
-    avail = _memory_bytes("SC_PHYS_PAGES")
-    if avail and most * BYTES_PER_RUN > avail // 2:
+    if too_much := past_half_memory(most * BYTES_PER_RUN):
         raise IdentifyError(
             f"{path}: up to {most:,} runs would need ~{most * BYTES_PER_RUN / 1024**3:,.1f} GB, "
-            f"more than half of this machine's memory ({avail / 1024**3:.1f} GB); use fewer "
-            "--seeds or configurations"
+            f"{too_much}; use fewer --seeds or configurations"
         )
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     seed_list = seeds_from(root_seed, 0, seeds)

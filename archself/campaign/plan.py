@@ -199,12 +199,9 @@ class CampaignEstimate:
 
     def check(self, yes: bool) -> None:
         """Refuse past the caps: runs and steps unless ``yes``; memory always."""
-        avail = _memory_bytes("SC_PHYS_PAGES")
-        if avail and self.memory_bytes > avail // 2:
-            raise CampaignError(
-                f"the campaign is {self.text()}: more than half of this machine's memory "
-                f"({avail / 1024**3:.1f} GB); use fewer --seeds or sweep values, or split it"
-            )
+        if too_much := past_half_memory(self.memory_bytes):
+            raise CampaignError(f"the campaign is {self.text()}: {too_much}; use fewer "
+                                "--seeds or sweep values, or split it")
         if yes:
             return
         if self.runs > MAX_RUNS or self.steps > MAX_STEPS:
@@ -260,6 +257,16 @@ def _memory_bytes(pages: str) -> int | None:
         return int(os.sysconf(pages)) * int(os.sysconf("SC_PAGE_SIZE"))
     except (AttributeError, ValueError, OSError):
         return None
+
+
+def past_half_memory(need: float) -> str | None:
+    """``"more than half of this machine's memory (N GB)"`` when ``need`` bytes are, else
+    None (also where the system does not say): campaign, calibrate and identify refuse
+    such work before any run starts."""
+    avail = _memory_bytes("SC_PHYS_PAGES")
+    if avail and need > avail // 2:
+        return f"more than half of this machine's memory ({avail / 1024**3:.1f} GB)"
+    return None
 
 
 def available_memory() -> int | None:
