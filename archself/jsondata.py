@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["finite_or_none", "jsonable"]
+__all__ = ["finite_or_none", "is_number", "json_kind", "jsonable"]
 
 
 def finite_or_none(v: float) -> float | None:
@@ -24,6 +24,23 @@ def finite_or_none(v: float) -> float | None:
     (2.0, None)
     """
     return float(v) if v == v and not math.isinf(v) else None
+
+
+def json_kind(x: Any) -> str:
+    """What a JSON value is, for a message: ``an object``, ``a list``, ``a string``, ``null``.
+
+    Examples
+    --------
+    >>> json_kind({}), json_kind(None), json_kind(1.5)
+    ('an object', 'null', 'float')
+    """
+    return {dict: "an object", list: "a list", str: "a string", type(None): "null"}.get(
+        type(x), type(x).__name__)
+
+
+def is_number(x: Any) -> bool:
+    """A number of a JSON document, or null (a non-finite number written by :func:`jsonable`)."""
+    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
 
 
 def jsonable(x: Any) -> Any:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
-from archself.jsondata import jsonable
+from archself.jsondata import is_number, json_kind, jsonable
 
 __all__ = ["explain", "explain_data"]
 
@@ -33,32 +33,21 @@ def _as_dict(d: Any) -> dict[str, Any]:
     return d.to_dict() if hasattr(d, "to_dict") else dict(d)
 
 
-def _num(x: Any) -> bool:
-    """A number of a record (or None: a non-finite one)."""
-    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
-
-
-def _kind(x: Any) -> str:
-    """What ``x`` is, for a message."""
-    return {dict: "an object", list: "a list", str: "a string", type(None): "null"}.get(
-        type(x), type(x).__name__)
-
-
 def _record_problem(d: Any) -> str | None:
     """What is wrong with one record of a decision log (``to_dict()`` form), or None."""
     if not isinstance(d, Mapping):
-        return f": expected a decision record (an object), got {_kind(d)}"
+        return f": expected a decision record (an object), got {json_kind(d)}"
     for key in ("t", "j_obs", "j_ref", "r_global", "cycle"):
-        if not _num(d.get(key)):
-            return f".{key}: expected a number, got {_kind(d.get(key))}"
+        if not is_number(d.get(key)):
+            return f".{key}: expected a number, got {json_kind(d.get(key))}"
     for key in ("r", "z", "source", "kappa"):
         m = d.get(key)
         if m is not None and not isinstance(m, Mapping):
-            return f".{key}: expected an object of modules, got {_kind(m)}"
-        bad = None if key == "kappa" else next((n for n, v in (m or {}).items() if not _num(v)),
-                                                None)
+            return f".{key}: expected an object of modules, got {json_kind(m)}"
+        values = {} if key == "kappa" else (m or {})
+        bad = next((n for n, v in values.items() if not is_number(v)), None)
         if bad is not None:
-            return f".{key}.{bad}: expected a number, got {_kind(m[bad])}"  # type: ignore[index]
+            return f".{key}.{bad}: expected a number, got {json_kind(m[bad])}"  # type: ignore[index]
     for key in ("candidates", "compensated"):
         names = d.get(key)
         if names is not None and (not isinstance(names, list)
@@ -66,21 +55,22 @@ def _record_problem(d: Any) -> str | None:
             return f".{key}: expected a list of module names"
     evals = d.get("evaluations")
     if evals is not None and not isinstance(evals, list):
-        return f".evaluations: expected a list, got {_kind(evals)}"
+        return f".evaluations: expected a list, got {json_kind(evals)}"
     for i, e in enumerate(evals or []):
         if not isinstance(e, Mapping) or "action" not in e:
-            return f".evaluations[{i}]: expected an object with an action, got {_kind(e)}"
-        bad = next((k for k in ("z", "delta", "cost", "score") if not _num(e.get(k))), None)
+            return f".evaluations[{i}]: expected an object with an action, got {json_kind(e)}"
+        bad = next((k for k in ("z", "delta", "cost", "score") if not is_number(e.get(k))), None)
         if bad is not None:
-            return f".evaluations[{i}].{bad}: expected a number, got {_kind(e[bad])}"
-        if e.get("stability") is not None and not isinstance(e["stability"], Mapping):
-            return f".evaluations[{i}].stability: expected an object, got {_kind(e['stability'])}"
+            return f".evaluations[{i}].{bad}: expected a number, got {json_kind(e[bad])}"
+        stab = e.get("stability")
+        if stab is not None and not isinstance(stab, Mapping):
+            return f".evaluations[{i}].stability: expected an object, got {json_kind(stab)}"
     ch = d.get("chosen")
     if (ch is not None and not isinstance(ch, Mapping)) or (ch and "action" not in ch):
-        return f".chosen: expected an object with an action, or null, got {_kind(ch)}"
-    bad = next((k for k in ("z", "score", "source") if not _num((ch or {}).get(k))), None)
+        return f".chosen: expected an object with an action, or null, got {json_kind(ch)}"
+    bad = next((k for k in ("z", "score", "source") if not is_number((ch or {}).get(k))), None)
     if bad is not None:
-        return f".chosen.{bad}: expected a number, got {_kind(ch[bad])}"  # type: ignore[index]
+        return f".chosen.{bad}: expected a number, got {json_kind(ch[bad])}"  # type: ignore[index]
     return None
 
 
@@ -94,7 +84,7 @@ def decision_log_problem(decisions: Any) -> str | None:
     if isinstance(decisions, str | bytes | Mapping) or not isinstance(decisions, Iterable):
         hint = (" (a run's are its .decisions; a trace's: read_trace(path).decisions)"
                 if isinstance(decisions, str) or hasattr(decisions, "decisions") else "")
-        return f"decisions: expected a list of decision records, got {_kind(decisions)}{hint}"
+        return f"decisions: expected a list of decision records, got {json_kind(decisions)}{hint}"
     for i, d in enumerate(decisions):
         problem = None if hasattr(d, "to_dict") else _record_problem(d)
         if problem is not None:

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from archself.errors import TraceError
-from archself.jsondata import jsonable
+from archself.jsondata import is_number, json_kind, jsonable
 
 __all__ = [
     "TRACE_KEY",
@@ -181,15 +181,6 @@ class _Malformed(Exception):
     """A trace document whose ``meta``, ``series`` or ``decisions`` has a wrong shape."""
 
 
-def _kind(x: Any) -> str:
-    return {dict: "an object", list: "a list", str: "a string", type(None): "null"}.get(
-        type(x), type(x).__name__)
-
-
-def _number(x: Any) -> bool:
-    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
-
-
 def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
     """Raise :class:`_Malformed` (``meta.seed: expected …``) unless the parts have their types.
 
@@ -199,7 +190,7 @@ def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
     from archself.runtime.explanation import decision_log_problem
 
     def bad(where: str, expected: str, got: Any) -> _Malformed:
-        return _Malformed(f"{where}: expected {expected}, got {_kind(got)}")
+        return _Malformed(f"{where}: expected {expected}, got {json_kind(got)}")
 
     if not isinstance(meta, dict):
         raise bad("meta", "an object", meta)
@@ -212,7 +203,7 @@ def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
     if not isinstance(metrics, dict):
         raise bad("meta.metrics", "an object", metrics)
     for k, v in metrics.items():
-        if not _number(v):
+        if not is_number(v):
             raise bad(f"meta.metrics.{k}", "a number", v)
     for key in ("configurations", "switches"):
         if not isinstance(meta.get(key) or [], list):
@@ -222,12 +213,12 @@ def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
     for i, sw in enumerate(meta.get("switches") or []):
         if not isinstance(sw, dict):
             raise bad(f"meta.switches[{i}]", "an object", sw)
-        if not _number(sw.get("t_s")) or sw.get("t_s") is None:
+        if not is_number(sw.get("t_s")) or sw.get("t_s") is None:
             raise bad(f"meta.switches[{i}].t_s", "a number", sw.get("t_s"))
     if meta.get("unit") is not None and not isinstance(meta["unit"], str):
         raise bad("meta.unit", "a string", meta["unit"])
     for key in ("step_s", "period_s", "duration_s"):
-        if not _number(meta.get(key)):
+        if not is_number(meta.get(key)):
             raise bad(f"meta.{key}", "a number", meta.get(key))
     obj = meta.get("objective")
     if obj is not None:
@@ -243,18 +234,18 @@ def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
     rep = meta.get("report")
     if isinstance(rep, dict):
         for key in ("acceptable", "threshold", "warmup_s", "min_confidence", "top_k"):
-            if not _number(rep.get(key)):
+            if not is_number(rep.get(key)):
                 raise bad(f"meta.report.{key}", "a number", rep.get(key))
         if not isinstance(rep.get("faults") or [], list):
             raise bad("meta.report.faults", "a list", rep.get("faults"))
         for i, f in enumerate(rep.get("faults") or []):
             if not isinstance(f, dict):
                 raise bad(f"meta.report.faults[{i}]", "an object", f)
-            if not _number(f.get("onset_s")) or f.get("onset_s") is None:
+            if not is_number(f.get("onset_s")) or f.get("onset_s") is None:
                 raise bad(f"meta.report.faults[{i}].onset_s", "a number", f.get("onset_s"))
         hyst = rep.get("hysteresis")
         if hyst is not None and not (isinstance(hyst, dict) and all(
-                _number(hyst.get(k)) and hyst.get(k) is not None for k in ("on", "off"))):
+                is_number(hyst.get(k)) and hyst.get(k) is not None for k in ("on", "off"))):
             raise _Malformed("meta.report.hysteresis: expected an object {on, off}")
         if hyst is None and rep.get("top_k") is None and rep.get("threshold") is None:
             raise _Malformed("meta.report: expected a threshold, top_k or hysteresis")
@@ -286,14 +277,14 @@ def _read_json(raw: bytes) -> Any:
     if not isinstance(doc, dict) or not {"meta", "series", "decisions"} <= set(doc):
         raise _Malformed("expected an object {meta, series, decisions}, got "
                          + (f"keys {', '.join(sorted(doc)) or 'none'}" if isinstance(doc, dict)
-                            else _kind(doc)))
+                            else json_kind(doc)))
     meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
     _check_doc(meta, series, decisions)
     arrays: dict[str, np.ndarray] = {}
     for name, values in series.items():
         if not isinstance(values, list):
             raise _Malformed(f"series.{name}: expected a list (one value per step), got "
-                             f"{_kind(values)}")
+                             f"{json_kind(values)}")
         if name == "configuration":
             arrays[name] = np.asarray(values, dtype=int)
         else:
