@@ -40,13 +40,13 @@ __version__ = "0.1.0"
 
 # name -> module that defines it (imported on first use)
 _LAZY = {
-    "Architecture": "archself.model",
+    "Architecture": "archself.model.architecture",
     "ArchselfError": "archself.errors",
     "LoadError": "archself.errors",
     "Finding": "archself.findings",
     "simulate": "archself.sim.run",
     "RunResult": "archself.sim.run",
-    "read_trace": "archself.sim.trace",
+    "read_trace": "archself.sim.result",
     "MapeK": "archself.runtime.mapek",
     "explain": "archself.runtime.decisions",
     "parse_sweep": "archself.campaign.sweep",
@@ -84,15 +84,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from archself.campaign.sweep import parse_sweep
     from archself.errors import ArchselfError, LoadError
     from archself.findings import Finding
-    from archself.model import Architecture
+    from archself.model.architecture import Architecture
     from archself.runtime.decisions import explain
     from archself.runtime.mapek import MapeK
+    from archself.sim.result import read_trace
     from archself.sim.run import RunResult, simulate
-    from archself.sim.trace import read_trace
 
 
 def load(path: str | Path, *, check: bool = True) -> Architecture:
-    """Load an architecture file: the :class:`~archself.model.Architecture` it describes.
+    """Load an architecture file: the :class:`~archself.Architecture` it describes.
 
     The file is read (YAML 1.2), checked against the schema and, unless
     ``check=False``, against the semantic rules of ``archself validate``.
@@ -117,7 +117,7 @@ def load(path: str | Path, *, check: bool = True) -> Architecture:
         one located ``file:line:col``, and a ``findings`` attribute, when present,
         lists all of them.
     """
-    from archself.loader import SchemaError, load_architecture
+    from archself.model.loader import SchemaError, load_architecture
 
     loaded = load_architecture(path)
     if check:
@@ -149,7 +149,7 @@ def validate(path: str | Path) -> list[Finding]:
     from archself.check import check as check_rules
     from archself.errors import ArchselfError
     from archself.findings import Finding
-    from archself.loader import SchemaError, load_architecture
+    from archself.model.loader import SchemaError, load_architecture
 
     try:
         return check_rules(load_architecture(path))

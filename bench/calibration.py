@@ -44,7 +44,7 @@ def _smooth(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
 
 
 def _one(args: tuple[str, str, str, int]) -> dict:
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
     from archself.sim.run import simulate
 
     path, scenario, conf, seed = args

@@ -24,7 +24,7 @@ _EDGE = re.compile(r'\{"from": "(m\d+)", "to": "(m\d+)", "weight": ([0-9.eE+-]+)
 
 @pytest.fixture(scope="session")
 def diffdrive():
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     return load_architecture(DIFFDRIVE).arch
 
@@ -36,7 +36,7 @@ def generated_w(n: int, seed: int = 1):
     (Loading a 10^5-module YAML file through the loader takes minutes; the graph
     is the same.)
     """
-    from archself.generate import generate_architecture
+    from archself.model.generate import generate_architecture
     from archself.runtime.influence import weight_matrix
 
     text = generate_architecture(n, seed=seed)

@@ -92,7 +92,7 @@ def _record_run(arch, scenario: str, seed: int) -> dict[str, np.ndarray]:
 def record(out: Path, seeds: int, drift_seeds: int) -> None:
     """Record the nominal runs over the envelope and the drift runs into ``out`` (npz)."""
     from archself.campaign.sweep import apply_values, parse_sweep
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     data = load_architecture(ARCH).data
     out.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ noise: ``packs/archself_diffdrive/physical.py``), encoders and IMU, the spline
 reference, dead reckoning and the LQR (gain from ``control.lqr`` on the same error
 dynamics) with the same floating-point operations in the same order, and the same
 random streams: each module draws from ``numpy.random.default_rng([seed,
-blake2b-64(name)])`` (``archself.streams.module_rng``), and a Generator's normals do not
+blake2b-64(name)])`` (``archself.system.streams.module_rng``), and a Generator's normals do not
 depend on how many are drawn per call, so the floor draws each stream in blocks and
 reproduces the framework's trace bit for bit (tests/test_floor.py checks it to 1e-9).
 

@@ -46,7 +46,7 @@ def gps_variant(arch, kind: str):
 
 
 def run_one(job: tuple[str, str, int]) -> dict:
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
     from archself.runtime import MapeK
     from archself.sim.run import simulate
 

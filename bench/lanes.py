@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> None:
     import pandas as pd
 
     if args.equal is not None:
-        from archself.loader import load_architecture
+        from archself.model.loader import load_architecture
 
         for path in args.equal or [ARCH]:
             scenarios = list(load_architecture(path).arch.scenarios)

@@ -71,8 +71,8 @@ def _register() -> None:
 
 def architecture(n: int, *, path: str = "lyapunov"):
     """The generated file with noise on one module, configuration ``alt`` and an action."""
-    from archself.generate import generate_architecture
-    from archself.loader import load_text
+    from archself.model.generate import generate_architecture
+    from archself.model.loader import load_text
 
     text = generate_architecture(n, seed=1)
     data = json.loads(text.split("\n", 1)[1])
@@ -103,8 +103,8 @@ def architecture(n: int, *, path: str = "lyapunov"):
 
 def _run(arch, *, trace: bool) -> dict[str, Any]:
     """Compile, then cycle until the first cycle that evaluates an action; measure it."""
-    from archself.compiler import compile_system
     from archself.runtime import MapeK
+    from archself.system.compiler import compile_system
 
     c0, w0 = time.process_time(), time.perf_counter()
     system = compile_system(arch, arch.initial_configuration(), seed=0)

@@ -51,7 +51,7 @@ from pathlib import Path
 #: the worker: one tree, one round; prints one JSON object {"scenario/seed": cpu_s}
 WORKER = r"""
 import json, sys, time
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.runtime import MapeK
 from archself.sim.run import simulate
 path, warm = sys.argv[1], sys.argv[2]

@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from archself.campaign import parse_sweep, plan_campaign, run_campaign
     from archself.campaign.results import read_results
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     system = SYSTEMS[args.system]
     if args.arch is None:

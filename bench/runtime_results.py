@@ -36,7 +36,7 @@ HEADER = (
 
 
 def _arch(path: str):
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     return load_architecture(path).arch
 

@@ -30,7 +30,7 @@ def test_startup_validate_diffdrive(benchmark) -> None:
 
 @pytest.fixture(scope="module")
 def file_10k(tmp_path_factory) -> Path:
-    from archself.generate import generate_architecture
+    from archself.model.generate import generate_architecture
 
     path = tmp_path_factory.mktemp("gen") / "g10k.yaml"
     path.write_text(generate_architecture(10_000, seed=1), encoding="utf-8")
@@ -43,7 +43,7 @@ def test_validate_10k(benchmark, file_10k: Path) -> None:
 
 def test_load_10k_in_process(benchmark, file_10k: Path) -> None:
     """YAML compose + conversion + schema of the 10,000-module file, without start-up."""
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     loaded = benchmark.pedantic(load_architecture, args=(file_10k,), rounds=3, iterations=1)
     assert len(loaded.arch.modules) == 10_000
@@ -52,8 +52,8 @@ def test_load_10k_in_process(benchmark, file_10k: Path) -> None:
 
 def test_convert_10k_nodes(benchmark, file_10k: Path) -> None:
     """The node graph → data conversion alone (the part archself owns; compose is libyaml's)."""
-    from archself.yaml_nodes import Converter as _Converter
-    from archself.yaml_nodes import parse as _parse
+    from archself.io.yaml_nodes import Converter as _Converter
+    from archself.io.yaml_nodes import parse as _parse
 
     text = file_10k.read_text(encoding="utf-8")
     node = _parse(text, str(file_10k))

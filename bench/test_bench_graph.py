@@ -43,10 +43,10 @@ def test_z_including_factorization(benchmark, n: int, rng) -> None:
 
 @pytest.fixture(scope="module")
 def big_system():
-    from archself.compiler import compile_system
-    from archself.generate import generate_architecture
-    from archself.loader import load_text
+    from archself.model.generate import generate_architecture
+    from archself.model.loader import load_text
     from archself.runtime import MapeK
+    from archself.system.compiler import compile_system
 
     arch = load_text(generate_architecture(10_000, seed=1)).arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

@@ -20,7 +20,7 @@ import sys
 
 import numpy as np
 
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate

@@ -94,7 +94,7 @@ def test_format_band_rounds_up() -> None:
 
 def test_offline_z_is_the_runtimes(tmp_path: Path) -> None:
     """max |z| from the recorded residuals equals the MapeK decision log's, cycle by cycle."""
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
     from archself.runtime import MapeK
     from archself.sim.run import simulate
 
@@ -141,7 +141,7 @@ def test_calibrated_bands_hold_their_rate_on_fresh_seeds(cal) -> None:
     p = 0.1 over 24 runs: 2.4 expected, P(X ≥ 8) < 0.002. Halving the bands must
     break the check (it is not vacuous).
     """
-    from archself.loader import load_text
+    from archself.model.loader import load_text
     from archself.runtime import MapeK
     from archself.sim.run import simulate
 
@@ -197,7 +197,7 @@ def test_cli_writes_a_calibrated_copy_that_keeps_comments(tmp_path: Path) -> Non
     assert comments and all(c in new_lines for c in comments)
 
     from archself.check import check, has_errors
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     loaded = load_architecture(out)
     assert not has_errors(check(loaded))

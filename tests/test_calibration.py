@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.sim.run import simulate
 
 DIFFDRIVE = Path(__file__).resolve().parents[1] / "architectures" / "diffdrive.yaml"

@@ -139,7 +139,7 @@ def test_sweep_points_product_and_duplicates() -> None:
 
 
 def test_apply_values_revalidates() -> None:
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     data = load_architecture(DIFFDRIVE).data
     sw = [
@@ -608,17 +608,17 @@ def test_dask_local_cluster_address(
 
 
 def test_worker_parses_the_file_once_per_process(monkeypatch: pytest.MonkeyPatch) -> None:
-    import archself.loader
+    import archself.model.loader
     from archself.campaign import worker
 
     calls = []
-    real = archself.loader.load_text
+    real = archself.model.loader.load_text
 
     def counting(text: str, file: str = "<input>"):
         calls.append(file)
         return real(text, file)
 
-    monkeypatch.setattr(archself.loader, "load_text", counting)
+    monkeypatch.setattr(archself.model.loader, "load_text", counting)
     monkeypatch.setattr(worker, "_TEXTS", {})
     monkeypatch.setattr(worker, "_ARCHS", worker.OrderedDict())
     jobs, _ = plan_campaign(MINIMAL, ["calm"], 2, [parse_sweep("runtime.threshold=0.4,0.6")])

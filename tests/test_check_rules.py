@@ -8,7 +8,7 @@ import pytest
 from archself import registry
 from archself.check import check, spectrum_summary
 from archself.errors import RegistryError
-from archself.loader import load_text
+from archself.model.loader import load_text
 from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.physical import Imu
 from archself_process.control import LevelObserver

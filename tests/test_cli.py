@@ -86,7 +86,7 @@ def test_valid_files_validate_clean(path) -> None:
 
 @pytest.mark.slow
 def test_generated_10000_module_file_validates(tmp_path) -> None:
-    from archself.generate import generate_architecture
+    from archself.model.generate import generate_architecture
 
     big = tmp_path / "big.yaml"
     big.write_text(generate_architecture(10_000, seed=2, feedback=5))
@@ -116,7 +116,7 @@ def test_docgen_does_not_import_the_command_line() -> None:
     """cli imports docgen (``archself docs``); docgen gets the app passed, never imports cli."""
     code = (
         "import sys\n"
-        "from archself.docgen import reference_pages\n"
+        "from archself.reports.docgen import reference_pages\n"
         "assert set(reference_pages()) == {'format.md'}\n"
         "assert 'archself.cli' not in sys.modules, 'docgen imported archself.cli'\n"
     )
@@ -125,7 +125,7 @@ def test_docgen_does_not_import_the_command_line() -> None:
 
 
 def test_cli_reference_page_is_current() -> None:
-    from archself.docgen import reference_pages
+    from archself.reports.docgen import reference_pages
 
     pages = reference_pages(app)
     assert (ROOT / "docs" / "cli.md").read_text(encoding="utf-8") == pages["cli.md"]

@@ -184,7 +184,7 @@ def test_progress_bar_starts_with_the_first_step(monkeypatch) -> None:
 
     import archself.cli.runs as cli
     import archself.sim.run as run
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     events: list[str] = []
     real_compile = run.compile_system

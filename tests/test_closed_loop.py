@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from archself.compiler import compile_system
-from archself.linear import ClosedLoop, Wire, interconnect, loop_modules, modal_form
-from archself.loader import load_architecture
+from archself.linear.wiring import ClosedLoop, Wire, interconnect, loop_modules, modal_form
+from archself.model.loader import load_architecture
 from archself.modules.base import LinearModel
 from archself.runtime import MapeK
 from archself.runtime.stability import eigenvalue_margin
 from archself.sim.run import simulate
+from archself.system.compiler import compile_system
 
 from conftest import FIXTURES, ROOT
 
@@ -207,7 +207,7 @@ def test_a_large_loop_is_sparse_and_has_the_dense_eigenvalues(seed: int, monkeyp
     """Above DENSE_STATES states: sparse A, the same A and eigenvalues as the dense path."""
     import scipy.sparse
 
-    import archself.linear as linear
+    import archself.linear.wiring as linear
 
     models, wires = _chain_models(450, seed)
     big = interconnect(models, wires, 0.1)
@@ -228,7 +228,7 @@ def test_a_large_loop_is_sparse_and_has_the_dense_eigenvalues(seed: int, monkeyp
 
 def test_a_large_cascade_without_feedthrough_loops_is_triangular() -> None:
     """A 600-state cascade: every strong component is one state; λ = the diagonal."""
-    import archself.linear as linear
+    import archself.linear.wiring as linear
 
     models = {
         f"x{i}": LinearModel([[0.5]], [[1.0]], [[1.0]], [[0.0]], [("y", 1)], [("y", 1)], dt=0.1)

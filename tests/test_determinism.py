@@ -74,7 +74,7 @@ def test_adaptive_run_with_runtime_faults_is_byte_identical(tmp_path):
 
 def test_different_seeds_differ(tmp_path):
     """The check above is not vacuous: the seed reaches the trace."""
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
     from archself.sim.run import simulate
 
     arch = load_architecture(MINIMAL).arch

@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from archself.campaign.sweep import apply_values, parse_sweep
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate

@@ -13,8 +13,8 @@ from ruamel.yaml import YAML
 from typer.testing import CliRunner
 
 from archself.cli import app
-from archself.export import FORMATS, export, ros2_modes
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
+from archself.reports.export import FORMATS, export, ros2_modes
 from archself.resources import data_dir
 from archself.runtime.influence import weight_matrix
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from archself.check import check
 from archself.errors import ArchselfError
-from archself.loader import load_data, load_text
+from archself.model.loader import load_data, load_text
 
 from conftest import DIFFDRIVE
 

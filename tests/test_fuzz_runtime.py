@@ -32,8 +32,8 @@ from hypothesis import strategies as st
 
 from archself.check import check, has_errors
 from archself.errors import ArchselfError
-from archself.loader import load_data, load_text
-from archself.model import Action, Architecture
+from archself.model.architecture import Action, Architecture
+from archself.model.loader import load_data, load_text
 from archself.runtime import MapeK
 from archself.sim.run import RunResult, simulate
 
@@ -315,9 +315,9 @@ def test_scalar_objective_error_is_finite() -> None:
     rollout estimate failed and every Lyapunov test failed closed, so the loop of a
     file with scalar objective signals could never make a structural change.
     """
-    from archself.compiler import compile_system
-    from archself.generate import generate_architecture
+    from archself.model.generate import generate_architecture
     from archself.runtime.planner import rollout_improvement
+    from archself.system.compiler import compile_system
 
     arch = load_text(generate_architecture(4, seed=1)).arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

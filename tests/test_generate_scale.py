@@ -16,7 +16,7 @@ import scipy.sparse.linalg
 from typer.testing import CliRunner
 
 from archself.cli import app
-from archself.generate import generate_architecture
+from archself.model.generate import generate_architecture
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 
 _EDGE = re.compile(r'\{"from": "(m\d+)", "to": "(m\d+)", "weight": ([0-9.eE+-]+)')
@@ -96,9 +96,9 @@ def test_generate_past_the_hard_cap_is_one_line_even_with_yes(args: list[str]) -
 
 def test_one_mapek_cycle_on_generated_1k() -> None:
     """Load → compile → one MAPE-K cycle on a generated 10^3-module architecture."""
-    from archself.compiler import compile_system
-    from archself.loader import load_text
+    from archself.model.loader import load_text
     from archself.runtime import MapeK
+    from archself.system.compiler import compile_system
 
     arch = load_text(generate_architecture(1_000, seed=4)).arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

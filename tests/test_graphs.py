@@ -6,7 +6,7 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from archself.dataflow import algebraic_loop, topological_order
+from archself.system.dataflow import algebraic_loop, topological_order
 
 NODES = [f"n{i:02d}" for i in range(13)]
 edges_st = st.lists(st.tuples(st.integers(0, 12), st.integers(0, 12)), max_size=40)

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from archself.atomic import protect, write_text
 from archself.cli import main
 from archself.errors import EXIT_CODES, OutputError
+from archself.io.atomic import protect, write_text
 
 from conftest import FIXTURES, ROOT
 

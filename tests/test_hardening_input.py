@@ -11,12 +11,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from archself.atomic import write_text
 from archself.check import check, has_errors
 from archself.cli import app
 from archself.errors import OutputError
-from archself.generate import generate_architecture
-from archself.loader import MAX_FILE_BYTES, load_text
+from archself.io.atomic import write_text
+from archself.model.generate import generate_architecture
+from archself.model.loader import MAX_FILE_BYTES, load_text
 
 from conftest import FIXTURES
 
@@ -119,7 +119,7 @@ def test_unwritable_output_through_the_cli(tmp_path: Path, monkeypatch, command,
     target (``os.replace``): one line on stderr, exit 1, no traceback, the good file kept
     and no temporary file left behind.
     """
-    from archself import atomic
+    from archself.io import atomic
 
     target = tmp_path / "out.json"
     target.write_text("good")

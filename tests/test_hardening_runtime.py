@@ -18,14 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from archself.compiler import compile_system
-from archself.model import Architecture, Fault, Scenario
+from archself.model.architecture import Architecture, Fault, Scenario
 from archself.modules.base import RuntimeModule
 from archself.registry import register, unregister
 from archself.runtime import MapeK
 from archself.runtime.monitor import unavailable_residual
-from archself.sim.faults import FAULT_KINDS, FaultInjector
 from archself.sim.run import simulate
+from archself.system.compiler import compile_system
+from archself.system.faults import FAULT_KINDS, FaultInjector
 
 ROOT = Path(__file__).resolve().parents[1]
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
@@ -34,7 +34,7 @@ SEEDS = [1, 2, 3]
 
 @pytest.fixture(scope="module")
 def arch() -> Architecture:
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     return load_architecture(DIFFDRIVE).arch
 

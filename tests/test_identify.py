@@ -219,7 +219,7 @@ def toy_file(tmp_path, toy_types):
 
 def test_toy_file_is_valid(toy_file) -> None:
     from archself.check import check
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     findings = check(load_architecture(toy_file))
     assert not [f for f in findings if f.severity == "error"], findings

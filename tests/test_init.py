@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from archself.cli import app
-from archself.schema import SCHEMA_ID, schema_text
+from archself.model.schema import SCHEMA_ID, schema_text
 
 
 def test_init_writes_a_valid_file_that_adapts(tmp_path: Path, monkeypatch) -> None:
@@ -42,7 +42,7 @@ def test_init_never_overwrites_without_force(tmp_path: Path, monkeypatch) -> Non
 def test_init_quotes_the_name(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     assert CliRunner().invoke(app, ["init", 'odd: "name"']).exit_code == 0
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     assert load_architecture(tmp_path / 'odd: "name".yaml').arch.name == 'odd: "name"'
 
@@ -96,7 +96,7 @@ def test_every_template_writes_a_valid_file_under_the_name(tmp_path: Path, monke
     assert result.exit_code == 0, result.stderr
     text = (tmp_path / "plant_x.yaml").read_text()
     assert text.splitlines()[0] == "# yaml-language-server: $schema=" + SCHEMA_ID
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     assert load_architecture(tmp_path / "plant_x.yaml").arch.name == "plant_x"
     assert runner.invoke(app, ["validate", "--strict", "plant_x.yaml"]).exit_code == 0
@@ -106,7 +106,7 @@ def test_the_lti_template_is_generic_blocks_only_and_adapts(tmp_path: Path, monk
     monkeypatch.chdir(tmp_path)
     runner = CliRunner()
     assert runner.invoke(app, ["init", "loop", "-t", "lti"]).exit_code == 0
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     arch = load_architecture(tmp_path / "loop.yaml").arch
     assert all(m.type.startswith("generic.") for m in arch.modules.values())

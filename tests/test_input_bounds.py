@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from archself.errors import LoadError
-from archself.loader import MAX_YAML_BYTES, SchemaError, load_text
+from archself.model.loader import MAX_YAML_BYTES, SchemaError, load_text
 
 from conftest import FIXTURES, ROOT, compare_golden
 
@@ -52,7 +52,7 @@ def test_a_fifo_is_refused_before_reading(tmp_path: Path, command: str, regen: b
 
 def test_the_loader_refuses_a_fifo(tmp_path: Path) -> None:
     """The Python API too (``load_architecture``), not only the command line."""
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     fifo = tmp_path / "arch.yaml"
     os.mkfifo(fifo)
@@ -81,7 +81,7 @@ def test_16_mb_of_waypoints_are_refused_at_load(tmp_path: Path, regen: bool) -> 
 
 def test_too_many_numbers_in_one_parameter() -> None:
     """Under the byte caps, a value of more than MAX_PARAM_NUMBERS numbers is refused."""
-    from archself.model import MAX_PARAM_NUMBERS
+    from archself.model.architecture import MAX_PARAM_NUMBERS
 
     text = _waypoints(MAX_PARAM_NUMBERS // 2 + 1)
     assert len(text) < MAX_YAML_BYTES
@@ -98,7 +98,7 @@ def test_json_documents_load_as_yaml_does() -> None:
     refusal (a duplicate key, NaN) through the YAML path."""
     import json
 
-    from archself.loader import load_data
+    from archself.model.loader import load_data
 
     data, _ = load_data(MINIMAL, "m.yaml")
     as_json = "# a comment line\n" + json.dumps(data, indent=1)
@@ -115,8 +115,8 @@ def test_json_documents_load_as_yaml_does() -> None:
 
 def test_generated_100k_file_is_under_the_caps() -> None:
     """``archself generate 100000`` writes JSON under MAX_FILE_BYTES (YAML would pass 8 MiB)."""
-    from archself.generate import generate_architecture
-    from archself.loader import MAX_FILE_BYTES
+    from archself.model.generate import generate_architecture
+    from archself.model.loader import MAX_FILE_BYTES
 
     text = generate_architecture(100_000, seed=0)
     assert MAX_YAML_BYTES < len(text.encode()) < MAX_FILE_BYTES

@@ -11,7 +11,7 @@ from ruamel.yaml import YAML
 
 from archself.errors import SimulationError
 from archself.lanes import ALL, LaneNormals, LaneSystem, PerLane, row, simulate_lanes, stack
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
 
@@ -130,7 +130,7 @@ def test_faults_edge_noise_and_latency_per_lane(diffdrive_raw) -> None:
 
 
 def test_a_module_that_raises_holds_its_last_outputs_in_that_lane(diffdrive_raw) -> None:
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
     systems = [compile_system(arch, "a1", seed=s, scenario="nominal") for s in (1, 2)]
@@ -159,7 +159,7 @@ def test_a_module_that_raises_holds_its_last_outputs_in_that_lane(diffdrive_raw)
 
 def test_lanes_in_different_configurations_run_as_groups(diffdrive_raw) -> None:
     """Two groups (a1 and a3) in one lane system: each lane is its per-run run."""
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
     confs = ["a1", "a3", "a1", "a3"]
@@ -182,7 +182,7 @@ def test_lanes_in_different_configurations_run_as_groups(diffdrive_raw) -> None:
 def test_health_per_lane_is_the_per_run_health(diffdrive_raw) -> None:
     """Silence (GPS dropout), stale values (stuck encoders), non-finite output (NaN fault),
     lost inputs downstream: the reason of every module in every lane at every step."""
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     raw = copy.deepcopy(diffdrive_raw)
     raw["scenarios"]["sick"] = {
@@ -213,7 +213,7 @@ def test_health_per_lane_is_the_per_run_health(diffdrive_raw) -> None:
 
 
 def test_lanes_of_different_structure_are_refused(diffdrive_raw) -> None:
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
     raw = copy.deepcopy(diffdrive_raw)
@@ -261,7 +261,7 @@ def test_a_campaign_of_lanes_writes_the_rows_of_the_per_run_campaign(tmp_path, s
 
 def test_files_whose_types_are_all_batched_go_in_lanes_by_default() -> None:
     from archself.lanes.batching import batched_types
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     found = {n: batched_types(load_architecture(data_dir("architectures") / f"{n}.yaml").arch)
              for n in ("diffdrive", "process_plant", "motor_drive")}

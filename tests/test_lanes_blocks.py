@@ -21,10 +21,10 @@ import pytest
 from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, LaneNormals, lane_module, simulate_lanes, stack
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
-from archself.streams import module_rng
+from archself.system.streams import module_rng
 from archself_blocks.actuators import Actuator
 from archself_blocks.estimators import AugmentedEkf, KalmanFilter, Luenberger
 from archself_blocks.lti import LtiModel, LtiModelNode, StateSpacePlant, TransferFunctionPlant

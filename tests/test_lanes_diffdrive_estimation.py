@@ -23,10 +23,10 @@ import pytest
 from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, lane_module, simulate_lanes, stack
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
-from archself.streams import module_rng
+from archself.system.streams import module_rng
 from archself_diffdrive.controllers import AsymLqrController, LqrController
 from archself_diffdrive.estimators import Ekf, InnovationTrend, InnovationWindow, Odometry
 from archself_diffdrive.lanes_control import AsymLqrControllerLanes, LqrControllerLanes

@@ -19,10 +19,10 @@ import pytest
 from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, lane_module, row, simulate_lanes, stack
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
-from archself.streams import module_rng
+from archself.system.streams import module_rng
 from archself_diffdrive.models import ActuatorModel, DiffDriveKinematicsModel
 from archself_diffdrive.physical import DiffDrivePlant, Gps, Imu, WheelActuator, WheelEncoders
 from archself_diffdrive.planner import SplinePlanner

@@ -23,11 +23,11 @@ from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, PerLane, lane_module, row, simulate_lanes, stack
 from archself.lanes.batching import batched_types
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate
-from archself.streams import module_rng
+from archself.system.streams import module_rng
 from archself_process.control import (
     LevelObserver,
     PiController,
@@ -410,7 +410,7 @@ def plant():
 
 
 def test_every_type_of_the_process_plant_is_batched(plant) -> None:
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     assert batched_types(plant)
     system = compile_system(plant, "p1", seed=1)

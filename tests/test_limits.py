@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from archself.check import check
-from archself.loader import load_architecture, load_text
+from archself.model.loader import load_architecture, load_text
 from archself.runtime import MapeK, explain
 from archself.runtime.status import is_limit_violation, limit_violations
 from archself.sim.run import simulate

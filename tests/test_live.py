@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from archself.compiler import compile_system
 from archself.live import (
     NO_ROLLOUT,
     Command,
@@ -33,9 +32,10 @@ from archself.live import (
     parse_address,
     run_remote,
 )
-from archself.loader import load_text
+from archself.model.loader import load_text
 from archself.runtime.mapek import MapeK
 from archself.sim.run import simulate
+from archself.system.compiler import compile_system
 
 from conftest import ROOT
 
@@ -438,7 +438,7 @@ def test_cli_live_refuses_in_one_line(tmp_path: Path) -> None:
 
 
 def test_commands_name_the_exported_ros2_modes(arch) -> None:
-    from archself.export import ros2_modes
+    from archself.reports.export import ros2_modes
 
     doc = ros2_modes(arch)
     for conf in arch.configurations:
@@ -461,7 +461,7 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
 
     from typer.testing import CliRunner
 
-    import archself.atomic
+    import archself.io.atomic
     from archself.cli import app
     from archself.errors import OutputError
 
@@ -487,7 +487,7 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
     def refuse(path, text):
         raise OutputError("disk full", str(path))
 
-    monkeypatch.setattr(archself.atomic, "write_text", refuse)
+    monkeypatch.setattr(archself.io.atomic, "write_text", refuse)
     log = tmp_path / "log.json"
     late = CliRunner().invoke(app, ["live", str(arch_file), "--connect",
                                     f"127.0.0.1:{link.port}", "--log", str(log)])

@@ -10,7 +10,13 @@ from typer.testing import CliRunner
 
 from archself.cli import app
 from archself.errors import ArchselfError, LoadError
-from archself.loader import MAX_FILE_BYTES, SchemaError, load_architecture, load_data, load_text
+from archself.model.loader import (
+    MAX_FILE_BYTES,
+    SchemaError,
+    load_architecture,
+    load_data,
+    load_text,
+)
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT, compare_golden
 
@@ -160,7 +166,7 @@ def test_a_pipe_is_refused_before_reading() -> None:
     import os
 
     from archself.errors import LoadError
-    from archself.yaml_source import read_text
+    from archself.io.yaml_source import read_text
 
     r, w = os.pipe()
     try:

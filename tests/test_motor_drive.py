@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from archself.check import check
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate
@@ -71,7 +71,7 @@ def test_drive_loss_switches_to_the_backup_drive(arch):
 
 
 def test_stability_filter_sees_the_whole_loop(arch):
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
     from archself_blocks.pid import pid_closed_loop
 
     system = compile_system(arch, "m1", seed=1)

@@ -13,6 +13,12 @@ import os
 import subprocess
 import sys
 
+import numpy as np
+import pytest
+
+from archself.model.loader import load_architecture
+from archself.testing import PackMismatch, check_pack
+
 from conftest import ROOT
 
 PACKS = ("archself_diffdrive", "archself_process", "archself_blocks")
@@ -24,7 +30,7 @@ for name in {PACKS!r}:
     sys.modules[name] = None  # any import of a shipped pack now fails
 from archself import registry
 from archself.check import check, has_errors
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.runtime import MapeK
 from archself.sim.run import simulate
 
@@ -81,3 +87,35 @@ def test_a_file_of_a_blocked_pack_gets_a_message_not_a_traceback() -> None:
     assert proc.returncode == 1
     assert "Traceback" not in proc.stderr
     assert "failed to load" in proc.stderr
+
+
+# ---------------------------------------------------------------- lanes equal per-run runs
+@pytest.mark.parametrize(("path", "duration_s"), [
+    ("architectures/diffdrive.yaml", 80.0),
+    ("architectures/process_plant.yaml", 60.0),
+    ("architectures/motor_drive.yaml", 30.0),
+])
+def test_shipped_packs_pass_check_pack(path, duration_s) -> None:
+    """Every type of the shipped packs batches, and lanes give the per-run runs."""
+    report = check_pack(ROOT / path, seeds=(1, 2), duration_s=duration_s)
+    assert report.ok and report.runs == 2 * 2 * len(load_architecture(ROOT / path).arch.scenarios)
+    assert "PerLane" not in report.types.values()
+
+
+def test_check_pack_finds_a_lane_class_that_drifts(monkeypatch) -> None:
+    """A batched class 1e-6 off its per-run class is a PackMismatch naming the series."""
+    from archself_blocks.lanes_control import PidLanes
+
+    step = PidLanes.step
+
+    def off(self, t, dt, inputs, lanes):
+        out = step(self, t, dt, inputs, lanes)
+        return {k: (v + 1e-6 if isinstance(v, np.ndarray) else v) for k, v in out.items()}
+
+    monkeypatch.setattr(PidLanes, "step", off)
+    with pytest.raises(PackMismatch, match=r"(?s)between lanes.*series 'J' differs first"):
+        check_pack(ROOT / "architectures/motor_drive.yaml", scenarios=["nominal"], seeds=(1,),
+                   duration_s=5.0, adaptive=False)
+    report = check_pack(ROOT / "architectures/motor_drive.yaml", scenarios=["nominal"],
+                        seeds=(1,), duration_s=5.0, adaptive=False, raise_on_error=False)
+    assert not report.ok and report.runs == 1

@@ -16,7 +16,7 @@ import pytest
 
 from archself import registry
 from archself.errors import SimulationError
-from archself.loader import load_architecture, load_text
+from archself.model.loader import load_architecture, load_text
 from archself.modules.base import REQUIRED, Param
 from archself.runtime import MapeK, explain
 from archself.sim.run import simulate
@@ -109,7 +109,7 @@ def test_the_planner_rejects_an_update_outside_the_declared_range(monkeypatch) -
 
 
 def test_set_params_refuses_a_value_outside_the_declared_range() -> None:
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     arch = load_architecture(FIXTURES / "valid" / "minimal.yaml").arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

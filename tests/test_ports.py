@@ -1,13 +1,13 @@
-"""Named ports (archself.ports): declarations, edges that name them, their checks."""
+"""Named ports (archself.model.ports): declarations, edges that name them, their checks."""
 
 from __future__ import annotations
 
 import pytest
 
 from archself.check import check
-from archself.loader import load_text
+from archself.model.loader import load_text
+from archself.model.ports import Input, Output, declare, split_ref
 from archself.modules.base import RuntimeModule
-from archself.ports import Input, Output, declare, split_ref
 
 from conftest import FIXTURES
 

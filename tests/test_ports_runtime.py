@@ -1,9 +1,9 @@
-"""Named ports at run time: a renamed port delivers the source's value (archself.system)."""
+"""Named ports at run time: a renamed port delivers the source's value (the executor)."""
 
 from __future__ import annotations
 
 from archself.check import check
-from archself.loader import load_text
+from archself.model.loader import load_text
 
 from conftest import ROOT
 
@@ -18,8 +18,8 @@ def test_a_renamed_port_runs_like_the_unit_gain_it_replaces() -> None:
     """volt_meter.measurement straight into the filters' u: no gain block to rename it."""
     import numpy as np
 
-    from archself.compiler import compile_system
     from archself.sim.run import simulate
+    from archself.system.compiler import compile_system
 
     assert VIA_GAIN in MOTOR
     before = load_text(MOTOR, "motor.yaml")

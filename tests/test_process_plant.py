@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from archself.check import check
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir, schema_path
 from archself.runtime import MapeK
 from archself.sim.run import simulate
@@ -79,7 +79,7 @@ def test_plant_is_not_a_robot(arch):
 
 
 def test_controllers_give_stable_linearizations(arch):
-    from archself.compiler import compile_system
+    from archself.system.compiler import compile_system
 
     system = compile_system(arch, seed=1, scenario="nominal")
     for conf in arch.configurations:

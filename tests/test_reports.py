@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from archself.cli import app
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.reports.architecture import write_architecture_report
 from archself.reports.dsm import build_dsm, cluster, orderings, sequence
 from archself.reports.graph import config_diff, diff_pairs

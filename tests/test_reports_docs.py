@@ -92,7 +92,7 @@ def test_committed_architecture_report_is_current(tmp_path) -> None:
 
 
 def test_architecture_report_html_is_deterministic(tmp_path) -> None:
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
     from archself.reports.architecture import write_architecture_report
 
     arch = load_architecture(ROOT / "architectures" / "diffdrive.yaml").arch

@@ -86,7 +86,7 @@ def test_legends_cover_no_switch_label(path) -> None:
     """The "a1 → a2" labels at the top of the axes stay visible: no legend lies on them."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
     from archself.reports import figures
     from archself.reports.run import build_run_report
     from archself.runtime import MapeK
@@ -118,7 +118,7 @@ def _switching_scenario(arch) -> str:
 
 def test_metric_labels_carry_the_objective_unit(tmp_path) -> None:
     """A level in metres, a temperature in K: the report labels what the file declares."""
-    from archself.loader import load_text
+    from archself.model.loader import load_text
     from archself.reports import figures
     from archself.reports.run import build_run_report
     from archself.sim.run import simulate

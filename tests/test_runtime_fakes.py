@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 
 BASE_MODULES = ["src", "est_a", "ctl_a", "act"]
 
@@ -169,7 +169,7 @@ Signals = Callable[[float, str], dict[str, dict[str, float]]]
 
 
 class FakeSystem:
-    """A programmable stand-in for :class:`archself.system.LiveSystem`.
+    """A programmable stand-in for :class:`archself.system.executor.LiveSystem`.
 
     Parameters
     ----------

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK, explain
 

@@ -50,7 +50,7 @@ def robot_names() -> set[str]:
     part of each module type (``sensor.encoders`` -> ``encoders``); names ending in
     ``s`` also in the singular (``encoder``).
     """
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     arch = load_architecture(DIFFDRIVE).arch
     names = set(arch.modules) | set(arch.configurations) | set(arch.scenarios)

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from archself.generate import generate_architecture
-from archself.loader import load_text
+from archself.model.generate import generate_architecture
+from archself.model.loader import load_text
 from archself.runtime.monitor import (
     ModuleStatus,
     Monitor,

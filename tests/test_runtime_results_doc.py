@@ -60,7 +60,7 @@ RUNTIME = ("runtime.md", "## Results on the differential-drive robot")
 
 
 def test_runtime_page_shows_the_scripts_header_settings_and_seeds() -> None:
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     rr = bench("runtime_results")
     lines = section(*RUNTIME)

@@ -17,7 +17,7 @@ import pytest
 import scipy.sparse
 from numpy.testing import assert_allclose
 
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 from archself.runtime import MapeK, explain
 from archself.runtime.decisions import explain_data
 from archself.runtime.influence import influence, weight_matrix

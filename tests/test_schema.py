@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from archself.cli import app
-from archself.schema import SCHEMA_DIALECT, schema_text
+from archself.model.schema import SCHEMA_DIALECT, schema_text
 
 from conftest import FIXTURES, ROOT
 
@@ -77,7 +77,7 @@ def test_independent_validator_rejects_structural_breakage(name: str) -> None:
 
 
 def test_reference_pages_are_current() -> None:
-    from archself.docgen import reference_pages
+    from archself.reports.docgen import reference_pages
 
     for name, text in reference_pages().items():
         current = (ROOT / "docs" / name).read_text(encoding="utf-8")
@@ -114,8 +114,8 @@ def test_independent_validator_accepts_a_null_second_selector(tmp_path: Path) ->
 
 
 def test_module_type_offers_the_registered_types() -> None:
+    from archself.model.schema import architecture_schema
     from archself.registry import _points
-    from archself.schema import architecture_schema
 
     registered = set(_points())  # every installed entry point (nothing imported)
 

@@ -29,3 +29,12 @@ def test_ruff_is_clean() -> None:
 def test_mypy_is_clean() -> None:
     proc = subprocess.run([_tool("mypy")], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:]
+
+
+def test_typed_doors_pass_mypy_strict() -> None:
+    """The protocols (archself.contracts), check_pack, and every class that plays a role."""
+    files = ["archself/contracts.py", "archself/testing.py", "tests/typing_doors.py"]
+    proc = subprocess.run([_tool("mypy"), "--strict", "--follow-imports=silent",
+                           "--ignore-missing-imports", *files],
+                          cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-3000:]

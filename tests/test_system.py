@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from archself.compiler import compile_system
 from archself.errors import CompileError, SimulationError
-from archself.loader import load_architecture
-from archself.model import Architecture
+from archself.model.architecture import Architecture
+from archself.model.loader import load_architecture
 from archself.modules.base import RuntimeModule
 from archself.registry import register, unregister
 from archself.sim.run import simulate
-from archself.system import stable_hash
+from archself.system.compiler import compile_system
+from archself.system.executor import stable_hash
 
 DIFFDRIVE = Path(__file__).resolve().parents[1] / "architectures" / "diffdrive.yaml"
 
@@ -109,7 +109,7 @@ def test_order_respects_active_edges(arch):
 
 def test_output_types_are_learnt_per_system(arch):
     """The non-numeric output types a system finds (model objects) stay in that system."""
-    from archself.health import NOT_NUMERIC
+    from archself.system.health import NOT_NUMERIC
 
     a = compile_system(arch, "a1", seed=1)
     b = compile_system(arch, "a1", seed=1)
@@ -162,7 +162,7 @@ def test_failing_module_is_held_and_flagged(toys):
 
 
 def test_lost_input_marks_unavailable(arch):
-    from archself.model import Fault, Scenario
+    from archself.model.architecture import Fault, Scenario
 
     sc = Scenario(duration_s=10, faults=[Fault(module="imu", kind="dropout", onset_s=1.0)])
     s = compile_system(arch, "a1", seed=1, scenario=sc)
@@ -173,7 +173,7 @@ def test_lost_input_marks_unavailable(arch):
 
 
 def test_stable_hash_across_processes():
-    code = "from archself.system import stable_hash; print(stable_hash('wheel_left'))"
+    code = "from archself.system.executor import stable_hash; print(stable_hash('wheel_left'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert int(out.stdout) == stable_hash("wheel_left")
 
@@ -217,8 +217,8 @@ def _errors(system, configuration, steps, *, only=None):
 def test_partial_snapshot_rolls_the_objective_out_as_the_whole(fname, start, scenario):
     """snapshot(only=rollout_scope(c, H)): the objective error of a whole copy, step by step."""
     if fname == "generated":
-        from archself.generate import generate_architecture
-        from archself.loader import load_text
+        from archself.model.generate import generate_architecture
+        from archself.model.loader import load_text
 
         arch = load_text(generate_architecture(400, seed=2, feedback=20)).arch
     else:
@@ -274,7 +274,7 @@ def test_compile_errors(arch):
         compile_system(arch, "a9", seed=0)
     with pytest.raises(SimulationError, match="unknown scenario"):
         compile_system(arch, "a1", seed=0, scenario="earthquake")
-    from archself.model import Fault, Scenario
+    from archself.model.architecture import Fault, Scenario
 
     bad = Scenario(duration_s=1, faults=[Fault(module="planner", kind="bias", onset_s=0)])
     with pytest.raises(CompileError, match="does not take"):

@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 
 import archself
 from archself.cli import app
-from archself.sim.trace import TraceError, read_trace
+from archself.io.trace import TraceError
+from archself.sim.result import read_trace
 
 from conftest import DIFFDRIVE, FIXTURES
 

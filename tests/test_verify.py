@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from archself.check import check
 from archself.cli import app
-from archself.loader import load_architecture, load_text
+from archself.model.loader import load_architecture, load_text
 
 from conftest import FIXTURES, ROOT
 

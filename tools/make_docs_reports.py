@@ -33,8 +33,8 @@ def build(
     out: Path, *, runs: bool = True, render: bool = True, arch_path: Path = ARCH
 ) -> list[Path]:
     """Write the docs reports under ``out``; return the report folders written."""
-    from archself.atomic import write_text
-    from archself.loader import load_architecture
+    from archself.io.atomic import write_text
+    from archself.model.loader import load_architecture
     from archself.reports.architecture import write_architecture_report
     from archself.reports.render import render as render_template
     from archself.reports.render import unique_slugs

@@ -139,7 +139,7 @@ def set_nominals(
         edits[id(node)] = (start.index, end.index, new, name)
     result = replace_scalars(text, [(s, e, new) for s, e, new, _ in edits.values()], comment)
     if verify:  # the new text holds exactly the new values
-        from archself.loader import load_text
+        from archself.model.loader import load_text
 
         arch = load_text(result, file).arch
         for name, value in values.items():

@@ -95,7 +95,7 @@ def _check_fault(path: str | Path, module: str, kind: str, magnitude: float, own
     """Refuse a perturbation the fault model refuses, before any run (each run failed)."""
     from pydantic import ValidationError
 
-    from archself.model import Fault
+    from archself.model.architecture import Fault
 
     try:
         Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,

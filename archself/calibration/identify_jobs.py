@@ -46,7 +46,7 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         ``settle_s``, float64, in the file's module order), ``error``.
     """
     from archself.calibration.runs import Recorder, parsed
-    from archself.model import Fault
+    from archself.model.architecture import Fault
     from archself.sim.run import simulate
 
     out: dict[str, Any] = {

@@ -16,7 +16,7 @@ import numpy as np
 
 from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
-from archself.jsondata import finite_or_none
+from archself.io.jsondata import finite_or_none
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentifyError"]
 

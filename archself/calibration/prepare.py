@@ -21,10 +21,10 @@ def load_checked(path: str | Path, error: type[ArchselfError]) -> tuple[str, Any
     Returns
     -------
     tuple
-        ``(text, loaded)``: the file's text and its :class:`~archself.loader.Loaded`.
+        ``(text, loaded)``: the file's text and its :class:`~archself.model.loader.Loaded`.
     """
     from archself.check import check, has_errors
-    from archself.loader import load_text, read_text
+    from archself.model.loader import load_text, read_text
 
     text = read_text(path)
     loaded = load_text(text, str(path))
@@ -60,7 +60,7 @@ def prepare(
     -------
     tuple
         ``(text, loaded, scenarios, configurations, tau)``: the file's text, its
-        :class:`~archself.loader.Loaded`, the fault-free scenarios and the
+        :class:`~archself.model.loader.Loaded`, the fault-free scenarios and the
         configurations chosen, and the alarm threshold τ of its selector.
 
     Raises
@@ -117,7 +117,7 @@ def parse_envelope(loaded: Any, specs: Sequence[str]) -> tuple[Any, ...]:
         return ()
     from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
     from archself.check import check
-    from archself.loader import Loaded
+    from archself.model.loader import Loaded
 
     try:
         sweeps = tuple(parse_sweep(s) for s in specs)

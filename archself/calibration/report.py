@@ -151,7 +151,7 @@ def _figure(width: float = 6.4, height: float = 3.2) -> Any:
 
 
 def _save(fig: Any, path: Path) -> None:
-    from archself.atomic import write_bytes
+    from archself.io.atomic import write_bytes
     from archself.reports.figures import figure_bytes
 
     write_bytes(path, figure_bytes(fig, "svg"))
@@ -233,9 +233,9 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
     OutputError
         If the folder or a file cannot be written.
     """
-    from archself.atomic import write_text
     from archself.calibration.edit import same_file
     from archself.errors import OutputError
+    from archself.io.atomic import write_text
     from archself.reports.render import render
 
     out = Path(out_dir)

@@ -13,7 +13,7 @@ from typing import Any
 
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
-from archself.jsondata import finite_or_none
+from archself.io.jsondata import finite_or_none
 
 __all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand"]
 

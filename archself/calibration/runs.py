@@ -202,7 +202,7 @@ def parsed(
     key = f"{digest}:{point}"
     arch = _ARCHS.get(key)
     if arch is None:
-        from archself.loader import load_text
+        from archself.model.loader import load_text
 
         loaded = load_text(text, file)
         arch = loaded.arch

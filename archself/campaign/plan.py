@@ -98,7 +98,7 @@ def plan_campaign(
     """
     from archself.check import check
     from archself.lanes.batching import batched_types
-    from archself.loader import Loaded, load_text, read_text
+    from archself.model.loader import Loaded, load_text, read_text
 
     if trace_format not in ("json", "parquet"):
         raise CampaignError(f"unknown trace format {trace_format!r}; known: json, parquet")

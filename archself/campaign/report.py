@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.aggregate import CampaignSummary, summarize
-from archself.jsondata import jsonable
+from archself.io.jsondata import jsonable
 
 __all__ = ["campaign_report", "summary_text"]
 
@@ -102,10 +102,10 @@ def campaign_report(
     OutputError
         If ``out_dir`` cannot be written.
     """
-    from archself.atomic import write_bytes, write_text
     from archself.campaign import figures as fig
     from archself.campaign.results import read_results
     from archself.errors import OutputError
+    from archself.io.atomic import write_bytes, write_text
     from archself.reports.figures import figure_bytes
 
     table, meta = read_results(results)

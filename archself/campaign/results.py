@@ -110,7 +110,7 @@ def write_results(
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from archself.atomic import write_bytes
+    from archself.io.atomic import write_bytes
 
     ordered = sorted(rows, key=lambda r: (
         r["scenario"], tuple(r[p] for p in sweep_paths), r["replicate"], r["mode"]))

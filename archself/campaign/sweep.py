@@ -2,7 +2,7 @@
 
 A PATH names one value of the plain data of an architecture file with dots and
 indices, the same notation the loader uses in its messages
-(:func:`archself.loader.dotted`): ``runtime.threshold``,
+(:func:`archself.model.loader.dotted`): ``runtime.threshold``,
 ``scenarios.imu_drift.faults[0].magnitude``, ``modules.gps.params.noise_m.value``.
 Keys that are not plain identifiers are written as JSON strings in brackets:
 ``modules["left wheel"].params.side.value``.
@@ -124,7 +124,7 @@ def parse_path(text: str) -> Path_:
 
 
 def _where(path: Path_, k: int) -> str:
-    from archself.loader import dotted
+    from archself.model.loader import dotted
 
     return dotted(path[: k + 1]) or "<root>"
 
@@ -291,12 +291,12 @@ def apply_values(
 ) -> Any:
     """Apply one sweep point to the plain data and validate the result through the model.
 
-    ``source`` (the :class:`archself.yaml_source.SourceMap` of ``data``) locates a
+    ``source`` (the :class:`archself.io.yaml_source.SourceMap` of ``data``) locates a
     refused value in the file, as ``validate`` would.
 
     Returns
     -------
-    archself.model.Architecture
+    archself.model.architecture.Architecture
 
     Raises
     ------
@@ -305,7 +305,7 @@ def apply_values(
     """
     from pydantic import ValidationError
 
-    from archself.model import Architecture
+    from archself.model.architecture import Architecture
 
     out = data
     for s, v in zip(sweeps, point, strict=True):
@@ -314,7 +314,7 @@ def apply_values(
         return Architecture.model_validate(out)
     except ValidationError as exc:
         err = exc.errors()[0]
-        from archself.loader import dotted
+        from archself.model.loader import dotted
 
         for s in sweeps:  # a new last key that the model refuses: most likely a typo
             parent = get_path(data, s.keys[:-1])
@@ -329,7 +329,7 @@ def apply_values(
 
         setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
         if source is not None:  # located and worded as the loader's (not a union member's)
-            from archself.schema_messages import schema_findings
+            from archself.model.messages import schema_findings
 
             found = schema_findings(out, exc, source)
             if found:
@@ -343,14 +343,14 @@ def apply_values(
 def _model_keys(keys: Path_) -> list[str]:
     """The field names of the model class the data at ``keys`` validates to ([] if none).
 
-    Walks :class:`archself.model.Architecture`'s annotations: a model's field, a dict's
+    Walks :class:`archself.model.architecture.Architecture`'s annotations: a model's field, a dict's
     value type for a key, a list's item type for an index.
     """
     import typing
 
     from pydantic import BaseModel
 
-    from archself.model import Architecture
+    from archself.model.architecture import Architecture
 
     def models(tp: Any) -> list[Any]:
         """The classes a field's annotation may hold (Optional, Union, Annotated unwrapped)."""

@@ -75,7 +75,7 @@ def _architecture(job: Job) -> Any:
         return arch
     loaded = _TEXTS.get(job.arch_digest)
     if loaded is None:
-        from archself.loader import load_text
+        from archself.model.loader import load_text
 
         loaded = load_text(job.arch_text, job.file)
         _TEXTS.clear()  # one campaign at a time
@@ -252,7 +252,7 @@ def trace_name(scenario: str, point: tuple[float, ...], replicate: int, mode: st
                suffix: str = ".json") -> str:
     """A file name for a run's trace: readable, unique per run, safe on every OS.
 
-    ``suffix`` chooses the format (``.parquet``: :mod:`archself.sim.trace`).
+    ``suffix`` chooses the format (``.parquet``: :mod:`archself.io.trace`).
 
     Examples
     --------

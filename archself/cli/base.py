@@ -128,7 +128,7 @@ STDIN_NAME = "<stdin>"
 
 def _read_stdin() -> str:
     """Standard input as UTF-8 text, capped like a file (``yaml_source.MAX_FILE_BYTES``)."""
-    from archself.file_text import MAX_FILE_BYTES, decode_text
+    from archself.io.file_text import MAX_FILE_BYTES, decode_text
 
     return decode_text(sys.stdin.buffer.read(MAX_FILE_BYTES + 1), STDIN_NAME)
 
@@ -248,7 +248,7 @@ def _emit(text: str, output: Path | None, done: str) -> None:
     if output is None or str(output) == "-":
         sys.stdout.write(text)
         return
-    from archself.atomic import write_text
+    from archself.io.atomic import write_text
 
     if output.is_file():
         try:
@@ -272,7 +272,7 @@ _RUN_REPORT_FILES = ("index.html", "summary.json")
 
 def _inputs(*paths: Path, what: str = "an architecture file") -> None:
     """Every input must be a regular file: not missing, a folder, a FIFO or a device."""
-    from archself.outputs import check_input
+    from archself.io.outputs import check_input
 
     for p in paths:
         if str(p) != "-":  # stdin, read by _load
@@ -332,10 +332,10 @@ def _known_configuration(arch: Any, config: str | None, path: Path) -> None:
 
 def _load(path: Path):
     from archself.check import check, has_errors
-    from archself.loader import load_architecture
+    from archself.model.loader import load_architecture
 
     if str(path) == "-":
-        from archself.loader import load_text
+        from archself.model.loader import load_text
 
         loaded = load_text(_read_stdin(), STDIN_NAME)
     else:

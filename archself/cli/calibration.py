@@ -124,7 +124,7 @@ def calibrate(
         if save_runs is not None:
             check_output(arch_path, save_runs, in_place=False, force=force)
         if report_dir is not None:
-            from archself.outputs import refuse_foreign_folder
+            from archself.io.outputs import refuse_foreign_folder
 
             refuse_foreign_folder(report_dir, "calibration.json", "--report")
         show = sys.stderr.isatty() and not json_out
@@ -140,7 +140,7 @@ def calibrate(
         finally:
             bar.close()
         if target is not None:
-            from archself.atomic import write_text
+            from archself.io.atomic import write_text
 
             write_text(target, cal.text)
         if report_dir is not None:
@@ -254,7 +254,7 @@ def identify(
         raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
     overrides = _perturbations(perturb)
     try:
-        from archself.outputs import refuse_same_file
+        from archself.io.outputs import refuse_same_file
 
         _inputs(arch_path)
 
@@ -279,7 +279,7 @@ def identify(
     if output is not None:
         _emit(markdown_table(ident), output, f"wrote {output}")
     if write_back is not None and copy is not None:
-        from archself.atomic import write_text
+        from archself.io.atomic import write_text
 
         try:
             write_text(write_back, copy)

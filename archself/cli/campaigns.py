@@ -92,10 +92,10 @@ def campaign(
     the same table whatever the number of workers. A campaign larger than the cap
     (runs, steps) needs --yes; --out is never the architecture file.
     """
-    from archself.atomic import protect
     from archself.campaign.driver import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
-    from archself.outputs import refuse_same_file
+    from archself.io.atomic import protect
+    from archself.io.outputs import refuse_same_file
 
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
@@ -190,10 +190,10 @@ def campaign_report_cmd(
     Writes DIR/index.html (figures beside it: SVG unless --format says otherwise) and
     DIR/summary.json.
     """
-    from archself.atomic import protect
     from archself.campaign.aggregate import parse_expect
     from archself.campaign.report import campaign_report, summary_text
-    from archself.outputs import refuse_same_file
+    from archself.io.atomic import protect
+    from archself.io.outputs import refuse_same_file
 
     try:
         _inputs(results, what="a results file (Parquet)")
@@ -207,7 +207,7 @@ def campaign_report_cmd(
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
-        from archself.jsondata import jsonable
+        from archself.io.jsondata import jsonable
 
         typer.echo(json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
     else:

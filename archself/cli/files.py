@@ -43,7 +43,7 @@ def validate(
     """
     from archself.check import check
     from archself.findings import Finding
-    from archself.loader import SchemaError, load_architecture, load_text
+    from archself.model.loader import SchemaError, load_architecture, load_text
 
     if sum(str(p) == "-" for p in paths) > 1:
         raise _fail("'-' (stdin) can be given once", 2)
@@ -120,7 +120,7 @@ def schema(
     A module's `type` offers the registered types for completion (`examples`): the
     built-in ones and those of the installed plugins (--builtin: built-in only).
     """
-    from archself.schema import schema_text
+    from archself.model.schema import schema_text
 
     regen = "archself schema --builtin -o" if builtin else "archself schema -o"
     _write_or_check(schema_text(installed=not builtin), output, check_file, regen)
@@ -131,7 +131,7 @@ def docs(
     check: Annotated[bool, typer.Option("--check", help="Exit 1 if a page is stale.")] = False,
 ) -> None:
     """Regenerate the reference pages (format.md from the schema, cli.md from this CLI)."""
-    from archself.docgen import reference_pages
+    from archself.reports.docgen import reference_pages
 
     for name, text in reference_pages(app).items():  # docgen never imports this module
         target = folder / name
@@ -250,7 +250,7 @@ def init(
     """
     import os
 
-    from archself.atomic import write_text
+    from archself.io.atomic import write_text
 
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
@@ -275,7 +275,7 @@ def init(
     text = _template_text(template, target.stem, target.name, schema)
     try:
         if copy_to is not None:
-            from archself.schema import schema_text
+            from archself.model.schema import schema_text
 
             write_text(copy_to, schema_text())
         write_text(target, text)
@@ -293,7 +293,7 @@ def _project_schema(folder: Path) -> str:
     """
     import os
 
-    from archself.schema import SCHEMA_ID
+    from archself.model.schema import SCHEMA_ID
 
     here = folder.resolve()
     for d in (here, *here.parents):
@@ -318,17 +318,17 @@ def export(
     ] = None,
 ) -> None:
     """Export the architecture for other tools: GraphML, node-link JSON, edge CSV, ROS 2 modes."""
-    from archself.export import FORMATS
+    from archself.reports.export import FORMATS
 
     if to not in FORMATS:
         raise _fail(f"error: --to: unknown format '{to}'; choose one of {', '.join(FORMATS)}", 2)
     _inputs(arch)
     try:
         if output is not None and str(output) != "-":
-            from archself.outputs import refuse_same_file
+            from archself.io.outputs import refuse_same_file
 
             refuse_same_file([arch], output, "--output")
-        from archself.export import export as export_text
+        from archself.reports.export import export as export_text
 
         text = export_text(_load(arch), to)
     except ArchselfError as exc:
@@ -343,7 +343,7 @@ def info(
     ] = False,
 ) -> None:
     """What a file holds: modules, configurations, actions, scenarios and runtime settings."""
-    from archself.summary import summarize, summary_text
+    from archself.reports.summary import summarize, summary_text
 
     _inputs(arch)
     try:
@@ -374,8 +374,8 @@ def generate(
     ] = False,
 ) -> None:
     """Generate a large DAG-like architecture of N generic.relay modules (scaling studies)."""
-    from archself.generate import generate_architecture
-    from archself.yaml_source import MAX_FILE_BYTES
+    from archself.io.yaml_source import MAX_FILE_BYTES
+    from archself.model.generate import generate_architecture
 
     for what, count in (("N", n), ("--feedback", feedback)):
         if count > GENERATE_HARD_MAX:  # np.sqrt of a huge int raised TypeError (exit 3)

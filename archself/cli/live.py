@@ -10,7 +10,7 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
-from archself.jsondata import jsonable
+from archself.io.jsondata import jsonable
 
 
 def live(
@@ -65,7 +65,7 @@ def live(
     try:
         _inputs(arch_path)
         if log is not None:
-            from archself.outputs import refuse_same_file
+            from archself.io.outputs import refuse_same_file
 
             refuse_same_file([arch_path], log, "--log")
             if log.is_dir() or not log.parent.is_dir():  # found out before the run, not after
@@ -112,7 +112,7 @@ def _write_log(log: Path, text: str) -> None:
     A live run cannot be repeated (the plant went its own way), so its log is never
     dropped: the one-line error names where it was kept.
     """
-    from archself.atomic import write_text
+    from archself.io.atomic import write_text
 
     try:
         write_text(log, text)

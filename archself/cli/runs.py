@@ -179,8 +179,8 @@ def simulate(
         raise _fail(f"{trace}: cannot write: is a folder; --trace takes a file name")
     if trace is not None and not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
-    from archself.atomic import protect
-    from archself.outputs import refuse_foreign_folder, refuse_same_file
+    from archself.io.atomic import protect
+    from archself.io.outputs import refuse_foreign_folder, refuse_same_file
 
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
     try:
@@ -210,7 +210,7 @@ def simulate(
     except ArchselfError as exc:
         raise _die(exc) from None
     if to_stdout:
-        from archself.sim.trace import json_text
+        from archself.io.trace import json_text
 
         typer.echo(_summary(results), err=True)
         sys.stdout.write(json_text(results[0]))
@@ -239,12 +239,12 @@ def explain(
     """Explain a run's decisions: why (and why not) the architecture switched."""
     from archself.runtime.decisions import explain as render
     from archself.runtime.decisions import explain_data
-    from archself.sim.trace import read_trace, trace_from_bytes
+    from archself.sim.result import read_trace, trace_from_bytes
 
     try:
         _inputs(trace, what="a trace (Parquet or JSON)")
         if str(trace) == "-":
-            from archself.yaml_source import MAX_FILE_BYTES
+            from archself.io.yaml_source import MAX_FILE_BYTES
 
             res = trace_from_bytes(sys.stdin.buffer.read(MAX_FILE_BYTES), "<stdin>")
         else:

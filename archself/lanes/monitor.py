@@ -22,8 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.runtime.monitor import Monitor, Observation
-from archself.runtime.monitor_layout import confidence_reader
+from archself.runtime.monitor import Monitor, Observation, confidence_reader
 from archself.runtime.residuals import MAX_RESIDUAL
 from archself.runtime.status import StatusMap
 

@@ -10,7 +10,7 @@ switches, the lane moving between configuration groups.
 
 Examples
 --------
->>> from archself.loader import load_architecture
+>>> from archself.model.loader import load_architecture
 >>> from archself.resources import data_dir
 >>> from archself.sim.run import simulate
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
@@ -28,13 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from archself.compiler import compile_system
 from archself.errors import SimulationError
 from archself.lanes.module import ALL
 from archself.lanes.system import LaneSystem
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 from archself.sim.metrics import error_metrics
 from archself.sim.result import RunResult
+from archself.system.compiler import compile_system
 
 __all__ = ["simulate_lanes"]
 

@@ -13,7 +13,7 @@ view then *materializes* it — every module's state stored into the lane's per-
 instances, their random streams put at the per-run position
 (:meth:`~archself.lanes.module.LaneNormals.pin`), the outputs, availability, edge
 streams and latency lines copied — and hands the call to that
-:class:`~archself.system.LiveSystem`. After the cycle :meth:`LaneView.done` gives the
+:class:`~archself.system.executor.LiveSystem`. After the cycle :meth:`LaneView.done` gives the
 streams back and moves the lane if the loop switched it or changed a parameter.
 """
 
@@ -21,12 +21,18 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterator, Mapping
-from typing import Any
+from collections.abc import Collection, Iterator, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from archself.lanes.module import row
+
+if TYPE_CHECKING:
+    from archself.linear.closed_loop import ClosedLoop
+    from archself.model.architecture import Architecture
+    from archself.modules.base import RuntimeModule
+    from archself.system.executor import LiveSystem
 
 __all__ = ["LaneView"]
 
@@ -65,7 +71,7 @@ class LaneView:
     def __init__(self, lanes: Any, i: int) -> None:
         self.lanes = lanes
         self.i = i
-        self.live = lanes.systems[i]
+        self.live: LiveSystem = lanes.systems[i]
         self._materialized = False
         self._params_seen = 0
 
@@ -107,11 +113,49 @@ class LaneView:
         return self.live.health() if self._materialized else self.lanes.reasons(self.i)
 
     # ------------------------------------------------------------------ everything else
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("__"):
-            raise AttributeError(name)
+    # the lane's own per-run system answers, made what the lane is now (materialize)
+    @property
+    def arch(self) -> Architecture:
+        return self.live.arch
+
+    @property
+    def dt(self) -> float:
+        return self.live.dt
+
+    def _live(self) -> LiveSystem:
         self.materialize()
-        return getattr(self.live, name)
+        return self.live
+
+    def step(self) -> None:
+        self._live().step()
+
+    def apply_configuration(self, name: str) -> None:
+        self._live().apply_configuration(name)
+
+    def set_params(self, module: str, values: Mapping[str, Any]) -> None:
+        self._live().set_params(module, values)
+
+    def snapshot(self, only: Collection[str] | None = None) -> LiveSystem:
+        return self._live().snapshot(only)
+
+    def rollout_scope(self, configuration: str | None = None, steps: int = 0) -> frozenset[str]:
+        return self._live().rollout_scope(configuration, steps)
+
+    def dependencies(self, configuration: str | None = None) -> dict[str, frozenset[str]]:
+        return self._live().dependencies(configuration)
+
+    def linearization(self, configuration: str | None = None) -> np.ndarray | None:
+        return self._live().linearization(configuration)
+
+    def closed_loop(self, configuration: str | None = None) -> ClosedLoop:
+        return self._live().closed_loop(configuration)
+
+    def state_error(self) -> np.ndarray:
+        return self._live().state_error()
+
+    @property
+    def modules(self) -> dict[str, RuntimeModule]:
+        return self._live().modules
 
     def materialize(self) -> None:
         """Make the per-run system of the lane what the lane is now (once per cycle)."""

@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from archself.live.system import LiveError, MeasuredSystem
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 
 __all__ = ["Command", "LiveLoop", "live_problems"]
 
@@ -98,7 +98,7 @@ class Command:
         >>> Command(1.0, "parameters", "raise-gain", "pi", "p1", "p1").ros2_mode("x")
         ('pi', 'RAISE_GAIN')
         """
-        from archself.export import _mode_name
+        from archself.reports.export import _mode_name
 
         if self.kind == "configuration":
             return _mode_name(system).lower(), _mode_name(self.configuration)
@@ -222,7 +222,7 @@ class LiveLoop:
 
     Examples
     --------
-    >>> from archself.loader import load_architecture
+    >>> from archself.model.loader import load_architecture
     >>> from archself.resources import data_dir
     >>> arch = load_architecture(data_dir("architectures") / "process_plant.yaml").arch
     >>> loop = LiveLoop(arch)

@@ -40,11 +40,11 @@ from typing import Any
 
 import numpy as np
 
-from archself.closed_loop import ClosedLoop
 from archself.errors import ArchselfError
-from archself.model import Architecture
+from archself.linear.closed_loop import ClosedLoop
+from archself.model.architecture import Architecture
 from archself.modules.base import RuntimeModule
-from archself.objective import component_error, objective_norm
+from archself.system.objective import component_error, objective_norm
 
 __all__ = ["LiveError", "MeasuredSystem", "ModelSnapshot", "NO_ROLLOUT"]
 
@@ -106,7 +106,7 @@ class MeasuredSystem:
 
     Examples
     --------
-    >>> from archself.loader import load_architecture
+    >>> from archself.model.loader import load_architecture
     >>> from archself.resources import data_dir
     >>> arch = load_architecture(data_dir("architectures") / "process_plant.yaml").arch
     >>> s = MeasuredSystem(arch)
@@ -120,7 +120,7 @@ class MeasuredSystem:
     def __init__(
         self, arch: Architecture, configuration: str | None = None, *, seed: int = 0
     ) -> None:
-        from archself.compiler import compile_system
+        from archself.system.compiler import compile_system
 
         self.arch = arch
         self.dt = float(arch.runtime.step_s)

@@ -31,7 +31,7 @@ import socket
 from collections.abc import Mapping
 from typing import Any
 
-from archself.jsondata import jsonable
+from archself.io.jsondata import jsonable
 from archself.live.loop import Command, LiveLoop
 from archself.live.system import LiveError
 

@@ -1,7 +1,7 @@
 """The interface every runtime module implements.
 
 A runtime module is the live counterpart of one ``modules.<name>`` entry of an
-architecture file. The system executor (:mod:`archself.system`) runs modules as
+architecture file. The system executor (:mod:`archself.system.executor`) runs modules as
 a synchronous data-flow graph with Simulink semantics:
 
 1. every module with ``direct_feedthrough = False`` (a plant, a filter whose
@@ -57,7 +57,7 @@ class Param:
         The physically meaningful range of every number of the value (a scalar, or
         each entry of a list or matrix). ``archself validate`` refuses a file value,
         a file ``min``/``max`` or an action's ``set`` outside it; without them only
-        the global cap ``archself.model.MAX_MAGNITUDE`` (1e9) applies.
+        the global cap ``archself.model.architecture.MAX_MAGNITUDE`` (1e9) applies.
 
     Examples
     --------
@@ -241,11 +241,11 @@ class RuntimeModule:
         parameter is named. ``self.params`` holds the defaults overlaid with the
         file's values; ``archself validate`` reports missing required and unknown
         parameters. None (the default for plugins that predate it): not checked.
-    ports : sequence of archself.ports.Input and Output, or None
+    ports : sequence of archself.model.ports.Input and Output, or None
         Every signal the type takes and gives, with unit and doc, next to
         ``parameters``: ``inputs``, ``optional_inputs``, ``multi_inputs``, ``outputs``
         and ``output_sizes`` are derived from it when the class defines it
-        (:mod:`archself.ports`). None: the tuples are set directly.
+        (:mod:`archself.model.ports`). None: the tuples are set directly.
     """
 
     type_key: ClassVar[str] = ""
@@ -263,7 +263,7 @@ class RuntimeModule:
     parameters: ClassVar[Mapping[str, Param] | None] = None
     ports: ClassVar[Sequence[Any] | None] = None
     #: Nominal noise level per output signal (instance attribute of sensors): a noisy
-    #: signal repeating itself bit for bit is stale (see :mod:`archself.system`).
+    #: signal repeating itself bit for bit is stale (see :mod:`archself.system.executor`).
     noise_levels: dict[str, float] | None = None
     #: Longest time without a published value before the module counts as silent (s).
     max_silence_s: float | None = None
@@ -274,7 +274,7 @@ class RuntimeModule:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        from archself.ports import declare
+        from archself.model.ports import declare
 
         declare(cls)  # the signal tuples from ``ports``, when the class declares them
 
@@ -328,7 +328,7 @@ class RuntimeModule:
 
         The system wires the models of a configuration's modules along its active
         edges (signals by ``carries``) into the closed-loop A of Eq. 20
-        (:meth:`archself.system.LiveSystem.closed_loop`); it asks in execution order,
+        (:meth:`archself.system.executor.LiveSystem.closed_loop`); it asks in execution order,
         so the ports of a feedthrough module know their sources' widths.
 
         Parameters

@@ -36,9 +36,9 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from archself.atomic import write_bytes, write_text
 from archself.errors import OutputError
-from archself.model import Architecture
+from archself.io.atomic import write_bytes, write_text
+from archself.model.architecture import Architecture
 from archself.reports.dsm import KIND_TITLES, KINDS, build_dsm, orderings
 from archself.reports.graph import build_graph, config_diff, diff_graph, diff_pairs
 from archself.reports.render import render, unique_slugs

@@ -29,7 +29,7 @@ coupled ones, and only the truly coupled pairs are marked.
 
 Examples
 --------
->>> from archself.loader import load_architecture
+>>> from archself.model.loader import load_architecture
 >>> from archself.resources import data_dir
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> dsm = build_dsm(arch, "a1")
@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 
 __all__ = [
     "KINDS",

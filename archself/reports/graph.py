@@ -14,7 +14,7 @@ configurations in file order instead.
 
 Examples
 --------
->>> from archself.loader import load_architecture
+>>> from archself.model.loader import load_architecture
 >>> from archself.resources import data_dir
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> diff_pairs(arch)
@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 from archself.reports.dsm import KINDS, scope_edges
 
 __all__ = ["ArchGraph", "ConfigDiff", "GraphEdge", "GraphNode", "build_graph", "config_diff",

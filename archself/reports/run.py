@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 
 __all__ = ["DecisionRow", "Rejection", "RunReport", "RunSummary", "build_run_report"]
 

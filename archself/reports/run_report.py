@@ -19,8 +19,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from archself.atomic import write_bytes, write_text
-from archself.model import Architecture
+from archself.io.atomic import write_bytes, write_text
+from archself.model.architecture import Architecture
 from archself.reports.architecture import ensure_dir
 from archself.reports.render import render
 from archself.reports.run import RunReport, build_run_report

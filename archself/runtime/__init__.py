@@ -1,7 +1,7 @@
 """The generic MAPE-K runtime of Algorithm 1 (Franz & Yasin, §4.2).
 
 Nothing here knows a module, configuration or scenario by name: everything is
-read from the :class:`archself.model.Architecture`, and the running system is
+read from the :class:`archself.model.architecture.Architecture`, and the running system is
 reached only through the LiveSystem contract (docs/develop.md).
 
 ============================  ==============================================
@@ -12,7 +12,6 @@ file                          role
 ``monitor.py``                J_obs, r (Eq. 11), r_i (Eq. 12), κ_i
 ``residuals.py``              one module's residual maths: filter gain, r_i, r_sat
 ``status.py``                 κ_i (``ModuleStatus``, ``StatusMap``), measured limits
-``monitor_layout.py``         the Monitor's per-active-set arrays and filter state
 ``stability.py``              eigenvalue margin (Eq. 21), Lyapunov test (Eq. 24)
 ``planner.py``                s (Eq. 17), Δ (Eq. 18), score (Eq. 25), argmax (Eq. 26–28)
 ``constraints.py``            C(a, θ, e) ≤ 0 (Eq. 27): budgets, requires/excludes, ranges

@@ -24,7 +24,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from archself.model import Runtime
+from archself.model.architecture import Runtime
 
 __all__ = [
     "CandidateSelector",

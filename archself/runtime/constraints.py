@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 
 __all__ = ["budget_violations", "constraint_violations", "declared_ranges"]
 
@@ -27,8 +27,8 @@ def declared_ranges(arch: Architecture) -> dict[tuple[str, str], tuple[Any, str]
     Examples
     --------
     >>> import json
-    >>> from archself.generate import generate_architecture
-    >>> from archself.loader import load_text
+    >>> from archself.model.generate import generate_architecture
+    >>> from archself.model.loader import load_text
     >>> data = json.loads(generate_architecture(3, seed=0).split("\\n", 1)[1])
     >>> data["actions"] = [{"id": "quiet", "module": "m1", "kind": "parameter_update",
     ...     "set": {"noise": 0.1}, "cost": 0.1,

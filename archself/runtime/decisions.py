@@ -22,7 +22,7 @@ from collections.abc import ItemsView, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from archself.jsondata import jsonable
+from archself.io.jsondata import jsonable
 from archself.runtime.explanation import explain, explain_data
 
 __all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "explain_data"]

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
-from archself.jsondata import is_number, json_kind, jsonable
+from archself.io.jsondata import is_number, json_kind, jsonable
 
 __all__ = ["explain", "explain_data"]
 

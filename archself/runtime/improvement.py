@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.model import Action
+from archself.model.architecture import Action
 from archself.runtime.stability import action_target, apply_action, rollout_copy
 
 __all__ = ["estimate_improvement", "rollout_improvement"]
@@ -44,7 +44,7 @@ def estimate_improvement(action: Action, module: str, r_i: float, system: Any = 
 
     Examples
     --------
-    >>> from archself.model import Action
+    >>> from archself.model.architecture import Action
     >>> a = Action(id="x", module="m", kind="substitute", to="b", cost=0.1,
     ...            improvement={"method": "sensitivity", "delta_theta": -0.9})
     >>> estimate_improvement(a, "m", 2.0)

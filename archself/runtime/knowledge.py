@@ -26,7 +26,7 @@ import networkx as nx
 import numpy as np
 import scipy.sparse
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 
 __all__ = ["Knowledge", "active_edges"]

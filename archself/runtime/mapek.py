@@ -44,7 +44,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.model import Architecture
+from archself.model.architecture import Architecture
 from archself.runtime.candidates import selector_from_runtime
 from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge

@@ -56,7 +56,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from archself.model import Action, Architecture
+from archself.model.architecture import Action, Architecture
 from archself.runtime.constraints import (
     budget_violations,
     constraint_violations,

@@ -108,9 +108,9 @@ def eigenvalue_margin(A: Any, margin: float) -> StabilityVerdict:
     """
     import scipy.sparse
 
-    from archself.linear import eigenvalues
+    from archself.linear.wiring import eigenvalues
 
-    if scipy.sparse.issparse(A):  # a large closed loop (archself.linear.eigenvalues)
+    if scipy.sparse.issparse(A):  # a large closed loop (archself.linear.wiring.eigenvalues)
         finite = bool(np.all(np.isfinite(A.data)))
     else:
         A = np.atleast_2d(np.asarray(A, dtype=float))
@@ -249,7 +249,7 @@ def check_action_stability(
     ----------
     system : LiveSystem
         The running system (see docs/develop.md).
-    action : archself.model.Action
+    action : archself.model.architecture.Action
         The candidate action.
     margin, alpha : float
         ε and α (``runtime.stability``).

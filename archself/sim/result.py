@@ -3,7 +3,7 @@
 A :class:`RunResult` holds a run's recorded series, metrics, switches and decision
 log; it gives them as plain data (:meth:`RunResult.to_dict`, :meth:`RunResult.trace`),
 as tidy pandas frames (:meth:`RunResult.to_pandas`, :meth:`RunResult.decisions_frame`),
-as a notebook summary, and writes the trace file (:mod:`archself.sim.trace`).
+as a notebook summary, and writes the trace file (:mod:`archself.io.trace`).
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from archself.jsondata import jsonable
+from archself.io.jsondata import jsonable
+from archself.io.trace import TraceParts, read_trace_parts, trace_parts_from_bytes, write_trace
 from archself.sim.metrics import metric_rows
 
-__all__ = ["RunResult"]
+__all__ = ["RunResult", "read_trace", "trace_from_bytes"]
 
 
 @dataclasses.dataclass
@@ -215,16 +216,57 @@ class RunResult:
         columns of :meth:`to_pandas`; float32 series, the decision log in the schema
         metadata), any other suffix JSON (:meth:`trace`; NaN as ``null``, series rounded
         to 1e-6). The same seed gives a byte-identical file; :func:`archself.read_trace`
-        reads either back. See :mod:`archself.sim.trace`.
+        reads either back. See :mod:`archself.io.trace`.
 
         Raises
         ------
         OutputError
             If the file cannot be written.
         """
-        from archself.sim.trace import write_trace
-
         write_trace(self, path)
+
+    @classmethod
+    def from_trace(cls, parts: TraceParts) -> RunResult:
+        """The run a trace holds (:func:`archself.io.trace.read_trace_parts`)."""
+        meta, series, decisions = parts
+        keep = {k: v for k, v in meta.items()
+                if k not in ("scenario", "seed", "mode", "configuration", "final_configuration",
+                             "unit", "metrics", "switches", "configurations")}
+        return cls(
+            scenario=str(meta["scenario"]),
+            seed=int(meta["seed"]),
+            mode=str(meta["mode"]),
+            configuration=str(meta["configuration"]),
+            final_configuration=str(meta["final_configuration"]),
+            metrics={k: (math.nan if v is None else float(v))
+                     for k, v in dict(meta["metrics"]).items()},
+            switches=[dict(s) for s in meta.get("switches") or []],
+            series=series,
+            decisions=decisions,
+            meta=keep,
+            configurations=[str(c) for c in meta.get("configurations") or []],
+            unit=meta.get("unit"),
+        )
+
+
+def read_trace(path: str | Path) -> RunResult:
+    """The :class:`RunResult` of a trace file (Parquet or JSON).
+
+    Series come back as float arrays (NaN where the JSON has ``null``), the
+    decision log as a list of dicts (what :func:`archself.explain` and
+    :meth:`RunResult.decisions_frame` take).
+
+    Raises
+    ------
+    TraceError
+        ``PATH: error: not an archself trace (…)`` for any other file.
+    """
+    return RunResult.from_trace(read_trace_parts(path))
+
+
+def trace_from_bytes(raw: bytes, name: str = "<trace>") -> RunResult:
+    """:func:`read_trace` of a trace's bytes (stdin: ``archself explain -``)."""
+    return RunResult.from_trace(trace_parts_from_bytes(raw, name))
 
 
 def _pandas(method: str) -> Any:

@@ -10,7 +10,7 @@ signals and the residuals is the file's choice (``runtime.record``), not a role'
 
 Examples
 --------
->>> from archself.loader import load_architecture
+>>> from archself.model.loader import load_architecture
 >>> from archself.resources import data_dir
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> res = simulate(arch, "nominal", configuration="a1")
@@ -30,12 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from archself.compiler import compile_system
 from archself.errors import SimulationError
-from archself.model import Architecture
-from archself.objective import objective_norm
+from archself.model.architecture import Architecture
 from archself.sim.metrics import METRE_ALIASES, METRICS, error_metrics, metric_rows
 from archself.sim.result import RunResult
+from archself.system.compiler import compile_system
+from archself.system.objective import objective_norm
 
 __all__ = ["METRICS", "METRE_ALIASES", "RunResult", "simulate", "error_metrics", "metric_rows"]
 
@@ -100,7 +100,7 @@ def simulate(
     Parameters
     ----------
     arch : Architecture or path
-        The architecture (a path is loaded with :func:`archself.loader.load_architecture`).
+        The architecture (a path is loaded with :func:`archself.model.loader.load_architecture`).
     scenario : str
         Name of a scenario of the file.
     configuration : str, optional
@@ -126,7 +126,7 @@ def simulate(
         The configuration cannot be built.
     """
     if not isinstance(arch, Architecture):
-        from archself.loader import load_architecture
+        from archself.model.loader import load_architecture
 
         arch = load_architecture(arch).arch
     assert isinstance(arch, Architecture)

@@ -15,7 +15,7 @@ import sys
 
 from archself.errors import ArchselfError
 from archself.live import LiveLoop, parse_address, run_remote
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,10 +20,10 @@ import argparse
 import json
 import sys
 
-from archself.compiler import compile_system
 from archself.errors import ArchselfError
 from archself.live import PlantLink
-from archself.loader import load_architecture
+from archself.model.loader import load_architecture
+from archself.system.compiler import compile_system
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,8 +24,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself.ports import Input, Output
 from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
 
 __all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]

@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself.ports import Input, Output
 
 __all__ = [
     "LtiModel",

@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself.ports import Input, Output
 from archself_blocks.lti import LtiModel, as_vector
 
 __all__ = ["Pid", "pid_closed_loop"]

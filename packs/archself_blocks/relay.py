@@ -2,15 +2,15 @@
 
 ``generic.relay`` passes the mean of its inputs on with a little noise; it lets
 generated graphs of any size validate, compile and run (see
-:mod:`archself.generate`).
+:mod:`archself.model.generate`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from archself.model.ports import Input, Output
 from archself.modules.base import Param, RuntimeModule
-from archself.ports import Input, Output
 
 
 class Relay(RuntimeModule):

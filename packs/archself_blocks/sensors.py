@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself.ports import Input, Output
 from archself_blocks.lti import as_vector
 
 __all__ = ["Sensor", "SENSOR_FAULTS"]

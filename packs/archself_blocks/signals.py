@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself.ports import Input, Output
 from archself_blocks.lti import as_matrix, as_vector
 
 __all__ = ["PORTS", "Reference", "Gain", "Sum", "Select"]

@@ -1,0 +1,105 @@
+"""Semantic checks of an architecture beyond its schema.
+
+Each rule yields :class:`~archself.findings.Finding` objects located at the
+offending node. The rules:
+
+* ``reference``: every name used (edges, configurations, actions, faults,
+  constraints, objective) refers to a declared module or configuration;
+* ``unknown-type``: every module ``type`` is registered (built-in or plugin);
+* ``self-loop``, ``duplicate``: edges are proper and unique, action ids unique;
+* ``weight``: W_ji ≥ 0 (Eq. 13);
+* ``spectral-radius``, ``singular``: ρ(W) < ``runtime.max_spectral_radius`` < 1 so
+  that I − Wᵀ is nonsingular and z = (I − Wᵀ)⁻¹ r is bounded (Eq. 13–14);
+* ``signal``: an edge carries a signal its source outputs;
+* ``port``: named ports (``from: module.port``) exist on the types, with "did you
+  mean"; an edge names a signal (:mod:`archself.model.ports`);
+* ``incomplete``: in each configuration every active module receives its
+  required inputs over active edges, the active modules are connected, and the
+  modules ``runtime.objective`` reads are active; a configuration that fills
+  none of the roles the initial configuration fills gets a warning;
+* ``double-input``: no module receives the same signal (input port) over two active
+  edges of one configuration (the executor would keep only one of them);
+* ``algebraic-loop``: every cycle of active edges passes through a module
+  without direct feedthrough (a plant, a delay), so the data flow can be ordered;
+* ``module-constraint``: k_i ``requires``/``excludes`` hold in each configuration;
+* ``budget``: each configuration satisfies C(a, θ, e) ≤ 0 (Eq. 27) — a warning;
+* ``parameter``: required parameters are given, every parameter is one the type
+  declares (when it declares them: ``RuntimeModule.parameters``),
+  nominal values lie inside their spaces, and every number of a value (and the
+  file's ``min``/``max``) lies in the range the type declares (``Param.min``/``max``);
+* ``fault``: faults target modules whose type accepts that fault kind and signal,
+  and that are in at least one configuration (else the fault never acts);
+* ``work``: each scenario's run fits the caps of :mod:`archself.check.runs`:
+  ``MAX_RUN_STEPS`` simulation steps, ``MAX_RUN_BYTES`` of recorded series,
+  ``MAX_RUN_WORK`` module-steps with the rollouts and Lyapunov tests (:func:`run_estimate`);
+* ``action``: actions lead to declared configurations, their kind matches the
+  change, parameter updates name parameters of the module and stay in bounds;
+  the module an action addresses is active where it applies (a warning);
+* ``residual``: a residual names a signal the module's type publishes;
+* ``initial``: at most one configuration is marked initial;
+* ``limits``: a module's ``constraints.blocks`` names declared actions (and has
+  ``limits`` to be violated);
+* ``stability``: with ``runtime.stability.verify`` warning or error (opt-in: it
+  compiles the modules), every configuration's closed loop and every action's
+  result pass Eq. 21 (:mod:`archself.check.stability`); judged only on a file without errors.
+
+The rules live by what they judge: the modules and their parameters in
+:mod:`archself.check.modules`, edges, W and configurations in
+:mod:`archself.check.graph`, actions, faults, work, the objective and stability in
+:mod:`archself.check.runs`, on the shared :class:`~archself.check.context.Context`.
+This module runs them in order and re-exports ``run_estimate`` and ``spectrum_summary``.
+"""
+
+from __future__ import annotations
+
+from archself.check.context import Context
+from archself.check.graph import (
+    check_configurations,
+    check_edges,
+    check_ports,
+    check_weights,
+    spectrum_summary,
+)
+from archself.check.modules import check_limits, check_parameters, check_types
+from archself.check.runs import (
+    check_actions,
+    check_objective,
+    check_scenarios,
+    check_stability,
+    check_work,
+    run_estimate,
+)
+from archself.findings import Finding
+from archself.model.loader import Loaded, gc_paused
+
+__all__ = ["check", "has_errors", "run_estimate", "spectrum_summary"]
+
+
+def check(loaded: Loaded) -> list[Finding]:
+    """All semantic findings of a loaded architecture, sorted by position."""
+    # the collector paused, as in the loader (for the imports of the packs and scipy too)
+    with gc_paused():
+        ctx = Context(loaded)
+        for rule in (
+            check_types,
+            check_edges,
+            check_ports,
+            check_weights,
+            check_configurations,
+            check_parameters,
+            check_actions,
+            check_scenarios,
+            check_work,
+            check_objective,
+            check_limits,
+        ):
+            rule(ctx)
+    check_stability(ctx)  # --verify compiles systems: the collector runs there
+    ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
+    return ctx.out
+
+
+def has_errors(findings: list[Finding]) -> bool:
+    """True when any finding has error severity."""
+    return any(f.severity == "error" for f in findings)
+

@@ -1,0 +1,249 @@
+"""Checks of what runs: actions, scenario faults, the work caps, the objective, stability.
+
+Rules ``action`` (targets, kinds against the change, parameter updates in bounds),
+``fault`` (targets and kinds a type accepts), ``work`` (a run's steps, recorded
+bytes and module-steps under :data:`MAX_RUN_STEPS`, :data:`MAX_RUN_BYTES`,
+:data:`MAX_RUN_WORK`; :func:`run_estimate`), ``reference``/``objective`` (the
+objective's signals and components) and the opt-in ``stability``
+(:mod:`archself.check.stability`, only on a file without errors).
+"""
+
+from __future__ import annotations
+
+from archself.check.context import Context, refers
+from archself.check.modules import outside_declared, outside_space, wrong_kind
+from archself.io.yaml_source import Path_
+from archself.model.architecture import Architecture
+
+__all__ = [
+    "MAX_RUN_BYTES",
+    "MAX_RUN_STEPS",
+    "MAX_RUN_WORK",
+    "check_actions",
+    "check_objective",
+    "check_scenarios",
+    "check_stability",
+    "check_work",
+    "run_estimate",
+]
+
+#: Simulation steps of one run of a scenario (duration_s / step_s): about 3 h at 10^4 steps/s.
+MAX_RUN_STEPS = 10**8
+#: Memory of one run's recorded series (bytes; the estimate ``simulate`` shows).
+MAX_RUN_BYTES = 16 * 1024**3
+#: Module-steps of one run: modules × (steps + rollout and Lyapunov steps of every cycle).
+MAX_RUN_WORK = 10**10
+
+
+def run_estimate(arch: Architecture, scenario: str) -> tuple[int, int, int]:
+    """``(steps, bytes, work)`` of one run of ``scenario``: what ``work`` checks.
+
+    steps = ⌈duration_s / step_s⌉; bytes ≈ steps × (250 + 40 × residual modules)
+    (the series a run records); work = modules of the largest configuration ×
+    (steps + cycles × Σ over actions of the rollout steps of its Δ estimate and
+    ``stability.horizon_steps``), with cycles = ⌈duration_s / period_s⌉.
+
+    Examples
+    --------
+    >>> from archself.model.loader import load_architecture
+    >>> from archself.resources import data_dir
+    >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+    >>> steps, size, work = run_estimate(arch, "nominal")
+    >>> steps, size < 100 * 2**20
+    (8000, True)
+    """
+    import math
+
+    rt = arch.runtime
+    duration = float(arch.scenarios[scenario].duration_s)
+    steps = math.ceil(duration / float(rt.step_s) - 1e-9)
+    n_res = sum(1 for m in arch.modules.values() if m.residual is not None)
+    size = steps * (250 + 40 * n_res)
+    cycles = math.ceil(duration / float(rt.period_s) - 1e-9)
+    per_cycle = 0
+    for a in arch.actions:
+        horizon = getattr(a.improvement, "horizon_s", None)
+        if horizon is not None:
+            per_cycle += math.ceil(float(horizon) / float(rt.step_s))
+        per_cycle += rt.stability.horizon_steps
+    width = max(len(c.modules) for c in arch.configurations.values())
+    return steps, size, width * (steps + cycles * per_cycle)
+
+
+def check_actions(ctx: Context) -> None:
+    arch = ctx.arch
+    seen: dict[str, int] = {}
+    for i, a in enumerate(arch.actions):
+        base: Path_ = ("actions", i)
+        if a.id in seen:
+            ctx.add("error", "duplicate",
+                    f"action id '{a.id}' already used by actions[{seen[a.id]}]",
+                    (*base, "id"))
+        seen.setdefault(a.id, i)
+        known = refers(ctx, a.module, (*base, "module"))
+        for j, c in enumerate(a.applies_in or []):
+            if (refers(ctx, c, (*base, "applies_in", j), "configuration") and known
+                    and a.module not in arch.configurations[c].modules):
+                ctx.add("warning", "action",
+                        f"'{a.module}' is not active in configuration '{c}', so the action "
+                        "never applies there", (*base, "applies_in", j))
+        if a.kind == "parameter_update":
+            if a.module in arch.modules:
+                params = arch.modules[a.module].params
+                for pname, value in (a.set or {}).items():
+                    if pname not in params:
+                        ctx.add("error", "action",
+                                f"'{a.module}' has no parameter '{pname}' "
+                                f"(it has: {', '.join(params) or 'none'})", (*base, "set", pname))
+                    elif (cls := ctx.types.get(a.module)) is not None and (
+                            why := wrong_kind((cls.parameters or {}).get(pname), value)):
+                        ctx.add("error", "action", f"new value: {why}", (*base, "set", pname))
+                    elif why := outside_space(params[pname], value):
+                        ctx.add("error", "action", f"new value {value!r} is {why}",
+                                (*base, "set", pname))
+                    elif (cls := ctx.types.get(a.module)) is not None and (
+                            why := outside_declared((cls.parameters or {}).get(pname), value)):
+                        ctx.add("error", "action",
+                                f"new value: {why}, the range type "
+                                f"'{arch.modules[a.module].type}' declares for '{pname}'",
+                                (*base, "set", pname))
+            continue
+        assert a.to is not None
+        if not refers(ctx, a.to, (*base, "to"), "configuration"):
+            continue
+        target = arch.configurations[a.to]
+        for src_name in a.applies_in or []:
+            if src_name not in arch.configurations:
+                continue
+            src = arch.configurations[src_name]
+            added = set(target.modules) - set(src.modules)
+            removed = set(src.modules) - set(target.modules)
+            off_src = {tuple(p) for p in src.disabled_edges}
+            rewired = {tuple(p) for p in target.disabled_edges} != off_src
+            expect = {
+                "substitute": bool(added) and bool(removed),
+                "activate": bool(added) and not removed,
+                "deactivate": bool(removed) and not added,
+                "rewire": not added and not removed and rewired,
+            }[a.kind]
+            if not expect:
+                ctx.add("error", "action",
+                        f"a {a.kind} from '{src_name}' to '{a.to}' does not match the change "
+                        f"(adds {sorted(added) or 'nothing'}, "
+                        f"removes {sorted(removed) or 'nothing'})",
+                        (*base, "kind"))
+
+
+def check_scenarios(ctx: Context) -> None:
+    arch = ctx.arch
+    placed = {m for conf in arch.configurations.values() for m in conf.modules}
+    for sname, sc in arch.scenarios.items():
+        for i, f in enumerate(sc.faults):
+            path: Path_ = ("scenarios", sname, "faults", i)
+            if not refers(ctx, f.module, (*path, "module")):
+                continue
+            if f.module not in placed:
+                ctx.add("error", "fault",
+                        f"'{f.module}' is in no configuration, so the fault would never act; "
+                        "aim it at a module of a configuration (or add the module to one)",
+                        (*path, "module"))
+                continue
+            cls = ctx.types.get(f.module)
+            if cls is None:
+                continue
+            if f.kind not in cls.fault_kinds:
+                can = ", ".join(sorted(cls.fault_kinds)) or "no faults"
+                ctx.add("error", "fault",
+                        f"'{f.module}' ({arch.modules[f.module].type}) cannot take fault kind "
+                        f"'{f.kind}' (it takes: {can})", (*path, "kind"))
+            if f.signal is not None and cls.outputs and f.signal not in cls.outputs:
+                ctx.add("error", "fault",
+                        f"'{f.module}' has no output '{f.signal}' "
+                        f"(it outputs: {', '.join(cls.outputs)})", (*path, "signal"))
+            if f.onset_s >= sc.duration_s:
+                ctx.add("warning", "fault",
+                        f"onset {f.onset_s:g} s is after the end of the scenario "
+                        f"({sc.duration_s:g} s)", (*path, "onset_s"))
+
+
+def check_work(ctx: Context) -> None:
+    arch = ctx.arch
+    rt = arch.runtime
+    for name in arch.scenarios:
+        steps, size, work = run_estimate(arch, name)
+        path: Path_ = ("scenarios", name, "duration_s")
+        sc = arch.scenarios[name]
+        if steps > MAX_RUN_STEPS:
+            ctx.add("error", "work",
+                    f"a run of '{name}' is {steps:,} steps (duration_s {sc.duration_s:g} s / "
+                    f"runtime.step_s {rt.step_s:g} s), more than the cap of {MAX_RUN_STEPS:,}; "
+                    "shorten duration_s or raise runtime.step_s", path)
+        elif size > MAX_RUN_BYTES:
+            ctx.add("error", "work",
+                    f"a run of '{name}' would record about {size / 2**30:,.1f} GiB of series "
+                    f"({steps:,} steps), more than the cap of {MAX_RUN_BYTES // 2**30} GiB; "
+                    "shorten duration_s or raise runtime.step_s", path)
+        elif work > MAX_RUN_WORK:
+            ctx.add("error", "work",
+                    f"a run of '{name}' is about {work:.3g} module-steps with the rollouts and "
+                    f"Lyapunov tests of {len(arch.actions)} actions every "
+                    f"{rt.period_s:g} s, more than the cap of {MAX_RUN_WORK:.0e}; shorten "
+                    "duration_s, the rollout horizons or runtime.stability.horizon_steps, or "
+                    "raise runtime.period_s", path)
+    # an edge's latency is a line of latency_s / step_s values, copied with the snapshot
+    # of every action evaluated every cycle (latency_s: 1e7 hung simulate)
+    import math
+
+    longest = max((float(s.duration_s) for s in arch.scenarios.values()), default=0.0)
+    snapshots = 1 + math.ceil(longest / float(rt.period_s) - 1e-9) * len(arch.actions)
+    for i, e in enumerate(arch.edges):
+        delay = round(float(e.latency_s) / float(rt.step_s))
+        if delay > MAX_RUN_STEPS or delay * snapshots > MAX_RUN_WORK:
+            what = (f"more than the cap of {MAX_RUN_STEPS:,}" if delay > MAX_RUN_STEPS else
+                    f"a line of values copied by each of about {snapshots:,} snapshots of a "
+                    f"run, more than the cap of {MAX_RUN_WORK:.0e} in all")
+            ctx.add("error", "work",
+                    f"a latency of {delay:,} steps (latency_s {e.latency_s:g} s / runtime.step_s "
+                    f"{rt.step_s:g} s), {what}; shorten latency_s or raise runtime.step_s",
+                    ("edges", i, "latency_s"))
+
+
+def check_objective(ctx: Context) -> None:
+    obj = ctx.arch.runtime.objective
+    if not obj.components:  # J would be 0 at every step: no error ever measured
+        ctx.add("error", "objective", "expected at least one component index (e.g. [0]), "
+                "got an empty list", ("runtime", "objective", "components"))
+    for key in ("actual", "reference"):
+        ref = getattr(obj, key)
+        path = ("runtime", "objective", key)
+        mod, dot, sig = ref.partition(".")
+        if not dot:
+            ctx.add("error", "reference", f"expected 'module.signal', got '{ref}'", path)
+            continue
+        if refers(ctx, mod, path):
+            cls = ctx.types.get(mod)
+            if cls is not None and cls.outputs and sig not in cls.outputs:
+                ctx.add("error", "reference",
+                        f"'{mod}' has no output '{sig}' (it outputs: {', '.join(cls.outputs)})",
+                        path)
+                continue
+            size = cls.output_sizes.get(sig) if cls is not None else None
+            for j, c in enumerate(obj.components):
+                if c < 0 and key == "actual":
+                    ctx.add("error", "objective", f"component {c} is negative; indices start at 0",
+                            ("runtime", "objective", "components", j))
+                elif size is not None and c >= size:
+                    ctx.add("error", "objective",
+                            f"component {c} is out of range: '{ref}' has {size} component(s) "
+                            f"(indices 0..{size - 1})", ("runtime", "objective", "components", j))
+
+
+def check_stability(ctx: Context) -> None:
+    mode = ctx.arch.runtime.stability.verify
+    if mode == "off" or any(f.severity == "error" for f in ctx.out):
+        return
+    from archself.check.stability import verify_stability  # compiles modules: only when asked
+
+    for u in verify_stability(ctx.arch):
+        ctx.add(mode, "stability", u.message, u.path, key=len(u.path) == 2)
+

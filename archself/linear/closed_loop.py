@@ -1,0 +1,140 @@
+"""The closed loop of a configuration as data: the wired models' loop, the fallback blocks.
+
+:class:`Interconnection` is the discrete closed loop :func:`archself.linear.wiring.interconnect`
+makes (A, period, the module owning each state); :class:`ClosedLoop` adds the
+``linearization()`` blocks of the modules without a model and gives the
+continuous-time A of Eq. 20 (:meth:`ClosedLoop.matrix`) and the least stable
+mode with the modules' shares of it (:meth:`ClosedLoop.worst_mode`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse
+
+from archself.linear.modal import LAMBDA_FLOOR, block_diag, modal_form
+
+__all__ = ["ClosedLoop", "Interconnection"]
+
+
+@dataclass
+class Interconnection:
+    """The discrete closed loop of wired models.
+
+    Attributes
+    ----------
+    A : numpy.ndarray
+        Closed-loop state matrix (discrete, period ``dt``).
+    dt : float
+        The period.
+    owners : list of str
+        The module (or ``source→target`` delay line) each state belongs to.
+    labels : list of str
+        ``owner.state`` per state.
+    """
+
+    A: np.ndarray
+    dt: float
+    owners: list[str]
+    labels: list[str]
+
+
+@dataclass
+class ClosedLoop:
+    """The closed loop of a configuration: the wired models and the fallback blocks.
+
+    Attributes
+    ----------
+    loop : Interconnection or None
+        The discrete closed loop of the modules that give a linear model.
+    blocks : list of (str, numpy.ndarray)
+        ``(module, A)``: continuous closed-loop matrices of the modules that give
+        only ``linearization()`` (or whose model closes no loop), in file order.
+    """
+
+    loop: Interconnection | None = None
+    blocks: list[tuple[str, np.ndarray]] = field(default_factory=list)
+
+    def matrix(self) -> np.ndarray | None:
+        """The continuous-time A of Eq. 20 the eigenvalue margin tests (None: no model).
+
+        The wired part in :func:`modal_form`, then the blocks on the diagonal.
+        """
+        parts = []
+        if self.loop is not None and self.loop.A.shape[0]:
+            parts.append(modal_form(self.loop.A, self.loop.dt))
+        parts += [b for _, b in self.blocks]
+        if not parts:
+            return None
+        return block_diag(parts)
+
+    def worst_mode(self) -> tuple[float, float | None, list[tuple[str, float]]] | None:
+        """``(max Re μ, |λ| or None, [(module, share), ...])`` of the least stable mode.
+
+        ``μ`` is the continuous-equivalent eigenvalue; ``|λ|`` its discrete
+        magnitude when it comes from the wired part (per step). The shares are the
+        fractions of the mode's eigenvector (``|v_j|²``, normalized) in each module's
+        states, largest first. None when there are no states.
+        """
+        best: tuple[float, float | None, list[tuple[str, float]]] | None = None
+        loop = self.loop
+        if loop is not None and loop.A.shape[0] and scipy.sparse.issparse(loop.A):
+            best = _worst_sparse(loop)
+        elif loop is not None and loop.A.shape[0]:  # dense
+            lam, vec = np.linalg.eig(loop.A)
+            mag = np.maximum(np.abs(lam), LAMBDA_FLOOR)
+            k = int(np.argmax(mag))
+            best = (
+                math.log(mag[k]) / loop.dt,
+                float(np.abs(lam[k])),
+                _shares(np.abs(vec[:, k]) ** 2, loop.owners),
+            )
+        for name, b in self.blocks:
+            if not b.size:
+                continue
+            worst = float(np.max(np.linalg.eigvals(b).real))
+            if best is None or worst > best[0]:
+                best = (worst, None, [(name, 1.0)])
+        return best
+
+
+def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, float]]]:
+    """``worst_mode`` of a sparse loop with states: the largest |λ| of its components' blocks.
+
+    The shares are those of the eigenvector of the component's own block (the
+    mode's states in that component; its echo in the components downstream is
+    not counted).
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    A = scipy.sparse.csr_matrix(loop.A)
+    _, labels = connected_components(A, directed=True, connection="strong")
+    size = np.bincount(labels)
+    diag = np.abs(A.diagonal())
+    single = size[labels] == 1
+    best: tuple[float, list[int], np.ndarray] | None = None
+    if single.any():
+        i = int(np.flatnonzero(single)[np.argmax(diag[single])])
+        best = (float(diag[i]), [i], np.ones(1))
+    for c in np.flatnonzero(size > 1).tolist():
+        members = np.flatnonzero(labels == c)
+        lam, vec = np.linalg.eig(A[members][:, members].toarray())
+        k = int(np.argmax(np.abs(lam)))
+        if best is None or abs(lam[k]) > best[0]:
+            best = (float(abs(lam[k])), members.tolist(), np.abs(vec[:, k]) ** 2)
+    assert best is not None
+    mag, idx, weight = best
+    owners = [loop.owners[i] for i in idx]
+    return (math.log(max(mag, LAMBDA_FLOOR)) / loop.dt, mag, _shares(weight, owners))
+
+
+def _shares(weight: np.ndarray, owners: Sequence[str]) -> list[tuple[str, float]]:
+    total = float(weight.sum()) or 1.0
+    acc: dict[str, float] = {}
+    for w, o in zip(weight.tolist(), owners, strict=True):
+        acc[o] = acc.get(o, 0.0) + w / total
+    return sorted(acc.items(), key=lambda kv: -kv[1])

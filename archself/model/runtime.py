@@ -1,0 +1,185 @@
+"""The ``runtime`` section of an architecture file: the settings of Algorithm 1.
+
+The clock (``step_s``, ``period_s``), the objective J (Eq. 11), the candidate selector
+(τ, top-k or hysteresis; Eq. 16, 28), localization, warm-up, dwell time, the cost
+weight λ (Eq. 25), the stability filter (Eq. 21–24) and the ablation switches.
+:class:`archself.model.architecture.Architecture` holds one :class:`Runtime`; the names are
+importable from :mod:`archself.model.architecture` too.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import ConfigDict, Field, field_validator, model_validator
+
+from archself.model.values import (
+    MAX_HORIZON_STEPS,
+    MAX_STEP_S,
+    MAX_TIME_S,
+    MIN_STEP_S,
+    Name,
+    NonNeg,
+    Positive,
+    Seconds,
+    StrictModel,
+)
+
+#: Series every run records (archself.sim.run); ``runtime.record`` may not reuse them.
+_SERIES = ("t", "J", "reference", "actual", "configuration")
+_SELECTORS = ("threshold", "top_k", "hysteresis")
+
+# What the model validator below enforces, stated for other JSON Schema validators too.
+_ONE_SELECTOR: dict[str, Any] = {
+    "oneOf": [
+        {"required": [k], "properties": {k: {"not": {"type": "null"}}}} for k in _SELECTORS
+    ]
+}
+
+
+class Stability(StrictModel):
+    """Stability-aware action filtering (Eq. 21–24)."""
+
+    margin: Positive = Field(description="ε: require max Re λ(A_k) ≤ −ε (Eq. 21).")
+    lyapunov_alpha: Positive = Field(description="α: require E[ΔV|a_k] ≤ −α‖x_t‖² (Eq. 24).")
+    horizon_steps: int = Field(
+        gt=0, le=MAX_HORIZON_STEPS, description="Rollout length of the Lyapunov test."
+    )
+    verify: Literal["off", "warning", "error"] = Field(
+        "off",
+        description="What `archself validate` does with the closed-loop stability of every "
+        "configuration and of every action's result (Eq. 21 with this margin, where the "
+        "modules give linear models or linearizations): off (default: not checked, and "
+        "validate stays light), warning or error (an unstable configuration is a finding of "
+        "that severity, located at the configuration, naming max Re λ and the modules the "
+        "unstable mode lives in). The check compiles the modules, so it imports what their "
+        "types need (python-control, filterpy); only a file that opts in pays for it.",
+    )
+
+
+class Hysteresis(StrictModel):
+    """Hysteresis on the candidate threshold: τ_on > τ_off (Eq. 28, alternative)."""
+
+    on: Positive
+    off: NonNeg
+
+    @model_validator(mode="after")
+    def _order(self) -> Hysteresis:
+        if not self.on > self.off:
+            raise ValueError("hysteresis needs on > off")
+        return self
+
+
+class Ablation(StrictModel):
+    """Stages of Algorithm 1 that can be switched off (all on by default)."""
+
+    propagation: bool = Field(True, description="false: z = r (W = 0 in Analyze).")
+    stability: bool = Field(True, description="false: no stability filter (Eq. 21–24).")
+    dwell: bool = Field(True, description="false: no dwell time (T_min = 0).")
+
+
+class Objective(StrictModel):
+    """J: the error between an actual and a reference signal (Eq. 11)."""
+
+    actual: Name = Field(description="'module.signal' of the true state, e.g. chassis.pose.")
+    reference: Name = Field(description="'module.signal' of the reference.")
+    components: list[int] = Field(
+        default_factory=lambda: [0], description="Vector components compared."
+    )
+    acceptable: NonNeg = Field(0.0, description="J_ref: the acceptable error level.")
+    unit: str | None = Field(
+        None,
+        description="Unit of J (of the compared components), e.g. m; reports label the error "
+        "metrics with it.",
+    )
+
+
+class Runtime(StrictModel):
+    """Settings of Algorithm 1 and of the simulation clock; one selector: τ, top-k or hysteresis."""
+
+    model_config = ConfigDict(json_schema_extra=_ONE_SELECTOR)
+
+    step_s: float = Field(
+        ge=MIN_STEP_S, le=MAX_STEP_S, allow_inf_nan=False,
+        description="Simulation step (1 µs to 1 h).",
+    )
+    period_s: float = Field(
+        ge=MIN_STEP_S, le=MAX_TIME_S, allow_inf_nan=False,
+        description="Period of one MAPE-K cycle.",
+    )
+    objective: Objective
+    record: dict[Name, Name] = Field(
+        default_factory=dict,
+        description="Series a run records besides J and the objective's signals: series name → "
+        "output signal, taken each step from the first active module (file order) whose type "
+        "publishes it.",
+    )
+    threshold: Positive | None = Field(None, description="τ of Eq. 16.")
+    top_k: int | None = Field(
+        None, gt=0, le=10**6, description="Alternative to τ: the k largest |z_i|."
+    )
+    hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
+    localization: Literal["influence", "source"] = Field(
+        "influence",
+        description="What drives candidate selection and the planner's weight: influence, the "
+        "paper's z = (I − Wᵀ)⁻¹ r (Eq. 14: largest downstream of a fault), or source, the local "
+        "faults e ≥ 0 that explain r = (I − Wᵀ)⁻¹ e (largest at the fault's origin). Both are "
+        "logged.",
+    )
+    normalization: Literal["nominal", "none"] = Field(
+        "nominal",
+        description="z channels divided by the nominal level each would have (nominal) or raw.",
+    )
+    warmup_s: Seconds = Field(
+        0.0,
+        description="Seconds from the first cycle without adaptation (the loop still monitors). "
+        "Residuals are also trusted per module, see min_confidence.",
+    )
+    warmup_steps: int = Field(
+        0, ge=0, le=10**9,
+        description="Deprecated (use warmup_s): MAPE-K cycles without adaptation.",
+    )
+    min_confidence: Annotated[float, Field(ge=0, lt=1)] = Field(
+        0.5,
+        description="A module's residual counts only once its filter has settled: confidence "
+        "1 − exp(−t_valid/T) ≥ this (0.5: after T·ln 2 of usable samples). Before, r_i = 0.",
+    )
+    isolate_compensated: bool = Field(
+        True,
+        description="After a structural action keyed to a module, that module's residual is no "
+        "longer propagated through W (its own z_i = r_i still shows it) until an action keyed to "
+        "it applies again: a compensated fault stops pulling z onto other modules.",
+    )
+    ablation: Ablation = Field(
+        default_factory=lambda: Ablation.model_validate({}),
+        description="Stages of Algorithm 1 that can be switched off for an ablation study.",
+    )
+    dwell_s: Seconds = Field(0.0, description="T_min of Eq. 28.")
+    cost_weight: NonNeg = Field(description="λ of Eq. 25.")
+    stability: Stability
+    max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.95, description="ρ(W) must stay below this (Eq. 13)."
+    )
+
+    @property
+    def warmup_time_s(self) -> float:
+        """The warm-up in seconds: ``max(warmup_s, warmup_steps · period_s)``."""
+        return max(float(self.warmup_s), self.warmup_steps * float(self.period_s))
+
+    @field_validator("record")
+    @classmethod
+    def _series_names(cls, record: dict[str, str]) -> dict[str, str]:
+        taken = [k for k in record if k in _SERIES or k.startswith("residual.")]
+        if taken:
+            raise ValueError(
+                f"series name '{taken[0]}' is taken by the run itself "
+                f"({', '.join(_SERIES)}, residual.<module>)"
+            )
+        return record
+
+    @model_validator(mode="after")
+    def _one_selector(self) -> Runtime:
+        chosen = [k for k in _SELECTORS if getattr(self, k) is not None]
+        if len(chosen) != 1:
+            raise ValueError("give exactly one of threshold, top_k or hysteresis")
+        return self
