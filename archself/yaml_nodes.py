@@ -30,8 +30,9 @@ MAX_ALIASES = 64
 MAX_DEPTH = 64
 #: Nodes of the converted data (aliases counted at every use).
 MAX_NODES = 5_000_000
-#: Nodes composed from YAML text (about 450 bytes each: 1.33 GB for 2.7 million).
-MAX_COMPOSED = 1_000_000
+#: Nodes composed from YAML text (about 490 bytes each with the model: 490 MB for 10^6;
+#: the 2.7 million of 900,000 waypoints took 1.33 GB before the model refused them).
+MAX_COMPOSED = 500_000
 #: Digits of an integer (Python refuses to convert longer ones: ``sys.int_info``).
 MAX_INT_DIGITS = 4300
 #: Below this many structure indicators (``[{-?:``) the text cannot nest deeper than
