@@ -208,7 +208,8 @@ def _model_params(tf: bool) -> dict[str, Param]:
             "num": Param(doc="numerator coefficients, highest power first", unit=""),
             "den": Param(doc="denominator coefficients, highest power first", unit=""),
             "sample_time_s": Param(
-                0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0
+                0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0,
+                period=True,
             ),
         }
     return {
@@ -217,7 +218,8 @@ def _model_params(tf: bool) -> dict[str, Param]:
         "C": Param(None, "", "output matrix (p×n); None: the identity"),
         "D": Param(None, "", "feedthrough matrix (p×m); None: zeros"),
         "sample_time_s": Param(
-            0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0
+            0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0,
+            period=True,
         ),
     }
 
