@@ -299,11 +299,20 @@ def check_clock(ctx: Context) -> None:
 
 
 def _named_param(message: str, names: list[str]) -> str | None:
-    """The one parameter of ``names`` that ``message`` names (as a word), else None."""
+    """The parameter of ``names`` that ``message`` names first (as a word), else None.
+
+    Examples
+    --------
+    >>> _named_param("C has 3 columns, expected 2 (the states of A 2×2)", ["A", "B", "C"])
+    'C'
+    >>> _named_param("singular matrix", ["A", "B"]) is None
+    True
+    """
     import re
 
-    named = [n for n in names if re.search(rf"(?<![\w.]){re.escape(n)}(?!\w)", message)]
-    return named[0] if len(named) == 1 else None
+    found = [(m.start(), n) for n in names
+             if (m := re.search(rf"(?<![\w.]){re.escape(n)}(?!\w)", message))]
+    return min(found)[1] if found else None
 
 
 def check_build(ctx: Context) -> None:
