@@ -14,6 +14,8 @@ without errors).
 
 from __future__ import annotations
 
+from typing import Any
+
 from archself.check_context import Context, refers
 from archself.check_modules import outside_declared, outside_space, wrong_kind
 from archself.model import Architecture
@@ -278,15 +280,16 @@ def check_clock(ctx: Context) -> None:
                 ("runtime", "period_s"))
     for name, mod in arch.modules.items():
         declared = getattr(ctx.types.get(name), "parameters", None) or {}
-        values = [(pname, p.value, ("modules", name, "params", pname, "value"))
-                  for pname, p in mod.params.items()]
+        values: list[tuple[str, Any, Path_]] = [
+            (pname, p.value, ("modules", name, "params", pname, "value"))
+            for pname, p in mod.params.items()]
         values += [(pname, v, ("actions", i, "set", pname))
                    for i, a in enumerate(arch.actions) if a.module == name
                    for pname, v in (a.set or {}).items()]
         for pname, value, path in values:
             spec = declared.get(pname)
-            if not getattr(spec, "period", False) or isinstance(value, bool) or not isinstance(
-                    value, (int, float)) or value <= 0:
+            if (spec is None or not getattr(spec, "period", False) or isinstance(value, bool)
+                    or not isinstance(value, (int, float)) or value <= 0):
                 continue
             hz = spec.unit == "Hz"
             period = 1.0 / value if hz else float(value)

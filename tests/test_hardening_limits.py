@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_fuzz_loader import _paths
 from typer.testing import CliRunner
 
 from archself.check import check, has_errors
@@ -35,7 +36,6 @@ from archself.errors import ArchselfError, LoadError
 from archself.loader import load_data, load_text
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT
-from test_fuzz_loader import _paths
 
 MINIMAL = (FIXTURES / "valid" / "minimal.yaml").read_text()
 HEATED = (FIXTURES / "valid" / "heated_chain.yaml").read_text()
