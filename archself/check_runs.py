@@ -329,6 +329,7 @@ def check_build(ctx: Context) -> None:
         return
     arch = ctx.arch
     dt = float(arch.runtime.step_s)
+    passed: set[tuple[Any, str]] = set()  # (type, values) that built: 10^4 alike modules
     for name, mod in arch.modules.items():
         cls = ctx.types.get(name)
         if cls is None:
@@ -339,6 +340,9 @@ def check_build(ctx: Context) -> None:
                    for i, a in enumerate(arch.actions)
                    if a.kind == "parameter_update" and a.module == name and a.set]
         for values, path, after in trials:
+            seen = (cls, repr(sorted(values.items())))
+            if seen in passed:
+                continue
             where = "value" if path[0] == "modules" else None
             try:
                 need = int(cls.memory_estimate({**cls.default_params(), **values}, dt))
@@ -351,7 +355,9 @@ def check_build(ctx: Context) -> None:
                         f"{MAX_MODULE_BYTES // 2**30} GiB", path, key=path[0] == "modules")
                 continue
             why = cls.check_params(name, values, dt)
-            if why:
+            if not why:
+                passed.add(seen)
+            else:
                 pname = _named_param(why, list(values))
                 at = path if pname is None else (*path, pname, *([where] if where else []))
                 ctx.add("error", "build", f"'{name}' ({mod.type}) cannot be built{after}: {why}",
