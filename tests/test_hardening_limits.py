@@ -133,6 +133,20 @@ def test_900k_waypoints_are_refused_while_reading_in_bounded_memory() -> None:
     assert peak < 100 * 2**20, f"{peak / 2**20:.0f} MiB traced"
 
 
+def test_json_of_more_values_than_the_node_cap_is_refused_before_reading(monkeypatch) -> None:
+    """20 million waypoint numbers in 60 MB of JSON took 89 s and 5.1 GB: the values are
+    counted on the text first (the cap lowered here to keep the test small)."""
+    from archself import yaml_source
+
+    monkeypatch.setattr(yaml_source, "MAX_NODES", 1000)
+    data, _ = load_data(MINIMAL, "m.yaml")
+    data["modules"]["path"]["params"]["waypoints"]["value"] = [[0, 0]] * 400
+    text = json.dumps(data, indent=1)
+    with pytest.raises(LoadError, match="more than 1,000 JSON values") as info:
+        load_data(text, "w.json")
+    assert info.value.line is not None and info.value.line > text.count("\n") // 2
+
+
 # --------------------------------------------------------------------------- 4./9. memory
 def test_a_far_waypoint_is_refused_by_the_planner_estimate(tmp_path: Path) -> None:
     """One waypoint at 1e6 m (inside the declared ±1e6) used 9.5 GB, then numpy gave up."""
