@@ -47,7 +47,17 @@ from typing import Any
 
 from archself.errors import LoadError
 from archself.file_text import MAX_FILE_BYTES, read_text
-from archself.yaml_nodes import MAX_DEPTH, MAX_INT_DIGITS, MAX_NODES, Converter, is_scalar, mark, parse, scalar
+from archself.yaml_nodes import (
+    MAX_DEPTH,
+    MAX_INT_DIGITS,
+    MAX_NODES,
+    Converter,
+    is_scalar,
+    mark,
+    parse,
+    scalar,
+    text_position,
+)
 
 __all__ = ["MAX_FILE_BYTES", "MAX_YAML_BYTES", "Path_", "SourceMap", "describe", "dotted",
            "load_data", "read_text"]
@@ -205,10 +215,8 @@ def _json_nodes(text: str, file: str) -> None:
     import itertools
 
     past = next(itertools.islice(re.finditer(r"[,\[{]", text), MAX_NODES, None))
-    line = text.count("\n", 0, past.start()) + 1
-    col = past.start() - text.rfind("\n", 0, past.start())
     raise LoadError(f"more than {MAX_NODES:,} JSON values (refused before reading them: "
-                    "about 100 bytes each)", file, line, col)
+                    "about 100 bytes each)", file, *text_position(text, past.start()))
 
 
 def _too_deep(data: Any) -> bool:
