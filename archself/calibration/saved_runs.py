@@ -72,16 +72,16 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     LoadError
         When the file is missing or not such a file.
     """
-    import json
     import zipfile
 
     import numpy as np
 
     from archself.errors import LoadError
+    from archself.io.jsondata import JsonLimitError, loads
 
     try:
         with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
+            meta = loads(str(z["meta"]))  # JsonLimitError: a ValueError
             problem = _meta_problem(meta)
             if problem:
                 raise LoadError(f"not a runs file of archself calibrate ({problem})", str(path))
@@ -99,9 +99,8 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     except FileNotFoundError:
         raise LoadError("no such file", str(path)) from None
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
-        raise LoadError(
-            f"not a runs file of archself calibrate ({type(exc).__name__})", str(path)
-        ) from None
+        why = str(exc) if isinstance(exc, JsonLimitError) else type(exc).__name__
+        raise LoadError(f"not a runs file of archself calibrate ({why})", str(path)) from None
     return meta, results
 
 

@@ -131,6 +131,8 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from archself.io.jsondata import JsonLimitError, loads
+
     p = Path(path)
     if not p.is_file():
         raise CampaignError(f"{p}: no such file")
@@ -142,9 +144,10 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     if raw is None:
         raise CampaignError(f"{p}: not the results of an archself campaign (no metadata)")
     try:
-        meta = json.loads(raw)
-    except ValueError:
-        raise CampaignError(f"{p}: damaged campaign metadata") from None
+        meta = loads(raw)
+    except ValueError as exc:  # JsonLimitError (too deep, a huge integer) says which
+        why = f" ({exc})" if isinstance(exc, JsonLimitError) else ""
+        raise CampaignError(f"{p}: damaged campaign metadata{why}") from None
     lists = ("sweeps", "fault_free", "thresholds")
     if not isinstance(meta, dict) or not all(
         isinstance(meta.get(k, []), list) and all(isinstance(x, str) for x in meta.get(k, []))

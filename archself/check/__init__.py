@@ -32,6 +32,13 @@ offending node. The rules:
 * ``work``: each scenario's run fits the caps of :mod:`archself.check.runs`:
   ``MAX_RUN_STEPS`` simulation steps, ``MAX_RUN_BYTES`` of recorded series,
   ``MAX_RUN_WORK`` module-steps with the rollouts and Lyapunov tests (:func:`run_estimate`);
+* ``clock``: a scenario lasts at least one step; ``runtime.period_s`` and every period
+  parameter of a type (``Param(period=True)``, a rate in Hz as its inverse) are at least
+  ``runtime.step_s``;
+* ``build``: on a file without other errors, each module's memory (its type's
+  ``memory_estimate``) is under ``MAX_MODULE_BYTES`` and its type's ``check_params`` (by
+  default: one module built) accepts its nominal values and every parameter update, so a
+  shape error is a located finding, not a failure of the run;
 * ``action``: actions lead to declared configurations, their kind matches the
   change, parameter updates name parameters of the module and stay in bounds;
   the module an action addresses is active where it applies (a warning);
@@ -63,6 +70,8 @@ from archself.check.graph import (
 from archself.check.modules import check_limits, check_parameters, check_types
 from archself.check.runs import (
     check_actions,
+    check_build,
+    check_clock,
     check_objective,
     check_scenarios,
     check_stability,
@@ -90,8 +99,10 @@ def check(loaded: Loaded) -> list[Finding]:
             check_actions,
             check_scenarios,
             check_work,
+            check_clock,
             check_objective,
             check_limits,
+            check_build,
         ):
             rule(ctx)
     check_stability(ctx)  # --verify compiles systems: the collector runs there

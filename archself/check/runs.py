@@ -3,12 +3,18 @@
 Rules ``action`` (targets, kinds against the change, parameter updates in bounds),
 ``fault`` (targets and kinds a type accepts), ``work`` (a run's steps, recorded
 bytes and module-steps under :data:`MAX_RUN_STEPS`, :data:`MAX_RUN_BYTES`,
-:data:`MAX_RUN_WORK`; :func:`run_estimate`), ``reference``/``objective`` (the
-objective's signals and components) and the opt-in ``stability``
-(:mod:`archself.check.stability`, only on a file without errors).
+:data:`MAX_RUN_WORK`; :func:`run_estimate`), ``clock`` (a scenario's duration, the
+MAPE-K period and every period parameter at least one step), ``reference``/``objective``
+(the objective's signals and components), ``build`` (each module's memory under
+:data:`MAX_MODULE_BYTES` by its type's ``memory_estimate``, then its type's
+``check_params``, for the nominal values and every parameter update; only on a file
+without errors) and the opt-in ``stability`` (:mod:`archself.check.stability`, only on a file
+without errors).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 from archself.check.context import Context, refers
 from archself.check.modules import outside_declared, outside_space, wrong_kind
@@ -16,10 +22,13 @@ from archself.io.yaml_source import Path_
 from archself.model.architecture import Architecture
 
 __all__ = [
+    "MAX_MODULE_BYTES",
     "MAX_RUN_BYTES",
     "MAX_RUN_STEPS",
     "MAX_RUN_WORK",
     "check_actions",
+    "check_build",
+    "check_clock",
     "check_objective",
     "check_scenarios",
     "check_stability",
@@ -33,6 +42,9 @@ MAX_RUN_STEPS = 10**8
 MAX_RUN_BYTES = 16 * 1024**3
 #: Module-steps of one run: modules × (steps + rollout and Lyapunov steps of every cycle).
 MAX_RUN_WORK = 10**10
+#: Memory of one built module (bytes; its type's ``RuntimeModule.memory_estimate``): a
+#: waypoint at 1e6 m made a 9.5 GB spline table before numpy gave up.
+MAX_MODULE_BYTES = 2 * 1024**3
 
 
 def run_estimate(arch: Architecture, scenario: str) -> tuple[int, int, int]:
@@ -247,3 +259,106 @@ def check_stability(ctx: Context) -> None:
     for u in verify_stability(ctx.arch):
         ctx.add(mode, "stability", u.message, u.path, key=len(u.path) == 2)
 
+
+
+def check_clock(ctx: Context) -> None:
+    """A scenario shorter than one step, a MAPE-K period or a module's period (``Param(
+    period=True)``; a rate in Hz as its inverse) shorter than ``runtime.step_s``."""
+    arch = ctx.arch
+    step = float(arch.runtime.step_s)
+    short = step * (1 - 1e-9)
+    for name, sc in arch.scenarios.items():
+        if float(sc.duration_s) < short:
+            ctx.add("error", "clock",
+                    f"duration_s {sc.duration_s:g} s is shorter than one step (runtime.step_s "
+                    f"{step:g} s): the run would have no step and no metric",
+                    ("scenarios", name, "duration_s"))
+    if float(arch.runtime.period_s) < short:
+        ctx.add("error", "clock",
+                f"period_s {arch.runtime.period_s:g} s is shorter than runtime.step_s {step:g} s: "
+                "a MAPE-K cycle runs at most once a step; raise period_s to a multiple of step_s",
+                ("runtime", "period_s"))
+    for name, mod in arch.modules.items():
+        declared = getattr(ctx.types.get(name), "parameters", None) or {}
+        values: list[tuple[str, Any, Path_]] = [
+            (pname, p.value, ("modules", name, "params", pname, "value"))
+            for pname, p in mod.params.items()]
+        values += [(pname, v, ("actions", i, "set", pname))
+                   for i, a in enumerate(arch.actions) if a.module == name
+                   for pname, v in (a.set or {}).items()]
+        for pname, value, path in values:
+            spec = declared.get(pname)
+            if (spec is None or not getattr(spec, "period", False) or isinstance(value, bool)
+                    or not isinstance(value, (int, float)) or value <= 0):
+                continue
+            hz = spec.unit == "Hz"
+            period = 1.0 / value if hz else float(value)
+            if period < short:
+                what = (f"a rate of {value:g} Hz (one event every {period:g} s)" if hz
+                        else f"a period of {value:g} s")
+                ctx.add("error", "clock",
+                        f"{what} is shorter than runtime.step_s {step:g} s: the events cannot "
+                        "happen that often in a run", path)
+
+
+def _named_param(message: str, names: list[str]) -> str | None:
+    """The parameter of ``names`` that ``message`` names first (as a word), else None.
+
+    Examples
+    --------
+    >>> _named_param("C has 3 columns, expected 2 (the states of A 2×2)", ["A", "B", "C"])
+    'C'
+    >>> _named_param("singular matrix", ["A", "B"]) is None
+    True
+    """
+    import re
+
+    found = [(m.start(), n) for n in names
+             if (m := re.search(rf"(?<![\w.]){re.escape(n)}(?!\w)", message))]
+    return min(found)[1] if found else None
+
+
+def check_build(ctx: Context) -> None:
+    """Each module's memory by its type's estimate, then its type's parameter check
+    (by default one module built): for the nominal values and every parameter update.
+
+    Only on a file without errors (a build of a wrong file would repeat its errors).
+    A module over :data:`MAX_MODULE_BYTES` is not built.
+    """
+    if any(f.severity == "error" for f in ctx.out):
+        return
+    arch = ctx.arch
+    dt = float(arch.runtime.step_s)
+    passed: set[tuple[Any, str]] = set()  # (type, values) that built: 10^4 alike modules
+    for name, mod in arch.modules.items():
+        cls = ctx.types.get(name)
+        if cls is None:
+            continue
+        nominal = {k: p.value for k, p in mod.params.items()}
+        trials: list[tuple[dict, Path_, str]] = [(nominal, ("modules", name, "params"), "")]
+        trials += [({**nominal, **a.set}, ("actions", i, "set"), f" after action '{a.id}'")
+                   for i, a in enumerate(arch.actions)
+                   if a.kind == "parameter_update" and a.module == name and a.set]
+        for values, path, after in trials:
+            seen = (cls, repr(sorted(values.items())))
+            if seen in passed:
+                continue
+            where = "value" if path[0] == "modules" else None
+            try:
+                need = int(cls.memory_estimate({**cls.default_params(), **values}, dt))
+            except Exception:  # the parameters are wrong: check_params says how
+                need = 0
+            if need > MAX_MODULE_BYTES:
+                ctx.add("error", "build",
+                        f"'{name}' ({mod.type}) would take about {need / 2**30:,.1f} GiB when "
+                        f"built{after} (its type's estimate), more than the cap of "
+                        f"{MAX_MODULE_BYTES // 2**30} GiB", path, key=path[0] == "modules")
+                continue
+            why = cls.check_params(name, values, dt)
+            if not why:
+                passed.add(seen)
+            else:
+                pname = _named_param(why, list(values))
+                at = path if pname is None else (*path, pname, *([where] if where else []))
+                ctx.add("error", "build", f"'{name}' ({mod.type}) cannot be built{after}: {why}",
+                        at, key=pname is None and path[0] == "modules")

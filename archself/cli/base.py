@@ -168,9 +168,27 @@ def colorize(line: str, stream: Any = None) -> str:
     return line
 
 
+#: The longest diagnostic line printed (a value quoted in a message is cut: the message
+#: of a 3,000-byte ``!!binary`` scalar was one 4,094-character line).
+MAX_ERROR_LINE = 300
+
+
+def cut_line(line: str, limit: int = MAX_ERROR_LINE) -> str:
+    """``line`` cut to ``limit`` characters (the cut marked ``...``), on one line.
+
+    Examples
+    --------
+    >>> cut_line("a.yaml:1:1: error: " + "x" * 400, 40)
+    'a.yaml:1:1: error: xxxxxxxxxxxxxxxxxx...'
+    """
+    line = " ".join(line.splitlines())
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
 def _err(line: str) -> None:
-    """One diagnostic line on stderr, its severity coloured on a terminal."""
-    typer.echo(colorize(line), err=True, color=color_enabled())
+    """One diagnostic line on stderr (cut to :data:`MAX_ERROR_LINE`), its severity coloured
+    on a terminal."""
+    typer.echo(colorize(cut_line(line)), err=True, color=color_enabled())
 
 
 class RunProgress:
@@ -390,9 +408,6 @@ def main() -> None:
 
         if os.environ.get("ARCHSELF_DEBUG"):
             raise
-        typer.echo(
-            f"internal error: {type(exc).__name__}: {exc} "
-            "(set ARCHSELF_DEBUG=1 for the traceback; please report it)",
-            err=True,
-        )
+        _err(f"internal error: {cut_line(f'{type(exc).__name__}: {exc}', 200)} "
+             "(set ARCHSELF_DEBUG=1 for the traceback; please report it)")
         raise SystemExit(3) from None

@@ -12,7 +12,44 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["finite_or_none", "is_number", "json_kind", "jsonable"]
+__all__ = ["JsonLimitError", "finite_or_none", "is_number", "json_kind", "jsonable", "loads"]
+
+
+class JsonLimitError(ValueError):
+    """A JSON text past what archself reads: nested too deeply, or an integer of more
+    digits than Python converts (``yaml_nodes.MAX_INT_DIGITS``); ``str`` says which."""
+
+
+def _int(digits: str) -> int:
+    from archself.io.yaml_nodes import MAX_INT_DIGITS
+
+    if len(digits) > MAX_INT_DIGITS:
+        raise JsonLimitError(f"an integer of {len(digits.lstrip('-')):,} digits (at most "
+                             f"{MAX_INT_DIGITS:,})")
+    return int(digits)
+
+
+def loads(text: str | bytes, **kw: Any) -> Any:
+    """:func:`json.loads` with the reading limits of architecture files: an integer of
+    more than 4,300 digits or nesting past Python's recursion limit is a
+    :class:`JsonLimitError` (a ``ValueError``) that says which, never a bare
+    ``ValueError`` or ``RecursionError``. For traces, results and runs files.
+
+    Examples
+    --------
+    >>> loads('{"a": [1, 2.5]}')
+    {'a': [1, 2.5]}
+    >>> loads("[" * 100_000 + "]" * 100_000)
+    Traceback (most recent call last):
+    ...
+    archself.io.jsondata.JsonLimitError: nested too deeply
+    """
+    import json
+
+    try:
+        return json.loads(text, parse_int=_int, **kw)
+    except RecursionError:
+        raise JsonLimitError("nested too deeply") from None
 
 
 def finite_or_none(v: float) -> float | None:

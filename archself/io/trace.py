@@ -36,7 +36,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from archself.errors import TraceError
-from archself.io.jsondata import is_number, json_kind, jsonable
+from archself.io.jsondata import JsonLimitError, is_number, json_kind, jsonable, loads
 
 __all__ = [
     "TRACE_KEY",
@@ -174,7 +174,7 @@ def trace_parts_from_bytes(raw: bytes, name: str = "<trace>") -> TraceParts:
         return _read_parquet(io.BytesIO(raw), name) if parquet else _read_json(raw)
     except TraceError as exc:
         error = TraceError(str(exc))
-    except _Malformed as exc:
+    except (_Malformed, JsonLimitError) as exc:
         error = TraceError(f"{name}: error: not an archself trace: {exc}")
     except json.JSONDecodeError as exc:  # where the JSON breaks (a truncated trace)
         where = f"{name}:{exc.lineno}:{exc.colno}" if not parquet else name
@@ -282,7 +282,7 @@ def _check_series(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
 
 
 def _read_json(raw: bytes) -> TraceParts:
-    doc = json.loads(raw.decode("utf-8"))
+    doc = loads(raw.decode("utf-8"))
     if not isinstance(doc, dict) or not {"meta", "series", "decisions"} <= set(doc):
         raise _Malformed("expected an object {meta, series, decisions}, got "
                          + (f"keys {', '.join(sorted(doc)) or 'none'}" if isinstance(doc, dict)
@@ -313,13 +313,13 @@ def _read_parquet(source: Any, p: str) -> TraceParts:
         raise TraceError(f"{p}: error: not an archself trace (a Parquet file without "
                          "archself.trace metadata; a campaign's results are read by "
                          "campaign-report)")
-    head = json.loads(md[TRACE_KEY])
+    head = loads(md[TRACE_KEY])
     table = pf.read()
     if int(head.get("format", 0)) > FORMAT:
         raise TraceError(f"{p}: error: trace format {head['format']} is newer than this "
                          f"archself reads ({FORMAT}); upgrade archself")
     meta = head["meta"]
-    decisions = json.loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
+    decisions = loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
         if DECISIONS_KEY in md else []
     _check_doc(meta, {}, decisions)
     arrays: dict[str, np.ndarray] = {}

@@ -47,7 +47,17 @@ from typing import Any
 
 from archself.errors import LoadError
 from archself.io.file_text import MAX_FILE_BYTES, read_text
-from archself.io.yaml_nodes import Converter, is_scalar, mark, parse, scalar
+from archself.io.yaml_nodes import (
+    MAX_DEPTH,
+    MAX_INT_DIGITS,
+    MAX_NODES,
+    Converter,
+    is_scalar,
+    mark,
+    parse,
+    scalar,
+    text_position,
+)
 
 __all__ = ["MAX_FILE_BYTES", "MAX_YAML_BYTES", "Path_", "SourceMap", "describe", "dotted",
            "load_data", "read_text"]
@@ -157,6 +167,12 @@ def _json_constant(name: str) -> Any:
     raise _NotJson(name)  # NaN, Infinity: not JSON, and YAML reads them as strings
 
 
+def _json_int(digits: str) -> int:
+    if len(digits) > MAX_INT_DIGITS:
+        raise _NotJson("huge integer")  # YAML's reading locates the refusal
+    return int(digits)
+
+
 def _json_document(text: str, file: str) -> Any:
     """The data of ``text`` if it is a JSON object (comment lines allowed), else ``_NotJson``.
 
@@ -167,8 +183,10 @@ def _json_document(text: str, file: str) -> Any:
     body = _COMMENT_LINE.sub("", text) if "#" in text else text
     if not body.lstrip().startswith("{"):
         raise _NotJson("not an object")
+    _json_nodes(text, file)
     try:
-        return json.loads(body, object_pairs_hook=_json_pairs, parse_constant=_json_constant)
+        data = json.loads(body, object_pairs_hook=_json_pairs, parse_constant=_json_constant,
+                          parse_int=_json_int)
     except json.JSONDecodeError as exc:
         if len(text) > MAX_YAML_BYTES:
             raise LoadError(
@@ -177,6 +195,46 @@ def _json_document(text: str, file: str) -> Any:
         raise _NotJson(exc.msg) from None
     except RecursionError:
         raise _NotJson("nesting") from None
+    if _too_deep(data):
+        if len(text) > MAX_YAML_BYTES:
+            raise LoadError(f"nesting deeper than {MAX_DEPTH} levels", file, 1, 1)
+        raise _NotJson("nesting")  # the YAML reading locates the level past the cap
+    return data
+
+
+def _json_nodes(text: str, file: str) -> None:
+    """Refuse, before :func:`json.loads`, a text of more than :data:`MAX_NODES` values.
+
+    Every value but the first follows a ``,`` or opens a ``[``/``{`` (or follows one), so
+    their count bounds the values (a comma in a string counts too: it can only
+    over-count). 20 million waypoint numbers in 60 MB of JSON took 89 s and 5.1 GB before
+    the model refused them; a generated 10^5-module file has 1.7 million.
+    """
+    if len(text) <= MAX_NODES or text.count(",") + text.count("[") + text.count("{") < MAX_NODES:
+        return
+    import itertools
+
+    past = next(itertools.islice(re.finditer(r"[,\[{]", text), MAX_NODES, None))
+    raise LoadError(f"more than {MAX_NODES:,} JSON values (refused before reading them: "
+                    "about 100 bytes each)", file, *text_position(text, past.start()))
+
+
+def _too_deep(data: Any) -> bool:
+    """Whether ``data`` nests lists and mappings deeper than :data:`MAX_DEPTH` (level by
+    level, no recursion: 0.4 s for the 27 MB of a generated 10^5-module file)."""
+    level, depth = [data], 0  # the depth of the nodes of ``level`` (the root's is 0)
+    while level:
+        deeper: list[Any] = []
+        filled = False
+        for v in level:
+            items = v.values() if type(v) is dict else v
+            if items:
+                filled = True
+                deeper.extend(x for x in items if type(x) is dict or type(x) is list)
+        if filled and depth + 1 > MAX_DEPTH:
+            return True
+        level, depth = deeper, depth + 1
+    return False
 
 
 def load_data(text: str, file: str = "<input>") -> tuple[dict[str, Any], SourceMap]:

@@ -29,7 +29,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from archself.errors import SimulationError
+from archself.errors import ArchselfError, SimulationError
 
 
 class _Required:
@@ -58,6 +58,10 @@ class Param:
         each entry of a list or matrix). ``archself validate`` refuses a file value,
         a file ``min``/``max`` or an action's ``set`` outside it; without them only
         the global cap ``archself.model.architecture.MAX_MAGNITUDE`` (1e9) applies.
+    period : bool, optional
+        The value is the time between two events (unit ``s``) or their rate (unit
+        ``Hz``): ``archself validate`` refuses a nonzero one shorter than
+        ``runtime.step_s`` (the events could not happen that often).
 
     Examples
     --------
@@ -72,6 +76,7 @@ class Param:
     doc: str = ""
     min: float | None = None
     max: float | None = None
+    period: bool = False
 
     @property
     def required(self) -> bool:
@@ -285,6 +290,35 @@ class RuntimeModule:
         self.rng = rng
         self.signals: dict[str, float] = {}
         self.configure()
+
+    @classmethod
+    def memory_estimate(cls, params: dict[str, Any], dt: float) -> int:
+        """Bytes a module of this type would allocate when built with ``params`` (the
+        file's values over the defaults) and run at step ``dt``; 0: nothing worth counting.
+
+        ``archself validate`` refuses a module over ``check_runs.MAX_MODULE_BYTES``
+        before it is built (a type whose memory grows with a parameter, e.g. a path
+        table with its length, says so here).
+        """
+        return 0
+
+    @classmethod
+    def check_params(cls, name: str, params: dict[str, Any], dt: float) -> str | None:
+        """Why ``params`` cannot make a module of this type, or None: ``archself validate``
+        turns it into an error located at the module's parameters.
+
+        By default one module is built and dropped (its constructor is the check of
+        shapes and combinations the declared ranges cannot state); the exception's
+        message is the reason. A type whose construction is expensive may check its
+        parameters here without building.
+        """
+        try:
+            cls(name, params, np.random.default_rng(0))
+        except Exception as exc:  # any refusal of the type, said as its message
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            return text if isinstance(exc, (ValueError, ArchselfError)) else (
+                f"{type(exc).__name__}: {text}")
+        return None
 
     @classmethod
     def default_params(cls) -> dict[str, Any]:

@@ -140,8 +140,13 @@ class LtiModel:
         if B.shape[0] != n and B.size == n:
             B = B.reshape(n, 1)
         C = np.eye(n) if C is None else as_matrix(C)
-        if B.shape[0] != n or C.shape[1] != n:
-            raise ValueError(f"shapes do not agree: A {A.shape}, B {B.shape}, C {C.shape}")
+        # the culprit first: validate locates the finding at the parameter named first
+        if B.shape[0] != n:
+            raise ValueError(f"B has {B.shape[0]} rows, expected {n} (the states of A "
+                             f"{n}×{n}); shapes: A {A.shape}, B {B.shape}, C {C.shape}")
+        if C.shape[1] != n:
+            raise ValueError(f"C has {C.shape[1]} columns, expected {n} (the states of A "
+                             f"{n}×{n}); shapes: A {A.shape}, B {B.shape}, C {C.shape}")
         D = np.zeros((C.shape[0], B.shape[1])) if D is None else as_matrix(D)
         if D.shape != (C.shape[0], B.shape[1]):
             raise ValueError(f"D must be {C.shape[0]}×{B.shape[1]}, got {D.shape}")
@@ -208,7 +213,8 @@ def _model_params(tf: bool) -> dict[str, Param]:
             "num": Param(doc="numerator coefficients, highest power first", unit=""),
             "den": Param(doc="denominator coefficients, highest power first", unit=""),
             "sample_time_s": Param(
-                0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0
+                0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0,
+                period=True,
             ),
         }
     return {
@@ -217,7 +223,8 @@ def _model_params(tf: bool) -> dict[str, Param]:
         "C": Param(None, "", "output matrix (p×n); None: the identity"),
         "D": Param(None, "", "feedthrough matrix (p×m); None: zeros"),
         "sample_time_s": Param(
-            0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0
+            0.0, "s", "0: continuous (ZOH at the step); else the period", min=0.0, max=3600.0,
+            period=True,
         ),
     }
 

@@ -335,7 +335,7 @@ class Gps(RuntimeModule):
     """
 
     parameters = {
-        "rate_hz": Param(1.0, "Hz", "fix rate", min=0.001, max=1000.0),
+        "rate_hz": Param(1.0, "Hz", "fix rate", min=0.001, max=1000.0, period=True),
         "noise_m": Param(
             0.3, "m", "standard deviation of each coordinate"
             " (≤ 1 km: a receiver worse than that gives no fix)",

@@ -37,7 +37,10 @@ def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
     """
     from scipy.interpolate import CubicSpline
 
-    pts = np.asarray(waypoints, dtype=float)
+    try:
+        pts = np.asarray(waypoints, dtype=float)
+    except (TypeError, ValueError):  # ragged ([[0, 0], [5]]) or not numbers
+        pts = np.empty(0)  # refused below
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
         raise ValueError("waypoints must be a list of at least two [x, y] points")
     keep = np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-9]
@@ -88,7 +91,10 @@ _TABLES: dict[bytes, tuple[_Table, float, int]] = {}
 
 def _table(waypoints, ds: float) -> tuple[_Table, float, int]:
     """The lookup table of :func:`spline_path` (made once per path and resolution)."""
-    pts = np.asarray(waypoints, dtype=float)
+    try:
+        pts = np.asarray(waypoints, dtype=float)
+    except (TypeError, ValueError):  # ragged ([[0, 0], [5]]) or not numbers
+        raise ValueError("waypoints must be a list of at least two [x, y] points") from None
     key = pts.tobytes() + repr((pts.shape, ds)).encode()
     found = _TABLES.get(key)
     if found is None:
@@ -130,6 +136,32 @@ class SplinePlanner(RuntimeModule):
     outputs = ("reference",)
     lanes = "archself_diffdrive.lanes_planning:SplinePlannerLanes"
     output_sizes = {"reference": 5}  # x, y, θ, v, ω
+
+    @classmethod
+    def memory_estimate(cls, params: dict, dt: float) -> int:
+        """Bytes of :func:`spline_path` and its table for these waypoints and resolution.
+
+        The path's length is about the sum of the chords (L); the spline is sampled at
+        ``4 L / ds`` points (about 8 float arrays alive at once: 64 bytes a sample),
+        the table has ``L / ds`` rows (12 float arrays while it is made, then 4 lists
+        of Python floats: 224 bytes a row): about 480 bytes per ``ds`` of path.
+
+        Examples
+        --------
+        >>> n = SplinePlanner.memory_estimate({"waypoints": [[0, 0], [1e6, 0]],
+        ...                                    "resolution_m": 0.02}, 0.05)
+        >>> round(n / 2**30, 1)   # GiB: the waypoint at 1e6 m of issue 39
+        22.4
+        """
+        try:
+            pts = np.asarray(params["waypoints"], dtype=float)
+        except (TypeError, ValueError):
+            return 0  # not a path: check_params says why
+        if pts.ndim != 2 or pts.shape[1:] != (2,) or len(pts) < 2:
+            return 0
+        length = float(np.hypot(*np.diff(pts, axis=0).T).sum())
+        rows = length / float(params["resolution_m"])
+        return int(64 * max(2000.0, 4 * rows) + 224 * rows)
 
     def configure(self) -> None:
         self.speed = float(self.params["speed_mps"])
