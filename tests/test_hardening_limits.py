@@ -94,7 +94,7 @@ def test_deep_nesting_is_refused_before_composing(tmp_path: Path, levels: int,
 def test_the_depth_cap_is_the_same_for_yaml_json_and_the_prescan(monkeypatch,
                                                                  levels: int) -> None:
     """The event pre-scan, the converter and the JSON walk refuse the same documents."""
-    from archself import yaml_nodes
+    from archself.io import yaml_nodes
 
     outcomes = set()
     for prescan_from in (0, 10**9):  # always / never pre-scanned
@@ -136,7 +136,7 @@ def test_900k_waypoints_are_refused_while_reading_in_bounded_memory() -> None:
 def test_json_of_more_values_than_the_node_cap_is_refused_before_reading(monkeypatch) -> None:
     """20 million waypoint numbers in 60 MB of JSON took 89 s and 5.1 GB: the values are
     counted on the text first (the cap lowered here to keep the test small)."""
-    from archself import yaml_source
+    from archself.io import yaml_source
 
     monkeypatch.setattr(yaml_source, "MAX_NODES", 1000)
     data, _ = load_data(MINIMAL, "m.yaml")
