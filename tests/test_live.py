@@ -9,6 +9,7 @@ must be the same (no tolerance). Timeouts below are hang guards only.
 from __future__ import annotations
 
 import json
+import os
 import re
 import selectors
 import socket
@@ -319,7 +320,8 @@ def test_loop_gives_up_on_a_silent_plant(arch) -> None:
     accepted.start()
     try:
         with pytest.raises(LiveError, match="no message from the peer for 0.3 s"):
-            run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=0.3)
+            run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=0.3,
+                       token=link.token)
     finally:
         accepted.join(timeout=10.0)
         link.close()
@@ -383,12 +385,14 @@ def test_two_processes_switch_as_the_simulation(tmp_path: Path, simulated) -> No
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
-        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+)\n", _first_line(plant, 60.0))
+        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+) token ([0-9a-f]{32})\n",
+                         _first_line(plant, 60.0))
         assert m, "the plant did not say where it listens"
         loop = subprocess.run(
             [sys.executable, "-m", "archself", "live", str(arch_file),
              "--connect", f"127.0.0.1:{m.group(1)}", "--json", "--log", str(log),
              "--timeout", "60"],
+            env={**os.environ, "ARCHSELF_LIVE_TOKEN": m.group(2)},
             capture_output=True, text=True, timeout=HANG_GUARD_S,
         )
         out, err = plant.communicate(timeout=HANG_GUARD_S)
@@ -490,7 +494,8 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
     monkeypatch.setattr(archself.atomic, "write_text", refuse)
     log = tmp_path / "log.json"
     late = CliRunner().invoke(app, ["live", str(arch_file), "--connect",
-                                    f"127.0.0.1:{link.port}", "--log", str(log)])
+                                    f"127.0.0.1:{link.port}", "--log", str(log),
+                                    "--token", link.token])
     thread.join(timeout=HANG_GUARD_S)
     assert late.exit_code == 1, late.stderr
     line = late.stderr.strip()

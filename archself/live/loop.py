@@ -279,6 +279,7 @@ class LiveLoop:
         self._cycles_due = 1
         self._eps = 1e-6 * float(arch.runtime.step_s)
         self._callbacks: list[Callable[[Command], Any]] = []
+        self._cycle_callbacks: list[Callable[[Any], Any]] = []
         if on_command is not None:
             self._callbacks.append(on_command)
         self.commands: queue.Queue[Command] = queue.Queue()
@@ -289,6 +290,15 @@ class LiveLoop:
     def on_command(self, fn: Callable[[Command], Any]) -> Callable[[Command], Any]:
         """Register ``fn(command)`` for every command (usable as a decorator)."""
         self._callbacks.append(fn)
+        return fn
+
+    def on_cycle(self, fn: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        """Register ``fn(record)`` for the decision record of every cycle, as it ends.
+
+        Called after the record is complete and before the cycle's commands go
+        out (``archself live --log`` appends it to its journal there).
+        """
+        self._cycle_callbacks.append(fn)
         return fn
 
     @property
@@ -352,6 +362,8 @@ class LiveLoop:
         switches = mapek(self.system)
         record = mapek.decisions[-1]
         self._annotate(record)
+        for fn in self._cycle_callbacks:
+            fn(record)
         out = [
             Command(float(s["t_s"]), "configuration", str(s["action"]), str(s["module"]),
                     str(s["to"]), str(s["from"]))

@@ -76,10 +76,13 @@ def _number(v: Any, where: str) -> float:
 def _value(v: Any, where: str) -> Any:
     """A pushed value as the executor would hold it: lists → float arrays, None kept.
 
-    Numbers, booleans, None and (nested) lists of numbers or None are accepted; a
-    string or anything else is a :class:`LiveError` naming ``where``.
+    Numbers, booleans, None and (nested) lists of numbers or None are accepted, and
+    objects pushed in-process (a model) are kept; a string, a mapping or a list
+    holding either is a :class:`LiveError` naming ``where``.
     """
     if v is None or isinstance(v, bool):
+        return v
+    if isinstance(v, np.ndarray) and v.dtype.kind in "fiub":  # pushed in-process
         return v
     if isinstance(v, (list, tuple)):
         def flat(x: Any, at: str) -> Any:
@@ -92,7 +95,9 @@ def _value(v: Any, where: str) -> Any:
         except ValueError:  # ragged nesting
             raise LiveError(f"{where}: expected a number or a list of numbers of one "
                             "shape") from None
-    return _number(v, where)
+    if isinstance(v, (str, bytes, int, float, np.number, Mapping)):
+        return _number(v, where)
+    return v  # an object pushed in-process (a module's model), as the executor holds it
 
 
 class MeasuredSystem:
@@ -195,7 +200,7 @@ class MeasuredSystem:
             measurement refused changes nothing.
         """
         if isinstance(t, (str, bytes)):
-            raise LiveError(f"t: expected a number, got a string {t[:40]!r}")
+            raise LiveError(f"t: measurement time {t[:40]!r} is not a number (a string)")
         try:
             t = float(t)
         except (TypeError, ValueError, OverflowError):
