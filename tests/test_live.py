@@ -655,7 +655,8 @@ def test_the_wire_refuses_bad_times_located(arch, t, why: str) -> None:
         conn.recv(1)
 
     server, thread = _raw_plant(plant)
-    with server, pytest.raises(LiveError, match=r"^message 3 \(measurement 3\): t: .*" + re.escape(why)):
+    where = r"^message 3 \(measurement 3\): t: .*"
+    with server, pytest.raises(LiveError, match=where + re.escape(why)):
         run_remote(LiveLoop(arch), "127.0.0.1", server.getsockname()[1], timeout_s=30.0)
     thread.join(timeout=HANG_GUARD_S)
 
