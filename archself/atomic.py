@@ -13,6 +13,7 @@ holder killed outright (SIGKILL) leaves the file, but not the lock, behind.
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 import stat
@@ -25,6 +26,8 @@ from archself.errors import OutputError
 
 #: ``(st_dev, st_ino)`` of the files no write may replace (see :func:`protect`).
 _PROTECTED: dict[tuple[int, int], str] = {}
+#: Why a lock file cannot be made where no output can be written either.
+_UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR}
 #: The output locks this process holds: lock file → descriptor (see :func:`lock_output`).
 _LOCKS: dict[Path, int] = {}
 
@@ -120,8 +123,10 @@ def lock_path(target: str | Path) -> Path | None:
 def lock_output(target: str | Path | None) -> tuple[Path, int] | None:
     """Lock the output ``target`` for this process: ``(lock file, descriptor)``, or None.
 
-    None when ``target`` needs no lock (:func:`lock_path`) or this process holds
-    its lock already. Release with :func:`unlock_output`.
+    None when ``target`` needs no lock (:func:`lock_path`), this process holds its
+    lock already, or the lock file cannot be made because nothing can be written
+    there (a read-only or missing folder: the command's write says so, located).
+    Release with :func:`unlock_output`.
 
     Raises
     ------
@@ -138,6 +143,8 @@ def lock_output(target: str | Path | None) -> tuple[Path, int] | None:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
         except OSError as exc:
+            if exc.errno in _UNWRITABLE:
+                return None
             raise OutputError(f"{target}: cannot lock: {exc.strerror or exc} ({lock})") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
