@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -49,12 +50,13 @@ def live(
     ] = None,
     token: Annotated[
         str | None,
-        typer.Option("--token", envvar="ARCHSELF_LIVE_TOKEN", show_envvar=True,
+        typer.Option("--token", metavar="TOKEN", envvar="ARCHSELF_LIVE_TOKEN",
+                     show_envvar=True,
                      help="The token the plant printed (it refuses a loop without it)."),
     ] = None,
     max_jump: Annotated[
         float | None,
-        typer.Option("--max-jump", metavar="SECONDS", min=1e-9, max=1e12,
+        typer.Option("--max-jump", metavar="SECONDS",
                      help="Longest forward jump of the plant's clock between two "
                      "measurements (default: 100 MAPE-K periods); longer: refused, exit 1."),
     ] = None,
@@ -69,6 +71,8 @@ def live(
     """
     if rollout not in ("refuse", "reject"):
         raise _fail(f"--rollout must be refuse or reject, not {rollout!r}", 2)
+    if max_jump is not None and not (math.isfinite(max_jump) and max_jump > 0):
+        raise _fail(f"--max-jump {max_jump:g}: expected a finite number of seconds > 0", 2)
     from archself.live import LiveLoop, parse_address, run_remote
 
     try:
