@@ -368,6 +368,9 @@ def test_loop_gives_up_on_a_silent_plant(arch) -> None:
          + b"}" * 100_000 + b"}", "nested too deeply"),
         (b"\xff\xfe{}", "'utf-8' codec can't decode"),
         (b'{"type":"measurement","t":0,"outputs":{"tank":5}}', "must be a mapping of signals"),
+        # an integer of 5,000 digits was an internal error (ValueError)
+        (b'{"type":"measurement","t":' + b"7" * 5000 + b"}",
+         r"message 1: malformed message: Exceeds the limit \(4300 digits\)"),
     ],
 )
 def test_loop_refuses_a_malformed_line(arch, line: bytes, message: str) -> None:
