@@ -63,12 +63,13 @@ def _number(v: Any, where: str) -> float:
     """A pushed number as a float (None: NaN); a string, a huge integer, ... refused, located."""
     if v is None:
         return math.nan
-    if isinstance(v, (int, float, np.number)) and not isinstance(v, (str, bytes)):
+    if isinstance(v, (int, float, np.number)):
         try:
             return float(v)
         except OverflowError:  # an integer beyond a float's range
-            raise LiveError(f"{where}: expected a number, got an integer of "
-                            f"{len(str(abs(int(v))))} digits (beyond a float's range)") from None
+            digits = math.floor(math.log10(abs(int(v)))) + 1  # str() fails past 4,300 digits
+            raise LiveError(f"{where}: expected a number, got an integer of {digits} digits "
+                            "(beyond a float's range)") from None
     got = f"a string {v[:40]!r}" if isinstance(v, str) else f"{type(v).__name__}"
     raise LiveError(f"{where}: expected a number or null, got {got}")
 
@@ -204,7 +205,8 @@ class MeasuredSystem:
         try:
             t = float(t)
         except (TypeError, ValueError, OverflowError):
-            raise LiveError(f"t: measurement time {str(t)[:40]!r} is not a number") from None
+            what = "an integer beyond a float's range" if isinstance(t, int) else type(t).__name__
+            raise LiveError(f"t: measurement time is not a number ({what})") from None
         if not math.isfinite(t):
             raise LiveError(f"t: measurement time {t!r} is not finite")
         if self.measured:
