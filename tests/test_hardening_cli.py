@@ -747,3 +747,77 @@ def test_schema_export_generate_never_write_over_an_architecture_file(
                  ["schema", "-o", schema], ["schema", "-o", schema]):
         code, _, err = run(args, monkeypatch, capsys)
         assert code == 0, err
+
+
+# --------------------------------------------------------------------------- issue 39: outputs
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="flock, SIGSTOP")
+def test_a_second_campaign_into_one_out_is_refused_naming_the_holder(tmp_path, arch) -> None:
+    """Two campaigns into one -o: both exited 0 and the file kept the second's rows.
+    Now the second (even with --force) is refused in one line naming the first."""
+    from archself.campaign.results import read_results
+
+    first = subprocess.Popen(
+        ARCHSELF + ["campaign", str(arch), "-s", "calm", "--seeds", "6", "--workers", "1",
+                    "-o", "r.parquet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+    )
+    lock = tmp_path / "r.parquet.lock"
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 60 and first.poll() is None and not (
+                lock.exists() and lock.read_text().startswith("pid")):
+            time.sleep(0.02)
+        assert first.poll() is None, "the first campaign ended before the second started"
+        first.send_signal(signal.SIGSTOP)  # holds its lock while the second tries
+        try:
+            second = subprocess.run(
+                ARCHSELF + ["campaign", str(arch), "-s", "calm", "--seeds", "3", "-o",
+                            "r.parquet", "--force"],
+                capture_output=True, text=True, cwd=tmp_path, timeout=120,
+            )
+        finally:
+            first.send_signal(signal.SIGCONT)
+        _, first_err = first.communicate(timeout=300)
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    assert second.returncode == 1, second.stderr
+    line = second.stderr.strip()
+    assert "\n" not in line
+    assert line.startswith(f"r.parquet: error: is being written by pid {first.pid}: "
+                           f"archself campaign {arch} -s calm --seeds 6")
+    assert first.returncode == 0, first_err
+    table, _ = read_results(tmp_path / "r.parquet")
+    assert table.num_rows == 12  # the first's rows, all of them
+    assert len(set(table.column("seed").to_pylist())) == 6
+    assert not lock.exists()  # removed after
+
+
+def test_output_locks_are_released_and_shared_within_a_process(tmp_path) -> None:
+    from archself.io.atomic import lock_path
+
+    out, folder = tmp_path / "t.json", tmp_path / "rep"
+    with protect([], [out, folder, None, "-", "/dev/null"]):
+        assert (tmp_path / "t.json.lock").read_text().startswith(f"pid {os.getpid()}: ")
+        assert (tmp_path / "rep.lock").exists()
+        with protect([], [out]):  # this process holds it already: no self-deadlock
+            write_text(out, "x")
+        assert (tmp_path / "t.json.lock").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.json"]
+    assert lock_path(tmp_path / "missing" / "x") is None  # nothing can be written there
+
+
+def test_a_failed_report_leaves_no_empty_folder(arch, tmp_path, monkeypatch, capsys) -> None:
+    """simulate --report into a full disk left an empty folder behind."""
+    import archself.reports.run_report as run_report
+
+    def full(path, data):
+        raise OutputError(f"{path}: cannot write: No space left on device")
+
+    monkeypatch.setattr(run_report, "write_text", full)
+    target = tmp_path / "new" / "rep"
+    code, _, err = run(["simulate", arch, "-s", "calm", "--report", target], monkeypatch, capsys)
+    assert code == 1 and "No space left on device" in err
+    assert not (tmp_path / "new").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X.yaml"]

@@ -206,12 +206,12 @@ def test_live(work: Path) -> None:
     )
     try:
         first = proc.stdout.readline()  # type: ignore[union-attr]
-        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+)\n", first)
+        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+) token (\w+)\n", first)
         assert m, first
         loop = subprocess.run(
             [sys.executable, "-m", "archself", "live", str(plant), "--connect",
              f"127.0.0.1:{m.group(1)}", "--json", "--log", str(work / "live.json"),
-             "--timeout", "60"],
+             "--timeout", "60", "--token", m.group(2)],
             capture_output=True, text=True, timeout=120,
         )
         proc.communicate(timeout=120)

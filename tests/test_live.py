@@ -9,6 +9,7 @@ must be the same (no tolerance). Timeouts below are hang guards only.
 from __future__ import annotations
 
 import json
+import os
 import re
 import selectors
 import socket
@@ -122,11 +123,45 @@ def test_measured_system_reads_what_was_pushed(arch) -> None:
         ({"t": 1.0, "outputs": {"tank": 5}}, "outputs of module 'tank' must be a mapping"),
         ({"t": 1.0, "signals": {"observer_a": 5}}, "signals of module 'observer_a' must be"),
         ({"t": 1.0, "configuration": ["p1"]}, r"configuration \['p1'\], not a name"),
+        # strings and huge integers in numeric fields: refused, the field named
+        ({"t": 1.0, "outputs": {"tank": {"level": "1.0"}}},
+         r"outputs\.tank\.level: expected a number or null, got a string '1\.0'"),
+        ({"t": 1.0, "outputs": {"setpoint": {"setpoint": [1.0, "x"]}}},
+         r"outputs\.setpoint\.setpoint\[1\]: expected a number"),
+        ({"t": 1.0, "signals": {"observer_a": {"innovation": "0.1"}}},
+         r"signals\.observer_a\.innovation: expected a number"),
+        ({"t": 1.0, "outputs": {"tank": {"level": 10 ** 400}}}, "integer of 401 digits"),
+        ({"t": 1.0, "outputs": {"tank": {"level": {"v": 1}}}}, "got dict"),
     ],
 )
 def test_measured_system_refuses_bad_measurements(arch, kwargs, message) -> None:
     with pytest.raises(LiveError, match=message):
         MeasuredSystem(arch).update(**kwargs)
+
+
+def test_measurement_time_is_finite_non_decreasing_and_bounded(arch) -> None:
+    """t = 1e4 or 1e308 among normal times was accepted and the loop stopped deciding."""
+    loop = LiveLoop(arch)
+    assert loop.system.max_jump_s == 100 * arch.runtime.period_s
+    out = {"tank": {"level": 1.0}, "setpoint": {"setpoint": [1.0, 0.0]}}
+    loop.push(1.0, out)
+    loop.push(2.0, out)
+    for bad, why in ((1e4, "jumps 9998 s past the last one, 2 s (at most 100 s)"),
+                     (1e308, "jumps 1e+308 s past"), (1.5, "goes back before the last one"),
+                     (float("inf"), "not finite")):
+        with pytest.raises(LiveError, match=re.escape(why)):
+            loop.push(bad, out)
+    assert loop.system.t == 2.0 and loop.measurements == 2  # the refused ones changed nothing
+    for k in range(3, 17):
+        loop.push(float(k), out)
+    assert loop.mapek.cycle == 16  # one per period, as if the bad times had not come
+    loop.push(16.0, out)  # the same time again: not a decrease
+    with pytest.raises(LiveError, match="at most 5 s"):
+        bounded = LiveLoop(arch, max_jump_s=5.0)
+        bounded.push(1.0, out)
+        bounded.push(7.0, out)
+    with pytest.raises(LiveError, match="max_jump_s must be"):
+        LiveLoop(arch, max_jump_s=float("nan"))
 
 
 def test_snapshot_is_the_models_never_a_rollout(arch) -> None:
@@ -319,7 +354,8 @@ def test_loop_gives_up_on_a_silent_plant(arch) -> None:
     accepted.start()
     try:
         with pytest.raises(LiveError, match="no message from the peer for 0.3 s"):
-            run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=0.3)
+            run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=0.3,
+                       token=link.token)
     finally:
         accepted.join(timeout=10.0)
         link.close()
@@ -332,6 +368,9 @@ def test_loop_gives_up_on_a_silent_plant(arch) -> None:
          + b"}" * 100_000 + b"}", "nested too deeply"),
         (b"\xff\xfe{}", "'utf-8' codec can't decode"),
         (b'{"type":"measurement","t":0,"outputs":{"tank":5}}', "must be a mapping of signals"),
+        # an integer of 5,000 digits was an internal error (ValueError)
+        (b'{"type":"measurement","t":' + b"7" * 5000 + b"}",
+         r"message 1: malformed message: Exceeds the limit \(4300 digits\)"),
     ],
 )
 def test_loop_refuses_a_malformed_line(arch, line: bytes, message: str) -> None:
@@ -383,12 +422,14 @@ def test_two_processes_switch_as_the_simulation(tmp_path: Path, simulated) -> No
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
-        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+)\n", _first_line(plant, 60.0))
+        m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+) token ([0-9a-f]{32})\n",
+                         _first_line(plant, 60.0))
         assert m, "the plant did not say where it listens"
         loop = subprocess.run(
             [sys.executable, "-m", "archself", "live", str(arch_file),
              "--connect", f"127.0.0.1:{m.group(1)}", "--json", "--log", str(log),
              "--timeout", "60"],
+            env={**os.environ, "ARCHSELF_LIVE_TOKEN": m.group(2)},
             capture_output=True, text=True, timeout=HANG_GUARD_S,
         )
         out, err = plant.communicate(timeout=HANG_GUARD_S)
@@ -490,7 +531,8 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
     monkeypatch.setattr(archself.io.atomic, "write_text", refuse)
     log = tmp_path / "log.json"
     late = CliRunner().invoke(app, ["live", str(arch_file), "--connect",
-                                    f"127.0.0.1:{link.port}", "--log", str(log)])
+                                    f"127.0.0.1:{link.port}", "--log", str(log),
+                                    "--token", link.token])
     thread.join(timeout=HANG_GUARD_S)
     assert late.exit_code == 1, late.stderr
     line = late.stderr.strip()
@@ -501,3 +543,195 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
         assert doc["meta"]["measurements"] == 5 and doc["meta"]["mode"] == "live"
     finally:
         kept.unlink()
+
+
+# ---------------------------------------------------------------------- a hostile link
+OUT = {"tank": {"level": 1.0}, "setpoint": {"setpoint": [1.0, 0.0]}}
+
+
+def _serve(link: PlantLink, times: list[float], got: list) -> threading.Thread:
+    """The plant in a thread: accept the loop, send a measurement at each of ``times``."""
+    def plant() -> None:
+        try:
+            got.append(link.accept())
+            for t in times:
+                got.append(link.send(t, outputs=OUT))
+        except LiveError as exc:
+            got.append(exc)
+        finally:
+            link.close()
+
+    thread = threading.Thread(target=plant, daemon=True)
+    thread.start()
+    return thread
+
+
+@pytest.mark.parametrize("before", [1, 200])
+def test_idle_connections_do_not_lock_the_loop_out(arch, before: int) -> None:
+    """An idle local connection (or 200) before the loop: the plant serves the loop."""
+    link = PlantLink(port=0, timeout_s=30.0)
+    idle = [socket.create_connection(("127.0.0.1", link.port)) for _ in range(before)]
+    got: list = []
+    try:
+        thread = _serve(link, [1.0, 2.0, 3.0], got)
+        loop = LiveLoop(arch)
+        assert run_remote(loop, "127.0.0.1", link.port, timeout_s=30.0, token=link.token) == 3
+        thread.join(timeout=HANG_GUARD_S)
+    finally:
+        for s in idle:
+            s.close()
+    assert got[0]["type"] == "hello" and got[1:] == [[], [], []]
+    assert loop.mapek.cycle == 3
+    assert link.refused == before  # each closed once the loop was in
+
+
+def test_an_unauthenticated_peer_is_refused(arch) -> None:
+    """An impostor connecting first (no token, a wrong one) is refused; the loop is served."""
+    link = PlantLink(port=0, timeout_s=30.0)
+    got: list = []
+    thread = _serve(link, [1.0], got)
+    answers = []
+    for hello in ({"type": "hello", "protocol": 1}, {"type": "hello", "token": "0" * 32}):
+        with socket.create_connection(("127.0.0.1", link.port)) as impostor:
+            impostor.sendall(json.dumps(hello).encode() + b"\n")
+            answers.append(json.loads(impostor.makefile("rb").readline()))
+    assert answers == [{"type": "refused", "reason": "no hello with the plant's token"}] * 2
+    with pytest.raises(LiveError, match="the plant refused the loop: no hello with the plant's "
+                                        "token .pass the token it printed"):
+        run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=30.0, token="wrong")
+    assert run_remote(LiveLoop(arch), "127.0.0.1", link.port, timeout_s=30.0,
+                      token=link.token) == 1
+    thread.join(timeout=HANG_GUARD_S)
+    assert link.refused == 3 and got[-1] == []
+
+
+def _raw_plant(serve) -> tuple[socket.socket, threading.Thread]:
+    """A plant of raw bytes: ``serve(conn)`` after reading the loop's hello."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+
+    def plant() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.makefile("rb").readline()  # hello
+            try:
+                serve(conn)
+            except OSError:
+                pass
+
+    thread = threading.Thread(target=plant, daemon=True)
+    thread.start()
+    return server, thread
+
+
+def test_a_trickling_peer_cannot_hold_the_loop(arch) -> None:
+    """1 byte per 50 ms of a valid measurement: the timeout is on the whole message
+    (per read, the loop took the message after 5 s and went on)."""
+    import time
+
+    line = json.dumps({"type": "measurement", "t": 1.0, "outputs": OUT}).encode() + b"\n"
+
+    def trickle(conn: socket.socket) -> None:
+        for b in line:
+            conn.sendall(bytes([b]))
+            time.sleep(0.05)
+        conn.recv(1)
+
+    server, thread = _raw_plant(trickle)
+    with server, pytest.raises(LiveError, match=r"no whole message from the peer for 1 s "
+                                                r"\(\d+ bytes of one came\)"):
+        run_remote(LiveLoop(arch), "127.0.0.1", server.getsockname()[1], timeout_s=1.0)
+    thread.join(timeout=HANG_GUARD_S)
+
+
+@pytest.mark.parametrize(("t", "why"), [(1e4, "jumps 9998 s"), (1e308, "jumps 1e+308 s"),
+                                        ("3", "'3' is not a number")])
+def test_the_wire_refuses_bad_times_located(arch, t, why: str) -> None:
+    def plant(conn: socket.socket) -> None:
+        f = conn.makefile("rb")
+        for k, tk in enumerate([1.0, 2.0, t, 4.0]):
+            conn.sendall(json.dumps({"type": "measurement", "t": tk, "outputs": OUT}).encode()
+                         + b"\n")
+            if k < 2:
+                f.readline()
+        conn.recv(1)
+
+    server, thread = _raw_plant(plant)
+    where = r"^message 3 \(measurement 3\): t: .*"
+    with server, pytest.raises(LiveError, match=where + re.escape(why)):
+        run_remote(LiveLoop(arch), "127.0.0.1", server.getsockname()[1], timeout_s=30.0)
+    thread.join(timeout=HANG_GUARD_S)
+
+
+# ---------------------------------------------------------------------- the log on every end
+def _ending(conn: socket.socket, how: str) -> None:
+    if how == "disconnect":
+        conn.shutdown(socket.SHUT_RDWR)
+        return
+    elif how == "malformed":
+        conn.sendall(b'{"type": "measurement", "t": 4.0, "outputs": {"tank": 5}}\n')
+    conn.recv(1)  # silent (and the others): until the loop closes the connection
+
+
+@pytest.mark.parametrize(("how", "code", "ended"), [
+    ("disconnect", 1, "the plant closed the connection without ending the run"),
+    ("silent", 1, "no message from the peer for 2 s"),
+    ("malformed", 1, "message 4 (measurement 4): measurement outputs of module 'tank' must be "
+                     "a mapping of signals"),
+    ("SIGINT", 130, "interrupted (SIGINT)"),
+    ("SIGTERM", 143, "terminated (SIGTERM)"),
+    ("SIGKILL", -9, None),
+])
+def test_live_log_keeps_every_decision_on_every_end(tmp_path: Path, how: str, code: int,
+                                                    ended: str | None) -> None:
+    """Three measurements (three cycles), then the run ends badly: --log holds the three."""
+    import signal
+
+    arch_file = tmp_path / "plant.yaml"
+    arch_file.write_text(_plant_text(), encoding="utf-8")
+    log = tmp_path / "log.json"
+    answered = threading.Event()
+
+    def plant(conn: socket.socket) -> None:
+        f = conn.makefile("rb")
+        for k in (1.0, 2.0, 3.0):
+            conn.sendall(json.dumps({"type": "measurement", "t": k, "outputs": OUT}).encode()
+                         + b"\n")
+            f.readline()
+        answered.set()
+        _ending(conn, how if how in ("disconnect", "malformed") else "silent")
+
+    server, thread = _raw_plant(plant)
+    with server:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "archself", "live", str(arch_file), "--connect",
+             f"127.0.0.1:{server.getsockname()[1]}", "--log", str(log),
+             "--timeout", "2" if how == "silent" else "60"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        try:
+            assert answered.wait(HANG_GUARD_S), "the loop answered no measurement"
+            if how.startswith("SIG"):
+                proc.send_signal(getattr(signal, how))
+            _, err = proc.communicate(timeout=HANG_GUARD_S)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        thread.join(timeout=HANG_GUARD_S)
+    assert proc.returncode == code, err
+    if ended is None:  # killed outright: the journal holds the run
+        lines = [json.loads(x) for x in (tmp_path / "log.json.part").read_text().splitlines()]
+        assert lines[0]["meta"]["mode"] == "live" and not log.exists()
+        decisions = lines[1:]
+    else:
+        assert len(err.strip().splitlines()) == 1
+        assert ended in err if code == 1 else err.strip() == ended.split()[0]
+        doc = json.loads(log.read_text(encoding="utf-8"))
+        assert doc["meta"]["ended"] == ended
+        assert doc["meta"]["measurements"] == 3
+        assert not (tmp_path / "log.json.part").exists()
+        decisions = doc["decisions"]
+    assert [d["cycle"] for d in decisions] == [0, 1, 2]
+    assert_allclose([d["t"] for d in decisions], [1.0, 2.0, 3.0], atol=1e-12)

@@ -235,17 +235,21 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
     """
     from archself.calibration.edit import same_file
     from archself.errors import OutputError
-    from archself.io.atomic import write_text
-    from archself.reports.render import render
+    from archself.reports.architecture import new_folder
 
     out = Path(out_dir)
     for name in ("index.html", "calibration.md", "calibration.json"):
         if same_file(cal.file, out / name):
             raise OutputError(f"{out / name}: error: is the input file; choose another --report")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{out}: cannot create folder: {exc.strerror}") from None
+    with new_folder(out):
+        _write(cal, out)
+    return out / "index.html"
+
+
+def _write(cal: Calibration, out: Path) -> None:
+    from archself.io.atomic import write_text
+    from archself.reports.render import render
+
     model = report_model(cal)
     try:
         import matplotlib  # noqa: F401
@@ -264,7 +268,6 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
         out / "calibration.json",
         json.dumps(cal.to_dict(), indent=2, ensure_ascii=False) + "\n",
     )
-    return out / "index.html"
 
 
 def summary_text(cal: Calibration) -> str:

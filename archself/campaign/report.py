@@ -102,20 +102,24 @@ def campaign_report(
     OutputError
         If ``out_dir`` cannot be written.
     """
-    from archself.campaign import figures as fig
     from archself.campaign.results import read_results
-    from archself.errors import OutputError
-    from archself.io.atomic import write_bytes, write_text
-    from archself.reports.figures import figure_bytes
+    from archself.reports.architecture import new_folder
 
     table, meta = read_results(results)
     summary = summarize(table, meta, expect, tau_path)
     rows = table.to_pylist()
     out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{out}: cannot create folder: {exc.strerror}") from None
+    with new_folder(out):
+        _write(out, summary, rows, results, formats, dpi)
+    return summary
+
+
+def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | Path,
+           formats: tuple[str, ...], dpi: int) -> None:
+    from archself.campaign import figures as fig
+    from archself.io.atomic import write_bytes, write_text
+    from archself.reports.figures import figure_bytes
+
     names = [b["scenario"] for b in summary.scenarios]
     figures: dict[str, str | None] = {}
     faulted = [b["scenario"] for b in summary.scenarios if b["faulted"]]
@@ -145,4 +149,3 @@ def campaign_report(
         out / "summary.json",
         json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n",
     )
-    return summary

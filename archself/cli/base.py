@@ -266,7 +266,7 @@ def _emit(text: str, output: Path | None, done: str) -> None:
     if output is None or str(output) == "-":
         sys.stdout.write(text)
         return
-    from archself.io.atomic import write_text
+    from archself.io.atomic import protect, write_text
 
     if output.is_file():
         try:
@@ -278,7 +278,8 @@ def _emit(text: str, output: Path | None, done: str) -> None:
             raise _fail(f"{output}: error: is an architecture file; refusing to write over "
                         "it (choose another name)")
     try:
-        write_text(output, text)
+        with protect([], [output]):
+            write_text(output, text)
     except ArchselfError as exc:
         raise _die(exc) from None
     typer.echo(done, err=True)

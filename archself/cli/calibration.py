@@ -127,26 +127,30 @@ def calibrate(
             from archself.io.outputs import refuse_foreign_folder
 
             refuse_foreign_folder(report_dir, "calibration.json", "--report")
-        show = sys.stderr.isatty() and not json_out
-        bar = RunProgress("{total:,} runs")
-        try:
-            cal = run_calibration(
-                arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
-                configurations=configurations, root_seed=root_seed, executor=executor.value,
-                workers=workers, address=address, verify_seeds=verify_seeds,
-                progress=bar.update if show else None, save_runs=save_runs, from_runs=from_runs,
-                envelope=envelope or (), weights=weights,
-            )
-        finally:
-            bar.close()
-        if target is not None:
-            from archself.io.atomic import write_text
+        from archself.io.atomic import protect
 
-            write_text(target, cal.text)
-        if report_dir is not None:
-            from archself.calibration.report import write_report
+        with protect([], [target, save_runs, report_dir]):
+            show = sys.stderr.isatty() and not json_out
+            bar = RunProgress("{total:,} runs")
+            try:
+                cal = run_calibration(
+                    arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
+                    configurations=configurations, root_seed=root_seed,
+                    executor=executor.value, workers=workers, address=address,
+                    verify_seeds=verify_seeds, progress=bar.update if show else None,
+                    save_runs=save_runs, from_runs=from_runs, envelope=envelope or (),
+                    weights=weights,
+                )
+            finally:
+                bar.close()
+            if target is not None:
+                from archself.io.atomic import write_text
 
-            index = write_report(cal, report_dir)
+                write_text(target, cal.text)
+            if report_dir is not None:
+                from archself.calibration.report import write_report
+
+                index = write_report(cal, report_dir)
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
@@ -253,6 +257,11 @@ def identify(
     if not math.isfinite(magnitude):
         raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
     overrides = _perturbations(perturb)
+    from contextlib import ExitStack
+
+    from archself.io.atomic import protect
+
+    locked = ExitStack()  # the outputs, locked until written
     try:
         from archself.io.outputs import refuse_same_file
 
@@ -262,6 +271,7 @@ def identify(
             refuse_same_file([arch_path], output, "-o")
         if write_back is not None:
             check_output(arch_path, write_back, in_place=False, force=force)
+        locked.enter_context(protect([], [output, write_back]))
         with _numeric(arch_path):
             ident = run_identify(
                 arch_path, configurations=configurations, scenario=scenario, seeds=seeds,
@@ -270,19 +280,23 @@ def identify(
                 workers=workers, address=address,
             )
         copy = written_copy(ident) if write_back is not None else None
-    except ArchselfError as exc:
-        raise _die(exc) from None
-    if json_out:
-        typer.echo(json.dumps(ident.to_dict(), indent=2, ensure_ascii=False))
-    elif output is None or str(output) != "-":
-        typer.echo(summary_text(ident, all_edges=all_edges), nl=False)
-    if output is not None:
-        _emit(markdown_table(ident), output, f"wrote {output}")
-    if write_back is not None and copy is not None:
-        from archself.io.atomic import write_text
-
-        try:
-            write_text(write_back, copy)
-        except ArchselfError as exc:
+    except BaseException as exc:
+        locked.close()
+        if isinstance(exc, ArchselfError):
             raise _die(exc) from None
-        typer.echo(f"wrote {write_back}", err=True)
+        raise
+    with locked:
+        if json_out:
+            typer.echo(json.dumps(ident.to_dict(), indent=2, ensure_ascii=False))
+        elif output is None or str(output) != "-":
+            typer.echo(summary_text(ident, all_edges=all_edges), nl=False)
+        if output is not None:
+            _emit(markdown_table(ident), output, f"wrote {output}")
+        if write_back is not None and copy is not None:
+            from archself.io.atomic import write_text
+
+            try:
+                write_text(write_back, copy)
+            except ArchselfError as exc:
+                raise _die(exc) from None
+            typer.echo(f"wrote {write_back}", err=True)

@@ -104,7 +104,7 @@ def campaign(
         _inputs(arch_path)
         refuse_same_file([arch_path], out, "--out")
         sweeps = [parse_sweep(s) for s in sweep or []]
-        with protect([arch_path]), _numeric(arch_path):
+        with protect([arch_path], [out, traces]), _numeric(arch_path):
             jobs, meta = plan_campaign(
                 arch_path,
                 scenarios,
@@ -199,7 +199,7 @@ def campaign_report_cmd(
         _inputs(results, what="a results file (Parquet)")
         for name in _RUN_REPORT_FILES:
             refuse_same_file([results], out_dir / name, "-o")
-        with protect([results]), _numeric(results):
+        with protect([results], [out_dir]), _numeric(results):
             summary = campaign_report(
                 results, out_dir, expect=parse_expect(expect or []), tau_path=tau,
                 formats=_formats(fig_format, "svg"), dpi=dpi,

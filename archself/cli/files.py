@@ -250,7 +250,7 @@ def init(
     """
     import os
 
-    from archself.io.atomic import write_text
+    from archself.io.atomic import protect, write_text
 
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
@@ -274,11 +274,12 @@ def init(
         schema = _project_schema(folder)
     text = _template_text(template, target.stem, target.name, schema)
     try:
-        if copy_to is not None:
-            from archself.model.schema import schema_text
+        with protect([], [target, copy_to]):
+            if copy_to is not None:
+                from archself.model.schema import schema_text
 
-            write_text(copy_to, schema_text())
-        write_text(target, text)
+                write_text(copy_to, schema_text())
+            write_text(target, text)
     except ArchselfError as exc:
         raise _die(exc) from None
     typer.echo(f"wrote {target}; next: archself validate {target}")

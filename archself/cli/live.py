@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -44,7 +45,20 @@ def live(
     log: Annotated[
         Path | None,
         typer.Option("--log", metavar="FILE",
-                     help="Write the decision log to FILE (JSON, read by `archself explain`)."),
+                     help="Write the decision log to FILE (JSON, read by `archself explain`); "
+                     "kept on every end, FILE.part holds it while the run lasts."),
+    ] = None,
+    token: Annotated[
+        str | None,
+        typer.Option("--token", metavar="TOKEN", envvar="ARCHSELF_LIVE_TOKEN",
+                     show_envvar=True,
+                     help="The token the plant printed (it refuses a loop without it)."),
+    ] = None,
+    max_jump: Annotated[
+        float | None,
+        typer.Option("--max-jump", metavar="SECONDS",
+                     help="Longest forward jump of the plant's clock between two "
+                     "measurements (default: 100 MAPE-K periods); longer: refused, exit 1."),
     ] = None,
 ) -> None:
     """Run the MAPE-K loop on a plant that pushes measurements over a local socket.
@@ -52,16 +66,21 @@ def live(
     The plant listens at HOST:PORT and sends a measurement each step; every one is
     answered with the reconfiguration commands decided on it. Δ and stability come
     from the architecture's compiled models (no snapshot of a real plant exists).
-    Stops when the plant ends the run.
+    Stops when the plant ends the run; on any other end (the plant gone, silent or
+    malformed, Ctrl-C, SIGTERM) --log FILE still holds every decision taken.
     """
     if rollout not in ("refuse", "reject"):
         raise _fail(f"--rollout must be refuse or reject, not {rollout!r}", 2)
+    if max_jump is not None and not (math.isfinite(max_jump) and max_jump > 0):
+        raise _fail(f"--max-jump {max_jump:g}: expected a finite number of seconds > 0", 2)
     from archself.live import LiveLoop, parse_address, run_remote
 
     try:
         host, port = parse_address(connect)
     except ArchselfError as exc:
         raise _fail(f"--connect: {exc}", 2) from None
+    from archself.io.atomic import protect
+
     try:
         _inputs(arch_path)
         if log is not None:
@@ -71,19 +90,24 @@ def live(
             if log.is_dir() or not log.parent.is_dir():  # found out before the run, not after
                 what = "is a folder" if log.is_dir() else f"folder {log.parent} does not exist"
                 raise _fail(f"{log}: error: --log {what}; the decision log needs a file")
-        with _numeric(arch_path):
+        with protect([arch_path], [log]), _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
-            loop = LiveLoop(arch, configuration=config, rollout=rollout)
+            loop = LiveLoop(arch, configuration=config, rollout=rollout, max_jump_s=max_jump)
             start = loop.configuration
             loop.on_command(lambda c: typer.echo(
                 f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
                 if c.kind == "configuration" else
                 f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
-            served = run_remote(loop, host, port, timeout_s=timeout)
-            if log is not None:
-                _write_log(log, json.dumps(jsonable(_log(loop, arch_path, start, served)),
-                                           separators=(",", ":")) + "\n")
+            journal = None if log is None else _Journal(log, loop, arch_path, start)
+            try:
+                served = run_remote(loop, host, port, timeout_s=timeout, token=token)
+            except BaseException as exc:
+                if journal is not None:
+                    journal.finish(_ending(exc))
+                raise
+            if journal is not None:
+                journal.finish(None)
     except ArchselfError as exc:
         raise _die(exc) from None
     result = {
@@ -104,6 +128,71 @@ def live(
     lines += [(u["t_s"], f"{u['module']} ← {u['set']} ({u['action']})") for u in loop.updates]
     for t_s, what in sorted(lines, key=lambda line: line[0]):  # in time order
         typer.echo(f"  t = {t_s:g} s: {what}")
+
+
+def _ending(exc: BaseException) -> str:
+    """How a live run ended, for the log's ``meta.ended``."""
+    from archself.errors import Terminated
+
+    if isinstance(exc, Terminated):
+        return "terminated (SIGTERM)"
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted (SIGINT)"
+    if isinstance(exc, ArchselfError):
+        return str(exc)
+    return type(exc).__name__
+
+
+class _Journal:
+    """``--log FILE`` while the run lasts: ``FILE.part``, one JSON line per cycle.
+
+    The first line is ``{"meta": ...}`` (the run as it starts), every next one a
+    decision record, appended and flushed as its cycle ends, so a loop killed
+    outright (SIGKILL) leaves every decision behind. :meth:`finish` writes FILE
+    (the document of a clean end, with ``meta.ended`` on any other) and removes
+    the journal.
+    """
+
+    def __init__(self, log: Path, loop: Any, arch_path: Path, start: str) -> None:
+        self.log, self.loop, self.arch_path, self.start = log, loop, arch_path, start
+        self.part = log.with_name(log.name + ".part")
+        try:
+            self.fh: Any = open(self.part, "w", encoding="utf-8")  # noqa: SIM115
+            self._line({"meta": _log(loop, arch_path, start, 0)["meta"]})
+        except OSError as exc:
+            raise _fail(f"{self.part}: cannot write: {exc.strerror or exc}") from None
+        loop.on_cycle(self.add)
+
+    def _line(self, data: Any) -> None:
+        self.fh.write(json.dumps(jsonable(data), separators=(",", ":")) + "\n")
+        self.fh.flush()
+
+    def add(self, record: Any) -> None:
+        """Append one decision record (a write error: warned once, the run goes on)."""
+        if self.fh is None:
+            return
+        try:
+            self._line(record.to_dict())
+        except OSError as exc:
+            typer.echo(f"warning: {self.part}: cannot write: {exc.strerror or exc}; the "
+                       f"decision log is kept in memory until the end", err=True)
+            self.fh.close()
+            self.fh = None
+
+    def finish(self, ended: str | None) -> None:
+        """Write FILE (``ended``: why the run stopped, None for a clean end); drop the journal."""
+        doc = _log(self.loop, self.arch_path, self.start, self.loop.measurements)
+        if ended is not None:
+            doc["meta"]["ended"] = ended
+        try:
+            _write_log(self.log, json.dumps(jsonable(doc), separators=(",", ":")) + "\n")
+        finally:
+            if self.fh is not None:
+                self.fh.close()
+            try:
+                self.part.unlink()
+            except OSError:
+                pass
 
 
 def _write_log(log: Path, text: str) -> None:

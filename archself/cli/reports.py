@@ -74,7 +74,7 @@ def report(
     try:
         _inputs(arch_path)
         refuse_input_inside([arch_path], output, "-o")
-        with protect([arch_path]), _numeric(arch_path):
+        with protect([arch_path], [output]), _numeric(arch_path):
             arch = _load(arch_path)
             import shutil
 
@@ -121,7 +121,7 @@ def _report_from_traces(
             refuse_same_file(inputs, output / name, "-o")
         if not force:
             refuse_foreign_folder(output, "summary.json", "-o")
-        with protect(inputs), _numeric(traces[0]):
+        with protect(inputs, [output]), _numeric(traces[0]):
             results = [read_trace(t) for t in traces]
             for t, r in zip(traces, results, strict=True):
                 if not {"t", "J"} <= set(r.series):

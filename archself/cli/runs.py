@@ -192,7 +192,8 @@ def simulate(
             for name in _RUN_REPORT_FILES:
                 refuse_same_file([arch_path], report / name, "--report")
             refuse_foreign_folder(report, "summary.json", "--report")
-        with protect([arch_path]), _numeric(arch_path):
+        with protect([arch_path], [trace, fixed_trace if compare else None, report]), \
+                _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
             _check_simulation_size(arch, scenario, 2 if compare else 1, yes)

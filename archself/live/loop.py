@@ -33,7 +33,11 @@ from typing import Any
 from archself.live.system import LiveError, MeasuredSystem
 from archself.model.architecture import Architecture
 
-__all__ = ["Command", "LiveLoop", "live_problems"]
+__all__ = ["Command", "LiveLoop", "MAX_JUMP_PERIODS", "live_problems"]
+
+#: Default longest forward jump of the plant's clock between two measurements, in
+#: MAPE-K periods (``LiveLoop(max_jump_s=...)``, ``archself live --max-jump``).
+MAX_JUMP_PERIODS = 100
 
 _STABILITY_NAMES = {
     "eigenvalue": "eigenvalue margin of the compiled models",
@@ -193,6 +197,11 @@ class LiveLoop:
         The plant's time at which the loop's clock starts: cycles run at
         ``start_s + n·period_s`` (n = 1, 2, …), on the first measurement at or
         after each. Default 0.
+    max_jump_s : float, optional
+        Longest forward step of the plant's clock between two measurements
+        (default :data:`MAX_JUMP_PERIODS` periods, ``runtime.period_s`` each); a
+        longer one, a time going back or one that is not finite is refused
+        (:meth:`MeasuredSystem.update`).
     rollout : {"refuse", "reject"}
         What to do with actions only a rollout could judge (:func:`live_problems`):
         refuse the architecture (:class:`LiveError`, default) or keep it and let
@@ -239,6 +248,7 @@ class LiveLoop:
         configuration: str | None = None,
         seed: int = 0,
         start_s: float = 0.0,
+        max_jump_s: float | None = None,
         rollout: str = "refuse",
         on_command: Callable[[Command], Any] | None = None,
     ) -> None:
@@ -247,7 +257,14 @@ class LiveLoop:
         if rollout not in ("refuse", "reject"):
             raise LiveError(f"rollout must be 'refuse' or 'reject', not {rollout!r}")
         self.arch = arch
-        self.system = MeasuredSystem(arch, configuration, seed=seed)
+        self.period_s = float(arch.runtime.period_s)
+        if max_jump_s is None:
+            max_jump_s = MAX_JUMP_PERIODS * self.period_s
+        if not (isinstance(max_jump_s, (int, float)) and math.isfinite(max_jump_s)
+                and max_jump_s > 0):
+            raise LiveError(f"max_jump_s must be a finite number > 0, not {max_jump_s!r}")
+        self.system = MeasuredSystem(arch, configuration, seed=seed,
+                                     max_jump_s=float(max_jump_s))
         self.problems = live_problems(arch, self.system)
         if self.problems and rollout == "refuse":
             more = len(self.problems) - 1
@@ -258,11 +275,11 @@ class LiveLoop:
                 "eigenvalues (or pass rollout='reject')"
             )
         self.mapek = MapeK(arch)
-        self.period_s = float(arch.runtime.period_s)
         self.start_s = float(start_s)
         self._cycles_due = 1
         self._eps = 1e-6 * float(arch.runtime.step_s)
         self._callbacks: list[Callable[[Command], Any]] = []
+        self._cycle_callbacks: list[Callable[[Any], Any]] = []
         if on_command is not None:
             self._callbacks.append(on_command)
         self.commands: queue.Queue[Command] = queue.Queue()
@@ -273,6 +290,15 @@ class LiveLoop:
     def on_command(self, fn: Callable[[Command], Any]) -> Callable[[Command], Any]:
         """Register ``fn(command)`` for every command (usable as a decorator)."""
         self._callbacks.append(fn)
+        return fn
+
+    def on_cycle(self, fn: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        """Register ``fn(record)`` for the decision record of every cycle, as it ends.
+
+        Called after the record is complete and before the cycle's commands go
+        out (``archself live --log`` appends it to its journal there).
+        """
+        self._cycle_callbacks.append(fn)
         return fn
 
     @property
@@ -336,6 +362,8 @@ class LiveLoop:
         switches = mapek(self.system)
         record = mapek.decisions[-1]
         self._annotate(record)
+        for fn in self._cycle_callbacks:
+            fn(record)
         out = [
             Command(float(s["t_s"]), "configuration", str(s["action"]), str(s["module"]),
                     str(s["to"]), str(s["from"]))

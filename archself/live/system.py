@@ -59,25 +59,46 @@ class LiveError(ArchselfError):
     """Live mode was asked for something a real plant cannot give (one-line message)."""
 
 
-def _value(v: Any) -> Any:
-    """A pushed value as the executor would hold it: lists → float arrays, None kept."""
-    if v is None or isinstance(v, (bool, str)):
+def _number(v: Any, where: str) -> float:
+    """A pushed number as a float (None: NaN); a string, a huge integer, ... refused, located."""
+    if v is None:
+        return math.nan
+    if isinstance(v, (int, float, np.number)):
+        try:
+            return float(v)
+        except OverflowError:  # an integer beyond a float's range
+            digits = math.floor(math.log10(abs(int(v)))) + 1  # str() fails past 4,300 digits
+            raise LiveError(f"{where}: expected a number, got an integer of {digits} digits "
+                            "(beyond a float's range)") from None
+    got = f"a string {v[:40]!r}" if isinstance(v, str) else f"{type(v).__name__}"
+    raise LiveError(f"{where}: expected a number or null, got {got}")
+
+
+def _value(v: Any, where: str) -> Any:
+    """A pushed value as the executor would hold it: lists → float arrays, None kept.
+
+    Numbers, booleans, None and (nested) lists of numbers or None are accepted, and
+    objects pushed in-process (a model) are kept; a string, a mapping or a list
+    holding either is a :class:`LiveError` naming ``where``.
+    """
+    if v is None or isinstance(v, bool):
+        return v
+    if isinstance(v, np.ndarray) and v.dtype.kind in "fiub":  # pushed in-process
         return v
     if isinstance(v, (list, tuple)):
+        def flat(x: Any, at: str) -> Any:
+            if isinstance(x, (list, tuple)):
+                return [flat(y, f"{at}[{i}]") for i, y in enumerate(x)]
+            return _number(x, at)
+
         try:
-            return np.array([math.nan if x is None else x for x in v], dtype=float)
-        except (TypeError, ValueError):
-            return v
-    if isinstance(v, (int, float, np.number)):
-        return float(v)
-    return v
-
-
-def _float(v: Any) -> float:
-    try:
-        return math.nan if v is None else float(v)
-    except (TypeError, ValueError):
-        return math.nan
+            return np.array(flat(v, where), dtype=float)
+        except ValueError:  # ragged nesting
+            raise LiveError(f"{where}: expected a number or a list of numbers of one "
+                            "shape") from None
+    if isinstance(v, (str, bytes, int, float, np.number, Mapping)):
+        return _number(v, where)
+    return v  # an object pushed in-process (a module's model), as the executor holds it
 
 
 class MeasuredSystem:
@@ -118,13 +139,16 @@ class MeasuredSystem:
     """
 
     def __init__(
-        self, arch: Architecture, configuration: str | None = None, *, seed: int = 0
+        self, arch: Architecture, configuration: str | None = None, *, seed: int = 0,
+        max_jump_s: float | None = None,
     ) -> None:
         from archself.system.compiler import compile_system
 
         self.arch = arch
         self.dt = float(arch.runtime.step_s)
         self.t = 0.0
+        self.max_jump_s = max_jump_s
+        self.measured = 0  # measurements taken
         self._models = compile_system(arch, configuration, seed=int(seed))
         self.configuration = self._models.configuration
         self.outputs: dict[str, dict[str, Any]] = {}
@@ -169,14 +193,29 @@ class MeasuredSystem:
         Raises
         ------
         LiveError
-            An unknown configuration or a non-finite time.
+            An unknown configuration; a value that is not a number (a string, an
+            integer beyond a float's range; the message names the field, e.g.
+            ``outputs.tank.level``); a time ``t`` that is not a finite number, goes
+            back before the last measurement's, or jumps forward by more than
+            :attr:`max_jump_s` (the first measurement's time is free). The
+            measurement refused changes nothing.
         """
+        if isinstance(t, (str, bytes)):
+            raise LiveError(f"t: measurement time {t[:40]!r} is not a number (a string)")
         try:
             t = float(t)
-        except (TypeError, ValueError):
-            raise LiveError(f"measurement time {t!r} is not a number") from None
+        except (TypeError, ValueError, OverflowError):
+            what = "an integer beyond a float's range" if isinstance(t, int) else type(t).__name__
+            raise LiveError(f"t: measurement time is not a number ({what})") from None
         if not math.isfinite(t):
-            raise LiveError(f"measurement time {t!r} is not finite")
+            raise LiveError(f"t: measurement time {t!r} is not finite")
+        if self.measured:
+            if t < self.t:
+                raise LiveError(f"t: measurement time {t:g} s goes back before the last "
+                                f"one, {self.t:g} s (time must not decrease)")
+            if self.max_jump_s is not None and t - self.t > self.max_jump_s:
+                raise LiveError(f"t: measurement time {t:g} s jumps {t - self.t:g} s past the "
+                                f"last one, {self.t:g} s (at most {self.max_jump_s:g} s)")
         for what, value in (("outputs", outputs), ("signals", signals), ("health", health)):
             if value is not None and not isinstance(value, Mapping):
                 raise LiveError(f"measurement {what} must be a mapping of modules")
@@ -186,19 +225,24 @@ class MeasuredSystem:
                                     "mapping of signals")
         if configuration is not None and not isinstance(configuration, str):
             raise LiveError(f"the plant reports configuration {configuration!r}, not a name")
+        new_outputs = {str(m): {str(k): _value(v, f"outputs.{m}.{k}")
+                                for k, v in (sigs or {}).items()}
+                       for m, sigs in (outputs or {}).items()}
+        new_signals = {str(m): {str(k): _number(v, f"signals.{m}.{k}")
+                                for k, v in (sigs or {}).items()}
+                       for m, sigs in (signals or {}).items()}
+        if configuration is not None and configuration != self.configuration and (
+                configuration not in self.arch.configurations):
+            known = ", ".join(self.arch.configurations)
+            raise LiveError(f"configuration: the plant reports unknown configuration "
+                            f"{configuration!r}; known: {known}")
         self.t = t
-        for m, sigs in (outputs or {}).items():
-            self.outputs[str(m)] = {str(k): _value(v) for k, v in (sigs or {}).items()}
-        for m, sigs in (signals or {}).items():
-            self._signals[str(m)] = {str(k): _float(v) for k, v in (sigs or {}).items()}
+        self.measured += 1
+        self.outputs.update(new_outputs)
+        self._signals.update(new_signals)
         for m, why in (health or {}).items():
             self._health[str(m)] = None if why is None else str(why)
         if configuration is not None and configuration != self.configuration:
-            if configuration not in self.arch.configurations:
-                known = ", ".join(self.arch.configurations)
-                raise LiveError(
-                    f"the plant reports unknown configuration {configuration!r}; known: {known}"
-                )
             self._switch(configuration, by="plant")
 
     def step(self) -> None:

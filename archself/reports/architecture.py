@@ -33,6 +33,8 @@ import secrets
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -78,6 +80,40 @@ def ensure_dir(path: Path) -> None:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{path}: cannot create folder: {exc.strerror}") from None
+
+
+@contextmanager
+def new_folder(path: Path) -> Iterator[Path]:
+    """:func:`ensure_dir` for the block; if the block fails, remove the folders it made.
+
+    A report that fails half-way (a full disk, Ctrl-C) into a folder that did not
+    exist leaves no folder behind, empty or half-written; an existing folder is
+    left as the failure left it (each file written atomically).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> try:
+    ...     with new_folder(d / "a" / "report") as out:
+    ...         _ = (out / "index.html").write_text("half")
+    ...         raise OutputError("disk full")
+    ... except OutputError:
+    ...     pass
+    >>> list(d.iterdir())
+    []
+    """
+    made = None
+    p = path
+    while not os.path.lexists(p) and p != p.parent:
+        made, p = p, p.parent  # the outermost folder that does not exist yet
+    ensure_dir(path)
+    try:
+        yield path
+    except BaseException:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
 
 
 def render_dot(dot_file: Path, fmt: str, dot: str) -> tuple[bytes | None, str]:

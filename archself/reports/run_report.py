@@ -21,7 +21,7 @@ from typing import Any
 
 from archself.io.atomic import write_bytes, write_text
 from archself.model.architecture import Architecture
-from archself.reports.architecture import ensure_dir
+from archself.reports.architecture import new_folder
 from archself.reports.render import render
 from archself.reports.run import RunReport, build_run_report
 
@@ -40,13 +40,18 @@ def write_run_report(arch: Architecture | None, results: list[Any], out_dir: str
     Raises
     ------
     OutputError
-        If the folder or a file cannot be written.
+        If the folder or a file cannot be written (a folder it created is removed).
     """
+    out = Path(out_dir)
+    with new_folder(out):
+        return _write(arch, results, out, formats, dpi)
+
+
+def _write(arch: Architecture | None, results: list[Any], out: Path,
+           formats: tuple[str, ...], dpi: int) -> RunReport:
     from archself.reports import figures
     from archself.sim.metrics import metric_rows
 
-    out = Path(out_dir)
-    ensure_dir(out)
     rep = build_run_report(arch, results)
     shown = "svg" if "svg" in formats else "png"
     fmts = tuple(dict.fromkeys((*formats, shown)))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 from archself.errors import ArchselfError
@@ -22,6 +23,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("arch", help="architecture file")
     p.add_argument("--connect", required=True, metavar="HOST:PORT", help="the plant")
+    p.add_argument("--token", default=os.environ.get("ARCHSELF_LIVE_TOKEN"),
+                   help="the token the plant printed (default: $ARCHSELF_LIVE_TOKEN)")
     p.add_argument("--timeout", type=float, default=30.0, help="s of silence before giving up")
     args = p.parse_args(argv)
 
@@ -30,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     loop.on_command(lambda c: print(f"t = {c.t_s:g} s: {c.kind} {c.previous} -> "
                                     f"{c.configuration} ({c.action})", file=sys.stderr))
     host, port = parse_address(args.connect)
-    served = run_remote(loop, host, port, timeout_s=args.timeout)
+    served = run_remote(loop, host, port, timeout_s=args.timeout, token=args.token)
     print(json.dumps({"measurements": served, "switches": loop.switches,
                       "updates": loop.updates}))
     return 0

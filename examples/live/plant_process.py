@@ -10,8 +10,9 @@ sees only these measurements.
     python examples/live/plant_process.py architectures/process_plant.yaml \
         --scenario drift_then_valve --duration 240
 
-The first line on stdout is ``listening on HOST:PORT``; the last is a JSON summary
-of the commands applied. See docs/live.md.
+The first line on stdout is ``listening on HOST:PORT token TOKEN`` (the loop passes
+the token: ``--token`` or ``ARCHSELF_LIVE_TOKEN``); the last is a JSON summary of
+the commands applied. See docs/live.md.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     steps = int(round((args.duration or sc.duration_s) / plant.dt))
     applied = []
     with PlantLink(args.host, args.port, timeout_s=args.timeout) as link:
-        print(f"listening on {link.host}:{link.port}", flush=True)
+        print(f"listening on {link.host}:{link.port} token {link.token}", flush=True)
         link.accept()
         for k in range(1, steps + 1):
             plant.step()
