@@ -41,7 +41,7 @@ from pathlib import Path
 from archself.errors import OutputError
 from archself.io.atomic import write_bytes, write_text
 from archself.model.architecture import Architecture
-from archself.reports.dsm import KIND_TITLES, KINDS, build_dsm, orderings
+from archself.reports.dsm import KIND_TITLES, KINDS, build_dsm, condense, orderings
 from archself.reports.graph import build_graph, config_diff, diff_graph, diff_pairs
 from archself.reports.render import render, unique_slugs
 
@@ -269,7 +269,7 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
     dsm_rows = []
     graphs = []
     for conf, stem in scopes:
-        dsm = build_dsm(arch, conf)
+        dsm = condense(build_dsm(arch, conf))
         views = [(o, o.rows(dsm)) for o in orderings(dsm)]
         put(f"dsm-{stem}.html", render("dsm.html.j2", dsm=dsm, views=views))
         put(f"dsm-{stem}.md", render("dsm.md.j2", dsm=dsm, views=views))

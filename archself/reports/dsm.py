@@ -41,8 +41,10 @@ Examples
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import networkx as nx
 
@@ -57,6 +59,7 @@ __all__ = [
     "Ordering",
     "build_dsm",
     "cluster",
+    "condense",
     "orderings",
     "order_by_kind",
     "scope_edges",
@@ -70,6 +73,8 @@ KIND_TITLES = {
     "model": "model (M_M)",
 }
 CLUSTER_SEED = 0
+#: a scope with more modules is reported between its communities (:func:`condense`)
+FULL_MATRIX_MAX = 150
 
 
 @dataclass(frozen=True)
@@ -114,8 +119,12 @@ class Dsm:
     def names(self) -> tuple[str, ...]:
         return tuple(m.name for m in self.modules)
 
+    @cached_property
+    def _by_name(self) -> dict[str, DsmModule]:
+        return {m.name: m for m in self.modules}
+
     def module(self, name: str) -> DsmModule:
-        return next(m for m in self.modules if m.name == name)
+        return self._by_name[name]
 
     def weight(self, source: str, target: str) -> float:
         """``W_ji`` with j = ``source`` (row) and i = ``target`` (column); 0 without an edge."""
@@ -281,13 +290,13 @@ def _ordering(dsm: Dsm, key: str, title: str, explanation: str, blocks: Iterable
                     coupled_blocks)
 
 
-def order_by_kind(dsm: Dsm) -> Ordering:
+def order_by_kind(dsm: Dsm, seq: Ordering | None = None) -> Ordering:
     """Modules grouped by kind (physical, functional, model), file order inside a kind."""
     blocks = [Block(KIND_TITLES[kind], names) for kind in KINDS
               if (names := tuple(m.name for m in dsm.modules if m.kind == kind))]
     return _ordering(dsm, "kind", "grouped by kind",
                      "Physical, functional and model modules in file order.", blocks,
-                     sequence(dsm).coupled_blocks)
+                     (seq or sequence(dsm)).coupled_blocks)
 
 
 def _eades(g: nx.DiGraph, nodes: list[str], key: dict[str, tuple[int, int]]) -> list[str]:
@@ -345,9 +354,9 @@ def sequence(dsm: Dsm) -> Ordering:
         blocks, tuple(b for b in blocks if b.coupled))
 
 
-def cluster(dsm: Dsm, seed: int = CLUSTER_SEED) -> Ordering:
+def cluster(dsm: Dsm, seed: int = CLUSTER_SEED, seq: Ordering | None = None) -> Ordering:
     """Weighted communities (Louvain, fixed seed), largest first, sequenced inside."""
-    seq = sequence(dsm)
+    seq = seq or sequence(dsm)
     pos = {n: k for k, n in enumerate(seq.order)}
     g = dsm.digraph()
     if g.number_of_edges() == 0:
@@ -367,4 +376,69 @@ def cluster(dsm: Dsm, seed: int = CLUSTER_SEED) -> Ordering:
 
 def orderings(dsm: Dsm) -> tuple[Ordering, Ordering, Ordering]:
     """The three orderings of a DSM: by kind, sequenced, clustered."""
-    return order_by_kind(dsm), sequence(dsm), cluster(dsm)
+    seq = sequence(dsm)
+    return order_by_kind(dsm, seq), seq, cluster(dsm, seq=seq)
+
+
+def condense(dsm: Dsm, max_modules: int = FULL_MATRIX_MAX, seed: int = CLUSTER_SEED) -> Dsm:
+    """``dsm`` itself, or above ``max_modules`` modules its matrix between communities.
+
+    A matrix of n modules is n² cells: past a few hundred it is neither readable nor
+    cheap (10^4 modules are 10^8 cells). Its Louvain communities (weighted, fixed seed;
+    the resolution halved until there are at most ``max_modules``) become the rows and
+    columns: the cell of two communities is the summed weight of the edges between
+    their members, the signals those edges carry are listed (at most five), and the
+    weight inside a community is given in its description. Each community is named
+    ``cluster k`` and takes its members' most common kind.
+
+    Examples
+    --------
+    >>> big = Dsm("architecture", "big", tuple(DsmModule(f"m{k}", "functional", "t")
+    ...           for k in range(6)), {("m0", "m1"): 1.0, ("m1", "m2"): 1.0,
+    ...           ("m3", "m4"): 1.0, ("m4", "m5"): 1.0, ("m2", "m3"): 0.5}, {}, 1.0)
+    >>> small = condense(big, max_modules=3)
+    >>> len(small.modules), sorted(small.weights.values())
+    (2, [0.5])
+    """
+    n = len(dsm.modules)
+    if n <= max_modules:
+        return dsm
+    g = dsm.digraph()
+    resolution = 1.0
+    while True:
+        comms = nx.community.louvain_communities(g, weight="weight", seed=seed,
+                                                 resolution=resolution)
+        if len(comms) <= max_modules or resolution < 1e-6:
+            break
+        resolution /= 2
+    order = {m: k for k, m in enumerate(dsm.names)}
+    groups = sorted((sorted(c, key=order.__getitem__) for c in comms),
+                    key=lambda grp: (-len(grp), order[grp[0]]))[:max_modules]
+    label = {m: f"cluster {k + 1}" for k, grp in enumerate(groups) for m in grp}
+    weights: dict[tuple[str, str], float] = {}
+    carries: dict[tuple[str, str], tuple[str, ...]] = {}
+    inside: Counter[str] = Counter()
+    for (s, t), w in dsm.weights.items():
+        a, b = label.get(s), label.get(t)
+        if a is None or b is None:
+            continue
+        if a == b:
+            inside[a] += w
+            continue
+        weights[(a, b)] = weights.get((a, b), 0.0) + w
+        seen = carries.get((a, b), ())
+        new = tuple(c for c in dsm.carries.get((s, t), ()) if c not in seen)
+        carries[(a, b)] = (seen + new)[:5]
+    modules = []
+    for k, grp in enumerate(groups):
+        name = f"cluster {k + 1}"
+        kind = Counter(dsm.module(m).kind for m in grp).most_common(1)[0][0]
+        head = ", ".join(grp[:5]) + (f", … ({len(grp)} modules)" if len(grp) > 5 else "")
+        modules.append(DsmModule(name, kind, f"{len(grp)} modules",
+                                 f"{head}; weight inside {inside[name]:.6g}"))
+    note = (f"{n} modules condensed into {len(modules)} clusters (Louvain communities): "
+            f"a full matrix is shown up to {max_modules} modules.")
+    return Dsm(dsm.scope, f"{dsm.title} (clusters)", tuple(modules),
+               {k: round(v, 12) for k, v in weights.items()}, carries,
+               max(weights.values(), default=0.0),
+               f"{dsm.description} {note}".strip())
