@@ -74,8 +74,9 @@ def parameters_of(cls: type) -> dict[str, Param]:
 
     Examples
     --------
-    >>> parameters_of(Kinematics)["wheel_base_m"]
-    Param(default=0.5, unit='m', doc='distance between the wheels', min=0.01, max=100.0)
+    >>> parameters_of(Kinematics)["wheel_base_m"]  # doctest: +NORMALIZE_WHITESPACE
+    Param(default=0.5, unit='m', doc='distance between the wheels', min=0.01, max=100.0,
+          period=False)
     """
     return {
         f.name: Param(
