@@ -224,6 +224,8 @@ class KalmanFilter(_ModelEstimator):
     Residual signals ``innovation`` and ``nis`` (see the module's docstring).
     """
 
+    state_fields = ("x",)  # P follows its own Riccati map; quiet_until is a timer
+
     parameters = {
         "Q": Param(1.0, "", "process noise intensity (per s continuous, per step discrete)"),
         "R": Param(1.0, "", "measurement noise covariance"),
@@ -343,6 +345,8 @@ class AugmentedEkf(KalmanFilter):
     Residual signals ``innovation``, ``nis``, ``effectiveness_loss`` = max_j (1 − η̂_j)⁺
     (an actuator that lost effectiveness, seen from the estimator) and ``bias`` = max |b̂|.
     """
+
+    state_fields = ("x", "aug")
 
     parameters = {
         **KalmanFilter.parameters,

@@ -251,6 +251,8 @@ class StateSpacePlant(RuntimeModule):
     estimators and controllers around it; :meth:`state_space` gives (A, B, C, D).
     """
 
+    state_fields = ("x", "_u_sample")  # the held input between samples
+
     parameters = {
         **_model_params(False),
         "x0": Param(None, "", "initial state; None: zeros"),

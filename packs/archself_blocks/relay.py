@@ -23,6 +23,8 @@ class Relay(RuntimeModule):
     Having no direct feedthrough, relays can form feedback loops.
     """
 
+    state_fields = ("state",)
+
     parameters = {
         "gain": Param(1.0, "", "factor on last step's input"),
         "noise": Param(0.0, "", "standard deviation of the added white noise", min=0.0),

@@ -83,6 +83,8 @@ class LqrController(RuntimeModule):
     |estimate − reference| position (m).
     """
 
+    state_fields = ()  # static: v_ref and K are scheduled from the reference
+
     parameters: ClassVar[dict[str, Param]] = {
         "q_along": Param(1.0, "", "weight of the along-track error", min=0.0, max=1e6),
         "q_lateral": Param(1.0, "", "weight of the lateral error", min=0.0, max=1e6),
@@ -248,6 +250,8 @@ class AsymLqrController(LqrController):
     Parameters: those of :class:`LqrController` and the two above. Inputs as
     :class:`LqrController` plus ``encoder_speeds``.
     """
+
+    state_fields = ("_num", "_den")  # the effectiveness estimate's sums
 
     parameters = {
         **LqrController.parameters,
