@@ -150,10 +150,12 @@ class Mode:
 
     magnitude: float
     shares: list[tuple[str, float]]
+    states: list[str] = field(default_factory=list)
 
     def where(self, top: int = 3) -> str:
-        """``'chassis 50 %, odometry 50 %'``: the modules the mode lives in."""
-        return ", ".join(f"{m} {100 * s:.0f} %" for m, s in self.shares[:top] if s >= 0.005)
+        """``'chassis 50 %, odometry 50 %: chassis.pose[2], …'``: the modules (and states)."""
+        mods = ", ".join(f"{m} {100 * s:.0f} %" for m, s in self.shares[:top] if s >= 0.005)
+        return f"{mods}: {', '.join(self.states[:top])}" if self.states else mods
 
 
 @dataclass
@@ -223,8 +225,11 @@ class WholeLoop:
             for k in np.flatnonzero(mags > 1.0 - tol):
                 if lam[k].imag < 0:
                     continue  # its conjugate stands for the pair
-                found.append(Mode(float(mags[k]), _shares(np.abs(vec[:, k]) ** 2,
-                                                          [owners[i] for i in members])))
+                w = np.abs(vec[:, k]) ** 2
+                top = np.argsort(-w, kind="stable")[:3]
+                found.append(Mode(float(mags[k]), _shares(w, [owners[i] for i in members]),
+                                  [self.labels[int(members[t])] for t in top
+                                   if w[t] >= 0.05 * w.sum()]))
         found.sort(key=lambda m: -m.magnitude)
         marginal = [m for m in found if m.magnitude <= 1.0 + tol]
         unstable = [m for m in found if m.magnitude > 1.0 + tol]

@@ -20,7 +20,7 @@ import scipy.sparse
 
 from archself.closed_loop import WholeLoop
 from archself.linear import ClosedLoop, Wire, gc_paused, interconnect, loop_modules, wiring
-from archself.modules.base import LinearModel, Port, RuntimeModule
+from archself.modules.base import LinearModel, Port, RuntimeModule, _numeric
 from archself.step_plan import StepPlan
 
 __all__ = ["Linearizing", "numerical_loop"]
@@ -239,6 +239,8 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
         base.apply_configuration(configuration)
     plan = base._plan
     pool = base._pool
+    for n in plan.active:
+        pool[n].smooth = True
     x0 = {n: pool[n].state() for n in plan.active}
     stateful = [n for n in plan.active if x0[n].size]
     offset: dict[str, int] = {}
@@ -249,9 +251,10 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
         mod = pool[n]
         for k in mod.state_names():
             v = getattr(mod, k, None)
-            size = np.size(v) if v is not None else 0
-            if isinstance(v, np.ndarray) or isinstance(v, float):
-                labels += [f"{n}.{k}" if size == 1 else f"{n}.{k}[{i}]" for i in range(size)]
+            if _numeric(v):
+                size = int(np.size(v))
+                labels += [f"{n}.{k}" if size == 1 and not isinstance(v, (list, np.ndarray))
+                           else f"{n}.{k}[{i}]" for i in range(size)]
         owners += [n] * x0[n].size
     labels = labels if len(labels) == len(owners) else [f"{o}.x" for o in owners]
     total = len(owners)

@@ -278,6 +278,10 @@ class RuntimeModule:
     #: not set (those are parameters) and that is not monitoring bookkeeping
     #: (:data:`NOT_STATE`); ``()``: no state (a timer, a clock-driven source).
     state_fields: ClassVar[tuple[str, ...] | None] = None
+    #: True on the copies the whole-loop linearization steps: a module whose step is
+    #: smooth but for a quantizer (a sensor's resolution) leaves it out there, so the
+    #: slope is the quantizer's mean gain 1 rather than 0 (docs/stability.md).
+    smooth: bool = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

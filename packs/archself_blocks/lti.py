@@ -251,7 +251,7 @@ class StateSpacePlant(RuntimeModule):
     estimators and controllers around it; :meth:`state_space` gives (A, B, C, D).
     """
 
-    state_fields = ("x", "_u_sample")  # the held input between samples
+    state_fields = ("x",)
 
     parameters = {
         **_model_params(False),
