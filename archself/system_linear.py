@@ -170,6 +170,12 @@ KINK_TOL = 1e-3
 DENSE_MAX = 400
 
 
+def _state(mod: RuntimeModule) -> np.ndarray:
+    """``mod.state()``, called on the class: an instance attribute named ``state`` (a relay's
+    value) does not hide the method."""
+    return type(mod).state(mod)
+
+
 def _successors(plan: StepPlan) -> dict[str, set[str]]:
     nxt: dict[str, set[str]] = {n: set() for n in plan.active}
     for n in plan.active:
@@ -241,7 +247,7 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
     pool = base._pool
     for n in plan.active:
         pool[n].smooth = True
-    x0 = {n: pool[n].state() for n in plan.active}
+    x0 = {n: _state(pool[n]) for n in plan.active}
     stateful = [n for n in plan.active if x0[n].size]
     offset: dict[str, int] = {}
     owners: list[str] = []
@@ -265,7 +271,8 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
         for n, (i, h) in shift.items():
             x = x0[n].copy()
             x[i] += h
-            copy_._pool[n].set_state(x)
+            mod = copy_._pool[n]
+            type(mod).set_state(mod, x)
         for _ in range(steps):
             copy_.step()
         raised = [n for n, why in copy_._why.items() if why and why.startswith("raised")]
@@ -274,7 +281,7 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
         return copy_
 
     def read(copy_: Any, n: str) -> np.ndarray:
-        x = copy_._pool[n].state()
+        x = _state(copy_._pool[n])
         if x.size != x0[n].size:
             problems.append(f"{n}'s state changed size ({x0[n].size} → {x.size} values)")
             return np.full(x0[n].size, np.nan)

@@ -166,13 +166,35 @@ def map_steps(arch: Architecture) -> int:
     return max(1, round(float(rt.stability.linearize_s) / float(rt.step_s)))
 
 
+#: The last tables (architecture, table): ``validate`` prints the one its check computed.
+_TABLES: list[tuple[Architecture, list[LoopVerdict]]] = []
+
+
 def loop_table(arch: Architecture) -> list[LoopVerdict]:
     """The whole-loop verdict of every configuration at its operating point.
 
     Each configuration is compiled (seed 0), run ``runtime.stability.settle_s``
     (the nominal run's state after warm-up) and linearized
-    (:meth:`~archself.system.LiveSystem.whole_loop`).
+    (:meth:`~archself.system.LiveSystem.whole_loop`) over ``linearize_s``. The
+    table of the same architecture object is computed once (the check and the
+    command line share it).
     """
+    for known, table in _TABLES:
+        if known is arch:
+            return table
+    table = _loop_table(arch)
+    _TABLES[:] = [*_TABLES[-3:], (arch, table)]
+    return table
+
+
+def table_text(table: list[LoopVerdict]) -> str:
+    """The table ``validate`` and ``info --stability`` print."""
+    head = ("whole-loop stability (configuration: verdict, modules covered/stateful, "
+            "max |λ| per step, marginal or unstable modes):")
+    return "\n".join([head, *(v.row() for v in table)])
+
+
+def _loop_table(arch: Architecture) -> list[LoopVerdict]:
     settle = float(arch.runtime.stability.settle_s)
     out = []
     with warnings.catch_warnings(), np.errstate(all="ignore"):

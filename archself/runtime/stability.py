@@ -54,6 +54,7 @@ __all__ = [
     "eigenvalue_margin",
     "lyapunov_decrease",
     "rollout_copy",
+    "whole_loop_check",
 ]
 
 
@@ -66,7 +67,8 @@ class StabilityVerdict:
     ok : bool
         The action preserves stability.
     method : str
-        ``"eigenvalue"`` (Eq. 21), ``"lyapunov"`` (Eq. 24), ``"lyapunov-floor"``
+        ``"eigenvalue"`` (Eq. 21), ``"lyapunov"`` (Eq. 24), ``"whole-loop"`` (the
+        numerical linearization of every module's state), ``"lyapunov-floor"``
         (accepted because V stayed below the floor), ``"error"`` or ``"off"``
         (the filter is switched off by ``runtime.ablation``).
     value : float or None
@@ -238,12 +240,16 @@ def check_action_stability(
     alpha: float,
     horizon_steps: int,
     floor: float,
+    loop_steps: int = 1,
+    marginal: str = "warning",
 ) -> StabilityVerdict:
     """Stability filter of Algorithm 1 step 7b for one action on the live system.
 
     Tries Eq. 21 with the target configuration's linearization; if the system has
-    none, runs the Lyapunov test on a snapshot. The live ``system`` is never
-    modified.
+    none, runs the Lyapunov test on a snapshot. An action that passes is then
+    checked over the whole loop (:func:`whole_loop_check`): the target's
+    numerical linearization at the current operating point, every module's state.
+    The live ``system`` is never modified.
 
     Parameters
     ----------
@@ -269,7 +275,8 @@ def check_action_stability(
     except Exception as exc:  # noqa: BLE001 - fail closed
         return StabilityVerdict(False, "error", None, -margin, f"linearization failed: {exc}")
     if A is not None:
-        return eigenvalue_margin(A, margin)
+        verdict = eigenvalue_margin(A, margin)
+        return whole_loop_check(system, action, verdict, loop_steps, marginal)
     try:
         if snap is None:
             snap = rollout_copy(system, action_target(system, action), horizon_steps)
@@ -280,4 +287,48 @@ def check_action_stability(
             v.append(_v(snap))
     except Exception as exc:  # noqa: BLE001 - fail closed
         return StabilityVerdict(False, "error", None, None, f"Lyapunov rollout failed: {exc}")
-    return lyapunov_decrease(v, alpha, floor)
+    verdict = lyapunov_decrease(v, alpha, floor)
+    return whole_loop_check(system, action, verdict, loop_steps, marginal)
+
+
+def whole_loop_check(
+    system: Any, action: Any, passed: StabilityVerdict, steps: int = 1, marginal: str = "warning"
+) -> StabilityVerdict:
+    """``passed`` (the verdict of the declared models or the rollout), unless the whole loop objects.
+
+    The loop ``action`` leads to is linearized numerically around the current
+    state on a snapshot (``system.whole_loop``: every active module's state, over
+    ``steps`` steps; a parameter update on a copy with the values set). A mode
+    with |λ| > 1 + 1e-4 per step rejects the action, naming the modules it lives
+    in; a marginal mode rejects it when ``marginal`` is ``"error"``. When the loop
+    cannot be linearized here (a system without ``whole_loop``, a discontinuity,
+    a step that raised) ``passed`` stands.
+    """
+    if not passed.ok or getattr(system, "whole_loop", None) is None:
+        return passed
+    from archself.closed_loop import MARGINAL_TOL
+
+    try:
+        if action.kind == "parameter_update":
+            snap = system.snapshot()
+            apply_action(snap, action)
+            loop = snap.whole_loop(None, steps)
+        else:
+            loop = system.whole_loop(action.to, steps)
+        if loop.problems:
+            return passed
+        worst, flat, growing = loop.modes(MARGINAL_TOL)
+    except Exception:  # noqa: BLE001 - no whole-loop verdict: the other one stands
+        return passed
+    if growing:
+        mode = growing[0]
+        return StabilityVerdict(
+            False, "whole-loop", worst, 1.0,
+            f"max |λ| = {worst:.6g} per step > 1 over the whole loop; the mode lives in "
+            f"{mode.where()}")
+    if flat and marginal == "error":
+        return StabilityVerdict(
+            False, "whole-loop", worst, 1.0,
+            f"a marginal mode (|λ| = {flat[0].magnitude:.6f} per step) lives in "
+            f"{flat[0].where()} (runtime.stability.marginal: error)")
+    return passed
