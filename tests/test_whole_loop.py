@@ -259,3 +259,20 @@ def test_numerical_a_equals_python_control_interconnect_and_c2d() -> None:
     t = np.arange(301) * dt
     resp = ct.forced_response(loop, t, np.ones_like(t), X0=[0.2, 0.0, 0.0])
     assert_allclose(ys, np.asarray(resp.outputs)[:300], rtol=0, atol=1e-9)
+
+
+def test_loop_divergence_watches_the_whole_state_not_the_objective() -> None:
+    """The fallback where the loop cannot be linearized: two rollouts, ‖x' − x‖² of every
+    module's state; the side loop grows 1.05² per step, the spare's loop shrinks."""
+    from archself.runtime.stability import StabilityVerdict, loop_divergence
+
+    arch = load_architecture(RELAY).arch
+    system = compile_system(arch, "normal", seed=0)
+    system.run(2.0)
+    ok = StabilityVerdict(True, "lyapunov", -1.0, -0.5, "passed")
+    actions = {a.id: a for a in arch.actions}
+    hot = loop_divergence(system, actions["use_hot"], 40, ok, "a test")
+    assert not hot.ok and hot.method == "whole-loop"
+    assert hot.value > 1.05 ** 40  # ‖Δx‖² grows at least as the side loop's mode, 1.05²/step
+    assert "diverges from its neighbour" in hot.reason
+    assert loop_divergence(system, actions["use_spare"], 40, ok, "a test") is ok

@@ -276,7 +276,7 @@ def check_action_stability(
         return StabilityVerdict(False, "error", None, -margin, f"linearization failed: {exc}")
     if A is not None:
         verdict = eigenvalue_margin(A, margin)
-        return whole_loop_check(system, action, verdict, loop_steps, marginal)
+        return whole_loop_check(system, action, verdict, loop_steps, marginal, horizon_steps)
     try:
         if snap is None:
             snap = rollout_copy(system, action_target(system, action), horizon_steps)
@@ -288,11 +288,16 @@ def check_action_stability(
     except Exception as exc:  # noqa: BLE001 - fail closed
         return StabilityVerdict(False, "error", None, None, f"Lyapunov rollout failed: {exc}")
     verdict = lyapunov_decrease(v, alpha, floor)
-    return whole_loop_check(system, action, verdict, loop_steps, marginal)
+    return whole_loop_check(system, action, verdict, loop_steps, marginal, horizon_steps)
 
 
 def whole_loop_check(
-    system: Any, action: Any, passed: StabilityVerdict, steps: int = 1, marginal: str = "warning"
+    system: Any,
+    action: Any,
+    passed: StabilityVerdict,
+    steps: int = 1,
+    marginal: str = "warning",
+    horizon: int = 20,
 ) -> StabilityVerdict:
     """``passed`` (the verdict of the declared models or the rollout), unless the whole loop objects.
 
@@ -302,7 +307,8 @@ def whole_loop_check(
     with |λ| > 1 + 1e-4 per step rejects the action, naming the modules it lives
     in; a marginal mode rejects it when ``marginal`` is ``"error"``. When the loop
     cannot be linearized here (a system without ``whole_loop``, a discontinuity,
-    a step that raised) ``passed`` stands.
+    a step that raised) the Lyapunov test runs on the loop's state instead
+    (:func:`loop_divergence`).
     """
     if not passed.ok or getattr(system, "whole_loop", None) is None:
         return passed
@@ -316,7 +322,7 @@ def whole_loop_check(
         else:
             loop = system.whole_loop(action.to, steps)
         if loop.problems:
-            return passed
+            return loop_divergence(system, action, horizon, passed, loop.problems[0])
         worst, flat, growing = loop.modes(MARGINAL_TOL)
     except Exception:  # noqa: BLE001 - no whole-loop verdict: the other one stands
         return passed
@@ -331,4 +337,58 @@ def whole_loop_check(
             False, "whole-loop", worst, 1.0,
             f"a marginal mode (|λ| = {flat[0].magnitude:.6f} per step) lives in "
             f"{flat[0].where()} (runtime.stability.marginal: error)")
+    return passed
+
+
+#: Relative size of the loop-state offset of :func:`loop_divergence`.
+OFFSET = 1e-3
+
+
+def _loop_state(system: Any) -> np.ndarray:
+    """Every active module's :meth:`~archself.modules.base.RuntimeModule.state`, stacked."""
+    mods = system.modules.values()
+    parts = [type(m).state(m) for m in mods]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def loop_divergence(
+    system: Any, action: Any, horizon: int, passed: StabilityVerdict, why: str
+) -> StabilityVerdict:
+    """The Lyapunov test on the loop's whole state, where the loop cannot be linearized.
+
+    Two rollouts of ``horizon`` steps after ``action`` on snapshots (the same noise):
+    one from the current state, one with every module's state offset by
+    1e-3·max(1, |x|). ``V_t = ‖x'_t − x_t‖²``, the squared distance of the two loop
+    states (every module's state, not only the objective's error), must not grow
+    over the horizon: a mode the objective does not watch diverges here too. V
+    staying level (a marginal mode) passes; growth past ``V_0`` with a positive
+    slope over the second half rejects the action. ``passed`` stands otherwise.
+    """
+    try:
+        runs = []
+        for shift in (False, True):
+            snap = system.snapshot()
+            apply_action(snap, action)
+            if shift:
+                for m in snap.modules.values():
+                    x = type(m).state(m)
+                    if x.size:
+                        type(m).set_state(m, x + OFFSET * np.maximum(1.0, np.abs(x)))
+            states = [_loop_state(snap)]
+            for _ in range(horizon):
+                snap.step()
+                states.append(_loop_state(snap))
+            runs.append(np.array(states))
+        v = np.sum((runs[1] - runs[0]) ** 2, axis=1)
+    except Exception:  # noqa: BLE001 - sizes changed, a step raised: the other verdict stands
+        return passed
+    if not np.all(np.isfinite(v)):
+        return StabilityVerdict(False, "whole-loop", None, None,
+                                f"the loop's state is not finite in the rollout ({why})")
+    tail = v[v.size // 2:]
+    if v[-1] > v[0] and _slope(tail) > 0:
+        return StabilityVerdict(
+            False, "whole-loop", float(v[-1] / v[0]) if v[0] else None, 1.0,
+            f"the loop's state diverges from its neighbour: ‖Δx‖² grows {v[-1] / v[0]:.4g}-fold "
+            f"in {horizon} steps (not linearizable here: {why})")
     return passed

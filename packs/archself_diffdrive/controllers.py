@@ -251,7 +251,9 @@ class AsymLqrController(LqrController):
     :class:`LqrController` plus ``encoder_speeds``.
     """
 
-    state_fields = ("_num", "_den")  # the effectiveness estimate's sums
+    # the effectiveness estimate is frozen: adaptation is slow next to the loop, and its sums
+    # start at 0 on a hand-over, where the ratio's slope says nothing (docs/stability.md)
+    state_fields = ()
 
     parameters = {
         **LqrController.parameters,

@@ -267,7 +267,7 @@ class PiFeedforwardController(PiController):
     Inputs ``setpoint``, ``level_estimate``, ``flow_measured``, ``tank_model``.
     """
 
-    state_fields = ("integral", "_num", "_den")
+    state_fields = ("integral",)  # the effectiveness estimate is frozen (docs/stability.md)
 
     parameters = {
         **PiController.parameters,
