@@ -158,7 +158,7 @@ class Linearizing:
         return self.closed_loop(configuration).matrix()
 
     def whole_loop(self, configuration: str | None = None, steps: int = 1) -> WholeLoop:
-        """The whole loop of ``configuration`` linearized numerically around now (:func:`numerical_loop`)."""
+        """The whole loop of ``configuration`` linearized around now (:func:`numerical_loop`)."""
         return numerical_loop(self, configuration, steps)
 
 
@@ -257,7 +257,7 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
         mod = pool[n]
         for k in mod.state_names():
             v = getattr(mod, k, None)
-            if _numeric(v):
+            if v is not None and _numeric(v):
                 size = int(np.size(v))
                 labels += [f"{n}.{k}" if size == 1 and not isinstance(v, (list, np.ndarray))
                            else f"{n}.{k}[{i}]" for i in range(size)]

@@ -146,18 +146,18 @@ def loop_verdict(system: Any, configuration: str | None = None, steps: int = 1) 
     except Exception as exc:  # noqa: BLE001 - any failure leaves it unverified
         return LoopVerdict(name, "unverified", why=f"linearization failed: {_why(exc)}")
     n_active = len(system._make_plan(name).active)
-    base = dict(configuration=name, stateful=len(loop.stateful), active=n_active,
-                states=len(loop.owners))
+    stateful, states = len(loop.stateful), len(loop.owners)
     if loop.problems:
         bad = {p.split("'", 1)[0] for p in loop.problems}
         covered = sum(1 for m in loop.stateful if m not in bad)
-        return LoopVerdict(verdict="unverified", covered=covered, why=loop.problems[0], **base)
+        return LoopVerdict(name, "unverified", covered, stateful, n_active, states,
+                           why=loop.problems[0])
     worst, marginal, unstable = loop.modes(MARGINAL_TOL)
     verdict = "unstable" if unstable else "marginal" if marginal else "verified"
     return LoopVerdict(
-        verdict=verdict, covered=len(loop.stateful), max_lambda=worst,
+        name, verdict, stateful, stateful, n_active, states, worst,
         marginal=[f"|λ| = {m.magnitude:.6f} ({m.where()})" for m in marginal],
-        unstable=[f"|λ| = {m.magnitude:.6g} ({m.where()})" for m in unstable], **base)
+        unstable=[f"|λ| = {m.magnitude:.6g} ({m.where()})" for m in unstable])
 
 
 def map_steps(arch: Architecture) -> int:
@@ -254,7 +254,8 @@ def verify_stability(arch: Architecture) -> Iterator[Unstable]:
                 yield Unstable(path, f"configuration '{name}' is not stable: {verdict[1]}")
         loops = {v.configuration: v for v in loop_table(arch)}
         for name, v in loops.items():
-            flagged = verdicts.get(name) is not None and not verdicts[name][0]
+            declared = verdicts.get(name)
+            flagged = declared is not None and not declared[0]
             if (v.verdict in ("unstable", "unverified") and not flagged) or (
                     v.verdict == "marginal" and rt.marginal != "pass"):
                 yield Unstable(("configurations", name), v.message(),
@@ -267,11 +268,12 @@ def verify_stability(arch: Architecture) -> Iterator[Unstable]:
                     yield Unstable(("actions", i, "to"),
                                    f"action '{a.id}' leads to configuration '{a.to}', which is "
                                    f"not stable: {verdict[1]}")
-                elif (v := loops.get(a.to or "")) is not None and v.verdict == "unstable":
+                elif (target := loops.get(a.to or "")) is not None and (
+                        target.verdict == "unstable"):
                     yield Unstable(("actions", i, "to"),
                                    f"action '{a.id}' leads to configuration '{a.to}', which is "
                                    f"unstable over the whole loop (max |λ| = "
-                                   f"{v.max_lambda:.6g} per step)")
+                                   f"{target.max_lambda:.6g} per step)")
                 continue
             for name in a.applies_in or list(arch.configurations):
                 conf = arch.configurations.get(name)

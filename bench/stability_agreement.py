@@ -130,8 +130,8 @@ def main() -> int:
             agree = {"unstable": sim == "diverges/oscillates", "verified": sim == "settles",
                      "marginal": sim != "diverges/oscillates"}.get(v.verdict, False)
             lam = "—" if v.max_lambda is None else f"{v.max_lambda:.6f}"
-            print(f"| {fname} | {conf} | {label} | {v.verdict} | {lam} | {g:.3g} ({seconds:g} s) | {sim} | "
-                  f"{'yes' if agree else 'NO'} |", flush=True)
+            print(f"| {fname} | {conf} | {label} | {v.verdict} | {lam} | {g:.3g} ({seconds:g} s) "
+                  f"| {sim} | {'yes' if agree else 'NO'} |", flush=True)
     return 0
 
 

@@ -471,8 +471,9 @@ def _configured(mod: RuntimeModule) -> frozenset[str]:
             seen.add(key)
             object.__setattr__(self, key, value)
 
-        probe_cls = type(cls.__name__, (cls,), {"__setattr__": record, "__module__": cls.__module__})
-        probe = object.__new__(probe_cls)
+        attrs = {"__setattr__": record, "__module__": cls.__module__}
+        probe_cls = type(cls.__name__, (cls,), attrs)
+        probe: Any = object.__new__(probe_cls)
         probe.__dict__.update(copy.deepcopy(vars(mod)))
         try:
             probe.configure()

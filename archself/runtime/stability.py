@@ -299,7 +299,7 @@ def whole_loop_check(
     marginal: str = "warning",
     horizon: int = 20,
 ) -> StabilityVerdict:
-    """``passed`` (the verdict of the declared models or the rollout), unless the whole loop objects.
+    """``passed`` (the declared models' or the rollout's verdict) unless the whole loop objects.
 
     The loop ``action`` leads to is linearized numerically around the current
     state on a snapshot (``system.whole_loop``: every active module's state, over

@@ -224,7 +224,8 @@ class KalmanFilter(_ModelEstimator):
     Residual signals ``innovation`` and ``nis`` (see the module's docstring).
     """
 
-    state_fields = ("x",)  # P follows its own Riccati map; quiet_until is a timer
+    # P follows its own Riccati map; quiet_until is a timer
+    state_fields: ClassVar[tuple[str, ...] | None] = ("x",)
 
     parameters = {
         "Q": Param(1.0, "", "process noise intensity (per s continuous, per step discrete)"),
