@@ -62,12 +62,20 @@ def test_every_shipped_module_round_trips_its_state(fname: str) -> None:
 
 
 # ------------------------------------------------------------------ the numerical A
-@pytest.mark.parametrize(("fname", "conf"), [
-    ("motor_drive.yaml", "m1"), ("motor_drive.yaml", "m2"), ("motor_drive.yaml", "m3"),
+BLOCKS = FIXTURES / "valid" / "blocks_loop.yaml"
+
+
+@pytest.mark.parametrize(("path", "conf"), [
+    (ARCHS / "motor_drive.yaml", "m1"), (ARCHS / "motor_drive.yaml", "m2"),
+    (ARCHS / "motor_drive.yaml", "m3"), (BLOCKS, "observer"),
 ])
-def test_numerical_a_has_the_declared_models_eigenvalues(fname: str, conf: str) -> None:
-    """generic.state_space, generic.actuator, generic.kalman, generic.pid: both ways agree."""
-    arch = load_architecture(ARCHS / fname).arch
+def test_numerical_a_has_the_declared_models_eigenvalues(path, conf: str) -> None:
+    """Every shipped type with a linear model: generic.state_space, generic.actuator,
+    generic.sensor, generic.gain, generic.kalman, generic.pid (motor_drive) and
+    generic.transfer_function, generic.sum, generic.select, generic.luenberger (blocks_loop):
+    both ways agree (the check found two states the packs had left out: the plant's held
+    input and the observer's last measurement)."""
+    arch = load_architecture(path).arch
     system = compile_system(arch, conf, seed=0)
     system.run(2.0)
     declared = np.linalg.eigvals(system.closed_loop().loop.A)
@@ -76,6 +84,21 @@ def test_numerical_a_has_the_declared_models_eigenvalues(fname: str, conf: str) 
     # actuator's rate limiter): their eigenvalues are e^{-N dt} and 0, the rest are equal
     top = np.sort(np.abs(declared))[::-1][:5]
     assert_allclose(np.sort(np.abs(numerical))[::-1][:5], top, rtol=1e-6, atol=1e-8)
+
+
+def test_ekf_without_a_linear_model_enters_the_whole_loop() -> None:
+    """generic.ekf gives no linear model (η multiplies u): the declared loop leaves it out
+    and the PI's integrator open (|λ| = 1); the whole loop has its states and is stable."""
+    arch = load_architecture(BLOCKS).arch
+    system = compile_system(arch, "ekf", seed=0)
+    system.run(2.0)
+    declared = np.abs(np.linalg.eigvals(system.closed_loop().loop.A))
+    assert_allclose(declared.max(), 1.0, atol=1e-9)
+    whole = system.whole_loop()
+    assert {"ekf.x[0]", "ekf.x[1]"} <= set(whole.labels)
+    worst, marginal, unstable = whole.modes()
+    assert marginal == [] and unstable == []
+    assert_allclose(worst, 0.99594, atol=1e-5)
 
 
 def test_numerical_a_sees_the_unstable_backup_as_the_declared_models_do() -> None:

@@ -505,6 +505,8 @@ class Luenberger(_ModelEstimator):
     controller's and these). Residual signal ``innovation``.
     """
 
+    state_fields = ("x", "_y")  # _y: the last measurement, used over the next step
+
     parameters = {
         "gain": Param(None, "", "L (n × measured outputs); None: from poles"),
         "poles": Param(None, "1/s", "observer poles (numbers, or [re, im] pairs)"),
