@@ -299,3 +299,15 @@ def test_loop_divergence_watches_the_whole_state_not_the_objective() -> None:
     assert hot.value > 1.05 ** 40  # ‖Δx‖² grows at least as the side loop's mode, 1.05²/step
     assert "diverges from its neighbour" in hot.reason
     assert loop_divergence(system, actions["use_spare"], 40, ok, "a test") is ok
+
+
+def test_lanes_reject_the_side_loop_as_the_per_run_loop_does() -> None:
+    """The lane view hands the Plan its per-run system: the same whole-loop check."""
+    from archself.lanes.run import simulate_lanes
+
+    arch = load_architecture(RELAY).arch
+    lanes = simulate_lanes(arch, "main_loss", [1, 2], adapt=True)
+    for seed, run in zip((1, 2), lanes, strict=True):
+        alone = simulate(arch, "main_loss", seed=seed, adapt=MapeK(arch))
+        assert [s["to"] for s in run.switches] == [s["to"] for s in alone.switches] == ["slow"]
+        assert_allclose(run.series["J"], alone.series["J"], rtol=0, atol=0)
