@@ -81,13 +81,13 @@ def validate(
         else:
             for f in findings:
                 _err(str(f))
-            if not bad:
+            if not bad:  # a failing file prints nothing on stdout (its findings say why)
                 n = len(findings)
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
-            if table is not None:
-                from archself.verify import table_text
+                if table is not None:
+                    from archself.verify import table_text
 
-                typer.echo(table_text(table))
+                    typer.echo(table_text(table))
     if json_out:  # one shape: a list, whatever the number of files
         typer.echo(json.dumps(report, indent=2, ensure_ascii=False))
     raise typer.Exit(1 if failed else 0)
