@@ -255,7 +255,8 @@ def verify_stability(arch: Architecture) -> Iterator[Unstable]:
         loops = {v.configuration: v for v in loop_table(arch)}
         for name, v in loops.items():
             declared = verdicts.get(name)
-            flagged = declared is not None and not declared[0]
+            # reported already: unstable by the declared models, or not compiled at all
+            flagged = (declared is not None and not declared[0]) or name not in verdicts
             if (v.verdict in ("unstable", "unverified") and not flagged) or (
                     v.verdict == "marginal" and rt.marginal != "pass"):
                 yield Unstable(("configurations", name), v.message(),
