@@ -34,7 +34,7 @@ def test_validate_json_is_always_a_list(files) -> None:
     res = CliRunner().invoke(app, ["validate", "--json", *map(str, files)])
     data = json.loads(res.stdout)
     assert isinstance(data, list) and len(data) == len(files)
-    assert all(set(d) == {"file", "ok", "findings"} for d in data)
+    assert all(set(d) == {"file", "ok", "findings", "stability"} for d in data)
     assert [d["file"] for d in data] == [str(f) for f in files]
 
 

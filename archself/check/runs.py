@@ -257,7 +257,7 @@ def check_stability(ctx: Context) -> None:
     from archself.check.stability import verify_stability  # compiles modules: only when asked
 
     for u in verify_stability(ctx.arch):
-        ctx.add(mode, "stability", u.message, u.path, key=len(u.path) == 2)
+        ctx.add(u.severity or mode, "stability", u.message, u.path, key=len(u.path) == 2)
 
 
 

@@ -51,6 +51,7 @@ def validate(
     report: list[dict[str, object]] = []
     for path in paths:
         caught: list[warnings.WarningMessage] = []
+        loaded = None
         stdin = str(path) == "-"
         if stdin:
             path = Path(STDIN_NAME)
@@ -71,19 +72,35 @@ def validate(
                                 getattr(exc, "col", None))]
         bad = [f for f in findings if f.severity == "error" or (strict and f.severity == "warning")]
         failed |= bool(bad)
+        table = _stability_table(loaded)
         if json_out:
             report.append(
-                {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings]}
+                {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings],
+                 "stability": [v.to_dict() for v in table or ()]}
             )
         else:
             for f in findings:
                 _err(str(f))
-            if not bad:
+            if not bad:  # a failing file prints nothing on stdout (its findings say why)
                 n = len(findings)
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
+                if table is not None:
+                    from archself.check.stability import table_text
+
+                    typer.echo(table_text(table))
     if json_out:  # one shape: a list, whatever the number of files
         typer.echo(json.dumps(report, indent=2, ensure_ascii=False))
     raise typer.Exit(1 if failed else 0)
+
+
+def _stability_table(loaded: object) -> list | None:
+    """The whole-loop table the check computed (``runtime.stability.verify`` on), or None."""
+    arch = getattr(loaded, "arch", None)
+    if arch is None or arch.runtime.stability.verify == "off":
+        return None
+    from archself.check.stability import _TABLES
+
+    return next((t for a, t in _TABLES if a is arch), None)
 
 
 def _warning_findings(caught: list, file: str) -> list:
@@ -342,16 +359,30 @@ def info(
     as_json: Annotated[
         bool, typer.Option("--json", help="Print what the file holds as one JSON object.")
     ] = False,
+    stability: Annotated[
+        bool, typer.Option("--stability", help="Add the whole-loop stability table (compiles "
+                           "and runs every configuration; docs/stability.md).")
+    ] = False,
 ) -> None:
     """What a file holds: modules, configurations, actions, scenarios and runtime settings."""
     from archself.reports.summary import summarize, summary_text
 
     _inputs(arch)
     try:
-        data = summarize(_load(arch))
+        loaded = _load(arch)
+        data = summarize(loaded)
     except ArchselfError as exc:
         raise _die(exc) from None
-    typer.echo(json.dumps(data, indent=2) if as_json else summary_text(data))
+    table = None
+    if stability:
+        from archself.check.stability import loop_table, table_text
+
+        table = loop_table(loaded)
+    data["stability"] = [v.to_dict() for v in table or ()]
+    if as_json:
+        typer.echo(json.dumps(data, indent=2))
+    else:
+        typer.echo(summary_text(data) + ("" if table is None else "\n" + table_text(table)))
 
 
 #: ``generate`` refuses more modules than this without --yes (≈ 27 MB of JSON-compatible YAML).

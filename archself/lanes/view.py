@@ -29,7 +29,7 @@ import numpy as np
 from archself.lanes.module import row
 
 if TYPE_CHECKING:
-    from archself.linear.closed_loop import ClosedLoop
+    from archself.linear.closed_loop import ClosedLoop, WholeLoop
     from archself.model.architecture import Architecture
     from archself.modules.base import RuntimeModule
     from archself.system.executor import LiveSystem
@@ -149,6 +149,9 @@ class LaneView:
 
     def closed_loop(self, configuration: str | None = None) -> ClosedLoop:
         return self._live().closed_loop(configuration)
+
+    def whole_loop(self, configuration: str | None = None, steps: int = 1) -> WholeLoop:
+        return self._live().whole_loop(configuration, steps)
 
     def state_error(self) -> np.ndarray:
         return self._live().state_error()

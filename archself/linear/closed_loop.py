@@ -138,3 +138,99 @@ def _shares(weight: np.ndarray, owners: Sequence[str]) -> list[tuple[str, float]
     for w, o in zip(weight.tolist(), owners, strict=True):
         acc[o] = acc.get(o, 0.0) + w / total
     return sorted(acc.items(), key=lambda kv: -kv[1])
+
+
+#: |λ| per step within this of 1 is a marginal mode (an integrator nothing closes).
+MARGINAL_TOL = 1e-4
+
+
+@dataclass
+class Mode:
+    """One mode of a whole-loop A: ``|λ|`` per step and the modules' shares of it."""
+
+    magnitude: float
+    shares: list[tuple[str, float]]
+    states: list[str] = field(default_factory=list)
+
+    def where(self, top: int = 3) -> str:
+        """``'chassis 50 %, odometry 50 %: chassis.pose[2], …'``: the modules (and states)."""
+        mods = ", ".join(f"{m} {100 * s:.0f} %" for m, s in self.shares[:top] if s >= 0.005)
+        return f"{mods}: {', '.join(self.states[:top])}" if self.states else mods
+
+
+@dataclass
+class WholeLoop:
+    """The numerical linearization of a configuration's one-step map (every module's state).
+
+    Attributes
+    ----------
+    A : numpy.ndarray or scipy.sparse.csr_matrix
+        ``∂x_{k+steps} / ∂x_k``: discrete, over ``steps`` steps of ``dt``.
+    dt : float
+        The step (s).
+    steps : int
+        Steps the map spans (1: the one-step map).
+    owners : list of str
+        The module each state belongs to.
+    labels : list of str
+        ``module.field[i]`` per state.
+    stateful : list of str
+        The active modules with state (file order).
+    problems : list of str
+        Why the linearization cannot be trusted (empty: it can): a step that raised,
+        a non-finite value, one-sided differences that disagree (a discontinuity).
+    """
+
+    A: object
+    dt: float
+    steps: int
+    owners: list[str]
+    labels: list[str]
+    stateful: list[str]
+    problems: list[str] = field(default_factory=list)
+
+    def modes(self, tol: float = MARGINAL_TOL) -> tuple[float, list[Mode], list[Mode]]:
+        """``(max |λ| per step, marginal modes, unstable modes)`` (largest first).
+
+        Per strong component of A (dense eigen-decomposition of each; a component of
+        more than 2000 states by ARPACK's few largest). |λ| per step is
+        ``|λ(A)|^(1/steps)``; a mode is marginal within ``tol`` of 1, unstable above.
+        One mode per complex pair.
+        """
+        A = scipy.sparse.csr_matrix(self.A)
+        n = A.shape[0]
+        if n == 0:
+            return 0.0, [], []
+        from scipy.sparse.csgraph import connected_components
+
+        _, comp = connected_components(A, directed=True, connection="strong")
+        owners = self.owners
+        found: list[Mode] = []
+        worst = 0.0
+        order = np.argsort(comp, kind="stable")
+        bounds = np.flatnonzero(np.diff(comp[order])) + 1
+        for members in np.split(order, bounds):
+            if members.size == 1:
+                i = int(members[0])
+                lam = np.array([A[i, i]])
+                vec = np.ones((1, 1))
+            elif members.size > 2000:
+                from scipy.sparse.linalg import eigs
+
+                lam, vec = eigs(A[members][:, members].astype(float), k=6, which="LM")
+            else:
+                lam, vec = np.linalg.eig(A[members][:, members].toarray())
+            mags = np.abs(lam) ** (1.0 / self.steps)
+            worst = max(worst, float(mags.max()))
+            for k in np.flatnonzero(mags > 1.0 - tol):
+                if lam[k].imag < 0:
+                    continue  # its conjugate stands for the pair
+                w = np.abs(vec[:, k]) ** 2
+                top = np.argsort(-w, kind="stable")[:3]
+                found.append(Mode(float(mags[k]), _shares(w, [owners[i] for i in members]),
+                                  [self.labels[int(members[t])] for t in top
+                                   if w[t] >= 0.05 * w.sum()]))
+        found.sort(key=lambda m: -m.magnitude)
+        marginal = [m for m in found if m.magnitude <= 1.0 + tol]
+        unstable = [m for m in found if m.magnitude > 1.0 + tol]
+        return worst, marginal, unstable

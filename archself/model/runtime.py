@@ -55,6 +55,27 @@ class Stability(StrictModel):
         "unstable mode lives in). The check compiles the modules, so it imports what their "
         "types need (python-control, filterpy); only a file that opts in pays for it.",
     )
+    marginal: Literal["pass", "warning", "error"] = Field(
+        "warning",
+        description="What the whole-loop check (with `verify` on) does with a configuration "
+        "whose linearized one-step map has a mode with |λ| within 1e-4 of 1 (an integrator "
+        "nothing closes, e.g. dead reckoning): pass, warning (default) or error. Such a "
+        "configuration is reported as marginal, with the modules the mode lives in.",
+    )
+    linearize_s: NonNeg = Field(
+        0.0,
+        le=60.0,
+        description="The span of the map the whole-loop check linearizes (s): 0 (default) "
+        "the one-step map; a loop closed by a sampled correction (a GPS fix every second) "
+        "is closed only over the sampling period, so give that period. |λ| is reported per "
+        "step either way.",
+    )
+    settle_s: NonNeg = Field(
+        2.0,
+        le=600.0,
+        description="The operating point of the whole-loop check at validate: each "
+        "configuration is compiled (seed 0) and run this long before it is linearized.",
+    )
 
 
 class Hysteresis(StrictModel):

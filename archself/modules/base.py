@@ -276,6 +276,17 @@ class RuntimeModule:
     #: from N instances, or its ``"package.module:Class"`` path), or None: lanes of it run
     #: one by one (:class:`archself.lanes.PerLane`). See docs/lanes.md.
     lanes: ClassVar[type | str | None] = None
+    #: The instance attributes that hold the module's dynamic state (floats and float
+    #: arrays, in this order): what :meth:`state` packs and :meth:`set_state` writes back,
+    #: the columns the whole-loop linearization perturbs (docs/stability.md). None (the
+    #: default): every float or float-array instance attribute that ``configure()`` does
+    #: not set (those are parameters) and that is not monitoring bookkeeping
+    #: (:data:`NOT_STATE`); ``()``: no state (a timer, a clock-driven source).
+    state_fields: ClassVar[tuple[str, ...] | None] = None
+    #: True on the copies the whole-loop linearization steps: a module whose step is
+    #: smooth but for a quantizer (a sensor's resolution) leaves it out there, so the
+    #: slope is the quantizer's mean gain 1 rather than 0 (docs/stability.md).
+    smooth: bool = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -381,6 +392,62 @@ class RuntimeModule:
         """
         return None
 
+    # ----------------------------------------------------------------- state vector
+    def state_names(self) -> tuple[str, ...]:
+        """The attributes :meth:`state` packs (:attr:`state_fields`, or the automatic default).
+
+        The default is found once per class: the float and float-array attributes
+        of this instance minus those a fresh ``configure()`` assigns.
+        """
+        fields = type(self).state_fields
+        if fields is None:
+            fields = tuple(
+                k for k, v in vars(self).items()
+                if k not in NOT_STATE and k not in _configured(self) and _numeric(v)
+            )
+        return fields
+
+    def state(self) -> np.ndarray:
+        """The module's dynamic state as one 1-D float array (empty: no state).
+
+        Examples
+        --------
+        >>> class Tank(RuntimeModule):
+        ...     def __init__(self, name, params, rng):
+        ...         super().__init__(name, params, rng)
+        ...         self.h, self.q = 1.0, np.array([0.5, 2.0])
+        ...     def configure(self):
+        ...         self.area = 2.0
+        >>> tank = Tank("tank", {}, None)
+        >>> tank.state_names(), tank.state().tolist()
+        (('h', 'q'), [1.0, 0.5, 2.0])
+        >>> tank.set_state([3.0, 0.0, 1.0]); tank.h, tank.q.tolist()
+        (3.0, [0.0, 1.0])
+        """
+        parts = [np.asarray(getattr(self, k), dtype=float).ravel() for k in self.state_names()
+                 if _numeric(getattr(self, k, None))]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def set_state(self, x: Any) -> None:
+        """Write a vector of :meth:`state`'s layout back (arrays keep their shapes)."""
+        x = np.asarray(x, dtype=float).ravel()
+        i = 0
+        for k in self.state_names():
+            v = getattr(self, k, None)
+            if not _numeric(v):
+                continue
+            if isinstance(v, np.ndarray):
+                setattr(self, k, x[i:i + v.size].reshape(v.shape).copy())
+                i += v.size
+            elif isinstance(v, list):
+                setattr(self, k, x[i:i + len(v)].tolist())
+                i += len(v)
+            else:
+                setattr(self, k, float(x[i]))
+                i += 1
+        if i != x.size:
+            raise SimulationError(f"{self.name}: a state of {x.size} values for {i} state values")
+
     # ----------------------------------------------------------------- hand-over
     def export_state(self) -> dict[str, Any]:
         """State a successor of the same role may start from (e.g. pose and covariance)."""
@@ -408,3 +475,43 @@ class RuntimeModule:
                 )
         self.params.update(values)
         self.configure()
+
+
+#: Attributes the automatic :attr:`RuntimeModule.state_fields` never takes: monitoring and
+#: health bookkeeping, not the loop's dynamics.
+NOT_STATE = frozenset({"name", "params", "rng", "signals", "noise_levels", "max_silence_s"})
+
+
+def _numeric(v: Any) -> bool:
+    """A float, a float array or a list of floats (a state; ints and bools are counters, flags)."""
+    if isinstance(v, np.ndarray):
+        return v.dtype.kind == "f"
+    if isinstance(v, list):
+        return bool(v) and all(isinstance(e, float) for e in v)
+    return isinstance(v, (float, np.floating))
+
+
+_CONFIGURED: dict[type, frozenset[str]] = {}
+
+
+def _configured(mod: RuntimeModule) -> frozenset[str]:
+    """The attributes ``configure()`` assigns on a copy of ``mod`` (its parameters; per class)."""
+    cls = type(mod)
+    found = _CONFIGURED.get(cls)
+    if found is None:
+        seen: set[str] = set()
+
+        def record(self: Any, key: str, value: Any) -> None:
+            seen.add(key)
+            object.__setattr__(self, key, value)
+
+        attrs = {"__setattr__": record, "__module__": cls.__module__}
+        probe_cls = type(cls.__name__, (cls,), attrs)
+        probe: Any = object.__new__(probe_cls)
+        probe.__dict__.update(copy.deepcopy(vars(mod)))
+        try:
+            probe.configure()
+        except Exception:  # noqa: BLE001 - a configure that needs more: no field excluded
+            pass
+        found = _CONFIGURED[cls] = frozenset(seen)
+    return found

@@ -417,7 +417,7 @@ def condense(dsm: Dsm, max_modules: int = FULL_MATRIX_MAX, seed: int = CLUSTER_S
     label = {m: f"cluster {k + 1}" for k, grp in enumerate(groups) for m in grp}
     weights: dict[tuple[str, str], float] = {}
     carries: dict[tuple[str, str], tuple[str, ...]] = {}
-    inside: Counter[str] = Counter()
+    inside: dict[str, float] = dict.fromkeys((f"cluster {k + 1}" for k in range(len(groups))), 0.0)
     for (s, t), w in dsm.weights.items():
         a, b = label.get(s), label.get(t)
         if a is None or b is None:

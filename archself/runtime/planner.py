@@ -140,6 +140,8 @@ class Planner:
         self.margin = rt.stability.margin
         self.alpha = rt.stability.lyapunov_alpha
         self.horizon_steps = rt.stability.horizon_steps
+        self.loop_steps = max(1, round(float(rt.stability.linearize_s) / float(rt.step_s)))
+        self.marginal = rt.stability.marginal
         acceptable = rt.objective.acceptable
         self.v_floor = acceptable**2 if acceptable > 0 else 1e-6
         self._deps: dict[str, Mapping[str, Iterable[str]] | None] = {}
@@ -349,4 +351,6 @@ class Planner:
             alpha=self.alpha,
             horizon_steps=self.horizon_steps,
             floor=self.v_floor,
+            loop_steps=self.loop_steps,
+            marginal=self.marginal,
         )

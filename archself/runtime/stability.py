@@ -54,6 +54,7 @@ __all__ = [
     "eigenvalue_margin",
     "lyapunov_decrease",
     "rollout_copy",
+    "whole_loop_check",
 ]
 
 
@@ -66,7 +67,8 @@ class StabilityVerdict:
     ok : bool
         The action preserves stability.
     method : str
-        ``"eigenvalue"`` (Eq. 21), ``"lyapunov"`` (Eq. 24), ``"lyapunov-floor"``
+        ``"eigenvalue"`` (Eq. 21), ``"lyapunov"`` (Eq. 24), ``"whole-loop"`` (the
+        numerical linearization of every module's state), ``"lyapunov-floor"``
         (accepted because V stayed below the floor), ``"error"`` or ``"off"``
         (the filter is switched off by ``runtime.ablation``).
     value : float or None
@@ -238,12 +240,16 @@ def check_action_stability(
     alpha: float,
     horizon_steps: int,
     floor: float,
+    loop_steps: int = 1,
+    marginal: str = "warning",
 ) -> StabilityVerdict:
     """Stability filter of Algorithm 1 step 7b for one action on the live system.
 
     Tries Eq. 21 with the target configuration's linearization; if the system has
-    none, runs the Lyapunov test on a snapshot. The live ``system`` is never
-    modified.
+    none, runs the Lyapunov test on a snapshot. An action that passes is then
+    checked over the whole loop (:func:`whole_loop_check`): the target's
+    numerical linearization at the current operating point, every module's state.
+    The live ``system`` is never modified.
 
     Parameters
     ----------
@@ -269,7 +275,8 @@ def check_action_stability(
     except Exception as exc:  # noqa: BLE001 - fail closed
         return StabilityVerdict(False, "error", None, -margin, f"linearization failed: {exc}")
     if A is not None:
-        return eigenvalue_margin(A, margin)
+        verdict = eigenvalue_margin(A, margin)
+        return whole_loop_check(system, action, verdict, loop_steps, marginal, horizon_steps)
     try:
         if snap is None:
             snap = rollout_copy(system, action_target(system, action), horizon_steps)
@@ -280,4 +287,108 @@ def check_action_stability(
             v.append(_v(snap))
     except Exception as exc:  # noqa: BLE001 - fail closed
         return StabilityVerdict(False, "error", None, None, f"Lyapunov rollout failed: {exc}")
-    return lyapunov_decrease(v, alpha, floor)
+    verdict = lyapunov_decrease(v, alpha, floor)
+    return whole_loop_check(system, action, verdict, loop_steps, marginal, horizon_steps)
+
+
+def whole_loop_check(
+    system: Any,
+    action: Any,
+    passed: StabilityVerdict,
+    steps: int = 1,
+    marginal: str = "warning",
+    horizon: int = 20,
+) -> StabilityVerdict:
+    """``passed`` (the declared models' or the rollout's verdict) unless the whole loop objects.
+
+    The loop ``action`` leads to is linearized numerically around the current
+    state on a snapshot (``system.whole_loop``: every active module's state, over
+    ``steps`` steps; a parameter update on a copy with the values set). A mode
+    with |λ| > 1 + 1e-4 per step rejects the action, naming the modules it lives
+    in; a marginal mode rejects it when ``marginal`` is ``"error"``. When the loop
+    cannot be linearized here (a system without ``whole_loop``, a discontinuity,
+    a step that raised) the Lyapunov test runs on the loop's state instead
+    (:func:`loop_divergence`).
+    """
+    if not passed.ok or getattr(system, "whole_loop", None) is None:
+        return passed
+    from archself.linear.closed_loop import MARGINAL_TOL
+
+    try:
+        if action.kind == "parameter_update":
+            snap = system.snapshot()
+            apply_action(snap, action)
+            loop = snap.whole_loop(None, steps)
+        else:
+            loop = system.whole_loop(action.to, steps)
+        if loop.problems:
+            return loop_divergence(system, action, horizon, passed, loop.problems[0])
+        worst, flat, growing = loop.modes(MARGINAL_TOL)
+    except Exception:  # noqa: BLE001 - no whole-loop verdict: the other one stands
+        return passed
+    if growing:
+        mode = growing[0]
+        return StabilityVerdict(
+            False, "whole-loop", worst, 1.0,
+            f"max |λ| = {worst:.6g} per step > 1 over the whole loop; the mode lives in "
+            f"{mode.where()}")
+    if flat and marginal == "error":
+        return StabilityVerdict(
+            False, "whole-loop", worst, 1.0,
+            f"a marginal mode (|λ| = {flat[0].magnitude:.6f} per step) lives in "
+            f"{flat[0].where()} (runtime.stability.marginal: error)")
+    return passed
+
+
+#: Relative size of the loop-state offset of :func:`loop_divergence`.
+OFFSET = 1e-3
+
+
+def _loop_state(system: Any) -> np.ndarray:
+    """Every active module's :meth:`~archself.modules.base.RuntimeModule.state`, stacked."""
+    mods = system.modules.values()
+    parts = [type(m).state(m) for m in mods]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def loop_divergence(
+    system: Any, action: Any, horizon: int, passed: StabilityVerdict, why: str
+) -> StabilityVerdict:
+    """The Lyapunov test on the loop's whole state, where the loop cannot be linearized.
+
+    Two rollouts of ``horizon`` steps after ``action`` on snapshots (the same noise):
+    one from the current state, one with every module's state offset by
+    1e-3·max(1, |x|). ``V_t = ‖x'_t − x_t‖²``, the squared distance of the two loop
+    states (every module's state, not only the objective's error), must not grow
+    over the horizon: a mode the objective does not watch diverges here too. V
+    staying level (a marginal mode) passes; growth past ``V_0`` with a positive
+    slope over the second half rejects the action. ``passed`` stands otherwise.
+    """
+    try:
+        runs = []
+        for shift in (False, True):
+            snap = system.snapshot()
+            apply_action(snap, action)
+            if shift:
+                for m in snap.modules.values():
+                    x = type(m).state(m)
+                    if x.size:
+                        type(m).set_state(m, x + OFFSET * np.maximum(1.0, np.abs(x)))
+            states = [_loop_state(snap)]
+            for _ in range(horizon):
+                snap.step()
+                states.append(_loop_state(snap))
+            runs.append(np.array(states))
+        v = np.sum((runs[1] - runs[0]) ** 2, axis=1)
+    except Exception:  # noqa: BLE001 - sizes changed, a step raised: the other verdict stands
+        return passed
+    if not np.all(np.isfinite(v)):
+        return StabilityVerdict(False, "whole-loop", None, None,
+                                f"the loop's state is not finite in the rollout ({why})")
+    tail = v[v.size // 2:]
+    if v[-1] > v[0] and _slope(tail) > 0:
+        return StabilityVerdict(
+            False, "whole-loop", float(v[-1] / v[0]) if v[0] else None, 1.0,
+            f"the loop's state diverges from its neighbour: ‖Δx‖² grows {v[-1] / v[0]:.4g}-fold "
+            f"in {horizon} steps (not linearizable here: {why})")
+    return passed

@@ -16,12 +16,14 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import scipy.sparse
 
+from archself.linear.closed_loop import WholeLoop
 from archself.linear.wiring import ClosedLoop, Wire, gc_paused, interconnect, loop_modules, wiring
-from archself.modules.base import LinearModel, Port, RuntimeModule
+from archself.modules.base import LinearModel, Port, RuntimeModule, _numeric
 from archself.system.step_plan import StepPlan
 
-__all__ = ["Linearizing"]
+__all__ = ["Linearizing", "numerical_loop"]
 
 
 class Linearizing:
@@ -154,3 +156,179 @@ class Linearizing:
         module provides either.
         """
         return self.closed_loop(configuration).matrix()
+
+    def whole_loop(self, configuration: str | None = None, steps: int = 1) -> WholeLoop:
+        """The whole loop of ``configuration`` linearized around now (:func:`numerical_loop`)."""
+        return numerical_loop(self, configuration, steps)
+
+
+#: Relative finite-difference step: h = STEP · max(1, |x|).
+FD_STEP = 1e-6
+#: One-sided slopes that differ by more than this (relative) mark a discontinuity.
+KINK_TOL = 1e-3
+#: Above this many states the whole-loop A is kept sparse.
+DENSE_MAX = 400
+
+
+def _state(mod: RuntimeModule) -> np.ndarray:
+    """``mod.state()``, called on the class: an instance attribute named ``state`` (a relay's
+    value) does not hide the method."""
+    return type(mod).state(mod)
+
+
+def _successors(plan: StepPlan) -> dict[str, set[str]]:
+    nxt: dict[str, set[str]] = {n: set() for n in plan.active}
+    for n in plan.active:
+        for _carries, src, *_ in plan.routes[n]:
+            nxt[src].add(n)
+    return nxt
+
+
+def _one_step_reach(plan: StepPlan) -> dict[str, set[str]]:
+    """module -> the modules whose state one step can move when its state moves.
+
+    Itself, and what its outputs reach within the step: along the edges, through
+    feed-through modules (a module without feed-through takes the value into its
+    state and passes it on only next step). Latencies are ignored (a wider set:
+    the attribution stays right, only fewer columns share a step).
+    """
+    nxt = _successors(plan)
+    nonft = plan.nonft_set
+    out: dict[str, set[str]] = {}
+    for j in plan.active:
+        seen = {j}
+        stack = [j]
+        while stack:
+            m = stack.pop()
+            for s in nxt[m]:
+                if s not in seen:
+                    seen.add(s)
+                    if s not in nonft:
+                        stack.append(s)
+        out[j] = seen
+    return out
+
+
+def _groups(columns: list[str], reach: dict[str, set[str]]) -> list[list[str]]:
+    """Modules whose reaches are disjoint share a perturbed step (greedy colouring)."""
+    groups: list[list[str]] = []
+    used: list[set[str]] = []
+    for j in columns:
+        r = reach[j]
+        for g, u in zip(groups, used, strict=True):
+            if u.isdisjoint(r):
+                g.append(j)
+                u |= r
+                break
+        else:
+            groups.append([j])
+            used.append(set(r))
+    return groups
+
+
+def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1) -> WholeLoop:
+    """The numerical linearization of ``configuration``'s ``steps``-step map around now.
+
+    On snapshots of ``system`` (never changed; switched to ``configuration`` with
+    the hand-over a switch does), every active module's :meth:`state` is
+    perturbed by ±h (h = 1e-6·max(1, |x|)), the copy stepped and every state read
+    back: central differences give the columns of A. Noise is frozen by the
+    snapshots: each copy has the same random states, so +h and −h see the same
+    draws and additive noise cancels. Modules whose one-step reaches are disjoint
+    are perturbed in the same copy (columns grouped), so a sparse loop of 10^4
+    modules costs a few dozen pairs of steps, not 10^4. A step that raises or
+    gives a non-finite state, and one-sided slopes that disagree (a
+    discontinuity), are recorded in ``problems``.
+    """
+    base = system.snapshot()
+    if configuration is not None and configuration != base.configuration:
+        base.apply_configuration(configuration)
+    plan = base._plan
+    pool = base._pool
+    for n in plan.active:
+        pool[n].smooth = True
+    x0 = {n: _state(pool[n]) for n in plan.active}
+    stateful = [n for n in plan.active if x0[n].size]
+    offset: dict[str, int] = {}
+    owners: list[str] = []
+    labels: list[str] = []
+    for n in stateful:
+        offset[n] = len(owners)
+        mod = pool[n]
+        for k in mod.state_names():
+            v = getattr(mod, k, None)
+            if v is not None and _numeric(v):
+                size = int(np.size(v))
+                labels += [f"{n}.{k}" if size == 1 and not isinstance(v, (list, np.ndarray))
+                           else f"{n}.{k}[{i}]" for i in range(size)]
+        owners += [n] * x0[n].size
+    labels = labels if len(labels) == len(owners) else [f"{o}.x" for o in owners]
+    total = len(owners)
+    problems: list[str] = []
+
+    def run(shift: dict[str, tuple[int, float]]) -> Any:
+        copy_ = base.snapshot()
+        for n, (i, h) in shift.items():
+            x = x0[n].copy()
+            x[i] += h
+            mod = copy_._pool[n]
+            type(mod).set_state(mod, x)
+        for _ in range(steps):
+            copy_.step()
+        raised = [n for n, why in copy_._why.items() if why and why.startswith("raised")]
+        if raised and not problems:
+            problems.append(f"{raised[0]}'s step {copy_._why[raised[0]]}")
+        return copy_
+
+    def read(copy_: Any, n: str) -> np.ndarray:
+        x = _state(copy_._pool[n])
+        if x.size != x0[n].size:
+            problems.append(f"{n}'s state changed size ({x0[n].size} → {x.size} values)")
+            return np.full(x0[n].size, np.nan)
+        return x
+
+    nominal = run({})
+    reach = _one_step_reach(plan)
+    if steps > 1:  # what a module reaches in `steps` steps
+        for _ in range(steps - 1):
+            reach = {j: set().union(*(reach[m] for m in r)) for j, r in reach.items()}
+    groups = _groups(stateful, {j: reach[j] & set(stateful) for j in stateful})
+    f0 = {n: read(nominal, n) for n in stateful}
+    rows: list[int] = []
+    cols: list[int] = []
+    vals: list[float] = []
+    with np.errstate(all="ignore"):
+        for group in groups:
+            for i in range(max(x0[j].size for j in group)):
+                members = [j for j in group if i < x0[j].size]
+                h = {j: FD_STEP * max(1.0, abs(float(x0[j][i]))) for j in members}
+                plus = run({j: (i, h[j]) for j in members})
+                minus = run({j: (i, -h[j]) for j in members})
+                for j in members:
+                    col = offset[j] + i
+                    for n in reach[j]:
+                        if n not in offset:
+                            continue
+                        fp, fm = read(plus, n), read(minus, n)
+                        d = (fp - fm) / (2 * h[j])
+                        right = (fp - f0[n]) / h[j]
+                        left = (f0[n] - fm) / h[j]
+                        if not np.all(np.isfinite(d)):
+                            problems.append(f"{n}'s state is not finite when {labels[col]} "
+                                            "moves")
+                            continue
+                        kink = np.abs(right - left) > KINK_TOL * (1 + np.abs(right) + np.abs(left))
+                        if kink.any() and len(problems) < 5:
+                            r = int(np.flatnonzero(kink)[0])
+                            problems.append(
+                                f"a discontinuity: {labels[offset[n] + r]} against "
+                                f"{labels[col]} has one-sided slopes {right[r]:.4g} and "
+                                f"{left[r]:.4g}")
+                        nz = np.flatnonzero(d)
+                        rows += (offset[n] + nz).tolist()
+                        cols += [col] * nz.size
+                        vals += d[nz].tolist()
+    A: Any = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
+    if total <= DENSE_MAX:
+        A = A.toarray()
+    return WholeLoop(A, float(system.dt), int(steps), owners, labels, stateful, problems)

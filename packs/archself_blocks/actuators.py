@@ -46,6 +46,8 @@ class Actuator(RuntimeModule):
     [2.0, 4.0, 6.0]
     """
 
+    state_fields = ("v", "x")
+
     parameters = {
         "gain": Param(1.0, "", "effectiveness the command is multiplied by"),
         "u_min": Param(None, "", "lower output limit; None: none"),

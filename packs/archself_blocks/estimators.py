@@ -224,6 +224,9 @@ class KalmanFilter(_ModelEstimator):
     Residual signals ``innovation`` and ``nis`` (see the module's docstring).
     """
 
+    # P follows its own Riccati map; quiet_until is a timer
+    state_fields: ClassVar[tuple[str, ...] | None] = ("x",)
+
     parameters = {
         "Q": Param(1.0, "", "process noise intensity (per s continuous, per step discrete)"),
         "R": Param(1.0, "", "measurement noise covariance"),
@@ -343,6 +346,8 @@ class AugmentedEkf(KalmanFilter):
     Residual signals ``innovation``, ``nis``, ``effectiveness_loss`` = max_j (1 − η̂_j)⁺
     (an actuator that lost effectiveness, seen from the estimator) and ``bias`` = max |b̂|.
     """
+
+    state_fields = ("x", "aug")
 
     parameters = {
         **KalmanFilter.parameters,
@@ -499,6 +504,8 @@ class Luenberger(_ModelEstimator):
     ``A − L C`` (the separation principle: the closed loop's poles are the
     controller's and these). Residual signal ``innovation``.
     """
+
+    state_fields = ("x", "_y")  # _y: the last measurement, used over the next step
 
     parameters = {
         "gain": Param(None, "", "L (n × measured outputs); None: from poles"),

@@ -211,13 +211,13 @@ class RelayLanes(BlockLanes):
         mods = self._mods(lanes)
         self._read(lanes, "gain", [float(m.params["gain"]) for m in mods])
         self._read(lanes, "noise", [float(m.params["noise"]) for m in mods])
-        self._read(lanes, "state", [m.state for m in mods])
+        self._read(lanes, "state", [m.value for m in mods])
         self._read(lanes, "deviation", [m.signals.get("deviation", math.nan) for m in mods])
         self.noisy = self.noise != 0
 
     def store(self, lanes):
         for i, m in zip(self.indices(lanes).tolist(), self._mods(lanes), strict=True):
-            m.state = float(self.state[i])
+            m.value = float(self.state[i])
             if not math.isnan(self.deviation[i]):
                 m.signals["deviation"] = float(self.deviation[i])
 

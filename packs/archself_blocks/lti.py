@@ -258,6 +258,8 @@ class StateSpacePlant(RuntimeModule):
     estimators and controllers around it; :meth:`state_space` gives (A, B, C, D).
     """
 
+    state_fields = ("x", "u")  # u: the held input its output publishes
+
     parameters = {
         **_model_params(False),
         "x0": Param(None, "", "initial state; None: zeros"),

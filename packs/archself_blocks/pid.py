@@ -95,6 +95,8 @@ class Pid(RuntimeModule):
     0.0
     """
 
+    state_fields = ("integral", "y_f")
+
     parameters = {
         "kp": Param(1.0, "", "proportional gain (command units per feedback unit)"),
         "ki": Param(0.0, "1/s", "integral gain (times kp's unit)"),

@@ -23,6 +23,8 @@ class Relay(RuntimeModule):
     Having no direct feedthrough, relays can form feedback loops.
     """
 
+    state_fields = ("value",)
+
     parameters = {
         "gain": Param(1.0, "", "factor on last step's input"),
         "noise": Param(0.0, "", "standard deviation of the added white noise", min=0.0),
@@ -42,10 +44,10 @@ class Relay(RuntimeModule):
 
     def __init__(self, name: str, params: dict[str, Any], rng: Any) -> None:
         super().__init__(name, params, rng)
-        self.state = 0.0
+        self.value = 0.0
 
     def output(self, t: float) -> dict[str, Any]:
-        return {"signal": self.state}
+        return {"signal": self.value}
 
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         values = [x for x in inputs.get("signal") or () if x is not None]
@@ -53,8 +55,8 @@ class Relay(RuntimeModule):
             mean = sum(float(x) for x in values) / len(values) if values else 0.0
             base = float(self.params["gain"]) * mean
         except (TypeError, ValueError):  # a vector or junk on the wire: hold the state
-            base = self.state
+            base = self.value
         noise = float(self.params["noise"])
-        self.state = base + (noise * float(self.rng.standard_normal()) if noise else 0.0)
-        self.signals["deviation"] = abs(self.state - base)
+        self.value = base + (noise * float(self.rng.standard_normal()) if noise else 0.0)
+        self.signals["deviation"] = abs(self.value - base)
         return {}

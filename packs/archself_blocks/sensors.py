@@ -83,7 +83,7 @@ class Sensor(RuntimeModule):
         v = self.gain * x + self.bias + self.drift * t
         if self.noise:
             v += self.noise * float(self.rng.standard_normal())
-        if self.resolution > 0:
+        if self.resolution > 0 and not self.smooth:  # a quantizer's slope is 0 almost everywhere
             v = self.resolution * round(v / self.resolution)
         v = min(max(v, self.lo), self.hi)
         if self.p_drop and float(self.rng.random()) < self.p_drop:

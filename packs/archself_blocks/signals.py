@@ -38,6 +38,8 @@ class Reference(RuntimeModule):
     [[2.0, 0.2], [3.0, 0.0]]
     """
 
+    state_fields = ()  # an exogenous signal of time
+
     parameters = {
         "table": Param([[0.0, 0.0]], "[s, units]", "rows [t_s, value]"),
         "interpolation": Param("previous", "", "previous (steps) or linear (ramps)"),

@@ -83,6 +83,8 @@ class LqrController(RuntimeModule):
     |estimate − reference| position (m).
     """
 
+    state_fields = ()  # static: v_ref and K are scheduled from the reference
+
     parameters: ClassVar[dict[str, Param]] = {
         "q_along": Param(1.0, "", "weight of the along-track error", min=0.0, max=1e6),
         "q_lateral": Param(1.0, "", "weight of the lateral error", min=0.0, max=1e6),
@@ -255,6 +257,10 @@ class AsymLqrController(LqrController):
     Parameters: those of :class:`LqrController` and the two above. Inputs as
     :class:`LqrController` plus ``encoder_speeds``.
     """
+
+    # the effectiveness estimate is frozen: adaptation is slow next to the loop, and its sums
+    # start at 0 on a hand-over, where the ratio's slope says nothing (docs/stability.md)
+    state_fields = ()
 
     parameters = {
         **LqrController.parameters,

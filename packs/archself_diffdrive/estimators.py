@@ -209,6 +209,8 @@ class Odometry(_PoseEstimator):
     array([0.5, 0. , 0. ])
     """
 
+    state_fields = ("x", "y", "th")  # the variance grows open loop: not a signal
+
     parameters = {
         "heading_noise_rad": Param(0.005, "rad", "assumed IMU heading noise", min=0.0, max=3.2),
         "trend_window_s": Param(
@@ -401,6 +403,8 @@ class Ekf(_PoseEstimator):
     Outputs ``pose_estimate`` and ``covariance`` (3×3 pose block). Attributes
     ``x``/``P`` give the full state (5) and covariance (5×5; filterpy's names).
     """
+
+    state_fields = ("x",)  # pose, heading bias and rate; P follows its own Riccati map
 
     parameters = {
         "q_position_m": Param(

@@ -56,6 +56,8 @@ class DiffDrivePlant(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
+    state_fields = ("pose", "wl", "wr")
+
     parameters = {
         **parameters_of(Kinematics),  # the true geometry
         "max_wheel_speed_rad_s": Param(
@@ -202,6 +204,8 @@ class WheelActuator(RuntimeModule):
     -0.3
     """
 
+    state_fields = ("prev_cmd", "expected")
+
     parameters = {
         "side": Param("left", "", "'left' or 'right': the entry of wheel_cmd taken"),
         "error_smoothing_s": Param(
@@ -333,6 +337,8 @@ class Gps(RuntimeModule):
     ``max_silence_s`` (2.5 fix periods) tells the system when a receiver without
     fixes is in dropout.
     """
+
+    state_fields = ()  # the fix timer is the clock, not the loop
 
     parameters = {
         "rate_hz": Param(1.0, "Hz", "fix rate", min=0.001, max=1000.0, period=True),

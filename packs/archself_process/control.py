@@ -59,6 +59,8 @@ class LevelObserver(RuntimeModule):
     (1.0, 0.0)
     """
 
+    state_fields = ("h",)  # boost_until is a timer
+
     parameters = {
         "correction_gain": Param(0.02, "1/s", "L", min=0.0, max=100.0),
         "innovation_window_s": Param(
@@ -162,6 +164,8 @@ class PiController(RuntimeModule):
     0.22
     """
 
+    state_fields = ("integral",)
+
     parameters: ClassVar[dict[str, Param]] = {
         "kp": Param(
             1.4, "1/m", "proportional gain (≥ 0: a wider opening raises the level)",
@@ -262,6 +266,8 @@ class PiFeedforwardController(PiController):
 
     Inputs ``setpoint``, ``level_estimate``, ``flow_measured``, ``tank_model``.
     """
+
+    state_fields = ("integral",)  # the effectiveness estimate is frozen (docs/stability.md)
 
     parameters = {
         **PiController.parameters,

@@ -268,6 +268,8 @@ class TankPlant(RuntimeModule):
     docs/disturbances.md gives the shipped values and where they come from.
     """
 
+    state_fields = ("h", "q_in")
+
     parameters = {
         **{k: v for k, v in MODEL_PARAMETERS.items() if k != "max_flow_m3_s"},
         "initial_level_m": Param(1.0, "m", "level at t = 0", min=0.0, max=100.0),
@@ -363,6 +365,8 @@ class ControlValve(RuntimeModule):
     >>> round(v.local_signals()["command_error"], 6)
     0.004
     """
+
+    state_fields = ("prev_flow",)
 
     parameters = {
         "max_flow_m3_s": MODEL_PARAMETERS["max_flow_m3_s"],
