@@ -305,7 +305,8 @@ def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
     --------
     >>> from archself.campaign.worker import Job
     >>> def job(i, mode, sc="s"):
-    ...     return Job(str(i), "", "d", "f", (), (), sc, i, i, mode)
+    ...     return Job(arch_text="", arch_digest="d", file="f", scenario=sc, replicate=i, seed=i,
+    ...                run_id=str(i), mode=mode)
     >>> jobs = [job(0, "fixed"), job(1, "adaptive"), job(2, "fixed"), job(3, "fixed", "t"),
     ...         job(4, "fixed"), job(5, "adaptive")]
     >>> [[j.run_id for j in u] for u in lane_units(jobs, 2)]
