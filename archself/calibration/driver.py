@@ -173,7 +173,7 @@ class _Plan:
     tau: float
     p: float
     weights: dict[str, float]
-    sweeps: list[Any]
+    sweeps: tuple[Any, ...]
     n_points: int
     digest: str
     seeds: int

@@ -69,6 +69,7 @@ class _Group:
     X: np.ndarray
     F: np.ndarray
     partial: bool
+    whole: np.ndarray | None
     t: float
     dt: float
 
@@ -100,7 +101,9 @@ def _gather(monitors: list[Monitor], lanes: Any, idx: np.ndarray) -> _Group | No
     if any(monitors[i]._t_prev != prev for i in keep):
         return None  # a lane out of step with the group: every lane observes alone
     lays = [monitors[i].layout(active) for i in keep]
-    return _Group(first, lay0, keep, lays, X, F, not F.all(), t, dt)
+    partial = not F.all()
+    whole = F.all(axis=1) if partial else None  # the lanes with every sample usable
+    return _Group(first, lay0, keep, lays, X, F, partial, whole, t, dt)
 
 
 def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -152,7 +155,7 @@ def _observations(
     if violations:
         violated[[k for k, name, *_ in lay0.constrained if name in violations]] = True
     flagged = (violated & lay0.active).nonzero()[0] if violations else _NO_FLAGS
-    whole = F.all(axis=1) if g.partial else None
+    whole = g.whole
     j_ref = float(first.arch.runtime.objective.acceptable)
     out: dict[int, Observation] = {}
     for row, (i, lay) in enumerate(zip(g.keep, g.lays, strict=True)):
