@@ -273,7 +273,8 @@ def test_lane_units_group_fixed_runs_of_one_scenario_in_order() -> None:
     from archself.campaign.worker import Job
 
     def job(i, mode, sc="s"):
-        return Job(str(i), "", "d", "f", (), (), sc, i, i, mode)
+        return Job(arch_text="", arch_digest="d", file="f", scenario=sc, replicate=i, seed=i,
+                   run_id=str(i), mode=mode)
 
     jobs = [job(i, "fixed", "ab"[i % 2]) for i in range(7)] + [job(7, "adaptive")]
     units = lane_units(jobs, 2)

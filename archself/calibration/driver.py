@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -149,10 +150,63 @@ def calibrate(
         A file with errors, ``normalization: none``, ``top_k``, no fault-free
         scenario, a rate that no band can give, every run failing.
     """
-    from archself.calibration import runs as R
-    from archself.calibration.edit import format_band, set_nominals
-    from archself.calibration.saved_runs import band_free_digest, load_runs
-    from archself.calibration.saved_runs import save_runs as write_runs
+    plan = _plan(
+        arch_path, false_switch, seeds, scenarios, configurations, verify_seeds, root_seed,
+        envelope, weights, executor, workers, check_size=from_runs is None,
+    )
+    if from_runs is not None:
+        plan, runs = _saved(plan, from_runs)
+    else:
+        runs = _run(plan, address, progress, save_runs)
+    return _collect(plan, runs)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`calibrate` knows before any run: the file, the cells, the target, the seeds."""
+
+    text: str
+    arch: Any
+    file: str
+    chosen: list[str]
+    confs: list[str]
+    tau: float
+    p: float
+    weights: dict[str, float]
+    sweeps: tuple[Any, ...]
+    n_points: int
+    digest: str
+    seeds: int
+    verify_seeds: int
+    root_seed: int
+    executor: str
+    workers: int | None
+
+
+@dataclass(frozen=True)
+class _Runs:
+    """The runs' rows (:func:`archself.calibration.runs.run_jobs`) and their wall times."""
+
+    results: list[dict[str, Any]]
+    vres: list[dict[str, Any]]
+    elapsed: float = 0.0
+    verify_elapsed: float = 0.0
+
+
+def _plan(
+    arch_path: str | Path, false_switch: float, seeds: int, scenarios: Sequence[str] | None,
+    configurations: Sequence[str] | None, verify_seeds: int, root_seed: int,
+    envelope: Sequence[str], weights: Mapping[str, float] | None, executor: str,
+    workers: int | None, *, check_size: bool,
+) -> _Plan:
+    """Check the options and the file, choose the cells, refuse work past half the memory.
+
+    Raises
+    ------
+    CalibrationError, LoadError
+        As :func:`calibrate`, before any run.
+    """
+    from archself.calibration.saved_runs import band_free_digest
     from archself.campaign.sweep import sweep_points
 
     p = float(false_switch)
@@ -163,8 +217,7 @@ def calibrate(
     if verify_seeds < 0:
         raise CalibrationError("--verify-seeds must be at least 0")
     text, loaded, chosen, confs, tau = prepare(arch_path, scenarios, configurations)
-    arch = loaded.arch
-    file = loaded.file
+    arch, file = loaded.arch, loaded.file
     weights = dict(weights or {})
     for m, w in weights.items():
         if m not in arch.modules or arch.modules[m].residual is None:
@@ -177,71 +230,118 @@ def calibrate(
     digest = band_free_digest(loaded.data)
     if sweeps:
         digest += "|" + ";".join(f"{s.path}={s.values}" for s in sweeps)
-    elapsed = verify_elapsed = 0.0
-    if from_runs is None:
+    if check_size:
         _check_size(arch, file, (seeds + verify_seeds) * n_points, chosen, confs)
-    if from_runs is not None:
-        meta, saved = load_runs(from_runs)
-        if meta.get("digest") != digest:
-            raise CalibrationError(
-                f"{from_runs}: runs of another architecture (not only the bands differ from "
-                f"{file}); run them again without --from-runs"
-            )
-        width = sum(1 for spec in arch.modules.values() if spec.residual is not None)
-        for one in saved:  # the digest matched: only a damaged file gets here
-            if (one["scenario"] not in arch.scenarios
-                    or one["configuration"] not in arch.configurations
-                    or (one["error"] is None and one["x"].shape[1] != width)):
-                raise CalibrationError(
-                    f"{from_runs}: a run of {one['scenario']!r} in {one['configuration']!r} does "
-                    f"not fit {file} (a damaged runs file); run them again without --from-runs"
-                )
-        seeds, verify_seeds = int(meta["seeds"]), int(meta["verify_seeds"])
-        chosen, confs = list(meta["scenarios"]), list(meta["configurations"])
-        root_seed = int(meta["root_seed"])
-        elapsed, verify_elapsed = float(meta["elapsed_s"]), float(meta["verify_elapsed_s"])
-        results = [r for r in saved if r["phase"] == "calibration"]
-        vres = [r for r in saved if r["phase"] == "verify"]
-        executor = f"{meta['executor']}, runs from {Path(from_runs).name}"
-    else:
-        def run(phase: str, first: int, n: int) -> tuple[list[dict[str, Any]], float]:
-            """Replicates ``first … first+n−1`` (each envelope point its own seeds)."""
-            t0 = time.perf_counter()
-            jobs = R.plan_runs(
-                text, file, chosen, confs, R.seeds_from(root_seed, first * n_points, n * n_points),
-                first_replicate=first, phase=phase, envelope=sweeps,
-            )
-            got = R.run_jobs(
-                jobs, executor=executor, workers=workers, address=address, progress=progress
-            )
-            return got, time.perf_counter() - t0
+    return _Plan(text, arch, file, chosen, confs, tau, p, weights, sweeps, n_points,
+                 digest, seeds, verify_seeds, root_seed, executor, workers)
 
-        results, elapsed = run("calibration", 0, seeds)
-        vres = []
-        if verify_seeds:
-            vres, verify_elapsed = run("verify", seeds, verify_seeds)
-        if save_runs is not None:
-            meta = {
-                "format": 1,
-                "architecture": arch.name,
-                "digest": digest,
-                "seeds": seeds,
-                "verify_seeds": verify_seeds,
-                "root_seed": root_seed,
-                "scenarios": chosen,
-                "configurations": confs,
-                "executor": executor,
-                "elapsed_s": elapsed,
-                "verify_elapsed_s": verify_elapsed,
-            }
-            write_runs(save_runs, meta, results + vres)
-    cells = _cells(arch, results)
-    for c in cells:
-        if c.runs == 0:
-            raise CalibrationError(
-                f"{file}: every run of {c.scenario} in {c.configuration} failed: {c.failed[0]}"
-            )
 
+def _saved(plan: _Plan, from_runs: str | Path) -> tuple[_Plan, _Runs]:
+    """The runs of a ``save_runs`` file, and the plan they were run with (seeds, cells).
+
+    Raises
+    ------
+    CalibrationError
+        Runs of another architecture (not only the bands differ), a damaged file.
+    """
+    from archself.calibration.saved_runs import load_runs
+
+    arch, file = plan.arch, plan.file
+    meta, saved = load_runs(from_runs)
+    if meta.get("digest") != plan.digest:
+        raise CalibrationError(
+            f"{from_runs}: runs of another architecture (not only the bands differ from "
+            f"{file}); run them again without --from-runs"
+        )
+    width = sum(1 for spec in arch.modules.values() if spec.residual is not None)
+    for one in saved:  # the digest matched: only a damaged file gets here
+        if (one["scenario"] not in arch.scenarios
+                or one["configuration"] not in arch.configurations
+                or (one["error"] is None and one["x"].shape[1] != width)):
+            raise CalibrationError(
+                f"{from_runs}: a run of {one['scenario']!r} in {one['configuration']!r} does "
+                f"not fit {file} (a damaged runs file); run them again without --from-runs"
+            )
+    plan = replace(
+        plan, seeds=int(meta["seeds"]), verify_seeds=int(meta["verify_seeds"]),
+        chosen=list(meta["scenarios"]), confs=list(meta["configurations"]),
+        root_seed=int(meta["root_seed"]),
+        executor=f"{meta['executor']}, runs from {Path(from_runs).name}",
+    )
+    return plan, _Runs(
+        [r for r in saved if r["phase"] == "calibration"],
+        [r for r in saved if r["phase"] == "verify"],
+        float(meta["elapsed_s"]), float(meta["verify_elapsed_s"]),
+    )
+
+
+def _run(
+    plan: _Plan, address: str | None, progress: Callable[[int, int], None] | None,
+    save_runs: str | Path | None,
+) -> _Runs:
+    """Run the calibration (and verification) replicates; write them to ``save_runs``."""
+    from archself.calibration import runs as R
+    from archself.calibration.saved_runs import save_runs as write_runs
+
+    def run(phase: str, first: int, n: int) -> tuple[list[dict[str, Any]], float]:
+        """Replicates ``first … first+n−1`` (each envelope point its own seeds)."""
+        t0 = time.perf_counter()
+        seeds = R.seeds_from(plan.root_seed, first * plan.n_points, n * plan.n_points)
+        jobs = R.plan_runs(plan.text, plan.file, plan.chosen, plan.confs, seeds,
+                           first_replicate=first, phase=phase, envelope=plan.sweeps)
+        got = R.run_jobs(jobs, executor=plan.executor, workers=plan.workers, address=address,
+                         progress=progress)
+        return got, time.perf_counter() - t0
+
+    results, elapsed = run("calibration", 0, plan.seeds)
+    vres: list[dict[str, Any]] = []
+    verify_elapsed = 0.0
+    if plan.verify_seeds:
+        vres, verify_elapsed = run("verify", plan.seeds, plan.verify_seeds)
+    if save_runs is not None:
+        meta = {
+            "format": 1,
+            "architecture": plan.arch.name,
+            "digest": plan.digest,
+            "seeds": plan.seeds,
+            "verify_seeds": plan.verify_seeds,
+            "root_seed": plan.root_seed,
+            "scenarios": plan.chosen,
+            "configurations": plan.confs,
+            "executor": plan.executor,
+            "elapsed_s": elapsed,
+            "verify_elapsed_s": verify_elapsed,
+        }
+        write_runs(save_runs, meta, results + vres)
+    return _Runs(results, vres, elapsed, verify_elapsed)
+
+
+@dataclass(frozen=True)
+class _Bands:
+    """The bands derived from the cells: per module the old and new band, the shape."""
+
+    old: dict[str, float]
+    new: dict[str, float]
+    shape: dict[str, float]
+    where: dict[str, list[str]]
+    notes: dict[str, str]
+    calibrated: list[str]
+    needed: list[float]
+    scale: float
+
+
+def _bands(plan: _Plan, cells: list[Cell]) -> _Bands:
+    """Shape (each channel alone alarms in its share of p, worst cell) and scale (every
+    cell's runs at most p false alarms) of the bands.
+
+    Raises
+    ------
+    CalibrationError
+        No module's residual calibrated, a rate no band gives, no candidate at any band.
+    """
+    from archself.calibration.edit import format_band
+
+    arch, file, p, tau = plan.arch, plan.file, plan.p, plan.tau
     old = {m: float(s.residual.nominal) for m, s in arch.modules.items() if s.residual}
     # shape: each channel alone alarms in a share p/K of the runs, worst cell
     base: dict[str, float] = {}
@@ -251,7 +351,7 @@ def calibrate(
             where.setdefault(m, [])
             if c.configuration not in where[m]:
                 where[m].append(c.configuration)
-            base[m] = max(base.get(m, 0.0), channel_shape(c, m, p, tau, weights))
+            base[m] = max(base.get(m, 0.0), channel_shape(c, m, p, tau, plan.weights))
     notes: dict[str, str] = {}
     for m in old:
         sens = float(arch.modules[m].residual.sensitivity)
@@ -278,12 +378,20 @@ def calibrate(
     scale = max([0.0, *needed])
     if scale <= 0:
         raise CalibrationError(f"{file}: the nominal residuals raise no candidate at any band")
-
     new = {m: (float(format_band(scale * shape[m])) if m in calibrated else old[m]) for m in old}
-    results_cells = []
-    for c, s_needed in zip(cells, needed, strict=True):
-        f_old, f_new = Prediction.of(c, old, tau), Prediction.of(c, new, tau)
-        results_cells.append(
+    return _Bands(old, new, shape, where, notes, calibrated, needed, scale)
+
+
+def _cell_results(
+    plan: _Plan, cells: list[Cell], bands: _Bands, vres: list[dict[str, Any]]
+) -> tuple[list[CellResult], list[Cell]]:
+    """Predicted and empirical rates of the old and new bands per cell, and on fresh
+    seeds (``vres``) where verified; the verification's cells."""
+    tau = plan.tau
+    results = []
+    for c, s_needed in zip(cells, bands.needed, strict=True):
+        f_old, f_new = Prediction.of(c, bands.old, tau), Prediction.of(c, bands.new, tau)
+        results.append(
             CellResult(
                 scenario=c.scenario,
                 configuration=c.configuration,
@@ -299,64 +407,74 @@ def calibrate(
                 fit_new=f_new,
             )
         )
-
     verify_cells: list[Cell] = []
     if vres:
-        verify_cells = _cells(arch, vres)
+        verify_cells = _cells(plan.arch, vres)
         by_key = {(c.scenario, c.configuration): c for c in verify_cells}
-        for r in results_cells:
+        for r in results:
             vc = by_key.get((r.scenario, r.configuration))
             if vc is None or vc.runs == 0:
                 continue
             r.verify_runs = vc.runs
-            r.verify_new = float(np.mean(critical_scales(vc, new, tau) >= 1.0))
-            r.verify_old = float(np.mean(critical_scales(vc, old, tau) >= 1.0))
+            r.verify_new = float(np.mean(critical_scales(vc, bands.new, tau) >= 1.0))
+            r.verify_old = float(np.mean(critical_scales(vc, bands.old, tau) >= 1.0))
+    return results, verify_cells
 
+
+def _comment(plan: _Plan, cells: list[Cell]) -> str:
+    """The comment written beside each new band: the rate, the weights, the runs."""
+    confs, n_points = plan.confs, plan.n_points
     cells_text = (
         f"{len(confs)} configuration{'s' * (len(confs) != 1)}"
-        if len(chosen) == 1
+        if len(plan.chosen) == 1
         else f"{len(cells)} (scenario, configuration)"
     )
-    if sweeps:
+    if plan.sweeps:
         cells_text += f" × {n_points} envelope point{'s' * (n_points != 1)}"
-    weighted = "".join(f", weight {m} {w:g}" for m, w in sorted(weights.items()) if w != 1)
-    comment = f"p = {p:g}/run{weighted}, {seeds} nominal runs × {cells_text} (archself calibrate)"
-    new_text = set_nominals(text, file, {m: new[m] for m in calibrated}, comment)
+    weighted = "".join(f", weight {m} {w:g}" for m, w in sorted(plan.weights.items()) if w != 1)
+    return (f"p = {plan.p:g}/run{weighted}, {plan.seeds} nominal runs × {cells_text} "
+            "(archself calibrate)")
+
+
+def _collect(plan: _Plan, runs: _Runs) -> Calibration:
+    """The bands, the rates per cell and the calibrated text, from the runs.
+
+    Raises
+    ------
+    CalibrationError
+        Every run of a cell failed, or as :func:`_bands`.
+    """
+    from archself.calibration.edit import set_nominals
+
+    arch = plan.arch
+    cells = _cells(arch, runs.results)
+    for c in cells:
+        if c.runs == 0:
+            raise CalibrationError(
+                f"{plan.file}: every run of {c.scenario} in {c.configuration} failed: "
+                f"{c.failed[0]}"
+            )
+    bands = _bands(plan, cells)
+    results_cells, verify_cells = _cell_results(plan, cells, bands, runs.vres)
+    comment = _comment(plan, cells)
+    new_text = set_nominals(
+        plan.text, plan.file, {m: bands.new[m] for m in bands.calibrated}, comment)
     modules = {
         m: ModuleBand(
-            name=m,
-            old=old[m],
-            new=new[m],
-            base=shape[m],
+            name=m, old=bands.old[m], new=bands.new[m], base=bands.shape[m],
             sensitivity=float(arch.modules[m].residual.sensitivity),
             signal=arch.modules[m].residual.signal,
-            configurations=where.get(m, []),
-            calibrated=m in calibrated,
-            note=notes.get(m, ""),
-            weight=float(weights.get(m, 1.0)),
+            configurations=bands.where.get(m, []), calibrated=m in bands.calibrated,
+            note=bands.notes.get(m, ""), weight=float(plan.weights.get(m, 1.0)),
         )
-        for m in old
+        for m in bands.old
     }
     return Calibration(
-        architecture=arch.name,
-        file=file,
-        tau=tau,
-        false_switch=p,
-        seeds=seeds,
-        root_seed=root_seed,
-        scenarios=chosen,
-        configurations=confs,
-        scale=scale,
-        modules=modules,
-        cells=results_cells,
-        data=cells,
-        text=new_text,
-        comment=comment,
-        executor=executor,
-        workers=workers,
-        elapsed_s=elapsed,
-        runs=len(results),
-        verify_seeds=verify_seeds,
-        verify_elapsed_s=verify_elapsed,
+        architecture=arch.name, file=plan.file, tau=plan.tau, false_switch=plan.p,
+        seeds=plan.seeds, root_seed=plan.root_seed, scenarios=plan.chosen,
+        configurations=plan.confs, scale=bands.scale, modules=modules, cells=results_cells,
+        data=cells, text=new_text, comment=comment, executor=plan.executor,
+        workers=plan.workers, elapsed_s=runs.elapsed, runs=len(runs.results),
+        verify_seeds=plan.verify_seeds, verify_elapsed_s=runs.verify_elapsed,
         verify_data=verify_cells,
     )

@@ -28,6 +28,7 @@ import hashlib
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,7 @@ from archself.calibration.identify_fit import TargetFit, delta_residuals, fit_ed
 from archself.calibration.identify_jobs import IdJob, run_identify_job
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
 from archself.calibration.identify_write import set_weights, written_copy
+from archself.calibration.runs import seeds_from
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
@@ -164,9 +166,48 @@ def identify(
         A file with errors, no residual, no fault-free scenario, an unknown
         configuration, or no experiment possible.
     """
-    from archself.calibration.runs import run_on_executor, seeds_from
-    from archself.runtime.knowledge import Knowledge, active_edges
+    from archself.calibration.runs import run_on_executor
 
+    plan = _plan(path, configurations, scenario, seeds, kind, magnitude, perturb, settle_s,
+                 min_excitation, root_seed)
+    t0 = time.perf_counter()
+    results = run_on_executor(
+        plan.jobs, run_identify_job, "archself.calibration.identify_jobs",
+        executor=executor, workers=workers, address=address, progress=progress,
+    )
+    return _collect(plan, results, time.perf_counter() - t0, executor)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`identify` knows before any run: the file, the experiments, the jobs."""
+
+    path: str | Path
+    text: str
+    arch: Any
+    scenario: str
+    confs: list[str]
+    seeds: int
+    root_seed: int
+    settle_s: float
+    min_excitation: float
+    #: configuration -> (its experiments (module, kind, magnitude), the modules left out)
+    experiments: dict[str, tuple[list[tuple[str, str, float]], list[str]]]
+    jobs: list[IdJob]
+
+
+def _plan(
+    path: str | Path, configurations: Sequence[str] | None, scenario: str | None, seeds: int,
+    kind: str, magnitude: float, perturb: Mapping[str, tuple[str, float]] | None,
+    settle_s: float | None, min_excitation: float, root_seed: int,
+) -> _Plan:
+    """Check the options and the file, choose the experiments, list the jobs.
+
+    Raises
+    ------
+    IdentifyError
+        As :func:`identify`, before any run.
+    """
     if seeds < 1:
         raise IdentifyError("--seeds must be at least 1")
     if settle_s is not None and not (math.isfinite(settle_s) and settle_s >= 0):
@@ -178,28 +219,16 @@ def identify(
     for m in perturb:
         if m not in arch.modules:
             raise IdentifyError(f"{path}: --perturb names unknown module {m!r}")
-    rt = arch.runtime
-    residual = {m: spec.residual for m, spec in arch.modules.items() if spec.residual is not None}
-    names = list(residual)
     if settle_s is None:
-        longest = max(float(r.smoothing_s) for r in residual.values())
-        settle_s = float(rt.warmup_time_s) + 5.0 * longest
+        longest = max(float(s.residual.smoothing_s) for s in arch.modules.values() if s.residual)
+        settle_s = float(arch.runtime.warmup_time_s) + 5.0 * longest
     duration = float(arch.scenarios[scen].duration_s)
     if settle_s >= duration:
         raise IdentifyError(
             f"{path}: settling time {settle_s:g} s is not shorter than scenario {scen!r} "
             f"({duration:g} s)"
         )
-    # at most one run a seed per module and the unperturbed one, each held by the driver:
-    # refused when past half the memory (--seeds 100000000 grew for minutes, no run started)
-    from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
-
-    most = seeds * sum(1 + len(arch.configurations[c].modules) for c in confs)
-    if too_much := past_half_memory(most * BYTES_PER_RUN):
-        raise IdentifyError(
-            f"{path}: up to {most:,} runs would need ~{most * BYTES_PER_RUN / 1024**3:,.1f} GB, "
-            f"{too_much}; use fewer --seeds or configurations"
-        )
+    _check_size(path, arch, confs, seeds)
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     seed_list = seeds_from(root_seed, 0, seeds)
     plan: dict[str, tuple[list[tuple[str, str, float]], list[str]]] = {}
@@ -211,17 +240,36 @@ def identify(
         plan[c] = (exps, skipped)
         for rep, sd in enumerate(seed_list):
             for p in [None, *exps]:
-                jobs.append(IdJob(text, digest, str(path), scen, c, rep, int(sd), p, settle_s))
+                jobs.append(IdJob(arch_text=text, arch_digest=digest, file=str(path), scenario=scen,
+                                  replicate=rep, seed=int(sd), configuration=c, perturb=p,
+                                  settle_s=settle_s))
     if not any(exps for exps, _ in plan.values()):
         raise IdentifyError(
             f"{path}: no active module takes a {kind!r} fault; choose another --kind or --perturb"
         )
-    t0 = time.perf_counter()
-    results = run_on_executor(
-        jobs, run_identify_job, "archself.calibration.identify_jobs",
-        executor=executor, workers=workers, address=address, progress=progress,
-    )
-    elapsed = time.perf_counter() - t0
+    return _Plan(path, text, arch, scen, confs, seeds, root_seed, settle_s, min_excitation,
+                 plan, jobs)
+
+
+def _check_size(path: str | Path, arch: Any, confs: Sequence[str], seeds: int) -> None:
+    """Refuse runs the driver could not hold: at most one run a seed per module and the
+    unperturbed one, each held by the driver, past half the memory (``--seeds 100000000``
+    grew for minutes, no run started)."""
+    from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
+
+    most = seeds * sum(1 + len(arch.configurations[c].modules) for c in confs)
+    if too_much := past_half_memory(most * BYTES_PER_RUN):
+        raise IdentifyError(
+            f"{path}: up to {most:,} runs would need ~{most * BYTES_PER_RUN / 1024**3:,.1f} GB, "
+            f"{too_much}; use fewer --seeds or configurations"
+        )
+
+
+def _collect(
+    plan: _Plan, results: list[dict[str, Any]], elapsed: float, executor: str
+) -> Identification:
+    """The fitted weights of every configuration beside the declared ones."""
+    from archself.runtime.knowledge import Knowledge
 
     failed = [
         f"{r['configuration']} seed {r['seed']} {r['experiment'] or 'nominal'}: {r['error']}"
@@ -229,64 +277,76 @@ def identify(
         if r["error"] is not None
     ]
     by = {(r["configuration"], r["replicate"], r["experiment"]): r for r in results}
-    knowledge = Knowledge(arch)
+    knowledge = Knowledge(plan.arch)
     rows: list[EdgeRow] = []
     fits: dict[str, dict[str, TargetFit]] = {}
     experiments: list[Experiment] = []
-    sens = np.array([float(residual[m].sensitivity) for m in names])
-    scale = np.array(
-        [float(residual[m].nominal) if rt.normalization == "nominal" else 1.0 for m in names]
-    )
-    for c in confs:
-        conf = arch.configurations[c]
-        active = list(conf.modules)
-        observed = [m for m in names if m in set(active)]
-        cols = [names.index(m) for m in observed]
-        keys = sorted(active_edges(arch, active, conf.disabled_edges))
-        pairs = list(dict.fromkeys((s, t) for s, t, _ in keys))
-        exps, _ = plan[c]
-        dr_rows: list[np.ndarray] = []
-        exp_of: list[str] = []
-        for m, k, mag in exps:
-            deltas = []
-            for rep in range(seeds):
-                base, pert = by.get((c, rep, None)), by.get((c, rep, m))
-                if base is None or pert is None or base["error"] or pert["error"]:
-                    continue
-                d = delta_residuals(pert["mean"], base["mean"], sens, scale)[cols]
-                dr_rows.append(d)
-                exp_of.append(m)
-                deltas.append(d)
-            if deltas:
-                mean = np.mean(deltas, axis=0)
-                own = float(mean[observed.index(m)]) if m in observed else math.nan
-                experiments.append(
-                    Experiment(c, m, k, mag, len(deltas), own, float(np.abs(mean).max()))
-                )
-        dr = np.array(dr_rows, dtype=float).reshape(len(dr_rows), len(observed))
-        estimates, fits[c] = fit_edges(dr, exp_of, observed, pairs, min_excitation=min_excitation)
-        for e in estimates:  # in the order of pairs
-            s, t = e.source, e.target
-            carries = [cr for (a, b, cr) in keys if (a, b) == (s, t)]
-            declared = sum(knowledge.arch_weight(s, t, cr) for cr in carries)
-            rows.append(EdgeRow(c, s, t, carries, declared, declared * knowledge.w_scale,
-                                e.weight, e.se, e.identifiable, e.reason))
+    for c in plan.confs:
+        fits[c] = _fit(plan, c, by, knowledge, rows, experiments)
     return Identification(
-        architecture=arch.name,
-        file=str(path),
-        scenario=scen,
-        configurations=confs,
-        seeds=seeds,
-        root_seed=root_seed,
+        architecture=plan.arch.name,
+        file=str(plan.path),
+        scenario=plan.scenario,
+        configurations=plan.confs,
+        seeds=plan.seeds,
+        root_seed=plan.root_seed,
         w_scale=knowledge.w_scale,
-        settle_s=settle_s,
+        settle_s=plan.settle_s,
         rows=rows,
         fits=fits,
         experiments=experiments,
-        skipped={c: plan[c][1] for c in confs},
+        skipped={c: plan.experiments[c][1] for c in plan.confs},
         failed=failed,
-        runs=len(jobs),
+        runs=len(plan.jobs),
         elapsed_s=elapsed,
         executor=executor,
-        text=text,
+        text=plan.text,
     )
+
+
+def _fit(
+    plan: _Plan, c: str, by: Mapping[tuple[str, int, str | None], dict[str, Any]],
+    knowledge: Any, rows: list[EdgeRow], experiments: list[Experiment],
+) -> dict[str, TargetFit]:
+    """Fit the weights into each observed module of configuration ``c``; its edges appended
+    to ``rows``, its experiments' mean Δr to ``experiments``; the fits per target."""
+    from archself.runtime.knowledge import active_edges
+
+    arch = plan.arch
+    residual = {m: spec.residual for m, spec in arch.modules.items() if spec.residual is not None}
+    names = list(residual)
+    sens = np.array([float(residual[m].sensitivity) for m in names])
+    nominal = arch.runtime.normalization == "nominal"
+    scale = np.array([float(residual[m].nominal) if nominal else 1.0 for m in names])
+    conf = arch.configurations[c]
+    active = list(conf.modules)
+    observed = [m for m in names if m in set(active)]
+    cols = [names.index(m) for m in observed]
+    keys = sorted(active_edges(arch, active, conf.disabled_edges))
+    pairs = list(dict.fromkeys((s, t) for s, t, _ in keys))
+    dr_rows: list[np.ndarray] = []
+    exp_of: list[str] = []
+    for m, k, mag in plan.experiments[c][0]:
+        deltas = []
+        for rep in range(plan.seeds):
+            base, pert = by.get((c, rep, None)), by.get((c, rep, m))
+            if base is None or pert is None or base["error"] or pert["error"]:
+                continue
+            d = delta_residuals(pert["mean"], base["mean"], sens, scale)[cols]
+            dr_rows.append(d)
+            exp_of.append(m)
+            deltas.append(d)
+        if deltas:
+            mean = np.mean(deltas, axis=0)
+            own = float(mean[observed.index(m)]) if m in observed else math.nan
+            peak = float(np.abs(mean).max())
+            experiments.append(Experiment(c, m, k, mag, len(deltas), own, peak))
+    dr = np.array(dr_rows, dtype=float).reshape(len(dr_rows), len(observed))
+    estimates, fits = fit_edges(dr, exp_of, observed, pairs, min_excitation=plan.min_excitation)
+    for e in estimates:  # in the order of pairs
+        s, t = e.source, e.target
+        carries = [cr for (a, b, cr) in keys if (a, b) == (s, t)]
+        declared = sum(knowledge.arch_weight(s, t, cr) for cr in carries)
+        rows.append(EdgeRow(c, s, t, carries, declared, declared * knowledge.w_scale,
+                            e.weight, e.se, e.identifiable, e.reason))
+    return fits

@@ -13,24 +13,20 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.calibration.identify_results import IdentifyError
+from archself.campaign.worker import RunJob, run_error
 
 __all__ = ["IdJob", "run_identify_job"]
 
 
-@dataclass(frozen=True)
-class IdJob:
-    """One run: (configuration, seed), unperturbed or with one perturbation.
+@dataclass(frozen=True, kw_only=True)
+class IdJob(RunJob):
+    """One run: (configuration, seed), unperturbed or with one perturbation
+    (:class:`~archself.campaign.worker.RunJob` and the following).
 
     ``perturb`` is ``(module, kind, magnitude)`` or None for the nominal run.
     """
 
-    arch_text: str
-    arch_digest: str
-    file: str
-    scenario: str
     configuration: str
-    replicate: int
-    seed: int
     perturb: tuple[str, str, float] | None
     settle_s: float
 
@@ -45,7 +41,7 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         module or None), ``mean`` (time-averaged |s̄| per residual module after
         ``settle_s``, float64, in the file's module order), ``error``.
     """
-    from archself.calibration.runs import Recorder, parsed
+    from archself.calibration.runs import Recorder
     from archself.model.architecture import Fault
     from archself.sim.run import simulate
 
@@ -57,7 +53,7 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         "error": None,
     }
     try:
-        arch = parsed(job.arch_text, job.arch_digest, job.file).model_copy(deep=True)
+        arch = job.architecture().model_copy(deep=True)
         if job.perturb is not None:
             module, kind, magnitude = job.perturb
             arch.scenarios[job.scenario].faults.append(
@@ -73,8 +69,6 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
             raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
         out["mean"] = got["x"][keep].mean(axis=0)
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
-        from archself.campaign.worker import run_error
-
         out["error"] = run_error(exc)
     return out
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.result import Calibration
+from archself.calibration.result import Calibration, CellResult
 
 __all__ = ["report_model", "summary_text", "write_report"]
 
@@ -48,9 +48,35 @@ def _pct(v: float | None) -> str:
 
 def report_model(cal: Calibration) -> dict[str, Any]:
     """Everything the templates show, as plain strings and numbers."""
-    from archself.reports.render import unique_slugs
+    rates = cal.rates()
+    return {
+        "architecture": cal.architecture,
+        "file": Path(cal.file).name,
+        "tau": _fmt(cal.tau),
+        "p": _pct(cal.false_switch),
+        "p_value": cal.false_switch,
+        "weights": "".join(
+            f", weight {b.name} {b.weight:g}" for b in cal.modules.values() if b.weight != 1
+        ),
+        "seeds": cal.seeds,
+        "root_seed": cal.root_seed,
+        "runs": cal.runs,
+        "scenarios": ", ".join(cal.scenarios),
+        "configurations": ", ".join(cal.configurations),
+        "scale": _fmt(cal.scale, 4),
+        "elapsed": f"{cal.elapsed_s:.1f} s",
+        "executor": cal.executor,
+        "verify_seeds": cal.verify_seeds,
+        "rates": {k: _pct(v) for k, v in rates.items()},
+        "bands": _band_rows(cal),
+        "dists": _distributions(cal),
+        "cells": [_cell_row(c) for c in cal.cells],
+        "tail_figure": None,
+    }
 
-    slugs = unique_slugs(list(cal.modules))
+
+def _band_rows(cal: Calibration) -> list[dict[str, Any]]:
+    """A row per module: its old and new band, their ratio, the alarm level."""
     bands = []
     for m, b in cal.modules.items():
         alarm = b.new * (1.0 + cal.tau / b.sensitivity) if b.sensitivity > 0 else math.nan
@@ -67,6 +93,14 @@ def report_model(cal: Calibration) -> dict[str, Any]:
                 "note": b.note,
             }
         )
+    return bands
+
+
+def _distributions(cal: Calibration) -> list[dict[str, Any]]:
+    """Per module and cell: quantiles of its filtered residual per cycle and per run."""
+    from archself.reports.render import unique_slugs
+
+    slugs = unique_slugs(list(cal.modules))
     dists = []
     for m in cal.modules:
         rows = []
@@ -88,61 +122,37 @@ def report_model(cal: Calibration) -> dict[str, Any]:
                 }
             )
         dists.append({"module": m, "slug": slugs[m], "rows": rows, "figure": None})
-    cells = [
-        {
-            "scenario": c.scenario,
-            "configuration": c.configuration,
-            "runs": c.runs,
-            "failed": len(c.failed),
-            "forced": c.forced,
-            "gumbel": (
-                f"loc {_fmt(c.fit_new.all.loc)}, scale {_fmt(c.fit_new.all.scale)}"
-                if c.fit_new.all.loc is not None
-                else "no fit"
-            ),
-            "tail": (
-                f"top {_pct(c.fit_new.all.tail_share)} over {_fmt(c.fit_new.all.tail_u)}, "
-                f"β {_fmt(c.fit_new.all.tail_beta)}"
-                if c.fit_new.all.tail_u is not None
-                else "no fit"
-            ),
-            "old_predicted": _pct(c.old_predicted),
-            "old_empirical": _pct(c.old_empirical),
-            "new_predicted": _pct(c.new_predicted),
-            "new_empirical": _pct(c.new_empirical),
-            "verify_runs": c.verify_runs,
-            "verify_new": _pct(c.verify_new) if c.verify_runs else "–",
-            "verify_old": _pct(c.verify_old) if c.verify_runs else "–",
-            "scale_needed": _fmt(c.scale_needed, 4),
-        }
-        for c in cal.cells
-    ]
-    rates = cal.rates()
-    return {
-        "architecture": cal.architecture,
-        "file": Path(cal.file).name,
-        "tau": _fmt(cal.tau),
-        "p": _pct(cal.false_switch),
-        "p_value": cal.false_switch,
-        "weights": "".join(
-            f", weight {b.name} {b.weight:g}" for b in cal.modules.values() if b.weight != 1
-        ),
-        "seeds": cal.seeds,
-        "root_seed": cal.root_seed,
-        "runs": cal.runs,
-        "scenarios": ", ".join(cal.scenarios),
-        "configurations": ", ".join(cal.configurations),
-        "scale": _fmt(cal.scale, 4),
-        "elapsed": f"{cal.elapsed_s:.1f} s",
-        "executor": cal.executor,
-        "verify_seeds": cal.verify_seeds,
-        "rates": {k: _pct(v) for k, v in rates.items()},
-        "bands": bands,
-        "dists": dists,
-        "cells": cells,
-        "tail_figure": None,
-    }
+    return dists
 
+
+def _cell_row(c: CellResult) -> dict[str, Any]:
+    """A (scenario, configuration) cell: its runs, the tail fitted, the rates."""
+    return {
+        "scenario": c.scenario,
+        "configuration": c.configuration,
+        "runs": c.runs,
+        "failed": len(c.failed),
+        "forced": c.forced,
+        "gumbel": (
+            f"loc {_fmt(c.fit_new.all.loc)}, scale {_fmt(c.fit_new.all.scale)}"
+            if c.fit_new.all.loc is not None
+            else "no fit"
+        ),
+        "tail": (
+            f"top {_pct(c.fit_new.all.tail_share)} over {_fmt(c.fit_new.all.tail_u)}, "
+            f"β {_fmt(c.fit_new.all.tail_beta)}"
+            if c.fit_new.all.tail_u is not None
+            else "no fit"
+        ),
+        "old_predicted": _pct(c.old_predicted),
+        "old_empirical": _pct(c.old_empirical),
+        "new_predicted": _pct(c.new_predicted),
+        "new_empirical": _pct(c.new_empirical),
+        "verify_runs": c.verify_runs,
+        "verify_new": _pct(c.verify_new) if c.verify_runs else "–",
+        "verify_old": _pct(c.verify_old) if c.verify_runs else "–",
+        "scale_needed": _fmt(c.scale_needed, 4),
+    }
 
 def _figure(width: float = 6.4, height: float = 3.2) -> Any:
     from matplotlib.figure import Figure

@@ -15,7 +15,8 @@ afterwards, offline (:mod:`archself.calibration.bands`).
 Jobs run on the campaign executors (:mod:`archself.campaign.executors`): a local
 process pool or Dask, like ``archself campaign``, in lane batches of one scenario
 and configuration (:func:`run_calibration_unit`, :mod:`archself.lanes`). A worker
-parses the architecture text once per process. The saved runs' file format is in
+parses the architecture text once per process (:meth:`RunJob.architecture
+<archself.campaign.worker.RunJob.architecture>`). The saved runs' file format is in
 :mod:`archself.calibration.saved_runs`.
 """
 
@@ -26,10 +27,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from archself.campaign.worker import RunJob, run_error
+
 __all__ = [
     "CalJob",
     "Recorder",
-    "parsed",
     "plan_runs",
     "run_calibration_job",
     "run_jobs",
@@ -38,23 +40,13 @@ __all__ = [
     "seeds_from",
 ]
 
-_ARCHS: dict[str, Any] = {}  # text digest -> Architecture (parsed once per process)
+@dataclass(frozen=True, kw_only=True)
+class CalJob(RunJob):
+    """One calibration run: (scenario, configuration, seed), architecture fixed
+    (:class:`~archself.campaign.worker.RunJob` and the following)."""
 
-
-@dataclass(frozen=True)
-class CalJob:
-    """One calibration run: (scenario, configuration, seed), architecture fixed."""
-
-    arch_text: str
-    arch_digest: str
-    file: str
-    scenario: str
     configuration: str
-    replicate: int
-    seed: int
     phase: str = "calibration"
-    sweeps: tuple[Any, ...] = ()
-    point: tuple[float, ...] = ()
 
 
 def seeds_from(root_seed: int, start: int, n: int) -> list[int]:
@@ -108,8 +100,9 @@ def plan_runs(
         raise ValueError(f"{len(seeds)} seeds do not split over {len(points)} envelope points")
     return [
         CalJob(
-            text, digest, file, sc, conf, first_replicate + k, int(seeds[p * per + k]), phase,
-            sweeps, point,
+            arch_text=text, arch_digest=digest, file=file, scenario=sc, configuration=conf,
+            replicate=first_replicate + k, seed=int(seeds[p * per + k]), phase=phase,
+            sweeps=sweeps, point=point,
         )
         for k in range(per)
         for p, point in enumerate(points)
@@ -195,31 +188,6 @@ class Recorder:
         }
 
 
-def parsed(
-    text: str, digest: str, file: str, sweeps: tuple[Any, ...] = (), point: tuple[float, ...] = ()
-) -> Any:
-    """The architecture of ``text`` (at a sweep point), parsed once per process."""
-    key = f"{digest}:{point}"
-    arch = _ARCHS.get(key)
-    if arch is None:
-        from archself.model.loader import load_text
-
-        loaded = load_text(text, file)
-        arch = loaded.arch
-        if sweeps:
-            from archself.campaign.sweep import apply_values
-
-            arch = apply_values(loaded.data, sweeps, point, file)
-        if len(_ARCHS) > 16:
-            _ARCHS.clear()
-        _ARCHS[key] = arch
-    return arch
-
-
-def _architecture(job: CalJob) -> Any:
-    return parsed(job.arch_text, job.arch_digest, job.file, job.sweeps, job.point)
-
-
 def _row(job: CalJob) -> dict[str, Any]:
     return {
         "scenario": job.scenario,
@@ -243,7 +211,7 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
     """
     out = _row(job)
     try:
-        arch = _architecture(job)
+        arch = job.architecture()
         from archself.sim.run import simulate
 
         rec = Recorder(arch)
@@ -256,8 +224,6 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
         )
         out.update(rec.arrays())
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
-        from archself.campaign.worker import run_error
-
         out["error"] = run_error(exc)
     return out
 
@@ -271,7 +237,7 @@ def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
     try:
         from archself.lanes import simulate_lanes
 
-        archs = [_architecture(j) for j in jobs]
+        archs = [j.architecture() for j in jobs]
         recorders: list[Recorder] = []
 
         def recorder(arch: Any) -> Recorder:
@@ -315,7 +281,7 @@ def run_jobs(
     from archself.campaign.executors import default_workers
     from archself.lanes.batching import batched_types
 
-    if jobs and batched_types(_architecture(jobs[0])):
+    if jobs and batched_types(jobs[0].architecture()):
         units = calibration_units(jobs, workers or default_workers())
     else:  # some module type would run lane by lane: lanes would not pay
         units = [(j,) for j in jobs]

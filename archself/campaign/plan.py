@@ -97,12 +97,36 @@ def plan_campaign(
         Unknown scenario, bad PATH or value, a file with errors.
     """
     from archself.check import check
-    from archself.lanes.batching import batched_types
     from archself.model.loader import Loaded, load_text, read_text
 
+    _check_options(scenarios, seeds, modes, root_seed, trace_format)
+    file = str(arch_path)
+    text = read_text(arch_path)
+    loaded = load_text(text, file)
+    _no_errors(check(loaded), "")
+    arch = loaded.arch
+    missing = [s for s in scenarios if s not in arch.scenarios]
+    if missing:
+        known = ", ".join(arch.scenarios) or "none"
+        raise CampaignError(f"{file}: unknown scenario {missing[0]!r}; known: {known}")
+    est = estimate_campaign(arch, scenarios, sweeps, seeds, modes)
+    est.check(yes)
+    for point in sweep_points(sweeps) if sweeps else []:
+        swept = apply_values(loaded.data, sweeps, point, file, loaded.source)
+        setting = ", ".join(f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True))
+        _no_errors(check(Loaded(swept, loaded.source, loaded.data)), f"{setting}: ")
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    jobs = _jobs(text, digest, file, scenarios, seeds, sweeps, modes, root_seed, traces,
+                 trace_format)
+    return jobs, _meta(arch, file, digest, root_seed, sweeps, est)
+
+
+def _check_options(
+    scenarios: Sequence[str], seeds: int, modes: Sequence[str], root_seed: int, trace_format: str
+) -> None:
+    """Refuse options no campaign can take, before the file is read."""
     if trace_format not in ("json", "parquet"):
         raise CampaignError(f"unknown trace format {trace_format!r}; known: json, parquet")
-    file = str(arch_path)
     if seeds < 1:
         raise CampaignError("--seeds must be at least 1")
     if not scenarios:
@@ -116,28 +140,20 @@ def plan_campaign(
         )
     if root_seed < 0:
         raise CampaignError(f"--root-seed must be at least 0, not {root_seed}")
-    text = read_text(arch_path)
-    loaded = load_text(text, file)
-    _no_errors(check(loaded), "")
-    arch = loaded.arch
-    missing = [s for s in scenarios if s not in arch.scenarios]
-    if missing:
-        known = ", ".join(arch.scenarios) or "none"
-        raise CampaignError(f"{file}: unknown scenario {missing[0]!r}; known: {known}")
-    est = estimate_campaign(arch, scenarios, sweeps, seeds, modes)
-    est.check(yes)
-    points = sweep_points(sweeps)
-    for point in points if sweeps else []:
-        swept = apply_values(loaded.data, sweeps, point, file, loaded.source)
-        setting = ", ".join(f"{s.path}={_fmt(v)}" for s, v in zip(sweeps, point, strict=True))
-        _no_errors(check(Loaded(swept, loaded.source, loaded.data)), f"{setting}: ")
-    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _jobs(
+    text: str, digest: str, file: str, scenarios: Sequence[str], seeds: int,
+    sweeps: Sequence[Sweep], modes: Sequence[str], root_seed: int,
+    traces: str | Path | None, trace_format: str,
+) -> list[Job]:
+    """Every run: scenarios × sweep points × replicates × modes, in that order."""
     seed_list = run_seeds(root_seed, seeds)
     tdir = Path(traces) if traces is not None else None
     suffix = f".{trace_format}"
     jobs = []
     for sc in scenarios:
-        for point in points:
+        for point in sweep_points(sweeps):
             for rep, seed in enumerate(seed_list):
                 for mode in modes:
                     trace = None
@@ -158,7 +174,17 @@ def plan_campaign(
                             trace=trace,
                         )
                     )
-    meta = {
+    return jobs
+
+
+def _meta(
+    arch: Any, file: str, digest: str, root_seed: int, sweeps: Sequence[Sweep],
+    est: CampaignEstimate,
+) -> dict[str, Any]:
+    """The campaign's metadata in its results file (docs/json.md)."""
+    from archself.lanes.batching import batched_types
+
+    return {
         "format": 1,
         "architecture": arch.name,
         "file": Path(file).name,
@@ -171,7 +197,6 @@ def plan_campaign(
         # every module type batched: runs go in lanes by default (archself.lanes)
         "lane_types": batched_types(arch),
     }
-    return jobs, meta
 
 
 #: Caps of a campaign without ``--yes`` (runs, simulated steps) and in any case (memory).
@@ -305,7 +330,8 @@ def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
     --------
     >>> from archself.campaign.worker import Job
     >>> def job(i, mode, sc="s"):
-    ...     return Job(str(i), "", "d", "f", (), (), sc, i, i, mode)
+    ...     return Job(arch_text="", arch_digest="d", file="f", scenario=sc, replicate=i, seed=i,
+    ...                run_id=str(i), mode=mode)
     >>> jobs = [job(0, "fixed"), job(1, "adaptive"), job(2, "fixed"), job(3, "fixed", "t"),
     ...         job(4, "fixed"), job(5, "adaptive")]
     >>> [[j.run_id for j in u] for u in lane_units(jobs, 2)]

@@ -21,9 +21,9 @@ from typing import Any
 
 from archself.campaign.sweep import Sweep
 
-__all__ = ["Job", "run_error", "run_job", "run_unit", "summarize_run"]
+__all__ = ["Job", "RunJob", "run_error", "run_job", "run_unit", "summarize_run"]
 
-#: How many validated sweep points a worker keeps.
+#: How many validated sweep points a worker keeps (:meth:`RunJob.architecture`).
 CACHE_SIZE = 64
 
 _TEXTS: dict[str, Any] = {}  # arch digest -> Loaded (parsed once per process)
@@ -31,23 +31,68 @@ _ARCHS: OrderedDict[tuple[str, tuple[float, ...]], Any] = OrderedDict()
 
 
 @dataclass(frozen=True)
-class Job:
-    """One run of a campaign.
+class RunJob:
+    """One run of campaign, calibrate or identify: the file, the sweep point, the seed.
 
     Attributes
     ----------
-    run_id : str
-        Stable key of the run (scenario, sweep values, replicate, mode).
     arch_text, arch_digest, file : str
         The architecture file's text, its SHA-256 and its name (for messages).
-    sweeps : tuple of Sweep
-    point : tuple of float
-        The sweep values of this run, in the order of ``sweeps``.
     scenario : str
     replicate : int
         Index of the seed (0 … N−1).
     seed : int
         The seed passed to :func:`archself.sim.run.simulate`.
+    sweeps : tuple of Sweep
+    point : tuple of float
+        The sweep values of this run, in the order of ``sweeps``.
+    """
+
+    arch_text: str
+    arch_digest: str
+    file: str
+    scenario: str
+    replicate: int
+    seed: int
+    sweeps: tuple[Sweep, ...] = ()
+    point: tuple[float, ...] = ()
+
+    def architecture(self) -> Any:
+        """The validated model of the file at the job's sweep point, shared by the runs of
+        this process (a worker parses each text once and keeps :data:`CACHE_SIZE` points):
+        copy it before a run changes it."""
+        key = (self.arch_digest, tuple(self.point))
+        arch = _ARCHS.get(key)
+        if arch is not None:
+            _ARCHS.move_to_end(key)
+            return arch
+        loaded = _TEXTS.get(self.arch_digest)
+        if loaded is None:
+            from archself.model.loader import load_text
+
+            loaded = load_text(self.arch_text, self.file)
+            _TEXTS.clear()  # one campaign at a time
+            _TEXTS[self.arch_digest] = loaded
+        if self.sweeps:
+            from archself.campaign.sweep import apply_values
+
+            arch = apply_values(loaded.data, self.sweeps, self.point, self.file)
+        else:
+            arch = loaded.arch
+        _ARCHS[key] = arch
+        while len(_ARCHS) > CACHE_SIZE:
+            _ARCHS.popitem(last=False)
+        return arch
+
+
+@dataclass(frozen=True, kw_only=True)
+class Job(RunJob):
+    """One run of a campaign (:class:`RunJob` and the following).
+
+    Attributes
+    ----------
+    run_id : str
+        Stable key of the run (scenario, sweep values, replicate, mode).
     mode : str
         ``"fixed"`` or ``"adaptive"``.
     trace : str or None
@@ -55,41 +100,8 @@ class Job:
     """
 
     run_id: str
-    arch_text: str
-    arch_digest: str
-    file: str
-    sweeps: tuple[Sweep, ...]
-    point: tuple[float, ...]
-    scenario: str
-    replicate: int
-    seed: int
     mode: str
     trace: str | None = None
-
-
-def _architecture(job: Job) -> Any:
-    key = (job.arch_digest, tuple(job.point))
-    arch = _ARCHS.get(key)
-    if arch is not None:
-        _ARCHS.move_to_end(key)
-        return arch
-    loaded = _TEXTS.get(job.arch_digest)
-    if loaded is None:
-        from archself.model.loader import load_text
-
-        loaded = load_text(job.arch_text, job.file)
-        _TEXTS.clear()  # one campaign at a time
-        _TEXTS[job.arch_digest] = loaded
-    if job.sweeps:
-        from archself.campaign.sweep import apply_values
-
-        arch = apply_values(loaded.data, job.sweeps, job.point, job.file)
-    else:
-        arch = loaded.arch
-    _ARCHS[key] = arch
-    while len(_ARCHS) > CACHE_SIZE:
-        _ARCHS.popitem(last=False)
-    return arch
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -99,7 +111,7 @@ def run_job(job: Job) -> dict[str, Any]:
     """
     row = _base_row(job)
     try:
-        arch = _architecture(job)
+        arch = job.architecture()
         from archself.sim.run import simulate
 
         adapt = None
@@ -145,7 +157,7 @@ def run_unit(job_fn: Any, jobs: tuple[Job, ...]) -> list[dict[str, Any]]:
     try:
         from archself.lanes import simulate_lanes
 
-        archs = [_architecture(j) for j in jobs]
+        archs = [j.architecture() for j in jobs]
         adaptive = jobs[0].mode == "adaptive"
         results = simulate_lanes(
             [a.model_copy(deep=True) for a in archs], jobs[0].scenario, [j.seed for j in jobs],

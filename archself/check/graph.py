@@ -163,19 +163,13 @@ def active_edges(arch: Architecture, conf_name: str) -> list[tuple[int, Any]]:
 
 
 def check_configurations(ctx: Context) -> None:
-    import scipy.sparse
-    import scipy.sparse.csgraph
-
-    from archself.system.dataflow import algebraic_loop
-
+    """Rules on every configuration: one initial, its modules, their inputs, the data flow."""
     arch = ctx.arch
     initial = [n for n, c in arch.configurations.items() if c.initial]
     if len(initial) > 1:
         ctx.add("error", "initial",
                 f"{len(initial)} configurations are marked initial ({', '.join(initial)}); "
                 "mark one", ("configurations", initial[1], "initial"))
-    edge_pairs = {(e.source, e.target) for e in arch.edges}
-    ports = arch.edge_ports
     obj = arch.runtime.objective
     needed: dict[str, str] = {}  # module -> the objective key that reads it
     for key in ("actual", "reference"):
@@ -185,97 +179,133 @@ def check_configurations(ctx: Context) -> None:
     first = arch.initial_configuration()
     roles = {ctx.types[m].role for m in arch.configurations[first].modules
              if ctx.types.get(m) is not None}
-    for cname, conf in arch.configurations.items():
-        base: Path_ = ("configurations", cname)
-        names = [m for m in conf.modules if m in arch.modules]
-        if len(names) != len(conf.modules):
-            for i, m in enumerate(conf.modules):
-                refers(ctx, m, (*base, "modules", i))
-        for mod, key in needed.items():
-            if mod not in conf.modules:
-                ctx.add("error", "incomplete",
-                        f"configuration '{cname}' lacks '{mod}', which runtime.objective.{key} "
-                        f"reads ('{getattr(obj, key)}')", (*base, "modules"))
-        if cname != first:
-            have = {ctx.types[m].role for m in names if ctx.types.get(m) is not None}
-            if roles - have:
-                ctx.add("warning", "incomplete",
-                        f"configuration '{cname}' has no module of role "
-                        f"{', '.join(map(repr, sorted(roles - have)))}, which the initial "
-                        f"configuration '{first}' has", (*base, "modules"))
-        if len(set(conf.modules)) != len(conf.modules):
-            ctx.add("error", "duplicate", "a module is listed twice", (*base, "modules"))
-        for i, (s, t) in enumerate(conf.disabled_edges):
-            if (s, t) not in edge_pairs:
-                ctx.add("error", "reference", f"no edge {s} -> {t} to disable",
-                        (*base, "disabled_edges", i))
-        active = set(names)
+    for cname in arch.configurations:
+        names = _members(ctx, cname, needed, first, roles)
         edges = active_edges(arch, cname)
-        delivered: dict[str, dict[str, int]] = {m: {} for m in active}
-        for i, e in edges:
-            into = ports.into(i)  # the target's port
-            first_edge = delivered[e.target].setdefault(into, i)
-            target_cls = ctx.types.get(e.target)
-            many = target_cls is not None and into in target_cls.multi_inputs
-            if first_edge != i and not many:
-                other = arch.edges[first_edge].source
-                ctx.add("error", "double-input",
-                        f"configuration '{cname}': '{e.target}' receives '{into}' from both "
-                        f"'{other}' and '{e.source}'; one would overwrite the other (split the "
-                        "configuration, or disable one edge with disabled_edges)", ("edges", i))
-        for m in names:
-            cls = ctx.types.get(m)
-            if cls is None:
-                continue
-            missing = [s for s in cls.inputs if s not in delivered[m]]
-            if missing:
-                ctx.add("error", "incomplete",
-                        f"configuration '{cname}': '{m}' needs {', '.join(map(repr, missing))} "
-                        "but no active edge delivers it", (*base, "modules", conf.modules.index(m)))
-            k = arch.modules[m].constraints
-            for r in k.requires:
-                if r in arch.modules and r not in active:
-                    ctx.add("error", "module-constraint",
-                            f"configuration '{cname}': '{m}' requires '{r}', which is not active",
-                            (*base, "modules"))
-            for x in k.excludes:
-                if x in active:
-                    ctx.add("error", "module-constraint",
-                            f"configuration '{cname}': '{m}' excludes '{x}', which is active",
-                            (*base, "modules"))
-        flow = [
-            (e.source, e.target) for _, e in edges
-            if (cls := ctx.types.get(e.target)) is not None and cls.direct_feedthrough
-            and e.source != e.target
-        ]
-        loop = algebraic_loop(flow)
-        if loop:
-            path = " -> ".join([*loop, loop[0]])
-            ctx.add("error", "algebraic-loop",
-                    f"configuration '{cname}' has an algebraic loop {path}: a cycle needs a "
-                    "module whose outputs depend on its state only (direct_feedthrough = False)",
-                    (*base, "modules"))
-        if len(active) > 1:
-            nodes = sorted(active)
-            pos = {m: k for k, m in enumerate(nodes)}
-            links = scipy.sparse.coo_matrix(
-                ([1.0] * len(edges),
-                 ([pos[e.source] for _, e in edges], [pos[e.target] for _, e in edges])),
-                shape=(len(nodes), len(nodes)),
-            )
-            ncomp, labels = scipy.sparse.csgraph.connected_components(links, directed=False)
-            if ncomp > 1:
-                parts: dict[int, list[str]] = {}  # in the order of their first module
-                for m, label in zip(nodes, labels.tolist(), strict=True):
-                    parts.setdefault(label, []).append(m)
-                lonely = min(parts.values(), key=len)
-                ctx.add("error", "incomplete",
-                        f"configuration '{cname}' is not connected: {', '.join(lonely)} "
-                        "has no active edge to the rest", (*base, "modules"))
-        for b in arch.constraints:
-            use = sum(arch.modules[m].resources.get(b.resource, 0.0) for m in active)
-            if use > b.max:
-                ctx.add("warning", "budget",
-                        f"configuration '{cname}' uses {use:g} {b.resource} > budget {b.max:g} "
-                        "(Eq. 27); the runtime will never choose it", base, key=True)
+        _inputs(ctx, cname, names, edges)
+        _flow(ctx, cname, names, edges)
+
+
+def _members(
+    ctx: Context, cname: str, needed: dict[str, str], first: str, roles: set[str]
+) -> list[str]:
+    """A configuration's modules: known, the objective's, the initial one's roles, once
+    each, its disabled edges; the known ones."""
+    arch = ctx.arch
+    conf = arch.configurations[cname]
+    obj = arch.runtime.objective
+    base: Path_ = ("configurations", cname)
+    edge_pairs = {(e.source, e.target) for e in arch.edges}
+    names = [m for m in conf.modules if m in arch.modules]
+    if len(names) != len(conf.modules):
+        for i, m in enumerate(conf.modules):
+            refers(ctx, m, (*base, "modules", i))
+    for mod, key in needed.items():
+        if mod not in conf.modules:
+            ctx.add("error", "incomplete",
+                    f"configuration '{cname}' lacks '{mod}', which runtime.objective.{key} "
+                    f"reads ('{getattr(obj, key)}')", (*base, "modules"))
+    if cname != first:
+        have = {ctx.types[m].role for m in names if ctx.types.get(m) is not None}
+        if roles - have:
+            ctx.add("warning", "incomplete",
+                    f"configuration '{cname}' has no module of role "
+                    f"{', '.join(map(repr, sorted(roles - have)))}, which the initial "
+                    f"configuration '{first}' has", (*base, "modules"))
+    if len(set(conf.modules)) != len(conf.modules):
+        ctx.add("error", "duplicate", "a module is listed twice", (*base, "modules"))
+    for i, (s, t) in enumerate(conf.disabled_edges):
+        if (s, t) not in edge_pairs:
+            ctx.add("error", "reference", f"no edge {s} -> {t} to disable",
+                    (*base, "disabled_edges", i))
+    return names
+
+
+def _inputs(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any]]) -> None:
+    """Every input of an active module delivered once (or to a multi-input port), and the
+    modules' ``requires``/``excludes``."""
+    arch = ctx.arch
+    conf = arch.configurations[cname]
+    base: Path_ = ("configurations", cname)
+    ports = arch.edge_ports
+    active = set(names)
+    delivered: dict[str, dict[str, int]] = {m: {} for m in active}
+    for i, e in edges:
+        into = ports.into(i)  # the target's port
+        first_edge = delivered[e.target].setdefault(into, i)
+        target_cls = ctx.types.get(e.target)
+        many = target_cls is not None and into in target_cls.multi_inputs
+        if first_edge != i and not many:
+            other = arch.edges[first_edge].source
+            ctx.add("error", "double-input",
+                    f"configuration '{cname}': '{e.target}' receives '{into}' from both "
+                    f"'{other}' and '{e.source}'; one would overwrite the other (split the "
+                    "configuration, or disable one edge with disabled_edges)", ("edges", i))
+    for m in names:
+        cls = ctx.types.get(m)
+        if cls is None:
+            continue
+        missing = [s for s in cls.inputs if s not in delivered[m]]
+        if missing:
+            ctx.add("error", "incomplete",
+                    f"configuration '{cname}': '{m}' needs {', '.join(map(repr, missing))} "
+                    "but no active edge delivers it", (*base, "modules", conf.modules.index(m)))
+        k = arch.modules[m].constraints
+        for r in k.requires:
+            if r in arch.modules and r not in active:
+                ctx.add("error", "module-constraint",
+                        f"configuration '{cname}': '{m}' requires '{r}', which is not active",
+                        (*base, "modules"))
+        for x in k.excludes:
+            if x in active:
+                ctx.add("error", "module-constraint",
+                        f"configuration '{cname}': '{m}' excludes '{x}', which is active",
+                        (*base, "modules"))
+
+
+def _flow(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any]]) -> None:
+    """The data flow of a configuration: no algebraic loop, connected, within the budgets."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    from archself.system.dataflow import algebraic_loop
+
+    arch = ctx.arch
+    base: Path_ = ("configurations", cname)
+    active = set(names)
+    flow = [
+        (e.source, e.target) for _, e in edges
+        if (cls := ctx.types.get(e.target)) is not None and cls.direct_feedthrough
+        and e.source != e.target
+    ]
+    loop = algebraic_loop(flow)
+    if loop:
+        path = " -> ".join([*loop, loop[0]])
+        ctx.add("error", "algebraic-loop",
+                f"configuration '{cname}' has an algebraic loop {path}: a cycle needs a "
+                "module whose outputs depend on its state only (direct_feedthrough = False)",
+                (*base, "modules"))
+    if len(active) > 1:
+        nodes = sorted(active)
+        pos = {m: k for k, m in enumerate(nodes)}
+        links = scipy.sparse.coo_matrix(
+            ([1.0] * len(edges),
+             ([pos[e.source] for _, e in edges], [pos[e.target] for _, e in edges])),
+            shape=(len(nodes), len(nodes)),
+        )
+        ncomp, labels = scipy.sparse.csgraph.connected_components(links, directed=False)
+        if ncomp > 1:
+            parts: dict[int, list[str]] = {}  # in the order of their first module
+            for m, label in zip(nodes, labels.tolist(), strict=True):
+                parts.setdefault(label, []).append(m)
+            lonely = min(parts.values(), key=len)
+            ctx.add("error", "incomplete",
+                    f"configuration '{cname}' is not connected: {', '.join(lonely)} "
+                    "has no active edge to the rest", (*base, "modules"))
+    for b in arch.constraints:
+        use = sum(arch.modules[m].resources.get(b.resource, 0.0) for m in active)
+        if use > b.max:
+            ctx.add("warning", "budget",
+                    f"configuration '{cname}' uses {use:g} {b.resource} > budget {b.max:g} "
+                    "(Eq. 27); the runtime will never choose it", base, key=True)
 

@@ -26,6 +26,11 @@ from archself.cli.base import (
 )
 from archself.errors import ArchselfError
 
+ConfigurationsOption = Annotated[
+    list[str] | None,
+    typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
+]
+
 
 def calibrate(
     arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
@@ -40,10 +45,7 @@ def calibrate(
         list[str] | None,
         typer.Option("--scenario", "-s", help="Fault-free scenario (repeatable; default: all)."),
     ] = None,
-    configurations: Annotated[
-        list[str] | None,
-        typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
-    ] = None,
+    configurations: ConfigurationsOption = None,
     verify_seeds: Annotated[
         int, typer.Option("--verify-seeds", min=0, help="Fresh seeds to measure the new rate on.")
     ] = 0,
@@ -101,6 +103,24 @@ def calibrate(
     bands so that at most P of the nominal runs raise a candidate (Gumbel tail of
     the per-run maxima). docs/calibrate.md.
     """
+    _calibrate(
+        arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
+        configurations=configurations, verify_seeds=verify_seeds, executor=executor,
+        address=address, workers=workers, root_seed=root_seed, output=output, in_place=in_place,
+        force=force, report_dir=report_dir, json_out=json_out, save_runs=save_runs,
+        from_runs=from_runs, envelope=envelope, weight=weight,
+    )
+
+
+def _calibrate(
+    arch_path: Path, *, false_switch: float, seeds: int, scenarios: list[str] | None,
+    configurations: list[str] | None, verify_seeds: int, executor: Executor,
+    address: str | None, workers: int | None, root_seed: int, output: Path | None,
+    in_place: bool, force: bool, report_dir: Path | None, json_out: bool,
+    save_runs: Path | None, from_runs: Path | None, envelope: list[str] | None,
+    weight: list[str] | None,
+) -> None:
+    """``archself calibrate``: the options guarded, the bands derived, written and printed."""
     from archself.calibration.driver import calibrate as run_calibration
     from archself.calibration.edit import check_output
 
@@ -183,10 +203,7 @@ def _perturbations(items: list[str] | None) -> dict[str, tuple[str, float]]:
 
 def identify(
     arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
-    configurations: Annotated[
-        list[str] | None,
-        typer.Option("--configuration", "-c", help="Configuration (repeatable; default: all)."),
-    ] = None,
+    configurations: ConfigurationsOption = None,
     scenario: Annotated[
         str | None,
         typer.Option("--scenario", "-s", help="Fault-free scenario (default: nominal)."),
@@ -249,6 +266,22 @@ def identify(
     time-averaged residuals (non-negative least squares, standard errors, R²).
     docs/identify.md.
     """
+    _identify(
+        arch_path, configurations=configurations, scenario=scenario, seeds=seeds, kind=kind,
+        magnitude=magnitude, perturb=perturb, settle=settle, min_excitation=min_excitation,
+        executor=executor, address=address, workers=workers, root_seed=root_seed,
+        json_out=json_out, all_edges=all_edges, output=output, write_back=write_back, force=force,
+    )
+
+
+def _identify(
+    arch_path: Path, *, configurations: list[str] | None, scenario: str | None, seeds: int,
+    kind: str, magnitude: float, perturb: list[str] | None, settle: float | None,
+    min_excitation: float, executor: IdentifyExecutor, address: str | None,
+    workers: int | None, root_seed: int, json_out: bool, all_edges: bool, output: Path | None,
+    write_back: Path | None, force: bool,
+) -> None:
+    """``archself identify``: the options guarded, W fitted, the report and copy written."""
     from archself.calibration.edit import check_output
     from archself.calibration.identify import identify as run_identify
     from archself.calibration.identify import written_copy

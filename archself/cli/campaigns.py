@@ -92,6 +92,21 @@ def campaign(
     the same table whatever the number of workers. A campaign larger than the cap
     (runs, steps) needs --yes; --out is never the architecture file.
     """
+    _campaign(
+        arch_path, scenarios, seeds, sweep=sweep, mode=mode, executor=executor, address=address,
+        workers=workers, out=out, resume=resume, force=force, traces=traces,
+        trace_format=trace_format, root_seed=root_seed, json_out=json_out, yes=yes, lanes=lanes,
+    )
+
+
+def _campaign(
+    arch_path: Path, scenarios: list[str], seeds: int, *, sweep: list[str] | None, mode: Mode,
+    executor: Executor, address: str | None, workers: int | None, out: Path, resume: bool,
+    force: bool, traces: Path | None, trace_format: TraceFormat, root_seed: int,
+    json_out: bool, yes: bool, lanes: int | None,
+) -> None:
+    """``archself campaign``: the options guarded, the campaign planned and run, the outcome
+    printed."""
     from archself.campaign.driver import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
     from archself.io.atomic import protect

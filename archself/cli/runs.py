@@ -164,6 +164,18 @@ def simulate(
     With --compare both run from the same start and seed; --trace FILE writes the
     adaptive trace to FILE and the fixed one to FILE with '.fixed' before the suffix.
     """
+    _simulate(
+        arch_path, scenario, config=config, fixed=fixed, compare=compare, seed=seed,
+        json_out=json_out, trace=trace, report=report, fig_format=fig_format, dpi=dpi, yes=yes,
+    )
+
+
+def _simulate(
+    arch_path: Path, scenario: str, *, config: str | None, fixed: bool, compare: bool,
+    seed: int | None, json_out: bool, trace: Path | None, report: Path | None,
+    fig_format: list[Any] | None, dpi: int, yes: bool,
+) -> None:
+    """``archself simulate``: the options guarded, the runs made, written and printed."""
     if fixed and compare:
         raise _fail("--fixed and --compare exclude each other", 2)
     to_stdout = trace is not None and str(trace) == "-"

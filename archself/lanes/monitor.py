@@ -18,6 +18,7 @@ Monitor does: that filter keeps its value and the module's κ has a finding.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -51,22 +52,46 @@ def observe_group(
     dict of int to Observation
         lane -> its observation; the lanes left out observe on their own.
     """
+    group = _gather(monitors, lanes, idx)
+    if group is None:
+        return {}
+    return _observations(monitors, group, j_now, *_update(group))
+
+
+@dataclass(frozen=True)
+class _Group:
+    """The lanes of a group that the bulk path observes, and what they share."""
+
+    first: Monitor
+    lay0: Any
+    keep: list[int]
+    lays: list[Any]
+    X: np.ndarray
+    F: np.ndarray
+    partial: bool
+    whole: np.ndarray | None
+    t: float
+    dt: float
+
+
+def _gather(monitors: list[Monitor], lanes: Any, idx: np.ndarray) -> _Group | None:
+    """The samples of the lanes ``idx`` the bulk path can observe; None when it cannot
+    (operating limits, every lane unavailable, no residual, a lane out of step)."""
     first = monitors[int(idx[0])]
     active = lanes.active_set(int(idx[0]))
     lay0 = first.layout(active)
     if any(limits for *_, limits in lay0.constrained):
-        return {}
+        return None
     health = lanes.health
     down = {i for why in health.why.values() for i in why}
     keep = [int(i) for i in idx.tolist() if i not in down]
     if not keep or not lay0.pairs:
-        return {}
+        return None
     table = lanes.signal_arrays
     cols = [table(m)[sig] for m, sig in lay0.pairs]
     sel = np.array(keep, dtype=np.intp)
     X = np.stack([np.asarray(c, dtype=float)[sel] for c in cols], axis=1)
     F = np.isfinite(X)  # the usable samples; a filter without one keeps its value
-    partial = not F.all()
     t = float(lanes.t)
     period = first.arch.runtime.period_s
     prev = first._t_prev
@@ -74,11 +99,20 @@ def observe_group(
     if dt <= 0:
         dt = period
     if any(monitors[i]._t_prev != prev for i in keep):
-        return {}  # a lane out of step with the group: every lane observes alone
+        return None  # a lane out of step with the group: every lane observes alone
     lays = [monitors[i].layout(active) for i in keep]
-    V = np.stack([lay.value for lay in lays])
-    S = np.stack([lay.samples for lay in lays])
-    VT = np.stack([lay.valid_time for lay in lays])
+    partial = not F.all()
+    whole = F.all(axis=1) if partial else None  # the lanes with every sample usable
+    return _Group(first, lay0, keep, lays, X, F, partial, whole, t, dt)
+
+
+def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The filters of every lane updated as ``(lanes, modules)`` arrays, as
+    :meth:`Monitor.observe` updates one lane's: ``(value, samples, valid_time, r)``."""
+    first, lay0, X, F, dt = g.first, g.lay0, g.X, g.F, g.dt
+    V = np.stack([lay.value for lay in g.lays])
+    S = np.stack([lay.samples for lay in g.lays])
+    VT = np.stack([lay.valid_time for lay in g.lays])
     gain = lay0.gains(first, dt)
     with np.errstate(all="ignore"):
         new = V + gain * (X - V)
@@ -86,7 +120,7 @@ def observe_group(
             f = lay0.instant & (S == 0)
             if f.any():
                 new = np.where(f, X, new)
-        if partial:
+        if g.partial:
             new = np.where(F, new, V)
             S1 = S + F
             VT1 = VT + F * max(dt, 0.0)
@@ -100,22 +134,31 @@ def observe_group(
             res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
         res = np.where(np.isfinite(new), np.minimum(res, MAX_RESIDUAL), 0.0)
         untrusted = VT1 < lay0.trust_time
-        if partial:
+        if g.partial:
             untrusted |= ~F  # no residual from a filter that took no sample
         if untrusted.any():
             res = np.where(untrusted, 0.0, res)
+    return new, S1, VT1, res
+
+
+def _observations(
+    monitors: list[Monitor], g: _Group, j_now: np.ndarray, new: np.ndarray, S1: np.ndarray,
+    VT1: np.ndarray, res: np.ndarray,
+) -> dict[int, Observation]:
+    """Each lane's filters stored back into its Monitor, and its :class:`Observation`."""
+    first, lay0, F, t = g.first, g.lay0, g.F, g.t
     n = len(first.names)
-    R = np.zeros((len(keep), n))
+    R = np.zeros((len(g.keep), n))
     R[:, lay0.on_pos] = res
     violations = {name: list(fixed) for _k, name, fixed, _l in lay0.constrained if fixed}
     violated = np.zeros(n, dtype=bool)
     if violations:
         violated[[k for k, name, *_ in lay0.constrained if name in violations]] = True
     flagged = (violated & lay0.active).nonzero()[0] if violations else _NO_FLAGS
-    whole = F.all(axis=1) if partial else None
+    whole = g.whole
     j_ref = float(first.arch.runtime.objective.acceptable)
     out: dict[int, Observation] = {}
-    for row, (i, lay) in enumerate(zip(keep, lays, strict=True)):
+    for row, (i, lay) in enumerate(zip(g.keep, g.lays, strict=True)):
         mon = monitors[i]
         mon._t_prev = t
         lay.value, lay.samples, lay.valid_time = new[row], S1[row], VT1[row]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -32,8 +33,8 @@ from archself.errors import SimulationError
 from archself.lanes.module import ALL
 from archself.lanes.system import LaneSystem
 from archself.model.architecture import Architecture
-from archself.sim.metrics import error_metrics
 from archself.sim.result import RunResult
+from archself.sim.run import Recording
 from archself.system.compiler import compile_system
 
 __all__ = ["simulate_lanes"]
@@ -97,8 +98,46 @@ def simulate_lanes(
     CompileError
         The configuration cannot be built.
     """
-    from archself.sim.run import run_meta
+    plan = _plan(arch, scenario, seeds, configuration, adapt)
+    switches = _step(plan)
+    loops = plan.loops
+    return [
+        plan.rec.result(
+            lane, a, seed, "adaptive" if adapt else "fixed", plan.start,
+            plan.lanes.configuration[lane], switches[lane],
+            list(getattr(loops[lane], "decisions", None) or []) if loops is not None else [],
+        )
+        for lane, (a, seed) in enumerate(zip(plan.archs, seeds, strict=True))
+    ]
 
+
+@dataclass
+class _Lanes:
+    """What :func:`simulate_lanes` plans: the lanes, their loops, the series."""
+
+    archs: list[Architecture]
+    start: str
+    lanes: LaneSystem
+    rec: Recording
+    loops: list[Any] | None = None
+    views: list[Any] | None = None
+    monitors: list[Any] | None = None
+
+
+def _plan(
+    arch: Architecture | Sequence[Architecture],
+    scenario: str,
+    seeds: Sequence[int],
+    configuration: str | None,
+    adapt: bool | Callable[[Architecture], Any],
+) -> _Lanes:
+    """Check the lanes, compile one system per lane, make each lane's loop.
+
+    Raises
+    ------
+    SimulationError, CompileError
+        As :func:`simulate_lanes`.
+    """
     archs = [arch] * len(seeds) if isinstance(arch, Architecture) else list(arch)
     if len(archs) != len(seeds) or not len(seeds):
         raise SimulationError("simulate_lanes needs one seed per lane (and one architecture)")
@@ -115,122 +154,94 @@ def simulate_lanes(
             raise SimulationError(f"lanes must share scenario {scenario!r} and its duration")
         systems.append(compile_system(a, start, seed=int(seed), scenario=s))
     lanes = LaneSystem(systems)
-    N = lanes.n
-    rt = first.runtime
-    dt = float(rt.step_s)
-    n = int(round(sc.duration_s / dt))
-    per = max(1, int(round(rt.period_s / dt)))
-    act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
-    ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
-    comps = list(rt.objective.components)
-    record = list(rt.record.items())
-    res_mods = [(m, spec.residual.signal) for m, spec in first.modules.items() if spec.residual]
-    conf_index = {c: k for k, c in enumerate(first.configurations)}
-    loops = views = monitors = None
+    plan = _Lanes(archs, start, lanes, Recording.of(first, scenario, lanes.n))
     if adapt:
-        from archself.lanes.monitor import observe_group
         from archself.lanes.view import LaneView
         from archself.runtime.mapek import MapeK
         from archself.runtime.monitor import Monitor
 
         make = MapeK if adapt is True else adapt
-        loops = [make(a) for a in archs]
-        views = [LaneView(lanes, i) for i in range(N)]
+        plan.loops = loops = [make(a) for a in archs]
+        plan.views = [LaneView(lanes, i) for i in range(lanes.n)]
         # loops observing with the runtime's Monitor take the lanes' bulk Monitor stage
         if all(isinstance(getattr(lp, "monitor", None), Monitor) for lp in loops):
-            monitors = [lp.monitor for lp in loops]
-    switches: list[list[dict[str, Any]]] = [[] for _ in range(N)]
+            plan.monitors = [lp.monitor for lp in loops]
+    return plan
 
+
+def _layouts(plan: _Lanes) -> Callable[[str], tuple[list, list]]:
+    """``layout(conf)``: the recorded sources and residual modules of ``conf`` (found
+    once per configuration; the per-run driver looks them up on a change)."""
     per_conf: dict[str, tuple[list, list]] = {}
+    lanes, rec = plan.lanes, plan.rec
 
     def layout(conf: str) -> tuple[list, list]:
-        """The recorded sources and residual modules of ``conf`` (per-run: on a change)."""
         got = per_conf.get(conf)
         if got is None:
-            plan = lanes.plan(conf)
+            active = lanes.plan(conf)
             pool = lanes.systems[0]
             srcs = []
-            for key, sig in record:
-                src = next((m for m in plan.active if sig in pool._module(m).outputs), None)
+            for key, sig in rec.record:
+                src = next((m for m in active.active if sig in pool._module(m).outputs), None)
                 if src is not None:
                     srcs.append((key, src, sig))
-            res = [(j, m, s) for j, (m, s) in enumerate(res_mods) if m in plan.active_set]
+            res = [(j, m, s) for j, (m, s) in enumerate(rec.res_mods) if m in active.active_set]
             got = per_conf[conf] = (srcs, res)
         return got
 
-    t_arr = np.empty(n)
-    J = np.empty((n, N))
-    res = np.full((n, N, len(res_mods)), math.nan)
-    conf_arr = np.zeros((n, N), dtype=int)
-    cols: dict[str, np.ndarray] = {}
+    return layout
 
-    def put(key: str, i: int, val: Any, idx: Any) -> None:
-        if val is None or type(val) is list:
-            return
-        arr = cols.get(key)
-        if arr is None:
-            w = 1 if val.ndim == 1 else val.shape[1]
-            arr = cols[key] = np.full((n, N, w), math.nan)
-        arr[i, idx] = (val if val.ndim == 2 else val[:, None])[idx]
 
+def _step(plan: _Lanes) -> list[list[dict[str, Any]]]:
+    """Step the lanes through the scenario, record every step, call each lane's loop
+    every ``runtime.period_s``; the switches of each lane."""
+    lanes, rec = plan.lanes, plan.rec
+    N, rt = lanes.n, plan.archs[0].runtime
+    per = max(1, int(round(rt.period_s / rec.dt)))
+    act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
+    ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
+    switches: list[list[dict[str, Any]]] = [[] for _ in range(N)]
+    layout = _layouts(plan)
     signal = lanes.signal
-    for i in range(n):
+    for i in range(rec.n):
         lanes.step()
-        t_arr[i] = lanes.t
+        rec.t[i] = lanes.t
         a = signal(act_mod, act_sig)
         r = signal(ref_mod, ref_sig)
-        J[i] = _norms(a, r, comps, N)
-        put("reference", i, r, ALL)
-        put("actual", i, a, ALL)
+        rec.J[i] = _norms(a, r, rec.comps, N)
+        rec.put_lanes("reference", i, r, ALL)
+        rec.put_lanes("actual", i, a, ALL)
         for conf, idx in lanes.groups.items():
             sel = ALL if len(idx) == N else idx
-            conf_arr[i, sel] = conf_index.get(conf, -1)
+            rec.conf[i, sel] = rec.conf_index.get(conf, -1)
             srcs, res_idx = layout(conf)
             for key, src, sig in srcs:
-                put(key, i, signal(src, sig), sel)
+                rec.put_lanes(key, i, signal(src, sig), sel)
             for j, m, s in res_idx:
                 v = lanes.signal_arrays(m).get(s)
                 if v is not None:
-                    res[i, sel, j] = v[sel]
-        if loops is not None and views is not None and (i + 1) % per == 0:
-            lanes.objective = J[i]
-            observed: dict[int, Any] = {}
-            if monitors is not None:
-                for idx in lanes.groups.values():
-                    observed.update(observe_group(monitors, lanes, idx, J[i]))
-            for lane in range(N):
-                obs = observed.get(lane)
-                view = views[lane]
-                out = loops[lane](view) if obs is None else loops[lane](view, observation=obs)
-                view.done(len(getattr(loops[lane], "updates", ())))
-                if out:
-                    switches[lane].extend(dict(s) for s in out)
+                    rec.res[i, sel, j] = v[sel]
+        if plan.loops is not None and (i + 1) % per == 0:
+            _adapt(plan, rec.J[i], switches)
+    return switches
 
-    results = []
-    for lane, (a, seed) in enumerate(zip(archs, seeds, strict=True)):
-        series: dict[str, np.ndarray] = {"t": t_arr.copy(), "J": J[:, lane].copy()}
-        for key in ("reference", "actual", *(k for k, _ in record)):
-            if key in cols:
-                arr = cols[key][:, lane]
-                series[key] = arr[:, 0].copy() if arr.shape[1] == 1 else arr.copy()
-        series["configuration"] = conf_arr[:, lane].copy()
-        for j, (m, _s) in enumerate(res_mods):
-            series[f"residual.{m}"] = res[:, lane, j].copy()
-        results.append(
-            RunResult(
-                scenario=scenario,
-                seed=int(seed),
-                mode="adaptive" if adapt else "fixed",
-                configuration=start,
-                final_configuration=lanes.configuration[lane],
-                metrics=error_metrics(t_arr, J[:, lane], a.runtime.objective.unit),
-                switches=switches[lane],
-                series=series,
-                decisions=list(getattr(loops[lane], "decisions", None) or [])
-                if loops is not None else [],
-                meta=run_meta(a, a.scenarios[scenario], dt, comps, res_mods),
-                configurations=list(a.configurations),
-                unit=a.runtime.objective.unit,
-            )
-        )
-    return results
+
+def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) -> None:
+    """One cycle of every lane's loop: the Monitor stage in bulk where it can, each loop
+    called with its lane's view; the switches appended to ``switches``."""
+    from archself.lanes.monitor import observe_group
+
+    lanes, loops, views = plan.lanes, plan.loops, plan.views
+    assert loops is not None and views is not None
+    lanes.objective = J
+    observed: dict[int, Any] = {}
+    if plan.monitors is not None:
+        for idx in lanes.groups.values():
+            observed.update(observe_group(plan.monitors, lanes, idx, J))
+    for lane in range(lanes.n):
+        obs = observed.get(lane)
+        view = views[lane]
+        out = loops[lane](view) if obs is None else loops[lane](view, observation=obs)
+        view.done(len(getattr(loops[lane], "updates", ())))
+        if out:
+            switches[lane].extend(dict(s) for s in out)

@@ -33,10 +33,11 @@ import secrets
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from archself.errors import OutputError
 from archself.io.atomic import write_bytes, write_text
@@ -254,6 +255,8 @@ def write_architecture_report(
 
 
 def _write(arch: Architecture, out: Path, dot: str | None | bool) -> ArchitectureReport:
+    """Every file of the report into ``out``: the DSMs and graphs of the architecture and
+    of each configuration, the configurations' diffs, the graphs rendered, the index."""
     rep = ArchitectureReport(out)
     dot_exe = shutil.which("dot") if dot is True else (dot or None)
 
@@ -261,11 +264,39 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         write_text(out / name, text)
         rep.files.append(name)
 
-    confs = list(arch.configurations)
-    cslug = unique_slugs(confs)
-    scopes: list[tuple[str | None, str]] = [(None, "architecture")]
-    scopes += [(c, f"config-{cslug[c]}") for c in confs]
+    cslug = unique_slugs(list(arch.configurations))
+    dsm_rows, graphs = _scopes(arch, cslug, put)
+    diffs = []
+    for a, b in diff_pairs(arch):
+        d = config_diff(arch, a, b)
+        stem = f"diff-{cslug[a]}--{cslug[b]}"
+        put(f"{stem}.dot", render("graph.dot.j2", graph=diff_graph(arch, d)))
+        diffs.append({"diff": d, "stem": stem})
+    _render_graphs(rep, out, dot_exe)
+    images = {f for f in rep.files if f.endswith((".svg", ".png"))}
 
+    put("index.html", render(
+        "report_index.html.j2",
+        arch=arch,
+        kinds=[(k, KIND_TITLES[k], sum(1 for m in arch.modules.values() if m.kind == k))
+               for k in KINDS],
+        dsms=dsm_rows,
+        graphs=graphs,
+        diffs=diffs,
+        images=images,
+        note=rep.note,
+        actions=arch.actions,
+    ))
+    return rep
+
+
+def _scopes(
+    arch: Architecture, cslug: dict[str, str], put: Callable[[str, str], None]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The DSM (HTML, Markdown, a CSV per ordering) and the graph (DOT) of the whole
+    architecture and of each configuration; their rows in the index."""
+    scopes: list[tuple[str | None, str]] = [(None, "architecture")]
+    scopes += [(c, f"config-{cslug[c]}") for c in arch.configurations]
     dsm_rows = []
     graphs = []
     for conf, stem in scopes:
@@ -296,14 +327,11 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         graphs.append({"scope": scope, "subtitle": g.subtitle, "stem": f"graph-{stem}",
                        "nodes": sum(n.status != "hidden" for n in g.nodes),
                        "edges": sum(e.status != "hidden" for e in g.edges)})
+    return dsm_rows, graphs
 
-    diffs = []
-    for a, b in diff_pairs(arch):
-        d = config_diff(arch, a, b)
-        stem = f"diff-{cslug[a]}--{cslug[b]}"
-        put(f"{stem}.dot", render("graph.dot.j2", graph=diff_graph(arch, d)))
-        diffs.append({"diff": d, "stem": stem})
 
+def _render_graphs(rep: ArchitectureReport, out: Path, dot_exe: str | None) -> None:
+    """Every DOT file of ``rep`` as SVG and PNG with Graphviz, or the note why not."""
     failures: list[str] = []
     if dot_exe:
         for name in [f for f in rep.files if f.endswith(".dot")]:
@@ -322,18 +350,3 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         rep.note = ("Graphviz `dot` was not found on PATH: only the DOT sources were written. "
                     "Install Graphviz and re-run, or render one with `dot -Tsvg FILE.dot -o "
                     "FILE.svg`.")
-    images = {f for f in rep.files if f.endswith((".svg", ".png"))}
-
-    put("index.html", render(
-        "report_index.html.j2",
-        arch=arch,
-        kinds=[(k, KIND_TITLES[k], sum(1 for m in arch.modules.values() if m.kind == k))
-               for k in KINDS],
-        dsms=dsm_rows,
-        graphs=graphs,
-        diffs=diffs,
-        images=images,
-        note=rep.note,
-        actions=arch.actions,
-    ))
-    return rep

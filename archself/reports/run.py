@@ -260,58 +260,10 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
         written before archself recorded it: pass the architecture file).
     """
     first = results[0]
-    meta = dict(first.meta)
-    if arch is not None:
-        from archself.sim.run import _report_context
-
-        ctx = _report_context(arch, arch.scenarios[first.scenario])  # a trace's meta.report
-        name = arch.name
-        objective = {"actual": arch.runtime.objective.actual,
-                     "reference": arch.runtime.objective.reference,
-                     "components": list(arch.runtime.objective.components)}
-        unit = arch.runtime.objective.unit
-        period_s = float(arch.runtime.period_s)
-        modules = list(arch.modules)
-    else:
-        from archself.errors import TraceError
-
-        if not isinstance(meta.get("report"), dict) or "objective" not in meta:
-            raise TraceError("error: the trace does not hold the run report's settings "
-                             "(written by an older archself); pass the architecture file: "
-                             "archself report ARCH --trace TRACE -o DIR")
-        ctx = meta["report"]
-        name = str(meta.get("architecture", "?"))
-        objective = {k: meta["objective"][k] for k in ("actual", "reference", "components")}
-        unit = meta["objective"].get("unit")
-        period_s = float(meta.get("period_s", math.nan))
-        modules = []
+    ctx, name, objective, unit, period_s, modules = _settings(arch, first)
     selector, tau = _selector(ctx)
-    runs = []
-    series = {}
-    decisions: list[dict[str, Any]] = []
-    for r in results:
-        recs = r.trace_decisions()
-        updates = tuple(
-            {"t_s": d["t"], "action": d["chosen"]["action"], "module": d["chosen"].get("module"),
-             "set": d["chosen"].get("set")}
-            for d in recs if d.get("chosen") and not d["chosen"].get("to")
-        )
-        runs.append(RunSummary(r.mode, r.configuration, r.final_configuration,
-                               dict(r.metrics), tuple(dict(s) for s in r.switches), updates))
-        series[r.mode] = r.series
-        if r.mode == "adaptive":
-            decisions = recs
-    # a trace: the modules in the order of the decision records (the file's order)
-    modules += list(dict.fromkeys(n for d in decisions for n in (d.get("z") or {})
-                                  if n not in modules))
-    names = [n for n in modules
-             if any((d.get("z") or {}).get(n) not in (None, 0.0) for d in decisions)]
-    z_t = np.array([float(d["t"]) for d in decisions])
-    z = {
-        n: np.array([abs(v) if (v := (d.get("z") or {}).get(n)) is not None else np.nan
-                     for d in decisions], dtype=float)
-        for n in names
-    }
+    runs, series, decisions = _runs(results)
+    z_t, z = _influence(modules, decisions)
     return RunReport(
         architecture=name,
         scenario=first.scenario,
@@ -333,3 +285,75 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
         series=series,
         rejections=_rejections(decisions),
     )
+
+
+def _settings(
+    arch: Architecture | None, first: Any
+) -> tuple[dict[str, Any], str, dict[str, Any], str | None, float, list[str]]:
+    """What the report needs of the file: from ``arch``, else from the run's ``meta``;
+    ``(context, name, objective, unit, period_s, modules)``.
+
+    Raises
+    ------
+    TraceError
+        As :func:`build_run_report`.
+    """
+    meta = dict(first.meta)
+    if arch is not None:
+        from archself.sim.run import _report_context
+
+        ctx = _report_context(arch, arch.scenarios[first.scenario])  # a trace's meta.report
+        objective = {"actual": arch.runtime.objective.actual,
+                     "reference": arch.runtime.objective.reference,
+                     "components": list(arch.runtime.objective.components)}
+        return (ctx, arch.name, objective, arch.runtime.objective.unit,
+                float(arch.runtime.period_s), list(arch.modules))
+    from archself.errors import TraceError
+
+    if not isinstance(meta.get("report"), dict) or "objective" not in meta:
+        raise TraceError("error: the trace does not hold the run report's settings "
+                         "(written by an older archself); pass the architecture file: "
+                         "archself report ARCH --trace TRACE -o DIR")
+    objective = {k: meta["objective"][k] for k in ("actual", "reference", "components")}
+    return (meta["report"], str(meta.get("architecture", "?")), objective,
+            meta["objective"].get("unit"), float(meta.get("period_s", math.nan)), [])
+
+
+def _runs(
+    results: list[Any],
+) -> tuple[list[RunSummary], dict[str, Any], list[dict[str, Any]]]:
+    """Each run's summary and series, and the adaptive run's decision records."""
+    runs = []
+    series = {}
+    decisions: list[dict[str, Any]] = []
+    for r in results:
+        recs = r.trace_decisions()
+        updates = tuple(
+            {"t_s": d["t"], "action": d["chosen"]["action"], "module": d["chosen"].get("module"),
+             "set": d["chosen"].get("set")}
+            for d in recs if d.get("chosen") and not d["chosen"].get("to")
+        )
+        runs.append(RunSummary(r.mode, r.configuration, r.final_configuration,
+                               dict(r.metrics), tuple(dict(s) for s in r.switches), updates))
+        series[r.mode] = r.series
+        if r.mode == "adaptive":
+            decisions = recs
+    return runs, series, decisions
+
+
+def _influence(
+    modules: list[str], decisions: list[dict[str, Any]]
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """|z| of every module that ever had one, per decision, and the decisions' times."""
+    # a trace: the modules in the order of the decision records (the file's order)
+    modules = modules + list(dict.fromkeys(n for d in decisions for n in (d.get("z") or {})
+                                           if n not in modules))
+    names = [n for n in modules
+             if any((d.get("z") or {}).get(n) not in (None, 0.0) for d in decisions)]
+    z_t = np.array([float(d["t"]) for d in decisions])
+    z = {
+        n: np.array([abs(v) if (v := (d.get("z") or {}).get(n)) is not None else np.nan
+                     for d in decisions], dtype=float)
+        for n in names
+    }
+    return z_t, z

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,10 @@ from archself.sim.result import RunResult
 from archself.system.compiler import compile_system
 from archself.system.objective import objective_norm
 
-__all__ = ["METRICS", "METRE_ALIASES", "RunResult", "simulate", "error_metrics", "metric_rows"]
+__all__ = [
+    "METRICS", "METRE_ALIASES", "Recording", "RunResult", "simulate", "error_metrics",
+    "metric_rows",
+]
 
 
 def run_meta(
@@ -86,6 +90,220 @@ def _publisher(system: Any, signal: str) -> str | None:
     return None
 
 
+@dataclass
+class Recording:
+    """The series of ``width`` runs of one scenario stepped together, one row a step.
+
+    The one recorder of :func:`simulate` (``width`` 1) and of the lane batches
+    (:func:`archself.lanes.simulate_lanes`): the driver fills ``t``, ``J``,
+    ``conf`` (the configuration's index per run), ``res`` (the residual signals)
+    and, with :meth:`put` or :meth:`put_lanes`, the objective's signals and the
+    file's ``runtime.record`` series; :meth:`result` makes a run's
+    :class:`RunResult`.
+
+    Attributes
+    ----------
+    scenario : str
+    n : int
+        Steps of the scenario.
+    dt : float
+        ``runtime.step_s``.
+    comps : list of int
+        The objective's components.
+    record : list of (str, str)
+        ``runtime.record``: (series, signal).
+    res_mods : list of (str, str)
+        The modules with a residual block and their residual signal.
+    conf_index : dict of str to int
+        A configuration's index in the file.
+    t : ndarray, shape (n,)
+    J, conf : ndarray, shape (n, width)
+    res : ndarray, shape (n, width, len(res_mods))
+    cols : dict of str to ndarray, shape (n, width, w)
+    """
+
+    scenario: str
+    n: int
+    dt: float
+    comps: list[int]
+    record: list[tuple[str, str]]
+    res_mods: list[tuple[str, str]]
+    conf_index: dict[str, int]
+    t: np.ndarray
+    J: np.ndarray
+    conf: np.ndarray
+    res: np.ndarray
+    cols: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, arch: Architecture, scenario: str, width: int) -> Recording:
+        """Empty series of ``width`` runs of ``scenario`` (a scenario of ``arch``)."""
+        rt = arch.runtime
+        dt = float(rt.step_s)
+        n = int(round(arch.scenarios[scenario].duration_s / dt))
+        res_mods = [(m, spec.residual.signal) for m, spec in arch.modules.items() if spec.residual]
+        return cls(
+            scenario, n, dt, list(rt.objective.components), list(rt.record.items()), res_mods,
+            {c: k for k, c in enumerate(arch.configurations)}, np.empty(n),
+            np.full((n, width), np.nan), np.zeros((n, width), dtype=int),
+            np.full((n, width, len(res_mods)), np.nan),
+        )
+
+    def put(self, key: str, i: int, val: Any) -> None:
+        """One run's value of series ``key`` at step ``i``: any number or vector, its width
+        that of the first value (a value of another width is left out, NaN)."""
+        if val is None:
+            return
+        arr = self.cols.get(key)
+        if arr is None:
+            arr = self.cols[key] = np.full((self.n, 1, int(np.size(val))), np.nan)
+        if type(val) is np.ndarray and val.ndim == 1 and val.dtype.kind == "f":
+            if val.shape[0] == arr.shape[2]:  # the common case: a float vector
+                arr[i, 0] = val
+            return
+        v = np.asarray(val, dtype=float).ravel()
+        if v.size == arr.shape[2]:
+            arr[i, 0] = v
+
+    def put_lanes(self, key: str, i: int, val: Any, idx: Any) -> None:
+        """The lanes ``idx`` of series ``key`` at step ``i`` from a lane array ``val``
+        (shape (width,) or (width, w); None or a list of per-lane values: left out)."""
+        if val is None or type(val) is list:
+            return
+        arr = self.cols.get(key)
+        if arr is None:
+            w = 1 if val.ndim == 1 else val.shape[1]
+            arr = self.cols[key] = np.full((self.n, self.J.shape[1], w), np.nan)
+        arr[i, idx] = (val if val.ndim == 2 else val[:, None])[idx]
+
+    def series(self, lane: int) -> dict[str, np.ndarray]:
+        """Run ``lane``'s series, as :attr:`RunResult.series` holds them (copies)."""
+        series: dict[str, np.ndarray] = {"t": self.t.copy(), "J": self.J[:, lane].copy()}
+        for key in ("reference", "actual", *(k for k, _ in self.record)):
+            if key in self.cols:
+                arr = self.cols[key][:, lane]
+                series[key] = arr[:, 0].copy() if arr.shape[1] == 1 else arr.copy()
+        series["configuration"] = self.conf[:, lane].copy()
+        for j, (m, _s) in enumerate(self.res_mods):
+            series[f"residual.{m}"] = self.res[:, lane, j].copy()
+        return series
+
+    def result(
+        self, lane: int, arch: Architecture, seed: int, mode: str, start: str, final: str,
+        switches: list[dict[str, Any]], decisions: list[Any],
+    ) -> RunResult:
+        """Run ``lane`` of ``arch`` (its file: the meta, the unit) as a :class:`RunResult`."""
+        unit = arch.runtime.objective.unit
+        return RunResult(
+            scenario=self.scenario,
+            seed=int(seed),
+            mode=mode,
+            configuration=start,
+            final_configuration=final,
+            metrics=error_metrics(self.t, self.J[:, lane], unit),
+            switches=switches,
+            series=self.series(lane),
+            decisions=decisions,
+            meta=run_meta(arch, arch.scenarios[self.scenario], self.dt, self.comps, self.res_mods),
+            configurations=list(arch.configurations),
+            unit=unit,
+        )
+
+
+@dataclass
+class _Run:
+    """What :func:`simulate` plans: the file, the compiled system, the seed, the series."""
+
+    arch: Architecture
+    seed: int
+    start: str
+    system: Any
+    rec: Recording
+
+
+def _plan(
+    arch: Architecture | str | Path, scenario: str, configuration: str | None, seed: int | None,
+    adapt: Any, progress: Any,
+) -> _Run:
+    """Check the arguments, load the file if a path, compile the start configuration.
+
+    Raises
+    ------
+    SimulationError, CompileError, LoadError
+        As :func:`simulate`.
+    """
+    if not isinstance(arch, Architecture):
+        from archself.model.loader import load_architecture
+
+        arch = load_architecture(arch).arch
+    assert isinstance(arch, Architecture)
+    if seed is not None and (not isinstance(seed, int | np.integer) or isinstance(seed, bool)
+                             or seed < 0):
+        raise SimulationError(f"seed: expected an integer ≥ 0 or None, got {seed!r}")
+    for name, fn in (("adapt", adapt), ("progress", progress)):
+        if fn is not None and not callable(fn):
+            raise SimulationError(f"{name}: expected a callable or None"
+                                  + (" (adapt=MapeK(arch))" if name == "adapt" else "")
+                                  + f", got {type(fn).__name__}")
+    sc = arch.scenarios.get(scenario)
+    if sc is None:
+        known = ", ".join(arch.scenarios) or "none"
+        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}")
+    seed = sc.seed if seed is None else int(seed)
+    start = configuration or arch.initial_configuration()
+    system = compile_system(arch, start, seed=seed, scenario=sc)
+    return _Run(arch, seed, start, system, Recording.of(arch, scenario, 1))
+
+
+def _step(
+    run: _Run,
+    adapt: Callable[[Any], list[dict[str, Any]] | None] | None,
+    progress: Callable[[int, int], None] | None,
+) -> list[dict[str, Any]]:
+    """Step the run's system through the scenario, record every step, call ``adapt``
+    every ``runtime.period_s``; the switches it made."""
+    system, rec, rt = run.system, run.rec, run.arch.runtime
+    n = rec.n
+    per = max(1, int(round(rt.period_s / rec.dt)))
+    every = max(1, n // 100)
+    act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
+    ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
+    switches: list[dict[str, Any]] = []
+    sources: list[tuple[str, str, str]] = []  # (series, module, signal) of the configuration
+    res_idx: list[tuple[int, Any, str]] = []
+    cur_conf, index = None, -1
+    outputs = system.outputs
+    for i in range(n):
+        system.step()
+        if system.configuration != cur_conf:
+            cur_conf = system.configuration
+            index = rec.conf_index.get(cur_conf, -1)
+            sources = [(key, src, sig) for key, sig in rec.record
+                       if (src := _publisher(system, sig)) is not None]
+            active, modules = system.active, system.modules
+            res_idx = [(j, modules[m], s) for j, (m, s) in enumerate(rec.res_mods) if m in active]
+        rec.t[i] = system.t
+        a = outputs.get(act_mod, {}).get(act_sig)
+        r = outputs.get(ref_mod, {}).get(ref_sig)
+        rec.J[i, 0] = objective_norm(a, r, rec.comps)
+        rec.conf[i, 0] = index
+        rec.put("reference", i, r)
+        rec.put("actual", i, a)
+        for key, src, sig in sources:
+            rec.put(key, i, outputs.get(src, {}).get(sig))
+        for j, mod, s in res_idx:
+            sigs = getattr(mod, "signals", None)
+            v = sigs.get(s) if sigs is not None else None
+            rec.res[i, 0, j] = mod.local_signals().get(s, math.nan) if v is None else v
+        if adapt is not None and (i + 1) % per == 0:
+            out = adapt(system)
+            if out:
+                switches.extend(dict(s) for s in out)
+        if progress is not None and ((i + 1) % every == 0 or i + 1 == n):
+            progress(i + 1, n)
+    return switches
+
+
 def simulate(
     arch: Architecture | str | Path,
     scenario: str,
@@ -125,125 +343,9 @@ def simulate(
     CompileError
         The configuration cannot be built.
     """
-    if not isinstance(arch, Architecture):
-        from archself.model.loader import load_architecture
-
-        arch = load_architecture(arch).arch
-    assert isinstance(arch, Architecture)
-    if seed is not None and (not isinstance(seed, int | np.integer) or isinstance(seed, bool)
-                             or seed < 0):
-        raise SimulationError(f"seed: expected an integer ≥ 0 or None, got {seed!r}")
-    for name, fn in (("adapt", adapt), ("progress", progress)):
-        if fn is not None and not callable(fn):
-            raise SimulationError(f"{name}: expected a callable or None"
-                                  + (" (adapt=MapeK(arch))" if name == "adapt" else "")
-                                  + f", got {type(fn).__name__}")
-    sc = arch.scenarios.get(scenario)
-    if sc is None:
-        known = ", ".join(arch.scenarios) or "none"
-        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}")
-    seed = sc.seed if seed is None else int(seed)
-    start = configuration or arch.initial_configuration()
-    system = compile_system(arch, start, seed=seed, scenario=sc)
-    rt = arch.runtime
-    dt = float(rt.step_s)
-    n = int(round(sc.duration_s / dt))
-    per = max(1, int(round(rt.period_s / dt)))
-    every = max(1, n // 100)
-
-    confs = list(arch.configurations)
-    conf_index = {c: i for i, c in enumerate(confs)}
-    act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
-    ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
-    comps = list(rt.objective.components)
-    record = list(rt.record.items())  # (series, signal)
-    res_mods = [(m, spec.residual.signal) for m, spec in arch.modules.items() if spec.residual]
-
-    t_arr = np.empty(n)
-    J = np.full(n, np.nan)
-    conf_arr = np.zeros(n, dtype=int)
-    cols: dict[str, np.ndarray] = {}
-    widths: dict[str, int] = {}
-
-    def put(key: str, i: int, val: Any) -> None:
-        if val is None:
-            return
-        arr = cols.get(key)
-        if arr is None:
-            w = int(np.size(val))
-            widths[key] = w
-            arr = cols[key] = np.full((n, w), np.nan)
-        if type(val) is np.ndarray and val.ndim == 1 and val.dtype.kind == "f":
-            if val.shape[0] == widths[key]:  # the common case: a float vector
-                arr[i] = val
-            return
-        v = np.asarray(val, dtype=float).ravel()
-        if v.size == widths[key]:
-            arr[i] = v
-
-    switches: list[dict[str, Any]] = []
-    sources: list[tuple[str, str, str]] = []  # (series, module, signal) of the configuration
-    cur_conf = None
-    conf_from: list[tuple[int, int]] = []  # (step, configuration index) at every change
-    res_rows: list[list[float]] = []
-    nan_row = [math.nan] * len(res_mods)
-    outputs = system.outputs
-    for i in range(n):
-        system.step()
-        if system.configuration != cur_conf:
-            cur_conf = system.configuration
-            conf_from.append((i, conf_index.get(cur_conf, -1)))
-            sources = [(key, src, sig) for key, sig in record
-                       if (src := _publisher(system, sig)) is not None]
-            active = system.active
-            modules = system.modules
-            res_idx = [(j, modules[m], s) for j, (m, s) in enumerate(res_mods) if m in active]
-        t_arr[i] = system.t
-        a = outputs.get(act_mod, {}).get(act_sig)
-        r = outputs.get(ref_mod, {}).get(ref_sig)
-        J[i] = objective_norm(a, r, comps)
-        put("reference", i, r)
-        put("actual", i, a)
-        for key, src, sig in sources:
-            put(key, i, outputs.get(src, {}).get(sig))
-        row = nan_row.copy()
-        for j, mod, s in res_idx:
-            sigs = getattr(mod, "signals", None)
-            v = sigs.get(s) if sigs is not None else None
-            if v is None:
-                v = mod.local_signals().get(s, math.nan)
-            row[j] = v
-        res_rows.append(row)
-        if adapt is not None and (i + 1) % per == 0:
-            out = adapt(system)
-            if out:
-                switches.extend(dict(s) for s in out)
-        if progress is not None and ((i + 1) % every == 0 or i + 1 == n):
-            progress(i + 1, n)
-
-    for k, (first, index) in enumerate(conf_from):
-        conf_arr[first : conf_from[k + 1][0] if k + 1 < len(conf_from) else n] = index
-    res = np.array(res_rows, dtype=float).reshape(n, len(res_mods))
-    series: dict[str, np.ndarray] = {"t": t_arr, "J": J}
-    for key in ("reference", "actual", *(k for k, _ in record)):
-        if key in cols:
-            arr = cols[key]
-            series[key] = arr[:, 0] if arr.shape[1] == 1 else arr
-    series["configuration"] = conf_arr
-    for j, (m, _s) in enumerate(res_mods):
-        series[f"residual.{m}"] = res[:, j]
-    decisions = list(getattr(adapt, "decisions", None) or [])
-    return RunResult(
-        scenario=scenario,
-        seed=seed,
-        mode="fixed" if adapt is None else "adaptive",
-        configuration=start,
-        final_configuration=system.configuration,
-        metrics=error_metrics(t_arr, J, rt.objective.unit),
-        switches=switches,
-        series=series,
-        decisions=decisions,
-        meta=run_meta(arch, sc, dt, comps, res_mods),
-        configurations=confs,
-        unit=rt.objective.unit,
+    run = _plan(arch, scenario, configuration, seed, adapt, progress)
+    switches = _step(run, adapt, progress)
+    return run.rec.result(
+        0, run.arch, run.seed, "fixed" if adapt is None else "adaptive", run.start,
+        run.system.configuration, switches, list(getattr(adapt, "decisions", None) or []),
     )
