@@ -1,0 +1,175 @@
+"""``archself ros2``: the MAPE-K loop as a ROS 2 node (docs/ros2.md)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
+from archself.errors import ArchselfError
+from archself.io.jsondata import jsonable
+
+
+def ros2(
+    arch_path: Annotated[Path, typer.Argument(metavar="ARCH", help="Architecture file.")],
+    nodes: Annotated[
+        str | None,
+        typer.Option("--nodes", metavar="M1,M2,...",
+                     help="The modules that are ROS 2 nodes (default: the functional ones)."),
+    ] = None,
+    clock: Annotated[
+        str,
+        typer.Option("--clock", metavar="timer|tick",
+                     help="A cycle every period_s on the node's clock (timer), or in lock "
+                     "step with a plant's ticks (tick; --demo uses it)."),
+    ] = "timer",
+    demo: Annotated[
+        bool,
+        typer.Option("--demo", help="Also start the simulated robot as ROS 2 nodes (a plant "
+                     "node and lifecycle nodes; needs --scenario)."),
+    ] = False,
+    scenario: Annotated[
+        str | None, typer.Option("--scenario", "-s", help="--demo: the scenario to run.")
+    ] = None,
+    seed: Annotated[
+        int | None, typer.Option("--seed", min=0, help="--demo: seed (default: the scenario's).")
+    ] = None,
+    duration: Annotated[
+        float | None,
+        typer.Option("--duration", min=0.0, help="--demo: seconds to run (default: the "
+                     "scenario's)."),
+    ] = None,
+    config: Annotated[
+        str | None,
+        typer.Option("--config", "-c", help="Configuration the robot starts in (default: "
+                     "initial)."),
+    ] = None,
+    timeout: Annotated[
+        float,
+        typer.Option("--timeout", min=0.1, max=86400.0,
+                     help="Seconds of silence (or a service's delay) before giving up (exit 1)."),
+    ] = 30.0,
+    rollout: Annotated[
+        str,
+        typer.Option("--rollout", metavar="refuse|reject",
+                     help="Actions only a rollout could judge: refuse the file or reject them."),
+    ] = "refuse",
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object (run and timings).")
+    ] = False,
+    log: Annotated[
+        Path | None,
+        typer.Option("--log", metavar="FILE",
+                     help="Write the decision log to FILE (JSON, read by `archself explain`)."),
+    ] = None,
+) -> None:
+    """Run the MAPE-K loop as a ROS 2 node: topics in, lifecycle and parameter services out.
+
+    Run it inside a network namespace with only loopback when trying it
+    (`unshare -n sh -c 'ip link set lo up; exec archself ros2 ...'`) or set
+    ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; see docs/ros2.md.
+    """
+    if clock not in ("timer", "tick"):
+        raise _fail(f"--clock must be timer or tick, not {clock!r}", 2)
+    if rollout not in ("refuse", "reject"):
+        raise _fail(f"--rollout must be refuse or reject, not {rollout!r}", 2)
+    if demo and scenario is None:
+        raise _fail("--demo needs --scenario", 2)
+    from archself.cli.live import _log, _write_log
+    from archself.ros2 import require_rclpy
+
+    child: subprocess.Popen[str] | None = None
+    try:
+        _inputs(arch_path)
+        if log is not None:
+            from archself.io.outputs import refuse_same_file
+
+            refuse_same_file([arch_path], log, "--log")
+        with _numeric(arch_path):
+            arch = _load(arch_path)
+            _known_configuration(arch, config, arch_path)
+            if demo and scenario not in arch.scenarios:
+                raise _fail(f"{arch_path}: error: --scenario: no scenario {scenario!r}; "
+                            f"scenarios: {', '.join(arch.scenarios)}")
+            part_list = [n.strip() for n in nodes.split(",") if n.strip()] if nodes else None
+            from archself.reports.export import node_modules
+
+            node_modules(arch, part_list)  # unknown names: one line before ROS starts
+            require_rclpy()
+            from archself.ros2.bridge import Ros2Bridge, run_bridge
+
+            if demo:
+                cmd = [sys.executable, "-m", "archself.ros2.demo", str(arch_path),
+                       "--scenario", str(scenario), "--timeout", str(timeout)]
+                cmd += ["--seed", str(seed)] if seed is not None else []
+                cmd += ["--duration", str(duration)] if duration is not None else []
+                cmd += ["--nodes", nodes] if nodes else []
+                child = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+            bridge = Ros2Bridge(arch, nodes=part_list, clock="tick" if demo else clock,
+                                configuration=config, rollout=rollout,
+                                service_timeout_s=timeout)
+            start = bridge.loop.configuration
+            bridge.loop.on_command(lambda c: typer.echo(
+                f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
+                if c.kind == "configuration" else
+                f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
+            bridge.start()
+            until = (lambda: child.poll() is not None) if child is not None else None
+            try:
+                stats = run_bridge(bridge, timeout_s=timeout, until=until)
+            except KeyboardInterrupt:
+                stats = bridge.summary()
+            loop = bridge.loop
+            if log is not None:
+                _write_log(log, json.dumps(jsonable(_log(loop, arch_path, start,
+                                                         loop.measurements)),
+                                           separators=(",", ":")) + "\n")
+            bridge.destroy()
+    except ArchselfError as exc:
+        raise _die(exc) from None
+    finally:
+        if child is not None:
+            _end(child, timeout)
+    if child is not None and child.returncode != 0:
+        raise _fail(f"{arch_path}: error: the demo plant ended with exit {child.returncode}")
+    result: dict[str, Any] = {
+        "architecture": arch.name, "measurements": loop.measurements,
+        "cycles": loop.mapek.cycle, "configuration": start,
+        "final_configuration": loop.configuration, "switches": loop.switches,
+        "updates": loop.updates, "ros2": stats,
+    }
+    if json_out:
+        typer.echo(json.dumps(jsonable(result), indent=1))
+        return
+    path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
+    typer.echo(f"{arch.name} · ros2 · {loop.measurements} measurements · {loop.mapek.cycle} "
+               f"cycles · {path}")
+    for s in loop.switches:
+        typer.echo(f"  t = {s['t_s']:g} s: {s['from']} → {s['to']} ({s['action']})")
+    for u in loop.updates:
+        typer.echo(f"  t = {u['t_s']:g} s: {u['module']} ← {u['set']} ({u['action']})")
+    rt = (stats.get("plant") or {}).get("round_trip_ms") or {}
+    typer.echo(f"  {stats['messages_per_s']:.0f} messages/s in, bridge CPU "
+               f"{stats['cpu_percent']:.0f} %" + (
+                   f", measurement → answer p50 {rt['p50']:.2f} ms, p95 {rt['p95']:.2f} ms"
+                   if rt else ""))
+
+
+def _end(child: subprocess.Popen[str], timeout: float) -> None:
+    """Wait for the demo plant (it ends with the run); terminate it if it does not."""
+    try:
+        child.wait(timeout=min(timeout, 10.0))
+    except subprocess.TimeoutExpired:
+        child.terminate()
+        try:
+            child.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+    if child.stdout is not None:
+        child.stdout.close()
