@@ -44,6 +44,16 @@ def ros2(
         typer.Option("--duration", min=0.0, help="--demo: seconds to run (default: the "
                      "scenario's)."),
     ] = None,
+    linger: Annotated[
+        float,
+        typer.Option("--linger", min=0.0, max=3600.0,
+                     help="--demo: seconds the robot's nodes stay up after the run."),
+    ] = 0.0,
+    rate: Annotated[
+        float | None,
+        typer.Option("--rate", min=0.001, help="--demo: simulated seconds per second (1: real "
+                     "time; default: as fast as the loop answers)."),
+    ] = None,
     config: Annotated[
         str | None,
         typer.Option("--config", "-c", help="Configuration the robot starts in (default: "
@@ -105,7 +115,9 @@ def ros2(
 
             if demo:
                 cmd = [sys.executable, "-m", "archself.ros2.demo", str(arch_path),
-                       "--scenario", str(scenario), "--timeout", str(timeout)]
+                       "--scenario", str(scenario), "--timeout", str(timeout),
+                       "--linger", str(linger)]
+                cmd += ["--rate", str(rate)] if rate is not None else []
                 cmd += ["--seed", str(seed)] if seed is not None else []
                 cmd += ["--duration", str(duration)] if duration is not None else []
                 cmd += ["--nodes", nodes] if nodes else []
@@ -134,7 +146,7 @@ def ros2(
         raise _die(exc) from None
     finally:
         if child is not None:
-            _end(child, timeout)
+            _end(child, linger)
     if child is not None and child.returncode != 0:
         raise _fail(f"{arch_path}: error: the demo plant ended with exit {child.returncode}")
     result: dict[str, Any] = {
@@ -160,10 +172,10 @@ def ros2(
                    if rt else ""))
 
 
-def _end(child: subprocess.Popen[str], timeout: float) -> None:
+def _end(child: subprocess.Popen[str], linger: float) -> None:
     """Wait for the demo plant (it ends with the run); terminate it if it does not."""
     try:
-        child.wait(timeout=min(timeout, 10.0))
+        child.wait(timeout=10.0 + linger)
     except subprocess.TimeoutExpired:
         child.terminate()
         try:

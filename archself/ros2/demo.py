@@ -16,6 +16,7 @@ system, so the run can be compared with ``archself simulate`` step for step.
 Run it as its own process (the bridge is the other one)::
 
     python -m archself.ros2.demo ARCH --scenario imu_drift [--seed N] [--duration S]
+        [--rate SIM_S_PER_S] [--linger S] [--nodes M1,M2] [--timeout S]
 """
 
 from __future__ import annotations
@@ -83,11 +84,17 @@ class DemoPlant:
         The modules that are lifecycle nodes (default: the functional ones).
     timeout_s : float
         Longest wait for the loop's answer or a node's transition.
+    linger_s : float
+        Seconds the nodes stay up after the run (for a client to look at them).
+    rate : float, optional
+        Simulated seconds per wall-clock second (1: real time); default: as fast
+        as the loop answers.
     """
 
     def __init__(self, arch: Architecture, scenario: str, *, seed: int | None = None,
                  duration_s: float | None = None, nodes: Sequence[str] | None = None,
-                 timeout_s: float = 30.0) -> None:
+                 timeout_s: float = 30.0, linger_s: float = 0.0,
+                 rate: float | None = None) -> None:
         rclpy = require_rclpy()
         from lifecycle_msgs.msg import TransitionEvent
         from rcl_interfaces.msg import ParameterEvent
@@ -104,6 +111,8 @@ class DemoPlant:
         self.seed = int(sc.seed if seed is None else seed)
         self.duration_s = float(sc.duration_s if duration_s is None else duration_s)
         self.timeout_s = float(timeout_s)
+        self.linger_s = float(linger_s)
+        self.rate = None if not rate else float(rate)
         self.plant = compile_system(arch, seed=self.seed, scenario=sc)
         self.nodes = node_modules(arch, list(nodes) if nodes is not None else None)
         if not rclpy.ok():
@@ -204,9 +213,9 @@ class DemoPlant:
             self.plant.apply_configuration(conf)
         wanted = [c for c in ack["commands"] if c["kind"] == "parameters"]
         for c in wanted:
-            def seen(c: dict[str, Any] = c) -> bool:
-                return any(n == c["module"] and set(c["values"]) <= set(v)
-                           for n, v in self.params)
+            def seen(c: dict[str, Any] = c) -> bool:  # one event per parameter set
+                got = {k for n, v in self.params if n == c["module"] for k in v}
+                return set(c["values"]) <= got
             self._spin_until(seen, f"the parameter event of {c['module']}")
         for n, values in self.params:
             self.plant.set_params(n, values)
@@ -222,9 +231,14 @@ class DemoPlant:
         period = float(self.arch.runtime.period_s)
         steps = max(1, round(period / self.plant.dt))
         eps = 1e-9 * self.plant.dt
+        wall0, t0_sim = time.monotonic(), float(self.plant.t)
         while self.plant.t < self.duration_s - eps:
             for _ in range(steps):
                 self.plant.step()
+            if self.rate is not None:
+                ahead = wall0 + (self.plant.t - t0_sim) / self.rate - time.monotonic()
+                if ahead > 0:
+                    time.sleep(ahead)
             pairs = self._measure()
             t0 = time.perf_counter()
             for pub, msg in pairs:
@@ -243,8 +257,9 @@ class DemoPlant:
                  "round_trip_ms": _percentiles(self.round_trip_ms),
                  "switches": self.switches}
         self.tick_pub.publish(self._String(data=json.dumps({"end": True, "stats": stats})))
-        for _ in range(20):  # let the end tick leave before the process goes
-            self.executor.spin_once(timeout_sec=0.01)
+        end = time.monotonic() + max(self.linger_s, 0.2)  # the end tick leaves first
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
         return stats
 
 
@@ -268,12 +283,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--duration", type=float)
     ap.add_argument("--nodes")
     ap.add_argument("--timeout", type=float, default=30.0)
+    ap.add_argument("--linger", type=float, default=0.0)
+    ap.add_argument("--rate", type=float)
     args = ap.parse_args(argv)
     try:
         arch = load_architecture(args.arch).arch
         nodes = args.nodes.split(",") if args.nodes else None
         plant = DemoPlant(arch, args.scenario, seed=args.seed, duration_s=args.duration,
-                          nodes=nodes, timeout_s=args.timeout)
+                          nodes=nodes, timeout_s=args.timeout, linger_s=args.linger,
+                          rate=args.rate)
         stats = plant.run()
     except ArchselfError as exc:
         print(f"{args.arch}: {exc}", file=sys.stderr)
