@@ -42,7 +42,7 @@ def _why_not() -> str | None:
 
 
 WHY_NOT = _why_not()
-pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT))
+needs_ros = pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT))
 
 
 def _netns(*args: str) -> list[str]:
@@ -68,6 +68,7 @@ RUNS = [(sc, seed, dur) for sc, dur in (("imu_drift", 80.0), ("actuator_fault", 
         for seed in (1, 2, 3)]
 
 
+@needs_ros
 @pytest.mark.slow
 def test_ros2_demo_switches_as_simulate_on_three_seeds() -> None:
     """imu_drift and actuator_fault, seeds 1-3: the same configuration path as
@@ -108,6 +109,7 @@ def test_ros2_demo_switches_as_simulate_on_three_seeds() -> None:
         assert ros["cycles"] == round(duration / 0.5)
 
 
+@needs_ros
 @pytest.mark.slow
 def test_lifecycle_and_parameters_seen_by_a_plain_rclpy_client(tmp_path: Path) -> None:
     """process_plant drift_then_valve: a plain rclpy client (no archself) sees, through
@@ -156,3 +158,83 @@ def test_lifecycle_and_parameters_seen_by_a_plain_rclpy_client(tmp_path: Path) -
     nominal = {k: arch.modules[pi.module].params[k].value for k in names}
     assert plain["params"][0] == pytest.approx(nominal)
     assert plain["params"][-1] == pytest.approx(dict(pi.set))
+
+
+def test_without_rclpy_one_line_names_the_extra() -> None:
+    """No ROS 2 installed: one line naming ``archself[ros2]``, exit 1 (rclpy hidden)."""
+    code = (
+        "import sys\n"
+        "sys.modules['rclpy'] = None  # as if not installed\n"
+        "from archself.cli import main\n"
+        f"sys.argv = ['archself', 'ros2', {str(DIFFDRIVE)!r}]\n"
+        "main()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        "rclpy is not installed; install the ROS 2 wheels: pip install 'archself[ros2]'"]
+
+
+def test_cli_ros2_refuses_unknown_nodes_and_scenarios_before_ros_starts() -> None:
+    from typer.testing import CliRunner
+
+    from archself.cli import app
+
+    res = CliRunner().invoke(app, ["ros2", str(DIFFDRIVE), "--nodes", "ekf,nope"])
+    assert res.exit_code == 1 and "'nope' is not a module" in res.output
+    res = CliRunner().invoke(app, ["ros2", str(DIFFDRIVE), "--demo", "--scenario", "nope"])
+    assert res.exit_code == 1 and "no scenario 'nope'" in res.output
+    res = CliRunner().invoke(app, ["ros2", str(DIFFDRIVE), "--demo"])
+    assert res.exit_code == 2 and "--demo needs --scenario" in res.output
+
+
+def test_lifecycle_view_of_configurations() -> None:
+    """Which transitions reach a configuration, and which configuration states show."""
+    from archself import load
+    from archself.reports.export import node_modules
+    from archself.ros2.topics import configuration_of, transitions
+
+    arch = load(DIFFDRIVE)
+    nodes = node_modules(arch)
+    fresh = dict.fromkeys(nodes, "unconfigured")
+    steps = transitions(arch, nodes, fresh, "a1")
+    assert [s for s in steps if s[1] == "activate"] == [
+        ("planner", "activate"), ("odometry", "activate"), ("lqr", "activate")]
+    assert {n for n, what in steps if what == "configure"} == set(nodes)
+    states = {n: "active" if n in {"planner", "odometry", "lqr"} else "inactive" for n in nodes}
+    assert configuration_of(arch, states) == "a1"
+    assert transitions(arch, nodes, states, "a2") == [
+        ("ekf", "activate"), ("lqr_fused", "activate"), ("odometry", "deactivate"),
+        ("lqr", "deactivate")]
+    half = {**states, "ekf": "active"}  # mid-transition: no configuration
+    assert configuration_of(arch, half) is None
+    # two configurations with the same nodes (a rewire): the current one is kept
+    from archself.model.loader import load_text
+
+    text = DIFFDRIVE.read_text(encoding="utf-8").replace(
+        "configurations:\n",
+        "configurations:\n  a5:\n    modules: [chassis, wheel_left, wheel_right, encoders, imu, "
+        "gps, planner, odometry, lqr, kinematic_model, dynamic_model, actuator_model]\n"
+        "    disabled_edges: [[gps, odometry]]\n", 1)
+    arch5 = load_text(text, "rewired.yaml").arch
+    assert configuration_of(arch5, states) is None
+    assert configuration_of(arch5, states, "a1") == "a1"
+    assert configuration_of(arch5, states, "a5") == "a5"
+
+
+@needs_ros
+def test_array_messages_keep_shape_and_nan() -> None:
+    code = (
+        "import math, numpy as np\n"
+        "from archself.ros2.bridge import array_msg, array_value\n"
+        "m = np.arange(9.0).reshape(3, 3)\n"
+        "np.testing.assert_array_equal(array_value(array_msg(m)), m)\n"
+        "v = array_value(array_msg([1.0, float('nan')]))\n"
+        "assert v.shape == (2,) and v[0] == 1.0 and math.isnan(v[1])\n"
+        "assert array_value(array_msg(2.5)) == 2.5\n"
+        "print('ok')\n"
+    )
+    proc = subprocess.run(_netns(sys.executable, "-c", code), capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr

@@ -91,7 +91,7 @@ def ros2(
     if demo and scenario is None:
         raise _fail("--demo needs --scenario", 2)
     from archself.cli.live import _log, _write_log
-    from archself.ros2 import require_rclpy
+    from archself.ros2.base import require_rclpy
 
     child: subprocess.Popen[str] | None = None
     try:

@@ -35,7 +35,7 @@ from archself.io.jsondata import jsonable
 from archself.live import Command, LiveLoop
 from archself.model.architecture import Architecture
 from archself.reports.export import node_modules
-from archself.ros2 import Ros2Error, require_rclpy
+from archself.ros2.base import Ros2Error, require_rclpy
 from archself.ros2.topics import (
     ACK,
     DECISIONS,

@@ -33,7 +33,7 @@ import numpy as np
 
 from archself.model.architecture import Architecture
 from archself.reports.export import node_modules
-from archself.ros2 import Ros2Error, require_rclpy
+from archself.ros2.base import Ros2Error, require_rclpy
 from archself.ros2.topics import (
     ACK,
     TICK,
