@@ -238,3 +238,25 @@ def test_array_messages_keep_shape_and_nan() -> None:
     proc = subprocess.run(_netns(sys.executable, "-c", code), capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr
+
+
+@needs_ros
+@pytest.mark.slow
+def test_timer_clock_with_a_free_running_plant_on_sim_time() -> None:
+    """The robot's way: the plant does not wait (publishes every step, /clock), the
+    loop runs on its timer on ROS time. actuator_fault at twice real time: the loop
+    switches as simulate does and the plant follows the lifecycle states within 1 s."""
+    want = _simulated(DIFFDRIVE, "actuator_fault", 1, 30.0)
+    proc = subprocess.run(
+        _netns(*_archself("ros2", str(DIFFDRIVE), "--demo", "--clock", "timer", "--rate", "2",
+                          "--scenario", "actuator_fault", "--duration", "30", "--json",
+                          "--timeout", "60")),
+        capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    res = json.loads(proc.stdout)
+    got = [(s["from"], s["to"], float(s["t_s"])) for s in res["switches"]]
+    applied = [(s["from"], s["to"], float(s["t_s"])) for s in res["ros2"]["plant"]["switches"]]
+    assert [g[:2] for g in got] == [w[:2] for w in want] == [g[:2] for g in applied]
+    for g, a, w in zip(got, applied, want, strict=True):
+        assert abs(g[2] - w[2]) <= 1.0 and 0.0 <= a[2] - g[2] <= 1.0, (got, applied, want)
+    assert res["ros2"]["plant"]["measurements"] == 600

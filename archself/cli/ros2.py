@@ -23,11 +23,12 @@ def ros2(
                      help="The modules that are ROS 2 nodes (default: the functional ones)."),
     ] = None,
     clock: Annotated[
-        str,
+        str | None,
         typer.Option("--clock", metavar="timer|tick",
-                     help="A cycle every period_s on the node's clock (timer), or in lock "
-                     "step with a plant's ticks (tick; --demo uses it)."),
-    ] = "timer",
+                     help="A cycle every period_s on the node's clock (timer, the default), "
+                     "or in lock step with a plant's ticks (tick, the default of --demo; "
+                     "--demo --clock timer: a free-running plant on /clock)."),
+    ] = None,
     demo: Annotated[
         bool,
         typer.Option("--demo", help="Also start the simulated robot as ROS 2 nodes (a plant "
@@ -84,6 +85,7 @@ def ros2(
     (`unshare -n sh -c 'ip link set lo up; exec archself ros2 ...'`) or set
     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; see docs/ros2.md.
     """
+    clock = clock or ("tick" if demo else "timer")
     if clock not in ("timer", "tick"):
         raise _fail(f"--clock must be timer or tick, not {clock!r}", 2)
     if rollout not in ("refuse", "reject"):
@@ -118,13 +120,14 @@ def ros2(
                        "--scenario", str(scenario), "--timeout", str(timeout),
                        "--linger", str(linger)]
                 cmd += ["--rate", str(rate)] if rate is not None else []
+                cmd += ["--free"] if clock == "timer" else []
                 cmd += ["--seed", str(seed)] if seed is not None else []
                 cmd += ["--duration", str(duration)] if duration is not None else []
                 cmd += ["--nodes", nodes] if nodes else []
                 child = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-            bridge = Ros2Bridge(arch, nodes=part_list, clock="tick" if demo else clock,
-                                configuration=config, rollout=rollout,
-                                service_timeout_s=timeout)
+            bridge = Ros2Bridge(arch, nodes=part_list, clock=clock, configuration=config,
+                                rollout=rollout, service_timeout_s=timeout,
+                                use_sim_time=demo and clock == "timer")
             start = bridge.loop.configuration
             bridge.loop.on_command(lambda c: typer.echo(
                 f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"

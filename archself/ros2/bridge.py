@@ -97,6 +97,8 @@ class Ros2Bridge:
         The bridge's ROS 2 node name.
     service_timeout_s : float
         How long to wait for a node's services at start and for each answer.
+    use_sim_time : bool
+        The node's clock is ``/clock`` (ROS simulated time), for ``clock="timer"``.
 
     Attributes
     ----------
@@ -118,6 +120,7 @@ class Ros2Bridge:
         rollout: str = "refuse",
         node_name: str = "archself",
         service_timeout_s: float = 10.0,
+        use_sim_time: bool = False,
     ) -> None:
         if clock not in ("timer", "tick"):
             raise Ros2Error(f"clock must be 'timer' or 'tick', not {clock!r}")
@@ -135,6 +138,10 @@ class Ros2Bridge:
         if not rclpy.ok():
             rclpy.init()
         self.node = rclpy.create_node(node_name)
+        if use_sim_time:
+            from rclpy.parameter import Parameter
+
+            self.node.set_parameters([Parameter("use_sim_time", value=True)])
         self.loop = LiveLoop(arch, configuration=configuration, rollout=rollout,
                              start_s=0.0 if clock == "tick" else self._now())
         self.outputs: dict[str, dict[str, Any]] = {}

@@ -16,7 +16,7 @@ system, so the run can be compared with ``archself simulate`` step for step.
 Run it as its own process (the bridge is the other one)::
 
     python -m archself.ros2.demo ARCH --scenario imu_drift [--seed N] [--duration S]
-        [--rate SIM_S_PER_S] [--linger S] [--nodes M1,M2] [--timeout S]
+        [--rate SIM_S_PER_S] [--free] [--linger S] [--nodes M1,M2] [--timeout S]
 """
 
 from __future__ import annotations
@@ -89,12 +89,16 @@ class DemoPlant:
     rate : float, optional
         Simulated seconds per wall-clock second (1: real time); default: as fast
         as the loop answers.
+    free : bool
+        Do not wait for the loop: publish every step with the simulated time on
+        ``/clock`` (for a bridge with ``clock="timer"`` on ``use_sim_time``) and
+        follow the nodes' states as they change, as a robot does.
     """
 
     def __init__(self, arch: Architecture, scenario: str, *, seed: int | None = None,
                  duration_s: float | None = None, nodes: Sequence[str] | None = None,
                  timeout_s: float = 30.0, linger_s: float = 0.0,
-                 rate: float | None = None) -> None:
+                 rate: float | None = None, free: bool = False) -> None:
         rclpy = require_rclpy()
         from lifecycle_msgs.msg import TransitionEvent
         from rcl_interfaces.msg import ParameterEvent
@@ -113,6 +117,7 @@ class DemoPlant:
         self.timeout_s = float(timeout_s)
         self.linger_s = float(linger_s)
         self.rate = None if not rate else float(rate)
+        self.free = bool(free)
         self.plant = compile_system(arch, seed=self.seed, scenario=sc)
         self.nodes = node_modules(arch, list(nodes) if nodes is not None else None)
         if not rclpy.ok():
@@ -128,6 +133,11 @@ class DemoPlant:
         self._Float64, self._Array, self._String = Float64, Float64MultiArray, String
         self._pubs: dict[str, Any] = {}
         self.tick_pub = self.node.create_publisher(String, TICK, depth)
+        if free:
+            from rosgraph_msgs.msg import Clock
+
+            self._Clock = Clock
+            self.clock_pub = self.node.create_publisher(Clock, "/clock", depth)
         self.node.create_subscription(String, ACK, lambda m: self.acks.append(
             json.loads(m.data)), latched)
         for n in self.nodes:
@@ -228,6 +238,8 @@ class DemoPlant:
             lambda: configuration_of(self.arch, self.states, ready["configuration"])
             == ready["configuration"], "the initial lifecycle states")
         self.params.clear()  # the declarations at start
+        if self.free:
+            return self._run_free()
         period = float(self.arch.runtime.period_s)
         steps = max(1, round(period / self.plant.dt))
         eps = 1e-9 * self.plant.dt
@@ -253,9 +265,43 @@ class DemoPlant:
             ack = next(a for a in self.acks if a.get("t") == t)
             self.acks.clear()
             self._follow(ack)
-        stats = {"measurements": len(self.round_trip_ms), "published": self.published,
-                 "round_trip_ms": _percentiles(self.round_trip_ms),
-                 "switches": self.switches}
+        return self._end({"measurements": len(self.round_trip_ms), "published": self.published,
+                          "round_trip_ms": _percentiles(self.round_trip_ms),
+                          "switches": self.switches})
+
+    def _run_free(self) -> dict[str, Any]:
+        """Step and publish every step on the simulated clock; follow the nodes meanwhile."""
+        eps = 1e-9 * self.plant.dt
+        wall0, t0_sim, n = time.monotonic(), float(self.plant.t), 0
+        while self.plant.t < self.duration_s - eps:
+            self.executor.spin_once(timeout_sec=0.0)
+            conf = configuration_of(self.arch, self.states, self.plant.configuration)
+            if conf is not None and conf != self.plant.configuration:
+                self.switches.append({"t_s": float(self.plant.t),
+                                      "from": self.plant.configuration, "to": conf})
+                self.plant.apply_configuration(conf)
+            for name, values in self.params:
+                self.plant.set_params(name, values)
+            self.params.clear()
+            self.plant.step()
+            n += 1
+            pairs = self._measure()
+            for pub, msg in pairs:
+                pub.publish(msg)
+            self.published += len(pairs)
+            clock = self._Clock()
+            ns = int(round(self.plant.t * 1e9))
+            clock.clock.sec, clock.clock.nanosec = ns // 10**9, ns % 10**9
+            self.clock_pub.publish(clock)
+            if self.rate is not None:
+                ahead = wall0 + (self.plant.t - t0_sim) / self.rate - time.monotonic()
+                if ahead > 0:
+                    time.sleep(ahead)
+        return self._end({"measurements": n, "published": self.published,
+                          "switches": self.switches})
+
+    def _end(self, stats: dict[str, Any]) -> dict[str, Any]:
+        """Tell the loop the run is over; keep the nodes up ``linger_s``."""
         self.tick_pub.publish(self._String(data=json.dumps({"end": True, "stats": stats})))
         end = time.monotonic() + max(self.linger_s, 0.2)  # the end tick leaves first
         while time.monotonic() < end:
@@ -285,13 +331,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=30.0)
     ap.add_argument("--linger", type=float, default=0.0)
     ap.add_argument("--rate", type=float)
+    ap.add_argument("--free", action="store_true")
     args = ap.parse_args(argv)
     try:
         arch = load_architecture(args.arch).arch
         nodes = args.nodes.split(",") if args.nodes else None
         plant = DemoPlant(arch, args.scenario, seed=args.seed, duration_s=args.duration,
                           nodes=nodes, timeout_s=args.timeout, linger_s=args.linger,
-                          rate=args.rate)
+                          rate=args.rate, free=args.free)
         stats = plant.run()
     except ArchselfError as exc:
         print(f"{args.arch}: {exc}", file=sys.stderr)
