@@ -156,7 +156,7 @@ class Ros2Bridge:
         self._ack: dict[str, Any] | None = None
         self._last_heard = time.monotonic()
         self.stats: dict[str, Any] = {"cycle_ms": [], "act_ms": [], "ticks": 0,
-                                      "refused": []}
+                                      "refused": [], "skipped": 0}
         self._types = {"ChangeState": ChangeState, "GetState": GetState,
                        "SetParameters": SetParameters}
         depth = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -275,8 +275,11 @@ class Ros2Bridge:
     # ------------------------------------------------------------------ cycle
     def _cycle(self, tick: dict[str, Any]) -> None:
         self._tick = None
-        if self._pending:
-            raise Ros2Error("a measurement arrived before the last commands were answered")
+        if self._pending:  # the last commands are still being answered
+            if self.clock == "tick":  # a lock-step plant waits for the answer: cannot be
+                raise Ros2Error("a tick arrived before the last commands were answered")
+            self.stats["skipped"] += 1  # the next timer's cycle catches up (LiveLoop)
+            return
         self.stats["ticks"] += 1
         cycles = self.loop.mapek.cycle
         seen = configuration_of(self.arch, self.states, self.loop.configuration) \
@@ -364,6 +367,7 @@ class Ros2Bridge:
         return {"cycles": self.loop.mapek.cycle, "ticks": self.stats["ticks"],
                 "messages": self.received, "cycle_ms": pct(self.stats["cycle_ms"]),
                 "act_ms": pct(self.stats["act_ms"]), "refused": list(self.stats["refused"]),
+                "skipped": self.stats["skipped"],
                 "lifecycle_nodes": list(self.lifecycle)}
 
     def destroy(self) -> None:
