@@ -71,7 +71,9 @@ def ros2(
                      help="Actions only a rollout could judge: refuse the file or reject them."),
     ] = "refuse",
     json_out: Annotated[
-        bool, typer.Option("--json", help="Print one JSON object (run and timings).")
+        bool, typer.Option("--json", help="Print one JSON object {architecture, measurements, "
+                           "cycles, configuration, final_configuration, switches, updates, ros2} "
+                           "(docs/json.md).")
     ] = False,
     log: Annotated[
         Path | None,
@@ -135,10 +137,7 @@ def ros2(
                 f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
             bridge.start()
             until = (lambda: child.poll() is not None) if child is not None else None
-            try:
-                stats = run_bridge(bridge, timeout_s=timeout, until=until)
-            except KeyboardInterrupt:
-                stats = bridge.summary()
+            stats = run_bridge(bridge, timeout_s=timeout, until=until)
             loop = bridge.loop
             if log is not None:
                 _write_log(log, json.dumps(jsonable(_log(loop, arch_path, start,
@@ -168,7 +167,7 @@ def ros2(
         typer.echo(f"  t = {s['t_s']:g} s: {s['from']} → {s['to']} ({s['action']})")
     for u in loop.updates:
         typer.echo(f"  t = {u['t_s']:g} s: {u['module']} ← {u['set']} ({u['action']})")
-    rt = (stats.get("plant") or {}).get("round_trip_ms") or {}
+    rt = (stats["plant"] or {}).get("round_trip_ms") or {}
     typer.echo(f"  {stats['messages_per_s']:.0f} messages/s in, bridge CPU "
                f"{stats['cpu_percent']:.0f} %" + (
                    f", measurement → answer p50 {rt['p50']:.2f} ms, p95 {rt['p95']:.2f} ms"

@@ -356,9 +356,9 @@ class Ros2Bridge:
     # ------------------------------------------------------------------ results
     def summary(self) -> dict[str, Any]:
         """Cycles, measurements and the timings of the bridge (ms)."""
-        def pct(xs: list[float]) -> dict[str, float]:
+        def pct(xs: list[float]) -> dict[str, float] | None:
             if not xs:
-                return {}
+                return None
             a = np.asarray(xs)
             return {"n": int(a.size), "mean": float(a.mean()),
                     "p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95)),
@@ -382,8 +382,9 @@ def run_bridge(bridge: Ros2Bridge, *, timeout_s: float = 30.0,
     Returns
     -------
     dict
-        :meth:`Ros2Bridge.summary` with ``wall_s``, ``cpu_s`` (this process) and
-        ``messages_per_s``, and ``plant`` (what the plant's end tick carried).
+        :meth:`Ros2Bridge.summary` with ``wall_s``, ``cpu_s`` (this process),
+        ``cpu_percent`` and ``messages_per_s``, and ``plant`` (what the plant's end
+        tick carried, or None). Ctrl-C ends the spin and returns the same.
 
     Raises
     ------
@@ -401,12 +402,14 @@ def run_bridge(bridge: Ros2Bridge, *, timeout_s: float = 30.0,
             executor.spin_once(timeout_sec=0.1)
             if time.monotonic() - bridge._last_heard > timeout_s:
                 raise Ros2Error(f"no measurement for {timeout_s:g} s; the plant fell silent")
+    except KeyboardInterrupt:  # Ctrl-C ends a run on a robot: the summary and log follow
+        pass
     finally:
         executor.remove_node(bridge.node)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     out = bridge.summary()
     out.update(wall_s=wall, cpu_s=cpu, cpu_percent=100.0 * cpu / wall if wall else math.nan,
                messages_per_s=bridge.received / wall if wall else math.nan,
-               plant=(bridge.ended or {}).get("stats", {}))
+               plant=(bridge.ended or {}).get("stats"))
     del rclpy
     return out

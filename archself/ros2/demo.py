@@ -298,7 +298,7 @@ class DemoPlant:
                 if ahead > 0:
                     time.sleep(ahead)
         return self._end({"measurements": n, "published": self.published,
-                          "switches": self.switches})
+                          "round_trip_ms": None, "switches": self.switches})
 
     def _end(self, stats: dict[str, Any]) -> dict[str, Any]:
         """Tell the loop the run is over; keep the nodes up ``linger_s``."""
@@ -309,9 +309,9 @@ class DemoPlant:
         return stats
 
 
-def _percentiles(xs: list[float]) -> dict[str, float]:
+def _percentiles(xs: list[float]) -> dict[str, float] | None:
     if not xs:
-        return {}
+        return None
     a = np.asarray(xs)
     return {"n": int(a.size), "mean": float(a.mean()), "p50": float(np.percentile(a, 50)),
             "p95": float(np.percentile(a, 95)), "max": float(a.max())}
