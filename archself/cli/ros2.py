@@ -94,16 +94,13 @@ def ros2(
         raise _fail(f"--rollout must be refuse or reject, not {rollout!r}", 2)
     if demo and scenario is None:
         raise _fail("--demo needs --scenario", 2)
-    from archself.cli.live import _log, _write_log
+    from archself.cli.live import _check_log, _log, _write_log
     from archself.ros2.base import require_rclpy
 
     child: subprocess.Popen[str] | None = None
     try:
         _inputs(arch_path)
-        if log is not None:
-            from archself.io.outputs import refuse_same_file
-
-            refuse_same_file([arch_path], log, "--log")
+        _check_log(arch_path, log)
         with _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
