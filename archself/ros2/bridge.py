@@ -391,7 +391,6 @@ def run_bridge(bridge: Ros2Bridge, *, timeout_s: float = 30.0,
     Ros2Error
         Silence from the plant for ``timeout_s`` (never a hang).
     """
-    import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
     executor = SingleThreadedExecutor()
@@ -411,5 +410,4 @@ def run_bridge(bridge: Ros2Bridge, *, timeout_s: float = 30.0,
     out.update(wall_s=wall, cpu_s=cpu, cpu_percent=100.0 * cpu / wall if wall else math.nan,
                messages_per_s=bridge.received / wall if wall else math.nan,
                plant=(bridge.ended or {}).get("stats"))
-    del rclpy
     return out
