@@ -12,7 +12,7 @@ from archself.cli import app
 
 from conftest import DIFFDRIVE, ROOT
 
-HEAVY = ("control", "filterpy", "matplotlib")
+HEAVY = ("control", "filterpy", "matplotlib", "rclpy")
 
 
 def test_help_lists_the_commands() -> None:

@@ -61,28 +61,97 @@ def test_edges_csv_has_a_row_per_edge(arch) -> None:
             assert {e.source, e.target} <= set(arch.configurations[c].modules)
 
 
+def _check_system_modes_structure(doc: dict, arch) -> dict:
+    """The keys and value forms of system_modes' example_modes.yaml (micro-ROS/system_modes):
+    a system with ``parts`` (whitespace-separated), ``modes`` mapping each part to
+    ``inactive`` or ``active.<one of the part's node modes>``, ``rules`` with
+    ``if_target``/``if_part``/``new_target``; nodes with ``modes.*.ros__parameters``."""
+    system = doc[arch.name.lower()]["ros__parameters"]
+    assert system["type"] == "system"
+    assert set(system) <= {"type", "parts", "modes", "rules"}
+    parts = system["parts"].split()
+    assert set(doc) == {arch.name.lower(), *parts}
+    for name, modes in system["modes"].items():
+        assert set(modes) == set(parts), name
+        for part, state in modes.items():
+            if state != "inactive":
+                kind, mode = state.split(".", 1)
+                assert kind == "active"
+                assert mode in doc[part]["ros__parameters"]["modes"], (name, part, mode)
+    for rule in (system.get("rules") or {}).values():
+        assert set(rule) == {"if_target", "if_part", "new_target"}
+        for target in (rule["if_target"], rule["new_target"]):
+            assert target.startswith("active.") and target[7:] in system["modes"]
+        assert rule["if_part"][0] in parts and rule["if_part"][1] == "inactive"
+    for part in parts:
+        node = doc[part]["ros__parameters"]
+        assert node["type"] == "node"
+        assert all(set(m) == {"ros__parameters"} for m in node["modes"].values())
+    return system
+
+
 def test_ros2_modes_file_has_the_system_modes_structure(arch) -> None:
     doc = YAML(typ="safe").load(export(arch, "ros2-modes"))
     assert doc == json.loads(json.dumps(ros2_modes(arch)))
-    system = doc[arch.name.lower()]["ros__parameters"]
-    assert system["type"] == "system"
-    assert system["parts"].split() == list(arch.modules)
+    system = _check_system_modes_structure(doc, arch)
+    parts = system["parts"].split()
+    assert parts == [m for m, mod in arch.modules.items() if mod.kind == "functional"]
     modes = system["modes"]
     assert set(modes) == {"__DEFAULT__", *(c.upper() for c in arch.configurations)}
     first = arch.initial_configuration()
     assert modes["__DEFAULT__"] == modes[first.upper()]
     for c, conf in arch.configurations.items():
-        on = {m for m, state in modes[c.upper()].items() if state == "active"}
-        assert on == set(conf.modules)
-        assert set(modes[c.upper()].values()) <= {"active", "inactive"}
-    for m, mod in arch.modules.items():
+        on = {m for m, state in modes[c.upper()].items() if state != "inactive"}
+        assert on == set(conf.modules) & set(parts)
+    for m in parts:
         node = doc[m]["ros__parameters"]
-        assert node["type"] == "node"
-        assert set(node["modes"]["__DEFAULT__"]["ros__parameters"]) == set(mod.params)
+        assert set(arch.modules[m].params) <= set(node["modes"]["__DEFAULT__"]["ros__parameters"])
     for a in arch.actions:
-        if a.kind == "parameter_update":
+        if a.kind == "parameter_update" and a.module in parts:
             mode = doc[a.module]["ros__parameters"]["modes"][a.id.upper()]
             assert mode["ros__parameters"] == dict(a.set)
+
+
+def test_ros2_modes_of_diffdrive_parts_rules_and_rewiring() -> None:
+    """Only nodes are parts; the declared degradations are rules; a configuration that
+    differs from another only in its wiring is a distinct system mode."""
+    from archself.model.loader import load_text
+
+    src = data_dir("architectures") / "diffdrive.yaml"
+    arch = load_architecture(src).arch
+    doc = ros2_modes(arch)
+    system = doc["diffdrive"]["ros__parameters"]
+    assert system["parts"].split() == ["planner", "odometry", "ekf", "lqr", "lqr_fused",
+                                       "asym_lqr"]
+    assert "chassis" not in doc and "kinematic_model" not in doc
+    assert system["rules"] == {
+        "degrade_A1_odometry": {"if_target": "active.A1", "if_part": ["odometry", "inactive"],
+                                "new_target": "active.A2"},
+        "degrade_A4_odometry": {"if_target": "active.A4", "if_part": ["odometry", "inactive"],
+                                "new_target": "active.A3"},
+    }
+    text = export(arch, "ros2-modes")
+    assert "fallback_odometry (gps is not a node)" in text.split("---")[0]
+    # asym_lqr reads the EKF in a3 and dead reckoning in a4: a node mode for a4
+    assert system["modes"]["A4"]["asym_lqr"] == "active.A4"
+    a4 = doc["asym_lqr"]["ros__parameters"]["modes"]["A4"]["ros__parameters"]
+    assert "odometry.pose_estimate" in a4["archself_inputs"]
+    assert "ekf.pose_estimate" not in a4["archself_inputs"]
+    # a configuration a1 without the GPS → odometry edge: same modules, other wiring
+    rewired = src.read_text(encoding="utf-8").replace(
+        "configurations:\n",
+        "configurations:\n  a5:\n    modules: [chassis, wheel_left, wheel_right, encoders, imu, "
+        "gps, planner, odometry, lqr, kinematic_model, dynamic_model, actuator_model]\n"
+        "    disabled_edges: [[gps, odometry]]\n", 1)
+    arch5 = load_text(rewired, "rewired.yaml").arch
+    doc5 = ros2_modes(arch5)
+    modes5 = doc5["diffdrive"]["ros__parameters"]["modes"]
+    assert modes5["A5"] != modes5["A1"]
+    assert modes5["A5"]["odometry"] == "active.A5"
+    _check_system_modes_structure(YAML(typ="safe").load(export(arch5, "ros2-modes")), arch5)
+    # an explicit node list: any kind may be a node
+    doc_n = ros2_modes(arch, ["chassis", "ekf"])
+    assert doc_n["diffdrive"]["ros__parameters"]["parts"] == "chassis ekf"
 
 
 @pytest.mark.parametrize("fmt", FORMATS)

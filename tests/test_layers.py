@@ -28,6 +28,7 @@ LAYERS = [
     {"contracts"},
     {"reports"},
     {"lanes", "live"},
+    {"ros2"},
     {"campaign", "calibration"},
     {"testing"},
     {"cli", "__main__", "__init__"},

@@ -9,7 +9,8 @@ start-up.
 
 The app and what the commands share are in :mod:`archself.cli.base`; the commands in
 :mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.reports`,
-:mod:`~archself.cli.campaigns`, :mod:`~archself.cli.calibration` and :mod:`~archself.cli.live`.
+:mod:`~archself.cli.campaigns`, :mod:`~archself.cli.calibration`, :mod:`~archself.cli.live` and
+:mod:`~archself.cli.ros2`.
 They are registered here, in the order ``archself --help`` lists them.
 """
 
@@ -21,6 +22,7 @@ from archself.cli.campaigns import campaign, campaign_report_cmd
 from archself.cli.files import docs, export, generate, info, init, schema, validate
 from archself.cli.live import live
 from archself.cli.reports import report
+from archself.cli.ros2 import ros2
 from archself.cli.runs import explain, simulate
 
 app.command()(validate)
@@ -31,6 +33,7 @@ app.command()(simulate)
 app.command()(report)
 app.command()(explain)
 app.command()(live)
+app.command()(ros2)
 app.command()(campaign)
 app.command("campaign-report")(campaign_report_cmd)
 app.command()(export)

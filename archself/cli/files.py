@@ -334,6 +334,12 @@ def export(
     output: Annotated[
         Path | None, typer.Option("-o", "--output", help="Write to FILE (default: stdout).")
     ] = None,
+    nodes: Annotated[
+        str | None,
+        typer.Option("--nodes", metavar="M1,M2,...",
+                     help="ros2-modes: the modules that run as nodes (default: the functional "
+                     "ones)."),
+    ] = None,
 ) -> None:
     """Export the architecture for other tools: GraphML, node-link JSON, edge CSV, ROS 2 modes."""
     from archself.reports.export import FORMATS
@@ -348,7 +354,8 @@ def export(
             refuse_same_file([arch], output, "--output")
         from archself.reports.export import export as export_text
 
-        text = export_text(_load(arch), to)
+        parts = [n.strip() for n in nodes.split(",") if n.strip()] if nodes else None
+        text = export_text(_load(arch), to, nodes=parts)
     except ArchselfError as exc:
         raise _die(exc) from None
     _emit(text, output, f"{output}: {to}")

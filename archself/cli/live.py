@@ -83,13 +83,7 @@ def live(
 
     try:
         _inputs(arch_path)
-        if log is not None:
-            from archself.io.outputs import refuse_same_file
-
-            refuse_same_file([arch_path], log, "--log")
-            if log.is_dir() or not log.parent.is_dir():  # found out before the run, not after
-                what = "is a folder" if log.is_dir() else f"folder {log.parent} does not exist"
-                raise _fail(f"{log}: error: --log {what}; the decision log needs a file")
+        _check_log(arch_path, log)
         with protect([arch_path], [log]), _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
@@ -193,6 +187,18 @@ class _Journal:
                 self.part.unlink()
             except OSError:
                 pass
+
+
+def _check_log(arch_path: Path, log: Path | None) -> None:
+    """Refuse a ``--log`` onto the input or where no file can be, before the run, not after."""
+    if log is None:
+        return
+    from archself.io.outputs import refuse_same_file
+
+    refuse_same_file([arch_path], log, "--log")
+    if log.is_dir() or not log.parent.is_dir():
+        what = "is a folder" if log.is_dir() else f"folder {log.parent} does not exist"
+        raise _fail(f"{log}: error: --log {what}; the decision log needs a file")
 
 
 def _write_log(log: Path, text: str) -> None:

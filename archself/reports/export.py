@@ -34,9 +34,11 @@ import json
 from typing import Any
 
 from archself.check.graph import active_edges
+from archself.errors import ArchselfError
 from archself.model.architecture import Architecture
 
-__all__ = ["FORMATS", "architecture_graph", "edges_csv", "export", "ros2_modes"]
+__all__ = ["FORMATS", "architecture_graph", "edges_csv", "export", "node_modules", "ros2_modes",
+           "ros2_rules"]
 
 FORMATS = ("graphml", "node-link", "edges-csv", "ros2-modes")
 
@@ -107,21 +109,107 @@ def _mode_name(name: str) -> str:
     return name.upper().replace("-", "_").replace(".", "_").replace(" ", "_")
 
 
-def ros2_modes(arch: Architecture) -> dict[str, Any]:
+def node_modules(arch: Architecture, nodes: list[str] | None = None) -> list[str]:
+    """The modules that run as ROS 2 nodes (the parts of the exported system).
+
+    Parameters
+    ----------
+    arch : Architecture
+    nodes : list of str, optional
+        The modules to take (any kind); default: the ``functional`` modules, since
+        a ``physical`` module is the plant (its sensors and actuators are topics of
+        the robot's drivers, not lifecycle nodes) and a ``model`` module lives inside
+        the loop's linearization, not on the robot.
+
+    Returns
+    -------
+    list of str
+        In file order.
+
+    Raises
+    ------
+    ArchselfError
+        A name that is not a module of the file (one line, with the known ones).
+
+    Examples
+    --------
+    >>> from archself.model.loader import load_architecture
+    >>> from archself.resources import data_dir
+    >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+    >>> node_modules(arch)
+    ['planner', 'odometry', 'ekf', 'lqr', 'lqr_fused', 'asym_lqr']
+    """
+    if nodes is None:
+        return [m for m, mod in arch.modules.items() if mod.kind == "functional"]
+    unknown = [n for n in nodes if n not in arch.modules]
+    if unknown:
+        raise ArchselfError(f"{arch.name}: nodes: {unknown[0]!r} is not a module; "
+                            f"modules: {', '.join(arch.modules)}")
+    return [m for m in arch.modules if m in set(nodes)]
+
+
+def _inputs_of(arch: Architecture, nodes: list[str]) -> dict[str, dict[str, tuple[str, ...]]]:
+    """configuration → node → its active input edges as ``source.carries`` (sorted)."""
+    out: dict[str, dict[str, tuple[str, ...]]] = {}
+    for c in arch.configurations:
+        ins: dict[str, list[str]] = {n: [] for n in nodes}
+        for _, e in active_edges(arch, c):
+            if e.target in ins:
+                ins[e.target].append(f"{e.source}.{e.carries}")
+        out[c] = {n: tuple(sorted(v)) for n, v in ins.items()}
+    return out
+
+
+def ros2_rules(arch: Architecture, nodes: list[str]) -> tuple[dict[str, Any], list[str]]:
+    """system_modes ``rules`` for the degradations the file declares, and what cannot be one.
+
+    A structural action keyed to a node module ``m`` that applies in configuration
+    ``c`` and leads to ``c'`` becomes the rule "in system mode ``C``, if part ``m``
+    is inactive, go to ``C'``" (``degrade_<C>_<m>``). An action keyed to a module
+    that is not a node (a sensor, a wheel) has no part whose state a mode manager
+    could watch: it is returned as one line instead (the MAPE-K loop still takes it).
+    """
+    rules: dict[str, Any] = {}
+    not_rules: list[str] = []
+    for a in arch.actions:
+        if a.kind == "parameter_update" or a.to is None:
+            continue
+        if a.module not in nodes:
+            not_rules.append(f"{a.id} ({a.module} is not a node)")
+            continue
+        for c, conf in arch.configurations.items():
+            if c == a.to or a.module not in conf.modules or (a.applies_in
+                                                            and c not in a.applies_in):
+                continue
+            rules[f"degrade_{_mode_name(c)}_{a.module}"] = {
+                "if_target": f"active.{_mode_name(c)}",
+                "if_part": [a.module, "inactive"],
+                "new_target": f"active.{_mode_name(a.to)}",
+            }
+    return rules, not_rules
+
+
+def ros2_modes(arch: Architecture, nodes: list[str] | None = None) -> dict[str, Any]:
     """The architecture as a ROS 2 ``system_modes`` mode file (as data; dump it as YAML).
 
     The mapping (docs/export.md):
 
     - the architecture is one **system** named after the file's ``name``; its
-      ``parts`` are the modules (one node each, named as in the file);
+      ``parts`` are the modules that run as nodes (:func:`node_modules`: the
+      functional ones by default), one lifecycle node each, named as in the file;
     - every **configuration** is a system mode (its name upper-cased; the initial
-      configuration is also ``__DEFAULT__``) in which the configuration's modules
-      are ``active`` and the others ``inactive``;
-    - every module is a **node** whose ``__DEFAULT__`` mode holds the file's
-      nominal parameter values as ``ros__parameters``; every ``parameter_update``
-      action adds a node mode named after the action id with the values it sets,
-      and the system modes use it where the action applies (nowhere by default:
-      it is the MAPE-K loop that chooses it, as the mode manager's client).
+      configuration is also ``__DEFAULT__``) in which each part is
+      ``active.<node mode>`` when the configuration holds it, else ``inactive``;
+    - every part is a **node** whose ``__DEFAULT__`` mode holds the file's nominal
+      parameter values as ``ros__parameters``; every ``parameter_update`` action
+      adds a node mode named after the action id with the values it sets (the
+      MAPE-K loop chooses it, as the mode manager's client); a node whose active
+      inputs differ between configurations (another source, a ``rewire`` or a
+      configuration's ``disabled_edges``) gets a node mode per configuration that
+      wires it differently from the initial one (or the first holding it), with its inputs as the
+      parameter ``archself_inputs``, so that rewired configurations stay distinct
+      system modes;
+    - ``rules``: the degradations the file declares (:func:`ros2_rules`).
 
     Examples
     --------
@@ -130,37 +218,61 @@ def ros2_modes(arch: Architecture) -> dict[str, Any]:
     >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
     >>> m = ros2_modes(arch)
     >>> m["diffdrive"]["ros__parameters"]["modes"]["A2"]["ekf"]
-    'active'
+    'active.__DEFAULT__'
+    >>> m["diffdrive"]["ros__parameters"]["rules"]["degrade_A1_odometry"]["new_target"]
+    'active.A2'
     >>> m["lqr"]["ros__parameters"]["modes"]["STIFFEN_LATERAL_GAIN"]["ros__parameters"]
     {'q_lateral': 0.01}
     """
+    parts = node_modules(arch, nodes)
     system = _mode_name(arch.name).lower()
     first = arch.initial_configuration()
+    inputs = _inputs_of(arch, parts)
+    wiring: dict[str, dict[str, str]] = {}  # node → configuration → its node mode
+    wired_modes: dict[str, dict[str, Any]] = {}
+    for p in parts:
+        held = [c for c, conf in arch.configurations.items() if p in conf.modules]
+        base = first if first in held else (held[0] if held else None)
+        ref = inputs[base][p] if base else ()
+        for c in held:
+            if inputs[c][p] != ref:
+                wiring.setdefault(p, {})[c] = _mode_name(c)
+                wired_modes.setdefault(p, {})[_mode_name(c)] = {
+                    "ros__parameters": {"archself_inputs": list(inputs[c][p])}}
+        if p in wired_modes:
+            wired_modes[p][DEFAULT_MODE] = list(ref)
     modes: dict[str, dict[str, str]] = {}
-    for c, conf in [(DEFAULT_MODE, arch.configurations[first]), *arch.configurations.items()]:
-        on = set(conf.modules)
+    for c, conf in [(DEFAULT_MODE, first), *((c, c) for c in arch.configurations)]:
+        on = set(arch.configurations[conf].modules)
         modes[c if c == DEFAULT_MODE else _mode_name(c)] = {
-            m: "active" if m in on else "inactive" for m in arch.modules}
-    doc: dict[str, Any] = {system: {"ros__parameters": {
-        "type": "system",
-        "parts": " ".join(arch.modules),
-        "modes": modes,
-    }}}
+            p: f"active.{wiring.get(p, {}).get(conf, DEFAULT_MODE)}" if p in on else "inactive"
+            for p in parts}
+    rules, _ = ros2_rules(arch, parts)
+    body: dict[str, Any] = {"type": "system", "parts": " ".join(parts), "modes": modes}
+    if rules:
+        body["rules"] = rules
+    doc: dict[str, Any] = {system: {"ros__parameters": body}}
     updates: dict[str, dict[str, dict[str, Any]]] = {}
     for a in arch.actions:
-        if a.kind == "parameter_update" and a.set:
+        if a.kind == "parameter_update" and a.set and a.module in parts:
             updates.setdefault(a.module, {})[_mode_name(a.id)] = {
                 "ros__parameters": {k: _ros_value(v) for k, v in a.set.items()}}
-    for name, mod in arch.modules.items():
-        nominal = {k: _ros_value(p.value) for k, p in mod.params.items()}
+    for name in parts:
+        nominal = {k: _ros_value(p.value) for k, p in arch.modules[name].params.items()}
+        extra = wired_modes.get(name, {})
+        if DEFAULT_MODE in extra:
+            nominal["archself_inputs"] = extra.pop(DEFAULT_MODE)
         node_modes: dict[str, Any] = {DEFAULT_MODE: {"ros__parameters": nominal}}
         node_modes.update(updates.get(name, {}))
+        node_modes.update(extra)
         doc[name] = {"ros__parameters": {"type": "node", "modes": node_modes}}
     return doc
 
 
-def export(arch: Architecture, fmt: str) -> str:
+def export(arch: Architecture, fmt: str, *, nodes: list[str] | None = None) -> str:
     """The text of ``arch`` in format ``fmt`` (one of :data:`FORMATS`).
+
+    ``nodes``: for ``ros2-modes``, the modules that run as nodes (:func:`node_modules`).
 
     Raises
     ------
@@ -185,7 +297,14 @@ def export(arch: Architecture, fmt: str) -> str:
         yaml.default_flow_style = False
         yaml.width = 4096  # one line per list of parts
         out = io.StringIO()
-        out.write(f"# ROS 2 system_modes mode file exported by archself from '{arch.name}'\n---\n")
-        yaml.dump(ros2_modes(arch), out)
+        parts = node_modules(arch, nodes)
+        out.write(f"# ROS 2 system_modes mode file exported by archself from '{arch.name}'\n")
+        out.write(f"# parts (nodes): {' '.join(parts)}\n")
+        _, not_rules = ros2_rules(arch, parts)
+        if not_rules:
+            out.write("# not rules (a mode manager cannot watch their module; the MAPE-K loop "
+                      f"takes them): {', '.join(not_rules)}\n")
+        out.write("---\n")
+        yaml.dump(ros2_modes(arch, parts), out)
         return out.getvalue()
     raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
