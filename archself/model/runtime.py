@@ -76,6 +76,11 @@ class Ablation(StrictModel):
     propagation: bool = Field(True, description="false: z = r (W = 0 in Analyze).")
     stability: bool = Field(True, description="false: no stability filter (Eq. 21–24).")
     dwell: bool = Field(True, description="false: no dwell time (T_min = 0).")
+    paths: bool = Field(
+        True,
+        description="false: no detour to another configuration when an action's target is "
+        "unavailable (archself.runtime.paths).",
+    )
 
 
 class Objective(StrictModel):

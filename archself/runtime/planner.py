@@ -64,6 +64,7 @@ from archself.runtime.constraints import (
 )
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.improvement import estimate_improvement, rollout_improvement
+from archself.runtime.paths import Detours
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 from archself.runtime.status import StatusMap, is_limit_violation
 
@@ -158,6 +159,7 @@ class Planner:
         self._constrained = frozenset(
             n for n, m in arch.modules.items() if m.constraints.requires or m.constraints.excludes
         )
+        self.detours = Detours(arch)  # synthesized switches around an unavailable target
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
@@ -304,12 +306,16 @@ class Planner:
                 continue
             z_i = abs(float(state.z.get(module, 0.0)))
             r_i = abs(float(state.r.get(module, 0.0)))
-            for order, a in actions:
+            for order, a in (queue := list(actions)):
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
                 reason, detail, _ = self._admissible(a, state, system)
                 if reason is not None:
                     ev.rejected, ev.detail = reason, detail
+                    if reason == "unavailable":  # paths: evaluated next, same order
+                        queue.extend((order, d) for d in self.detours.find(
+                            a, state.configuration, state.kappa.unavailable(),
+                            lambda c: self.dependencies(system, c)))
                     continue
                 try:
                     delta = estimate_improvement(a, module, r_i, system)
