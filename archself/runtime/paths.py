@@ -2,13 +2,14 @@
 
 A structural action ``a`` keyed to module ``m_i`` leads from the current
 configuration ``M`` to its declared target ``T``. The modules it brings in,
-``K = T \\ M``, are what compensates ``m_i`` (for the robot, the asymmetric LQR and
-the EKF of ``a1 → a3``). When ``T`` cannot run now — one of its modules is down, or
-depends on one that is (the Plan stage's ``unavailable``, §4.2) — the file may still
-declare a configuration that keeps the part of ``K`` that *can* run: the
-configurations graph (configurations as nodes; the declared structural actions and a
-*synthesized* switch to any declared configuration as edges, since the executor hot
-swaps to any of them) has a node that compensates the fault without the dead part.
+``K = T \\ M``, are what compensates ``m_i`` (say, an adaptive controller together
+with an estimator that needs a sensor). When ``T`` cannot run now — one of its
+modules is down, or depends on one that is (the Plan stage's ``unavailable``,
+§4.2) — the file may still declare a configuration that keeps the part of ``K`` that
+*can* run: the configurations graph (configurations as nodes; the declared structural
+actions and a *synthesized* switch to any declared configuration as edges, since the
+executor hot swaps to any of them) has a node that compensates the fault without the
+dead part.
 
 :class:`Detours` finds them, without a hand-written action for every pair:
 
