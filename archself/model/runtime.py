@@ -149,6 +149,13 @@ class Runtime(StrictModel):
         description="A module's residual counts only once its filter has settled: confidence "
         "1 − exp(−t_valid/T) ≥ this (0.5: after T·ln 2 of usable samples). Before, r_i = 0.",
     )
+    trust_at_start: bool = Field(
+        True,
+        description="Filters that start with the run count from their first sample: started at "
+        "0, a filter's mean and variance stay below the settled ones its band bounds, so a "
+        "healthy module crosses the band no more often; a filter restarted later (a module "
+        "activated by a switch, its hand-over transient) waits for min_confidence.",
+    )
     isolate_compensated: bool = Field(
         True,
         description="After a structural action keyed to a module, that module's residual is no "
