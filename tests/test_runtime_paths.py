@@ -63,5 +63,6 @@ def test_wheel_loss_during_a_gps_dropout_takes_the_detour(robot):
     # 0.28 m with seed 1 (20 seeds: worst 0.40 m); 3.2 m without the detour
     assert run.metrics["max_error"] < 1.0
     text = explain(loop.decisions)
-    assert "compensate_left_wheel (substitute on wheel_left → a3)  rejected (unavailable: gps" in text
+    assert ("compensate_left_wheel (substitute on wheel_left → a3)  "
+            "rejected (unavailable: gps") in text
     assert "compensate_left_wheel@a4 (substitute on wheel_left → a4)" in text

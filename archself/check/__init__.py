@@ -64,6 +64,7 @@ from archself.check.modules import check_limits, check_parameters, check_types
 from archself.check.runs import (
     check_actions,
     check_objective,
+    check_qualities,
     check_scenarios,
     check_stability,
     check_work,
@@ -88,6 +89,7 @@ def check(loaded: Loaded) -> list[Finding]:
             check_configurations,
             check_parameters,
             check_actions,
+            check_qualities,
             check_scenarios,
             check_work,
             check_objective,

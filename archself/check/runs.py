@@ -134,6 +134,29 @@ def check_actions(ctx: Context) -> None:
                         (*base, "kind"))
 
 
+def check_qualities(ctx: Context) -> None:
+    """Quality attributes: declared values name configurations, and cover every one."""
+    q = ctx.arch.qualities
+    if q is None:
+        return
+    for name, attr in q.attributes.items():
+        base = ("qualities", "attributes", name)
+        if attr.values is not None:
+            for c in attr.values:
+                refers(ctx, c, (*base, "values", c), "configuration")
+            missing = [c for c in ctx.arch.configurations if c not in attr.values]
+            if missing:
+                ctx.add("error", "quality",
+                        f"no value for configuration(s) {', '.join(missing)}: U(C) needs "
+                        f"every attribute of every configuration", (*base, "values"))
+        elif attr.resource is not None and not any(
+            attr.resource in m.resources for m in ctx.arch.modules.values()
+        ):
+            ctx.add("warning", "quality",
+                    f"no module declares resource '{attr.resource}': the attribute is 0 "
+                    f"everywhere", (*base, "resource"))
+
+
 def check_scenarios(ctx: Context) -> None:
     arch = ctx.arch
     placed = {m for conf in arch.configurations.values() for m in conf.modules}

@@ -15,23 +15,30 @@ dead part.
 
 - ``D``: the modules of ``T`` that are unavailable or need an unavailable module
   (the target's dependency map, as the planner's availability rule);
-- ``kept = K \\ D``: what of the action's remedy can run (none: no detour);
-- every declared configuration ``C ∉ {M, T}`` with ``kept ⊆ C`` that holds none of
-  the modules of ``D`` that are not down themselves (those that need a dead one; a dead
-  sensor used for monitoring only may stay, as the planner's rule allows) is a detour, ranked by ``|C ∩ T|`` (closest to the intended target) descending,
-  then ``|C △ M|`` (smallest change) ascending, then declaration order.
+- the *remedy*: the modules of ``K`` wired to ``m_i`` (an edge either way; all of
+  ``K`` if none is), less ``D`` (nothing left: no detour);
+- every declared configuration ``C ∉ {M, T}`` that holds the remedy and what ``T``
+  keeps of ``M`` (less ``D``), and none of the modules of ``D`` that are not down
+  themselves (those that need a dead one; a dead sensor used for monitoring only may
+  stay, as the planner's rule allows) is a detour, ranked by ``|C ∩ T|`` (closest to
+  the intended target) descending, then ``|C △ M|`` (smallest change) ascending, then
+  declaration order.
 
-Each detour becomes an action ``<a.id>@<C>`` — ``a`` with ``to = C`` and no
-``applies_in`` — that the planner evaluates like a declared one: availability,
-constraints and budgets, limits, dwell, the same Δ estimate (the remedy of ``m_i``
-is kept), the score and the stability filter. A declared action with the same score
-wins the tie (it comes first). ``runtime.ablation.paths: false`` switches detours off.
+With quality attributes (``qualities``, :mod:`archself.runtime.utility`) the same
+search with ``D = ∅`` gives the *alternatives* of an admissible action: the other
+configurations that hold its remedy, which the preferences may rank above ``T``.
+
+Each detour or alternative becomes an action ``<a.id>@<C>`` — ``a`` with ``to = C``
+and no ``applies_in`` — that the planner evaluates like a declared one: availability,
+constraints and budgets, limits, dwell, the same Δ estimate (the remedy of ``m_i`` is
+kept), the score plus ``μ·(U(C) − U(T))`` and the stability filter. A declared action
+with the same score wins the tie (it comes first). ``runtime.ablation.paths: false``
+switches both off.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
 
 from archself.model.architecture import Action, Architecture
 
@@ -47,7 +54,7 @@ def detour_id(action_id: str, configuration: str) -> str:
 
 
 class Detours:
-    """Synthesized switches that keep an unavailable target's runnable remedy.
+    """Synthesized switches to the declared configurations that keep an action's remedy.
 
     Parameters
     ----------
@@ -59,64 +66,74 @@ class Detours:
         self.on = arch.runtime.ablation.paths
         self.modules = {c: frozenset(conf.modules) for c, conf in arch.configurations.items()}
         self.order = {c: k for k, c in enumerate(arch.configurations)}
+        self.wired: dict[str, set[str]] = {}
+        for e in arch.edges:
+            self.wired.setdefault(e.source, set()).add(e.target)
+            self.wired.setdefault(e.target, set()).add(e.source)
         self._made: dict[tuple[str, str], Action] = {}
+        #: synthesized action id -> the declared target it stands in for
+        self.origin: dict[str, str] = {}
 
     def find(
         self,
         action: Action,
         current: str,
-        down: Iterable[str],
-        dependencies: Callable[[str], Mapping[str, Iterable[str]] | None],
+        down: Iterable[str] = (),
+        dependencies: Callable[[str], Mapping[str, Iterable[str]] | None] | None = None,
     ) -> list[Action]:
-        """The detours of ``action`` from ``current``, best first (empty if none).
+        """The detours (or, with nothing down, the alternatives) of ``action``, best first.
 
         Parameters
         ----------
         action : Action
-            A structural action the planner rejected as ``unavailable``.
+            A declared structural action.
         current : str
             The current configuration M.
         down : iterable of str
-            The modules reported unavailable (κ).
-        dependencies : callable
+            The modules reported unavailable (κ); empty for the alternatives.
+        dependencies : callable, optional
             configuration -> {module: modules it cannot run without}, or None
             (then only the unavailable modules themselves are excluded).
 
         Returns
         -------
         list of Action
-            ``<action.id>@<C>`` for each detour C, ranked as the module docstring says.
+            ``<action.id>@<C>`` for each C, ranked as the module docstring says.
         """
         target = action.to
         if not self.on or action.kind == "parameter_update" or target not in self.modules:
             return []
         off = set(down)
         t_mods = self.modules[target]
-        deps = dependencies(target) or {}
+        deps = (dependencies(target) if dependencies is not None and off else None) or {}
         dead = {m for m in t_mods if m in off or off.intersection(deps.get(m, ()))}
         m_now = self.modules.get(current, frozenset())
-        kept = (t_mods - m_now) - dead
-        needs = dead - off  # modules that need a dead one; the dead themselves may stay
+        brought = t_mods - m_now
+        remedy = (brought & self.wired.get(action.module, set())) or brought
+        kept = remedy - dead
         if not kept:
             return []
+        must = kept | ((t_mods & m_now) - dead)
+        needs = dead - off  # modules that need a dead one; the dead themselves may stay
         found = [
             c
             for c, mods in self.modules.items()
-            if c not in (current, target) and kept <= mods and not (mods & needs)
+            if c not in (current, target) and must <= mods and not (mods & needs)
         ]
         found.sort(key=lambda c: (-len(self.modules[c] & t_mods),
                                   len(self.modules[c] ^ m_now), self.order[c]))
-        return [self._action(action, c) for c in found]
+        return [self._action(action, c, bool(off)) for c in found]
 
-    def _action(self, action: Action, configuration: str) -> Action:
+    def _action(self, action: Action, configuration: str, detour: bool) -> Action:
         key = (action.id, configuration)
         made = self._made.get(key)
         if made is None:
-            via = f"detour for {action.id} (its target {action.to} is unavailable)"
+            why = ("its target {} is unavailable" if detour else "it holds the remedy of {}")
             made = self._made[key] = action.model_copy(update={
                 "id": detour_id(action.id, configuration),
                 "to": configuration,
                 "applies_in": None,
-                "description": via,
+                "description": f"in place of {action.id} ({why.format(action.to)})",
             })
+            self.origin[made.id] = str(action.to)
         return made

@@ -67,6 +67,7 @@ from archself.runtime.improvement import estimate_improvement, rollout_improveme
 from archself.runtime.paths import Detours
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 from archself.runtime.status import StatusMap, is_limit_violation
+from archself.runtime.utility import Utility
 
 __all__ = [
     "PlanState",
@@ -160,6 +161,7 @@ class Planner:
             n for n, m in arch.modules.items() if m.constraints.requires or m.constraints.excludes
         )
         self.detours = Detours(arch)  # synthesized switches around an unavailable target
+        self.utility = Utility(arch)  # quality attributes: U(C) under the preferences
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
@@ -327,6 +329,9 @@ class Planner:
                     continue
                 ev.delta = delta
                 ev.score = z_i * delta - self.cost_weight * a.cost
+                if self.utility.on and a.kind != "parameter_update":  # qualities: U, μ·ΔU
+                    ev.utility = self.utility.of(a.to)
+                    ev.score += self.utility.bonus(a.to, self.detours.origin.get(a.id, a.to))
                 if ev.score <= 0:
                     ev.rejected = "no improvement"
                     gain, penalty = z_i * delta, self.cost_weight * a.cost
@@ -337,6 +342,8 @@ class Planner:
                 if not verdict.ok:
                     ev.rejected, ev.detail = "unstable", verdict.reason
                     continue
+                if self.utility.on and a.id not in self.detours.origin:  # the alternatives
+                    queue.extend((order, d) for d in self.detours.find(a, state.configuration))
                 key = (ev.score, -a.cost, -order)
                 if best is None or key > best:
                     best, chosen, chosen_eval = key, a, ev
