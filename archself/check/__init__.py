@@ -67,6 +67,7 @@ from archself.check.runs import (
     check_qualities,
     check_scenarios,
     check_stability,
+    check_strategies,
     check_work,
     run_estimate,
 )
@@ -90,6 +91,7 @@ def check(loaded: Loaded) -> list[Finding]:
             check_parameters,
             check_actions,
             check_qualities,
+            check_strategies,
             check_scenarios,
             check_work,
             check_objective,

@@ -38,6 +38,7 @@ from archself.model.runtime import (
     Runtime,
     Stability,
 )
+from archself.model.strategies import Strategy
 from archself.model.values import (
     MAX_HORIZON_STEPS,
     MAX_MAGNITUDE,
@@ -68,7 +69,7 @@ __all__ = [
     "SensitivityEstimate", "RolloutEstimate", "TableEstimate", "Improvement", "Action",
     "Budget", "FaultKind", "Fault", "Scenario",
     "Stability", "Hysteresis", "Ablation", "Objective", "Runtime", "Architecture",
-    "Qualities", "Quality",
+    "Qualities", "Quality", "Strategy",
 ]
 
 _STRUCTURAL = ["substitute", "activate", "deactivate", "rewire"]
@@ -346,6 +347,9 @@ class Architecture(StrictModel):
     runtime: Runtime
     qualities: Qualities | None = Field(
         None, description="Quality attributes, utility curves and preferences (docs/strategies.md)."
+    )
+    strategies: dict[Name, Strategy] = Field(
+        default_factory=dict, description="Named trees of tactics (docs/strategies.md)."
     )
 
     _edge_ports: Any = PrivateAttr(None)  # one archself.model.ports.EdgePorts, not one per edge

@@ -349,6 +349,13 @@ class Planner:
                     best, chosen, chosen_eval = key, a, ev
         return evaluations, chosen, chosen_eval
 
+    def check(self, action: Action, state: PlanState, system: Any) -> tuple[str | None, str]:
+        """(rejection, detail) of one action by checks 1–4 and 6 (no score): a tactic."""
+        reason, detail, _ = self._admissible(action, state, system)
+        if reason is None and not (verdict := self.stability(system, action)).ok:
+            reason, detail = "unstable", verdict.reason
+        return reason, detail
+
     def stability(self, system: Any, action: Action) -> StabilityVerdict:
         """Stability filter (Eq. 21, else Eq. 24) for one action (passes when ablated)."""
         if not self.stability_on:
