@@ -329,7 +329,7 @@ class Planner:
                     continue
                 ev.delta = delta
                 ev.score = z_i * delta - self.cost_weight * a.cost
-                if self.utility.on and a.kind != "parameter_update":  # qualities: U, μ·ΔU
+                if self.utility.on and a.to is not None:  # qualities: U, μ·(U − U_target)
                     ev.utility = self.utility.of(a.to)
                     ev.score += self.utility.bonus(a.to, self.detours.origin.get(a.id, a.to))
                 if ev.score <= 0:

@@ -149,9 +149,10 @@ class Strategies:
         key = (run.name, run.origin)
         back = self._rollbacks.get(key)
         if back is None:
-            back = self._rollbacks[key] = Action(
-                id=f"{run.name}:rollback", module=st.module, kind="substitute", to=run.origin,
-                cost=0.0, improvement={"method": "sensitivity", "delta_theta": 0.0},
-                description=f"strategy {run.name}: back to {run.origin}",
-            )
+            back = self._rollbacks[key] = Action.model_validate({
+                "id": f"{run.name}:rollback", "module": st.module, "kind": "substitute",
+                "to": run.origin, "cost": 0.0,
+                "improvement": {"method": "sensitivity", "delta_theta": 0.0},
+                "description": f"strategy {run.name}: back to {run.origin}",
+            })
         return back
