@@ -50,7 +50,7 @@ def test_a_residual_counts_only_once_its_filter_is_trusted():
 
 
 def test_filters_running_since_the_start_count_at_once_restarted_ones_wait():
-    arch = make_arch(min_confidence=0.5)  # trust_at_start: on by default
+    arch = make_arch(min_confidence=0.5, trust_at_start=True)
     for m in ("est_a", "est_b"):
         arch.modules[m].residual.smoothing_s = 2.0  # settled after 2·ln 2 = 1.39 s
 

@@ -150,7 +150,7 @@ class Runtime(StrictModel):
         "1 − exp(−t_valid/T) ≥ this (0.5: after T·ln 2 of usable samples). Before, r_i = 0.",
     )
     trust_at_start: bool = Field(
-        True,
+        False,
         description="Filters that start with the run count from their first sample: started at "
         "0, a filter's mean and variance stay below the settled ones its band bounds, so a "
         "healthy module crosses the band no more often; a filter restarted later (a module "

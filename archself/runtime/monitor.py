@@ -23,7 +23,7 @@
   runtime.min_confidence`` (t_valid: time with usable samples since the filter
   last started); before that ``r_i = 0``. A module that becomes active starts a
   new filter, so it is trusted again only after it has settled. Exception
-  (``runtime.trust_at_start``, on by default): a filter running since the run's
+  (``runtime.trust_at_start``, off by default): a filter running since the run's
   first cycle counts from its first sample. Started at 0 (the healthy residual),
   after n samples it holds ``c_n·μ`` plus noise of variance ``≤`` the settled one
   (``c_n = 1 − (1 − g)^n ≤ 1``), so a healthy module crosses its band — a bound on
