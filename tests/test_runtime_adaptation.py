@@ -34,7 +34,7 @@ def test_deprecated_warmup_steps_still_counts_cycles():
 
 
 def test_a_residual_counts_only_once_its_filter_is_trusted():
-    arch = make_arch(min_confidence=0.5)
+    arch = make_arch(min_confidence=0.5, trust_at_start=False)
     arch.modules["est_a"].residual.smoothing_s = 2.0  # trusted after 2·ln 2 = 1.39 s of samples
     loop = MapeK(arch)
     run_loop(loop, FakeSystem(arch, high("est_a", "innov", 5.0), linearizations=LIN), 3.0)
@@ -47,6 +47,27 @@ def test_a_residual_counts_only_once_its_filter_is_trusted():
     loop0 = MapeK(arch0)
     run_loop(loop0, FakeSystem(arch0, high("est_a", "innov", 5.0), linearizations=LIN), 1.0)
     assert loop0.decisions[0].r["est_a"] > 0.0
+
+
+def test_filters_running_since_the_start_count_at_once_restarted_ones_wait():
+    arch = make_arch(min_confidence=0.5, trust_at_start=True)
+    for m in ("est_a", "est_b"):
+        arch.modules[m].residual.smoothing_s = 2.0  # settled after 2·ln 2 = 1.39 s
+
+    def both_high(t, configuration):
+        return {"est_a": {"innov": 5.0}, "est_b": {"innov": 5.0}}
+
+    loop = MapeK(arch)
+    switches = run_loop(loop, FakeSystem(arch, both_high, linearizations=LIN), 4.0)
+    d = loop.decisions
+    # est_a's filter started with the run: one sample (gain 1 − e^−0.5) already counts,
+    # r = (5·0.393 − 0.1)/0.1 = 18.7, and the loop acts in the first cycle
+    np.testing.assert_allclose(d[0].r["est_a"], (5.0 * (1 - np.exp(-0.5)) - 0.1) / 0.1,
+                               rtol=1e-9)
+    assert [(s["t_s"], s["to"]) for s in switches][:1] == [(pytest.approx(1.0), "alt_est")]
+    # est_b's filter starts at the switch (a hand-over): 1 s of samples is not trusted, 2 s is
+    assert d[1].configuration == "alt_est" and d[1].r["est_b"] == 0.0
+    assert d[2].r["est_b"] > 0.0
 
 
 def _act_fault(arch):

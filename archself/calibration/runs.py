@@ -128,8 +128,9 @@ class Recorder:
     ----------
     x : list of list of float
         Per cycle after the warm-up: |s̄_i| of each module of ``residual_modules``
-        (0 when inactive, the sample was unusable or the filter not yet trusted,
-        ``runtime.min_confidence``).
+        (0 when inactive, the sample was unusable or the filter not yet trusted:
+        ``runtime.min_confidence``, or from the first sample with
+        ``runtime.trust_at_start``, as the loop counts it).
     forced : list of bool
         Per cycle after the warm-up: an active module was unavailable for a
         reason of its own (the Monitor gives it the saturated residual).
@@ -146,6 +147,9 @@ class Recorder:
         self.warmup_s = arch.runtime.warmup_time_s
         self.t_start: float | None = None
         self.trust = float(arch.runtime.min_confidence)
+        # runtime.trust_at_start: a filter running since the first cycle counts at once
+        mon = self.monitor
+        self._slot = {mon.names[k]: j for j, k in enumerate(mon.res_pos.tolist())}
         self.column = {m: j for j, m in enumerate(residual_modules)}
         self.width = len(residual_modules)
         self.x: list[list[float]] = []
@@ -165,7 +169,10 @@ class Recorder:
             for name, value, ok in zip(
                 obs.signal_names, obs.signal_values.tolist(), obs.signal_ok.tolist(), strict=True
             ):
-                if ok and value == value and obs.kappa[name].confidence >= self.trust:
+                if ok and value == value and (
+                    obs.kappa[name].confidence >= self.trust
+                    or self.monitor.from_start[self._slot[name]]
+                ):
                     row[self.column[name]] = abs(value)
             self.x.append(row)
             self.forced.append(

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.check.context import Context, refers
+from archself.check.context import Context, closest, refers
 from archself.check.modules import outside_declared, outside_space, wrong_kind
 from archself.io.yaml_source import Path_
 from archself.model.architecture import Architecture
@@ -144,6 +144,89 @@ def check_actions(ctx: Context) -> None:
                         f"(adds {sorted(added) or 'nothing'}, "
                         f"removes {sorted(removed) or 'nothing'})",
                         (*base, "kind"))
+
+
+def check_qualities(ctx: Context) -> None:
+    """Quality attributes: declared values name configurations, and cover every one."""
+    q = ctx.arch.qualities
+    if q is None:
+        return
+    for name, attr in q.attributes.items():
+        base = ("qualities", "attributes", name)
+        if attr.values is not None:
+            for c in attr.values:
+                refers(ctx, c, (*base, "values", c), "configuration")
+            missing = [c for c in ctx.arch.configurations if c not in attr.values]
+            if missing:
+                ctx.add("error", "quality",
+                        f"no value for configuration(s) {', '.join(missing)}: U(C) needs "
+                        f"every attribute of every configuration", (*base, "values"))
+        elif attr.resource is not None and not any(
+            attr.resource in m.resources for m in ctx.arch.modules.values()
+        ):
+            ctx.add("warning", "quality",
+                    f"no module declares resource '{attr.resource}': the attribute is 0 "
+                    f"everywhere", (*base, "resource"))
+
+
+def check_strategies(ctx: Context) -> None:
+    """Strategies: known module, tactics, configurations and steps; no step without exit.
+
+    A step must be reachable from ``start``; from every step an exit (``done`` or
+    ``rollback``) must be reachable, else the branches form a cycle without exit.
+    """
+    from archself.model.strategies import EXITS
+
+    actions = {a.id for a in ctx.arch.actions}
+    for name, st in ctx.arch.strategies.items():
+        base = ("strategies", name)
+        refers(ctx, st.module, (*base, "module"))
+        steps = st.steps
+        if st.start not in steps:
+            close = closest(st.start, steps)
+            hint = f"; did you mean '{close}'?" if close else ""
+            ctx.add("error", "strategy", f"unknown step '{st.start}'{hint}", (*base, "start"))
+        for sname, step in steps.items():
+            at = (*base, "steps", sname)
+            if step.tactic not in actions:
+                close = closest(step.tactic, actions)
+                hint = f"; did you mean '{close}'?" if close else ""
+                ctx.add("error", "strategy", f"unknown tactic '{step.tactic}' (not an action "
+                        f"id){hint}", (*at, "tactic"))
+            for cond in ("when", "post"):
+                c = getattr(step, cond)
+                for j, conf in enumerate((c.configuration or []) if c is not None else []):
+                    refers(ctx, conf, (*at, cond, "configuration", j), "configuration")
+            for branch in ("success", "failure"):
+                nxt = getattr(step, branch)
+                if nxt not in steps and nxt not in EXITS:
+                    close = closest(nxt, [*steps, *EXITS])
+                    hint = f"; did you mean '{close}'?" if close else ""
+                    ctx.add("error", "strategy", f"unknown step '{nxt}' (a step, 'done' or "
+                            f"'rollback'){hint}", (*at, branch))
+        seen, todo = set(), [st.start] if st.start in steps else []
+        while todo:
+            s_ = todo.pop()
+            if s_ in seen or s_ not in steps:
+                continue
+            seen.add(s_)
+            todo += [steps[s_].success, steps[s_].failure]
+        for sname in steps:
+            if sname not in seen and st.start in steps:
+                ctx.add("error", "strategy", f"step '{sname}' is unreachable from start "
+                        f"'{st.start}'", (*base, "steps", sname))
+        exits = set(EXITS)
+        grew = True
+        while grew:  # the steps from which an exit is reachable
+            grew = False
+            for sname, step in steps.items():
+                if sname not in exits and (step.success in exits or step.failure in exits):
+                    exits.add(sname)
+                    grew = True
+        for sname in steps:
+            if sname not in exits:
+                ctx.add("error", "strategy", f"step '{sname}' is on a cycle without exit: no "
+                        f"branch leads to 'done' or 'rollback'", (*base, "steps", sname))
 
 
 def check_scenarios(ctx: Context) -> None:

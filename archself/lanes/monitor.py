@@ -133,7 +133,7 @@ def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         else:
             res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
         res = np.where(np.isfinite(new), np.minimum(res, MAX_RESIDUAL), 0.0)
-        untrusted = VT1 < lay0.trust_time
+        untrusted = VT1 < np.stack([lay.trust_time for lay in g.lays])  # per lane (at start)
         if g.partial:
             untrusted |= ~F  # no residual from a filter that took no sample
         if untrusted.any():

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, PrivateAttr, model_validator
 
+from archself.model.qualities import Qualities, Quality
 from archself.model.runtime import (
     Ablation,
     Hysteresis,
@@ -37,6 +38,7 @@ from archself.model.runtime import (
     Runtime,
     Stability,
 )
+from archself.model.strategies import Strategy
 from archself.model.values import (
     MAX_HORIZON_STEPS,
     MAX_MAGNITUDE,
@@ -67,6 +69,7 @@ __all__ = [
     "SensitivityEstimate", "RolloutEstimate", "TableEstimate", "Improvement", "Action",
     "Budget", "FaultKind", "Fault", "Scenario",
     "Stability", "Hysteresis", "Ablation", "Objective", "Runtime", "Architecture",
+    "Qualities", "Quality", "Strategy",
 ]
 
 _STRUCTURAL = ["substitute", "activate", "deactivate", "rewire"]
@@ -342,6 +345,12 @@ class Architecture(StrictModel):
     constraints: list[Budget] = Field(default_factory=list, description="C(a, θ, e) ≤ 0.")
     scenarios: dict[Name, Scenario] = Field(default_factory=dict, description="Environments e.")
     runtime: Runtime
+    qualities: Qualities | None = Field(
+        None, description="Quality attributes, utility curves and preferences (docs/strategies.md)."
+    )
+    strategies: dict[Name, Strategy] = Field(
+        default_factory=dict, description="Named trees of tactics (docs/strategies.md)."
+    )
 
     _edge_ports: Any = PrivateAttr(None)  # one archself.model.ports.EdgePorts, not one per edge
 

@@ -97,6 +97,11 @@ class Ablation(StrictModel):
     propagation: bool = Field(True, description="false: z = r (W = 0 in Analyze).")
     stability: bool = Field(True, description="false: no stability filter (Eq. 21–24).")
     dwell: bool = Field(True, description="false: no dwell time (T_min = 0).")
+    paths: bool = Field(
+        True,
+        description="false: no detour to another configuration when an action's target is "
+        "unavailable (archself.runtime.paths).",
+    )
 
 
 class Objective(StrictModel):
@@ -164,6 +169,13 @@ class Runtime(StrictModel):
         0.5,
         description="A module's residual counts only once its filter has settled: confidence "
         "1 − exp(−t_valid/T) ≥ this (0.5: after T·ln 2 of usable samples). Before, r_i = 0.",
+    )
+    trust_at_start: bool = Field(
+        False,
+        description="Filters that start with the run count from their first sample: started at "
+        "0, a filter's mean and variance stay below the settled ones its band bounds, so a "
+        "healthy module crosses the band no more often; a filter restarted later (a module "
+        "activated by a switch, its hand-over transient) waits for min_confidence.",
     )
     isolate_compensated: bool = Field(
         True,

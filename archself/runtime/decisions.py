@@ -116,9 +116,13 @@ class ActionEvaluation:
     stability: dict[str, Any] | None = None
     rejected: str | None = None
     detail: str = ""
+    utility: dict[str, Any] | None = None  # U of the target and its attributes (qualities)
 
     def to_dict(self) -> dict[str, Any]:
-        return jsonable({f.name: getattr(self, f.name) for f in fields(self)})
+        return jsonable({
+            f.name: v for f in fields(self)
+            if (v := getattr(self, f.name)) is not None or f.name != "utility"
+        })
 
 
 @dataclass

@@ -133,7 +133,15 @@ def _describe_eval(e: dict[str, Any], weight: str = "z") -> str:
     if e.get("delta") is not None:
         parts.append(f"Δ={_fmt(e['delta'])}")
     if e.get("score") is not None:
-        parts.append(f"score={_fmt(e['score'])} = {weight}·Δ − λ·cost")
+        plus = " + μ·(U − U_target)" if "@" in str(e.get("action")) and e.get("utility") else ""
+        parts.append(f"score={_fmt(e['score'])} = {weight}·Δ − λ·cost{plus}")
+    u = e.get("utility")
+    if isinstance(u, Mapping) and isinstance(u.get("attributes"), Mapping):
+        attrs = ", ".join(
+            f"{q} {_fmt(a.get('value'))} → {_fmt(a.get('utility'), '.2f')}"
+            for q, a in u["attributes"].items() if isinstance(a, Mapping)
+        )
+        parts.append(f"U={_fmt(u.get('U'), '.3f')} ({attrs})")
     st = e.get("stability")
     if st:
         parts.append(("stable: " if st.get("ok") else "UNSTABLE: ") + str(st.get("reason") or ""))

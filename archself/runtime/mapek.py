@@ -52,6 +52,7 @@ from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
 from archself.runtime.sources import SourceEstimator
 from archself.runtime.stability import apply_action
+from archself.runtime.strategies import Strategies
 
 __all__ = ["MapeK"]
 
@@ -98,6 +99,7 @@ class MapeK:
         self.selector = selector_from_runtime(arch.runtime)
         self.localization = arch.runtime.localization
         self.planner = Planner(arch)
+        self.strategies = Strategies(arch, self.planner)  # the running one: its state
         self.decisions: list[DecisionRecord] = []
         self.switches: list[dict[str, Any]] = []
         self.updates: list[dict[str, Any]] = []
@@ -179,7 +181,7 @@ class MapeK:
         )
         self.decisions.append(record)
         self.cycle += 1
-        if warm or not candidates:
+        if warm or not (candidates or self.strategies.running):
             return []
 
         # PLAN (Eq. 17-28)
@@ -194,7 +196,10 @@ class MapeK:
             params=k.params,
             t_last=k.t_last,
         )
-        evaluations, action, ev = self.planner.plan(system, state, candidates)
+        if self.strategies.wants(candidates, state, record):  # a strategy runs: its tactic
+            evaluations, action, ev = self.strategies.cycle(system, state, record)
+        else:
+            evaluations, action, ev = self.planner.plan(system, state, candidates)
         record.evaluations = evaluations
         if action is None or ev is None:
             return []

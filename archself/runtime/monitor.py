@@ -22,7 +22,15 @@
   filter has settled, ``confidence = 1 − exp(−t_valid/T) ≥
   runtime.min_confidence`` (t_valid: time with usable samples since the filter
   last started); before that ``r_i = 0``. A module that becomes active starts a
-  new filter, so it is trusted again only after it has settled.
+  new filter, so it is trusted again only after it has settled. Exception
+  (``runtime.trust_at_start``, off by default): a filter running since the run's
+  first cycle counts from its first sample. Started at 0 (the healthy residual),
+  after n samples it holds ``c_n·μ`` plus noise of variance ``≤`` the settled one
+  (``c_n = 1 − (1 − g)^n ≤ 1``), so a healthy module crosses its band — a bound on
+  the *settled* filter — no more often than later in the run, while a fault present
+  from t = 0 shows as soon as it lifts the filter over the band. A filter restarted by
+  a switch still waits: what it filters then is a hand-over transient, which the band
+  does not cover.
 - Unavailable modules (Eq. 12 with a total deviation): an active module the
   system reports unavailable for a reason of its own (it raised, gave NaN, fell
   silent or froze; not ``lost input``, which is an upstream failure) gets the
@@ -146,7 +154,12 @@ class Layout:
         monitor.value[self.res_off] = 0.0
         monitor.valid_time[self.res_off] = 0.0
         monitor.samples[self.res_off] = 0
-        self.trust_time = monitor.trust_time[self.res_on]
+        # trust at start: a filter running since the run's first layout needs no settling
+        if monitor._layout is None and monitor.trust_at_start:
+            monitor.from_start[self.res_on] = True
+        monitor.from_start[self.res_off] = False
+        self.trust_time = np.where(monitor.from_start[self.res_on], 0.0,
+                                   monitor.trust_time[self.res_on])
         self.value = monitor.value[self.res_on]
         self.valid_time = monitor.valid_time[self.res_on]
         self.samples = monitor.samples[self.res_on]
@@ -266,6 +279,9 @@ class Monitor:
         c_min = float(arch.runtime.min_confidence)
         tc = self.time_constant
         self.trust_time = np.where(tc > 0, -tc * math.log1p(-c_min), 0.0)
+        # runtime.trust_at_start: the filters running since the first cycle count at once
+        self.trust_at_start = bool(arch.runtime.trust_at_start)
+        self.from_start = np.zeros(len(res), dtype=bool)
         self.constrained = [
             (k, n)
             for k, n in enumerate(self.names)

@@ -64,8 +64,10 @@ from archself.runtime.constraints import (
 )
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.improvement import estimate_improvement, rollout_improvement
+from archself.runtime.paths import Detours
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 from archself.runtime.status import StatusMap, is_limit_violation
+from archself.runtime.utility import Utility
 
 __all__ = [
     "PlanState",
@@ -160,6 +162,8 @@ class Planner:
         self._constrained = frozenset(
             n for n, m in arch.modules.items() if m.constraints.requires or m.constraints.excludes
         )
+        self.detours = Detours(arch)  # synthesized switches around an unavailable target
+        self.utility = Utility(arch)  # quality attributes: U(C) under the preferences
 
     def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
@@ -306,12 +310,16 @@ class Planner:
                 continue
             z_i = abs(float(state.z.get(module, 0.0)))
             r_i = abs(float(state.r.get(module, 0.0)))
-            for order, a in actions:
+            for order, a in (queue := list(actions)):
                 ev = ActionEvaluation(a.id, module, a.kind, a.to, z=z_i, cost=a.cost)
                 evaluations.append(ev)
                 reason, detail, _ = self._admissible(a, state, system)
                 if reason is not None:
                     ev.rejected, ev.detail = reason, detail
+                    if reason == "unavailable":  # paths: evaluated next, same order
+                        queue.extend((order, d) for d in self.detours.find(
+                            a, state.configuration, state.kappa.unavailable(),
+                            lambda c: self.dependencies(system, c)))
                     continue
                 try:
                     delta = estimate_improvement(a, module, r_i, system)
@@ -323,6 +331,9 @@ class Planner:
                     continue
                 ev.delta = delta
                 ev.score = z_i * delta - self.cost_weight * a.cost
+                if self.utility.on and a.to is not None:  # qualities: U, μ·(U − U_target)
+                    ev.utility = self.utility.of(a.to)
+                    ev.score += self.utility.bonus(a.to, self.detours.origin.get(a.id, a.to))
                 if ev.score <= 0:
                     ev.rejected = "no improvement"
                     gain, penalty = z_i * delta, self.cost_weight * a.cost
@@ -333,10 +344,19 @@ class Planner:
                 if not verdict.ok:
                     ev.rejected, ev.detail = "unstable", verdict.reason
                     continue
+                if self.utility.on and a.id not in self.detours.origin:  # the alternatives
+                    queue.extend((order, d) for d in self.detours.find(a, state.configuration))
                 key = (ev.score, -a.cost, -order)
                 if best is None or key > best:
                     best, chosen, chosen_eval = key, a, ev
         return evaluations, chosen, chosen_eval
+
+    def check(self, action: Action, state: PlanState, system: Any) -> tuple[str | None, str]:
+        """(rejection, detail) of one action by checks 1–4 and 6 (no score): a tactic."""
+        reason, detail, _ = self._admissible(action, state, system)
+        if reason is None and not (verdict := self.stability(system, action)).ok:
+            reason, detail = "unstable", verdict.reason
+        return reason, detail
 
     def stability(self, system: Any, action: Action) -> StabilityVerdict:
         """Stability filter (Eq. 21, else Eq. 24) for one action (passes when ablated)."""
