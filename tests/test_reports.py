@@ -363,3 +363,28 @@ def test_templates_render_in_a_sandbox(payload: str) -> None:
     template = env.from_string(payload)
     with pytest.raises(SecurityError):
         template.render()
+
+
+def test_a_large_architecture_is_reported_between_its_communities(tmp_path) -> None:
+    """400 modules: the DSMs hold at most FULL_MATRIX_MAX clusters, every module in one."""
+    from archself.model.generate import generate_architecture
+    from archself.reports.dsm import FULL_MATRIX_MAX, condense
+
+    from archself.model.loader import load_text
+
+    arch = load_text(generate_architecture(400, seed=3, feedback=4), "big.yaml").arch
+    dsm = build_dsm(arch)
+    small = condense(dsm)
+    assert 1 < len(small.modules) <= FULL_MATRIX_MAX
+    sizes = [int(m.type.split()[0]) for m in small.modules]
+    assert sum(sizes) == 400
+    between = sum(w for (s, t), w in dsm.weights.items())
+    inside = sum(float(m.description.rsplit("weight inside ", 1)[1]) for m in small.modules)
+    assert sum(small.weights.values()) + inside == pytest.approx(between, rel=1e-9)
+    diffdrive = build_dsm(load_architecture(DIFFDRIVE).arch)
+    assert condense(diffdrive) is diffdrive  # small files keep their full matrix
+    rep = write_architecture_report(arch, tmp_path / "big", dot=False)
+    html = (tmp_path / "big" / "dsm-architecture.html").read_text()
+    assert "400 modules condensed into" in html and "cluster 1" in html
+    rows = (tmp_path / "big" / "dsm-architecture.kind.csv").read_text().splitlines()
+    assert len(rows) == len(small.modules) + 1 and rep.files

@@ -117,6 +117,10 @@ def new_folder(path: Path) -> Iterator[Path]:
         raise
 
 
+#: architectures with more modules get DOT sources only (no Graphviz layout)
+LAYOUT_MAX = 500
+
+
 def render_dot(dot_file: Path, fmt: str, dot: str) -> tuple[bytes | None, str]:
     """Run ``dot -T<fmt>`` on ``dot_file``; ``(output, "")`` or ``(None, error text)``."""
     try:
@@ -272,7 +276,7 @@ def _write(arch: Architecture, out: Path, dot: str | None | bool) -> Architectur
         stem = f"diff-{cslug[a]}--{cslug[b]}"
         put(f"{stem}.dot", render("graph.dot.j2", graph=diff_graph(arch, d)))
         diffs.append({"diff": d, "stem": stem})
-    _render_graphs(rep, out, dot_exe)
+    _render_graphs(rep, out, dot_exe, len(arch.modules))
     images = {f for f in rep.files if f.endswith((".svg", ".png"))}
 
     put("index.html", render(
@@ -330,10 +334,19 @@ def _scopes(
     return dsm_rows, graphs
 
 
-def _render_graphs(rep: ArchitectureReport, out: Path, dot_exe: str | None) -> None:
-    """Every DOT file of ``rep`` as SVG and PNG with Graphviz, or the note why not."""
+def _render_graphs(rep: ArchitectureReport, out: Path, dot_exe: str | None, n: int) -> None:
+    """Every DOT file of ``rep`` as SVG and PNG with Graphviz, or the note why not.
+
+    An architecture of more than :data:`LAYOUT_MAX` modules is not laid out (``dot``
+    takes minutes to hours there, and the drawing is unreadable): its DOT sources are
+    written and the note says so.
+    """
     failures: list[str] = []
-    if dot_exe:
+    if dot_exe and n > LAYOUT_MAX:
+        rep.note = (f"{n} modules: Graphviz layout is skipped past {LAYOUT_MAX} modules; only "
+                    "the DOT sources were written (render one with `sfdp -Tsvg FILE.dot -o "
+                    "FILE.svg` if you need it).")
+    elif dot_exe:
         for name in [f for f in rep.files if f.endswith(".dot")]:
             for fmt in ("svg", "png"):
                 data, err = render_dot(out / name, fmt, dot_exe)
