@@ -368,9 +368,8 @@ def test_templates_render_in_a_sandbox(payload: str) -> None:
 def test_a_large_architecture_is_reported_between_its_communities(tmp_path) -> None:
     """400 modules: the DSMs hold at most FULL_MATRIX_MAX clusters, every module in one."""
     from archself.model.generate import generate_architecture
-    from archself.reports.dsm import FULL_MATRIX_MAX, condense
-
     from archself.model.loader import load_text
+    from archself.reports.dsm import FULL_MATRIX_MAX, condense
 
     arch = load_text(generate_architecture(400, seed=3, feedback=4), "big.yaml").arch
     dsm = build_dsm(arch)
