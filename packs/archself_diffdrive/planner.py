@@ -9,6 +9,30 @@ from archself.modules.base import Param, RuntimeModule
 __all__ = ["SplinePlanner", "spline_path"]
 
 
+def path_points(waypoints) -> np.ndarray:
+    """The distinct ``[x, y]`` points of ``waypoints``; ValueError saying what is wrong.
+
+    Examples
+    --------
+    >>> path_points([[0, 0], [0, 0], [3, 4]]).tolist()
+    [[0.0, 0.0], [3.0, 4.0]]
+    >>> path_points([[5]])
+    Traceback (most recent call last):
+    ...
+    ValueError: waypoints must be a list of at least two [x, y] points
+    """
+    try:
+        pts = np.asarray(waypoints, dtype=float)
+    except (TypeError, ValueError):  # ragged ([[0, 0], [5]]) or not numbers
+        pts = np.empty(0)  # refused below
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+        raise ValueError("waypoints must be a list of at least two [x, y] points")
+    pts = pts[np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-9]]
+    if len(pts) < 2:
+        raise ValueError("waypoints must contain two distinct points")
+    return pts
+
+
 def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
     """Arc-length table of a cubic spline through ``waypoints``.
 
@@ -37,16 +61,7 @@ def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
     """
     from scipy.interpolate import CubicSpline
 
-    try:
-        pts = np.asarray(waypoints, dtype=float)
-    except (TypeError, ValueError):  # ragged ([[0, 0], [5]]) or not numbers
-        pts = np.empty(0)  # refused below
-    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-        raise ValueError("waypoints must be a list of at least two [x, y] points")
-    keep = np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-9]
-    pts = pts[keep]
-    if len(pts) < 2:
-        raise ValueError("waypoints must contain two distinct points")
+    pts = path_points(waypoints)
     chord = np.r_[0.0, np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]
     bc = "not-a-knot" if len(pts) > 3 else "natural"
     cs = CubicSpline(chord, pts, axis=0, bc_type=bc)
@@ -162,6 +177,15 @@ class SplinePlanner(RuntimeModule):
         length = float(np.hypot(*np.diff(pts, axis=0).T).sum())
         rows = length / float(params["resolution_m"])
         return int(64 * max(2000.0, 4 * rows) + 224 * rows)
+
+    @classmethod
+    def check_params(cls, name: str, params: dict, dt: float) -> str | None:
+        """The waypoints' shape, checked without building the spline (no scipy at validate)."""
+        try:
+            path_points(params.get("waypoints"))
+        except ValueError as exc:
+            return str(exc)
+        return None
 
     def configure(self) -> None:
         self.speed = float(self.params["speed_mps"])
