@@ -244,11 +244,50 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
     if configuration is not None and configuration != base.configuration:
         base.apply_configuration(configuration)
     plan = base._plan
-    pool = base._pool
     for n in plan.active:
-        pool[n].smooth = True
-    x0 = {n: _state(pool[n]) for n in plan.active}
-    stateful = [n for n in plan.active if x0[n].size]
+        base._pool[n].smooth = True
+    probe = _Probe(base, {n: _state(base._pool[n]) for n in plan.active}, steps)
+    stateful = [n for n in plan.active if probe.x0[n].size]
+    offset, owners, labels = _state_labels(base._pool, stateful, probe.x0)
+    reach = _one_step_reach(plan)
+    for _ in range(steps - 1):  # what a module reaches in `steps` steps
+        reach = {j: set().union(*(reach[m] for m in r)) for j, r in reach.items()}
+    groups = _groups(stateful, {j: reach[j] & set(stateful) for j in stateful})
+    nominal = probe.run({})
+    f0 = {n: probe.read(nominal, n) for n in stateful}
+    rows: list[int] = []
+    cols: list[int] = []
+    vals: list[float] = []
+    with np.errstate(all="ignore"):
+        for group in groups:
+            for i in range(max(probe.x0[j].size for j in group)):
+                members = [j for j in group if i < probe.x0[j].size]
+                h = {j: FD_STEP * max(1.0, abs(float(probe.x0[j][i]))) for j in members}
+                plus = probe.run({j: (i, h[j]) for j in members})
+                minus = probe.run({j: (i, -h[j]) for j in members})
+                for j in members:
+                    col = offset[j] + i
+                    for n in reach[j]:
+                        if n not in offset:
+                            continue
+                        d = probe.slopes(plus, minus, n, f0[n], h[j], labels, offset[n], col)
+                        if d is None:
+                            continue
+                        nz = np.flatnonzero(d)
+                        rows += (offset[n] + nz).tolist()
+                        cols += [col] * nz.size
+                        vals += d[nz].tolist()
+    total = len(owners)
+    A: Any = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
+    if total <= DENSE_MAX:
+        A = A.toarray()
+    return WholeLoop(A, float(system.dt), int(steps), owners, labels, stateful, probe.problems)
+
+
+def _state_labels(
+    pool: dict[str, RuntimeModule], stateful: list[str], x0: dict[str, np.ndarray]
+) -> tuple[dict[str, int], list[str], list[str]]:
+    """Where each module's state starts in the loop's vector, its owner and label per entry."""
     offset: dict[str, int] = {}
     owners: list[str] = []
     labels: list[str] = []
@@ -263,72 +302,57 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
                            else f"{n}.{k}[{i}]" for i in range(size)]
         owners += [n] * x0[n].size
     labels = labels if len(labels) == len(owners) else [f"{o}.x" for o in owners]
-    total = len(owners)
-    problems: list[str] = []
+    return offset, owners, labels
 
-    def run(shift: dict[str, tuple[int, float]]) -> Any:
-        copy_ = base.snapshot()
+
+class _Probe:
+    """Copies of a snapshot stepped with some states moved, and what went wrong in them."""
+
+    def __init__(self, base: Any, x0: dict[str, np.ndarray], steps: int) -> None:
+        self.base, self.x0, self.steps = base, x0, steps
+        self.problems: list[str] = []
+
+    def run(self, shift: dict[str, tuple[int, float]]) -> Any:
+        """A copy with entry ``i`` of each module's state moved by ``h``, stepped."""
+        copy_ = self.base.snapshot()
         for n, (i, h) in shift.items():
-            x = x0[n].copy()
+            x = self.x0[n].copy()
             x[i] += h
             mod = copy_._pool[n]
             type(mod).set_state(mod, x)
-        for _ in range(steps):
+        for _ in range(self.steps):
             copy_.step()
         raised = [n for n, why in copy_._why.items() if why and why.startswith("raised")]
-        if raised and not problems:
-            problems.append(f"{raised[0]}'s step {copy_._why[raised[0]]}")
+        if raised and not self.problems:
+            self.problems.append(f"{raised[0]}'s step {copy_._why[raised[0]]}")
         return copy_
 
-    def read(copy_: Any, n: str) -> np.ndarray:
+    def read(self, copy_: Any, n: str) -> np.ndarray:
+        """Module ``n``'s state in ``copy_`` (NaN, and a problem, if it changed size)."""
         x = _state(copy_._pool[n])
-        if x.size != x0[n].size:
-            problems.append(f"{n}'s state changed size ({x0[n].size} → {x.size} values)")
-            return np.full(x0[n].size, np.nan)
+        if x.size != self.x0[n].size:
+            self.problems.append(f"{n}'s state changed size ({self.x0[n].size} → {x.size} "
+                                 "values)")
+            return np.full(self.x0[n].size, np.nan)
         return x
 
-    nominal = run({})
-    reach = _one_step_reach(plan)
-    if steps > 1:  # what a module reaches in `steps` steps
-        for _ in range(steps - 1):
-            reach = {j: set().union(*(reach[m] for m in r)) for j, r in reach.items()}
-    groups = _groups(stateful, {j: reach[j] & set(stateful) for j in stateful})
-    f0 = {n: read(nominal, n) for n in stateful}
-    rows: list[int] = []
-    cols: list[int] = []
-    vals: list[float] = []
-    with np.errstate(all="ignore"):
-        for group in groups:
-            for i in range(max(x0[j].size for j in group)):
-                members = [j for j in group if i < x0[j].size]
-                h = {j: FD_STEP * max(1.0, abs(float(x0[j][i]))) for j in members}
-                plus = run({j: (i, h[j]) for j in members})
-                minus = run({j: (i, -h[j]) for j in members})
-                for j in members:
-                    col = offset[j] + i
-                    for n in reach[j]:
-                        if n not in offset:
-                            continue
-                        fp, fm = read(plus, n), read(minus, n)
-                        d = (fp - fm) / (2 * h[j])
-                        right = (fp - f0[n]) / h[j]
-                        left = (f0[n] - fm) / h[j]
-                        if not np.all(np.isfinite(d)):
-                            problems.append(f"{n}'s state is not finite when {labels[col]} "
-                                            "moves")
-                            continue
-                        kink = np.abs(right - left) > KINK_TOL * (1 + np.abs(right) + np.abs(left))
-                        if kink.any() and len(problems) < 5:
-                            r = int(np.flatnonzero(kink)[0])
-                            problems.append(
-                                f"a discontinuity: {labels[offset[n] + r]} against "
-                                f"{labels[col]} has one-sided slopes {right[r]:.4g} and "
-                                f"{left[r]:.4g}")
-                        nz = np.flatnonzero(d)
-                        rows += (offset[n] + nz).tolist()
-                        cols += [col] * nz.size
-                        vals += d[nz].tolist()
-    A: Any = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
-    if total <= DENSE_MAX:
-        A = A.toarray()
-    return WholeLoop(A, float(system.dt), int(steps), owners, labels, stateful, problems)
+    def slopes(self, plus: Any, minus: Any, n: str, f0: np.ndarray, h: float,
+               labels: list[str], row0: int, col: int) -> np.ndarray | None:
+        """Central differences of ``n``'s state against entry ``col``; None if not finite.
+
+        One-sided slopes that disagree (a discontinuity) are recorded as a problem.
+        """
+        fp, fm = self.read(plus, n), self.read(minus, n)
+        d = (fp - fm) / (2 * h)
+        right = (fp - f0) / h
+        left = (f0 - fm) / h
+        if not np.all(np.isfinite(d)):
+            self.problems.append(f"{n}'s state is not finite when {labels[col]} moves")
+            return None
+        kink = np.abs(right - left) > KINK_TOL * (1 + np.abs(right) + np.abs(left))
+        if kink.any() and len(self.problems) < 5:
+            r = int(np.flatnonzero(kink)[0])
+            self.problems.append(
+                f"a discontinuity: {labels[row0 + r]} against {labels[col]} has one-sided "
+                f"slopes {right[r]:.4g} and {left[r]:.4g}")
+        return d
