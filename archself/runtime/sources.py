@@ -53,7 +53,13 @@ import scipy.sparse
 
 from archself.runtime.influence import InfluenceSolver
 
-__all__ = ["SourceEstimator", "propagation_matrix", "source_estimate", "source_nnls"]
+__all__ = [
+    "SourceEstimator",
+    "SourceFit",
+    "propagation_matrix",
+    "source_estimate",
+    "source_nnls",
+]
 
 
 def _mask(observed: Any, n: int) -> np.ndarray:
@@ -252,3 +258,225 @@ def source_nnls(W: Any, r: Any, observed: Any = None) -> np.ndarray:
     if o.size:
         e[o], _ = scipy.optimize.nnls(P[np.ix_(o, o)], r[o])
     return e
+
+
+#: Two columns of the observed influence matrix closer than this (cosine) explain any
+#: residual equally well: their modules form one equivalence class.
+COLLINEAR_COS = 0.999
+#: A further source is taken only if it explains at least this share of ‖r_O‖² more.
+PARSIMONY = 0.1
+
+
+class SourceFit:
+    """Few non-negative local faults on observed *and hidden* modules that explain r_O.
+
+    The model ``r_O = P_O e`` with ``P = (I − Wᵀ)⁻¹`` (``P_O``: the observed rows) and
+    ``e ≥ 0`` on every module. Candidate sources are the modules with a path to an
+    observed module whose residual is non-zero (their ancestors and themselves); of
+    them the fit prefers few:
+
+    1. **Identifiability.** Modules whose columns of ``P_O`` are collinear (cosine
+       ≥ :data:`COLLINEAR_COS`) explain every residual equally — typically a hidden
+       module and everything between it and the one observed module its effect
+       passes through. They form one *equivalence class*; the fit is made on one
+       unit column per class, and every member gets the fault it would need to be the
+       source alone (``e_j = x_c / ‖P_O[:, j]‖``): the data cannot tell them apart,
+       so none is picked silently (:attr:`classes`).
+    2. **Parsimony.** The best single class (``x = max(0, uᵀ r_O)``), then the best
+       pair (non-negative, over the classes), then :func:`scipy.optimize.nnls` over
+       all classes: a further source is accepted only when it lowers the unexplained
+       ``‖r_O − P_O e‖²`` by at least :data:`PARSIMONY` of ``‖r_O‖²``.
+
+    A hidden module with a residual of its own (one the system reports unavailable)
+    keeps it as its source and its predicted echoes are removed from r_O first, as
+    in :class:`SourceEstimator`.
+
+    The propagation matrix is dense and computed once per W up to
+    :data:`~archself.runtime.influence.DENSE_MAX` modules; larger graphs solve one
+    column per candidate source with the reused factorization (cached per W), the
+    candidates restricted to the ancestors of the modules with a residual.
+
+    Parameters
+    ----------
+    W : array_like or scipy.sparse matrix, shape (n, n)
+        Weighted adjacency matrix, ``W[j, i]`` the weight of the edge ``j → i``.
+    observed : array_like of bool, shape (n,), optional
+        Modules with an observed residual; default all.
+
+    Attributes
+    ----------
+    classes : list of list of int
+        After :meth:`estimate`: the equivalence classes of the chosen sources, largest
+        explained share first (module indices; one element when identifiable).
+
+    Examples
+    --------
+    The heater has no residual; its fault shows at the observer and, through it, at
+    the PI. Heater, zone and observer reach the observed modules only through the
+    observer: one class, each with the fault it would need alone.
+
+    >>> from archself.runtime.influence import weight_matrix
+    >>> names = ["heater", "zone", "observer", "pi"]
+    >>> W = weight_matrix(names, [("heater", "zone", 1.2), ("zone", "observer", 2.0),
+    ...                           ("observer", "pi", 0.25), ("pi", "heater", 0.15)])
+    >>> fit = SourceFit(W, observed=[False, False, True, True])
+    >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()
+    [1.52, 1.82, 3.64, 0.0]
+    >>> [[names[j] for j in c] for c in fit.classes]
+    [['heater', 'zone', 'observer']]
+    """
+
+    def __init__(self, W: Any, observed: Any = None) -> None:
+        from archself.runtime.influence import DENSE_MAX
+
+        S = scipy.sparse.csr_matrix(W, dtype=float)
+        n = S.shape[0]
+        self.n = n
+        self.observed = _mask(observed, n)
+        self.observed_index = np.flatnonzero(self.observed)
+        self.hidden_index = np.flatnonzero(~self.observed)
+        self.classes: list[list[int]] = []
+        self._row = np.full(n, -1)
+        self._row[self.observed_index] = np.arange(self.observed_index.size)
+        self._P_O: np.ndarray | None = None
+        self._WT = S.T.tocsr()  # parents of i: row i of Wᵀ
+        self._cols: dict[int, np.ndarray] = {}
+        self._solver: InfluenceSolver | None = None
+        if n <= DENSE_MAX:
+            self._P_O = propagation_matrix(S)[self.observed_index] if n else np.zeros((0, 0))
+        else:
+            self._solver = InfluenceSolver()
+            self._solver.set_matrix(S, key=0)
+
+    def _ancestors(self, start: np.ndarray) -> np.ndarray:
+        """The modules with a path to one of ``start`` (themselves included), sorted."""
+        if self._P_O is not None:
+            return np.flatnonzero(np.any(self._P_O[self._row[start]] != 0.0, axis=0))
+        seen = np.zeros(self.n, dtype=bool)
+        seen[start] = True
+        frontier = np.asarray(start)
+        indptr, indices = self._WT.indptr, self._WT.indices
+        while frontier.size:
+            parents = np.concatenate([indices[indptr[i]:indptr[i + 1]] for i in frontier])
+            parents = np.unique(parents[~seen[parents]])
+            seen[parents] = True
+            frontier = parents
+        return np.flatnonzero(seen)
+
+    def _columns(self, cand: np.ndarray) -> np.ndarray:
+        """``P_O[:, cand]``: the observed residuals a unit fault at each candidate gives."""
+        if self._P_O is not None:
+            return self._P_O[:, cand]
+        out = np.empty((self.observed_index.size, cand.size))
+        for k, j in enumerate(cand.tolist()):
+            col = self._cols.get(j)
+            if col is None:
+                unit = np.zeros(self.n)
+                unit[j] = 1.0
+                assert self._solver is not None
+                col = self._cols[j] = self._solver.solve(unit)[self.observed_index]
+            out[:, k] = col
+        return out
+
+    def estimate(self, r: Any) -> np.ndarray:
+        """``ê`` on every module: the sparse non-negative fit of the observed residuals.
+
+        Parameters
+        ----------
+        r : array_like, shape (n,)
+            Module residuals (Eq. 12); hidden modules' are 0 unless unavailable.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            The estimated local faults ``≥ 0`` (every member of a chosen class gets
+            the fault it would need alone; :attr:`classes` says which belong together).
+
+        Raises
+        ------
+        ValueError
+            If ``r`` does not have one value per module or is not finite.
+        """
+        r = np.asarray(r, dtype=float).ravel()
+        if r.shape != (self.n,):
+            raise ValueError(f"r has shape {r.shape}, expected ({self.n},)")
+        if not np.all(np.isfinite(r)):
+            raise ValueError("r must be finite")
+        self.classes = []
+        e = np.zeros(self.n)
+        h, o = self.hidden_index, self.observed_index
+        r_O = np.maximum(r[o], 0.0)
+        own = h[r[h] != 0.0]
+        if own.size:  # unavailable hidden modules: their own residual, its echoes removed
+            e[own] = r[own]
+            r_O = np.maximum(r_O - self._columns(own) @ r[own], 0.0)
+        total = float(r_O @ r_O)
+        if total <= 0.0:
+            return e
+        cand = self._ancestors(o[r_O > 0.0])
+        A = self._columns(cand)
+        norms = np.linalg.norm(A, axis=0)
+        keep = norms > 1e-12
+        cand, A, norms = cand[keep], A[:, keep], norms[keep]
+        U = A / norms
+        members, reps = _collinear_classes(U)
+        x, support = _parsimonious_fit(U[:, reps], r_O, PARSIMONY * total)
+        order = np.argsort(-x[support], kind="stable")
+        for c in np.asarray(support)[order].tolist():
+            idx = members[c]
+            e[cand[idx]] = x[c] / norms[idx]
+            self.classes.append(cand[idx].tolist())
+        return e
+
+
+def _collinear_classes(U: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
+    """Group unit columns with cosine ≥ :data:`COLLINEAR_COS`; (members, representative)."""
+    m = U.shape[1]
+    label = np.full(m, -1)
+    members: list[np.ndarray] = []
+    reps: list[int] = []
+    cos = U.T @ U
+    for j in range(m):
+        if label[j] >= 0:
+            continue
+        same = np.flatnonzero((label < 0) & (cos[j] >= COLLINEAR_COS))
+        label[same] = len(reps)
+        members.append(same)
+        reps.append(j)
+    return members, reps
+
+
+def _parsimonious_fit(
+    U: np.ndarray, r: np.ndarray, gain: float
+) -> tuple[np.ndarray, list[int]]:
+    """Non-negative coefficients on unit columns: one, two or all, by ``gain`` per source.
+
+    Returns the coefficients (one per column) and the indices of the chosen support.
+    """
+    m = U.shape[1]
+    total = float(r @ r)
+    proj = np.maximum(U.T @ r, 0.0)
+    best = int(np.argmax(proj))
+    x = np.zeros(m)
+    x[best] = proj[best]
+    rss, support = total - proj[best] ** 2, [best]
+    if m < 2 or rss < gain:
+        return x, support
+    pair_x, pair_rss, pair = x, rss, support
+    top = np.argsort(-proj, kind="stable")[: min(m, 12)].tolist()
+    for a in top:
+        for b in range(m):
+            if b == a or (b in top and b < a):
+                continue
+            coef, res = scipy.optimize.nnls(U[:, [a, b]], r)
+            if res**2 < pair_rss - 1e-12 and np.all(coef > 0):
+                pair_x = np.zeros(m)
+                pair_x[[a, b]] = coef
+                pair_rss, pair = res**2, [a, b]
+    if rss - pair_rss < gain:
+        return x, support
+    x, rss, support = pair_x, pair_rss, pair
+    coef, res = scipy.optimize.nnls(U, r)
+    if rss - res**2 >= gain and np.count_nonzero(coef) > 2:
+        return coef, np.flatnonzero(coef).tolist()
+    return x, support
