@@ -44,13 +44,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from archself.model import Architecture
 from archself.runtime.candidates import selector_from_runtime
 from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
-from archself.runtime.sources import SourceEstimator
+from archself.runtime.sources import SourceEstimator, SourceFit
 from archself.runtime.stability import apply_action
 
 __all__ = ["MapeK"]
@@ -109,8 +111,10 @@ class MapeK:
         self.compensated: dict[str, str] = {}  # module -> configuration it was compensated in
         self._checked_conf: str | None = None
         self._observed = [m.residual is not None for m in arch.modules.values()]
+        self._observed_array = np.array(self._observed, dtype=bool)
         self._sources_key: Any = None
-        self._estimator: SourceEstimator | None = None
+        self._estimator: SourceEstimator | SourceFit | None = None
+        self._equivalent: list[list[str]] = []
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: Any, observation: Any = None) -> list[dict[str, Any]]:
@@ -143,6 +147,7 @@ class MapeK:
         # ANALYZE (Eq. 13-16)
         r_values = obs.r[k.active_index]
         r_active = ValueMap(k.active_names, k.active_pos, r_values)
+        self._equivalent = []
         if obs.r.any() or not self.propagate:
             z_values = self._influence(obs.r, k)[k.active_index]
             z_active = ValueMap(k.active_names, k.active_pos, z_values)
@@ -151,10 +156,10 @@ class MapeK:
         else:  # most cycles: nothing to propagate or explain, z = ê = r = 0
             z_values = e_values = r_values
             z_active = e_active = r_active
-        if self.localization == "source":
-            drive, drive_values = e_active, e_values
-        else:
+        if self.localization == "influence":
             drive, drive_values = z_active, z_values
+        else:
+            drive, drive_values = e_active, e_values
         candidates = self.selector.select(drive, drive_values)
 
         if self.t_start is None:
@@ -174,6 +179,7 @@ class MapeK:
             selector=self.selector.describe(),
             source=e_active,
             localization=self.localization,
+            equivalent=self._equivalent,
             kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
             compensated=sorted(self.compensated),
         )
@@ -183,6 +189,11 @@ class MapeK:
             return []
 
         # PLAN (Eq. 17-28)
+        if self.localization == "fit" and self.propagate:
+            # a hidden module has no residual of its own: the fit's estimate stands for it
+            # (an action's sensitivity Δ is proportional to the module's residual)
+            r_plan = np.where(self._observed_array[k.active_index], r_values, e_values)
+            r_active = ValueMap(k.active_names, k.active_pos, r_plan)
         state = PlanState(
             t=t,
             configuration=k.configuration,
@@ -259,15 +270,27 @@ class MapeK:
         return z
 
     def _sources(self, r: Any, k: Knowledge) -> Any:
-        """ê of the active edges (:class:`SourceEstimator`), built once per edge set."""
+        """ê of the active edges, the estimator built once per edge set.
+
+        :class:`SourceFit` (``localization: fit`` or ``influence``, where it is logged
+        beside z), :class:`SourceEstimator` for ``source``. The fit's equivalence
+        classes of more than one module go to the decision log (``equivalent``).
+        """
         if not self.propagate:
             return r
         if self._estimator is None or (
             self._sources_key is not k.edges and self._sources_key != k.edges
         ):
-            self._estimator = SourceEstimator(k.weight_matrix(), self._observed)
+            kind = SourceEstimator if self.localization == "source" else SourceFit
+            self._estimator = kind(k.weight_matrix(), self._observed)
             self._sources_key = k.edges
-        return self._estimator.estimate(r)
+        e = self._estimator.estimate(r)
+        if isinstance(self._estimator, SourceFit):
+            names = k.names
+            self._equivalent = [
+                [names[j] for j in c] for c in self._estimator.classes if len(c) > 1
+            ]
+        return e
 
     def _still_compensated(self, configuration: str, active: frozenset[str]) -> None:
         """Drop the modules whose compensation is gone in ``configuration``.

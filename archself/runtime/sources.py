@@ -279,13 +279,19 @@ class SourceFit:
        ≥ :data:`COLLINEAR_COS`) explain every residual equally — typically a hidden
        module and everything between it and the one observed module its effect
        passes through. They form one *equivalence class*; the fit is made on one
-       unit column per class, and every member gets the fault it would need to be the
-       source alone (``e_j = x_c / ‖P_O[:, j]‖``): the data cannot tell them apart,
-       so none is picked silently (:attr:`classes`).
+       unit column per class, and every member gets the same estimate: the data
+       cannot tell them apart, so none is picked silently (:attr:`classes`).
     2. **Parsimony.** The best single class (``x = max(0, uᵀ r_O)``), then the best
        pair (non-negative, over the classes), then :func:`scipy.optimize.nnls` over
        all classes: a further source is accepted only when it lowers the unexplained
        ``‖r_O − P_O e‖²`` by at least :data:`PARSIMONY` of ``‖r_O‖²``.
+
+    The estimate of a source is the size of what it explains, ``x_c = ‖P_O[:, j] e_j‖₂``
+    (the coefficient on the unit column), in the units of the residuals — those τ is
+    set in: a module whose fault shows only in its own residual gets exactly that
+    residual, as with :class:`SourceEstimator`. (The fault in the module's own units,
+    ``e_j = x_c / ‖P_O[:, j]‖``, differs between members of a class and is not what
+    the data say.)
 
     A hidden module with a residual of its own (one the system reports unavailable)
     keeps it as its source and its predicted echoes are removed from r_O first, as
@@ -313,7 +319,7 @@ class SourceFit:
     --------
     The heater has no residual; its fault shows at the observer and, through it, at
     the PI. Heater, zone and observer reach the observed modules only through the
-    observer: one class, each with the fault it would need alone.
+    observer: one class, the same estimate for each.
 
     >>> from archself.runtime.influence import weight_matrix
     >>> names = ["heater", "zone", "observer", "pi"]
@@ -321,7 +327,7 @@ class SourceFit:
     ...                           ("observer", "pi", 0.25), ("pi", "heater", 0.15)])
     >>> fit = SourceFit(W, observed=[False, False, True, True])
     >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()
-    [1.52, 1.82, 3.64, 0.0]
+    [4.12, 4.12, 4.12, 0.0]
     >>> [[names[j] for j in c] for c in fit.classes]
     [['heater', 'zone', 'observer']]
     """
@@ -389,8 +395,9 @@ class SourceFit:
         Returns
         -------
         numpy.ndarray, shape (n,)
-            The estimated local faults ``≥ 0`` (every member of a chosen class gets
-            the fault it would need alone; :attr:`classes` says which belong together).
+            ``≥ 0``: per module the size of the residuals its fault explains, the same
+            for the members of a class (:attr:`classes` says which belong together);
+            0 off the chosen sources.
 
         Raises
         ------
@@ -424,7 +431,7 @@ class SourceFit:
         order = np.argsort(-x[support], kind="stable")
         for c in np.asarray(support)[order].tolist():
             idx = members[c]
-            e[cand[idx]] = x[c] / norms[idx]
+            e[cand[idx]] = x[c]
             self.classes.append(cand[idx].tolist())
         return e
 
