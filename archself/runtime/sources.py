@@ -469,17 +469,26 @@ def _parsimonious_fit(
     rss, support = total - proj[best] ** 2, [best]
     if m < 2 or rss < gain:
         return x, support
+    # pairs (a among the best 12 singles, b any): the 2×2 normal equations on unit columns,
+    # both coefficients > 0 (else the pair is one of the singles already tried)
+    p = U.T @ r
     pair_x, pair_rss, pair = x, rss, support
-    top = np.argsort(-proj, kind="stable")[: min(m, 12)].tolist()
-    for a in top:
-        for b in range(m):
-            if b == a or (b in top and b < a):
-                continue
-            coef, res = scipy.optimize.nnls(U[:, [a, b]], r)
-            if res**2 < pair_rss - 1e-12 and np.all(coef > 0):
-                pair_x = np.zeros(m)
-                pair_x[[a, b]] = coef
-                pair_rss, pair = res**2, [a, b]
+    for a in np.argsort(-proj, kind="stable")[: min(m, 12)].tolist():
+        c = U.T @ U[:, a]
+        det = 1.0 - c * c
+        ok = det > 1e-9
+        ok[a] = False
+        xa = np.where(ok, (p[a] - c * p) / np.where(ok, det, 1.0), 0.0)
+        xb = np.where(ok, (p - c * p[a]) / np.where(ok, det, 1.0), 0.0)
+        ok &= (xa > 0) & (xb > 0)
+        if not ok.any():
+            continue
+        res = np.where(ok, total - (xa * p[a] + xb * p), np.inf)
+        b = int(np.argmin(res))
+        if res[b] < pair_rss - 1e-12:
+            pair_x = np.zeros(m)
+            pair_x[[a, b]] = xa[b], xb[b]
+            pair_rss, pair = float(res[b]), [a, b]
     if rss - pair_rss < gain:
         return x, support
     x, rss, support = pair_x, pair_rss, pair
