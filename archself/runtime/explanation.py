@@ -218,7 +218,7 @@ def _hidden(module: str, r: dict[str, Any], src: dict[str, Any] | None) -> bool:
 def _why_target(d: dict[str, Any], ch: dict[str, Any]) -> str:
     """Why the chosen action's module: its estimate, its class, the largest estimate."""
     src, r = d.get("source") or {}, d.get("r") or {}
-    m = ch.get("module")
+    m = str(ch.get("module"))
     text = f"why {m}: source ê = {_fmt(src.get(m), '.2f')}"
     if _hidden(m, r, src):
         text += " (no residual of its own: estimated from its echoes through W)"
@@ -323,8 +323,9 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
         ``cycles`` (number logged), ``switches`` and ``updates`` (``{t, action, module,
         from, to | set, z, score}`` and ``source``, the source estimate ê, when the log
         has it; ``equivalent``: the modules the residuals cannot tell apart from the
-        chosen action's module, when there are), and ``segments``: the notable cycles in full (``{"kind": "cycle",
-        "record": <decision record>}``) and runs of repeated cycles summarized
+        chosen action's module, when there are), and ``segments``: the notable cycles
+        in full (``{"kind": "cycle", "record": <decision record>}``) and runs of repeated
+        cycles summarized
         (``{"kind": "repeat", "t_from", "t_to", "cycles", "phase", "configuration",
         "candidates", "max_abs_z"}`` and ``max_source`` when the log has ê).
     """
