@@ -38,9 +38,17 @@ propagation instead of applying it once more:
   lowers the estimate at the fault to fit them too, so the head of a chain
   scores below its own residual.
 
+- :class:`SourceFit` (``runtime.localization: fit``, the default) — few
+  non-negative local faults on observed *and hidden* modules that explain the
+  observed residuals, with an identifiability rule (collinear columns of the
+  observed propagation matrix form one class of equivalent candidates) and a
+  parsimony rule (one, two, then all sources). The clipped inverse fixes a hidden
+  module's estimate at its own residual (0), so a heater without a residual at the
+  head of a loop is never a candidate there; the fit finds it.
+
 ``bench/localization.py`` compares the estimates (and a sparse, L1-penalized fit)
-with the paper's z on noisy residuals; docs/localization.md has the figures and
-why the runtime uses :class:`SourceEstimator` for ``runtime.localization: source``.
+with the paper's z on noisy residuals, hidden sources included; docs/localization.md
+has the figures and where each fails.
 """
 
 from __future__ import annotations
