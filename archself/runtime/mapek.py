@@ -26,14 +26,16 @@ so the fault that was dealt with does not keep pulling z onto the modules
 downstream; the mark is dropped when an action keyed to the module applies
 again (the compensation is gone) or it becomes inactive.
 
-Localization: besides z, every cycle estimates the local faults that explain the
-residuals, ``ê = max(0, (I − Wᵀ) r)`` with the residuals of the modules without a
-``residual`` block filled in by propagation (:mod:`~archself.runtime.sources`),
-which is largest at a fault's origin where z is largest downstream of it.
-``runtime.localization`` chooses which of the two drives the candidate set and the
-planner's weight (``influence``: z, the paper's Algorithm 1; ``source``: ê); the
-decision log holds both. The source estimate uses every residual as it is (a
-compensated module's residual still explains its downstream echoes).
+Localization: besides z, every cycle estimates the local faults ê that explain the
+residuals (:mod:`~archself.runtime.sources`), largest at a fault's origin where z is
+largest downstream of it. ``runtime.localization`` chooses what drives the candidate
+set and the planner's weight: ``fit`` (default, :class:`SourceFit`: few sources on
+observed and hidden modules, modules the residuals cannot tell apart kept together
+and logged as ``equivalent``; a hidden module's ê stands for its missing residual in
+the planner), ``source`` (:class:`SourceEstimator`, ``max(0, (I − Wᵀ) r)`` on the
+observed modules) or ``influence`` (z, the paper's Algorithm 1); the decision log
+holds z and ê. The estimate uses every residual as it is (a compensated module's
+residual still explains its downstream echoes).
 ``runtime.ablation`` switches propagation (z = ê = r), the stability filter or the
 dwell time off. Every cycle
 appends a :class:`~archself.runtime.decisions.DecisionRecord` to
