@@ -336,13 +336,14 @@ class SourceFit:
     Examples
     --------
     The heater has no residual; its fault shows at the observer and, through it, at
-    the PI. Heater, zone and observer reach the observed modules only through the
+    the controller. Heater, zone and observer reach the observed modules only through the
     observer: one class, the same estimate for each.
 
     >>> from archself.runtime.influence import weight_matrix
-    >>> names = ["heater", "zone", "observer", "pi"]
+    >>> names = ["heater", "zone", "observer", "controller"]
     >>> W = weight_matrix(names, [("heater", "zone", 1.2), ("zone", "observer", 2.0),
-    ...                           ("observer", "pi", 0.25), ("pi", "heater", 0.15)])
+    ...                           ("observer", "controller", 0.25),
+    ...                           ("controller", "heater", 0.15)])
     >>> fit = SourceFit(W, observed=[False, False, True, True])
     >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()
     [4.12, 4.12, 4.12, 0.0]
