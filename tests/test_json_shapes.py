@@ -156,6 +156,12 @@ def test_validate(work: Path) -> None:
 
 def test_simulate_and_explain(work: Path) -> None:
     plant = _short_plant(work, "drift_then_valve", 240)
+    # the paper's z takes the PI-gain update during the dwell time (the source fit, the
+    # default, does not: the PI's residual is the valve's echo); the update's shape is
+    # what is checked here
+    text = plant.read_text(encoding="utf-8")
+    head, sep, tail = text.rpartition("\nruntime:\n")
+    plant.write_text(f"{head}{sep}  localization: influence\n{tail}", encoding="utf-8")
     sims = [
         _cli(["simulate", str(MINIMAL), "-s", "calm", "--json"]),
         _cli(["simulate", str(MINIMAL), "-s", "calm", "--fixed", "--seed", "3", "--json"]),

@@ -47,11 +47,17 @@ HANG_GUARD_S = 120.0
 
 
 def _plant_text(duration: float = DURATION) -> str:
-    """process_plant.yaml with the scenario shortened to ``duration``."""
+    """process_plant.yaml with the scenario shortened to ``duration``.
+
+    With ``localization: influence`` (the paper's z): it takes a parameter update (the PI
+    gain, during the dwell time) between the two switches, so the live path of both kinds
+    of action is exercised; the default fit acts on the valve only.
+    """
     text = PLANT.read_text(encoding="utf-8")
     head, sep, tail = text.partition(f"  {SCENARIO}:\n")
     tail = tail.replace("duration_s: 600", f"duration_s: {duration:g}", 1)
-    return head + sep + tail
+    head2, sep2, tail2 = (head + sep + tail).rpartition("\nruntime:\n")
+    return f"{head2}{sep2}  localization: influence\n{tail2}"
 
 
 @pytest.fixture(scope="module")

@@ -134,6 +134,18 @@ def test_flickering_valve_fault_switches_once(arch):
 
 
 def test_second_fault_during_dwell_gets_parameter_update_then_switch(arch):
+    """With the paper's z; the source fit (the default) acts on the valve only.
+
+    The PI's residual is the valve fault's echo, so the fit gives the PI no estimate
+    and takes no PI-gain update during T_min (issue 34: acting at the source); the
+    valve's switch after T_min compensates both faults either way.
+    """
+    for seed in (1, 2):
+        loop, res = run(arch, "drift_then_valve", seed)
+        assert [(s["from"], s["to"]) for s in res.switches] == [("p1", "p2"), ("p2", "p4")]
+        assert loop.updates == []
+    arch = arch.model_copy(deep=True)
+    arch.runtime.localization = "influence"
     updated = 0
     for seed in (1, 2, 3, 4, 5):
         loop, res = run(arch, "drift_then_valve", seed)

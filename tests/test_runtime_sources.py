@@ -23,6 +23,7 @@ from archself.runtime.decisions import explain_data
 from archself.runtime.influence import influence, weight_matrix
 from archself.runtime.sources import (
     SourceEstimator,
+    SourceFit,
     propagation_matrix,
     source_estimate,
     source_nnls,
@@ -30,6 +31,7 @@ from archself.runtime.sources import (
 
 ROOT = Path(__file__).resolve().parents[1]
 CHAIN = ROOT / "tests" / "fixtures" / "valid" / "heated_chain.yaml"
+HIDDEN = ROOT / "tests" / "fixtures" / "valid" / "heated_chain_hidden.yaml"
 
 
 def _random_dag(n: int, rng: np.random.Generator, p: float = 0.3) -> np.ndarray:
@@ -173,13 +175,13 @@ def _run(arch, scenario: str, seed: int) -> MapeK:
     return loop
 
 
-def test_default_is_the_papers_influence(chain):
-    assert chain.runtime.localization == "influence"
+def test_default_is_the_source_fit(chain):
+    assert chain.runtime.localization == "fit"
 
 
 def test_z_is_unchanged_and_both_are_logged(chain):
     infl = _run(_with(chain, "influence", 80.0), "heater_loss", 1)
-    src = _run(_with(chain, "source", 80.0), "heater_loss", 1)
+    src = _run(_with(chain, "fit", 80.0), "heater_loss", 1)  # influence logs the fit too
     # the same z until the first adaptation (the runs differ only by what was chosen)
     first = min(
         [d.cycle for d in infl.decisions if d.chosen] + [d.cycle for d in src.decisions if d.chosen]
@@ -188,7 +190,7 @@ def test_z_is_unchanged_and_both_are_logged(chain):
         assert dict(a.z) == dict(b.z) and dict(a.r) == dict(b.r)
         assert dict(a.source) == dict(b.source)
     rec = src.decisions[first].to_dict()
-    assert rec["localization"] == "source" and set(rec["source"]) == set(rec["z"])
+    assert rec["localization"] == "fit" and set(rec["source"]) == set(rec["z"])
     assert infl.decisions[first].to_dict()["localization"] == "influence"
     assert src.selector.describe() == "|ê| >= 1"
     for d in src.decisions:
@@ -226,3 +228,161 @@ def test_source_picks_the_head_of_the_chain_on_20_of_20_seeds(chain):
         firsts.append(loop.switches[0]["action"] if loop.switches else None)
     right = sum(f == "use_heater_b" for f in firsts)
     assert right >= 19, firsts
+
+
+# --------------------------------------------------------------------------- source fit
+def _hidden_chain() -> tuple[list[str], object]:
+    names = ["heater", "zone", "sensor", "observer", "pi"]
+    W = weight_matrix(names, [("heater", "zone", 1.2), ("zone", "sensor", 1.0),
+                              ("sensor", "observer", 2.0), ("observer", "pi", 0.25),
+                              ("pi", "heater", 0.15)])
+    return names, W
+
+
+def test_fit_finds_a_hidden_source_and_keeps_its_equivalence_class():
+    names, W = _hidden_chain()
+    observed = np.array([False, False, False, True, True])
+    r_full = influence(W, [2.0, 0.0, 0.0, 0.0, 0.0])
+    r = np.where(observed, r_full, 0.0)
+    fit = SourceFit(W, observed)
+    e = fit.estimate(r)
+    # heater, zone, sensor and observer reach {observer, pi} only through the observer:
+    # collinear columns, one class, the same estimate: the size of what it explains
+    assert [[names[j] for j in c] for c in fit.classes] == [
+        ["heater", "zone", "sensor", "observer"]
+    ]
+    assert_allclose(e[:4], np.linalg.norm(r[3:]), rtol=1e-12)
+    assert e[4] == 0.0
+    # the clipped inverse never reaches the hidden heater: 0 there
+    assert SourceEstimator(W, observed).estimate(r)[0] == 0.0
+
+
+def test_fit_separates_what_the_observed_modules_can_tell_apart():
+    names, W = _hidden_chain()
+    observed = np.array([True, False, False, True, True])  # the heater has a residual
+    r = influence(W, [2.0, 0.0, 0.0, 0.0, 0.0]) * observed
+    fit = SourceFit(W, observed)
+    e = fit.estimate(r)
+    assert [[names[j] for j in c] for c in fit.classes] == [["heater"]]
+    assert_allclose(e[0], np.linalg.norm(r), rtol=1e-9)
+    assert_allclose(e[1:], 0.0, atol=1e-12)
+
+
+def test_fit_takes_a_second_source_only_when_it_explains_enough():
+    rng = np.random.default_rng(11)
+    W = _random_dag(10, rng, p=0.25)
+    fit = SourceFit(W)
+    e_true = np.zeros(10)
+    e_true[[1, 6]] = [3.0, 2.0]
+    e = fit.estimate(influence(W, e_true))
+    assert_allclose(e[[1, 6]], np.linalg.norm(propagation_matrix(W)[:, [1, 6]] * [3.0, 2.0],
+                                              axis=0), rtol=1e-6)
+    assert np.count_nonzero(e) == 2
+    # a 1 % second fault is below the parsimony share: one source
+    e_true[6] = 0.03
+    e = fit.estimate(influence(W, e_true))
+    assert np.flatnonzero(e).tolist() == [1]
+
+
+def test_fit_of_an_unavailable_hidden_module_and_of_nothing():
+    W = weight_matrix(["a", "b", "c"], [("a", "b", 0.5), ("b", "c", 0.5)])
+    fit = SourceFit(W, [True, False, True])
+    assert_allclose(fit.estimate([0.0, 3.0, 1.5]), [0.0, 3.0, 0.0], atol=1e-12)
+    assert fit.classes == []
+    assert_allclose(fit.estimate([0.0, 0.0, 0.0]), 0.0)
+    with pytest.raises(ValueError, match="finite"):
+        fit.estimate([0.0, np.inf, 0.0])
+
+
+def test_fit_on_a_large_graph_matches_the_dense_path():
+    """Above DENSE_MAX: ancestors by search, columns by the reused factorization."""
+    rng = np.random.default_rng(7)
+    n = 450
+    W = scipy.sparse.triu(
+        scipy.sparse.random(n, n, density=0.006, random_state=3, format="csr"), k=1
+    ).tocsr() * 0.5
+    observed = rng.random(n) < 0.6
+    e = np.zeros(n)
+    e[np.flatnonzero(observed)[[5, 40]]] = [2.0, 4.0]
+    r = np.where(observed, influence(W, e), 0.0)
+    sparse_fit = SourceFit(W, observed)
+    assert sparse_fit._P_O is None
+    dense = SourceFit(W, observed)
+    dense._P_O = propagation_matrix(W)[observed]
+    assert_allclose(sparse_fit.estimate(r), dense.estimate(r), rtol=1e-9, atol=1e-12)
+    assert sparse_fit.classes == dense.classes
+
+
+# --------------------------------------------------------------------------- issue 34
+@pytest.fixture(scope="module")
+def hidden():
+    return load_architecture(HIDDEN).arch
+
+
+def _ends_at_the_heater(loop: MapeK, arch) -> bool:
+    """The final configuration runs the backup heater (the heater's compensation)."""
+    return "heater_b" in arch.configurations[loop.knowledge.configuration].modules
+
+
+def test_explain_shows_the_hidden_source_and_its_equivalents(hidden):
+    loop = _run(_with(hidden, "fit", 80.0), "heater_loss", 0)
+    assert loop.switches and loop.switches[0]["module"] == "heater_a"
+    text = explain(loop.decisions)
+    assert "equivalent sources (the residuals cannot tell them apart" in text
+    assert "why heater_a: source ê = " in text
+    assert "no residual of its own: estimated from its echoes through W" in text
+    data = explain_data(loop.decisions)
+    assert "observer_a" in data["switches"][0]["equivalent"]
+
+
+@pytest.mark.slow
+def test_hidden_heater_is_compensated_on_20_seeds_and_nominal_stays(hidden):
+    """Done-when (issue 34): heater without residual, 20 seeds each."""
+    fit = _with(hidden, "fit", 120.0)
+    ends = [_ends_at_the_heater(_run(fit, "heater_loss", s), hidden) for s in range(20)]
+    assert sum(ends) >= 19, ends
+    nominal = _with(hidden, "fit")
+    false = [len(_run(nominal, "nominal", s).switches) for s in range(20)]
+    assert false == [0] * 20
+    # the paper's z (the ablation) never gets there: the observer's switch, then nothing
+    infl = _with(hidden, "influence", 120.0)
+    ends_z = [_ends_at_the_heater(_run(infl, "heater_loss", s), hidden) for s in range(20)]
+    assert sum(ends_z) <= 10, ends_z
+
+
+@pytest.mark.slow
+def test_with_the_heaters_residual_the_fit_stays_20_of_20(chain):
+    arch = _with(chain, "fit", 120.0)
+    firsts = [(_run(arch, "heater_loss", s).switches or [{}])[0].get("action")
+              for s in range(20)]
+    assert firsts == ["use_heater_b"] * 20
+
+
+@pytest.mark.slow
+def test_a_cheaper_tempting_pi_does_not_keep_the_fault_uncompensated(hidden):
+    """A faster PI (a cheaper parameter update on the downstream controller)."""
+    from archself.model.architecture import Action
+
+    arch = _with(hidden, "fit", 120.0)
+    arch.actions.append(Action(
+        id="faster_pi", module="pi", kind="parameter_update", set={"kp": 8.0, "ki": 1.5},
+        cost=0.1, improvement={"method": "sensitivity", "delta_theta": -0.9},
+    ))
+    ends = [_ends_at_the_heater(_run(arch, "heater_loss", s), hidden) for s in range(20)]
+    assert sum(ends) >= 19, ends
+    z = _with(arch, "influence")
+    ends_z = [_ends_at_the_heater(_run(z, "heater_loss", s), hidden) for s in range(20)]
+    assert sum(ends_z) <= 10, ends_z
+
+
+@pytest.mark.slow
+def test_multi_hop_changes_the_decision_for_the_better(hidden):
+    """Localization through W against z = r (``ablation.propagation: false``), 20 seeds."""
+    fit = _with(hidden, "fit", 120.0)
+    flat = _with(hidden, "fit", 120.0)
+    flat.runtime.ablation.propagation = False
+    right = sum(_ends_at_the_heater(_run(fit, "heater_loss", s), hidden) for s in range(20))
+    right_flat = sum(
+        _ends_at_the_heater(_run(flat, "heater_loss", s), hidden) for s in range(20)
+    )
+    assert right >= 19 and right_flat == 0, (right, right_flat)

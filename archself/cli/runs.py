@@ -272,6 +272,7 @@ def explain(
         # one shape for logs with and without the source estimate ê (older traces)
         for item in (*data["switches"], *data["updates"]):
             item.setdefault("source", None)
+            item.setdefault("equivalent", [])  # modules the residuals cannot tell apart
         for seg in data["segments"]:
             if seg["kind"] == "repeat":
                 seg.setdefault("max_source", None)

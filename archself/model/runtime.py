@@ -145,12 +145,15 @@ class Runtime(StrictModel):
         None, gt=0, le=10**6, description="Alternative to τ: the k largest |z_i|."
     )
     hysteresis: Hysteresis | None = Field(None, description="τ_on/τ_off instead of τ.")
-    localization: Literal["influence", "source"] = Field(
-        "influence",
-        description="What drives candidate selection and the planner's weight: influence, the "
-        "paper's z = (I − Wᵀ)⁻¹ r (Eq. 14: largest downstream of a fault), or source, the local "
-        "faults e ≥ 0 that explain r = (I − Wᵀ)⁻¹ e (largest at the fault's origin). Both are "
-        "logged.",
+    localization: Literal["influence", "source", "fit"] = Field(
+        "fit",
+        description="What drives candidate selection and the planner's weight: fit (default), "
+        "few non-negative local faults e on observed and hidden modules that explain the "
+        "observed residuals (r_O = P_O e, P = (I − Wᵀ)⁻¹; modules the data cannot tell apart "
+        "are kept together as equivalent candidates); source, the clipped inverse "
+        "max(0, (I − Wᵀ) r) on the observed modules only; influence, the paper's "
+        "z = (I − Wᵀ)⁻¹ r (Eq. 14: largest downstream of a fault, kept as the ablation). "
+        "z and the estimate are both logged.",
     )
     normalization: Literal["nominal", "none"] = Field(
         "nominal",

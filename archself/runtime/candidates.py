@@ -8,8 +8,8 @@ Three selectors, chosen by the ``runtime`` block of the architecture file:
 - ``hysteresis: {on, off}`` — a module enters C when ``|z_i| ≥ τ_on`` and leaves it
   only when ``|z_i| < τ_off`` (τ_on > τ_off), :class:`HysteresisSelector`.
 
-With ``runtime.localization: source`` the same selectors run on the source
-estimate ê (:mod:`~archself.runtime.sources`) instead of z; ``symbol`` names the
+With ``runtime.localization: fit`` (the default) or ``source`` the same selectors
+run on the source estimate ê (:mod:`~archself.runtime.sources`) instead of z; ``symbol`` names the
 quantity in :meth:`CandidateSelector.describe`.
 
 Every selector returns the candidates ordered by decreasing ``|z_i|``, equal
@@ -181,9 +181,9 @@ class HysteresisSelector(CandidateSelector):
 def selector_from_runtime(runtime: Runtime) -> CandidateSelector:
     """The selector the ``runtime`` block declares (exactly one is given).
 
-    It selects on z, or on the source estimate ê with ``localization: source``.
+    It selects on z with ``localization: influence``, else on the source estimate ê.
     """
-    symbol = "ê" if runtime.localization == "source" else "z"
+    symbol = "z" if runtime.localization == "influence" else "ê"
     if runtime.hysteresis is not None:
         return HysteresisSelector(runtime.hysteresis.on, runtime.hysteresis.off, symbol)
     if runtime.top_k is not None:

@@ -147,6 +147,7 @@ class DecisionRecord:
     compensated: list[str] = field(default_factory=list)
     source: Mapping[str, float] | None = None
     localization: str = "influence"
+    equivalent: list[list[str]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable(
@@ -161,6 +162,7 @@ class DecisionRecord:
                 "r": self.r,
                 "z": self.z,
                 **({"source": self.source} if self.source is not None else {}),
+                **({"equivalent": self.equivalent} if self.equivalent else {}),
                 "localization": self.localization,
                 "candidates": self.candidates,
                 "selector": self.selector,

@@ -53,6 +53,11 @@ def _record_problem(d: Any) -> str | None:
         if names is not None and (not isinstance(names, list)
                                   or not all(isinstance(n, str) for n in names)):
             return f".{key}: expected a list of module names"
+    groups = d.get("equivalent")
+    if groups is not None and (not isinstance(groups, list) or not all(
+        isinstance(g, list) and all(isinstance(n, str) for n in g) for g in groups
+    )):
+        return ".equivalent: expected a list of lists of module names"
     evals = d.get("evaluations")
     if evals is not None and not isinstance(evals, list):
         return f".evaluations: expected a list, got {json_kind(evals)}"
@@ -167,7 +172,9 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
         shown = ", ".join(
             f"{c} (z = {_fmt(z.get(c), '.2f')}"
             + (f", source ê = {_fmt(src.get(c), '.2f')}" if src is not None else "")
-            + f", own r = {_fmt(r.get(c), '.2f')})"
+            + (", no residual of its own: estimated through W" if _hidden(c, r, src)
+               else f", own r = {_fmt(r.get(c), '.2f')}")
+            + ")"
             for c in cands
         )
         lines.append(f"  candidates ({d.get('selector', '')}): {shown}")
@@ -176,17 +183,25 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
         if src is not None:
             line += f"; largest source ê: {_top_z(d, key='source')}"
         lines.append(line)
-    if src is not None and cands and _largest(z) != _largest(src):
+    top_z, top_e = _largest(z), _largest(src or {})
+    same = any(top_z in g and top_e in g for g in d.get("equivalent") or [])
+    if src is not None and cands and top_z != top_e and not same:
         lines.append(
             f"  z and source disagree: largest z {_top_z(d, 1)}, "
             f"largest source ê {_top_z(d, 1, key='source')}"
+        )
+    for group in d.get("equivalent") or []:
+        lines.append(
+            "  equivalent sources (the residuals cannot tell them apart, all kept as "
+            "candidates): " + ", ".join(group)
         )
     if d.get("compensated"):
         lines.append(
             "  compensated (own z only, not propagated through W): "
             + ", ".join(d["compensated"])
         )
-    weight = "ê" if d.get("localization") == "source" else "z"  # the planner's weight
+    # the planner's weight (a log without the key is the paper's z)
+    weight = "ê" if d.get("localization") in ("source", "fit") else "z"
     ch = d.get("chosen") or {}
     chosen_id = ch.get("action")
     for e in d.get("evaluations") or []:
@@ -196,9 +211,34 @@ def _cycle_block(d: dict[str, Any]) -> list[str]:
         lines.append(f"  ⇒ updated {ch.get('module')} {ch.get('set')} by {ch.get('action')}")
     elif ch:
         lines.append(f"  ⇒ switched {ch.get('from')} → {ch.get('to')} by {ch.get('action')}")
+    if ch and src is not None and weight == "ê":
+        lines.append("  " + _why_target(d, ch))
     if d.get("note"):
         lines.append(f"  note: {d['note']}")
     return lines
+
+
+def _hidden(module: str, r: dict[str, Any], src: dict[str, Any] | None) -> bool:
+    """A module with a source estimate but no residual of its own (hidden)."""
+    return src is not None and not r.get(module) and bool(src.get(module))
+
+
+def _why_target(d: dict[str, Any], ch: dict[str, Any]) -> str:
+    """Why the chosen action's module: its estimate, its class, the largest estimate."""
+    src, r = d.get("source") or {}, d.get("r") or {}
+    m = str(ch.get("module"))
+    text = f"why {m}: source ê = {_fmt(src.get(m), '.2f')}"
+    if _hidden(m, r, src):
+        text += " (no residual of its own: estimated from its echoes through W)"
+    group = next((g for g in d.get("equivalent") or [] if m in g), None)
+    if group:
+        others = ", ".join(x for x in group if x != m)
+        text += f"; it explains the residuals as well as {others}: the best-scoring action there"
+    top = _largest(src)
+    if top is not None and top != m and (group is None or top not in group):
+        text += (f"; the largest estimate is at {top} ({_fmt(src.get(top), '.2f')}), "
+                 "whose actions scored lower or were not admissible")
+    return text
 
 
 def explain(decisions: Iterable[Any]) -> str:
@@ -290,8 +330,10 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
     dict
         ``cycles`` (number logged), ``switches`` and ``updates`` (``{t, action, module,
         from, to | set, z, score}`` and ``source``, the source estimate ê, when the log
-        has it), and ``segments``: the notable cycles in full (``{"kind": "cycle",
-        "record": <decision record>}``) and runs of repeated cycles summarized
+        has it; ``equivalent``: the modules the residuals cannot tell apart from the
+        chosen action's module, when there are), and ``segments``: the notable cycles
+        in full (``{"kind": "cycle", "record": <decision record>}``) and runs of repeated
+        cycles summarized
         (``{"kind": "repeat", "t_from", "t_to", "cycles", "phase", "configuration",
         "candidates", "max_abs_z"}`` and ``max_source`` when the log has ê).
     """
@@ -304,6 +346,9 @@ def explain_data(decisions: Iterable[Any]) -> dict[str, Any]:
         item = {"t": d.get("t"), **{k: ch.get(k) for k in ("action", "module", "z", "score")}}
         if "source" in ch:
             item["source"] = ch["source"]
+        group = next((g for g in d.get("equivalent") or [] if ch.get("module") in g), None)
+        if group:
+            item["equivalent"] = group
         if ch.get("kind") == "parameter_update":
             updates.append({**item, "set": ch.get("set")})
         else:

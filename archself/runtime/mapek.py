@@ -26,14 +26,16 @@ so the fault that was dealt with does not keep pulling z onto the modules
 downstream; the mark is dropped when an action keyed to the module applies
 again (the compensation is gone) or it becomes inactive.
 
-Localization: besides z, every cycle estimates the local faults that explain the
-residuals, ``ê = max(0, (I − Wᵀ) r)`` with the residuals of the modules without a
-``residual`` block filled in by propagation (:mod:`~archself.runtime.sources`),
-which is largest at a fault's origin where z is largest downstream of it.
-``runtime.localization`` chooses which of the two drives the candidate set and the
-planner's weight (``influence``: z, the paper's Algorithm 1; ``source``: ê); the
-decision log holds both. The source estimate uses every residual as it is (a
-compensated module's residual still explains its downstream echoes).
+Localization: besides z, every cycle estimates the local faults ê that explain the
+residuals (:mod:`~archself.runtime.sources`), largest at a fault's origin where z is
+largest downstream of it. ``runtime.localization`` chooses what drives the candidate
+set and the planner's weight: ``fit`` (default, :class:`SourceFit`: few sources on
+observed and hidden modules, modules the residuals cannot tell apart kept together
+and logged as ``equivalent``; a hidden module's ê stands for its missing residual in
+the planner), ``source`` (:class:`SourceEstimator`, ``max(0, (I − Wᵀ) r)`` on the
+observed modules) or ``influence`` (z, the paper's Algorithm 1); the decision log
+holds z and ê. The estimate uses every residual as it is (a compensated module's
+residual still explains its downstream echoes).
 ``runtime.ablation`` switches propagation (z = ê = r), the stability filter or the
 dwell time off. Every cycle
 appends a :class:`~archself.runtime.decisions.DecisionRecord` to
@@ -44,13 +46,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from archself.model.architecture import Architecture
 from archself.runtime.candidates import selector_from_runtime
 from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
-from archself.runtime.sources import SourceEstimator
+from archself.runtime.sources import SourceEstimator, SourceFit
 from archself.runtime.stability import apply_action
 from archself.runtime.strategies import Strategies
 
@@ -111,8 +115,10 @@ class MapeK:
         self.compensated: dict[str, str] = {}  # module -> configuration it was compensated in
         self._checked_conf: str | None = None
         self._observed = [m.residual is not None for m in arch.modules.values()]
+        self._observed_array = np.array(self._observed, dtype=bool)
         self._sources_key: Any = None
-        self._estimator: SourceEstimator | None = None
+        self._estimator: SourceEstimator | SourceFit | None = None
+        self._equivalent: list[list[str]] = []
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: Any, observation: Any = None) -> list[dict[str, Any]]:
@@ -145,6 +151,7 @@ class MapeK:
         # ANALYZE (Eq. 13-16)
         r_values = obs.r[k.active_index]
         r_active = ValueMap(k.active_names, k.active_pos, r_values)
+        self._equivalent = []
         if obs.r.any() or not self.propagate:
             z_values = self._influence(obs.r, k)[k.active_index]
             z_active = ValueMap(k.active_names, k.active_pos, z_values)
@@ -153,10 +160,10 @@ class MapeK:
         else:  # most cycles: nothing to propagate or explain, z = ê = r = 0
             z_values = e_values = r_values
             z_active = e_active = r_active
-        if self.localization == "source":
-            drive, drive_values = e_active, e_values
-        else:
+        if self.localization == "influence":
             drive, drive_values = z_active, z_values
+        else:
+            drive, drive_values = e_active, e_values
         candidates = self.selector.select(drive, drive_values)
 
         if self.t_start is None:
@@ -176,6 +183,7 @@ class MapeK:
             selector=self.selector.describe(),
             source=e_active,
             localization=self.localization,
+            equivalent=self._equivalent,
             kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
             compensated=sorted(self.compensated),
         )
@@ -185,6 +193,11 @@ class MapeK:
             return []
 
         # PLAN (Eq. 17-28)
+        if self.localization == "fit" and self.propagate:
+            # a hidden module has no residual of its own: the fit's estimate stands for it
+            # (an action's sensitivity Δ is proportional to the module's residual)
+            r_plan = np.where(self._observed_array[k.active_index], r_values, e_values)
+            r_active = ValueMap(k.active_names, k.active_pos, r_plan)
         state = PlanState(
             t=t,
             configuration=k.configuration,
@@ -264,15 +277,27 @@ class MapeK:
         return z
 
     def _sources(self, r: Any, k: Knowledge) -> Any:
-        """ê of the active edges (:class:`SourceEstimator`), built once per edge set."""
+        """ê of the active edges, the estimator built once per edge set.
+
+        :class:`SourceFit` (``localization: fit`` or ``influence``, where it is logged
+        beside z), :class:`SourceEstimator` for ``source``. The fit's equivalence
+        classes of more than one module go to the decision log (``equivalent``).
+        """
         if not self.propagate:
             return r
         if self._estimator is None or (
             self._sources_key is not k.edges and self._sources_key != k.edges
         ):
-            self._estimator = SourceEstimator(k.weight_matrix(), self._observed)
+            kind = SourceEstimator if self.localization == "source" else SourceFit
+            self._estimator = kind(k.weight_matrix(), self._observed)
             self._sources_key = k.edges
-        return self._estimator.estimate(r)
+        e = self._estimator.estimate(r)
+        if isinstance(self._estimator, SourceFit):
+            names = k.names
+            self._equivalent = [
+                [names[j] for j in c] for c in self._estimator.classes if len(c) > 1
+            ]
+        return e
 
     def _still_compensated(self, configuration: str, active: frozenset[str]) -> None:
         """Drop the modules whose compensation is gone in ``configuration``.
