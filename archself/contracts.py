@@ -9,6 +9,8 @@ role                        implementations
 :class:`ManagedSystem`      :class:`~archself.system.executor.LiveSystem` (simulation),
                             :class:`~archself.lanes.view.LaneView` (one lane of many),
                             :class:`~archself.live.system.MeasuredSystem` (a real plant)
+:class:`LoopSystem`         ``LiveSystem`` and ``LaneView`` (every module's state: the
+                            whole-loop stability check)
 :class:`SystemSnapshot`     every :class:`ManagedSystem` (its ``snapshot()``), and
                             :class:`~archself.live.system.ModelSnapshot` (the compiled
                             models of a real plant: linearizable, never stepped)
@@ -41,9 +43,11 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 if TYPE_CHECKING:
     import numpy as np
 
+    from archself.linear.closed_loop import WholeLoop
     from archself.model.architecture import Architecture
+    from archself.modules.base import RuntimeModule
 
-__all__ = ["BatchedModule", "ManagedSystem", "SystemSnapshot"]
+__all__ = ["BatchedModule", "LoopSystem", "ManagedSystem", "SystemSnapshot"]
 
 
 @runtime_checkable
@@ -128,6 +132,30 @@ class ManagedSystem(SystemSnapshot, Protocol):
 
     def snapshot(self, only: Collection[str] | None = None) -> SystemSnapshot:
         """An independent copy (``only``: the modules a rollout needs) for the planner."""
+        ...
+
+
+@runtime_checkable
+class LoopSystem(ManagedSystem, Protocol):
+    """A managed system whose every module's state the planner can read and move.
+
+    What the whole-loop stability check (:func:`archself.runtime.stability.whole_loop_check`)
+    needs: simulation (:class:`~archself.system.executor.LiveSystem`) and lanes
+    (:class:`~archself.lanes.view.LaneView`) offer it; a real plant
+    (:class:`~archself.live.system.MeasuredSystem`) does not, and the check falls back.
+    """
+
+    @property
+    def modules(self) -> Mapping[str, RuntimeModule]:
+        """The active modules by name."""
+        ...
+
+    def whole_loop(self, configuration: str | None = None, steps: int = 1) -> WholeLoop:
+        """The numerical linearization of ``configuration``'s ``steps``-step map around now."""
+        ...
+
+    def snapshot(self, only: Collection[str] | None = None) -> LoopSystem:
+        """An independent copy, itself a :class:`LoopSystem`."""
         ...
 
 

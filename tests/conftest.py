@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # tests/packs holds a test pack with its own entry points; importing it here (doctest
 # collection) would put it on sys.path and register its types in every test.
-collect_ignore = ["packs"]
+collect_ignore = ["packs", "ros2_plain_client.py"]  # the ROS 2 client imports rclpy: a script
 FIXTURES = ROOT / "tests" / "fixtures"
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
 

@@ -3,7 +3,7 @@ role of :mod:`archself.contracts` is assignable to its protocol. Not a pytest mo
 
 from __future__ import annotations
 
-from archself.contracts import BatchedModule, ManagedSystem, SystemSnapshot
+from archself.contracts import BatchedModule, LoopSystem, ManagedSystem, SystemSnapshot
 from archself.lanes.module import LaneModule, PerLane
 from archself.lanes.view import LaneView
 from archself.live.system import MeasuredSystem, ModelSnapshot
@@ -18,6 +18,14 @@ def live_system(s: LiveSystem) -> ManagedSystem:
 
 
 def lane_view(s: LaneView) -> ManagedSystem:
+    return s
+
+
+def live_system_loop(s: LiveSystem) -> LoopSystem:
+    return s
+
+
+def lane_view_loop(s: LaneView) -> LoopSystem:
     return s
 
 

@@ -7,15 +7,14 @@ on two snapshots of the running system sharing their random state).
 
 from __future__ import annotations
 
-from typing import Any
-
+from archself.contracts import ManagedSystem, SystemSnapshot
 from archself.model.architecture import Action
 from archself.runtime.stability import action_target, apply_action, rollout_copy
 
 __all__ = ["estimate_improvement", "rollout_improvement"]
 
 
-def _mean_objective(system: Any, steps: int) -> float:
+def _mean_objective(system: SystemSnapshot, steps: int) -> float:
     """Step ``system`` ``steps`` times; the mean objective error J over them."""
     total = 0.0
     for _ in range(steps):
@@ -24,7 +23,7 @@ def _mean_objective(system: Any, steps: int) -> float:
     return total / steps
 
 
-def rollout_improvement(system: Any, action: Action, horizon_s: float) -> float:
+def rollout_improvement(system: ManagedSystem, action: Action, horizon_s: float) -> float:
     """Δ = mean J(no action) − mean J(action) over ``horizon_s`` on two snapshots.
 
     The live system is not modified. Snapshots share the RNG state, so noise is
@@ -39,7 +38,9 @@ def rollout_improvement(system: Any, action: Action, horizon_s: float) -> float:
     return _mean_objective(base, steps) - _mean_objective(trial, steps)
 
 
-def estimate_improvement(action: Action, module: str, r_i: float, system: Any = None) -> float:
+def estimate_improvement(
+    action: Action, module: str, r_i: float, system: ManagedSystem | None = None
+) -> float:
     """Δ_k(m_i) of Eq. 18 by the action's declared method.
 
     Examples

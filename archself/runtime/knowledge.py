@@ -26,6 +26,7 @@ import networkx as nx
 import numpy as np
 import scipy.sparse
 
+from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 
@@ -179,7 +180,7 @@ class Knowledge:
             self._graph_state = state
         return g
 
-    def sync(self, system: Any) -> None:
+    def sync(self, system: ManagedSystem) -> None:
         """Read configuration and active modules from the running system."""
         conf = str(system.configuration)
         active = system.active

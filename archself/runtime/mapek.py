@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
 from archself.runtime.candidates import selector_from_runtime
 from archself.runtime.decisions import DecisionRecord, ValueMap
@@ -121,7 +122,7 @@ class MapeK:
         self._equivalent: list[list[str]] = []
 
     # ------------------------------------------------------------------ cycle
-    def __call__(self, system: Any, observation: Any = None) -> list[dict[str, Any]]:
+    def __call__(self, system: ManagedSystem, observation: Any = None) -> list[dict[str, Any]]:
         """Run one MAPE-K cycle on ``system``.
 
         Parameters

@@ -65,6 +65,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
 from archself.runtime.residuals import (
     MAX_RESIDUAL,
@@ -190,7 +191,7 @@ class Layout:
         return self._gain
 
 
-def _reported(system: Any, method: str) -> Any:
+def _reported(system: ManagedSystem, method: str) -> Any:
     """``system.<method>()``; {} if the system lacks the method, it gives None or it fails."""
     try:
         return getattr(system, method)() or {}
@@ -301,7 +302,7 @@ class Monitor:
             lay = self._layout = Layout(self, frozenset(active))
         return lay
 
-    def observe(self, system: Any, active: frozenset[str]) -> Observation:
+    def observe(self, system: ManagedSystem, active: frozenset[str]) -> Observation:
         """Sample the system once (Algorithm 1, steps 1–2); never raises on bad signals."""
         t = float(system.t)
         dt = self.arch.runtime.period_s if self._t_prev is None else t - self._t_prev

@@ -56,6 +56,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from archself.contracts import ManagedSystem
 from archself.model.architecture import Action, Architecture
 from archself.runtime.constraints import (
     budget_violations,
@@ -165,7 +166,9 @@ class Planner:
         self.detours = Detours(arch)  # synthesized switches around an unavailable target
         self.utility = Utility(arch)  # quality attributes: U(C) under the preferences
 
-    def dependencies(self, system: Any, configuration: str) -> Mapping[str, Iterable[str]] | None:
+    def dependencies(
+        self, system: ManagedSystem, configuration: str
+    ) -> Mapping[str, Iterable[str]] | None:
         """``system.dependencies(configuration)``, cached (None if the system has none)."""
         if configuration not in self._deps:
             fn = getattr(system, "dependencies", None)
@@ -177,7 +180,7 @@ class Planner:
 
     # ------------------------------------------------------------------ checks
     def _admissible(
-        self, a: Action, s: PlanState, system: Any
+        self, a: Action, s: PlanState, system: ManagedSystem
     ) -> tuple[str | None, str, tuple[str, ...]]:
         """(rejection, detail, target modules) of the cheap checks 1–4.
 
@@ -277,7 +280,7 @@ class Planner:
 
     # ------------------------------------------------------------------ plan
     def plan(
-        self, system: Any, state: PlanState, candidates: Iterable[str]
+        self, system: ManagedSystem, state: PlanState, candidates: Iterable[str]
     ) -> tuple[list[ActionEvaluation], Action | None, ActionEvaluation | None]:
         """Evaluate every action of every candidate (Algorithm 1, steps 6–8).
 
@@ -351,14 +354,16 @@ class Planner:
                     best, chosen, chosen_eval = key, a, ev
         return evaluations, chosen, chosen_eval
 
-    def check(self, action: Action, state: PlanState, system: Any) -> tuple[str | None, str]:
+    def check(
+        self, action: Action, state: PlanState, system: ManagedSystem
+    ) -> tuple[str | None, str]:
         """(rejection, detail) of one action by checks 1–4 and 6 (no score): a tactic."""
         reason, detail, _ = self._admissible(action, state, system)
         if reason is None and not (verdict := self.stability(system, action)).ok:
             reason, detail = "unstable", verdict.reason
         return reason, detail
 
-    def stability(self, system: Any, action: Action) -> StabilityVerdict:
+    def stability(self, system: ManagedSystem, action: Action) -> StabilityVerdict:
         """Stability filter (Eq. 21, else Eq. 24) for one action (passes when ablated)."""
         if not self.stability_on:
             return StabilityVerdict(

@@ -42,9 +42,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+
+from archself.contracts import LoopSystem, ManagedSystem, SystemSnapshot
 
 __all__ = [
     "StabilityVerdict",
@@ -200,7 +202,9 @@ def lyapunov_decrease(v: Any, alpha: float, floor: float) -> StabilityVerdict:
     return StabilityVerdict(False, "lyapunov", mean_dv, bound, why)
 
 
-def rollout_copy(system: Any, configuration: str | None, steps: int) -> Any:
+def rollout_copy(
+    system: ManagedSystem, configuration: str | None, steps: int
+) -> SystemSnapshot:
     """A snapshot of ``system`` for a rollout of ``steps`` steps in ``configuration``.
 
     When the system can say which modules such a rollout needs for the objective
@@ -214,7 +218,7 @@ def rollout_copy(system: Any, configuration: str | None, steps: int) -> Any:
     return system.snapshot(only=scope(configuration, steps))
 
 
-def apply_action(system: Any, action: Any) -> None:
+def apply_action(system: SystemSnapshot, action: Any) -> None:
     """Apply ``action`` to ``system`` (a parameter update or a configuration change)."""
     if action.kind == "parameter_update":
         system.set_params(action.module, dict(action.set or {}))
@@ -222,18 +226,18 @@ def apply_action(system: Any, action: Any) -> None:
         system.apply_configuration(action.to)
 
 
-def action_target(system: Any, action: Any) -> str:
+def action_target(system: SystemSnapshot, action: Any) -> str:
     """The configuration ``system`` is in after ``action``."""
     return system.configuration if action.kind == "parameter_update" else action.to
 
 
-def _v(system: Any) -> float:
+def _v(system: SystemSnapshot) -> float:
     x = np.asarray(system.state_error(), dtype=float).ravel()
     return float(x @ x)
 
 
 def check_action_stability(
-    system: Any,
+    system: ManagedSystem,
     action: Any,
     *,
     margin: float,
@@ -292,7 +296,7 @@ def check_action_stability(
 
 
 def whole_loop_check(
-    system: Any,
+    system: ManagedSystem,
     action: Any,
     passed: StabilityVerdict,
     steps: int = 1,
@@ -310,9 +314,11 @@ def whole_loop_check(
     a step that raised) the Lyapunov test runs on the loop's state instead
     (:func:`loop_divergence`).
     """
-    if not passed.ok or getattr(system, "whole_loop", None) is None:
+    if not passed.ok or not hasattr(system, "whole_loop"):
         return passed
     from archself.linear.closed_loop import MARGINAL_TOL
+
+    system = cast(LoopSystem, system)
 
     try:
         if action.kind == "parameter_update":
@@ -344,7 +350,7 @@ def whole_loop_check(
 OFFSET = 1e-3
 
 
-def _loop_state(system: Any) -> np.ndarray:
+def _loop_state(system: LoopSystem) -> np.ndarray:
     """Every active module's :meth:`~archself.modules.base.RuntimeModule.state`, stacked."""
     mods = system.modules.values()
     parts = [type(m).state(m) for m in mods]
@@ -352,7 +358,7 @@ def _loop_state(system: Any) -> np.ndarray:
 
 
 def loop_divergence(
-    system: Any, action: Any, horizon: int, passed: StabilityVerdict, why: str
+    system: LoopSystem, action: Any, horizon: int, passed: StabilityVerdict, why: str
 ) -> StabilityVerdict:
     """The Lyapunov test on the loop's whole state, where the loop cannot be linearized.
 

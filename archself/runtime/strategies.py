@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from archself.contracts import ManagedSystem
 from archself.model.architecture import Action, Architecture
 from archself.model.strategies import Condition, Strategy
 from archself.runtime.decisions import ActionEvaluation
@@ -88,7 +89,7 @@ class Strategies:
         return False
 
     def cycle(
-        self, system: Any, state: Any, record: Any
+        self, system: ManagedSystem, state: Any, record: Any
     ) -> tuple[list[ActionEvaluation], Action | None, ActionEvaluation | None]:
         """One cycle of the running strategy: (evaluations, tactic to execute, its evaluation)."""
         run = self.running
