@@ -171,4 +171,5 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+    """The public API (tab completion shows it, not the module's own imports)."""
+    return sorted([*__all__, "__version__"])

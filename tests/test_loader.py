@@ -194,3 +194,22 @@ def test_loading_leaves_the_garbage_collector_as_it_was() -> None:
         assert not gc.isenabled()
     finally:
         gc.enable()
+
+
+def test_loading_works_without_ruamel_yaml_clib() -> None:
+    """Pure-Python ruamel.yaml (PyPy, or no wheel of the C extension): the same model."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "sys.modules['_ruamel_yaml'] = None  # as if ruamel.yaml.clib were not installed\n"
+        "from archself.model.loader import load_architecture\n"
+        f"a = load_architecture({str(DIFFDRIVE)!r}).arch\n"
+        "print(len(a.modules), len(a.edges), a.runtime.threshold)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    arch = load_architecture(DIFFDRIVE).arch
+    assert proc.stdout.split() == [str(len(arch.modules)), str(len(arch.edges)),
+                                   str(arch.runtime.threshold)]

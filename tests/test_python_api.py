@@ -181,3 +181,16 @@ def test_odd_arguments_are_one_line_archself_errors(call: Any) -> None:
 def test_validate_of_a_non_path_gives_a_finding() -> None:
     (finding,) = archself.validate(None)
     assert finding.severity == "error" and "expected the path of a file" in finding.message
+
+
+def test_reprs_are_one_line_and_dir_is_the_public_api(run: Any) -> None:
+    """A notebook cell ending in a result or a model shows a line, not 10^5 characters."""
+    import archself
+
+    text = repr(run)
+    assert "\n" not in text and len(text) < 300 and text.startswith("RunResult(scenario=")
+    assert f"seed={run.seed}" in text
+    arch = archself.load(str(DIFFDRIVE))
+    assert repr(arch) == ("Architecture(name='diffdrive', modules=15, edges=39, "
+                          "configurations=4, actions=7, scenarios=7)")
+    assert dir(archself) == sorted([*archself.__all__, "__version__"])

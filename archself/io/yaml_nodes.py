@@ -65,13 +65,14 @@ def _composer():
     """A ruamel.yaml loader that tags no plain scalar implicitly (YAML 1.2)."""
     from ruamel.yaml import YAML
     from ruamel.yaml.nodes import MappingNode, ScalarNode
-    from ruamel.yaml.resolver import BaseResolver
+    from ruamel.yaml.resolver import VersionedResolver
 
-    class _PlainResolver(BaseResolver):  # type: ignore[misc]
+    class _PlainResolver(VersionedResolver):  # type: ignore[misc]
         """Tag nothing implicitly: :func:`_scalar` applies the YAML 1.2 core schema."""
 
-        def __init__(self, version: Any = None, loadumper: Any = None) -> None:
-            super().__init__(loadumper)
+        def __init__(self, version: Any = None, loader: Any = None,
+                     loadumper: Any = None) -> None:  # the libyaml composer's or the pure one's
+            super().__init__(version, loader, loadumper)
 
         def resolve(self, kind: Any, value: Any, implicit: Any) -> Any:
             if kind is ScalarNode:

@@ -332,6 +332,14 @@ class Scenario(StrictModel):
 class Architecture(StrictModel):
     """An architecture file: a = (M, Γ) with its configurations, actions and scenarios."""
 
+    def __repr__(self) -> str:
+        """One line of counts (the whole model is ``model_dump()``; ``archself info``)."""
+        return (f"Architecture(name={self.name!r}, modules={len(self.modules)}, "
+                f"edges={len(self.edges)}, configurations={len(self.configurations)}, "
+                f"actions={len(self.actions)}, scenarios={len(self.scenarios)})")
+
+    __str__ = __repr__
+
     schema_: str | None = Field(None, alias="$schema", description="Optional schema URL.")
     archself: Literal[1] = Field(description="Format version.")
     name: Name

@@ -22,7 +22,7 @@ from archself.sim.metrics import metric_rows
 __all__ = ["RunResult", "read_trace", "trace_from_bytes"]
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(repr=False)
 class RunResult:
     """The outcome of one simulation.
 
@@ -179,6 +179,19 @@ class RunResult:
     def _attrs(self) -> dict[str, Any]:
         return {"scenario": self.scenario, "seed": self.seed, "mode": self.mode,
                 "unit": self.unit, "objective": dict(self.meta.get("objective") or {})}
+
+    def __repr__(self) -> str:
+        """One line: what ran, the configurations it went through, the worst error.
+
+        The series (thousands of samples) are left out: ``result.series``,
+        :meth:`to_pandas`.
+        """
+        path = " → ".join([self.configuration, *(str(s.get("to")) for s in self.switches)])
+        worst = self.metrics.get("max_error", math.nan)
+        unit = f" {self.unit}" if self.unit else ""
+        steps = len(self.series.get("t", ()))
+        return (f"RunResult(scenario={self.scenario!r}, seed={self.seed}, mode={self.mode!r}, "
+                f"steps={steps}, configurations={path!r}, max_error={worst:.4g}{unit})")
 
     def _repr_html_(self) -> str:
         """A small HTML summary for notebooks: the run, its configuration path, the metrics."""
