@@ -145,11 +145,7 @@ class SourceEstimator:
         ValueError
             If ``r`` does not have one value per module or is not finite.
         """
-        r = np.asarray(r, dtype=float).ravel()
-        if r.shape != (self.n,):
-            raise ValueError(f"r has shape {r.shape}, expected ({self.n},)")
-        if not np.all(np.isfinite(r)):
-            raise ValueError("r must be finite")
+        r = _residuals(r, self.n)
         if not r.any():
             # Nothing to explain (most cycles: residuals inside their bands are 0). Each
             # (Wᵀ x)_i sums from +0.0, so r − Wᵀ x is r here: the same bits as the full path.
@@ -441,11 +437,7 @@ class SourceFit:
         ValueError
             If ``r`` does not have one value per module or is not finite.
         """
-        r = np.asarray(r, dtype=float).ravel()
-        if r.shape != (self.n,):
-            raise ValueError(f"r has shape {r.shape}, expected ({self.n},)")
-        if not np.all(np.isfinite(r)):
-            raise ValueError("r must be finite")
+        r = _residuals(r, self.n)
         self.classes = []
         e = np.zeros(self.n)
         h, o = self.hidden_index, self.observed_index
@@ -577,3 +569,13 @@ def _parsimonious_fit(
     if rss - res2 >= gain and np.count_nonzero(coef) > 2:
         return coef, np.flatnonzero(coef).tolist()
     return x, support
+
+
+def _residuals(r: Any, n: int) -> np.ndarray:
+    """``r`` as a flat float array of ``n`` finite values; ValueError otherwise."""
+    r = np.asarray(r, dtype=float).ravel()
+    if r.shape != (n,):
+        raise ValueError(f"r has shape {r.shape}, expected ({n},)")
+    if not np.all(np.isfinite(r)):
+        raise ValueError("r must be finite")
+    return r
