@@ -115,19 +115,27 @@ def test_ros2_demo_switches_as_simulate_on_three_seeds() -> None:
 @needs_ros
 @pytest.mark.slow
 def test_lifecycle_and_parameters_seen_by_a_plain_rclpy_client(tmp_path: Path) -> None:
-    """process_plant drift_then_valve: a plain rclpy client (no archself) sees, through
-    ROS 2's own get_state and get_parameters, the nodes go p1 → p2 → p4 and the PI
-    controller's gains raised by raise_pi_gain."""
+    """process_plant drift_then_valve (z localization): a plain rclpy client (no archself)
+    sees, through ROS 2's own get_state and get_parameters, the nodes go p1 → p2 → p4 and
+    the PI controller's gains raised by raise_pi_gain."""
     from archself import load
     from archself.reports.export import node_modules
 
-    arch = load(PLANT)
+    # The paper's z localization raises the PI gains while the valve's switch waits out
+    # its dwell; the default source fit makes no such update (docs/localization.md).
+    plant = tmp_path / "process_plant.yaml"
+    text = PLANT.read_text(encoding="utf-8")
+    assert text.count("\nruntime:\n") == 1
+    plant.write_text(text.replace("\nruntime:\n", "\nruntime:\n  localization: influence\n"),
+                     encoding="utf-8")
+    arch = load(plant)
+    assert arch.runtime.localization == "influence"
     nodes = node_modules(arch)
     pi = next(a for a in arch.actions if a.kind == "parameter_update")
     names = sorted(pi.set)
     client = shlex.join([sys.executable, str(HERE / "ros2_plain_client.py"), ",".join(nodes),
                          pi.module, ",".join(names), "400"])
-    run = shlex.join(_archself("ros2", str(PLANT), "--demo", "--scenario", "drift_then_valve",
+    run = shlex.join(_archself("ros2", str(plant), "--demo", "--scenario", "drift_then_valve",
                                "--duration", "150", "--rate", "20", "--linger", "3",
                                "--json",
                                "--timeout", "60"))
