@@ -274,3 +274,30 @@ def test_timer_clock_with_a_free_running_plant_on_sim_time() -> None:
     for g, a, w in zip(got, applied, want, strict=True):
         assert abs(g[2] - w[2]) <= 1.0 and 0.0 <= a[2] - g[2] <= 1.0, (got, applied, want)
     assert res["ros2"]["plant"]["measurements"] == 600
+
+
+@needs_ros
+def test_ros2_log_is_locked_like_every_output(tmp_path: Path) -> None:
+    """`archself ros2 --log F` while another process writes F: refused before ROS starts
+    (in the namespace all the same: a regression would start a node)."""
+    log = tmp_path / "decisions.json"
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time\n"
+         "from archself.io.atomic import protect\n"
+         f"with protect([], [{str(log)!r}]):\n"
+         "    print('held', flush=True)\n"
+         "    time.sleep(60)\n"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        proc = subprocess.run(_netns(*_archself("ros2", str(PLANT), "--log", str(log))),
+                              capture_output=True, text=True, timeout=120)
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    assert proc.returncode == 1, proc.stderr
+    line = proc.stderr.strip()
+    assert "\n" not in line and f"is being written by pid {holder.pid}" in line
+    assert not log.exists()

@@ -99,13 +99,14 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
     run the bridge until the plant ends (or the timeout), write the log, print the result."""
     clock = _check_options(clock, rollout, demo, scenario)
     from archself.cli.live import _check_log, _log, _write_log
+    from archself.io.atomic import protect
     from archself.ros2.base import require_rclpy
 
     child: subprocess.Popen[str] | None = None
     try:
         _inputs(arch_path)
         _check_log(arch_path, log)
-        with _numeric(arch_path):
+        with protect([arch_path], [log]), _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
             if demo and scenario not in arch.scenarios:
