@@ -143,6 +143,9 @@ def check_pack(
                 where = f"{scenario} {mode} seed {seed}"
                 report.problems += [f"{where}: {p}" for p in _differences(lane, want, atol)]
                 report.runs += 1
+    if report.runs == 0:  # nothing compared is a finding, not a pass
+        report.problems.append("no run compared: no scenario, no seed, or neither fixed nor "
+                               "adaptive; lanes and per-run runs were not checked")
     if report.problems and raise_on_error:
         head = f"{len(report.problems)} difference(s) between lanes and per-run runs"
         raise PackMismatch(head + ":\n  " + "\n  ".join(report.problems[:20]))

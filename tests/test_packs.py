@@ -119,3 +119,8 @@ def test_check_pack_finds_a_lane_class_that_drifts(monkeypatch) -> None:
     report = check_pack(ROOT / "architectures/motor_drive.yaml", scenarios=["nominal"],
                         seeds=(1,), duration_s=5.0, adaptive=False, raise_on_error=False)
     assert not report.ok and report.runs == 1
+
+
+def test_check_pack_that_compares_nothing_is_not_a_pass() -> None:
+    with pytest.raises(PackMismatch, match="no run compared"):
+        check_pack(ROOT / "architectures/motor_drive.yaml", scenarios=[], seeds=(1,))

@@ -387,3 +387,13 @@ def test_a_large_architecture_is_reported_between_its_communities(tmp_path) -> N
     assert "400 modules condensed into" in html and "cluster 1" in html
     rows = (tmp_path / "big" / "dsm-architecture.kind.csv").read_text().splitlines()
     assert len(rows) == len(small.modules) + 1 and rep.files
+
+
+def test_condense_keeps_every_module_of_unconnected_graphs() -> None:
+    """300 modules without edges: 300 communities at any resolution; none is dropped."""
+    from archself.reports.dsm import Dsm, DsmModule, condense
+
+    mods = tuple(DsmModule(f"m{k}", "functional", "t") for k in range(300))
+    small = condense(Dsm("architecture", "loose", mods, {}, {}, 0.0), max_modules=20)
+    assert len(small.modules) == 20
+    assert sum(int(m.type.split()[0]) for m in small.modules) == 300

@@ -413,7 +413,11 @@ def condense(dsm: Dsm, max_modules: int = FULL_MATRIX_MAX, seed: int = CLUSTER_S
         resolution /= 2
     order = {m: k for k, m in enumerate(dsm.names)}
     groups = sorted((sorted(c, key=order.__getitem__) for c in comms),
-                    key=lambda grp: (-len(grp), order[grp[0]]))[:max_modules]
+                    key=lambda grp: (-len(grp), order[grp[0]]))
+    if len(groups) > max_modules:  # unconnected modules stay apart at any resolution
+        rest = sorted((m for grp in groups[max_modules - 1:] for m in grp),
+                      key=order.__getitem__)
+        groups = [*groups[:max_modules - 1], rest]
     label = {m: f"cluster {k + 1}" for k, grp in enumerate(groups) for m in grp}
     weights: dict[tuple[str, str], float] = {}
     carries: dict[tuple[str, str], tuple[str, ...]] = {}
