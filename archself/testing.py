@@ -105,13 +105,11 @@ def check_pack(
     -------
     PackReport
     """
-    from archself.lanes.batching import lane_module
     from archself.lanes.run import simulate_lanes
     from archself.model.architecture import Architecture
     from archself.model.loader import load_architecture
     from archself.runtime.mapek import MapeK
     from archself.sim.run import simulate
-    from archself.system.compiler import build_module
 
     if not isinstance(arch, Architecture):
         if not isinstance(arch, (str, PathLike)):
@@ -123,16 +121,7 @@ def check_pack(
             name: sc.model_copy(update={"duration_s": min(float(duration_s), sc.duration_s)})
             for name, sc in arch.scenarios.items()}})
     report = PackReport()
-    for name, spec in arch.modules.items():
-        try:
-            lanes = lane_module([build_module(arch, name, seed=0)])
-        except ArchselfError as exc:
-            report.problems.append(f"{spec.type}: {exc}")
-            continue
-        report.types[spec.type] = type(lanes).__name__
-        if not isinstance(lanes, BatchedModule):
-            report.problems.append(f"{spec.type}: its lanes class {type(lanes).__name__} is "
-                                   "not a BatchedModule (archself.contracts)")
+    _check_types(arch, report)
     modes = [m for m, on in (("fixed", fixed), ("adaptive", adaptive)) if on]
     for scenario in list(scenarios) if scenarios is not None else list(arch.scenarios):
         for mode in modes:
@@ -150,6 +139,23 @@ def check_pack(
         head = f"{len(report.problems)} difference(s) between lanes and per-run runs"
         raise PackMismatch(head + ":\n  " + "\n  ".join(report.problems[:20]))
     return report
+
+
+def _check_types(arch: Any, report: PackReport) -> None:
+    """Every module type of ``arch`` gives a :class:`BatchedModule` (its class in ``report``)."""
+    from archself.lanes.batching import lane_module
+    from archself.system.compiler import build_module
+
+    for name, spec in arch.modules.items():
+        try:
+            lanes = lane_module([build_module(arch, name, seed=0)])
+        except ArchselfError as exc:
+            report.problems.append(f"{spec.type}: {exc}")
+            continue
+        report.types[spec.type] = type(lanes).__name__
+        if not isinstance(lanes, BatchedModule):
+            report.problems.append(f"{spec.type}: its lanes class {type(lanes).__name__} is "
+                                   "not a BatchedModule (archself.contracts)")
 
 
 def _differences(got: Any, want: Any, atol: float) -> list[str]:
