@@ -47,7 +47,9 @@ def first_choice(loop):
 def test_validates_without_findings():
     loaded = load_architecture(ARCH_PATH)
     findings = check(loaded)
-    assert findings == [], [str(f) for f in findings]
+    # verify is off: the one finding says the whole loop was not checked (docs/stability.md)
+    assert [(f.severity, f.code) for f in findings] == [("info", "stability")], [
+        str(f) for f in findings]
     first = ARCH_PATH.read_text(encoding="utf-8").splitlines()[0]
     assert first == "# yaml-language-server: $schema=../schemas/architecture.schema.json"
 

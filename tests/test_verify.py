@@ -29,9 +29,11 @@ def _findings(text: str):
     return [f for f in check(load_text(text, "swap.yaml")) if f.code == "stability"]
 
 
-def test_off_by_default_and_nothing_is_judged() -> None:
+def test_off_by_default_nothing_is_judged_and_that_is_said() -> None:
     assert load_architecture(SWAP).arch.runtime.stability.verify == "off"
-    assert _findings(SWAP.read_text(encoding="utf-8")) == []
+    found = _findings(SWAP.read_text(encoding="utf-8"))
+    assert [(f.severity, f.path) for f in found] == [("info", "runtime.stability.verify")]
+    assert found[0].message.startswith("whole-loop stability not checked")
 
 
 def test_warning_mode_reports_the_unstable_configuration_and_action_as_warnings() -> None:
@@ -58,6 +60,16 @@ def test_error_mode_fails_validate_warning_mode_passes_unless_strict(tmp_path) -
     result = runner.invoke(app, ["validate", str(path)])
     assert result.exit_code == 1
     assert ": error: configurations.hot: configuration 'hot' is not stable" in result.stderr
+
+
+def test_check_with_stability_judges_a_file_that_leaves_verify_off() -> None:
+    text = SWAP.read_text(encoding="utf-8")
+    found = [f for f in check(load_text(text, "swap.yaml"), "warning") if f.code == "stability"]
+    assert [(f.severity, f.path) for f in found][:2] == [
+        ("warning", "configurations.hot"), ("warning", "actions[0].to")]
+    found = [f for f in check(load_text(_with_verify("error"), "swap.yaml"), "warning")
+             if f.code == "stability"]
+    assert {f.severity for f in found} == {"error"}  # the file's own setting wins
 
 
 def test_a_stable_file_with_the_check_on_is_clean() -> None:

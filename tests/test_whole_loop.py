@@ -197,9 +197,43 @@ def test_relay_side_loop_warns_without_error_and_json_carries_the_table(tmp_path
     assert rows["hot"]["verdict"] == "unstable"
     assert_allclose(rows["hot"]["max_lambda"], 1.05, rtol=1e-9)
     assert_allclose(rows["normal"]["margin"], 1 - 0.949835, atol=1e-6)
-    # off (the default): no table, no finding
-    assert json.loads(runner.invoke(app, ["validate", "--json", str(RELAY)]).stdout)[0][
-        "stability"] == []
+    # off (the default): no table, and one finding that says so (never a silent "ok")
+    off = json.loads(runner.invoke(app, ["validate", "--json", str(RELAY)]).stdout)[0]
+    assert off["stability"] == [] and off["ok"] is True
+    assert [(f["severity"], f["code"], f["path"]) for f in off["findings"]] == [
+        ("info", "stability", "runtime.stability.verify")]
+    assert "archself validate --stability" in off["findings"][0]["message"]
+
+
+def test_plain_validate_says_the_whole_loop_was_not_checked() -> None:
+    result = CliRunner().invoke(app, ["validate", str(RELAY), str(ARCHS / "motor_drive.yaml")])
+    assert result.exit_code == 0
+    assert result.stdout.splitlines() == [f"{RELAY}: ok", f"{ARCHS / 'motor_drive.yaml'}: ok"]
+    lines = result.stderr.splitlines()
+    assert len(lines) == 2  # one line per file, not one per configuration
+    assert all(": info: runtime.stability.verify: whole-loop stability not checked" in line
+               for line in lines)
+
+
+def test_validate_stability_runs_the_check_where_the_file_leaves_it_off() -> None:
+    import json
+
+    runner = CliRunner()
+    result = runner.invoke(app, ["validate", "--stability", str(RELAY)])
+    assert result.exit_code == 0
+    assert result.stdout.splitlines()[0] == f"{RELAY}: ok (2 warnings)"
+    assert "  hot: unstable, 5/5 stateful modules (8 states), max |λ| = 1.050000" in result.stdout
+    assert ": warning: configurations.hot: configuration 'hot' is unstable" in result.stderr
+    assert ": warning: actions[0].to: action 'use_hot' leads to configuration 'hot'" in \
+        result.stderr
+    assert "not checked" not in result.stderr
+    strict = runner.invoke(app, ["validate", "--stability", "--strict", str(RELAY)])
+    assert strict.exit_code == 1 and strict.stdout == ""
+    data = json.loads(runner.invoke(app, ["validate", "--stability", "--json",
+                                          str(RELAY)]).stdout)[0]
+    assert {r["configuration"]: r["verdict"] for r in data["stability"]} == {
+        "normal": "verified", "hot": "unstable", "slow": "verified"}
+    assert sorted(f["severity"] for f in data["findings"]) == ["warning", "warning"]
 
 
 def test_marginal_setting_decides_whether_marginal_passes() -> None:

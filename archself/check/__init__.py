@@ -48,7 +48,8 @@ offending node. The rules:
   ``limits`` to be violated);
 * ``stability``: with ``runtime.stability.verify`` warning or error (opt-in: it
   compiles the modules), every configuration's closed loop and every action's
-  result pass Eq. 21 (:mod:`archself.check.stability`); judged only on a file without errors.
+  result pass Eq. 21 and the whole-loop check (:mod:`archself.check.stability`); judged
+  only on a file without errors; with it off, an ``info`` finding says it was not checked.
 
 The rules live by what they judge: the modules and their parameters in
 :mod:`archself.check.modules`, edges, W and configurations in
@@ -86,8 +87,14 @@ from archself.model.loader import Loaded, gc_paused
 __all__ = ["check", "has_errors", "run_estimate", "spectrum_summary"]
 
 
-def check(loaded: Loaded) -> list[Finding]:
-    """All semantic findings of a loaded architecture, sorted by position."""
+def check(loaded: Loaded, stability: str | None = None) -> list[Finding]:
+    """All semantic findings of a loaded architecture, sorted by position.
+
+    ``stability`` (``warning`` or ``error``) runs the whole-loop stability check at
+    that severity when the file's ``runtime.stability.verify`` is off
+    (``archself validate --stability``); with it off too, one ``info`` finding says
+    the check did not run.
+    """
     # the collector paused, as in the loader (for the imports of the packs and scipy too)
     with gc_paused():
         ctx = Context(loaded)
@@ -109,7 +116,7 @@ def check(loaded: Loaded) -> list[Finding]:
             check_build,
         ):
             rule(ctx)
-    check_stability(ctx)  # --verify compiles systems: the collector runs there
+    check_stability(ctx, stability)  # --verify compiles systems: the collector runs there
     ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
     return ctx.out
 

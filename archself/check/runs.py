@@ -333,14 +333,30 @@ def check_objective(ctx: Context) -> None:
                             f"(indices 0..{size - 1})", ("runtime", "objective", "components", j))
 
 
-def check_stability(ctx: Context) -> None:
-    mode = ctx.arch.runtime.stability.verify
-    if mode == "off" or any(f.severity == "error" for f in ctx.out):
+def check_stability(ctx: Context, verify: str | None = None) -> None:
+    """The whole-loop check at the file's ``verify`` (``verify`` when that is off).
+
+    With both off the check is not run (it compiles modules) and that is said: one
+    ``info`` finding at ``runtime.stability.verify``, never a silent pass.
+    """
+    mode: str = ctx.arch.runtime.stability.verify
+    if mode == "off":
+        mode = verify or "off"
+    if any(f.severity == "error" for f in ctx.out):
+        return
+    if mode == "off":
+        ctx.add("info", "stability", NOT_CHECKED, ("runtime", "stability", "verify"), key=True)
         return
     from archself.check.stability import verify_stability  # compiles modules: only when asked
 
-    for u in verify_stability(ctx.arch):
+    for u in verify_stability(ctx.arch, mode):
         ctx.add(u.severity or mode, "stability", u.message, u.path, key=len(u.path) == 2)
+
+
+#: The finding of a file whose whole-loop stability was not checked (verify off).
+NOT_CHECKED = ("whole-loop stability not checked (runtime.stability.verify is off): run "
+               "`archself validate --stability` or set runtime.stability.verify: warning or "
+               "error (docs/stability.md)")
 
 
 

@@ -227,15 +227,16 @@ def _why(exc: BaseException) -> str:
     return getattr(exc, "message", None) or str(exc) or type(exc).__name__
 
 
-def verify_stability(arch: Architecture) -> Iterator[Unstable]:
+def verify_stability(arch: Architecture, verify: str | None = None) -> Iterator[Unstable]:
     """The unstable configurations and actions of ``arch`` (Eq. 21 at its margin).
 
-    Yields nothing for ``runtime.stability.verify: off``. A configuration that cannot
+    ``verify`` overrides the file's ``runtime.stability.verify`` (``validate
+    --stability``); yields nothing when it is off. A configuration that cannot
     be compiled or whose models cannot be wired is reported too: its stability is
     unknown.
     """
     rt = arch.runtime.stability
-    if rt.verify == "off":
+    if (verify or rt.verify) == "off":
         return
     margin = float(rt.margin)
     verdicts: dict[str, tuple[bool, str] | None] = {}

@@ -35,11 +35,20 @@ def validate(
                      "(a list even for one file)."),
     ] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Treat warnings as errors.")] = False,
+    stability: Annotated[
+        bool,
+        typer.Option("--stability", help="Check every configuration's whole-loop stability "
+                     "as `runtime.stability.verify: warning` does where the file leaves it off "
+                     "(compiles and runs every configuration; with --strict its warnings are "
+                     "errors; docs/stability.md)."),
+    ] = False,
 ) -> None:
     """Check architecture files against the schema and the semantic rules.
 
     Exit 0 when no file has an error finding, 1 otherwise. `-` reads the file from
-    stdin (named `<stdin>` in the findings).
+    stdin (named `<stdin>` in the findings). A file whose whole-loop stability is not
+    checked (`runtime.stability.verify: off`, no --stability) says so in one `info`
+    finding.
     """
     from archself.check import check
     from archself.findings import Finding
@@ -62,7 +71,7 @@ def validate(
                 warnings.simplefilter("always")  # recorded, never printed as Python warnings
                 loaded = (load_text(_read_stdin(), STDIN_NAME) if stdin
                           else load_architecture(path))
-                findings = check(loaded)
+                findings = check(loaded, "warning" if stability else None)
             findings += _warning_findings(caught, str(path))
         except SchemaError as exc:
             findings = exc.findings
@@ -72,7 +81,7 @@ def validate(
                                 getattr(exc, "col", None))]
         bad = [f for f in findings if f.severity == "error" or (strict and f.severity == "warning")]
         failed |= bool(bad)
-        table = _stability_table(loaded)
+        table = _stability_table(loaded, stability)
         if json_out:
             report.append(
                 {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings],
@@ -82,7 +91,7 @@ def validate(
             for f in findings:
                 _err(str(f))
             if not bad:  # a failing file prints nothing on stdout (its findings say why)
-                n = len(findings)
+                n = sum(f.severity == "warning" for f in findings)  # info is not a warning
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
                 if table is not None:
                     from archself.check.stability import table_text
@@ -93,10 +102,10 @@ def validate(
     raise typer.Exit(1 if failed else 0)
 
 
-def _stability_table(loaded: object) -> list | None:
-    """The whole-loop table the check computed (``runtime.stability.verify`` on), or None."""
+def _stability_table(loaded: object, asked: bool) -> list | None:
+    """The whole-loop table the check computed (``verify`` on or ``--stability``), or None."""
     arch = getattr(loaded, "arch", None)
-    if arch is None or arch.runtime.stability.verify == "off":
+    if arch is None or (arch.runtime.stability.verify == "off" and not asked):
         return None
     from archself.check.stability import _TABLES
 
