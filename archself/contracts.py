@@ -191,3 +191,11 @@ class BatchedModule(Protocol):
     def load(self, lanes: Any) -> None:
         """Read the parameters and state of ``lanes`` from their per-run instances."""
         ...
+
+    def state(self, lanes: Any = ...) -> Any:
+        """Each lane's state vector, ``(L, n)``: the per-run class's ``state()`` layout."""
+        ...
+
+    def set_state(self, x: Any, lanes: Any = ...) -> None:
+        """Write an ``(L, n)`` array of :meth:`state`'s layout back into ``lanes``."""
+        ...

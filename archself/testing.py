@@ -5,7 +5,9 @@ every module type of an architecture file that names a ``lanes`` class must give
 :class:`~archself.contracts.BatchedModule`, and every scenario run as lanes
 (:func:`~archself.lanes.run.simulate_lanes`) must give the per-run runs
 (:func:`~archself.sim.run.simulate`), fixed and with the MAPE-K loop: the same
-switches at the same times and every recorded series and metric within ``atol``.
+switches at the same times and every recorded series and metric within ``atol``; and
+each batched class's per-lane ``state()`` must equal its per-run twin's state vector
+(the layout the whole-loop linearization perturbs, docs/stability.md).
 The in-repo packs (tests/test_packs.py) and the example plugin
 (``plugins/archself-example``) run it as a third party would::
 
@@ -122,6 +124,7 @@ def check_pack(
             for name, sc in arch.scenarios.items()}})
     report = PackReport()
     _check_types(arch, report)
+    _check_states(arch, list(seeds), report, atol)
     modes = [m for m, on in (("fixed", fixed), ("adaptive", adaptive)) if on]
     for scenario in list(scenarios) if scenarios is not None else list(arch.scenarios):
         for mode in modes:
@@ -156,6 +159,48 @@ def _check_types(arch: Any, report: PackReport) -> None:
         if not isinstance(lanes, BatchedModule):
             report.problems.append(f"{spec.type}: its lanes class {type(lanes).__name__} is "
                                    "not a BatchedModule (archself.contracts)")
+
+
+def _check_states(arch: Any, seeds: list[int], report: PackReport, atol: float,
+                  steps: int = 20) -> None:
+    """Each batched class's per-lane state equals its per-run twin's ``state()`` vector.
+
+    The initial configuration is compiled once per seed as lanes and once per seed per
+    run, both stepped ``steps`` times; every module whose lanes class is not
+    ``PerLane`` (whose lanes are the per-run instances themselves) is compared.
+    """
+    from archself.lanes.module import PerLane
+    from archself.lanes.system import LaneSystem
+    from archself.system.compiler import compile_system
+
+    if not seeds:
+        return
+    try:
+        lanes = LaneSystem([compile_system(arch, seed=s) for s in seeds])
+        twins = [compile_system(arch, seed=s) for s in seeds]
+        for _ in range(steps):
+            lanes.step()
+            for twin in twins:
+                twin.step()
+    except ArchselfError as exc:
+        report.problems.append(f"state check: the initial configuration did not run: {exc}")
+        return
+    for name, mod in lanes.modules.items():
+        if isinstance(mod, PerLane):
+            continue
+        try:
+            got = mod.state()
+        except ArchselfError as exc:
+            report.problems.append(f"{name}: state() of its lanes class failed: {exc}")
+            continue
+        for j, twin in enumerate(twins):
+            want = twin._module(name).state()
+            if got[j].shape != want.shape or not np.allclose(got[j], want, rtol=0.0,
+                                                              atol=atol, equal_nan=True):
+                report.problems.append(
+                    f"{name} ({type(mod).__name__}), seed {seeds[j]}: lane state "
+                    f"{np.round(got[j], 12).tolist()} after {steps} steps, per run "
+                    f"{np.round(want, 12).tolist()}")
 
 
 def _differences(got: Any, want: Any, atol: float) -> list[str]:

@@ -61,6 +61,41 @@ def test_every_shipped_module_round_trips_its_state(fname: str) -> None:
             assert_allclose(type(mod).state(mod), x + 0.25, err_msg=name)
 
 
+@pytest.mark.parametrize("fname", ["diffdrive.yaml", "process_plant.yaml", "motor_drive.yaml"])
+def test_lane_classes_state_is_the_per_run_state_and_round_trips(fname: str) -> None:
+    """check_pack compares each lanes class's per-lane state with its per-run twin's
+    state() after 20 steps; set_state writes a lane's row back (the other lane kept)."""
+    from archself.lanes.system import LaneSystem
+    from archself.testing import check_pack
+
+    arch = load_architecture(ARCHS / fname).arch
+    report = check_pack(arch, scenarios=[], seeds=(0, 1), raise_on_error=False)
+    assert report.problems == ["no run compared: no scenario, no seed, or neither fixed nor "
+                               "adaptive; lanes and per-run runs were not checked"]
+    lanes = LaneSystem([compile_system(arch, seed=s) for s in (0, 1)])
+    for _ in range(5):
+        lanes.step()
+    stateful = 0
+    for name, mod in lanes.modules.items():
+        x = mod.state()
+        assert x.shape[0] == 2 and np.all(np.isfinite(x)), name
+        stateful += x.shape[1] > 0
+        mod.set_state(x[1:] + 0.25, np.array([1]))
+        assert_allclose(mod.state(), np.vstack([x[0], x[1] + 0.25]), err_msg=name)
+    assert stateful >= 4
+
+
+def test_check_pack_finds_a_lanes_class_whose_state_is_not_stored(monkeypatch) -> None:
+    from archself.testing import check_pack
+    from archself_process.lanes_tank import TankPlantLanes
+
+    monkeypatch.setattr(TankPlantLanes, "store", lambda self, lanes: None)
+    report = check_pack(ARCHS / "process_plant.yaml", scenarios=[], seeds=(3,),
+                        raise_on_error=False)
+    bad = [p for p in report.problems if p.startswith("tank (TankPlantLanes), seed 3: lane state")]
+    assert len(bad) == 1 and "after 20 steps, per run" in bad[0]
+
+
 # ------------------------------------------------------------------ the numerical A
 BLOCKS = FIXTURES / "valid" / "blocks_loop.yaml"
 

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.errors import SimulationError
 from archself.modules.base import RuntimeModule
 
 __all__ = ["ALL", "LaneModule", "LaneNormals", "PerLane", "lane_count", "row", "stack"]
@@ -234,6 +235,40 @@ class LaneModule:
 
     def load(self, lanes: slice | np.ndarray) -> None:
         """Read the parameters and the state of ``lanes`` from their per-run instances."""
+
+    # ------------------------------------------------------------------ state vector
+    def state(self, lanes: slice | np.ndarray = ALL) -> np.ndarray:
+        """Each lane's state vector, an ``(L, n)`` array: the per-run class's
+        :meth:`~archself.modules.base.RuntimeModule.state` of every lane.
+
+        Derived through the per-run bridge (:meth:`store`, then each instance's
+        ``state()``), so the layout is the per-run class's and a lane class declares
+        nothing; :func:`archself.testing.check_pack` checks that it equals the
+        per-run twin's state.
+
+        Raises
+        ------
+        SimulationError
+            When the lanes' states differ in size (a state that is absent in some lanes).
+        """
+        self.store(lanes)
+        rows = [m.state() for m in self._mods(lanes)]
+        if len({r.size for r in rows}) > 1:
+            raise SimulationError(f"{self.name}: the lanes' states differ in size "
+                                  f"({sorted({r.size for r in rows})})")
+        return np.stack(rows) if rows else np.zeros((0, 0))
+
+    def set_state(self, x: Any, lanes: slice | np.ndarray = ALL) -> None:
+        """Write an ``(L, n)`` array of :meth:`state`'s layout back into ``lanes``.
+
+        Each row goes to its lane's per-run instance (``set_state``), then :meth:`load`
+        reads the lanes back.
+        """
+        x = np.asarray(x, dtype=float)
+        mods = self._mods(lanes)
+        for m, xj in zip(mods, x.reshape(len(mods), -1), strict=True):
+            m.set_state(xj)
+        self.load(lanes)
 
 
 class PerLane(LaneModule):
