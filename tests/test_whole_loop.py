@@ -202,6 +202,27 @@ def test_shipped_configurations_are_all_verified_or_marginal() -> None:
         assert 0.9 < table[conf].max_lambda < 1.0 - 1e-4
 
 
+def test_a1_is_marginal_in_the_true_position_not_in_the_heading_estimate() -> None:
+    """The robot's a1 drifts through its heading, but the heading is not a mode: odometry
+    takes each step's heading from the IMU (its error is the IMU's bias, an input of the
+    loop), so the marginal modes are the true position's two integrators, which turn a
+    heading bias into a growing position error (docs/stability.md)."""
+    arch = load_architecture(ARCHS / "diffdrive.yaml").arch
+    system = compile_system(arch, "a1", seed=0)
+    system.step()
+    system.run(float(arch.runtime.stability.settle_s))
+    whole = system.whole_loop("a1", 1)
+    A, lab = np.asarray(whole.A), whole.labels
+    th, yaw = lab.index("odometry.th"), lab.index("chassis.pose[2]")
+    assert_allclose(A[th, th], 0.0, atol=1e-6)  # an estimate offset is gone next step
+    assert_allclose(A[th, yaw], 1.0, atol=1e-6)  # the true heading, through the IMU
+    _, marginal, unstable = whole.modes()
+    assert unstable == []
+    assert sorted(s for m in marginal for s in m.states) == ["chassis.pose[0]",
+                                                             "chassis.pose[1]"]
+    assert_allclose([m.magnitude for m in marginal], [1.0, 1.0], atol=1e-9)
+
+
 def test_relay_side_loop_fails_validate_with_verify_error(tmp_path) -> None:
     runner = CliRunner()
     path = tmp_path / "relay.yaml"
