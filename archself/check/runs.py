@@ -354,9 +354,8 @@ def check_stability(ctx: Context, verify: str | None = None) -> None:
 
 
 #: The finding of a file whose whole-loop stability was not checked (verify off).
-NOT_CHECKED = ("whole-loop stability not checked (runtime.stability.verify is off): run "
-               "`archself validate --stability` or set runtime.stability.verify: warning or "
-               "error (docs/stability.md)")
+NOT_CHECKED = ("whole-loop stability not checked (verify: off); `archself validate "
+               "--stability` checks it (docs/stability.md)")
 
 
 
