@@ -231,7 +231,7 @@ def test_relay_side_loop_fails_validate_with_verify_error(tmp_path) -> None:
     assert result.exit_code == 1
     assert ": error: configurations.hot: configuration 'hot' is unstable over the whole loop: " \
            "max |λ| = 1.05 per step" in result.stderr
-    assert "echo_a 50 %, echo_b 50 %" in result.stderr
+    assert "λ = +1.05 (echo_a 50 %, echo_b 50 %" in result.stderr
     assert ": error: actions[0].to: action 'use_hot' leads to configuration 'hot'" in result.stderr
     assert result.stdout == ""  # a failing file prints nothing on stdout; --json has the table
 
@@ -289,6 +289,8 @@ def test_validate_stability_runs_the_check_where_the_file_leaves_it_off() -> Non
                                           str(RELAY)]).stdout)[0]
     assert {r["configuration"]: r["verdict"] for r in data["stability"]} == {
         "normal": "verified", "hot": "unstable", "slow": "verified"}
+    hot = next(r for r in data["stability"] if r["configuration"] == "hot")
+    assert sorted(m.split(" (")[0] for m in hot["unstable"]) == ["λ = +1.05", "λ = -1.05"]
     assert sorted(f["severity"] for f in data["findings"]) == ["warning", "warning"]
 
 

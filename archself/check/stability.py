@@ -156,8 +156,8 @@ def loop_verdict(system: Any, configuration: str | None = None, steps: int = 1) 
     verdict = "unstable" if unstable else "marginal" if marginal else "verified"
     return LoopVerdict(
         name, verdict, stateful, stateful, n_active, states, worst,
-        marginal=[f"|λ| = {m.magnitude:.6f} ({m.where()})" for m in marginal],
-        unstable=[f"|λ| = {m.magnitude:.6g} ({m.where()})" for m in unstable])
+        marginal=[f"{m.label(loop.steps)} ({m.where()})" for m in marginal],
+        unstable=[f"{m.label(loop.steps)} ({m.where()})" for m in unstable])
 
 
 def map_steps(arch: Architecture) -> int:

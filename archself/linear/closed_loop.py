@@ -151,6 +151,15 @@ class Mode:
     magnitude: float
     shares: list[tuple[str, float]]
     states: list[str] = field(default_factory=list)
+    #: λ of A itself (over the map's span; one of a complex pair)
+    value: complex = 0j
+
+    def label(self, steps: int = 1) -> str:
+        """``'λ = -1.05'`` for a real mode of a one-step map (the sign tells a period-2
+        oscillation from a growth), else ``'|λ| = 0.999480'`` (per step)."""
+        if steps == 1 and self.value.imag == 0:
+            return f"λ = {self.value.real:+.6g}"
+        return f"|λ| = {self.magnitude:.6f}"
 
     def where(self, top: int = 3) -> str:
         """``'chassis 50 %, odometry 50 %: chassis.pose[2], …'``: the modules (and states)."""
@@ -229,7 +238,7 @@ class WholeLoop:
                 top = np.argsort(-w, kind="stable")[:3]
                 found.append(Mode(float(mags[k]), _shares(w, [owners[i] for i in members]),
                                   [self.labels[int(members[t])] for t in top
-                                   if w[t] >= 0.05 * w.sum()]))
+                                   if w[t] >= 0.05 * w.sum()], complex(lam[k])))
         found.sort(key=lambda m: -m.magnitude)
         marginal = [m for m in found if m.magnitude <= 1.0 + tol]
         unstable = [m for m in found if m.magnitude > 1.0 + tol]
