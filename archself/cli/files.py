@@ -199,6 +199,8 @@ TEMPLATES: dict[str, tuple[str, str]] = {
                   "architectures/diffdrive.yaml"),
     "motor": ("the DC-motor drive of generic blocks (docs/motor_drive.md)",
               "architectures/motor_drive.yaml"),
+    "thermal": ("a heated zone of generic blocks: a multi-input plant, an expression, "
+                "sensor silence (docs/blocks.md#a-thermal-zone)", "architectures/thermal_zone.yaml"),
 }
 
 
