@@ -23,7 +23,7 @@ from archself.sim.run import simulate
 from archself.system.faults import FaultInjector
 from archself.testing import check_pack
 from archself_blocks.actuators import Actuator
-from archself_blocks.expression import Expression, parse_expression
+from archself_blocks.signals import Expression, parse_expression
 
 ZONE = data_dir("architectures") / "thermal_zone.yaml"
 

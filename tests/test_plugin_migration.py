@@ -1,4 +1,4 @@
-"""A plugin of the API before ``parameters`` (``optional_params``) is converted, not silently unchecked.
+"""A plugin of the API before ``parameters`` (``optional_params``) is converted, not unchecked.
 
 Issue 40: such a type ran, but ``validate`` checked none of its parameters (a typo
 ``noise_k`` validated and the type's default was used). :func:`archself.registry.migrate`

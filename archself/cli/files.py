@@ -200,7 +200,7 @@ TEMPLATES: dict[str, tuple[str, str]] = {
     "motor": ("the DC-motor drive of generic blocks (docs/motor_drive.md)",
               "architectures/motor_drive.yaml"),
     "thermal": ("a heated zone of generic blocks: a multi-input plant, an expression, "
-                "sensor silence (docs/blocks.md#a-thermal-zone)", "architectures/thermal_zone.yaml"),
+                "sensor silence (docs/blocks.md)", "architectures/thermal_zone.yaml"),
 }
 
 

@@ -196,7 +196,7 @@ class SelectLanes(_StaticLanes):
 
 
 class ExpressionLanes(_StaticLanes):
-    """:class:`~archself_blocks.expression.Expression` in N lanes: ``f(inputs)`` on rows.
+    """:class:`~archself_blocks.signals.Expression` in N lanes: ``f(inputs)`` on rows.
 
     The expression's operations are elementwise, so the per-run callable runs on the
     ``(L, w)`` rows as it does on one run's vectors; a lane missing an input gives no

@@ -25,8 +25,9 @@ class Sensor(RuntimeModule):
     ``resolution`` (0: none). With probability ``dropout_probability`` a sample is
     lost (``None``); with ``max_silence_s`` the system counts a sensor that gave no
     reading for longer as unavailable (``silent for … s``: a dropout is detected, from
-    ``dropout_probability`` or a scenario's ``dropout`` fault). The input is ``y`` (a plant's output) or ``u`` (a plant's
-    applied input: a meter on the input line); the first one connected is read.
+    ``dropout_probability`` or a scenario's ``dropout`` fault). The input is ``y`` (a
+    plant's output) or ``u`` (a plant's applied input: a meter on the input line); the
+    first one connected is read.
 
     The built-in ``bias``/``drift_per_s`` describe a sensor as it is; a scenario's
     faults (``bias_drift``, ``bias``, ``noise_increase``, ``dropout``, ``stuck``, ``nan``)
