@@ -191,55 +191,12 @@ def _err(line: str) -> None:
     typer.echo(colorize(cut_line(line)), err=True, color=color_enabled())
 
 
-class RunProgress:
-    """A progress bar on stderr for many runs: count, percent, rate and ETA.
+def RunProgress(label: str, unit: str = "runs") -> Any:  # noqa: N802 - a class, loaded late
+    """The progress bar of many runs, :class:`archself.campaign.driver.RunProgress` (rich),
+    imported when a command draws one (never at start-up)."""
+    from archself.campaign.driver import RunProgress as Bar
 
-    ``update(done, total)`` is the ``progress`` callback of the campaign and
-    calibration drivers; a ``done`` lower than before (a new phase, e.g. the
-    calibration's verification runs) starts a new bar. The bar is drawn only on a
-    terminal (the caller decides), its fill coloured unless ``NO_COLOR``; ``close()``
-    ends it. Rate and ETA are measured from the first finished run, so the start-up of
-    the workers does not skew them.
-    """
-
-    def __init__(self, label: str, unit: str = "runs") -> None:
-        self.label, self.unit = label, unit
-        self.bar: Any = None
-        self.done = 0
-        self.t0 = 0.0
-        self.first = 0
-
-    def _rate(self, _item: Any = None) -> str:
-        import time
-
-        elapsed = time.monotonic() - self.t0
-        n = self.done - self.first
-        return f"{n / elapsed:.2f} {self.unit}/s" if n > 0 and elapsed > 0 else ""
-
-    def update(self, done: int, total: int) -> None:
-        import time
-
-        if self.bar is None or done < self.done:
-            self.close()
-            fill = typer.style("█", fg="cyan") if color_enabled() else "#"
-            self.bar = typer.progressbar(
-                length=total, label=self.label.format(total=total), file=sys.stderr,
-                show_eta=True, show_percent=True, show_pos=True, fill_char=fill,
-                empty_char="·" if fill != "#" else "-", item_show_func=self._rate,
-                color=color_enabled(),
-            )
-            self.bar.__enter__()
-            self.done, self.t0, self.first = 0, time.monotonic(), 0
-        if self.done == 0 and done > 0:  # the first finished run(s): start the clock
-            self.t0, self.first = time.monotonic(), 0
-        step = done - self.done
-        self.done = done
-        self.bar.update(step)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar = None
+    return Bar(label, unit)
 
 
 def _fail(msg: str, code: int = 1) -> typer.Exit:
