@@ -187,8 +187,63 @@ def cut_line(line: str, limit: int = MAX_ERROR_LINE) -> str:
 
 def _err(line: str) -> None:
     """One diagnostic line on stderr (cut to :data:`MAX_ERROR_LINE`), its severity coloured
-    on a terminal."""
+    on a terminal; a warning is left out with ``--quiet``."""
+    if LEVEL[0] < 0 and ": error:" not in line and not line.startswith("error"):
+        return
     typer.echo(colorize(cut_line(line)), err=True, color=color_enabled())
+
+
+#: How much a command says on stderr: -1 ``--quiet``, 0 by default, 1 ``--verbose``.
+LEVEL = [0]
+
+QuietOption = Annotated[bool, typer.Option(
+    "--quiet", "-q", help="Say only errors on stderr: no warnings, notes or progress.")]
+VerboseOption = Annotated[bool, typer.Option(
+    "--verbose", "-v", help="Say more on stderr: every numeric warning, the progress bar "
+    "also when stderr is not a terminal.")]
+
+
+def with_verbosity(command: Any) -> Any:
+    """``command`` with the shared ``--quiet``/``--verbose`` options (one shape for all).
+
+    The wrapper takes the two options, sets :data:`LEVEL` for the command and calls it
+    with its own parameters; giving both is a usage error (exit 2).
+    """
+    import functools
+    import inspect
+
+    sig = inspect.signature(command, eval_str=True)
+
+    @functools.wraps(command)
+    def run(*args: Any, quiet: bool = False, verbose: bool = False, **kwargs: Any) -> Any:
+        if quiet and verbose:
+            raise typer.BadParameter("give --quiet or --verbose, not both")
+        LEVEL[0] = -1 if quiet else (1 if verbose else 0)
+        try:
+            return command(*args, **kwargs)
+        finally:
+            LEVEL[0] = 0
+
+    extra = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=False, annotation=t)
+             for n, t in (("quiet", QuietOption), ("verbose", VerboseOption))]
+    params = [*sig.parameters.values(), *extra]
+    run.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
+    run.__annotations__ = {**{k: v.annotation for k, v in sig.parameters.items()},
+                           "quiet": QuietOption, "verbose": VerboseOption}
+    return run
+
+
+def note(line: str) -> None:
+    """An informational line on stderr (a file written, a report's place); not with ``--quiet``."""
+    if LEVEL[0] >= 0:
+        typer.echo(line, err=True)
+
+
+def show_progress(json_out: bool = False) -> bool:
+    """A progress bar: on a terminal or with ``--verbose``; not with ``--quiet``, ``--json``."""
+    if json_out or LEVEL[0] < 0:
+        return False
+    return LEVEL[0] > 0 or sys.stderr.isatty()
 
 
 def RunProgress(label: str, unit: str = "runs") -> Any:  # noqa: N802 - a class, loaded late
@@ -239,7 +294,7 @@ def _emit(text: str, output: Path | None, done: str) -> None:
             write_text(output, text)
     except ArchselfError as exc:
         raise _die(exc) from None
-    typer.echo(done, err=True)
+    note(done)
 
 
 #: Files ``simulate --report DIR`` writes that an input could be named like.
@@ -285,8 +340,8 @@ def _numeric(path: Path) -> Iterator[None]:
             text = str(w.message).splitlines()[0] if str(w.message) else ""
             where = Path(w.filename).name
             line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
-            if line not in seen and len(seen) < 5:
-                seen.add(line)
+            if line not in seen and (len(seen) < 5 or LEVEL[0] > 0) and LEVEL[0] >= 0:
+                seen.add(line)  # at most 5 (every one with --verbose; none with --quiet)
                 typer.echo(line, err=True)
 
 
@@ -302,8 +357,9 @@ def _numeric_warning(w: Any) -> bool:
 def _known_configuration(arch: Any, config: str | None, path: Path) -> None:
     """``--config`` must name a configuration of the file (one-line error, exit 1)."""
     if config is not None and config not in arch.configurations:
-        known = ", ".join(arch.configurations)
-        raise _fail(f"{path}: unknown configuration '{config}'; known: {known}")
+        from archself.errors import unknown
+
+        raise _fail(f"{path}: {unknown('configuration', config, arch.configurations)}")
 
 
 def _load(path: Path):

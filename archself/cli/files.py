@@ -347,7 +347,9 @@ def export(
     from archself.reports.export import FORMATS
 
     if to not in FORMATS:
-        raise _fail(f"error: --to: unknown format '{to}'; choose one of {', '.join(FORMATS)}", 2)
+        from archself.errors import unknown
+
+        raise _fail(f"error: --to: {unknown('format', to, FORMATS)}", 2)
     _inputs(arch)
     try:
         if output is not None and str(output) != "-":
