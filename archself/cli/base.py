@@ -203,8 +203,72 @@ VerboseOption = Annotated[bool, typer.Option(
     "also when stderr is not a terminal.")]
 
 
+def _file_names(ctx: typer.Context, section: str) -> list[str]:
+    """The names of ``section`` (scenarios, configurations) of the architecture file given
+    on the command line so far; none when there is no readable one."""
+    given = [v for v in ctx.params.values() if isinstance(v, Path)]  # parsed, or still
+    given += [Path(a) for a in ctx.args if not a.startswith("-")]  # left over (completing)
+    path = next((p for p in given if p.is_file()), None)
+    if path is None:
+        return []
+    try:
+        from archself.io.file_text import read_text
+        from archself.io.yaml_source import load_data
+
+        data, _ = load_data(read_text(path), str(path))
+    except Exception:  # noqa: BLE001 - completion offers nothing rather than fail
+        return []
+    names = data.get(section) if isinstance(data, dict) else None
+    return [str(n) for n in names] if isinstance(names, dict) else []
+
+
+def complete_scenario(ctx: typer.Context, incomplete: str) -> list[str]:
+    """Shell completion of ``--scenario``: the scenarios of the file on the command line."""
+    return [n for n in _file_names(ctx, "scenarios") if n.startswith(incomplete)]
+
+
+def complete_configuration(ctx: typer.Context, incomplete: str) -> list[str]:
+    """Shell completion of ``--config``/``--configuration``: the file's configurations."""
+    return [n for n in _file_names(ctx, "configurations") if n.startswith(incomplete)]
+
+
+def complete_format(incomplete: str) -> list[str]:
+    """Shell completion of ``export --to``: the export formats."""
+    from archself.reports.export import FORMATS
+
+    return [f for f in FORMATS if f.startswith(incomplete)]
+
+
+#: Option flag → its completion (set by :func:`with_verbosity` where a command gives none).
+COMPLETIONS = {"--scenario": complete_scenario, "--config": complete_configuration,
+               "--configuration": complete_configuration, "--to": complete_format}
+
+
+def _completed(param: Any) -> Any:
+    """``param`` with the completion of its flag (:data:`COMPLETIONS`), if it has none."""
+    from typing import get_args, get_origin
+
+    from typer.models import OptionInfo
+
+    if get_origin(param.annotation) is not Annotated:
+        return param
+    base, *meta = get_args(param.annotation)
+    info = next((m for m in meta if isinstance(m, OptionInfo)), None)
+    flags = () if info is None else (info.default, *(info.param_decls or ()))  # Annotated:
+    flag = next((d for d in flags if isinstance(d, str) and d in COMPLETIONS), None)  # names
+    if flag is None or info.autocompletion or info.shell_complete:
+        return param
+    import copy
+
+    done = copy.copy(info)
+    done.autocompletion = COMPLETIONS[flag]
+    rest = [done if m is info else m for m in meta]
+    return param.replace(annotation=Annotated[(base, *rest)])  # type: ignore[valid-type]
+
+
 def with_verbosity(command: Any) -> Any:
-    """``command`` with the shared ``--quiet``/``--verbose`` options (one shape for all).
+    """``command`` with the shared ``--quiet``/``--verbose`` options (one shape for all),
+    and completion of the scenario, configuration and format options (:data:`COMPLETIONS`).
 
     The wrapper takes the two options, sets :data:`LEVEL` for the command and calls it
     with its own parameters; giving both is a usage error (exit 2).
@@ -213,6 +277,7 @@ def with_verbosity(command: Any) -> Any:
     import inspect
 
     sig = inspect.signature(command, eval_str=True)
+    sig = sig.replace(parameters=[_completed(p) for p in sig.parameters.values()])
 
     @functools.wraps(command)
     def run(*args: Any, quiet: bool = False, verbose: bool = False, **kwargs: Any) -> Any:
