@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
@@ -240,8 +240,10 @@ def complete_format(incomplete: str) -> list[str]:
 
 
 #: Option flag → its completion (set by :func:`with_verbosity` where a command gives none).
-COMPLETIONS = {"--scenario": complete_scenario, "--config": complete_configuration,
-               "--configuration": complete_configuration, "--to": complete_format}
+COMPLETIONS: dict[str, Callable[..., list[str]]] = {
+    "--scenario": complete_scenario, "--config": complete_configuration,
+    "--configuration": complete_configuration, "--to": complete_format,
+}
 
 
 def _completed(param: Any) -> Any:
@@ -256,7 +258,7 @@ def _completed(param: Any) -> Any:
     info = next((m for m in meta if isinstance(m, OptionInfo)), None)
     flags = () if info is None else (info.default, *(info.param_decls or ()))  # Annotated:
     flag = next((d for d in flags if isinstance(d, str) and d in COMPLETIONS), None)  # names
-    if flag is None or info.autocompletion or info.shell_complete:
+    if info is None or flag is None or info.autocompletion or info.shell_complete:
         return param
     import copy
 

@@ -333,9 +333,10 @@ def _call(node: ast.Call, names: set[str]) -> Compiled:
 def _compile(node: ast.AST, names: set[str]) -> Compiled:
     """A callable of the input values for one checked node (recursively)."""
     if isinstance(node, ast.Constant):
-        if type(node.value) not in (int, float):
-            raise _refuse(node, f"{node.value!r} is not a number")
-        value = np.float64(node.value)
+        number = node.value
+        if not isinstance(number, (int, float)) or isinstance(number, bool):
+            raise _refuse(node, f"{number!r} is not a number")
+        value = np.float64(number)
         return lambda env: value
     if isinstance(node, ast.Name):
         return _name(node, names)
