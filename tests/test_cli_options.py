@@ -79,3 +79,16 @@ def test_completion_reads_the_file_on_the_command_line(words, offered) -> None:
 def test_a_typo_gets_did_you_mean(args, said, code) -> None:
     res = CliRunner().invoke(app, args)
     assert res.exit_code == code and said in res.stderr, res.stderr
+
+
+def test_quiet_strict_still_says_the_warning_that_fails(tmp_path) -> None:
+    text = (ROOT / "tests" / "fixtures" / "valid" / "minimal.yaml").read_text(encoding="utf-8")
+    noisy = tmp_path / "w.yaml"
+    unused = "  - {from: compass, to: control, weight: 0.1, carries: heading}\n"  # a warning
+    noisy.write_text(text.replace("edges:\n", "edges:\n" + unused), encoding="utf-8")
+    plain = CliRunner().invoke(app, ["validate", str(noisy)])
+    assert plain.exit_code == 0 and ": warning: " in plain.stderr, plain.stderr
+    quiet = CliRunner().invoke(app, ["validate", str(noisy), "-q"])
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+    strict = CliRunner().invoke(app, ["validate", str(noisy), "-q", "--strict"])
+    assert strict.exit_code == 1 and ": warning: " in strict.stderr

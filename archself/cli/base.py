@@ -185,10 +185,11 @@ def cut_line(line: str, limit: int = MAX_ERROR_LINE) -> str:
     return line if len(line) <= limit else line[: limit - 3] + "..."
 
 
-def _err(line: str) -> None:
+def _err(line: str, *, failing: bool = False) -> None:
     """One diagnostic line on stderr (cut to :data:`MAX_ERROR_LINE`), its severity coloured
-    on a terminal; a warning is left out with ``--quiet``."""
-    if LEVEL[0] < 0 and ": error:" not in line and not line.startswith("error"):
+    on a terminal; a warning is left out with ``--quiet`` unless it fails the command
+    (``failing``: ``validate --strict``)."""
+    if LEVEL[0] < 0 and not failing and ": error:" not in line and not line.startswith("error"):
         return
     typer.echo(colorize(cut_line(line)), err=True, color=color_enabled())
 

@@ -80,7 +80,7 @@ def validate(
             )
         else:
             for f in findings:
-                _err(str(f))
+                _err(str(f), failing=f in bad)
             if not bad:  # a failing file prints nothing on stdout (its findings say why)
                 n = len(findings)
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
