@@ -146,3 +146,17 @@ def test_thermal_zone_lanes_are_its_per_run_runs() -> None:
                         duration_s=120.0)
     assert report.ok, report.problems
     assert report.types["generic.expression"] == "ExpressionLanes"
+
+
+def test_validate_warns_of_a_unit_conversion_given_as_gain(tmp_path) -> None:
+    text = ZONE.read_text(encoding="utf-8").replace(
+        "      scale: {value: 0.1, unit: kW/%}\n      gain: {value: 1.0, min: 0.5, max: 2.0}",
+        "      gain: {value: 0.1, min: 0.05, max: 2.0}", 1)
+    path = tmp_path / "zone.yaml"
+    path.write_text(text, encoding="utf-8")
+    line = text.splitlines().index("      gain: {value: 0.1, min: 0.05, max: 2.0}") + 1
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    assert result.exit_code == 0
+    assert re.search(rf"zone\.yaml:{line}:\d+: warning: modules\.heater_a\.params\.gain: gain 0\.1 "
+                     r"with the residual command_error .* belongs in 'scale'", result.stderr)
+    assert "heater_b" not in result.stderr  # its scale is given: no warning

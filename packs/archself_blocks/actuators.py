@@ -40,7 +40,8 @@ class Actuator(RuntimeModule):
     (``scale·command`` as far as the limits let it, in output units) against what
     arrived — near the meter's noise when healthy, a fraction of the command when the
     actuator lost effectiveness. A unit conversion given as ``gain`` instead of
-    ``scale`` would compare command units with output units: declare it as ``scale``.
+    ``scale`` would compare command units with output units (``archself validate`` warns:
+    :meth:`param_warnings`).
 
     Examples
     --------
@@ -75,6 +76,20 @@ class Actuator(RuntimeModule):
     fault_kinds = ACTUATOR_FAULTS
     main_output = "u"
     lanes = "archself_blocks.lanes_plants:ActuatorLanes"
+
+    @classmethod
+    def param_warnings(cls, params: dict[str, Any], residual: str | None) -> list[tuple[str, str]]:
+        """A ``gain`` ≠ 1 without ``scale`` beside a ``command_error`` residual: a unit
+        conversion given as the effectiveness (the residual would compare the command's
+        units with the meter's)."""
+        gain, scale = params.get("gain", 1.0), params.get("scale", 1.0)
+        if residual != "command_error" or not isinstance(gain, (int, float)) or gain == 1 \
+                or scale != 1:
+            return []
+        return [("gain", f"gain {gain:g} with the residual command_error compares x/gain, the "
+                 "command in its own units, with the meter in the output's; a unit "
+                 "conversion (W per %) belongs in 'scale', gain is the effectiveness "
+                 "(1 when healthy; docs/blocks.md)")]
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)
