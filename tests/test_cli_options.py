@@ -92,3 +92,16 @@ def test_quiet_strict_still_says_the_warning_that_fails(tmp_path) -> None:
     assert quiet.exit_code == 0 and quiet.stderr == ""
     strict = CliRunner().invoke(app, ["validate", str(noisy), "-q", "--strict"])
     assert strict.exit_code == 1 and ": warning: " in strict.stderr
+
+
+def test_run_campaign_draws_its_own_bar_with_progress_true(tmp_path, capsys) -> None:
+    """The notebook's way: ``run_campaign(..., progress=True)`` (rich draws in the cell)."""
+    from archself.campaign.driver import plan_campaign, run_campaign
+
+    jobs, meta = plan_campaign(ROOT / "tests" / "fixtures" / "valid" / "minimal.yaml",
+                               ["calm"], 2)
+    outcome = run_campaign(jobs, meta, tmp_path / "r.parquet", executor="inline",
+                           progress=True)
+    assert outcome.ran == len(jobs) == 4 and outcome.failed == 0
+    err = capsys.readouterr().err
+    assert "4 runs" in err and "4/4" in err and "runs/s" in err
