@@ -61,7 +61,7 @@ def test_error_mode_fails_validate_warning_mode_passes_unless_strict(tmp_path) -
 
 
 def test_a_stable_file_with_the_check_on_is_clean() -> None:
-    text = _with_verify("error").replace("gain: {value: 40.0", "gain: {value: 1.5")
+    text = _with_verify("error").replace("scale: {value: 40.0", "scale: {value: 1.5")
     assert _findings(text) == []
 
 
