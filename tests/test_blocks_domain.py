@@ -160,3 +160,18 @@ def test_validate_warns_of_a_unit_conversion_given_as_gain(tmp_path) -> None:
     assert re.search(rf"zone\.yaml:{line}:\d+: warning: modules\.heater_a\.params\.gain: gain 0\.1 "
                      r"with the residual command_error .* belongs in 'scale'", result.stderr)
     assert "heater_b" not in result.stderr  # its scale is given: no warning
+
+
+@pytest.mark.parametrize(("scenario", "switches"), [
+    ("nominal", []), ("wheel_dropout", [("drop_wheel_speed", "gps")]),
+])
+def test_the_vehicle_recipe_runs_and_sees_a_silent_wheel_sensor(scenario, switches) -> None:
+    from conftest import FIXTURES
+
+    path = FIXTURES / "valid" / "vehicle_speed.yaml"
+    car = load_text(path.read_text(encoding="utf-8"), str(path)).arch
+    run = simulate(car, scenario, adapt=MapeK(car))
+    assert [(s["action"], s["to"]) for s in run.switches] == switches
+    if switches:
+        assert 40.0 < run.switches[0]["t_s"] <= 41.5  # max_silence_s 0.5 s + one period
+    assert run.metrics["final_error"] < 0.1
