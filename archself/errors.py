@@ -8,6 +8,23 @@ one-line, user-facing message. The CLI prints ``str(err)`` and exits with
 from __future__ import annotations
 
 
+def unknown(what: str, name: str, known: object) -> str:
+    """``unknown <what> '<name>'; did you mean '<closest>'? known: a, b, c``, the one message
+    of a name that is not there (a scenario, a configuration, a format).
+
+    Examples
+    --------
+    >>> unknown("scenario", "nomnal", ["nominal", "heater_loss"])
+    "unknown scenario 'nomnal'; did you mean 'nominal'? known: nominal, heater_loss"
+    """
+    import difflib
+
+    options = [str(k) for k in known]  # type: ignore[attr-defined]
+    close = difflib.get_close_matches(str(name), options, n=1)
+    hint = f" did you mean '{close[0]}'?" if close else ""
+    return f"unknown {what} '{name}';{hint} known: {', '.join(options) or 'none'}"
+
+
 def located(file: str, line: int | None, col: int | None, path: str, message: str,
             severity: str = "") -> str:
     """``file:line:col: [severity:] path: message``, the one format of every located message.

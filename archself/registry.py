@@ -7,12 +7,19 @@ none of them. An entry point is loaded when its type is first asked for, so
 ``archself validate`` imports only the types a file uses. :func:`register`
 adds a class by hand (tests, interactive use). A type resolves only through this
 registry: a file never names a Python object to import.
+
+A type of the API before ``parameters`` (``required_params``/``optional_params``, names
+only) is converted when it is registered (:func:`migrate`): its names become
+``parameters`` without defaults, so ``archself validate`` checks them again (a misspelt
+one is an error with "did you mean"), and a :class:`FutureWarning` says once how to
+declare them (docs/plugins.md, "Migrating from optional_params").
 """
 
 from __future__ import annotations
 
+import warnings
 from importlib.metadata import EntryPoint, entry_points
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from archself.errors import RegistryError
 
@@ -23,6 +30,8 @@ ENTRY_POINT_GROUP = "archself.modules"
 
 _TYPES: dict[str, type[RuntimeModule]] = {}
 _POINTS: dict[str, EntryPoint] | None = None
+#: Type key → the migration note of a type converted from ``optional_params``.
+LEGACY: dict[str, str] = {}
 
 
 def register(key: str):
@@ -65,7 +74,59 @@ def add(key: str, cls: type[RuntimeModule]) -> None:
             f"module type {key!r} is registered twice ({other_name} and {_qualname(cls)})"
         )
     cls.type_key = key
+    migrate(key, cls)
     _TYPES[key] = cls
+
+
+def _no_defaults(cls: Any) -> dict[str, Any]:
+    return {}  # the old API had none: the type's own ``params.get(k, default)`` holds
+
+
+def migrate(key: str, cls: Any) -> str | None:
+    """Convert an old declaration (``required_params``, ``optional_params``) into ``parameters``.
+
+    A type that declares ``optional_params`` (a sequence of names) and no ``parameters``
+    gets ``parameters`` of those names and of ``required_params`` (required), without
+    defaults, units or ranges: the file's names are checked as before the change, and
+    the type still reads its own defaults. Warns once per type (:class:`FutureWarning`)
+    and returns the note (kept in :data:`LEGACY`); None for any other type.
+
+    Examples
+    --------
+    >>> from archself.modules.base import RuntimeModule
+    >>> class Old(RuntimeModule):
+    ...     required_params = ("k",)
+    ...     optional_params = ("noise",)
+    >>> import warnings
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     note = migrate("doc.old", Old)
+    >>> sorted(Old.parameters), Old.parameters["k"].required, Old.default_params()
+    (['k', 'noise'], True, {})
+    >>> LEGACY.pop("doc.old") == note
+    True
+    """
+    if getattr(cls, "parameters", None) is not None:
+        return None
+    optional = getattr(cls, "optional_params", None)
+    if optional is None:
+        return None
+    from archself.modules.base import Param
+
+    required = tuple(getattr(cls, "required_params", None) or ())
+    params = {n: Param(doc="declared by required_params") for n in required}
+    for n in optional:
+        params.setdefault(str(n), Param(None, doc="declared by optional_params"))
+    cls.parameters = params
+    cls.default_params = classmethod(_no_defaults)
+    note = (f"module type {key!r} ({_qualname(cls)}) declares optional_params, the API "
+            f"before 'parameters': its parameter names are checked, but without defaults, "
+            f"units or ranges; declare parameters = {{name: Param(default, unit, doc, "
+            f"min=, max=)}} instead (docs/plugins.md, 'Migrating from optional_params')")
+    if key not in LEGACY:
+        LEGACY[key] = note
+        warnings.warn(note, FutureWarning, stacklevel=3)
+    return note
 
 
 def unregister(key: str) -> None:
@@ -117,6 +178,7 @@ def lookup(key: str) -> type[RuntimeModule] | None:
     except Exception as exc:  # a broken plugin must not take the tool down
         raise RegistryError(f"plugin {key!r} ({ep.value}) failed to load: {exc}") from exc
     cls.type_key = key
+    migrate(key, cls)
     _TYPES[key] = cls
     return cls
 

@@ -30,7 +30,7 @@ from archself_blocks.signals import Gain, Reference, Select, Sum
 KEYS = [
     "generic.state_space", "generic.transfer_function", "generic.lti_model", "generic.pid",
     "generic.kalman", "generic.ekf", "generic.luenberger", "generic.sensor", "generic.actuator",
-    "generic.reference", "generic.gain", "generic.sum", "generic.select",
+    "generic.reference", "generic.gain", "generic.sum", "generic.select", "generic.expression",
 ]
 A2 = [[-1.0, 2.0], [-3.0, -0.5]]
 B2 = [[0.0], [1.0]]
@@ -74,6 +74,7 @@ REQUIRED = {
     "generic.transfer_function": {"num": [1.0], "den": [1.0, 1.0]},
     "generic.lti_model": {"A": A2, "B": B2},
     "generic.luenberger": {"poles": [-1.0, -2.0]},
+    "generic.expression": {"expression": "2 * x"},
 }
 
 

@@ -111,12 +111,31 @@ def test_run_progress_counts_and_restarts(capsys) -> None:
     bar = RunProgress("{total} runs")
     bar.update(0, 4)
     bar.update(3, 4)
-    assert bar.done == 3 and bar._rate().endswith("runs/s")
+    assert bar.done == 3 and bar.rate().endswith("runs/s")
     bar.update(1, 2)  # a new phase: a new bar
-    assert bar.done == 1 and bar.bar.length == 2
+    assert bar.done == 1 and bar.total == 2
     bar.close()
     assert bar.bar is None
     assert "4 runs" in capsys.readouterr().err
+
+
+def test_run_progress_rate_is_the_throughput_since_the_start() -> None:
+    """Issue 40: two runs finishing 0.3 ms apart after 30 s showed "6660.87 runs/s" at 2/4."""
+    import io
+
+    from archself.campaign.driver import RunProgress as Bar
+
+    clock = iter([0.0, 0.0, 30.0, 30.0003, 60.0]).__next__
+    bar = Bar("{total} runs", file=io.StringIO(), clock=clock)
+    bar.update(0, 4)
+    assert bar.rate() == ""  # nothing done yet
+    bar.update(1, 4)
+    bar.update(2, 4)
+    assert bar.rate() == f"{2 / 30.0003:.2f} runs/s" == "0.07 runs/s"
+    bar.update(4, 4)
+    assert bar.rate() == "0.07 runs/s"  # 4 runs in 60 s
+    bar.close()
+    assert "4/4" in bar.file.getvalue()
 
 
 def test_dash_is_stdin_for_architectures_and_traces(tmp_path) -> None:

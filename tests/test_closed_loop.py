@@ -65,8 +65,8 @@ def test_swapping_in_a_destabilizing_actuator_changes_the_verdict() -> None:
     assert_allclose(worst[0], np.log(worst[1]) / 0.1)
     assert worst[1] > 4.0
     assert {m for m, _ in worst[2]} == {"plant", "pi", "backup_hot"}
-    # the same configuration with a healthy gain on that actuator is stable again
-    system.set_params("backup_hot", {"gain": 1.0})
+    # the same configuration with a right scale on that actuator is stable again
+    system.set_params("backup_hot", {"scale": 1.0})
     assert eigenvalue_margin(system.linearization("hot"), margin).ok
 
 

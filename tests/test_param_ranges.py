@@ -29,9 +29,10 @@ PACKS = ("archself_blocks", "archself_diffdrive", "archself_process")
 #: gains and offsets in the units of whatever they are wired to, signs either way (the
 #: global cap |x| ≤ 1e9 of every file number still holds).
 UNBOUNDED = {
-    "generic.actuator": {"gain", "u_min", "u_max", "initial"},
+    "generic.actuator": {"gain", "scale", "u_min", "u_max", "initial"},
     "generic.ekf": {"Q", "R", "P0", "x0"},  # covariance matrices: off-diagonals of any sign
     "generic.kalman": {"Q", "R", "P0", "x0"},
+    "generic.expression": {"expression"},  # text: parsed and checked by the type
     "generic.gain": {"gain", "offset"},
     "generic.lti_model": {"A", "B", "C", "D"},
     "generic.luenberger": {"gain", "poles", "x0"},

@@ -21,6 +21,7 @@ ARCHITECTURES = sorted((ROOT / "architectures").glob("*.yaml"))
 
 # fixtures whose defect is structural (the schema alone must reject them)
 STRUCTURAL = [
+    "negative_weight",  # weight ≥ 0 in the schema too (issue 40)
     "bad_kind", "wrong_type", "unknown_field", "missing_key", "not_mapping",
     "bad_improvement_method", "control_char_name",
     "two_selectors", "action_without_target",  # oneOf and if/then from json_schema_extra

@@ -73,7 +73,7 @@ def test_check_with_stability_judges_a_file_that_leaves_verify_off() -> None:
 
 
 def test_a_stable_file_with_the_check_on_is_clean() -> None:
-    text = _with_verify("error").replace("gain: {value: 40.0", "gain: {value: 1.5")
+    text = _with_verify("error").replace("scale: {value: 40.0", "scale: {value: 1.5")
     assert _findings(text) == []
 
 

@@ -39,6 +39,7 @@ from archself.calibration.identify_jobs import IdJob, run_identify_job
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
 from archself.calibration.identify_write import set_weights, written_copy
 from archself.calibration.runs import seeds_from
+from archself.errors import unknown
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
@@ -53,8 +54,7 @@ def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[st
         raise IdentifyError(f"{path}: no module declares a residual: nothing to identify")
     if scenario is not None:
         if scenario not in arch.scenarios:
-            known = ", ".join(arch.scenarios) or "none"
-            raise IdentifyError(f"{path}: unknown scenario {scenario!r}; known: {known}")
+            raise IdentifyError(f"{path}: {unknown('scenario', scenario, arch.scenarios)}")
         if arch.scenarios[scenario].faults:
             raise IdentifyError(
                 f"{path}: scenario {scenario!r} has faults; identify needs a fault-free one"

@@ -10,7 +10,7 @@ from typing import Any
 
 from archself.calibration.bands import alarm_threshold
 from archself.calibration.result import CalibrationError
-from archself.errors import ArchselfError, LoadError
+from archself.errors import ArchselfError, LoadError, unknown
 
 __all__ = ["chosen_configurations", "load_checked", "located", "parse_envelope", "prepare"]
 
@@ -46,8 +46,7 @@ def chosen_configurations(
     """The configurations asked for (each once, in order), or all; an unknown one raised."""
     for c in configurations or ():
         if c not in arch.configurations:
-            known = ", ".join(arch.configurations)
-            raise error(f"{file}: unknown configuration {c!r}; known: {known}")
+            raise error(f"{file}: {unknown('configuration', c, arch.configurations)}")
     return list(dict.fromkeys(configurations or arch.configurations))
 
 

@@ -41,6 +41,7 @@ from archself.campaign.worker import Job, _base_row, run_job, run_unit
 from archself.errors import ArchselfError, OutputError
 
 __all__ = [
+    "RunProgress",
     "CampaignEstimate",
     "CampaignInterrupted",
     "CampaignOutcome",
@@ -133,6 +134,78 @@ def _worker_died(exc: BaseException) -> bool:
     return isinstance(exc, BrokenProcessPool) or type(exc).__name__ == "KilledWorker"
 
 
+class RunProgress:
+    """A progress bar of many runs (``rich.progress``): count, percent, rate, elapsed, ETA.
+
+    ``update(done, total)`` is the ``progress`` callback of :func:`run_campaign` and of
+    the calibration driver; a ``done`` lower than before (a new phase, e.g. the
+    calibration's verification runs) starts a new bar; ``close()`` ends it. The rate is
+    the runs done over the time since the bar started, the throughput so far: runs that
+    finish together (a batch of lanes, the first runs of each worker) do not make it
+    thousands per second. On a terminal the bar is redrawn in place (colours unless
+    ``NO_COLOR``); in a notebook rich draws it in the cell (live with ``ipywidgets``).
+
+    Examples
+    --------
+    >>> import io
+    >>> now = iter([0.0, 0.0, 10.0]).__next__
+    >>> bar = RunProgress("{total} runs", file=io.StringIO(), clock=now)
+    >>> bar.update(0, 4); bar.update(2, 4); bar.rate()
+    '0.20 runs/s'
+    >>> bar.close()
+    """
+
+    def __init__(self, label: str, unit: str = "runs", *, file: Any = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.label, self.unit, self.file, self.clock = label, unit, file, clock
+        self.bar: Any = None
+        self.task: Any = None
+        self.done = self.total = 0
+        self.t0 = 0.0
+        self.elapsed = 0.0
+
+    def rate(self) -> str:
+        """Runs per second since the bar started ("" before the first run)."""
+        if self.done <= 0 or self.elapsed <= 0:
+            return ""
+        return f"{self.done / self.elapsed:.2f} {self.unit}/s"
+
+    def _start(self, total: int) -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TaskProgressColumn,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self.close()
+        console = Console(file=self.file if self.file is not None else sys.stderr)
+        self.bar = Progress(
+            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+            TaskProgressColumn(), TextColumn("{task.fields[rate]}"), TimeElapsedColumn(),
+            TextColumn("ETA"), TimeRemainingColumn(), console=console,
+        )
+        self.bar.start()
+        self.task = self.bar.add_task(self.label.format(total=total), total=total, rate="")
+        self.done, self.total, self.t0, self.elapsed = 0, total, self.clock(), 0.0
+
+    def update(self, done: int, total: int) -> None:
+        if self.bar is None or done < self.done or total != self.total:
+            self._start(total)
+        self.done = done
+        self.elapsed = self.clock() - self.t0
+        self.bar.update(self.task, completed=done, rate=self.rate())
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+            self.bar = None
+
+
 def run_campaign(
     jobs: Sequence[Job],
     meta: dict[str, Any],
@@ -143,7 +216,7 @@ def run_campaign(
     address: str | None = None,
     resume: bool = False,
     force: bool = False,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | bool | None = None,
     flush_s: float = 2.0,
     notice: Callable[[str], None] | None = None,
     job_fn: Callable[[Job], dict[str, Any]] = run_job,
@@ -166,8 +239,9 @@ def run_campaign(
         Keep the rows of an existing ``out`` and run only the missing runs.
     force : bool
         Overwrite an existing ``out`` (never the architecture file: refused).
-    progress : callable, optional
-        ``progress(done, total)`` after every finished run.
+    progress : callable or bool, optional
+        ``progress(done, total)`` after every finished run; True: a
+        :class:`RunProgress` bar (on stderr, or in a notebook's cell).
     notice : callable, optional
         Called with a one-line message when a worker died and the pool is
         restarted (default: printed to stderr).
@@ -204,6 +278,16 @@ def run_campaign(
     from archself.campaign.executors import make_executor
     from archself.campaign.results import write_results
 
+    if progress is True:
+        bar = RunProgress("{total:,} runs")
+        try:
+            return run_campaign(jobs, meta, out, executor=executor, workers=workers,
+                                address=address, resume=resume, force=force,
+                                progress=bar.update, flush_s=flush_s, notice=notice,
+                                job_fn=job_fn, lanes=lanes)
+        finally:
+            bar.close()
+    progress = progress if callable(progress) else None
     out = Path(out)
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():

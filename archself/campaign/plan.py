@@ -21,6 +21,7 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError, Sweep, apply_values, sweep_points
 from archself.campaign.worker import Job, trace_name
+from archself.errors import unknown
 
 __all__ = [
     "BYTES_PER_RUN",
@@ -107,8 +108,7 @@ def plan_campaign(
     arch = loaded.arch
     missing = [s for s in scenarios if s not in arch.scenarios]
     if missing:
-        known = ", ".join(arch.scenarios) or "none"
-        raise CampaignError(f"{file}: unknown scenario {missing[0]!r}; known: {known}")
+        raise CampaignError(f"{file}: {unknown('scenario', missing[0], arch.scenarios)}")
     est = estimate_campaign(arch, scenarios, sweeps, seeds, modes)
     est.check(yes)
     for point in sweep_points(sweeps) if sweeps else []:

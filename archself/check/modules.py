@@ -41,6 +41,7 @@ def check_types(ctx: Context) -> None:
     from archself import registry
 
     known = registry.known_types()
+    legacy: set[str] = set()
     for name, mod in ctx.arch.modules.items():
         cls = ctx.types[name]
         if cls is None:
@@ -52,6 +53,12 @@ def check_types(ctx: Context) -> None:
                 ("modules", name, "type"),
             )
             continue
+        if registry.LEGACY.get(mod.type) and mod.type not in legacy:
+            legacy.add(mod.type)  # once per type: the old plugin API, converted
+            ctx.add("warning", "plugin-api", registry.LEGACY[mod.type], ("modules", name, "type"))
+        values = {k: p.value for k, p in mod.params.items()}
+        for pname, why in cls.param_warnings(values, mod.residual and mod.residual.signal):
+            ctx.add("warning", "parameter", why, ("modules", name, "params", pname))
         declared = cls.parameters
         if declared is not None:
             for pname, spec in declared.items():

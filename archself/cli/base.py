@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
@@ -185,61 +185,141 @@ def cut_line(line: str, limit: int = MAX_ERROR_LINE) -> str:
     return line if len(line) <= limit else line[: limit - 3] + "..."
 
 
-def _err(line: str) -> None:
+def _err(line: str, *, failing: bool = False) -> None:
     """One diagnostic line on stderr (cut to :data:`MAX_ERROR_LINE`), its severity coloured
-    on a terminal."""
+    on a terminal; a warning is left out with ``--quiet`` unless it fails the command
+    (``failing``: ``validate --strict``)."""
+    if LEVEL[0] < 0 and not failing and ": error:" not in line and not line.startswith("error"):
+        return
     typer.echo(colorize(cut_line(line)), err=True, color=color_enabled())
 
 
-class RunProgress:
-    """A progress bar on stderr for many runs: count, percent, rate and ETA.
+#: How much a command says on stderr: -1 ``--quiet``, 0 by default, 1 ``--verbose``.
+LEVEL = [0]
 
-    ``update(done, total)`` is the ``progress`` callback of the campaign and
-    calibration drivers; a ``done`` lower than before (a new phase, e.g. the
-    calibration's verification runs) starts a new bar. The bar is drawn only on a
-    terminal (the caller decides), its fill coloured unless ``NO_COLOR``; ``close()``
-    ends it. Rate and ETA are measured from the first finished run, so the start-up of
-    the workers does not skew them.
+QuietOption = Annotated[bool, typer.Option(
+    "--quiet", "-q", help="Say only errors on stderr: no warnings, notes or progress.")]
+VerboseOption = Annotated[bool, typer.Option(
+    "--verbose", "-v", help="Say more on stderr: every numeric warning, the progress bar "
+    "also when stderr is not a terminal.")]
+
+
+def _file_names(ctx: typer.Context, section: str) -> list[str]:
+    """The names of ``section`` (scenarios, configurations) of the architecture file given
+    on the command line so far; none when there is no readable one."""
+    given = [v for v in ctx.params.values() if isinstance(v, Path)]  # parsed, or still
+    given += [Path(a) for a in ctx.args if not a.startswith("-")]  # left over (completing)
+    path = next((p for p in given if p.is_file()), None)
+    if path is None:
+        return []
+    try:
+        from archself.io.file_text import read_text
+        from archself.io.yaml_source import load_data
+
+        data, _ = load_data(read_text(path), str(path))
+    except Exception:  # noqa: BLE001 - completion offers nothing rather than fail
+        return []
+    names = data.get(section) if isinstance(data, dict) else None
+    return [str(n) for n in names] if isinstance(names, dict) else []
+
+
+def complete_scenario(ctx: typer.Context, incomplete: str) -> list[str]:
+    """Shell completion of ``--scenario``: the scenarios of the file on the command line."""
+    return [n for n in _file_names(ctx, "scenarios") if n.startswith(incomplete)]
+
+
+def complete_configuration(ctx: typer.Context, incomplete: str) -> list[str]:
+    """Shell completion of ``--config``/``--configuration``: the file's configurations."""
+    return [n for n in _file_names(ctx, "configurations") if n.startswith(incomplete)]
+
+
+def complete_format(incomplete: str) -> list[str]:
+    """Shell completion of ``export --to``: the export formats."""
+    from archself.reports.export import FORMATS
+
+    return [f for f in FORMATS if f.startswith(incomplete)]
+
+
+#: Option flag → its completion (set by :func:`with_verbosity` where a command gives none).
+COMPLETIONS: dict[str, Callable[..., list[str]]] = {
+    "--scenario": complete_scenario, "--config": complete_configuration,
+    "--configuration": complete_configuration, "--to": complete_format,
+}
+
+
+def _completed(param: Any) -> Any:
+    """``param`` with the completion of its flag (:data:`COMPLETIONS`), if it has none."""
+    from typing import get_args, get_origin
+
+    from typer.models import OptionInfo
+
+    if get_origin(param.annotation) is not Annotated:
+        return param
+    base, *meta = get_args(param.annotation)
+    info = next((m for m in meta if isinstance(m, OptionInfo)), None)
+    flags = () if info is None else (info.default, *(info.param_decls or ()))  # Annotated:
+    flag = next((d for d in flags if isinstance(d, str) and d in COMPLETIONS), None)  # names
+    if info is None or flag is None or info.autocompletion or info.shell_complete:
+        return param
+    import copy
+
+    done = copy.copy(info)
+    done.autocompletion = COMPLETIONS[flag]
+    rest = [done if m is info else m for m in meta]
+    return param.replace(annotation=Annotated[(base, *rest)])  # type: ignore[valid-type]
+
+
+def with_verbosity(command: Any) -> Any:
+    """``command`` with the shared ``--quiet``/``--verbose`` options (one shape for all),
+    and completion of the scenario, configuration and format options (:data:`COMPLETIONS`).
+
+    The wrapper takes the two options, sets :data:`LEVEL` for the command and calls it
+    with its own parameters; giving both is a usage error (exit 2).
     """
+    import functools
+    import inspect
 
-    def __init__(self, label: str, unit: str = "runs") -> None:
-        self.label, self.unit = label, unit
-        self.bar: Any = None
-        self.done = 0
-        self.t0 = 0.0
-        self.first = 0
+    sig = inspect.signature(command, eval_str=True)
+    sig = sig.replace(parameters=[_completed(p) for p in sig.parameters.values()])
 
-    def _rate(self, _item: Any = None) -> str:
-        import time
+    @functools.wraps(command)
+    def run(*args: Any, quiet: bool = False, verbose: bool = False, **kwargs: Any) -> Any:
+        if quiet and verbose:
+            raise typer.BadParameter("give --quiet or --verbose, not both")
+        LEVEL[0] = -1 if quiet else (1 if verbose else 0)
+        try:
+            return command(*args, **kwargs)
+        finally:
+            LEVEL[0] = 0
 
-        elapsed = time.monotonic() - self.t0
-        n = self.done - self.first
-        return f"{n / elapsed:.2f} {self.unit}/s" if n > 0 and elapsed > 0 else ""
+    extra = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=False, annotation=t)
+             for n, t in (("quiet", QuietOption), ("verbose", VerboseOption))]
+    params = [*sig.parameters.values(), *extra]
+    run.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
+    run.__annotations__ = {**{k: v.annotation for k, v in sig.parameters.items()},
+                           "quiet": QuietOption, "verbose": VerboseOption}
+    return run
 
-    def update(self, done: int, total: int) -> None:
-        import time
 
-        if self.bar is None or done < self.done:
-            self.close()
-            fill = typer.style("█", fg="cyan") if color_enabled() else "#"
-            self.bar = typer.progressbar(
-                length=total, label=self.label.format(total=total), file=sys.stderr,
-                show_eta=True, show_percent=True, show_pos=True, fill_char=fill,
-                empty_char="·" if fill != "#" else "-", item_show_func=self._rate,
-                color=color_enabled(),
-            )
-            self.bar.__enter__()
-            self.done, self.t0, self.first = 0, time.monotonic(), 0
-        if self.done == 0 and done > 0:  # the first finished run(s): start the clock
-            self.t0, self.first = time.monotonic(), 0
-        step = done - self.done
-        self.done = done
-        self.bar.update(step)
+def note(line: str) -> None:
+    """An informational line on stderr (a file written, a report's place); not with ``--quiet``."""
+    if LEVEL[0] >= 0:
+        typer.echo(line, err=True)
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar = None
+
+def show_progress(json_out: bool = False) -> bool:
+    """A progress bar: on a terminal or with ``--verbose``; not with ``--quiet``, ``--json``."""
+    if json_out or LEVEL[0] < 0:
+        return False
+    return LEVEL[0] > 0 or sys.stderr.isatty()
+
+
+def RunProgress(label: str, unit: str = "runs") -> Any:  # noqa: N802 - a class, loaded late
+    """The progress bar of many runs, :class:`archself.campaign.driver.RunProgress` (rich),
+    imported when a command draws one (never at start-up)."""
+    from archself.campaign.driver import RunProgress as Bar
+
+    return Bar(label, unit)
 
 
 def _fail(msg: str, code: int = 1) -> typer.Exit:
@@ -282,7 +362,7 @@ def _emit(text: str, output: Path | None, done: str) -> None:
             write_text(output, text)
     except ArchselfError as exc:
         raise _die(exc) from None
-    typer.echo(done, err=True)
+    note(done)
 
 
 #: Files ``simulate --report DIR`` writes that an input could be named like.
@@ -328,8 +408,8 @@ def _numeric(path: Path) -> Iterator[None]:
             text = str(w.message).splitlines()[0] if str(w.message) else ""
             where = Path(w.filename).name
             line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
-            if line not in seen and len(seen) < 5:
-                seen.add(line)
+            if line not in seen and (len(seen) < 5 or LEVEL[0] > 0) and LEVEL[0] >= 0:
+                seen.add(line)  # at most 5 (every one with --verbose; none with --quiet)
                 typer.echo(line, err=True)
 
 
@@ -345,8 +425,9 @@ def _numeric_warning(w: Any) -> bool:
 def _known_configuration(arch: Any, config: str | None, path: Path) -> None:
     """``--config`` must name a configuration of the file (one-line error, exit 1)."""
     if config is not None and config not in arch.configurations:
-        known = ", ".join(arch.configurations)
-        raise _fail(f"{path}: unknown configuration '{config}'; known: {known}")
+        from archself.errors import unknown
+
+        raise _fail(f"{path}: {unknown('configuration', config, arch.configurations)}")
 
 
 def _load(path: Path):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -23,6 +22,8 @@ from archself.cli.base import (
     _fail,
     _inputs,
     _numeric,
+    note,
+    show_progress,
 )
 from archself.errors import ArchselfError
 
@@ -150,7 +151,7 @@ def _calibrate(
         from archself.io.atomic import protect
 
         with protect([], [target, save_runs, report_dir]):
-            show = sys.stderr.isatty() and not json_out
+            show = show_progress(json_out)
             bar = RunProgress("{total:,} runs")
             try:
                 cal = run_calibration(
@@ -180,9 +181,9 @@ def _calibrate(
 
         typer.echo(summary_text(cal))
     if target is not None:
-        typer.echo(f"wrote {target}", err=True)
+        note(f"wrote {target}")
     if report_dir is not None:
-        typer.echo(f"report: {index}", err=True)
+        note(f"report: {index}")
 
 
 def _perturbations(items: list[str] | None) -> dict[str, tuple[str, float]]:
@@ -332,4 +333,4 @@ def _identify(
                 write_text(write_back, copy)
             except ArchselfError as exc:
                 raise _die(exc) from None
-            typer.echo(f"wrote {write_back}", err=True)
+            note(f"wrote {write_back}")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -22,10 +21,13 @@ from archself.cli.base import (
     TraceFormat,
     WorkersOption,
     _die,
+    _err,
     _fail,
     _formats,
     _inputs,
     _numeric,
+    note,
+    show_progress,
 )
 from archself.errors import ArchselfError
 
@@ -131,7 +133,7 @@ def _campaign(
                 trace_format=trace_format.value,
                 yes=yes,
             )
-            show = sys.stderr.isatty() and not json_out
+            show = show_progress(json_out)
             per = int(meta.get("steps", 0)) // max(len(jobs), 1)
             bar = RunProgress(f"{{total:,}} runs × {per:,} steps")
             try:
@@ -145,7 +147,7 @@ def _campaign(
                     resume=resume,
                     force=force,
                     progress=bar.update if show else None,
-                    notice=lambda msg: typer.echo(f"warning: {msg}", err=True),
+                    notice=lambda msg: _err(f"warning: {msg}"),
                     lanes=lanes,
                 )
             finally:
@@ -227,4 +229,4 @@ def campaign_report_cmd(
         typer.echo(json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
     else:
         typer.echo(summary_text(summary))
-        typer.echo(f"report: {out_dir / 'index.html'}", err=True)
+        note(f"report: {out_dir / 'index.html'}")

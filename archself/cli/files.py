@@ -89,7 +89,7 @@ def validate(
             )
         else:
             for f in findings:
-                _err(str(f))
+                _err(str(f), failing=f in bad)
             if not bad:  # a failing file prints nothing on stdout (its findings say why)
                 n = sum(f.severity == "warning" for f in findings)  # info is not a warning
                 typer.echo(f"{path}: ok" + (f" ({n} warning{'s' * (n != 1)})" if n else ""))
@@ -208,6 +208,8 @@ TEMPLATES: dict[str, tuple[str, str]] = {
                   "architectures/diffdrive.yaml"),
     "motor": ("the DC-motor drive of generic blocks (docs/motor_drive.md)",
               "architectures/motor_drive.yaml"),
+    "thermal": ("a heated zone of generic blocks: a multi-input plant, an expression, "
+                "sensor silence (docs/blocks.md)", "architectures/thermal_zone.yaml"),
 }
 
 
@@ -354,7 +356,9 @@ def export(
     from archself.reports.export import FORMATS
 
     if to not in FORMATS:
-        raise _fail(f"error: --to: unknown format '{to}'; choose one of {', '.join(FORMATS)}", 2)
+        from archself.errors import unknown
+
+        raise _fail(f"error: --to: {unknown('format', to, FORMATS)}", 2)
     _inputs(arch)
     try:
         if output is not None and str(output) != "-":

@@ -17,6 +17,7 @@ from archself.cli.base import (
     _inputs,
     _load,
     _numeric,
+    note,  # --quiet/--verbose
 )
 from archself.errors import ArchselfError
 
@@ -92,12 +93,12 @@ def report(
                     f"{MAX_FILES:,}; pass --yes to write them"
                 )
             if files > MAX_FILES:
-                typer.echo(f"writing {files:,} files into {output}", err=True)
+                note(f"writing {files:,} files into {output}")
             rep = write_architecture_report(arch, output, dot=not no_render, force=force)
     except ArchselfError as exc:
         raise _die(exc) from None
     if rep.note and not no_render:
-        typer.echo(f"note: {rep.note}", err=True)
+        note(f"note: {rep.note}")
     typer.echo(str(rep.index))
 
 

@@ -20,6 +20,8 @@ from archself.cli.base import (
     _known_configuration,
     _load,
     _numeric,
+    note,
+    show_progress,
 )
 from archself.errors import ArchselfError
 
@@ -209,7 +211,7 @@ def _simulate(
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
             _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
-            show = sys.stderr.isatty() and not json_out
+            show = show_progress(json_out)
             modes = [False, True] if compare else [not fixed]
             results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
             if trace is not None:
@@ -219,7 +221,7 @@ def _simulate(
                 from archself.reports.run_report import write_run_report
 
                 write_run_report(arch, results, report, formats=_formats(fig_format), dpi=dpi)
-                typer.echo(f"report: {report / 'index.html'}", err=True)
+                note(f"report: {report / 'index.html'}")
     except ArchselfError as exc:
         raise _die(exc) from None
     if to_stdout:

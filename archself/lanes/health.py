@@ -77,7 +77,7 @@ class LaneHealth:
                     for sig in first.noise_levels
                 }
             limit = None
-            if getattr(first, "max_silence_s", None) is not None:
+            if any(getattr(m, "max_silence_s", None) is not None for m in modules):
                 limit = np.array([float(getattr(m, "max_silence_s", None) or math.inf)
                                   for m in modules])
             got = self._constants[name] = (levels, limit)

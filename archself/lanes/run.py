@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.errors import SimulationError
+from archself.errors import SimulationError, unknown
 from archself.lanes.module import ALL
 from archself.lanes.system import LaneSystem
 from archself.model.architecture import Architecture
@@ -144,8 +144,7 @@ def _plan(
     first = archs[0]
     sc = first.scenarios.get(scenario)
     if sc is None:
-        known = ", ".join(first.scenarios) or "none"
-        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}")
+        raise SimulationError(unknown("scenario", scenario, first.scenarios))
     start = configuration or first.initial_configuration()
     systems = []
     for a, seed in zip(archs, seeds, strict=True):

@@ -184,7 +184,7 @@ class Edge(StrictModel):
         description="Receiving module m_i, or its input port as `module.port` (default: the "
         "input named like `carries`).",
     )
-    weight: Finite = Field(description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).")
+    weight: NonNeg = Field(description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).")
     carries: Name = Field(
         "",  # "" until archself.model.ports fills it from a port; no default in the schema
         description="The signal that flows, named as the source outputs it; required unless "

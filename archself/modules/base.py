@@ -314,6 +314,14 @@ class RuntimeModule:
         return 0
 
     @classmethod
+    def param_warnings(cls, params: dict[str, Any], residual: str | None) -> list[tuple[str, str]]:
+        """``(parameter, why)`` of values that are valid but likely mean something else:
+        ``archself validate`` warns at each parameter. ``params`` are the file's values,
+        ``residual`` the module's residual signal (None: none). Default: none.
+        """
+        return []
+
+    @classmethod
     def check_params(cls, name: str, params: dict[str, Any], dt: float) -> str | None:
         """Why ``params`` cannot make a module of this type, or None: ``archself validate``
         turns it into an error located at the module's parameters.

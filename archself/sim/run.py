@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.errors import SimulationError
+from archself.errors import SimulationError, unknown
 from archself.model.architecture import Architecture
 from archself.sim.metrics import METRE_ALIASES, METRICS, error_metrics, metric_rows
 from archself.sim.result import RunResult
@@ -247,8 +247,7 @@ def _plan(
                                   + f", got {type(fn).__name__}")
     sc = arch.scenarios.get(scenario)
     if sc is None:
-        known = ", ".join(arch.scenarios) or "none"
-        raise SimulationError(f"unknown scenario {scenario!r}; known: {known}")
+        raise SimulationError(unknown("scenario", scenario, arch.scenarios))
     seed = sc.seed if seed is None else int(seed)
     start = configuration or arch.initial_configuration()
     system = compile_system(arch, start, seed=seed, scenario=sc)

@@ -22,22 +22,26 @@ ACTUATOR_FAULTS = frozenset(
 class Actuator(RuntimeModule):
     """Turns a ``command`` into the plant input ``u``::
 
-        target = clip(gain·command, u_min, u_max)
+        target = clip(scale·gain·command, u_min, u_max)
         v ← v + clip(target − v, ±rate_limit·dt)        (rate limit)
         x ← x + (1 − e^(−dt/τ))·(v − x)                (first-order lag, τ = time_constant_s)
         u = x
 
-    ``gain`` is the effectiveness the actuator is driven with (1 when healthy; a
-    ``parameter_update`` that raises it compensates a partial loss). A scenario's
+    ``scale`` converts the command's units into the output's (W per %, N per V; 1 by
+    default); ``gain`` is the effectiveness the actuator is driven with (1 when
+    healthy; a ``parameter_update`` that raises it compensates a partial loss). A scenario's
     ``effectiveness_loss`` on ``u`` scales what the plant really receives. The
     output is a number, or, with ``width`` > 1, a vector of that length with the
     value at ``channel`` (one input of a multi-input plant).
 
     Optional input ``measurement``: a meter of what is delivered (a sensor on the
-    plant's ``u`` output). Residual signal ``command_error`` =
+    plant's ``u`` output, in the output's units). Residual signal ``command_error`` =
     |x_prev/gain − measurement|: what the controller asked for in the last step
-    (as far as the limits let it) against what arrived — near the meter's noise
-    when healthy, a fraction of the command when the actuator lost effectiveness.
+    (``scale·command`` as far as the limits let it, in output units) against what
+    arrived — near the meter's noise when healthy, a fraction of the command when the
+    actuator lost effectiveness. A unit conversion given as ``gain`` instead of
+    ``scale`` would compare command units with output units (``archself validate`` warns:
+    :meth:`param_warnings`).
 
     Examples
     --------
@@ -49,7 +53,9 @@ class Actuator(RuntimeModule):
     state_fields = ("v", "x")
 
     parameters = {
-        "gain": Param(1.0, "", "effectiveness the command is multiplied by"),
+        "gain": Param(1.0, "", "effectiveness the command is multiplied by (1: healthy)"),
+        "scale": Param(1.0, "", "output units per command unit (W per %); the meter's units "
+                       "are the output's"),
         "u_min": Param(None, "", "lower output limit; None: none"),
         "u_max": Param(None, "", "upper output limit; None: none"),
         "rate_limit": Param(
@@ -64,12 +70,26 @@ class Actuator(RuntimeModule):
     ports = (
         Input("command", doc="the command (the controller's units)"),
         Input("measurement", doc="a meter of what it delivers (command_error)", required=False),
-        Output("u", doc="what it delivers: clip(gain·command), rate-limited, lagged"),
+        Output("u", doc="what it delivers: clip(scale·gain·command), rate-limited, lagged"),
     )
     residual_signals = ("command_error",)
     fault_kinds = ACTUATOR_FAULTS
     main_output = "u"
     lanes = "archself_blocks.lanes_plants:ActuatorLanes"
+
+    @classmethod
+    def param_warnings(cls, params: dict[str, Any], residual: str | None) -> list[tuple[str, str]]:
+        """A ``gain`` ≠ 1 without ``scale`` beside a ``command_error`` residual: a unit
+        conversion given as the effectiveness (the residual would compare the command's
+        units with the meter's)."""
+        gain, scale = params.get("gain", 1.0), params.get("scale", 1.0)
+        if residual != "command_error" or not isinstance(gain, (int, float)) or gain == 1 \
+                or scale != 1:
+            return []
+        return [("gain", f"gain {gain:g} with the residual command_error compares x/gain, the "
+                 "command in its own units, with the meter in the output's; a unit "
+                 "conversion (W per %) belongs in 'scale', gain is the effectiveness "
+                 "(1 when healthy; docs/blocks.md)")]
 
     def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
         super().__init__(name, params, rng)
@@ -80,6 +100,7 @@ class Actuator(RuntimeModule):
     def configure(self) -> None:
         p = self.params
         self.gain = float(p["gain"])
+        self.drive = self.gain * float(p["scale"])  # command → output units, with effectiveness
         self.lo = -math.inf if p["u_min"] is None else float(p["u_min"])
         self.hi = math.inf if p["u_max"] is None else float(p["u_max"])
         self.rate = math.inf if p["rate_limit"] is None else float(p["rate_limit"])
@@ -101,7 +122,7 @@ class Actuator(RuntimeModule):
         if cmd is None:
             self.prev = None
             return {"u": None}
-        target = min(max(self.gain * float(cmd[0]), self.lo), self.hi)
+        target = min(max(self.drive * float(cmd[0]), self.lo), self.hi)
         step = self.rate * dt
         self.v += min(max(target - self.v, -step), step)
         if self.tau > 0:
@@ -115,13 +136,13 @@ class Actuator(RuntimeModule):
         """(A, B, C, D) of the lag from command to u, linear between the limits."""
         if self.tau <= 0:
             return None
-        return (np.array([[-1.0 / self.tau]]), np.array([[self.gain / self.tau]]),
+        return (np.array([[-1.0 / self.tau]]), np.array([[self.drive / self.tau]]),
                 np.array([[1.0]]), np.array([[0.0]]))
 
     def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
         """Command to ``u`` between the limits, as one step runs it (rate limit inactive).
 
-        ``u_k = (1 − a)·u_{k−1} + a·gain·command_k`` with ``a = 1 − e^(−dt/τ)`` (``a = 1``
+        ``u_k = (1 − a)·u_{k−1} + a·scale·gain·command_k`` with ``a = 1 − e^(−dt/τ)`` (``a = 1``
         without a lag): the state is the output of the step before.
         """
         ports = inputs.get("command") or ()
@@ -131,7 +152,7 @@ class Actuator(RuntimeModule):
         row = np.zeros((width, 1))
         row[self.channel if width > 1 else 0, 0] = 1.0
         b = np.zeros((1, w_in))
-        b[0, 0] = a * self.gain
+        b[0, 0] = a * self.drive
         if a >= 1.0:  # no lag: a static gain
             return LinearModel(np.zeros((0, 0)), np.zeros((0, w_in)), np.zeros((width, 0)),
                                row @ b, [("command", w_in)], [("u", width)], dt)

@@ -170,7 +170,7 @@ class ActuatorLanes(BlockLanes):
 
     def load(self, lanes):
         mods = self._mods(lanes)
-        for attr in ("gain", "lo", "hi", "rate", "tau", "v", "x"):
+        for attr in ("gain", "drive", "lo", "hi", "rate", "tau", "v", "x"):
             self._read(lanes, attr, [getattr(m, attr) for m in mods])
         self._read(lanes, "prev", [math.nan if m.prev is None else m.prev for m in mods])
         self._read(lanes, "error", [m.signals["command_error"] for m in mods])
@@ -205,8 +205,8 @@ class ActuatorLanes(BlockLanes):
             self.prev[lanes] = math.nan
             return {"u": None}
         has = present(cmd)
-        gain, v, x = self.gain[lanes], self.v[lanes], self.x[lanes]
-        target = np.minimum(np.maximum(gain * cmd[:, 0], self.lo[lanes]), self.hi[lanes])
+        drive, v, x = self.drive[lanes], self.v[lanes], self.x[lanes]
+        target = np.minimum(np.maximum(drive * cmd[:, 0], self.lo[lanes]), self.hi[lanes])
         step = self.rate[lanes] * dt
         v1 = v + np.minimum(np.maximum(target - v, -step), step)
         lag = self._lags.get(dt)

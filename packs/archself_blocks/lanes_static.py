@@ -21,7 +21,7 @@ from archself.lanes.module import ALL, LaneNormals, PerLane, lane_count
 from archself_blocks.lanes_base import BlockLanes, as_rows, matvec, present
 from archself_blocks.signals import PORTS
 
-__all__ = ["GainLanes", "RelayLanes", "SelectLanes", "SumLanes"]
+__all__ = ["ExpressionLanes", "GainLanes", "RelayLanes", "SelectLanes", "SumLanes"]
 
 _NUMBERS = (int, float, list, np.ndarray)
 
@@ -193,6 +193,58 @@ class SelectLanes(_StaticLanes):
             has = has & ~outside
         y = np.take_along_axis(x, np.minimum(idx, x.shape[1] - 1), axis=1)
         return self._publish(y, has, lanes, self.scalar)
+
+
+class ExpressionLanes(_StaticLanes):
+    """:class:`~archself_blocks.signals.Expression` in N lanes: ``f(inputs)`` on rows.
+
+    The expression's operations are elementwise, so the per-run callable runs on the
+    ``(L, w)`` rows as it does on one run's vectors; a lane missing an input gives no
+    output. Lanes with different expressions step one by one.
+    """
+
+    def load(self, lanes):
+        texts = {(m.params["expression"], m.width, m.channel) for m in self.modules}
+        self.mixed = len(texts) > 1
+        first = self.modules[0]
+        self.names, self.evaluate = first.names, first.evaluate
+        self.points: dict[str, np.ndarray] = {}  # each lane's last inputs (its linear model)
+
+    def store(self, lanes):
+        for i in self.indices(lanes).tolist():
+            if self.points and not np.isnan(self.points[self.names[0]][i, 0]):
+                self.modules[i].point = {n: self.points[n][i].copy() for n in self.names}
+
+    def _remember(self, env: dict[str, np.ndarray], has: np.ndarray, lanes) -> None:
+        idx = self.indices(lanes)[has]
+        for name, rows in env.items():
+            kept = self.points.get(name)
+            if kept is None or kept.shape[1] != rows.shape[1]:
+                kept = self.points[name] = np.full((self.n, rows.shape[1]), math.nan)
+            kept[idx] = rows[has]
+
+    def step(self, t, dt, inputs, lanes):
+        if self.mixed:
+            return self._fallback(t, dt, inputs, lanes)
+        env, has = {}, None
+        for name in self.names:
+            value = inputs.get(name)
+            if type(value) is list or type(value) is tuple:
+                return self._fallback(t, dt, inputs, lanes)
+            rows = as_rows(value)
+            if rows is None:
+                return dict.fromkeys(PORTS)
+            env[name] = rows
+            has = present(rows) if has is None else has & present(rows)
+        if has is None or not has.any():
+            return dict.fromkeys(PORTS)
+        try:
+            y = self.evaluate(env)
+        except ValueError:  # shapes the per-run blocks refuse: lane by lane, as they do
+            return self._fallback(t, dt, inputs, lanes)
+        self._remember(env, has, lanes)
+        y = np.broadcast_to(y, (len(has), y.shape[-1])).copy()
+        return self._publish(y, has, lanes, True)
 
 
 class RelayLanes(BlockLanes):

@@ -23,8 +23,11 @@ class Sensor(RuntimeModule):
 
     with ``n`` standard normal and ``quantize`` rounding to a multiple of
     ``resolution`` (0: none). With probability ``dropout_probability`` a sample is
-    lost (``None``). The input is ``y`` (a plant's output) or ``u`` (a plant's
-    applied input: a meter on the input line); the first one connected is read.
+    lost (``None``); with ``max_silence_s`` the system counts a sensor that gave no
+    reading for longer as unavailable (``silent for … s``: a dropout is detected, from
+    ``dropout_probability`` or a scenario's ``dropout`` fault). The input is ``y`` (a
+    plant's output) or ``u`` (a plant's applied input: a meter on the input line); the
+    first one connected is read.
 
     The built-in ``bias``/``drift_per_s`` describe a sensor as it is; a scenario's
     faults (``bias_drift``, ``bias``, ``noise_increase``, ``dropout``, ``stuck``, ``nan``)
@@ -50,6 +53,10 @@ class Sensor(RuntimeModule):
         "dropout_probability": Param(
             0.0, "", "probability that a sample is lost", min=0.0, max=1.0
         ),
+        "max_silence_s": Param(
+            None, "s", "no reading for longer makes it unavailable (silent); None: never",
+            min=0.0, max=1e7, period=True,
+        ),
     }
     role = "sensor"
     ports = (
@@ -74,6 +81,8 @@ class Sensor(RuntimeModule):
         self.p_drop = float(p["dropout_probability"])
         if not 0.0 <= self.p_drop <= 1.0:
             raise ValueError("dropout_probability must lie in [0, 1]")
+        silence = p["max_silence_s"]
+        self.max_silence_s = None if silence is None else float(silence)
         self.noise_levels = (
             {"measurement": self.noise} if self.noise > 0 and self.resolution == 0 else None
         )
