@@ -131,6 +131,7 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from archself.io.documents import CampaignMeta, problem
     from archself.io.jsondata import JsonLimitError, loads
 
     p = Path(path)
@@ -148,13 +149,9 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     except ValueError as exc:  # JsonLimitError (too deep, a huge integer) says which
         why = f" ({exc})" if isinstance(exc, JsonLimitError) else ""
         raise CampaignError(f"{p}: damaged campaign metadata{why}") from None
-    lists = ("sweeps", "fault_free", "thresholds")
-    if not isinstance(meta, dict) or not all(
-        isinstance(meta.get(k, []), list) and all(isinstance(x, str) for x in meta.get(k, []))
-        for k in lists
-    ):
-        raise CampaignError(f"{p}: damaged campaign metadata (expected an object whose "
-                            f"{', '.join(lists)} are lists of strings)")
+    why = problem(CampaignMeta, meta, "meta")
+    if why is not None:
+        raise CampaignError(f"{p}: damaged campaign metadata ({why})")
     return _checked(p, _upgrade(table), meta["sweeps"] if "sweeps" in meta else []), meta
 
 

@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["JsonLimitError", "finite_or_none", "is_number", "json_kind", "jsonable", "loads"]
+__all__ = ["JsonLimitError", "finite_or_none", "json_kind", "jsonable", "loads"]
 
 
 class JsonLimitError(ValueError):
@@ -73,11 +73,6 @@ def json_kind(x: Any) -> str:
     """
     return {dict: "an object", list: "a list", str: "a string", type(None): "null"}.get(
         type(x), type(x).__name__)
-
-
-def is_number(x: Any) -> bool:
-    """A number of a JSON document, or null (a non-finite number written by :func:`jsonable`)."""
-    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
 
 
 def jsonable(x: Any) -> Any:
