@@ -44,7 +44,8 @@ TYPES: dict[str, Any] = {
 def documented_shapes() -> dict[str, Any]:
     """Command → shape, from the first ``json`` block of each ``## command`` section."""
     shapes: dict[str, Any] = {}
-    for section in re.split(r"^## ", PAGE.read_text(encoding="utf-8"), flags=re.M)[1:]:
+    commands = PAGE.read_text(encoding="utf-8").split("\n# Documents archself reads back")[0]
+    for section in re.split(r"^## ", commands, flags=re.M)[1:]:
         name = section.split("\n", 1)[0].strip()
         block = re.search(r"```json\n(.*?)```", section, flags=re.S)
         assert block, f"docs/json.md: section {name} has no json block"
@@ -92,6 +93,20 @@ def test_every_json_command_is_documented_once() -> None:
     }
     assert set(SHAPES) == with_json
     assert "[json.md](json.md)" in (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
+
+
+def test_the_documents_schemas_are_the_models() -> None:
+    """docs/json.md's JSON Schemas of the documents read back are generated from the models."""
+    import runpy
+
+    tool = runpy.run_path(str(ROOT / "tools" / "json_docs.py"))
+    text = PAGE.read_text(encoding="utf-8")
+    at = text.index(tool["BEGIN"])
+    assert text[at:text.index(tool["END"]) + len(tool["END"])] == tool["render"](), \
+        "docs/json.md is out of date: python tools/json_docs.py"
+    blocks = re.findall(r"### [^\n]*: `(\w+)`\n\n```json\n(.*?)```", text[at:], flags=re.S)
+    assert [name for name, _ in blocks] == ["TraceDocument", "SavedRunsMeta", "CampaignMeta"]
+    assert "TraceMeta" in json.loads(blocks[0][1])["$defs"]
 
 
 def test_the_checker_rejects_what_departs() -> None:

@@ -77,8 +77,7 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     import numpy as np
 
     from archself.errors import LoadError
-    from archself.io.documents import SavedRunsMeta, problem
-    from archself.io.jsondata import JsonLimitError, loads
+    from archself.io.jsondata import JsonLimitError, SavedRunsMeta, loads, problem
 
     try:
         with np.load(path, allow_pickle=False) as z:

@@ -131,8 +131,7 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from archself.io.documents import CampaignMeta, problem
-    from archself.io.jsondata import JsonLimitError, loads
+    from archself.io.jsondata import CampaignMeta, JsonLimitError, loads, problem
 
     p = Path(path)
     if not p.is_file():
@@ -149,9 +148,9 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     except ValueError as exc:  # JsonLimitError (too deep, a huge integer) says which
         why = f" ({exc})" if isinstance(exc, JsonLimitError) else ""
         raise CampaignError(f"{p}: damaged campaign metadata{why}") from None
-    why = problem(CampaignMeta, meta, "meta")
-    if why is not None:
-        raise CampaignError(f"{p}: damaged campaign metadata ({why})")
+    bad = problem(CampaignMeta, meta, "meta")
+    if bad is not None:
+        raise CampaignError(f"{p}: damaged campaign metadata ({bad})")
     return _checked(p, _upgrade(table), meta["sweeps"] if "sweeps" in meta else []), meta
 
 

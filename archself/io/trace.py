@@ -187,7 +187,7 @@ def trace_parts_from_bytes(raw: bytes, name: str = "<trace>") -> TraceParts:
 
 
 class _Malformed(Exception):
-    """A trace document that departs from :class:`~archself.io.documents.TraceDocument`."""
+    """A trace document that departs from :class:`~archself.io.jsondata.TraceDocument`."""
 
 
 def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
@@ -196,7 +196,7 @@ def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
     What the readers (``explain``, ``report --trace``, the frames) index into is the
     model's, so that a truncated, edited or foreign trace is a one-line error, not a crash.
     """
-    from archself.io.documents import TraceDocument, problem
+    from archself.io.jsondata import TraceDocument, problem
 
     why = problem(TraceDocument, {"meta": meta, "series": series, "decisions": decisions})
     if why is not None:

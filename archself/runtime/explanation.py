@@ -38,10 +38,10 @@ def decision_log_problem(decisions: Any) -> str | None:
 
     A log is a list of records (:class:`~archself.runtime.decisions.DecisionRecord` or
     their ``to_dict()`` form, as a trace stores them), checked by the model
-    :data:`archself.io.documents.DecisionLog`: a field may be missing, but one that is
+    :data:`archself.io.jsondata.DecisionLog`: a field may be missing, but one that is
     there has its type.
     """
-    from archself.io.documents import DecisionLog, problem
+    from archself.io.jsondata import DecisionLog, problem
 
     if isinstance(decisions, str | bytes | Mapping) or not isinstance(decisions, Iterable):
         hint = (" (a run's are its .decisions; a trace's: read_trace(path).decisions)"
