@@ -9,7 +9,7 @@ runs (:class:`SavedRunsMeta`) and of a campaign's results (:class:`CampaignMeta`
 :func:`problem` validates with one: the first violation as one line, ``meta.seed:
 expected an integer, got a string``, with its dotted path and what was expected (a
 field's ``description``, a model's ``title`` or the field's type); docs/json.md shows
-their JSON Schemas (:func:`schemas`, tools/json_docs.py). The models validate and leave
+their JSON Schemas (tools/json_docs.py). The models validate and leave
 the data as it is: the readers keep the plain data, so what is written back or rendered
 is byte-identical. A field may be missing where the model says so; a field that is there
 has its type; keys the model does not name are allowed (a newer archself may add some).
@@ -38,7 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 
 __all__ = ["CampaignMeta", "DecisionLog", "DecisionRecordDoc", "JsonLimitError",
            "SavedRunsMeta", "TraceDocument", "TraceMeta", "finite_or_none", "json_kind",
-           "jsonable", "loads", "problem", "schemas"]
+           "jsonable", "loads", "problem"]
 
 
 class JsonLimitError(ValueError):
@@ -367,9 +367,3 @@ def problem(tp: Any, data: Any, root: str = "") -> str | None:
         bound = f" ≥ {err['ctx']['ge']}" if err["type"] == "greater_than_equal" else ""
         return f"{path}: expected {_expected(tp, loc)}{bound}, got {got}"
     return None
-
-
-def schemas() -> dict[str, dict[str, Any]]:
-    """The JSON Schema of each document (docs/json.md), by the document's name."""
-    docs = {"trace": TraceDocument, "saved runs": SavedRunsMeta, "campaign": CampaignMeta}
-    return {name: _adapter(tp).json_schema() for name, tp in docs.items()}
