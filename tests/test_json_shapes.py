@@ -110,7 +110,7 @@ def test_the_schemas_are_the_models() -> None:
                      "CampaignMeta"]
     schema = json.loads(text.split("<!-- schema: archself.io.jsondata:TraceDocument -->\n")[1]
                         .split("```json\n")[1].split("```")[0])
-    assert schema["required"] == ["meta", "decisions"] and "TraceMeta" in schema["$defs"]
+    assert schema["required"] == ["meta", "series", "decisions"] and "TraceMeta" in schema["$defs"]
 
 
 def test_the_checker_rejects_what_departs() -> None:

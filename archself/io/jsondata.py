@@ -17,7 +17,7 @@ Nothing here imports numpy, so ``archself explain`` stays free of it.
 
 Examples
 --------
->>> problem(TraceDocument, {"meta": {"scenario": "s", "seed": "x"}})
+>>> problem(TraceDocument, {"meta": {"scenario": "s", "seed": "x"}, "series": {}})
 'meta.seed: expected an integer, got a string'
 >>> problem(DecisionLog, [{"z": {"a": 0.5}, "chosen": None}]) is None
 True
@@ -263,8 +263,7 @@ class TraceDocument(_Doc):
     """A trace ``{meta, series, decisions}`` (a Parquet trace: ``series`` are columns)."""
 
     meta: TraceMeta
-    series: dict[str, list[Any]] = Field(
-        default_factory=dict, description="an object of series (one value per step)")
+    series: dict[str, list[Any]] = Field(description="an object of series (one value per step)")
     decisions: DecisionLog
 
 

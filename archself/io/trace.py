@@ -36,7 +36,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from archself.errors import TraceError
-from archself.io.jsondata import JsonLimitError, json_kind, jsonable, loads
+from archself.io.jsondata import JsonLimitError, TraceDocument, jsonable, loads, problem
 
 __all__ = [
     "TRACE_KEY",
@@ -190,15 +190,13 @@ class _Malformed(Exception):
     """A trace document that departs from :class:`~archself.io.jsondata.TraceDocument`."""
 
 
-def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
-    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless the parts are a trace.
+def _check_doc(doc: Any) -> None:
+    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless ``doc`` is a trace.
 
     What the readers (``explain``, ``report --trace``, the frames) index into is the
     model's, so that a truncated, edited or foreign trace is a one-line error, not a crash.
     """
-    from archself.io.jsondata import TraceDocument, problem
-
-    why = problem(TraceDocument, {"meta": meta, "series": series, "decisions": decisions})
+    why = problem(TraceDocument, doc)
     if why is not None:
         raise _Malformed(why)
 
@@ -221,12 +219,8 @@ def _check_series(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
 
 def _read_json(raw: bytes) -> TraceParts:
     doc = loads(raw.decode("utf-8"))
-    if not isinstance(doc, dict) or not {"meta", "series", "decisions"} <= set(doc):
-        raise _Malformed("expected an object {meta, series, decisions}, got "
-                         + (f"keys {', '.join(sorted(doc)) or 'none'}" if isinstance(doc, dict)
-                            else json_kind(doc)))
+    _check_doc(doc)
     meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
-    _check_doc(meta, series, decisions)
     arrays: dict[str, np.ndarray] = {}
     for name, values in series.items():
         if name == "configuration":
@@ -256,7 +250,7 @@ def _read_parquet(source: Any, p: str) -> TraceParts:
     meta = head["meta"]
     decisions = loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
         if DECISIONS_KEY in md else []
-    _check_doc(meta, {}, decisions)
+    _check_doc({"meta": meta, "series": {}, "decisions": decisions})
     arrays: dict[str, np.ndarray] = {}
     for name, width in head["series"]:
         if name == "configuration":
