@@ -106,8 +106,8 @@ def test_the_schemas_are_the_models() -> None:
     assert JSON_DOCS["render"](text) == text, "docs/json.md is out of date: " \
         "python tools/json_docs.py"
     names = [m[3] for m in JSON_DOCS["BLOCK"].finditer(text)]
-    assert names == ["CalibrationDoc", "IdentificationDoc", "TraceDocument", "SavedRunsMeta",
-                     "CampaignMeta"]
+    assert names == ["CalibrationDoc", "IdentificationDoc", "TraceDocument", "ParquetHead",
+                     "SavedRunsMeta", "CampaignMeta"]
     schema = json.loads(text.split("<!-- schema: archself.io.jsondata:TraceDocument -->\n")[1]
                         .split("```json\n")[1].split("```")[0])
     assert schema["required"] == ["meta", "series", "decisions"] and "TraceMeta" in schema["$defs"]

@@ -34,11 +34,19 @@ import typing
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    TypeAdapter,
+    ValidationError,
+    model_validator,
+)
 
 __all__ = ["CampaignMeta", "DecisionLog", "DecisionRecordDoc", "JsonLimitError",
-           "SavedRunsMeta", "TraceDocument", "TraceMeta", "finite_or_none", "json_kind",
-           "jsonable", "loads", "problem"]
+           "ParquetHead", "SavedRunsMeta", "TraceDocument", "TraceMeta", "finite_or_none",
+           "json_kind", "jsonable", "loads", "problem"]
 
 
 class JsonLimitError(ValueError):
@@ -267,6 +275,15 @@ class TraceDocument(_Doc):
     decisions: DecisionLog
 
 
+class ParquetHead(_Doc):
+    """The ``archself.trace`` metadata of a Parquet trace (its decision log is a key of
+    its own): the format, ``meta``, and each series' width (0: one column)."""
+
+    format: int = 0
+    meta: TraceMeta
+    series: list[typing.Annotated[tuple[str, int], Strict(False)]]  # JSON: lists, not tuples
+
+
 # ------------------------------------------------------------------ saved runs, campaigns
 class SavedRun(_Doc):
     model_config = ConfigDict(title="a saved run")
@@ -328,16 +345,17 @@ def _expected(tp: Any, loc: tuple[Any, ...]) -> str:
             field = tp.model_fields[item]
             tp, info = _unwrap(field.rebuild_annotation())
             info = field if field.description else info
-        elif typing.get_origin(tp) in (list, dict):
-            tp, info = _unwrap(typing.get_args(tp)[-1])
+        elif typing.get_origin(tp) in (list, dict, tuple):
+            args = typing.get_args(tp)
+            tp, info = _unwrap(args[item] if typing.get_origin(tp) is tuple else args[-1])
             info = info if info is not None and info.description else None
     if info is not None and info.description:
         return str(info.description)
     if isinstance(tp, type) and issubclass(tp, BaseModel):
         return str(tp.model_config.get("title") or "an object")
     origin = typing.get_origin(tp)
-    if origin in (list, dict):
-        return "a list" if origin is list else "an object"
+    if origin in (list, dict, tuple):
+        return "an object" if origin is dict else "a list"
     if origin is Literal:
         return "one of " + ", ".join(map(str, typing.get_args(tp)))
     return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(

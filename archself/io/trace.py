@@ -36,7 +36,15 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from archself.errors import TraceError
-from archself.io.jsondata import JsonLimitError, TraceDocument, jsonable, loads, problem
+from archself.io.jsondata import (
+    DecisionLog,
+    JsonLimitError,
+    ParquetHead,
+    TraceDocument,
+    jsonable,
+    loads,
+    problem,
+)
 
 __all__ = [
     "TRACE_KEY",
@@ -190,13 +198,13 @@ class _Malformed(Exception):
     """A trace document that departs from :class:`~archself.io.jsondata.TraceDocument`."""
 
 
-def _check_doc(doc: Any) -> None:
-    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless ``doc`` is a trace.
+def _check_doc(model: Any, doc: Any, root: str = "") -> None:
+    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless ``doc`` is a ``model``.
 
     What the readers (``explain``, ``report --trace``, the frames) index into is the
     model's, so that a truncated, edited or foreign trace is a one-line error, not a crash.
     """
-    why = problem(TraceDocument, doc)
+    why = problem(model, doc, root)
     if why is not None:
         raise _Malformed(why)
 
@@ -219,7 +227,7 @@ def _check_series(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
 
 def _read_json(raw: bytes) -> TraceParts:
     doc = loads(raw.decode("utf-8"))
-    _check_doc(doc)
+    _check_doc(TraceDocument, doc)
     meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
     arrays: dict[str, np.ndarray] = {}
     for name, values in series.items():
@@ -243,14 +251,15 @@ def _read_parquet(source: Any, p: str) -> TraceParts:
                          "archself.trace metadata; a campaign's results are read by "
                          "campaign-report)")
     head = loads(md[TRACE_KEY])
-    table = pf.read()
-    if int(head.get("format", 0)) > FORMAT:
+    if isinstance(head, dict) and isinstance(head.get("format"), int) and head["format"] > FORMAT:
         raise TraceError(f"{p}: error: trace format {head['format']} is newer than this "
                          f"archself reads ({FORMAT}); upgrade archself")
+    _check_doc(ParquetHead, head)
     meta = head["meta"]
     decisions = loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
         if DECISIONS_KEY in md else []
-    _check_doc({"meta": meta, "series": {}, "decisions": decisions})
+    _check_doc(DecisionLog, decisions, "decisions")
+    table = pf.read()
     arrays: dict[str, np.ndarray] = {}
     for name, width in head["series"]:
         if name == "configuration":
