@@ -312,9 +312,16 @@ class SavedRunsMeta(_Doc):
 class CampaignMeta(_Doc):
     """The ``archself.campaign`` metadata of a campaign's results (Parquet)."""
 
+    format: int | None = None
+    architecture: str | None = None
+    file: str | None = None
+    sha256: str | None = Field(None, description="the file's SHA-256 (--resume checks it)")
+    root_seed: int | None = None
     sweeps: list[str] = Field(default_factory=list, description="a list of parameter paths")
     fault_free: list[str] = Field(default_factory=list, description="a list of scenarios")
     thresholds: list[str] = Field(default_factory=list, description="a list of names")
+    steps: int | None = Field(None, description="the steps the campaign simulates")
+    lane_types: bool | None = Field(None, description="every module type runs in lanes")
 
 
 # ------------------------------------------------------------------ validation
