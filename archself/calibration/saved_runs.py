@@ -37,8 +37,8 @@ def band_free_digest(data: dict[str, Any]) -> str:
 def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str, Any]]) -> None:
     """Write runs (``run_calibration_job`` results) and ``meta`` to an ``.npz`` file, atomically.
 
-    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string (no
-    pickles: the file is safe to load).
+    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string, a
+    :class:`~archself.io.jsondata.SavedRunsMeta` (no pickles: the file is safe to load).
     """
     import io
     import json
@@ -46,6 +46,7 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
     import numpy as np
 
     from archself.io.atomic import write_bytes
+    from archself.io.jsondata import SavedRunsMeta
 
     arrays: dict[str, Any] = {}
     rows = []
@@ -58,7 +59,8 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
         )
         if r["error"] is None:
             arrays.update({f"{name}{k}": r[name] for name in ("x", "forced", "t")})
-    arrays["meta"] = np.array(json.dumps({**meta, "runs": rows}, ensure_ascii=False))
+    doc = SavedRunsMeta.model_validate({**meta, "runs": rows}).model_dump(exclude_unset=True)
+    arrays["meta"] = np.array(json.dumps(doc, ensure_ascii=False))
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     write_bytes(path, buf.getvalue())

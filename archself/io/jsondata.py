@@ -298,14 +298,17 @@ class SavedRun(_Doc):
 class SavedRunsMeta(_Doc):
     """The ``meta`` of ``calibrate --save-runs`` (an ``.npz``): the runs and their origin."""
 
+    format: int | None = None
+    architecture: str | None = None
+    digest: str | None = Field(None, description="the file's identity without its bands")
     seeds: int
     verify_seeds: int
     root_seed: int
-    elapsed_s: float
-    verify_elapsed_s: float
     scenarios: list[str]
     configurations: list[str]
     executor: str
+    elapsed_s: float
+    verify_elapsed_s: float
     runs: list[SavedRun]
 
 
