@@ -89,9 +89,12 @@ def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = Non
     """The :class:`pyarrow.Schema` of a campaign's results table."""
     import pyarrow as pa
 
+    from archself.io.jsondata import CampaignMeta
+
     cols = _BEFORE + [(p, "float64") for p in sweep_paths] + _AFTER
     fields = [pa.field(name, _type(pa, t)) for name, t in cols]
-    metadata = {META_KEY: json.dumps(meta or {}, sort_keys=True).encode()}
+    doc = CampaignMeta.model_validate(meta or {}).model_dump(exclude_unset=True)
+    metadata = {META_KEY: json.dumps(doc, sort_keys=True).encode()}
     return pa.schema(fields, metadata=metadata)
 
 
