@@ -117,14 +117,14 @@ class Calibration:
             **{f: getattr(self, f) for f in _SAME}, scale=num(self.scale),
             bands={m: BandDoc(**{f: getattr(b, f) for f in BandDoc.model_fields})
                    for m, b in self.modules.items()},
-            rates={k: num(v) for k, v in self.rates().items()},
+            rates=RatesDoc(**{k: num(v) for k, v in self.rates().items()}),
             cells=[CellDoc(
                 **{f: getattr(c, f) for f in ("scenario", "configuration", "runs", "forced",
                                                "verify_runs")},
                 failed=len(c.failed),
-                gumbel={"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
-                tail={"u": c.fit_new.all.tail_u, "beta": c.fit_new.all.tail_beta,
-                      "share": c.fit_new.all.tail_share},
+                gumbel=GumbelDoc(loc=c.fit_new.all.loc, scale=c.fit_new.all.scale),
+                tail=TailDoc(u=c.fit_new.all.tail_u, beta=c.fit_new.all.tail_beta,
+                             share=c.fit_new.all.tail_share),
                 predicted_new=num(c.new_predicted), empirical_new=num(c.new_empirical),
                 predicted_old=num(c.old_predicted), empirical_old=num(c.old_empirical),
                 verify_new=num(c.verify_new), verify_old=num(c.verify_old),
