@@ -34,15 +34,7 @@ import typing
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    Strict,
-    TypeAdapter,
-    ValidationError,
-    model_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 __all__ = ["CampaignMeta", "DecisionLog", "DecisionRecordDoc", "JsonLimitError",
            "ParquetHead", "SavedRunsMeta", "TraceDocument", "TraceMeta", "finite_or_none",
@@ -281,7 +273,7 @@ class ParquetHead(_Doc):
 
     format: int = 0
     meta: TraceMeta
-    series: list[typing.Annotated[tuple[str, int], Strict(False)]]  # JSON: lists, not tuples
+    series: list[typing.Annotated[tuple[str, int], Field(strict=False)]]  # JSON: no tuples
 
 
 # ------------------------------------------------------------------ saved runs, campaigns
