@@ -310,10 +310,14 @@ def test_a_damaged_runs_file_is_a_one_line_error(tmp_path: Path) -> None:
     z = dict(np.load(good, allow_pickle=False))
     meta = json.loads(str(z.pop("meta")))
     cases = {
-        "meta_text": (z, "x", "its metadata is not an object"),
-        "no_seeds": (z, {k: v for k, v in meta.items() if k != "seeds"}, "'seeds'"),
+        "meta_text": (z, "x", "(meta: expected an object, got a string)"),
+        "no_seeds": (z, {k: v for k, v in meta.items() if k != "seeds"},
+                     "(meta.seeds: expected an integer, got nothing)"),
         "no_phase": (z, {**meta, "runs": [{k: v for k, v in r.items() if k != "phase"}
-                                          for r in meta["runs"]]}, "run 0 is not a saved run"),
+                                          for r in meta["runs"]]},
+                     "(meta.runs[0].phase: expected one of calibration, verify, got nothing)"),
+        "bad_seed": (z, {**meta, "root_seed": True},
+                     "(meta.root_seed: expected an integer, got bool)"),
         "x_1d": ({**z, "x0": z["x0"][:, 0]}, meta, "arrays of run 0"),
         "x_narrow": ({**z, "x0": z["x0"][:, :2]}, meta, "does not fit"),
         "unknown_conf": (z, {**meta, "runs": [dict(r, configuration="zz")

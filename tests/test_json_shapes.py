@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+import runpy
 import subprocess
 import sys
 from pathlib import Path
@@ -29,6 +30,7 @@ MINIMAL = FIXTURES / "valid" / "minimal.yaml"
 BAD = FIXTURES / "invalid" / "bad_kind.yaml"
 PLANT = ROOT / "architectures" / "process_plant.yaml"
 CAMPAIGN = ROOT / "docs" / "campaign" / "campaign.parquet"
+JSON_DOCS = runpy.run_path(str(ROOT / "tools" / "json_docs.py"))
 TYPES: dict[str, Any] = {
     "string": lambda v: isinstance(v, str),
     "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -42,13 +44,17 @@ TYPES: dict[str, Any] = {
 
 # ------------------------------------------------------------------ the specification
 def documented_shapes() -> dict[str, Any]:
-    """Command → shape, from the first ``json`` block of each ``## command`` section."""
+    """Command → shape, from the first ``json`` block of each ``## command`` section; a
+    block generated from a pydantic model (tools/json_docs.py) gives the model."""
     shapes: dict[str, Any] = {}
-    for section in re.split(r"^## ", PAGE.read_text(encoding="utf-8"), flags=re.M)[1:]:
+    commands = PAGE.read_text(encoding="utf-8").split("\n# Documents archself reads back")[0]
+    for section in re.split(r"^## ", commands, flags=re.M)[1:]:
         name = section.split("\n", 1)[0].strip()
+        generated = re.search(r"<!-- schema: ([\w.]+):(\w+) -->", section)
         block = re.search(r"```json\n(.*?)```", section, flags=re.S)
         assert block, f"docs/json.md: section {name} has no json block"
-        shapes[name] = json.loads(block.group(1))
+        shapes[name] = JSON_DOCS["model"](*generated.groups()) if generated else json.loads(
+            block.group(1))
     return shapes
 
 
@@ -94,6 +100,19 @@ def test_every_json_command_is_documented_once() -> None:
     assert "[json.md](json.md)" in (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
 
 
+def test_the_schemas_are_the_models() -> None:
+    """docs/json.md's JSON Schemas are generated from the models (tools/json_docs.py)."""
+    text = PAGE.read_text(encoding="utf-8")
+    assert JSON_DOCS["render"](text) == text, "docs/json.md is out of date: " \
+        "python tools/json_docs.py"
+    names = [m[3] for m in JSON_DOCS["BLOCK"].finditer(text)]
+    assert names == ["CalibrationDoc", "IdentificationDoc", "TraceDocument", "ParquetHead",
+                     "SavedRunsMeta", "CampaignMeta"]
+    schema = json.loads(text.split("<!-- schema: archself.io.jsondata:TraceDocument -->\n")[1]
+                        .split("```json\n")[1].split("```")[0])
+    assert schema["required"] == ["meta", "series", "decisions"] and "TraceMeta" in schema["$defs"]
+
+
 def test_the_checker_rejects_what_departs() -> None:
     shape = {"runs": [{"n": "integer", "x": "number|null", "m": {"*": "string"}}]}
     assert mismatches({"runs": [{"n": 1, "x": None, "m": {"a": "b"}}]}, shape) == []
@@ -137,8 +156,12 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _check(command: str, outputs: list[Any]) -> None:
+    shape = SHAPES[command]
     for i, out in enumerate(outputs):
-        bad = mismatches(out, SHAPES[command])
+        if isinstance(shape, type):  # a model: no other key, JSON types as they are
+            shape.model_validate(out, strict=True)
+            continue
+        bad = mismatches(out, shape)
         assert not bad, (command, f"variant {i}", bad[:5])
 
 

@@ -35,7 +35,6 @@ LAYERS = [
 ]
 #: imports that go up, each named in docs/develop.md (Known exceptions) with its way out
 KNOWN = {
-    ("io.trace", "runtime.explanation"),
     ("linear.wiring", "model.loader"),
     ("modules.base", "model.ports"),
 }

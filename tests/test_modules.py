@@ -326,7 +326,8 @@ def test_ekf_nees_consistency():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
-    """The per-step predict and heading update written on floats are filterpy's own
+    """The per-step predict and heading update in closed form (``predict_rows``,
+    ``update_heading_rows``, shared with the lanes) are filterpy's own
     ``predict`` (P ← F P Fᵀ + Q) and ``update`` (Joseph form) with explicit matrices."""
     from filterpy.kalman import ExtendedKalmanFilter
 

@@ -227,6 +227,34 @@ def test_edited_traces_are_one_line_errors(switching_run, tmp_path: Path, where,
         assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize(("key", "value", "message"), [
+    ("series", [["t", "wide"]], "series[0][1]: expected an integer, got a string"),
+    ("meta", None, "meta: expected an object, got null"),
+    ("format", 9, "trace format 9 is newer than this archself reads (1)"),
+])
+def test_a_damaged_parquet_head_is_a_located_error(switching_run, tmp_path: Path, key, value,
+                                                   message) -> None:
+    """The ``archself.trace`` metadata of a Parquet trace is read with its model."""
+    import pyarrow.parquet as pq
+
+    from archself.io.trace import TRACE_KEY, trace_parts_from_bytes
+
+    _, res = switching_run
+    good = tmp_path / "good.parquet"
+    res.write_trace(good)
+    pf = pq.ParquetFile(good)
+    md = dict(pf.metadata.metadata)
+    head = {**json.loads(md[TRACE_KEY]), key: value}
+    bad = tmp_path / "bad.parquet"
+    with pq.ParquetWriter(bad, pf.schema_arrow) as writer:
+        writer.write_table(pf.read())
+        writer.add_key_value_metadata({**md, TRACE_KEY: json.dumps(head).encode()})
+    assert len(trace_parts_from_bytes(good.read_bytes()).decisions) == len(res.decisions)
+    with pytest.raises(TraceError) as err:
+        trace_parts_from_bytes(bad.read_bytes(), "bad.parquet")
+    assert str(err.value).startswith("bad.parquet: error: ") and message in str(err.value)
+
+
 def test_broken_traces_are_one_line_errors(switching_run, tmp_path: Path) -> None:
     """Truncated JSON is located; nesting deeper than Python's stack is not a crash."""
     _, res = switching_run

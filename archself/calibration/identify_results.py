@@ -13,12 +13,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
 
-__all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentifyError"]
+__all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
+           "IdentifyError"]
 
 #: Flag a fitted weight as different from the declared one beyond this many SE.
 FLAG_SE = 2.0
@@ -108,56 +110,87 @@ class Identification:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON data (``--json``)."""
-
+        """Plain JSON data (``--json``): an :class:`IdentificationDoc`."""
         num = finite_or_none
-        return {
-            "architecture": self.architecture,
-            "file": self.file,
-            "scenario": self.scenario,
-            "configurations": self.configurations,
-            "seeds": self.seeds,
-            "root_seed": self.root_seed,
-            "runs": self.runs,
-            "failed": self.failed,
-            "w_scale": self.w_scale,
-            "settle_s": self.settle_s,
-            "edges": [
-                {
-                    "configuration": r.configuration,
-                    "source": r.source,
-                    "target": r.target,
-                    "carries": r.carries,
-                    "declared": r.declared,
-                    "effective": r.effective,
-                    "fitted": num(r.fitted),
-                    "se": num(r.se),
-                    "identifiable": r.identifiable,
-                    "reason": r.reason,
-                    "differs": r.differs,
-                }
-                for r in self.rows
-            ],
-            "targets": {
-                c: {
-                    t: {"rows": f.rows, "r2": num(f.r2), "rms": num(f.rms), "moved": num(f.moved)}
-                    for t, f in fits.items()
-                }
-                for c, fits in self.fits.items()
-            },
-            "experiments": [
-                {
-                    "configuration": e.configuration,
-                    "module": e.module,
-                    "kind": e.kind,
-                    "magnitude": e.magnitude,
-                    "seeds": e.seeds,
-                    "own_delta": num(e.own_delta),
-                    "max_delta": num(e.max_delta),
-                }
-                for e in self.experiments
-            ],
-            "not_perturbed": self.skipped,
-            "executor": self.executor,
-            "elapsed_s": round(self.elapsed_s, 3),
-        }
+        return IdentificationDoc(
+            **{f: getattr(self, f) for f in ("architecture", "file", "scenario",
+                                             "configurations", "seeds", "root_seed", "runs",
+                                             "failed", "w_scale", "settle_s")},
+            edges=[EdgeDoc(**{**{f: getattr(r, f) for f in EdgeDoc.model_fields},
+                              "fitted": num(r.fitted), "se": num(r.se)}) for r in self.rows],
+            targets={c: {t: TargetDoc(rows=f.rows, r2=num(f.r2), rms=num(f.rms),
+                                      moved=num(f.moved)) for t, f in fits.items()}
+                     for c, fits in self.fits.items()},
+            experiments=[ExperimentDoc(**{**vars(e), "own_delta": num(e.own_delta),
+                                          "max_delta": num(e.max_delta)})
+                         for e in self.experiments],
+            not_perturbed=self.skipped, executor=self.executor,
+            elapsed_s=round(self.elapsed_s, 3),
+        ).model_dump()
+
+
+# ------------------------------------------------------------------ the JSON document
+Number = int | float  # as given: an int stays an int in the JSON
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class EdgeDoc(_Out):
+    """One edge of one configuration: declared, effective and fitted weight."""
+
+    configuration: str
+    source: str
+    target: str
+    carries: list[str]
+    declared: Number
+    effective: Number
+    fitted: float | None = Field(description="null when the edge is not identifiable")
+    se: float | None
+    identifiable: bool
+    reason: str
+    differs: bool | None = Field(description="|fitted − effective| > 2 SE; null without one")
+
+
+class TargetDoc(_Out):
+    """The fit of one target module's residual."""
+
+    rows: int
+    r2: float | None
+    rms: float | None
+    moved: float | None = Field(description="how far the residual moved")
+
+
+class ExperimentDoc(_Out):
+    """One perturbed module and what it excited."""
+
+    configuration: str
+    module: str
+    kind: str
+    magnitude: Number
+    seeds: int
+    own_delta: float | None
+    max_delta: float | None
+
+
+class IdentificationDoc(_Out):
+    """``archself identify --json``."""
+
+    architecture: str
+    file: str
+    scenario: str
+    configurations: list[str]
+    seeds: int
+    root_seed: int
+    runs: int
+    failed: list[str]
+    w_scale: Number
+    settle_s: Number
+    edges: list[EdgeDoc]
+    targets: dict[str, dict[str, TargetDoc]]
+    experiments: list[ExperimentDoc]
+    not_perturbed: dict[str, list[str]] = Field(
+        description="per configuration, the modules not perturbed and why")
+    executor: str
+    elapsed_s: float

@@ -11,11 +11,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from pydantic import BaseModel, ConfigDict, Field
+
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
 
-__all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand"]
+__all__ = ["Calibration", "CalibrationDoc", "CalibrationError", "CellResult", "ModuleBand"]
 
 
 class CalibrationError(ArchselfError):
@@ -108,58 +110,118 @@ class Calibration:
         }
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON data (``--json``; ``calibration.json`` of the report)."""
-
+        """Plain JSON data (``--json``; ``calibration.json`` of the report): a
+        :class:`CalibrationDoc`."""
         num = finite_or_none
-        return {
-            "architecture": self.architecture,
-            "file": self.file,
-            "tau": self.tau,
-            "false_switch": self.false_switch,
-            "seeds": self.seeds,
-            "root_seed": self.root_seed,
-            "scenarios": self.scenarios,
-            "configurations": self.configurations,
-            "runs": self.runs,
-            "scale": num(self.scale),
-            "bands": {
-                m: {
-                    "old": b.old,
-                    "new": b.new,
-                    "calibrated": b.calibrated,
-                    "signal": b.signal,
-                    "configurations": b.configurations,
-                    "note": b.note,
-                    "weight": b.weight,
-                }
-                for m, b in self.modules.items()
-            },
-            "rates": {k: num(v) for k, v in self.rates().items()},
-            "cells": [
-                {
-                    "scenario": c.scenario,
-                    "configuration": c.configuration,
-                    "runs": c.runs,
-                    "failed": len(c.failed),
-                    "forced": c.forced,
-                    "gumbel": {"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
-                    "tail": {
-                        "u": c.fit_new.all.tail_u,
-                        "beta": c.fit_new.all.tail_beta,
-                        "share": c.fit_new.all.tail_share,
-                    },
-                    "predicted_new": num(c.new_predicted),
-                    "empirical_new": num(c.new_empirical),
-                    "predicted_old": num(c.old_predicted),
-                    "empirical_old": num(c.old_empirical),
-                    "verify_runs": c.verify_runs,
-                    "verify_new": num(c.verify_new),
-                    "verify_old": num(c.verify_old),
-                }
-                for c in self.cells
-            ],
-            "executor": self.executor,
-            "elapsed_s": round(self.elapsed_s, 3),
-            "verify_seeds": self.verify_seeds,
-            "verify_elapsed_s": round(self.verify_elapsed_s, 3),
-        }
+        return CalibrationDoc(
+            **{f: getattr(self, f) for f in _SAME}, scale=num(self.scale),
+            bands={m: BandDoc(**{f: getattr(b, f) for f in BandDoc.model_fields})
+                   for m, b in self.modules.items()},
+            rates=RatesDoc(**{k: num(v) for k, v in self.rates().items()}),
+            cells=[CellDoc(
+                **{f: getattr(c, f) for f in ("scenario", "configuration", "runs", "forced",
+                                               "verify_runs")},
+                failed=len(c.failed),
+                gumbel=GumbelDoc(loc=c.fit_new.all.loc, scale=c.fit_new.all.scale),
+                tail=TailDoc(u=c.fit_new.all.tail_u, beta=c.fit_new.all.tail_beta,
+                             share=c.fit_new.all.tail_share),
+                predicted_new=num(c.new_predicted), empirical_new=num(c.new_empirical),
+                predicted_old=num(c.old_predicted), empirical_old=num(c.old_empirical),
+                verify_new=num(c.verify_new), verify_old=num(c.verify_old),
+            ) for c in self.cells],
+            executor=self.executor, elapsed_s=round(self.elapsed_s, 3),
+            verify_seeds=self.verify_seeds, verify_elapsed_s=round(self.verify_elapsed_s, 3),
+        ).model_dump()
+
+
+# ------------------------------------------------------------------ the JSON document
+Number = int | float  # as given: an int stays an int in the JSON
+Rate = float | None  # a rate or a fit's value; null when it could not be had
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class BandDoc(_Out):
+    """One module's band, old and new ``residual.nominal``."""
+
+    old: Number | None
+    new: Number | None
+    calibrated: bool
+    signal: str
+    configurations: list[str]
+    note: str = Field(description="why the band was not calibrated ('' when it was)")
+    weight: Number = Field(description="its share of the false-alarm budget (--weight)")
+
+
+class GumbelDoc(_Out):
+    """The Gumbel fit of the cell's largest residual per run (new bands)."""
+
+    loc: Rate
+    scale: Rate
+
+
+class TailDoc(_Out):
+    """The generalized-Pareto tail above ``u`` (``beta``, its ``share`` of the runs)."""
+
+    u: Rate
+    beta: Rate
+    share: Rate
+
+
+class RatesDoc(_Out):
+    """False-switch rates: the worst cell's, predicted and counted, new and old bands."""
+
+    predicted_new: Rate
+    empirical_new: Rate
+    predicted_old: Rate
+    empirical_old: Rate
+    verify_new: Rate = Field(description="on --verify-seeds fresh seeds; null without")
+    verify_old: Rate
+
+
+class CellDoc(_Out):
+    """False switches of one (scenario, configuration) cell."""
+
+    scenario: str
+    configuration: str
+    runs: int
+    failed: int
+    forced: int
+    gumbel: GumbelDoc
+    tail: TailDoc
+    predicted_new: Rate
+    empirical_new: Rate
+    predicted_old: Rate
+    empirical_old: Rate
+    verify_runs: int
+    verify_new: Rate
+    verify_old: Rate
+
+
+class CalibrationDoc(_Out):
+    """``archself calibrate --json`` and the report's ``calibration.json``."""
+
+    architecture: str
+    file: str
+    tau: Number
+    false_switch: Number
+    seeds: int
+    root_seed: int
+    scenarios: list[str]
+    configurations: list[str]
+    runs: int
+    scale: Rate
+    bands: dict[str, BandDoc]
+    rates: RatesDoc
+    cells: list[CellDoc]
+    executor: str
+    elapsed_s: float
+    verify_seeds: int
+    verify_elapsed_s: float
+
+
+#: The fields a :class:`Calibration` and its document share as they are.
+_SAME = ("architecture", "file", "tau", "false_switch", "seeds", "root_seed", "scenarios",
+         "configurations", "runs")

@@ -37,8 +37,8 @@ def band_free_digest(data: dict[str, Any]) -> str:
 def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str, Any]]) -> None:
     """Write runs (``run_calibration_job`` results) and ``meta`` to an ``.npz`` file, atomically.
 
-    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string (no
-    pickles: the file is safe to load).
+    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string, a
+    :class:`~archself.io.jsondata.SavedRunsMeta` (no pickles: the file is safe to load).
     """
     import io
     import json
@@ -46,6 +46,7 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
     import numpy as np
 
     from archself.io.atomic import write_bytes
+    from archself.io.jsondata import SavedRunsMeta
 
     arrays: dict[str, Any] = {}
     rows = []
@@ -58,7 +59,8 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
         )
         if r["error"] is None:
             arrays.update({f"{name}{k}": r[name] for name in ("x", "forced", "t")})
-    arrays["meta"] = np.array(json.dumps({**meta, "runs": rows}, ensure_ascii=False))
+    doc = SavedRunsMeta.model_validate({**meta, "runs": rows}).model_dump(exclude_unset=True)
+    arrays["meta"] = np.array(json.dumps(doc, ensure_ascii=False))
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     write_bytes(path, buf.getvalue())
@@ -77,14 +79,14 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     import numpy as np
 
     from archself.errors import LoadError
-    from archself.io.jsondata import JsonLimitError, loads
+    from archself.io.jsondata import JsonLimitError, SavedRunsMeta, loads, problem
 
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = loads(str(z["meta"]))  # JsonLimitError: a ValueError
-            problem = _meta_problem(meta)
-            if problem:
-                raise LoadError(f"not a runs file of archself calibrate ({problem})", str(path))
+            why = problem(SavedRunsMeta, meta, "meta")
+            if why:
+                raise LoadError(f"not a runs file of archself calibrate ({why})", str(path))
             results = []
             for k, row in enumerate(meta.pop("runs")):
                 r = dict(row)
@@ -102,31 +104,3 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
         why = str(exc) if isinstance(exc, JsonLimitError) else type(exc).__name__
         raise LoadError(f"not a runs file of archself calibrate ({why})", str(path)) from None
     return meta, results
-
-
-def _meta_problem(meta: Any) -> str:
-    """What is wrong with a runs file's metadata ('' if nothing)."""
-    if not isinstance(meta, dict):
-        return "its metadata is not an object"
-    for key in ("seeds", "verify_seeds", "root_seed"):
-        if not isinstance(meta.get(key), int) or isinstance(meta.get(key), bool):
-            return f"metadata {key!r} is not an integer"
-    for key in ("elapsed_s", "verify_elapsed_s"):
-        if not isinstance(meta.get(key), int | float) or isinstance(meta.get(key), bool):
-            return f"metadata {key!r} is not a number"
-    for key in ("scenarios", "configurations"):
-        if not isinstance(meta.get(key), list) or not all(isinstance(x, str) for x in meta[key]):
-            return f"metadata {key!r} is not a list of names"
-    if not isinstance(meta.get("executor"), str):
-        return "metadata 'executor' is not a name"
-    runs = meta.get("runs")
-    if not isinstance(runs, list):
-        return "metadata 'runs' is not a list"
-    for k, r in enumerate(runs):
-        if not (isinstance(r, dict) and isinstance(r.get("scenario"), str)
-                and isinstance(r.get("configuration"), str)
-                and isinstance(r.get("seed"), int) and isinstance(r.get("replicate"), int)
-                and (r.get("error") is None or isinstance(r.get("error"), str))
-                and r.get("phase") in ("calibration", "verify")):
-            return f"run {k} is not a saved run"
-    return ""

@@ -89,9 +89,12 @@ def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = Non
     """The :class:`pyarrow.Schema` of a campaign's results table."""
     import pyarrow as pa
 
+    from archself.io.jsondata import CampaignMeta
+
     cols = _BEFORE + [(p, "float64") for p in sweep_paths] + _AFTER
     fields = [pa.field(name, _type(pa, t)) for name, t in cols]
-    metadata = {META_KEY: json.dumps(meta or {}, sort_keys=True).encode()}
+    doc = CampaignMeta.model_validate(meta or {}).model_dump(exclude_unset=True)
+    metadata = {META_KEY: json.dumps(doc, sort_keys=True).encode()}
     return pa.schema(fields, metadata=metadata)
 
 
@@ -131,7 +134,7 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from archself.io.jsondata import JsonLimitError, loads
+    from archself.io.jsondata import CampaignMeta, JsonLimitError, loads, problem
 
     p = Path(path)
     if not p.is_file():
@@ -148,13 +151,9 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     except ValueError as exc:  # JsonLimitError (too deep, a huge integer) says which
         why = f" ({exc})" if isinstance(exc, JsonLimitError) else ""
         raise CampaignError(f"{p}: damaged campaign metadata{why}") from None
-    lists = ("sweeps", "fault_free", "thresholds")
-    if not isinstance(meta, dict) or not all(
-        isinstance(meta.get(k, []), list) and all(isinstance(x, str) for x in meta.get(k, []))
-        for k in lists
-    ):
-        raise CampaignError(f"{p}: damaged campaign metadata (expected an object whose "
-                            f"{', '.join(lists)} are lists of strings)")
+    bad = problem(CampaignMeta, meta, "meta")
+    if bad is not None:
+        raise CampaignError(f"{p}: damaged campaign metadata ({bad})")
     return _checked(p, _upgrade(table), meta["sweeps"] if "sweeps" in meta else []), meta
 
 

@@ -1,18 +1,44 @@
-"""Plain JSON data: the one cleaner for everything archself writes as JSON.
+"""JSON data: the one cleaner for what archself writes, the reader, the documents' models.
 
-Decision records, run summaries and traces, campaign summaries: numpy scalars and
-arrays become Python numbers and lists, tuples and sets lists, mapping keys
-strings, and non-finite floats ``None`` (JSON has no NaN). It imports nothing
-heavy, so ``archself explain`` stays free of numpy.
+:func:`jsonable` cleans decision records, run summaries and traces, campaign summaries:
+numpy scalars and arrays become Python numbers and lists, tuples and sets lists, mapping
+keys strings, and non-finite floats ``None`` (JSON has no NaN). :func:`loads` reads JSON
+with the loader's limits. What archself reads back is a pydantic model: a trace's
+``meta`` and decision log (:class:`TraceDocument`), the metadata of a calibration's saved
+runs (:class:`SavedRunsMeta`) and of a campaign's results (:class:`CampaignMeta`).
+:func:`problem` validates with one: the first violation as one line, ``meta.seed:
+expected an integer, got a string``, with its dotted path and what was expected (a
+field's ``description``, a model's ``title`` or the field's type); docs/json.md shows
+their JSON Schemas (tools/json_docs.py). The models validate and leave
+the data as it is: the readers keep the plain data, so what is written back or rendered
+is byte-identical. A field may be missing where the model says so; a field that is there
+has its type; keys the model does not name are allowed (a newer archself may add some).
+Nothing here imports numpy, so ``archself explain`` stays free of it.
+
+Examples
+--------
+>>> problem(TraceDocument, {"meta": {"scenario": "s", "seed": "x"}, "series": {}})
+'meta.seed: expected an integer, got a string'
+>>> problem(DecisionLog, [{"z": {"a": 0.5}, "chosen": None}]) is None
+True
+>>> problem(DecisionLog, [{"z": {"a": "x"}}], root="decisions")
+'decisions[0].z.a: expected a number, got a string'
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import types
+import typing
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Literal
 
-__all__ = ["JsonLimitError", "finite_or_none", "is_number", "json_kind", "jsonable", "loads"]
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+
+__all__ = ["CampaignMeta", "DecisionLog", "DecisionRecordDoc", "JsonLimitError",
+           "ParquetHead", "SavedRunsMeta", "TraceDocument", "TraceMeta", "finite_or_none",
+           "json_kind", "jsonable", "loads", "problem"]
 
 
 class JsonLimitError(ValueError):
@@ -75,11 +101,6 @@ def json_kind(x: Any) -> str:
         type(x), type(x).__name__)
 
 
-def is_number(x: Any) -> bool:
-    """A number of a JSON document, or null (a non-finite number written by :func:`jsonable`)."""
-    return x is None or (isinstance(x, int | float) and not isinstance(x, bool))
-
-
 def jsonable(x: Any) -> Any:
     """``x`` as plain JSON data (dict, list, str, int, float, bool, None).
 
@@ -117,3 +138,251 @@ def jsonable(x: Any) -> Any:
         v = float(x)
         return v if math.isfinite(v) else None
     return str(x)
+
+
+# ------------------------------------------------------------------ the documents read back
+Num = float | None  # a number, or null (a non-finite number as jsonable writes it)
+Modules = typing.Annotated[dict[str, Num] | None, Field(description="an object of modules")]
+Names = typing.Annotated[list[str] | None, Field(description="a list of module names")]
+
+
+class _Doc(BaseModel):
+    """A JSON object read back: JSON types only (no coercion), other keys allowed."""
+
+    model_config = ConfigDict(strict=True, extra="allow")
+
+
+# ------------------------------------------------------------------ the decision log
+class EvaluationDoc(_Doc):
+    """One action of a cycle's Plan stage (``ActionEvaluation``)."""
+
+    model_config = ConfigDict(title="an object with an action")
+    action: Any
+    z: Num = None
+    delta: Num = None
+    cost: Num = None
+    score: Num = None
+    stability: dict[str, Any] | None = None
+
+
+class ChosenDoc(_Doc):
+    """The action a cycle chose."""
+
+    model_config = ConfigDict(title="an object with an action, or null")
+    action: Any
+    z: Num = None
+    score: Num = None
+    source: Num = None
+
+
+class DecisionRecordDoc(_Doc):
+    """One MAPE-K cycle (``DecisionRecord.to_dict()``)."""
+
+    model_config = ConfigDict(title="a decision record (an object)")
+    cycle: Num = None
+    t: Num = None
+    j_obs: Num = None
+    j_ref: Num = None
+    r_global: Num = None
+    r: Modules = None
+    z: Modules = None
+    source: Modules = None
+    kappa: dict[str, Any] | None = Field(None, description="an object of modules")
+    candidates: Names = None
+    compensated: Names = None
+    equivalent: list[list[str]] | None = Field(
+        None, description="a list of lists of module names")
+    evaluations: list[EvaluationDoc] | None = None
+    chosen: ChosenDoc | None = None
+
+
+DecisionLog = typing.Annotated[list[DecisionRecordDoc],
+                               Field(description="a list of decision records")]
+
+
+# ------------------------------------------------------------------ a trace
+class SwitchDoc(_Doc):
+    t_s: float
+
+
+class ObjectiveDoc(_Doc):
+    actual: str
+    reference: str
+    components: list[typing.Annotated[int, Field(ge=0)]] = Field(
+        description="a list of indices")
+
+
+class FaultDoc(_Doc):
+    onset_s: float
+
+
+class HysteresisDoc(_Doc):
+    model_config = ConfigDict(title="an object {on, off}")
+    on: float
+    off: float
+
+
+class ReportDoc(_Doc):
+    """What the run report needs beyond the series (``archself report --trace``)."""
+
+    acceptable: Num = None
+    threshold: Num = None
+    warmup_s: Num = None
+    min_confidence: Num = None
+    top_k: Num = None
+    faults: list[FaultDoc] | None = None
+    hysteresis: HysteresisDoc | None = None
+
+    @model_validator(mode="after")
+    def _selector(self) -> ReportDoc:
+        if self.hysteresis is None and self.top_k is None and self.threshold is None:
+            raise ValueError("expected a threshold, top_k or hysteresis")
+        return self
+
+
+class TraceMeta(_Doc):
+    """A trace's ``meta``: the run (``RunResult.trace_meta()``)."""
+
+    scenario: str
+    seed: int
+    mode: str
+    configuration: str
+    final_configuration: str
+    metrics: dict[str, Num]
+    configurations: list[str] | None = Field(None, description="a list of names")
+    switches: list[SwitchDoc] | None = None
+    unit: str | None = None
+    step_s: Num = None
+    period_s: Num = None
+    duration_s: Num = None
+    objective: ObjectiveDoc | None = None
+    report: ReportDoc | None = None
+
+
+class TraceDocument(_Doc):
+    """A trace ``{meta, series, decisions}`` (a Parquet trace: ``series`` are columns)."""
+
+    meta: TraceMeta
+    series: dict[str, list[Any]] = Field(description="an object of series (one value per step)")
+    decisions: DecisionLog
+
+
+class ParquetHead(_Doc):
+    """The ``archself.trace`` metadata of a Parquet trace (its decision log is a key of
+    its own): the format, ``meta``, and each series' width (0: one column)."""
+
+    format: int = 0
+    meta: TraceMeta
+    series: list[typing.Annotated[tuple[str, int], Field(strict=False)]]  # JSON: no tuples
+
+
+# ------------------------------------------------------------------ saved runs, campaigns
+class SavedRun(_Doc):
+    model_config = ConfigDict(title="a saved run")
+    scenario: str
+    configuration: str
+    replicate: int
+    seed: int
+    error: str | None
+    phase: Literal["calibration", "verify"]
+
+
+class SavedRunsMeta(_Doc):
+    """The ``meta`` of ``calibrate --save-runs`` (an ``.npz``): the runs and their origin."""
+
+    format: int | None = None
+    architecture: str | None = None
+    digest: str | None = Field(None, description="the file's identity without its bands")
+    seeds: int
+    verify_seeds: int
+    root_seed: int
+    scenarios: list[str]
+    configurations: list[str]
+    executor: str
+    elapsed_s: float
+    verify_elapsed_s: float
+    runs: list[SavedRun]
+
+
+class CampaignMeta(_Doc):
+    """The ``archself.campaign`` metadata of a campaign's results (Parquet)."""
+
+    format: int | None = None
+    architecture: str | None = None
+    file: str | None = None
+    sha256: str | None = Field(None, description="the file's SHA-256 (--resume checks it)")
+    root_seed: int | None = None
+    sweeps: list[str] = Field(default_factory=list, description="a list of parameter paths")
+    fault_free: list[str] = Field(default_factory=list, description="a list of scenarios")
+    thresholds: list[str] = Field(default_factory=list, description="a list of names")
+    steps: int | None = Field(None, description="the steps the campaign simulates")
+    lane_types: bool | None = Field(None, description="every module type runs in lanes")
+
+
+# ------------------------------------------------------------------ validation
+@functools.cache
+def _adapter(tp: Any) -> TypeAdapter[Any]:
+    return TypeAdapter(tp)
+
+
+def _unwrap(tp: Any) -> tuple[Any, Any]:
+    """``(type, FieldInfo or None)`` without ``Annotated`` and ``| None``."""
+    info = None
+    while True:
+        origin = typing.get_origin(tp)
+        if origin is typing.Annotated:
+            tp, *meta = typing.get_args(tp)
+            info = next((m for m in meta if getattr(m, "description", None)), info)
+        elif origin in (typing.Union, types.UnionType):
+            tp = next(a for a in typing.get_args(tp) if a is not type(None))
+        else:
+            return tp, info
+
+
+def _expected(tp: Any, loc: tuple[Any, ...]) -> str:
+    """What the document's type ``tp`` expects at ``loc`` (a phrase: ``an integer``)."""
+    tp, info = _unwrap(tp)
+    for item in loc:
+        if isinstance(tp, type) and issubclass(tp, BaseModel) and item in tp.model_fields:
+            field = tp.model_fields[item]
+            tp, info = _unwrap(field.rebuild_annotation())
+            info = field if field.description else info
+        elif typing.get_origin(tp) in (list, dict, tuple):
+            args = typing.get_args(tp)
+            tp, info = _unwrap(args[item] if typing.get_origin(tp) is tuple else args[-1])
+            info = info if info is not None and info.description else None
+    if info is not None and info.description:
+        return str(info.description)
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return str(tp.model_config.get("title") or "an object")
+    origin = typing.get_origin(tp)
+    if origin in (list, dict, tuple):
+        return "an object" if origin is dict else "a list"
+    if origin is Literal:
+        return "one of " + ", ".join(map(str, typing.get_args(tp)))
+    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(
+        tp, "a value")
+
+
+def problem(tp: Any, data: Any, root: str = "") -> str | None:
+    """The first way ``data`` departs from the document type ``tp`` (one line), or None.
+
+    ``tp`` is a model or a type such as :data:`DecisionLog`; the line is ``dotted.path:
+    expected …, got …``, the path from ``root`` (``decisions`` for a log:
+    ``decisions[3].z``).
+    """
+    try:
+        _adapter(tp).validate_python(data)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        loc = tuple(err["loc"])
+        path = (root + "".join(f"[{p}]" if isinstance(p, int) else f".{p}"
+                               for p in loc)).lstrip(".") or "document"
+        if err["type"] == "value_error":
+            return f"{path}: {str(err['msg']).removeprefix('Value error, ')}"
+        got = "nothing" if err["type"] == "missing" else json_kind(err["input"])
+        if err["type"] in ("greater_than_equal", "literal_error"):
+            got = repr(err["input"])
+        bound = f" ≥ {err['ctx']['ge']}" if err["type"] == "greater_than_equal" else ""
+        return f"{path}: expected {_expected(tp, loc)}{bound}, got {got}"
+    return None

@@ -36,7 +36,15 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from archself.errors import TraceError
-from archself.io.jsondata import JsonLimitError, is_number, json_kind, jsonable, loads
+from archself.io.jsondata import (
+    DecisionLog,
+    JsonLimitError,
+    ParquetHead,
+    TraceDocument,
+    jsonable,
+    loads,
+    problem,
+)
 
 __all__ = [
     "TRACE_KEY",
@@ -82,8 +90,18 @@ def write_trace(result: Any, path: str | Path) -> None:
 
 
 def json_text(result: Any) -> str:
-    """The JSON trace ``{meta, series, decisions}``: compact, deterministic, one line."""
-    return json.dumps(result.trace(), separators=(",", ":"), allow_nan=False) + "\n"
+    """The JSON trace ``{meta, series, decisions}``: compact, deterministic, one line; a
+    :class:`~archself.io.jsondata.TraceDocument` (checked before it is written)."""
+    doc = result.trace()
+    _readable(TraceDocument, doc)
+    return json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n"
+
+
+def _readable(model: Any, doc: Any, root: str = "") -> None:
+    """Refuse to write what :func:`read_trace_parts` would refuse (a bug of the writer)."""
+    why = problem(model, doc, root)
+    if why is not None:
+        raise TraceError(f"error: the trace would not read back: {why}")
 
 
 def parquet_bytes(result: Any) -> bytes:
@@ -112,9 +130,11 @@ def parquet_bytes(result: Any) -> bytes:
             columns[name] = pa.array(a.astype(np.float64))
         else:
             columns[name] = pa.array(a.astype(np.float32) if a.dtype.kind == "f" else a)
-    decisions = json.dumps(jsonable(result.trace_decisions()), separators=(",", ":"),
-                           allow_nan=False)
+    log = jsonable(result.trace_decisions())
+    _readable(DecisionLog, log, "decisions")
+    decisions = json.dumps(log, separators=(",", ":"), allow_nan=False)
     head = {"format": FORMAT, "meta": jsonable(doc_meta), "series": widths}
+    _readable(ParquetHead, head)
     table = pa.table(columns)
     buf = io.BytesIO()
     floats = [n for n, c in columns.items() if pa.types.is_floating(c.type)]
@@ -187,82 +207,18 @@ def trace_parts_from_bytes(raw: bytes, name: str = "<trace>") -> TraceParts:
 
 
 class _Malformed(Exception):
-    """A trace document whose ``meta``, ``series`` or ``decisions`` has a wrong shape."""
+    """A trace document that departs from :class:`~archself.io.jsondata.TraceDocument`."""
 
 
-def _check_doc(meta: Any, series: Any, decisions: Any) -> None:
-    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless the parts have their types.
+def _check_doc(model: Any, doc: Any, root: str = "") -> None:
+    """Raise :class:`_Malformed` (``meta.seed: expected …``) unless ``doc`` is a ``model``.
 
-    What the readers (``explain``, ``report --trace``, the frames) index into is checked
-    here, so that a truncated, edited or foreign trace is a one-line error, not a crash.
+    What the readers (``explain``, ``report --trace``, the frames) index into is the
+    model's, so that a truncated, edited or foreign trace is a one-line error, not a crash.
     """
-    from archself.runtime.explanation import decision_log_problem
-
-    def bad(where: str, expected: str, got: Any) -> _Malformed:
-        return _Malformed(f"{where}: expected {expected}, got {json_kind(got)}")
-
-    if not isinstance(meta, dict):
-        raise bad("meta", "an object", meta)
-    for key in ("scenario", "mode", "configuration", "final_configuration"):
-        if not isinstance(meta.get(key), str):
-            raise bad(f"meta.{key}", "a string", meta.get(key))
-    if not isinstance(meta.get("seed"), int) or isinstance(meta.get("seed"), bool):
-        raise bad("meta.seed", "an integer", meta.get("seed"))
-    metrics = meta.get("metrics")
-    if not isinstance(metrics, dict):
-        raise bad("meta.metrics", "an object", metrics)
-    for k, v in metrics.items():
-        if not is_number(v):
-            raise bad(f"meta.metrics.{k}", "a number", v)
-    for key in ("configurations", "switches"):
-        if not isinstance(meta.get(key) or [], list):
-            raise bad(f"meta.{key}", "a list", meta.get(key))
-    if not all(isinstance(c, str) for c in meta.get("configurations") or []):
-        raise _Malformed("meta.configurations: expected a list of names")
-    for i, sw in enumerate(meta.get("switches") or []):
-        if not isinstance(sw, dict):
-            raise bad(f"meta.switches[{i}]", "an object", sw)
-        if not is_number(sw.get("t_s")) or sw.get("t_s") is None:
-            raise bad(f"meta.switches[{i}].t_s", "a number", sw.get("t_s"))
-    if meta.get("unit") is not None and not isinstance(meta["unit"], str):
-        raise bad("meta.unit", "a string", meta["unit"])
-    for key in ("step_s", "period_s", "duration_s"):
-        if not is_number(meta.get(key)):
-            raise bad(f"meta.{key}", "a number", meta.get(key))
-    obj = meta.get("objective")
-    if obj is not None:
-        if not isinstance(obj, dict):
-            raise bad("meta.objective", "an object", obj)
-        for key in ("actual", "reference"):
-            if not isinstance(obj.get(key), str):
-                raise bad(f"meta.objective.{key}", "a string", obj.get(key))
-        comps = obj.get("components")
-        if not isinstance(comps, list) or not all(
-                isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in comps):
-            raise _Malformed("meta.objective.components: expected a list of indices")
-    rep = meta.get("report")
-    if isinstance(rep, dict):
-        for key in ("acceptable", "threshold", "warmup_s", "min_confidence", "top_k"):
-            if not is_number(rep.get(key)):
-                raise bad(f"meta.report.{key}", "a number", rep.get(key))
-        if not isinstance(rep.get("faults") or [], list):
-            raise bad("meta.report.faults", "a list", rep.get("faults"))
-        for i, f in enumerate(rep.get("faults") or []):
-            if not isinstance(f, dict):
-                raise bad(f"meta.report.faults[{i}]", "an object", f)
-            if not is_number(f.get("onset_s")) or f.get("onset_s") is None:
-                raise bad(f"meta.report.faults[{i}].onset_s", "a number", f.get("onset_s"))
-        hyst = rep.get("hysteresis")
-        if hyst is not None and not (isinstance(hyst, dict) and all(
-                is_number(hyst.get(k)) and hyst.get(k) is not None for k in ("on", "off"))):
-            raise _Malformed("meta.report.hysteresis: expected an object {on, off}")
-        if hyst is None and rep.get("top_k") is None and rep.get("threshold") is None:
-            raise _Malformed("meta.report: expected a threshold, top_k or hysteresis")
-    if not isinstance(series, dict):
-        raise bad("series", "an object", series)
-    problem = decision_log_problem(decisions)
-    if problem is not None:
-        raise _Malformed(problem)
+    why = problem(model, doc, root)
+    if why is not None:
+        raise _Malformed(why)
 
 
 def _check_series(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
@@ -283,17 +239,10 @@ def _check_series(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
 
 def _read_json(raw: bytes) -> TraceParts:
     doc = loads(raw.decode("utf-8"))
-    if not isinstance(doc, dict) or not {"meta", "series", "decisions"} <= set(doc):
-        raise _Malformed("expected an object {meta, series, decisions}, got "
-                         + (f"keys {', '.join(sorted(doc)) or 'none'}" if isinstance(doc, dict)
-                            else json_kind(doc)))
+    _check_doc(TraceDocument, doc)
     meta, series, decisions = doc["meta"], doc["series"], doc["decisions"]
-    _check_doc(meta, series, decisions)
     arrays: dict[str, np.ndarray] = {}
     for name, values in series.items():
-        if not isinstance(values, list):
-            raise _Malformed(f"series.{name}: expected a list (one value per step), got "
-                             f"{json_kind(values)}")
         if name == "configuration":
             arrays[name] = np.asarray(values, dtype=int)
         else:
@@ -314,14 +263,15 @@ def _read_parquet(source: Any, p: str) -> TraceParts:
                          "archself.trace metadata; a campaign's results are read by "
                          "campaign-report)")
     head = loads(md[TRACE_KEY])
-    table = pf.read()
-    if int(head.get("format", 0)) > FORMAT:
+    if isinstance(head, dict) and isinstance(head.get("format"), int) and head["format"] > FORMAT:
         raise TraceError(f"{p}: error: trace format {head['format']} is newer than this "
                          f"archself reads ({FORMAT}); upgrade archself")
+    _check_doc(ParquetHead, head)
     meta = head["meta"]
     decisions = loads(lzma.decompress(base64.b64decode(md[DECISIONS_KEY]))) \
         if DECISIONS_KEY in md else []
-    _check_doc(meta, {}, decisions)
+    _check_doc(DecisionLog, decisions, "decisions")
+    table = pf.read()
     arrays: dict[str, np.ndarray] = {}
     for name, width in head["series"]:
         if name == "configuration":

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
-from archself.io.jsondata import is_number, json_kind, jsonable
+from archself.io.jsondata import json_kind, jsonable
 
 __all__ = ["explain", "explain_data"]
 
@@ -33,68 +33,23 @@ def _as_dict(d: Any) -> dict[str, Any]:
     return d.to_dict() if hasattr(d, "to_dict") else dict(d)
 
 
-def _record_problem(d: Any) -> str | None:
-    """What is wrong with one record of a decision log (``to_dict()`` form), or None."""
-    if not isinstance(d, Mapping):
-        return f": expected a decision record (an object), got {json_kind(d)}"
-    for key in ("t", "j_obs", "j_ref", "r_global", "cycle"):
-        if not is_number(d.get(key)):
-            return f".{key}: expected a number, got {json_kind(d.get(key))}"
-    for key in ("r", "z", "source", "kappa"):
-        m = d.get(key)
-        if m is not None and not isinstance(m, Mapping):
-            return f".{key}: expected an object of modules, got {json_kind(m)}"
-        values = {} if key == "kappa" else (m or {})
-        bad = next((n for n, v in values.items() if not is_number(v)), None)
-        if bad is not None:
-            return f".{key}.{bad}: expected a number, got {json_kind(m[bad])}"  # type: ignore[index]
-    for key in ("candidates", "compensated"):
-        names = d.get(key)
-        if names is not None and (not isinstance(names, list)
-                                  or not all(isinstance(n, str) for n in names)):
-            return f".{key}: expected a list of module names"
-    groups = d.get("equivalent")
-    if groups is not None and (not isinstance(groups, list) or not all(
-        isinstance(g, list) and all(isinstance(n, str) for n in g) for g in groups
-    )):
-        return ".equivalent: expected a list of lists of module names"
-    evals = d.get("evaluations")
-    if evals is not None and not isinstance(evals, list):
-        return f".evaluations: expected a list, got {json_kind(evals)}"
-    for i, e in enumerate(evals or []):
-        if not isinstance(e, Mapping) or "action" not in e:
-            return f".evaluations[{i}]: expected an object with an action, got {json_kind(e)}"
-        bad = next((k for k in ("z", "delta", "cost", "score") if not is_number(e.get(k))), None)
-        if bad is not None:
-            return f".evaluations[{i}].{bad}: expected a number, got {json_kind(e[bad])}"
-        stab = e.get("stability")
-        if stab is not None and not isinstance(stab, Mapping):
-            return f".evaluations[{i}].stability: expected an object, got {json_kind(stab)}"
-    ch = d.get("chosen")
-    if (ch is not None and not isinstance(ch, Mapping)) or (ch and "action" not in ch):
-        return f".chosen: expected an object with an action, or null, got {json_kind(ch)}"
-    bad = next((k for k in ("z", "score", "source") if not is_number((ch or {}).get(k))), None)
-    if bad is not None:
-        return f".chosen.{bad}: expected a number, got {json_kind(ch[bad])}"  # type: ignore[index]
-    return None
-
-
 def decision_log_problem(decisions: Any) -> str | None:
     """What makes ``decisions`` not a decision log (``decisions[3].z: expected …``), or None.
 
     A log is a list of records (:class:`~archself.runtime.decisions.DecisionRecord` or
-    their ``to_dict()`` form, as a trace stores them); a field may be missing, but one
-    that is there has its type.
+    their ``to_dict()`` form, as a trace stores them), checked by the model
+    :data:`archself.io.jsondata.DecisionLog`: a field may be missing, but one that is
+    there has its type.
     """
+    from archself.io.jsondata import DecisionLog, problem
+
     if isinstance(decisions, str | bytes | Mapping) or not isinstance(decisions, Iterable):
         hint = (" (a run's are its .decisions; a trace's: read_trace(path).decisions)"
                 if isinstance(decisions, str) or hasattr(decisions, "decisions") else "")
         return f"decisions: expected a list of decision records, got {json_kind(decisions)}{hint}"
-    for i, d in enumerate(decisions):
-        problem = None if hasattr(d, "to_dict") else _record_problem(d)
-        if problem is not None:
-            return f"decisions[{i}]{problem}"
-    return None
+    # a DecisionRecord object is one by construction: {} keeps the indices
+    return problem(DecisionLog, [{} if hasattr(d, "to_dict") else d for d in decisions],
+                   "decisions")
 
 
 def _records(decisions: Any) -> list[dict[str, Any]]:

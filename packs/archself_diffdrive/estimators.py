@@ -28,7 +28,8 @@ from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.drift_glr import DriftGlr
 from archself_diffdrive.models import Kinematics
 
-__all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf"]
+__all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf", "predict_rows",
+           "update_heading_rows"]
 
 _DEFAULT_KIN = Kinematics()
 #: Parameters both estimators take.
@@ -444,9 +445,6 @@ class Ekf(_PoseEstimator):
     _N = 5  # state size
     _H_GPS = np.eye(2, 5)
 
-    # The state and covariance are plain floats (``_xs``, 5; ``_ps``, 25 row by row):
-    # the per-step predict and heading update run on them in closed form; the GPS
-    # update loads them into a filterpy ``ExtendedKalmanFilter`` and reads its result.
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
         super().__init__(name, params, rng)
@@ -475,95 +473,20 @@ class Ekf(_PoseEstimator):
         pos, th, b, rate = self._p0
         return np.diag([pos**2, pos**2, th**2, b**2, rate**2])
 
-    @property
-    def x(self) -> np.ndarray:
-        """State ``[x, y, θ, b, ḃ]`` (a copy; assign to change it)."""
-        return np.array(self._xs)
-
-    @x.setter
-    def x(self, value) -> None:
-        self._xs = np.asarray(value, dtype=float).ravel()[: self._N].tolist()
-
-    @property
-    def P(self) -> np.ndarray:
-        """State covariance (5×5; a copy; assign to change it)."""
-        return np.array(self._ps).reshape(self._N, self._N)
-
-    @P.setter
-    def P(self, value) -> None:
-        self._ps = np.asarray(value, dtype=float).reshape(self._N, self._N).ravel().tolist()
-
     def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
-        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``.
-
-        ``x ← f(x, u)`` (unicycle, midpoint heading; ``b ← b + ḃ dt``),
-        ``P ← F P Fᵀ + Q`` with ``Q = σ_enc² G Gᵀ + diag(q²) dt``, G the Jacobian
-        of the motion with respect to the two wheel speeds.
-        ``F = I + f₀ e₀e₂ᵀ + f₁ e₁e₂ᵀ + dt e₃e₄ᵀ``: three row operations and three
-        column operations on plain floats (the same equations as
-        ``ExtendedKalmanFilter.predict`` without 5×5 matrix products at every step).
-        """
-        x0, x1, th, b, bd = self._xs
-        r, base = kin.wheel_radius_m, kin.wheel_base_m
+        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``
+        (:func:`predict_rows` of one row)."""
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
-        mid = th + 0.5 * w * dt
-        c, s = math.cos(mid), math.sin(mid)
-        f0 = -v * dt * s  # F[0, 2]
-        f1 = v * dt * c  # F[1, 2]
         sig2 = (self.sig_enc if enc is not None else 10.0) ** 2
-        h = 0.5 * r * dt
-        k = r * dt / base
-        u0, u1 = h * c, h * s
-        q = self._q2
-        P = self._ps
-        rows = [P[0:5], P[5:10], P[10:15], P[15:20], P[20:25]]
-        r2, r4 = rows[2], rows[4]
-        # F P: rows 0, 1 gain f0, f1 times row 2; row 3 gains dt times row 4
-        rows[0] = [a + f0 * e for a, e in zip(rows[0], r2, strict=True)]
-        rows[1] = [a + f1 * e for a, e in zip(rows[1], r2, strict=True)]
-        rows[3] = [a + dt * e for a, e in zip(rows[3], r4, strict=True)]
-        # (F P) Fᵀ: the same on the columns
-        for row in rows:
-            row[0] += f0 * row[2]
-            row[1] += f1 * row[2]
-            row[3] += dt * row[4]
-        # + Q, and the upper triangle mirrored (P stays exactly symmetric)
-        rows[0][0] += q[0] * dt + 2 * sig2 * u0 * u0
-        rows[0][1] += 2 * sig2 * u0 * u1
-        rows[1][1] += q[1] * dt + 2 * sig2 * u1 * u1
-        rows[2][2] += q[2] * dt + 2 * sig2 * k * k
-        rows[3][3] += q[3] * dt
-        rows[4][4] += q[4] * dt
-        self._ps = _mirror_upper(rows)
-        self._xs = [x0 + v * dt * c, x1 + v * dt * s, th + w * dt, b + bd * dt, bd]
+        x, P = predict_rows(self.x[None], self.P[None], dt, v, w, sig2, kin.wheel_radius_m,
+                            kin.wheel_base_m, np.array([self._q2]))
+        self.x, self.P = x[0], P[0]
 
     def update_heading(self, heading: float) -> None:
-        """Update with an IMU heading ``h = θ + b`` (angle residual wrapped).
-
-        The scalar measurement runs at every step, so it is written out in
-        closed form on plain floats (the same equations as
-        ``ExtendedKalmanFilter.update`` with ``H = [0, 0, 1, 1, 0]``, Joseph form
-        ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, upper triangle mirrored); the GPS
-        update goes through filterpy.
-        """
-        xs, P = self._xs, self._ps
-        r2 = self.r_head**2
-        y = (float(heading) - (xs[2] + xs[3]) + math.pi) % (2 * math.pi) - math.pi
-        hv = [P[i + 2] + P[i + 3] for i in range(0, 25, 5)]  # P Hᵀ
-        S = hv[2] + hv[3] + r2
-        K = [e / S for e in hv]
-        # A = (I − K H) P = P − K (H P) = P − K hᵀ (P symmetric)
-        A = [[P[5 * i + j] - K[i] * hv[j] for j in range(5)] for i in range(5)]
-        # A (I − K H)ᵀ + r² K Kᵀ = A − (A Hᵀ) Kᵀ + r² K Kᵀ
-        rows = []
-        for i in range(5):
-            ai = A[i]
-            ci = ai[2] + ai[3]
-            rows.append([ai[j] - ci * K[j] + r2 * K[i] * K[j] for j in range(5)])
-        self._ps = _mirror_upper(rows)
-        xs = [e + kk * y for e, kk in zip(xs, K, strict=True)]
-        xs[2] = (xs[2] + math.pi) % (2 * math.pi) - math.pi
-        self._xs = xs
+        """Update with an IMU heading ``h = θ + b`` (:func:`update_heading_rows` of one row)."""
+        x, P = update_heading_rows(self.x[None], self.P[None], np.array([float(heading)]),
+                                   np.array([self.r_head]))
+        self.x, self.P = x[0], P[0]
 
     def update_position(self, pos) -> tuple[float, float]:
         """Update with a GPS fix (filterpy's ``ExtendedKalmanFilter.update``).
@@ -572,14 +495,13 @@ class Ekf(_PoseEstimator):
         """
         from filterpy.kalman import ExtendedKalmanFilter
 
-        ex = float(pos[0]) - self._xs[0]
-        ey = float(pos[1]) - self._xs[1]
+        ex = float(pos[0]) - float(self.x[0])
+        ey = float(pos[1]) - float(self.x[1])
         kf = ExtendedKalmanFilter(dim_x=self._N, dim_z=2)
-        kf.x = np.array(self._xs)
-        kf.P = self.P
+        kf.x = self.x.copy()
+        kf.P = self.P.copy()
         kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
-        self._xs = kf.x.tolist()
-        self._ps = kf.P.ravel().tolist()
+        self.x, self.P = kf.x, kf.P
         return ex, ey
 
     # data flow ---------------------------------------------------------------
@@ -589,7 +511,7 @@ class Ekf(_PoseEstimator):
         if self.started:
             self.predict(dt, inputs.get("encoder_speeds"), kin)
         elif heading is not None:
-            self._xs[2] = float(heading) - self._xs[3]
+            self.x[2] = float(heading) - self.x[3]
         self.started = True
         if heading is not None:
             self.update_heading(heading)
@@ -598,20 +520,16 @@ class Ekf(_PoseEstimator):
             ex, ey = self.update_position(pos)
             self.monitor.add(t, ex, ey)
             self.signals["innovation"] = self.monitor.value()
-        return {"pose_estimate": np.array(self._xs[:3]), "covariance": self._pose_covariance()}
-
-    def _pose_covariance(self) -> np.ndarray:
-        p = self._ps
-        return np.array(p[0:3] + p[5:8] + p[10:13]).reshape(3, 3)  # one flat array: cheaper
+        return {"pose_estimate": self.x[:3].copy(), "covariance": self.P[:3, :3].copy()}
 
     def export_state(self):
         return {
-            "pose": np.array(self._xs[:3]),
-            "covariance": self._pose_covariance(),
-            "imu_bias": self._xs[3],
-            "imu_bias_std": math.sqrt(max(self._ps[18], 0.0)),
-            "imu_bias_rate": self._xs[4],
-            "imu_bias_rate_std": math.sqrt(max(self._ps[24], 0.0)),
+            "pose": self.x[:3].copy(),
+            "covariance": self.P[:3, :3].copy(),
+            "imu_bias": float(self.x[3]),
+            "imu_bias_std": math.sqrt(max(float(self.P[3, 3]), 0.0)),
+            "imu_bias_rate": float(self.x[4]),
+            "imu_bias_rate_std": math.sqrt(max(float(self.P[4, 4]), 0.0)),
         }
 
     def import_state(self, state):
@@ -633,10 +551,63 @@ class Ekf(_PoseEstimator):
         self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 
 
-def _mirror_upper(rows: list[list[float]]) -> list[float]:
-    """Flatten a square matrix given by rows, its lower triangle copied from the upper."""
-    n = len(rows)
-    return [rows[i][j] if j >= i else rows[j][i] for i in range(n) for j in range(n)]
+_LOWER = np.tril_indices(5, -1)
+
+
+def predict_rows(x, P, dt, v, w, sig2, r, base, q):
+    """:meth:`Ekf.predict` of every row: states ``x`` (L, 5), covariances ``P`` (L, 5, 5).
+
+    ``x ← f(x, u)`` (unicycle, midpoint heading; ``b ← b + ḃ dt``), ``P ← F P Fᵀ + Q``
+    with ``Q = σ_enc² G Gᵀ + diag(q²) dt``, G the Jacobian of the motion with respect to
+    the two wheel speeds, ``F = I + f₀ e₀e₂ᵀ + f₁ e₁e₂ᵀ + dt e₃e₄ᵀ``: three row and three
+    column operations (filterpy's ``predict`` is the test's oracle). ``v``, ``w``
+    (body speeds), ``sig2`` (encoder variance), ``r``, ``base`` (wheels): per row or
+    scalars; ``q`` (L, 5) the process-noise densities squared. The lower triangle is
+    copied from the upper (P stays exactly symmetric).
+    """
+    th = x[:, 2]
+    mid = th + 0.5 * w * dt
+    c, s = np.cos(mid), np.sin(mid)
+    f0 = (-v * dt * s)[:, None]  # F[0, 2]
+    f1 = (v * dt * c)[:, None]  # F[1, 2]
+    h = 0.5 * r * dt
+    k = r * dt / base
+    u0, u1 = h * c, h * s
+    A = P.copy()
+    A[:, 0] = P[:, 0] + f0 * P[:, 2]
+    A[:, 1] = P[:, 1] + f1 * P[:, 2]
+    A[:, 3] = P[:, 3] + dt * P[:, 4]
+    A[:, :, 0] += f0 * A[:, :, 2]
+    A[:, :, 1] += f1 * A[:, :, 2]
+    A[:, :, 3] += dt * A[:, :, 4]
+    A[:, 0, 0] += q[:, 0] * dt + 2 * sig2 * u0 * u0
+    A[:, 0, 1] += 2 * sig2 * u0 * u1
+    A[:, 1, 1] += q[:, 1] * dt + 2 * sig2 * u1 * u1
+    A[:, 2, 2] += q[:, 2] * dt + 2 * sig2 * k * k
+    A[:, 3, 3] += q[:, 3] * dt
+    A[:, 4, 4] += q[:, 4] * dt
+    A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
+    vdt = v * dt
+    bd = x[:, 4]
+    x = np.stack([x[:, 0] + vdt * c, x[:, 1] + vdt * s, th + w * dt, x[:, 3] + bd * dt, bd], 1)
+    return x, A
+
+
+def update_heading_rows(x, P, heading, r_head):
+    """:meth:`Ekf.update_heading` of every row: ``H = [0, 0, 1, 1, 0]``, Joseph form
+    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` written out (the angle residual wrapped)."""
+    r2 = r_head**2
+    y = (heading - (x[:, 2] + x[:, 3]) + math.pi) % (2 * math.pi) - math.pi
+    hv = P[:, :, 2] + P[:, :, 3]  # P Hᵀ
+    S = hv[:, 2] + hv[:, 3] + r2
+    K = hv / S[:, None]
+    A = P - K[:, :, None] * hv[:, None, :]  # (I − K H) P = P − K hᵀ (P symmetric)
+    ci = A[:, :, 2] + A[:, :, 3]
+    A = A - ci[:, :, None] * K[:, None, :] + (r2[:, None] * K)[:, :, None] * K[:, None, :]
+    A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
+    x = x + K * y[:, None]
+    x[:, 2] = (x[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    return x, A
 
 
 def _h_gps(x):

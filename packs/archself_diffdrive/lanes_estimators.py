@@ -4,8 +4,9 @@
 classes of :class:`~archself_diffdrive.estimators.Odometry` and
 :class:`~archself_diffdrive.estimators.Ekf`: every lane computes what its per-run
 instance computes from the same inputs, with the same floating-point operations in
-the same order — the EKF's closed-form predict and heading update on ``(L, 5, 5)``
-covariances, its GPS update as filterpy's Joseph form (stacked products, scipy's
+the same order — the EKF's closed-form predict and heading update are the per-run
+instance's own (:func:`~archself_diffdrive.estimators.predict_rows`, one row there, L
+rows here), its GPS update as filterpy's Joseph form (stacked products, scipy's
 2×2 inverse) — so a lane's pose and covariance are its run's but for an ulp of
 ``np.cos`` (none on x86-64 with numpy 2.4: the poses, commands and J of a1–a4 runs
 are the per-run runs' bit for bit). The residual signals may differ in the last
@@ -30,14 +31,13 @@ import scipy.linalg as linalg
 
 from archself.lanes.module import LaneModule, ModelFields
 from archself_diffdrive.drift_glr import DriftWindows
-from archself_diffdrive.estimators import _DEFAULT_KIN
+from archself_diffdrive.estimators import _DEFAULT_KIN, predict_rows, update_heading_rows
 from archself_diffdrive.lanes_windows import LaneWindows
 
 __all__ = ["EkfLanes", "OdometryLanes", "kinematics_fields"]
 
 PI = math.pi
 TWO_PI = 2 * math.pi
-_LOWER = np.tril_indices(5, -1)
 _EYE5 = np.eye(5)
 _H_GPS = np.eye(2, 5)
 
@@ -247,9 +247,9 @@ class EkfLanes(_EstimatorLanes):
         if heading is not None:
             has = ~np.isnan(heading)
             if has.all():
-                x, P = self._update_heading(x, P, heading, self.r_head[lanes])
+                x, P = update_heading_rows(x, P, heading, self.r_head[lanes])
             elif has.any():
-                x[has], P[has] = self._update_heading(
+                x[has], P[has] = update_heading_rows(
                     x[has], P[has], heading[has], self.r_head[lanes][has]
                 )
         pos = inputs.get("position")
@@ -274,55 +274,11 @@ class EkfLanes(_EstimatorLanes):
         return {"pose_estimate": pose, "covariance": cov}
 
     def _predict(self, x, P, dt, enc, r, base, lanes):
-        """``Ekf.predict`` of every row: unicycle with midpoint heading, ``F P Fᵀ + Q``."""
+        """:func:`~archself_diffdrive.estimators.predict_rows` of every lane."""
         v, w, absent = wheel_body(enc, r, base, len(x))
         sig_enc = self.sig_enc[lanes]
         sig2 = (sig_enc if absent is None else np.where(absent, 10.0, sig_enc)) ** 2
-        th = x[:, 2]
-        mid = th + 0.5 * w * dt
-        c, s = np.cos(mid), np.sin(mid)
-        f0 = (-v * dt * s)[:, None]  # F[0, 2]
-        f1 = (v * dt * c)[:, None]  # F[1, 2]
-        h = 0.5 * r * dt
-        k = r * dt / base
-        u0, u1 = h * c, h * s
-        q = self.q2[lanes]
-        A = P.copy()
-        # F P: rows 0, 1 gain f0, f1 times row 2; row 3 gains dt times row 4
-        A[:, 0] = P[:, 0] + f0 * P[:, 2]
-        A[:, 1] = P[:, 1] + f1 * P[:, 2]
-        A[:, 3] = P[:, 3] + dt * P[:, 4]
-        # (F P) Fᵀ: the same on the columns
-        A[:, :, 0] += f0 * A[:, :, 2]
-        A[:, :, 1] += f1 * A[:, :, 2]
-        A[:, :, 3] += dt * A[:, :, 4]
-        A[:, 0, 0] += q[:, 0] * dt + 2 * sig2 * u0 * u0
-        A[:, 0, 1] += 2 * sig2 * u0 * u1
-        A[:, 1, 1] += q[:, 1] * dt + 2 * sig2 * u1 * u1
-        A[:, 2, 2] += q[:, 2] * dt + 2 * sig2 * k * k
-        A[:, 3, 3] += q[:, 3] * dt
-        A[:, 4, 4] += q[:, 4] * dt
-        A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]  # P stays exactly symmetric
-        vdt = v * dt
-        bd = x[:, 4]
-        x = np.stack([x[:, 0] + vdt * c, x[:, 1] + vdt * s, th + w * dt, x[:, 3] + bd * dt, bd], 1)
-        return x, A
-
-    @staticmethod
-    def _update_heading(x, P, heading, r_head):
-        """``Ekf.update_heading`` of every row (``H = [0, 0, 1, 1, 0]``, Joseph form)."""
-        r2 = r_head**2
-        y = (heading - (x[:, 2] + x[:, 3]) + PI) % TWO_PI - PI
-        hv = P[:, :, 2] + P[:, :, 3]  # P Hᵀ
-        S = hv[:, 2] + hv[:, 3] + r2
-        K = hv / S[:, None]
-        A = P - K[:, :, None] * hv[:, None, :]
-        ci = A[:, :, 2] + A[:, :, 3]
-        A = A - ci[:, :, None] * K[:, None, :] + (r2[:, None] * K)[:, :, None] * K[:, None, :]
-        A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
-        x = x + K * y[:, None]
-        x[:, 2] = (x[:, 2] + PI) % TWO_PI - PI
-        return x, A
+        return predict_rows(x, P, dt, v, w, sig2, r, base, self.q2[lanes])
 
     def _update_position(self, x, P, z, lanes, has):
         """``ExtendedKalmanFilter.update`` with ``H = [I₂ 0]`` of every row (Joseph form).
@@ -347,8 +303,8 @@ class EkfLanes(_EstimatorLanes):
     def load(self, lanes):
         for i in self.indices(lanes):
             m = self.modules[i]
-            self.x[i] = m._xs
-            self.P[i] = np.reshape(m._ps, (5, 5))
+            self.x[i] = m.x
+            self.P[i] = m.P
             self.started[i] = m.started
             self.monitor.load(i, m.monitor)
             self.innovation[i] = m.signals["innovation"]
@@ -360,8 +316,8 @@ class EkfLanes(_EstimatorLanes):
     def store(self, lanes):
         for i in self.indices(lanes):
             m = self.modules[i]
-            m._xs = self.x[i].tolist()
-            m._ps = self.P[i].ravel().tolist()
+            m.x = self.x[i].copy()
+            m.P = self.P[i].copy()
             m.started = bool(self.started[i])
             self.monitor.store(i, m.monitor)
             m.signals["innovation"] = float(self.innovation[i])
