@@ -187,18 +187,18 @@ def check_subsystems(ctx: Context) -> None:
     for cname, conf in arch.configurations.items():
         base: Path_ = ("configurations", cname)
         for sname, mode in (conf.modes or {}).items():
-            sub = arch.subsystems.get(sname)
-            pool = arch.subsystems if sub is None else sub.modes
-            if sub is not None and mode in pool:
+            known = arch.subsystems.get(sname)
+            pool = arch.subsystems if known is None else known.modes
+            if known is not None and mode in pool:
                 continue
-            word = sname if sub is None else mode
+            word = sname if known is None else mode
             close = closest(word, pool)
             hint = f"; did you mean '{close}'?" if close else ""
-            what = (f"unknown subsystem '{sname}'" if sub is None
+            what = (f"unknown subsystem '{sname}'" if known is None
                     else f"subsystem '{sname}' has no mode '{mode}' (modes: "
                     f"{', '.join(pool)})")
             ctx.add("error", "subsystem", f"{what}{hint}", (*base, "modes", sname),
-                    key=sub is None)
+                    key=known is None)
         for i, m in enumerate(conf.own_modules if conf.modes is not None else []):
             if m in owner:
                 ctx.add("error", "subsystem", f"'{m}' is in subsystem '{owner[m][0]}': a "

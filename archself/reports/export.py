@@ -334,14 +334,23 @@ def ros2_modes(
         default = dict(own[chosen[first][s] or next(iter(own))])
         doc[s] = {"ros__parameters": {"type": "system", "parts": " ".join(held),
                                       "modes": {DEFAULT_MODE: default, **own}}}
+    doc.update(_node_entries(arch, parts, wired_modes))
+    return doc
+
+
+def _node_entries(
+    arch: Architecture, parts: list[str], wired_modes: dict[str, dict[str, Any]]
+) -> dict[str, Any]:
+    """Each node: ``__DEFAULT__`` (nominal values), a mode per parameter update, its wiring."""
     updates: dict[str, dict[str, dict[str, Any]]] = {}
     for a in arch.actions:
         if a.kind == "parameter_update" and a.set and a.module in parts:
             updates.setdefault(a.module, {})[_mode_name(a.id)] = {
                 "ros__parameters": {k: _ros_value(v) for k, v in a.set.items()}}
+    doc: dict[str, Any] = {}
     for name in parts:
         nominal = {k: _ros_value(p.value) for k, p in arch.modules[name].params.items()}
-        extra = wired_modes.get(name, {})
+        extra = dict(wired_modes.get(name, {}))
         if DEFAULT_MODE in extra:
             nominal["archself_inputs"] = extra.pop(DEFAULT_MODE)
         node_modes: dict[str, Any] = {DEFAULT_MODE: {"ros__parameters": nominal}}
