@@ -192,5 +192,5 @@ def test_reprs_are_one_line_and_dir_is_the_public_api(run: Any) -> None:
     assert f"seed={run.seed}" in text
     arch = archself.load(str(DIFFDRIVE))
     assert repr(arch) == ("Architecture(name='diffdrive', modules=15, edges=39, "
-                          "configurations=4, actions=7, scenarios=7)")
+                          "configurations=4, actions=7, scenarios=8)")
     assert dir(archself) == sorted([*archself.__all__, "__version__"])

@@ -139,3 +139,48 @@ def test_metric_labels_carry_the_objective_unit(tmp_path) -> None:
     arch = load_text(text, str(path)).arch
     rep = build_run_report(arch, [simulate(arch, "calm")])
     assert figures.plot_error(rep).axes[0].get_ylabel() == "tracking error [K]"
+
+
+def test_quality_attributes_over_time_and_the_trade_off(tmp_path) -> None:
+    """One figure: each attribute's utility and U of the configuration the run was in,
+    and the configurations in the attributes' space with the path taken (issue 35)."""
+    from numpy.testing import assert_allclose
+
+    from archself import load
+    from archself.reports import figures
+    from archself.reports.run import build_run_report
+    from archself.reports.run_report import write_run_report
+    from archself.runtime import MapeK
+    from archself.sim.run import simulate
+
+    arch = load(DIFFDRIVE)
+    arch.scenarios["actuator_fault"].duration_s = 25.0  # left wheel −20 % from 20 s
+    fixed = simulate(arch, "actuator_fault")
+    adaptive = simulate(arch, "actuator_fault", adapt=MapeK(arch))
+    rep = build_run_report(arch, [fixed, adaptive])
+    q = rep.qualities
+    assert q["preferences"] == {"energy": 0.4, "accuracy": 0.6}
+    assert_allclose([q["configurations"][c]["U"] for c in ("a1", "a3")],
+                    [0.4 * (33 - 31.1) / 3, 0.6 + 0.4 * (33 - 32.1) / 3], rtol=1e-9)
+    assert rep.timeline("adaptive") == [(0.05, "a1"), (21.0, "a3")]  # the first sample on
+    fig = figures.plot_qualities(rep)
+    over_time, trade = fig.axes
+    lines = {ln.get_label(): ln for ln in over_time.get_lines()}
+    u = lines["U (adaptive architecture)"]
+    assert_allclose(u.get_xdata(), [0.05, 21.0, 25.0], atol=1e-9)
+    assert_allclose(u.get_ydata(), [0.2533333, 0.72, 0.72], atol=1e-6)
+    assert_allclose(lines["U (fixed architecture)"].get_ydata(), [0.2533333] * 2, atol=1e-6)
+    assert_allclose(lines["u accuracy (weight 0.6)"].get_ydata(), [0.0, 1.0, 1.0])
+    # the trade-off: accuracy (weight 0.6) on x, energy on y; a1/a4 and a2/a3 share points
+    assert trade.get_xlabel() == "accuracy [m]" and trade.get_ylabel() == "energy [W]"
+    texts = sorted(t.get_text() for t in trade.texts if "U " in t.get_text())
+    assert texts == ["a1 (U 0.25), a4 (U 0.25)", "a2 (U 0.72), a3 (U 0.72)"]
+    assert "21 s" in [t.get_text() for t in trade.texts]
+    write_run_report(arch, [fixed, adaptive], tmp_path / "r")
+    assert (tmp_path / "r" / "qualities.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert '"qualities.png"' in (tmp_path / "r" / "index.html").read_text(encoding="utf-8")
+    # a file without qualities: no such figure
+    res = runner.invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--report",
+                              str(tmp_path / "m")])
+    assert res.exit_code == 0, res.output
+    assert not (tmp_path / "m" / "qualities.png").exists()

@@ -66,3 +66,32 @@ def test_wheel_loss_during_a_gps_dropout_takes_the_detour(robot):
     assert ("compensate_left_wheel (substitute on wheel_left → a3)  "
             "rejected (unavailable: gps") in text
     assert "compensate_left_wheel@a4 (substitute on wheel_left → a4)" in text
+
+
+def test_an_unstable_target_gives_way_to_a_stable_configuration_holding_the_remedy():
+    """The declared target fails the stability filter: the planner evaluates the other
+    configurations that hold the action's remedy (same checks) and takes a stable one."""
+    from test_runtime_fakes import FakeSystem, high, make_arch, run_loop
+
+    from archself.model.architecture import Configuration
+
+    stable, unstable = [[-1.0, 0.0], [0.0, -2.0]], [[0.5, 0.0], [0.0, -2.0]]
+    arch = make_arch()
+    # alt_ctl (declared target of swap_ctl, act's remedy ctl_b) is unstable here;
+    # alt_ctl_m holds the same remedy and what alt_ctl keeps of base, and is stable
+    arch.configurations["alt_ctl_m"] = Configuration(modules=["src", "est_a", "ctl_b", "act",
+                                                              "model"])
+    lin = {"base": stable, "alt_est": stable, "alt_ctl": unstable, "alt_ctl_m": stable,
+           "bad": unstable, "heavy": stable}
+    loop = MapeK(arch)
+    switches = run_loop(loop, FakeSystem(arch, high("act", "cmd_err"), linearizations=lin), 2.0)
+    assert [(s["t_s"], s["to"], s["action"]) for s in switches] == [
+        (1.0, "alt_ctl_m", "swap_ctl@alt_ctl_m")]
+    evs = {e.action: e for e in loop.decisions[0].evaluations}
+    assert evs["swap_ctl"].rejected == "unstable"
+    assert evs["swap_ctl@alt_ctl_m"].rejected is None
+    # with paths off the unstable target leaves the fault alone
+    arch.runtime.ablation.paths = False
+    loop = MapeK(arch)
+    assert run_loop(loop, FakeSystem(arch, high("act", "cmd_err"), linearizations=lin),
+                    2.0) == []

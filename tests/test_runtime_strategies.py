@@ -76,7 +76,9 @@ strategies:
 
 
 def test_strategies_are_validated_with_located_errors():
-    text = (data_dir("architectures") / "diffdrive.yaml").read_text() + BAD
+    text = (data_dir("architectures") / "diffdrive.yaml").read_text()
+    assert text.count("\nstrategies:\n") == 1  # the shipped one, then these
+    text = text.replace("\nstrategies:\n", BAD, 1)
     found = [(f.path, f.message) for f in check(load_text(text, "robot.yaml"))
              if f.severity == "error" and f.line]
     assert ("strategies.recover.steps.first.tactic",
@@ -95,3 +97,61 @@ def test_a_condition_needs_a_part():
     with pytest.raises(ValueError, match="a condition needs at least one"):
         Strategy.model_validate({"module": "m", "start": "a",
                                  "steps": {"a": {"tactic": "t", "post": {}}}})
+
+
+def _dropout_run(arch, duration_s):
+    from archself.sim.run import simulate
+
+    arch.scenarios["drift_then_dropout"].duration_s = duration_s
+    loop = MapeK(arch)
+    run = simulate(arch, "drift_then_dropout", adapt=loop)
+    notes = {d.t: d.note for d in loop.decisions if d.note}
+    return run, loop, notes
+
+
+@pytest.mark.slow
+def test_the_shipped_strategy_returns_to_the_ekf_when_the_gps_is_back():
+    """diffdrive's gps_outage: IMU drift puts the robot on a2; GPS out 90–120 s: dead
+    reckoning (tactic 1), post-check on a1, then back to the EKF as soon as the GPS is
+    back (tactic 2) instead of when the odometry's drift test finds the drift again."""
+    from archself import load
+
+    run, loop, notes = _dropout_run(load(data_dir("architectures") / "diffdrive.yaml"), 125.0)
+    got = [(s["from"], s["to"], s["action"]) for s in run.switches]
+    assert got == [("a1", "a2", "use_ekf_gps"), ("a2", "a1", "fallback_odometry"),
+                   ("a1", "a2", "use_ekf_gps")]
+    assert 90.0 < run.switches[1]["t_s"] <= 95.0 and 120.0 < run.switches[2]["t_s"] <= 122.0
+    t1 = run.switches[1]["t_s"]
+    assert notes[t1] == "strategy gps_outage, step dead_reckon: executes fallback_odometry"
+    assert notes[t1 + 1.0].startswith("strategy gps_outage, step dead_reckon: post-check "
+                                      "passed → back_to_ekf; strategy gps_outage, step "
+                                      "back_to_ekf: waiting for use_ekf_gps (unavailable")
+    assert notes[run.switches[2]["t_s"]] == ("strategy gps_outage, step back_to_ekf: "
+                                             "executes use_ekf_gps")
+    assert loop.strategies.running is None  # done
+
+
+@pytest.mark.slow
+def test_a_failed_post_check_on_the_robot_takes_the_failure_branch():
+    """The same strategy with a post-check that cannot pass (J below 0.1 mm) and a
+    failure branch to a parameter update: the branch's tactic runs after the check."""
+    from archself import load
+
+    arch = load(data_dir("architectures") / "diffdrive.yaml")
+    st = arch.strategies["gps_outage"]
+    st.steps["dead_reckon"].post = Strategy.model_validate({
+        "module": "gps", "start": "x", "steps": {"x": {"tactic": "t", "post": {
+            "objective_below": 1e-4}}}}).steps["x"].post
+    st.steps["dead_reckon"].failure = "stiffen"
+    st.steps["stiffen"] = type(st.steps["dead_reckon"]).model_validate(
+        {"tactic": "stiffen_lateral_gain", "success": "done", "failure": "done"})
+    run, loop, notes = _dropout_run(arch, 96.0)
+    t1 = run.switches[1]["t_s"]
+    assert run.switches[1]["action"] == "fallback_odometry"
+    assert notes[t1 + 1.0] == ("strategy gps_outage, step dead_reckon: post-check FAILED → "
+                               "stiffen; strategy gps_outage, step stiffen: executes "
+                               "stiffen_lateral_gain")
+    chosen = [d.chosen for d in loop.decisions if d.t == t1 + 1.0]
+    assert chosen[0]["action"] == "stiffen_lateral_gain"
+    assert notes[t1 + 1.5] == "strategy gps_outage, step stiffen: post-check passed → done"
+    assert loop.strategies.running is None

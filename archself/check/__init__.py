@@ -44,6 +44,9 @@ offending node. The rules:
   the module an action addresses is active where it applies (a warning);
 * ``residual``: a residual names a signal the module's type publishes;
 * ``initial``: at most one configuration is marked initial;
+* ``subsystem``: subsystem modes name declared modules, each module in one mode of one
+  subsystem; a composed configuration (``modes``) names declared subsystems and modes
+  and lists none of their modules as its own;
 * ``limits``: a module's ``constraints.blocks`` names declared actions (and has
   ``limits`` to be violated);
 * ``stability``: with ``runtime.stability.verify`` warning or error (opt-in: it
@@ -65,6 +68,7 @@ from archself.check.graph import (
     check_configurations,
     check_edges,
     check_ports,
+    check_subsystems,
     check_weights,
     spectrum_summary,
 )
@@ -103,6 +107,7 @@ def check(loaded: Loaded, stability: str | None = None) -> list[Finding]:
             check_edges,
             check_ports,
             check_weights,
+            check_subsystems,
             check_configurations,
             check_parameters,
             check_actions,

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.check.context import Context, refers
+from archself.check.context import Context, closest, refers
 from archself.io.yaml_source import Path_
 from archself.model.architecture import Architecture
 
@@ -21,6 +21,7 @@ __all__ = [
     "check_configurations",
     "check_edges",
     "check_ports",
+    "check_subsystems",
     "check_weights",
     "spectrum_summary",
 ]
@@ -160,6 +161,48 @@ def active_edges(arch: Architecture, conf_name: str) -> list[tuple[int, Any]]:
         (i, e) for i, e in enumerate(arch.edges)
         if e.source in active and e.target in active and (e.source, e.target) not in off
     ]
+
+
+def check_subsystems(ctx: Context) -> None:
+    """Subsystem modes name known modules, a module in one mode of one subsystem; a
+    composed configuration names known subsystems and modes, and lists no subsystem's
+    module among its own."""
+    arch = ctx.arch
+    owner: dict[str, tuple[str, str]] = {}  # module -> (subsystem, mode)
+    for sname, sub in arch.subsystems.items():
+        if sname in arch.modules or sname == arch.name:
+            ctx.add("error", "subsystem", f"subsystem '{sname}' has the name of a "
+                    f"{'module' if sname in arch.modules else 'system'} (one ROS 2 part "
+                    "each)", ("subsystems", sname), key=True)
+        for mode, mods in sub.modes.items():
+            for i, m in enumerate(mods):
+                at: Path_ = ("subsystems", sname, "modes", mode, i)
+                if not refers(ctx, m, at):
+                    continue
+                s0, m0 = owner.setdefault(m, (sname, mode))
+                if (s0, m0) != (sname, mode):
+                    where = f"mode '{m0}'" if s0 == sname else f"subsystem '{s0}'"
+                    ctx.add("error", "subsystem", f"'{m}' is already in {where}: a module "
+                            "belongs to one mode of one subsystem", at)
+    for cname, conf in arch.configurations.items():
+        base: Path_ = ("configurations", cname)
+        for sname, mode in (conf.modes or {}).items():
+            known = arch.subsystems.get(sname)
+            pool = arch.subsystems if known is None else known.modes
+            if known is not None and mode in pool:
+                continue
+            word = sname if known is None else mode
+            close = closest(word, pool)
+            hint = f"; did you mean '{close}'?" if close else ""
+            what = (f"unknown subsystem '{sname}'" if known is None
+                    else f"subsystem '{sname}' has no mode '{mode}' (modes: "
+                    f"{', '.join(pool)})")
+            ctx.add("error", "subsystem", f"{what}{hint}", (*base, "modes", sname),
+                    key=known is None)
+        for i, m in enumerate(conf.own_modules if conf.modes is not None else []):
+            if m in owner:
+                ctx.add("error", "subsystem", f"'{m}' is in subsystem '{owner[m][0]}': a "
+                        "composed configuration picks it by its mode", (*base, "modules", i))
 
 
 def check_configurations(ctx: Context) -> None:

@@ -16,7 +16,8 @@ parameter space Θ_i       ``modules.<name>.params``
 constraints k_i           ``modules.<name>.constraints``
 r_i (Eq. 12)              ``modules.<name>.residual``
 edges Γ, ω=W_ji (Eq. 13)  ``edges[*]`` with ``weight``
-admissible architectures  ``configurations``
+admissible architectures  ``configurations`` (flat, or composed from
+                          ``subsystems`` modes)
 A(m_i) (Eq. 18, 25)       ``actions[*]``
 C(a, θ, e) ≤ 0 (Eq. 27)   ``constraints[*]``
 environment e             ``scenarios``
@@ -66,6 +67,7 @@ __all__ = [
     "MAX_TIME_S", "MIN_SCALE", "MIN_STEP_S", "Finite", "Name", "NonNeg", "ParamValue",
     "Positive", "PositiveSeconds", "Scale", "Seconds", "StrictModel",
     "Parameter", "Residual", "ModuleConstraints", "Module", "Edge", "Configuration",
+    "Subsystem", "expand_modes",
     "SensitivityEstimate", "RolloutEstimate", "TableEstimate", "Improvement", "Action",
     "Budget", "FaultKind", "Fault", "Scenario",
     "Stability", "Hysteresis", "Ablation", "Objective", "Runtime", "Architecture",
@@ -197,16 +199,93 @@ class Edge(StrictModel):
 
 
 # --------------------------------------------------------------------------- configurations
-class Configuration(StrictModel):
-    """An admissible architecture a ∈ A: the active modules (and optionally edges)."""
+class Subsystem(StrictModel):
+    """A part of the system with its own modes (ROS 2 system_modes' sub-system).
+
+    Each mode names the modules the subsystem runs in it; a configuration composed
+    from modes (``Configuration.modes``) picks one mode per subsystem.
+    """
 
     description: str | None = None
-    modules: list[Name] = Field(min_length=1, description="Active modules.")
+    modes: dict[Name, list[Name]] = Field(
+        min_length=1, description="Mode name -> the modules active in that mode."
+    )
+
+
+class Configuration(StrictModel):
+    """An admissible architecture a ∈ A: the active modules (and optionally edges).
+
+    Flat: ``modules`` lists every active module. Composed: ``modes`` picks a mode of
+    each subsystem (subsystem -> mode) and ``modules`` lists the modules outside the
+    subsystems; the model expands it into the flat list (file order of ``modules``
+    of the file), the one the runtime uses (:func:`expand_modes`).
+    """
+
+    model_config = ConfigDict(json_schema_extra={"anyOf": [
+        {"required": ["modules"], "properties": {"modules": {"minItems": 1}}},
+        {"required": ["modes"]},
+    ]})
+
+    description: str | None = None
+    modules: list[Name] = Field(
+        default_factory=list,
+        description="Active modules (composed: those outside the subsystems). Required "
+        "unless `modes` is given.",
+    )
+    modes: dict[Name, Name] | None = Field(
+        None, description="Composed from subsystem modes: subsystem -> its mode here "
+        "(`subsystems`); a subsystem not named is off."
+    )
     disabled_edges: list[tuple[Name, Name]] = Field(
         default_factory=list,
         description="Edges [from, to] between active modules that are switched off here.",
     )
     initial: bool = Field(False, description="The configuration a run starts from.")
+
+    _own: list[str] | None = PrivateAttr(None)  # a composed one's own modules, as written
+
+    @property
+    def own_modules(self) -> list[str]:
+        """The modules as written: a composed configuration's own (outside its modes)."""
+        return self.modules if self._own is None else self._own
+
+    @model_validator(mode="after")
+    def _something(self) -> Configuration:
+        if not self.modules and self.modes is None:
+            raise ValueError("a configuration needs 'modules' (flat) or 'modes' (composed "
+                             "from subsystem modes)")
+        return self
+
+
+def expand_modes(
+    configurations: dict[str, Configuration], subsystems: dict[str, Subsystem], order: Any
+) -> None:
+    """Expand every composed configuration into its flat module list, in place.
+
+    The modules are those of the chosen modes plus the configuration's own, once each,
+    in the order of ``order`` (the file's modules; names it does not hold last, as
+    written, for the checks to report). An unknown subsystem or mode adds nothing
+    (:func:`archself.check.graph.check_subsystems` reports it).
+
+    Examples
+    --------
+    >>> subs = {"loc": Subsystem(modes={"dr": ["odo"], "fused": ["ekf"]})}
+    >>> confs = {"a": Configuration(modules=["plant"], modes={"loc": "fused"})}
+    >>> expand_modes(confs, subs, ["plant", "odo", "ekf"])
+    >>> confs["a"].modules
+    ['plant', 'ekf']
+    """
+    rank = {m: i for i, m in enumerate(order)}
+    for conf in configurations.values():
+        if conf.modes is None:
+            continue
+        if conf._own is None:
+            conf._own = list(conf.modules)
+        wanted = list(conf._own)
+        for sub, mode in conf.modes.items():
+            wanted += subsystems[sub].modes.get(mode, []) if sub in subsystems else []
+        unique = list(dict.fromkeys(wanted))
+        conf.modules = sorted(unique, key=lambda m: rank.get(m, len(rank)))
 
 
 # --------------------------------------------------------------------------- actions
@@ -346,6 +425,11 @@ class Architecture(StrictModel):
     description: str | None = None
     modules: dict[Name, Module] = Field(min_length=1, description="M = M_P ∪ M_F ∪ M_M.")
     edges: list[Edge] = Field(default_factory=list, description="Γ ⊆ M × M with attributes.")
+    subsystems: dict[Name, Subsystem] = Field(
+        default_factory=dict,
+        description="Parts with their own modes; a configuration may be composed from "
+        "them (`configurations.<c>.modes`, docs/format.md).",
+    )
     configurations: dict[Name, Configuration] = Field(
         min_length=1, description="Admissible architectures A."
     )
@@ -366,6 +450,7 @@ class Architecture(StrictModel):
     def _ports(self) -> Architecture:
         from archself.model.ports import resolve_edges
 
+        expand_modes(self.configurations, self.subsystems, self.modules)
         self._edge_ports = resolve_edges(self.modules, self.edges)
         return self
 

@@ -160,22 +160,42 @@ def _inputs_of(arch: Architecture, nodes: list[str]) -> dict[str, dict[str, tupl
     return out
 
 
-def ros2_rules(arch: Architecture, nodes: list[str]) -> tuple[dict[str, Any], list[str]]:
+def _inside(arch: Architecture, parts: list[str], flat: bool) -> dict[str, list[str]]:
+    """subsystem → its parts (file order), for the subsystems holding a part (none if flat)."""
+    if flat:
+        return {}
+    out: dict[str, list[str]] = {}
+    for s, sub in arch.subsystems.items():
+        mods = {m for ms in sub.modes.values() for m in ms}
+        held = [p for p in parts if p in mods]
+        if held:
+            out[s] = held
+    return out
+
+
+def ros2_rules(
+    arch: Architecture, nodes: list[str], *, flat: bool = False
+) -> tuple[dict[str, Any], list[str]]:
     """system_modes ``rules`` for the degradations the file declares, and what cannot be one.
 
     A structural action keyed to a node module ``m`` that applies in configuration
     ``c`` and leads to ``c'`` becomes the rule "in system mode ``C``, if part ``m``
     is inactive, go to ``C'``" (``degrade_<C>_<m>``). An action keyed to a module
     that is not a node (a sensor, a wheel) has no part whose state a mode manager
-    could watch: it is returned as one line instead (the MAPE-K loop still takes it).
+    could watch: it is returned as one line instead (the MAPE-K loop still takes it);
+    so is one keyed to a node inside a subsystem (unless ``flat``), since a rule of the
+    system watches its direct parts.
     """
     rules: dict[str, Any] = {}
     not_rules: list[str] = []
+    owner = {p: s for s, held in _inside(arch, nodes, flat).items() for p in held}
     for a in arch.actions:
         if a.kind == "parameter_update" or a.to is None:
             continue
-        if a.module not in nodes:
-            not_rules.append(f"{a.id} ({a.module} is not a node)")
+        if a.module not in nodes or a.module in owner:
+            why = (f"{a.module} is in subsystem {owner[a.module]}" if a.module in owner
+                   else f"{a.module} is not a node")
+            not_rules.append(f"{a.id} ({why})")
             continue
         for c, conf in arch.configurations.items():
             if c == a.to or a.module not in conf.modules or (a.applies_in
@@ -189,46 +209,17 @@ def ros2_rules(arch: Architecture, nodes: list[str]) -> tuple[dict[str, Any], li
     return rules, not_rules
 
 
-def ros2_modes(arch: Architecture, nodes: list[str] | None = None) -> dict[str, Any]:
-    """The architecture as a ROS 2 ``system_modes`` mode file (as data; dump it as YAML).
+def _wiring(
+    arch: Architecture, parts: list[str]
+) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]]]:
+    """Node modes of the parts wired differently in a configuration than in the initial one.
 
-    The mapping (docs/export.md):
-
-    - the architecture is one **system** named after the file's ``name``; its
-      ``parts`` are the modules that run as nodes (:func:`node_modules`: the
-      functional ones by default), one lifecycle node each, named as in the file;
-    - every **configuration** is a system mode (its name upper-cased; the initial
-      configuration is also ``__DEFAULT__``) in which each part is
-      ``active.<node mode>`` when the configuration holds it, else ``inactive``;
-    - every part is a **node** whose ``__DEFAULT__`` mode holds the file's nominal
-      parameter values as ``ros__parameters``; every ``parameter_update`` action
-      adds a node mode named after the action id with the values it sets (the
-      MAPE-K loop chooses it, as the mode manager's client); a node whose active
-      inputs differ between configurations (another source, a ``rewire`` or a
-      configuration's ``disabled_edges``) gets a node mode per configuration that
-      wires it differently from the initial one (or the first holding it), with its inputs as the
-      parameter ``archself_inputs``, so that rewired configurations stay distinct
-      system modes;
-    - ``rules``: the degradations the file declares (:func:`ros2_rules`).
-
-    Examples
-    --------
-    >>> from archself.model.loader import load_architecture
-    >>> from archself.resources import data_dir
-    >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
-    >>> m = ros2_modes(arch)
-    >>> m["diffdrive"]["ros__parameters"]["modes"]["A2"]["ekf"]
-    'active.__DEFAULT__'
-    >>> m["diffdrive"]["ros__parameters"]["rules"]["degrade_A1_odometry"]["new_target"]
-    'active.A2'
-    >>> m["lqr"]["ros__parameters"]["modes"]["STIFFEN_LATERAL_GAIN"]["ros__parameters"]
-    {'q_lateral': 0.01}
+    Returns node → configuration → its node mode, and node → node mode → its
+    ``ros__parameters`` (``archself_inputs``; under ``__DEFAULT__`` the reference inputs).
     """
-    parts = node_modules(arch, nodes)
-    system = _mode_name(arch.name).lower()
     first = arch.initial_configuration()
     inputs = _inputs_of(arch, parts)
-    wiring: dict[str, dict[str, str]] = {}  # node → configuration → its node mode
+    wiring: dict[str, dict[str, str]] = {}
     wired_modes: dict[str, dict[str, Any]] = {}
     for p in parts:
         held = [c for c, conf in arch.configurations.items() if p in conf.modules]
@@ -241,25 +232,125 @@ def ros2_modes(arch: Architecture, nodes: list[str] | None = None) -> dict[str, 
                     "ros__parameters": {"archself_inputs": list(inputs[c][p])}}
         if p in wired_modes:
             wired_modes[p][DEFAULT_MODE] = list(ref)
+    return wiring, wired_modes
+
+
+def _subsystem_modes(
+    arch: Architecture, inside: dict[str, list[str]]
+) -> tuple[dict[str, dict[str, str | None]], dict[str, dict[str, list[str]]]]:
+    """Each configuration's mode of each subsystem, and each subsystem's modes (its parts).
+
+    A composed configuration names its modes; a flat one takes the mode whose parts are
+    the ones it runs, else a mode named after it; a subsystem none of whose parts run
+    is off (None).
+    """
+    modes = {s: {_mode_name(m): [p for p in held if p in arch.subsystems[s].modes[m]]
+                 for m in arch.subsystems[s].modes} for s, held in inside.items()}
+    chosen: dict[str, dict[str, str | None]] = {}
+    for c, conf in arch.configurations.items():
+        on = set(conf.modules)
+        pick: dict[str, str | None] = {}
+        for s, held in inside.items():
+            running = [p for p in held if p in on]
+            declared = (conf.modes or {}).get(s)
+            if declared is not None and declared in arch.subsystems[s].modes:
+                pick[s] = _mode_name(declared)
+                continue
+            name = next((k for k, v in modes[s].items() if v == running), None)
+            if name is None and running:
+                name = _mode_name(c)
+                modes[s][name] = running
+            pick[s] = name if running else None
+        chosen[c] = pick
+    return chosen, modes
+
+
+def ros2_modes(
+    arch: Architecture, nodes: list[str] | None = None, *, flat: bool = False
+) -> dict[str, Any]:
+    """The architecture as a ROS 2 ``system_modes`` mode file (as data; dump it as YAML).
+
+    The mapping (docs/export.md):
+
+    - the architecture is one **system** named after the file's ``name``; its
+      ``parts`` are the modules that run as nodes (:func:`node_modules`: the
+      functional ones by default), one lifecycle node each, named as in the file —
+      except those inside a **subsystem** (``subsystems`` of the file, unless
+      ``flat``): a subsystem holding nodes is a part of type ``system`` whose parts
+      are its nodes and whose modes are its modes (``__DEFAULT__``: its mode in the
+      initial configuration);
+    - every **configuration** is a system mode (its name upper-cased; the initial
+      configuration is also ``__DEFAULT__``) in which each node part is
+      ``active.<node mode>`` when the configuration holds it, else ``inactive``, and
+      each subsystem ``active.<its mode>`` (:func:`_subsystem_modes`) or ``inactive``;
+    - every part is a **node** whose ``__DEFAULT__`` mode holds the file's nominal
+      parameter values as ``ros__parameters``; every ``parameter_update`` action
+      adds a node mode named after the action id with the values it sets (the
+      MAPE-K loop chooses it, as the mode manager's client); a node part whose active
+      inputs differ between configurations (another source, a ``rewire`` or a
+      configuration's ``disabled_edges``) gets a node mode per configuration that
+      wires it differently from the initial one (or the first holding it), with its inputs as the
+      parameter ``archself_inputs``, so that rewired configurations stay distinct
+      system modes (a node inside a subsystem reads what the other modes run);
+    - ``rules``: the degradations the file declares (:func:`ros2_rules`).
+
+    Examples
+    --------
+    >>> from archself.model.loader import load_architecture
+    >>> from archself.resources import data_dir
+    >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
+    >>> m = ros2_modes(arch)
+    >>> a2 = m["diffdrive"]["ros__parameters"]["modes"]["A2"]
+    >>> a2["planner"], a2["localization"], a2["control"]
+    ('active.__DEFAULT__', 'active.FUSED', 'active.SYMMETRIC_FUSED')
+    >>> m["localization"]["ros__parameters"]["modes"]["FUSED"]
+    {'odometry': 'inactive', 'ekf': 'active.__DEFAULT__'}
+    >>> ros2_modes(arch, flat=True)["diffdrive"]["ros__parameters"]["modes"]["A2"]["ekf"]
+    'active.__DEFAULT__'
+    >>> m["lqr"]["ros__parameters"]["modes"]["STIFFEN_LATERAL_GAIN"]["ros__parameters"]
+    {'q_lateral': 0.01}
+    """
+    parts = node_modules(arch, nodes)
+    first = arch.initial_configuration()
+    inside = _inside(arch, parts, flat)
+    free = [p for p in parts if not any(p in held for held in inside.values())]
+    wiring, wired_modes = _wiring(arch, free)
+    chosen, sub_modes = _subsystem_modes(arch, inside)
     modes: dict[str, dict[str, str]] = {}
     for c, conf in [(DEFAULT_MODE, first), *((c, c) for c in arch.configurations)]:
         on = set(arch.configurations[conf].modules)
-        modes[c if c == DEFAULT_MODE else _mode_name(c)] = {
-            p: f"active.{wiring.get(p, {}).get(conf, DEFAULT_MODE)}" if p in on else "inactive"
-            for p in parts}
-    rules, _ = ros2_rules(arch, parts)
-    body: dict[str, Any] = {"type": "system", "parts": " ".join(parts), "modes": modes}
+        row = {p: f"active.{wiring.get(p, {}).get(conf, DEFAULT_MODE)}" if p in on else "inactive"
+               for p in free}
+        row.update({s: f"active.{m}" if (m := chosen[conf][s]) else "inactive" for s in inside})
+        modes[c if c == DEFAULT_MODE else _mode_name(c)] = row
+    rules, _ = ros2_rules(arch, parts, flat=flat)
+    body: dict[str, Any] = {"type": "system", "parts": " ".join([*free, *inside]), "modes": modes}
     if rules:
         body["rules"] = rules
-    doc: dict[str, Any] = {system: {"ros__parameters": body}}
+    doc: dict[str, Any] = {_mode_name(arch.name).lower(): {"ros__parameters": body}}
+    for s, held in inside.items():
+        own = {m: {p: "active.__DEFAULT__" if p in run else "inactive" for p in held}
+               for m, run in sub_modes[s].items()}
+        default = dict(own[chosen[first][s] or next(iter(own))])
+        doc[s] = {"ros__parameters": {"type": "system", "parts": " ".join(held),
+                                      "modes": {DEFAULT_MODE: default, **own}}}
+    doc.update(_node_entries(arch, parts, wired_modes))
+    return doc
+
+
+def _node_entries(
+    arch: Architecture, parts: list[str], wired_modes: dict[str, dict[str, Any]]
+) -> dict[str, Any]:
+    """Each node: ``__DEFAULT__`` (nominal values), a mode per parameter update, its wiring."""
     updates: dict[str, dict[str, dict[str, Any]]] = {}
     for a in arch.actions:
         if a.kind == "parameter_update" and a.set and a.module in parts:
             updates.setdefault(a.module, {})[_mode_name(a.id)] = {
                 "ros__parameters": {k: _ros_value(v) for k, v in a.set.items()}}
+    doc: dict[str, Any] = {}
     for name in parts:
         nominal = {k: _ros_value(p.value) for k, p in arch.modules[name].params.items()}
-        extra = wired_modes.get(name, {})
+        extra = dict(wired_modes.get(name, {}))
         if DEFAULT_MODE in extra:
             nominal["archself_inputs"] = extra.pop(DEFAULT_MODE)
         node_modes: dict[str, Any] = {DEFAULT_MODE: {"ros__parameters": nominal}}
@@ -269,10 +360,13 @@ def ros2_modes(arch: Architecture, nodes: list[str] | None = None) -> dict[str, 
     return doc
 
 
-def export(arch: Architecture, fmt: str, *, nodes: list[str] | None = None) -> str:
+def export(
+    arch: Architecture, fmt: str, *, nodes: list[str] | None = None, flat: bool = False
+) -> str:
     """The text of ``arch`` in format ``fmt`` (one of :data:`FORMATS`).
 
-    ``nodes``: for ``ros2-modes``, the modules that run as nodes (:func:`node_modules`).
+    ``nodes``: for ``ros2-modes``, the modules that run as nodes (:func:`node_modules`);
+    ``flat``: for ``ros2-modes``, no subsystems (every node a part of the system).
 
     Raises
     ------
@@ -300,11 +394,15 @@ def export(arch: Architecture, fmt: str, *, nodes: list[str] | None = None) -> s
         parts = node_modules(arch, nodes)
         out.write(f"# ROS 2 system_modes mode file exported by archself from '{arch.name}'\n")
         out.write(f"# parts (nodes): {' '.join(parts)}\n")
-        _, not_rules = ros2_rules(arch, parts)
+        inside = _inside(arch, parts, flat)
+        if inside:
+            out.write("# subsystems (parts with their own modes): " + ", ".join(
+                f"{s} ({' '.join(held)})" for s, held in inside.items()) + "\n")
+        _, not_rules = ros2_rules(arch, parts, flat=flat)
         if not_rules:
             out.write("# not rules (a mode manager cannot watch their module; the MAPE-K loop "
                       f"takes them): {', '.join(not_rules)}\n")
         out.write("---\n")
-        yaml.dump(ros2_modes(arch, parts), out)
+        yaml.dump(ros2_modes(arch, parts, flat=flat), out)
         return out.getvalue()
     raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")

@@ -25,6 +25,7 @@ __all__ = [
     "figure_bytes",
     "plot_error",
     "plot_influence",
+    "plot_qualities",
     "plot_trajectory",
 ]
 
@@ -247,3 +248,91 @@ def _rejection_strip(fig: Any, ax: Any, rep: RunReport, rej: list[Any]) -> None:
     handles, labels = ax.get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower left", fontsize=7, frameon=False,
                title="why (action: verdict of the planner)", title_fontsize=7)
+
+
+def _steps(rep: RunReport, mode: str, key: Any) -> tuple[np.ndarray, np.ndarray]:
+    """A step curve over run ``mode``: ``key(configuration)`` from each switch on."""
+    line = rep.timeline(mode)
+    t_end = float(np.asarray(rep.series[mode]["t"])[-1])
+    t = np.array([t for t, _ in line] + [t_end])
+    y = np.array([key(c) for _, c in line] + [key(line[-1][1])], dtype=float)
+    return t, y
+
+
+def plot_qualities(rep: RunReport) -> Any:
+    """The quality attributes over time and the trade-off the loop made (one figure).
+
+    Left: the utility of each attribute (thin) and the weighted utility U (thick) of the
+    configuration each run was in, over time (the fixed run dashed); switches marked.
+    Right: the trade-off: every configuration at its values of the two attributes the
+    preferences weigh most (one attribute: its value against U), labelled with U, and
+    the adaptive run's path through them (arrows, with the switch times).
+    """
+    q = rep.qualities
+    assert q is not None
+    confs, prefs = q["configurations"], q["preferences"]
+    names = sorted(prefs, key=lambda n: -prefs[n])
+    fig = _figure(11.0, 4.6)
+    ax, tr = fig.subplots(1, 2, width_ratios=[1.5, 1.0])
+    main = "adaptive" if rep.adaptive is not None else rep.runs[0].mode
+    for mode in [r.mode for r in rep.runs]:
+        ls = "--" if mode == "fixed" else "-"
+        t, u = _steps(rep, mode, lambda c: confs[c]["U"])
+        ax.step(t, u, where="post", color=COLORS.get(mode, "#1f77b4"), lw=2.4, ls=ls,
+                label=f"U ({LABELS.get(mode, mode)})")
+        if mode != main:
+            continue
+        for k, n in enumerate(names):
+            t, u = _steps(rep, mode, lambda c, n=n: confs[c]["attributes"][n]["utility"])
+            ax.step(t, u, where="post", lw=1.1, color=Z_COLORS[(k + 1) % len(Z_COLORS)],
+                    label=_tex(f"u {n} (weight {prefs[n]:g})"))
+    _switch_lines(ax, rep, label=False)
+    ax.set_ylim(-0.05, 1.12)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("utility (0..1)")
+    ax.set_title(_tex(f"Quality attributes: {rep.scenario}"))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
+    _trade_off(tr, rep, names)
+    return fig
+
+
+def _trade_off(ax: Any, rep: RunReport, names: list[str]) -> None:
+    """Configurations in the space of the two heaviest attributes; the run's path."""
+    q = rep.qualities
+    assert q is not None
+    confs, units = q["configurations"], q["units"]
+
+    def xy(c: str) -> tuple[float, float]:
+        attrs = confs[c]["attributes"]
+        y = attrs[names[1]]["value"] if len(names) > 1 else confs[c]["U"]
+        return float(attrs[names[0]]["value"]), float(y)
+
+    at: dict[tuple[float, float], list[str]] = {}  # configurations at one point: one label
+    for c in confs:
+        at.setdefault(xy(c), []).append(f"{c} (U {confs[c]['U']:.2f})")
+    for (x, y), labels in at.items():
+        ax.plot(x, y, "o", color="#7f7f7f", ms=7, zorder=3)
+        ax.annotate(_tex(", ".join(labels)), (x, y), xytext=(5, 4),
+                    textcoords="offset points", fontsize=8)
+    main = "adaptive" if rep.adaptive is not None else rep.runs[0].mode
+    line = rep.timeline(main)
+    for (_, a), (t, b) in zip(line, line[1:], strict=False):
+        ax.annotate("", xy(b), xy(a), arrowprops={"arrowstyle": "->", "color": "#2ca02c",
+                                                  "lw": 1.6})
+        (xa, ya), (xb, yb) = xy(a), xy(b)
+        ax.annotate(f"{t:g} s", ((xa + xb) / 2, (ya + yb) / 2), fontsize=7, color="#2ca02c")
+    x0, y0 = xy(line[0][1])
+    ax.plot(x0, y0, "s", color=COLORS.get(main), ms=9, zorder=4, label="start")
+    x1, y1 = xy(line[-1][1])
+    ax.plot(x1, y1, "*", color=COLORS.get(main), ms=13, zorder=5, label="end")
+
+    def label(n: str) -> str:
+        return _tex(n + (f" [{units[n]}]" if units.get(n) else ""))
+
+    ax.set_xlabel(label(names[0]))
+    ax.set_ylabel(label(names[1]) if len(names) > 1 else "U")
+    ax.set_title("Trade-off: configurations and the path taken", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.margins(0.25)
+    ax.legend(fontsize=7, loc="best")

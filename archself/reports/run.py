@@ -29,7 +29,8 @@ import numpy as np
 
 from archself.model.architecture import Architecture
 
-__all__ = ["DecisionRow", "Rejection", "RunReport", "RunSummary", "build_run_report"]
+__all__ = ["DecisionRow", "Rejection", "RunReport", "RunSummary", "build_run_report",
+           "quality_table"]
 
 
 def _round(x: Any) -> Any:
@@ -113,6 +114,15 @@ class RunReport:
     series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # mode -> series
     #: why cycles with candidates changed nothing, most frequent first (adaptive run)
     rejections: list[Rejection] = field(default_factory=list)
+    #: the file's quality attributes (:func:`quality_table`), None without ``qualities``
+    qualities: dict[str, Any] | None = None
+
+    def timeline(self, mode: str) -> list[tuple[float, str]]:
+        """``(t, configuration)`` from the start of run ``mode`` and at each of its switches."""
+        run = next(r for r in self.runs if r.mode == mode)
+        t0 = float(np.asarray(self.series[mode]["t"])[0]) if self.series.get(mode) else 0.0
+        return [(t0, run.configuration),
+                *((float(s["t_s"]), str(s["to"])) for s in run.switches)]
 
     @property
     def adaptive(self) -> RunSummary | None:
@@ -247,6 +257,24 @@ def _rejections(decisions: list[dict[str, Any]]) -> list[Rejection]:
     return sorted(out, key=lambda x: -len(x.t))
 
 
+def quality_table(arch: Architecture | None) -> dict[str, Any] | None:
+    """The quality attributes of every configuration, for the run report's figure.
+
+    ``{"preferences": {q: w}, "units": {q: unit}, "configurations": {c: {"U": U(C),
+    "attributes": {q: {"value", "utility"}}}}}`` (:class:`archself.runtime.utility.Utility`);
+    None without ``arch`` (a trace read back) or without a ``qualities`` section.
+    """
+    if arch is None or arch.qualities is None:
+        return None
+    from archself.runtime.utility import Utility
+
+    u = Utility(arch)
+    q = arch.qualities
+    return {"preferences": {n: float(q.preferences.get(n, 0.0)) for n in q.attributes},
+            "units": {n: a.unit for n, a in q.attributes.items()},
+            "configurations": {c: u.of(c) for c in arch.configurations}}
+
+
 def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport:
     """The report model of one run or of a fixed/adaptive pair from the same start and seed.
 
@@ -284,6 +312,7 @@ def build_run_report(arch: Architecture | None, results: list[Any]) -> RunReport
         z=z,
         series=series,
         rejections=_rejections(decisions),
+        qualities=quality_table(arch),
     )
 
 

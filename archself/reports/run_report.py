@@ -9,6 +9,8 @@ Writes into ``DIR`` (created if missing), each figure in every ``--format`` aske
 ``error.<fmt>``        Fig. 6: tracking error, fixed and/or adaptive, switches marked
 ``influence.<fmt>``    Fig. 5: |z_i| per cycle, τ, warm-up, switches, why cycles were
                        rejected (adaptive runs)
+``qualities.<fmt>``    the quality attributes over time and the trade-off (a file
+                       with ``qualities``)
 ``summary.json``       :meth:`archself.reports.run.RunReport.summary`, deterministic
 =====================  =======================================================
 """
@@ -71,6 +73,13 @@ def _write(arch: Architecture | None, results: list[Any], out: Path,
             f"|z_i| of every module with a non-zero influence, per MAPE-K cycle "
             f"(every {rep.period_s:g} s); candidates: {rep.selector}. Gaps: module inactive.",
             figures.plot_influence))
+    if rep.qualities is not None:
+        figs.append((
+            "qualities", "Quality attributes over time and the trade-off",
+            "Left: each attribute's utility and the weighted utility U of the configuration "
+            "each run was in (preferences as weights). Right: the configurations at their "
+            "attribute values, labelled with U, and the path the adaptive run took.",
+            figures.plot_qualities))
     for stem, _title, _caption, plot in figs:
         fig = plot(rep)
         for fmt in fmts:

@@ -7,7 +7,7 @@ Examples
 >>> arch = load_architecture(data_dir("architectures") / "diffdrive.yaml").arch
 >>> s = summarize(arch)
 >>> s["counts"]
-{'modules': 15, 'edges': 39, 'configurations': 4, 'actions': 7, 'scenarios': 7}
+{'modules': 15, 'edges': 39, 'configurations': 4, 'actions': 7, 'scenarios': 8}
 >>> print(summary_text(s).splitlines()[0][:58])
 diffdrive: 15 modules (6 physical, 6 functional, 3 model),
 """

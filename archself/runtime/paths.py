@@ -1,4 +1,4 @@
-"""Paths to a configuration: a detour when an action's target is unavailable.
+"""Paths to a configuration: a detour when an action's target is unavailable or unstable.
 
 A structural action ``a`` keyed to module ``m_i`` leads from the current
 configuration ``M`` to its declared target ``T``. The modules it brings in,
@@ -24,9 +24,11 @@ dead part.
   the intended target) descending, then ``|C △ M|`` (smallest change) ascending, then
   declaration order.
 
-With quality attributes (``qualities``, :mod:`archself.runtime.utility`) the same
-search with ``D = ∅`` gives the *alternatives* of an admissible action: the other
-configurations that hold its remedy, which the preferences may rank above ``T``.
+The same search with ``D = ∅`` gives the *alternatives* of an action: the other
+configurations that hold its remedy. They are evaluated when the declared target fails
+the stability filter (``T`` cannot be entered safely now, another holder of the remedy
+may), and, with quality attributes (``qualities``, :mod:`archself.runtime.utility`),
+for every admissible action, since the preferences may rank one above ``T``.
 
 Each detour or alternative becomes an action ``<a.id>@<C>`` — ``a`` with ``to = C``
 and no ``applies_in`` — that the planner evaluates like a declared one: availability,

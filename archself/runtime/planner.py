@@ -346,6 +346,8 @@ class Planner:
                 ev.stability = verdict.to_dict()
                 if not verdict.ok:
                     ev.rejected, ev.detail = "unstable", verdict.reason
+                    if a.id not in self.detours.origin:  # paths: a stable one with the remedy
+                        queue.extend((order, d) for d in self.detours.find(a, state.configuration))
                     continue
                 if self.utility.on and a.id not in self.detours.origin:  # the alternatives
                     queue.extend((order, d) for d in self.detours.find(a, state.configuration))
