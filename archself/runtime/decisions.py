@@ -117,12 +117,21 @@ class ActionEvaluation:
     rejected: str | None = None
     detail: str = ""
     utility: dict[str, Any] | None = None  # U of the target and its attributes (qualities)
+    # runtime.risk (archself.runtime.risk): Δ's draws, their mean and spread, the rule
+    mean: float | None = None
+    spread: float | None = None
+    draws: int | None = None
+    rule: str | None = None
+    learned: dict[str, Any] | None = None  # runtime.learning: this context's record
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable({
             f.name: v for f in fields(self)
-            if (v := getattr(self, f.name)) is not None or f.name != "utility"
+            if (v := getattr(self, f.name)) is not None or f.name not in _OPTIONAL
         })
+
+
+_OPTIONAL = frozenset({"utility", "mean", "spread", "draws", "rule", "learned"})
 
 
 @dataclass

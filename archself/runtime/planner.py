@@ -66,6 +66,7 @@ from archself.runtime.constraints import (
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.improvement import estimate_improvement, rollout_improvement
 from archself.runtime.paths import Detours
+from archself.runtime.risk import RiskRanking
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 from archself.runtime.status import StatusMap, is_limit_violation
 from archself.runtime.utility import Utility
@@ -165,6 +166,8 @@ class Planner:
         )
         self.detours = Detours(arch)  # synthesized switches around an unavailable target
         self.utility = Utility(arch)  # quality attributes: U(C) under the preferences
+        self.learning: Any = None  # runtime.learning (set by MapeK): review() per action
+        self.risk = RiskRanking(rt.risk) if rt.risk.draws > 1 or rt.risk.rule != "mean" else None
 
     def dependencies(
         self, system: ManagedSystem, configuration: str
@@ -324,8 +327,18 @@ class Planner:
                             a, state.configuration, state.kappa.unavailable(),
                             lambda c: self.dependencies(system, c)))
                     continue
+                factor, held = 1.0, ""
+                if self.learning is not None:  # what this action did here before
+                    factor, held, ev.learned = self.learning.review(
+                        a.id, module, state.configuration, state.t)
+                if held:
+                    ev.rejected, ev.detail = "held back", held
+                    continue
                 try:
-                    delta = estimate_improvement(a, module, r_i, system)
+                    if self.risk is not None:  # K draws and the risk rule
+                        delta = factor * self.risk.estimate(a, module, r_i, system, ev)
+                    else:
+                        delta = factor * estimate_improvement(a, module, r_i, system)
                 except Exception as exc:  # noqa: BLE001 - a failing estimate rejects the action
                     ev.rejected, ev.detail = "no improvement", f"estimate failed: {exc}"
                     continue
