@@ -54,10 +54,12 @@ def run_seed(arch, seed: int) -> dict:
     off = simulate(arch, SCENARIO, seed=seed, adapt=MapeK(arch))
     out["off"] = _measure(off, onset, acceptable, settle)
     loop = MapeK(arch, learned=OutcomeTable())
-    out["first"] = _measure(simulate(arch, SCENARIO, seed=seed, adapt=loop), onset, acceptable, settle)
+    first = simulate(arch, SCENARIO, seed=seed, adapt=loop)
+    out["first"] = _measure(first, onset, acceptable, settle)
     saved = OutcomeTable.from_dict(loop.learning.table.to_dict())
     nxt = MapeK(arch, learned=saved)
-    out["next"] = _measure(simulate(arch, SCENARIO, seed=seed, adapt=nxt), onset, acceptable, settle)
+    out["next"] = _measure(simulate(arch, SCENARIO, seed=seed, adapt=nxt), onset, acceptable,
+                           settle)
     return out
 
 

@@ -1,4 +1,7 @@
-"""Issue 36: decisions that learn from outcomes (runtime.learning) and know their spread (runtime.risk)."""
+"""Issue 36: decisions that learn from outcomes (runtime.learning) and know their spread.
+
+runtime.learning (archself/runtime/learning.py) and runtime.risk (archself/runtime/risk.py).
+"""
 
 from __future__ import annotations
 

@@ -7,8 +7,9 @@ the objective ``J_obs`` and global residual ``r`` (Eq. 11), the module residuals
 (``runtime.localization``), the candidate set (Eq. 16), and
 for every action evaluated its estimated improvement Δ (Eq. 18), its stability
 verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
-``unavailable``, ``constraint``, ``budget``, ``limit``, ``dwell``, ``no improvement``,
-``unstable``), its score (Eq. 25) and the action chosen (Eq. 26). Records are
+``unavailable``, ``constraint``, ``budget``, ``limit``, ``dwell``, ``held back``,
+``no improvement``, ``unstable``), with ``runtime.risk`` Δ's mean, spread and rule, with
+``runtime.learning`` the context's learned record, its score (Eq. 25) and the action chosen (Eq. 26). Records are
 plain JSON (``to_dict``): lists, strings, floats and ``None`` for non-finite
 numbers.
 

@@ -210,7 +210,7 @@ class Learning:
 
     def started(self, action: Any, origin: str, target: str, t: float,
                 estimate: float | None) -> None:
-        """``action`` was executed at ``t`` in ``origin``, leading to ``target``: an outcome opens."""
+        """``action`` was executed at ``t`` in ``origin``, leading to ``target``: it opens."""
         half = self.s.settle_s / 2
         before = [j for tj, j in self._history if t - half - 1e-9 <= tj <= t]
         self._pending.append(
