@@ -8,10 +8,10 @@ the objective ``J_obs`` and global residual ``r`` (Eq. 11), the module residuals
 for every action evaluated its estimated improvement Δ (Eq. 18), its stability
 verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
 ``unavailable``, ``constraint``, ``budget``, ``limit``, ``dwell``, ``held back``,
-``no improvement``, ``unstable``), with ``runtime.risk`` Δ's mean, spread and rule, with
-``runtime.learning`` the context's learned record, its score (Eq. 25) and the action chosen (Eq. 26). Records are
-plain JSON (``to_dict``): lists, strings, floats and ``None`` for non-finite
-numbers.
+``no improvement``, ``unstable``), with ``runtime.risk`` Δ's mean, spread and rule,
+with ``runtime.learning`` the context's learned record, its score (Eq. 25) and the
+action chosen (Eq. 26). Records are plain JSON (``to_dict``): lists, strings, floats
+and ``None`` for non-finite numbers.
 
 :func:`explain` renders a log for a person asking "why did it switch?"
 (:mod:`archself.runtime.explanation`, re-exported here).
