@@ -302,7 +302,7 @@ def _executes(data: dict[str, Any], what: str) -> bool:
 
 def test_generated_files_reach_plan_and_execute() -> None:
     """The strategy reaches Execute: a structural switch and a parameter update happen."""
-    quick = settings(max_examples=40, phases=[Phase.generate], database=None, derandomize=True)
+    quick = settings(max_examples=80, phases=[Phase.generate], database=None, derandomize=True)
     for what in ("switch", "update"):
         find(adaptive_architectures(), lambda d, w=what: _executes(d, w), settings=quick)
 

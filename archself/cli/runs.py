@@ -54,7 +54,8 @@ def _check_simulation_size(arch: Any, scenario: str, runs: int, yes: bool) -> No
 
 
 def _run(
-    arch, scenario: str, config: str | None, seed: int | None, adaptive: bool, show_progress: bool
+    arch, scenario: str, config: str | None, seed: int | None, adaptive: bool, show_progress: bool,
+    learned: Any = None,
 ):
     from contextlib import ExitStack
 
@@ -64,7 +65,7 @@ def _run(
     if adaptive:
         from archself.runtime import MapeK
 
-        adapt = MapeK(arch)
+        adapt = MapeK(arch, learned=learned)
 
     steps, size = _simulation_estimate(arch, scenario, 1)
     label = (
@@ -160,6 +161,18 @@ def simulate(
     yes: Annotated[
         bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
     ] = False,
+    knowledge: Annotated[
+        Path | None,
+        typer.Option("--knowledge", metavar="FILE", help="Start from what earlier runs learned "
+                     "(a table --save-knowledge wrote); switches runtime.learning on "
+                     "(docs/learning.md)."),
+    ] = None,
+    save_knowledge: Annotated[
+        Path | None,
+        typer.Option("--save-knowledge", metavar="FILE", help="Write what the adaptive run "
+                     "learned from its actions' outcomes to FILE (JSON); switches "
+                     "runtime.learning on."),
+    ] = None,
 ) -> None:
     """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
 
@@ -169,13 +182,37 @@ def simulate(
     _simulate(
         arch_path, scenario, config=config, fixed=fixed, compare=compare, seed=seed,
         json_out=json_out, trace=trace, report=report, fig_format=fig_format, dpi=dpi, yes=yes,
+        knowledge=(knowledge, save_knowledge),
     )
+
+
+def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None], fixed: bool) -> Any:
+    """The learned table ``--knowledge`` reads (an empty one for ``--save-knowledge``)."""
+    source, target = paths
+    if source is None and target is None:
+        return None
+    if fixed:
+        raise _fail("--knowledge and --save-knowledge need the adaptive run (not --fixed)", 2)
+    if target is not None:
+        if not target.name or not target.parent.is_dir():
+            raise _fail(f"{target}: cannot write: --save-knowledge takes a file in a folder "
+                        f"that exists")
+        from archself.io.outputs import refuse_same_file
+
+        refuse_same_file([arch_path, *([source] if source else [])], target, "--save-knowledge")
+    from archself.runtime.learning import OutcomeTable, load_table
+
+    if source is None:
+        return OutcomeTable()
+    _inputs(source, what="a knowledge table (JSON)")
+    return load_table(source)
 
 
 def _simulate(
     arch_path: Path, scenario: str, *, config: str | None, fixed: bool, compare: bool,
     seed: int | None, json_out: bool, trace: Path | None, report: Path | None,
     fig_format: list[Any] | None, dpi: int, yes: bool,
+    knowledge: tuple[Path | None, Path | None] = (None, None),
 ) -> None:
     """``archself simulate``: the options guarded, the runs made, written and printed."""
     if fixed and compare:
@@ -206,14 +243,19 @@ def _simulate(
             for name in _RUN_REPORT_FILES:
                 refuse_same_file([arch_path], report / name, "--report")
             refuse_foreign_folder(report, "summary.json", "--report")
-        with protect([arch_path], [trace, fixed_trace if compare else None, report]), \
+        learned = _knowledge_table(arch_path, knowledge, fixed)
+        with protect([arch_path, *filter(None, knowledge[:1])],
+                     [trace, fixed_trace if compare else None, report, knowledge[1]]), \
                 _numeric(arch_path):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
             _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
             show = show_progress(json_out)
             modes = [False, True] if compare else [not fixed]
-            results = [_run(arch, scenario, config, seed, adaptive, show) for adaptive in modes]
+            results = [_run(arch, scenario, config, seed, adaptive, show,
+                            learned if adaptive else None) for adaptive in modes]
+            if knowledge[1] is not None:
+                learned.save(knowledge[1])
             if trace is not None:
                 for r in results:
                     r.write_trace(fixed_trace if compare and r.mode == "fixed" else trace)

@@ -2,7 +2,8 @@
 
 The clock (``step_s``, ``period_s``), the objective J (Eq. 11), the candidate selector
 (τ, top-k or hysteresis; Eq. 16, 28), localization, warm-up, dwell time, the cost
-weight λ (Eq. 25), the stability filter (Eq. 21–24) and the ablation switches.
+weight λ (Eq. 25), the stability filter (Eq. 21–24), the ablation switches, learning from
+outcomes and the risk attitude of Δ (docs/learning.md).
 :class:`archself.model.architecture.Architecture` holds one :class:`Runtime`; the names are
 importable from :mod:`archself.model.architecture` too.
 """
@@ -104,6 +105,59 @@ class Ablation(StrictModel):
     )
 
 
+class Learning(StrictModel):
+    """Learning from outcomes (docs/learning.md): off by default."""
+
+    enabled: bool = Field(
+        False,
+        description="true: after an action settles, its realized improvement (J before minus J "
+        "after, the Monitor's J_obs) updates that action's estimate for its context (the "
+        "module it was keyed to, the configuration it was taken in); a failed action is held "
+        "back for hold_s. The table is saved with --save-knowledge and loaded with "
+        "--knowledge (archself simulate) or MapeK(arch, learned=...).",
+    )
+    settle_s: Seconds = Field(
+        20.0,
+        description="The window after an action over which its outcome is measured; J over "
+        "its second half is compared with J over the same length before the action.",
+    )
+    tolerance: NonNeg = Field(
+        0.0,
+        description="An outcome fails when J after exceeds J before by more than this (J's "
+        "unit) plus one standard error of the two means.",
+    )
+    hold_s: Seconds = Field(
+        300.0,
+        description="How long an action that failed in a context is held back in it.",
+    )
+    min_factor: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.1,
+        description="Floor of the learned factor (successes + 1)/(trials + 1) that scales "
+        "the action's estimated Δ in its context.",
+    )
+
+
+class Risk(StrictModel):
+    """How sure Δ is: rollouts over sampled noise draws and the rule that ranks them."""
+
+    draws: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="K: a rollout estimate is made over K noise draws (1: one draw, the "
+        "snapshots' own random state, as before). Sensitivity and table estimates have one.",
+    )
+    rule: Literal["mean", "mean_std", "cvar"] = Field(
+        "mean",
+        description="What ranks the draws: mean; mean_std, mean − kappa·std; cvar, the mean "
+        "of the worst alpha share of the draws.",
+    )
+    kappa: NonNeg = Field(1.0, description="κ of mean_std.")
+    alpha: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.25, description="The level of cvar: the share of worst draws averaged."
+    )
+
+
 class Objective(StrictModel):
     """J: the error between an actual and a reference signal (Eq. 11)."""
 
@@ -195,6 +249,14 @@ class Runtime(StrictModel):
     stability: Stability
     max_spectral_radius: Annotated[float, Field(gt=0, lt=1)] = Field(
         0.95, description="ρ(W) must stay below this (Eq. 13)."
+    )
+    learning: Learning = Field(
+        default_factory=lambda: Learning.model_validate({}),
+        description="Learning from the outcomes of actions (off by default; docs/learning.md).",
+    )
+    risk: Risk = Field(
+        default_factory=lambda: Risk.model_validate({}),
+        description="Δ over sampled noise draws and the risk attitude that ranks them.",
     )
 
     @property

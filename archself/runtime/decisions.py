@@ -7,10 +7,11 @@ the objective ``J_obs`` and global residual ``r`` (Eq. 11), the module residuals
 (``runtime.localization``), the candidate set (Eq. 16), and
 for every action evaluated its estimated improvement Δ (Eq. 18), its stability
 verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
-``unavailable``, ``constraint``, ``budget``, ``limit``, ``dwell``, ``no improvement``,
-``unstable``), its score (Eq. 25) and the action chosen (Eq. 26). Records are
-plain JSON (``to_dict``): lists, strings, floats and ``None`` for non-finite
-numbers.
+``unavailable``, ``constraint``, ``budget``, ``limit``, ``dwell``, ``held back``,
+``no improvement``, ``unstable``), with ``runtime.risk`` Δ's mean, spread and rule,
+with ``runtime.learning`` the context's learned record, its score (Eq. 25) and the
+action chosen (Eq. 26). Records are plain JSON (``to_dict``): lists, strings, floats
+and ``None`` for non-finite numbers.
 
 :func:`explain` renders a log for a person asking "why did it switch?"
 (:mod:`archself.runtime.explanation`, re-exported here).
@@ -117,12 +118,21 @@ class ActionEvaluation:
     rejected: str | None = None
     detail: str = ""
     utility: dict[str, Any] | None = None  # U of the target and its attributes (qualities)
+    # runtime.risk (archself.runtime.risk): Δ's draws, their mean and spread, the rule
+    mean: float | None = None
+    spread: float | None = None
+    draws: int | None = None
+    rule: str | None = None
+    learned: dict[str, Any] | None = None  # runtime.learning: this context's record
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable({
             f.name: v for f in fields(self)
-            if (v := getattr(self, f.name)) is not None or f.name != "utility"
+            if (v := getattr(self, f.name)) is not None or f.name not in _OPTIONAL
         })
+
+
+_OPTIONAL = frozenset({"utility", "mean", "spread", "draws", "rule", "learned"})
 
 
 @dataclass

@@ -92,6 +92,13 @@ def _describe_eval(e: dict[str, Any], weight: str = "z") -> str:
     parts = []
     if e.get("delta") is not None:
         parts.append(f"Δ={_fmt(e['delta'])}")
+    if e.get("spread") is not None:  # runtime.risk
+        parts.append(f"{e.get('draws')} draw(s): mean {_fmt(e.get('mean'))}, spread "
+                     f"{_fmt(e['spread'])}, ranked by {e.get('rule')}")
+    lr = e.get("learned")
+    if isinstance(lr, Mapping):  # runtime.learning: this context's record
+        parts.append(f"learned here: {lr.get('successes')} of {lr.get('trials')} succeeded, "
+                     f"realized Δ {_fmt(lr.get('realized'))}, factor {_fmt(lr.get('factor'))}")
     if e.get("score") is not None:
         plus = " + μ·(U − U_target)" if "@" in str(e.get("action")) and e.get("utility") else ""
         parts.append(f"score={_fmt(e['score'])} = {weight}·Δ − λ·cost{plus}")

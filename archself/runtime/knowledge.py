@@ -95,6 +95,8 @@ class Knowledge:
         updated by executed parameter updates).
     t_last : float
         Time of the last architectural change (−inf before the first).
+    learned : OutcomeTable or None
+        What the loop learned from its actions' outcomes (``runtime.learning``).
     w_scale : float
         Factor applied to every weight so that ρ(W) ≤ ``runtime.max_spectral_radius``
         (1.0 when the file's weights already satisfy it).
@@ -122,6 +124,7 @@ class Knowledge:
             key = (e.source, e.target, e.carries)
             self._weights[key] = self._weights.get(key, 0.0) + e.weight
         self.t_last = -math.inf
+        self.learned: Any = None  # runtime.learning: the OutcomeTable (runtime/learning.py)
         self.solver = InfluenceSolver()
         # Normalize W so that ρ(W) stays below the declared bound (paper: "the
         # weights are normalized such that ρ(W) < 1"). W of any active subset is

@@ -53,6 +53,7 @@ from archself.model.architecture import Architecture
 from archself.runtime.candidates import selector_from_runtime
 from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
+from archself.runtime.learning import learning_of
 from archself.runtime.monitor import Monitor
 from archself.runtime.planner import Planner, PlanState
 from archself.runtime.sources import SourceEstimator, SourceFit
@@ -71,6 +72,9 @@ class MapeK:
         The architecture file's model. Everything the loop knows — modules,
         edges and weights, configurations, actions, budgets and the ``runtime``
         settings — comes from it.
+    learned : OutcomeTable or path, optional
+        What earlier runs learned (:mod:`~archself.runtime.learning`); used when
+        ``runtime.learning.enabled``, which a table given here switches on.
 
     Attributes
     ----------
@@ -92,7 +96,7 @@ class MapeK:
     >>> print(explain(loop.decisions))                     # doctest: +SKIP
     """
 
-    def __init__(self, arch: Architecture) -> None:
+    def __init__(self, arch: Architecture, learned: Any = None) -> None:
         if not isinstance(arch, Architecture):
             from archself.errors import SimulationError
 
@@ -105,6 +109,10 @@ class MapeK:
         self.localization = arch.runtime.localization
         self.planner = Planner(arch)
         self.strategies = Strategies(arch, self.planner)  # the running one: its state
+        self.learning = learning_of(arch, learned)  # runtime.learning: None when off
+        if self.learning is not None:
+            self.knowledge.learned = self.learning.table
+        self.planner.learning = self.learning
         self.decisions: list[DecisionRecord] = []
         self.switches: list[dict[str, Any]] = []
         self.updates: list[dict[str, Any]] = []
@@ -190,6 +198,8 @@ class MapeK:
         )
         self.decisions.append(record)
         self.cycle += 1
+        if self.learning is not None:
+            self.learning.cycle(record)
         if warm or not (candidates or self.strategies.running):
             return []
 
@@ -228,6 +238,8 @@ class MapeK:
             k.sync(system)
             return []
         k.sync(system)
+        if self.learning is not None:
+            self.learning.started(action, before, k.configuration, t, ev.delta)
         z_chosen = ev.z if self.localization == "influence" else abs(z_active.get(action.module, 0))
         chosen: dict[str, Any] = {
             "action": action.id,

@@ -27,7 +27,11 @@ reason; cheap checks come before the costly ones):
    module active) while the Monitor measures one of its limits violated (κ);
 4. *dwell time* — a structural change only if ``t − t_last ≥ T_min`` (Eq. 28);
 5. *improvement* Δ_k (Eq. 18) by the method the action declares, and the score
-   ``|z_i|·Δ_k − λ·Cost(a_k)`` (Eq. 25); a score ≤ 0 is ``no improvement``;
+   ``|z_i|·Δ_k − λ·Cost(a_k)`` (Eq. 25); a score ≤ 0 is ``no improvement``. With
+   ``runtime.risk``, a rollout's Δ is the rule's value over K noise draws
+   (:mod:`archself.runtime.risk`); with ``runtime.learning``, Δ is scaled by what the
+   action did in this context before, and an action whose last outcome here failed
+   is ``held back`` (:mod:`archself.runtime.learning`);
 6. *stability* (Eq. 21 or Eq. 24, :mod:`archself.runtime.stability`): ``unstable``.
 
 The chosen action is the argmax of the score over the survivors (Eq. 26), ties
@@ -66,6 +70,7 @@ from archself.runtime.constraints import (
 from archself.runtime.decisions import ActionEvaluation
 from archself.runtime.improvement import estimate_improvement, rollout_improvement
 from archself.runtime.paths import Detours
+from archself.runtime.risk import RiskRanking
 from archself.runtime.stability import StabilityVerdict, check_action_stability
 from archself.runtime.status import StatusMap, is_limit_violation
 from archself.runtime.utility import Utility
@@ -165,6 +170,8 @@ class Planner:
         )
         self.detours = Detours(arch)  # synthesized switches around an unavailable target
         self.utility = Utility(arch)  # quality attributes: U(C) under the preferences
+        self.learning: Any = None  # runtime.learning (set by MapeK): review() per action
+        self.risk = RiskRanking(rt.risk) if rt.risk.draws > 1 or rt.risk.rule != "mean" else None
 
     def dependencies(
         self, system: ManagedSystem, configuration: str
@@ -325,9 +332,11 @@ class Planner:
                             lambda c: self.dependencies(system, c)))
                     continue
                 try:
-                    delta = estimate_improvement(a, module, r_i, system)
+                    delta = self._delta(a, module, r_i, state, system, ev)
                 except Exception as exc:  # noqa: BLE001 - a failing estimate rejects the action
                     ev.rejected, ev.detail = "no improvement", f"estimate failed: {exc}"
+                    continue
+                if ev.rejected:  # held back (runtime.learning)
                     continue
                 if not math.isfinite(delta):
                     ev.rejected, ev.detail = "no improvement", "estimate is not finite"
@@ -355,6 +364,24 @@ class Planner:
                 if best is None or key > best:
                     best, chosen, chosen_eval = key, a, ev
         return evaluations, chosen, chosen_eval
+
+    def _delta(
+        self, a: Action, module: str, r_i: float, state: PlanState, system: ManagedSystem,
+        ev: ActionEvaluation,
+    ) -> float:
+        """Δ_k by the declared method; with ``runtime.risk`` over K draws by the rule; with
+        ``runtime.learning`` times the learned factor of the context, or ``ev.rejected =
+        "held back"`` after a failure there (:mod:`~archself.runtime.learning`)."""
+        factor = 1.0
+        if self.learning is not None:  # what this action did here before
+            factor, held, ev.learned = self.learning.review(
+                a.id, module, state.configuration, state.t)
+            if held:
+                ev.rejected, ev.detail = "held back", held
+                return math.nan
+        if self.risk is not None:  # K draws and the risk rule
+            return factor * self.risk.estimate(a, module, r_i, system, ev)
+        return factor * estimate_improvement(a, module, r_i, system)
 
     def check(
         self, action: Action, state: PlanState, system: ManagedSystem
