@@ -125,7 +125,10 @@ class RunReport:
 
     def summary(self) -> dict[str, Any]:
         """Deterministic plain-JSON summary (``summary.json`` of the run report)."""
+        from archself import __version__
+
         return _round({
+            "archself_version": __version__,
             "architecture": self.architecture,
             "scenario": self.scenario,
             "seed": self.seed,

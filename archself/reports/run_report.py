@@ -72,7 +72,7 @@ def _write(arch: Architecture | None, results: list[Any], out: Path,
             f"(every {rep.period_s:g} s); candidates: {rep.selector}. Gaps: module inactive.",
             figures.plot_influence))
     for stem, _title, _caption, plot in figs:
-        fig = plot(rep)
+        fig = plot(rep, title=True)
         for fmt in fmts:
             write_bytes(out / f"{stem}.{fmt}", figures.figure_bytes(fig, fmt, dpi))
     write_text(out / "summary.json",

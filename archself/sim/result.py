@@ -194,12 +194,19 @@ class RunResult:
                 f"steps={steps}, configurations={path!r}, max_error={worst:.4g}{unit})")
 
     def _repr_html_(self) -> str:
-        """A small HTML summary for notebooks: the run, its configuration path, the metrics."""
+        """A small HTML summary for notebooks: the run, its configuration path, the metrics.
+
+        Bounded: at most :data:`archself.io.html.MAX_ROWS` switches are listed.
+        """
         from html import escape
+
+        from archself.io.html import MAX_ROWS
 
         path = [self.configuration, *(str(s.get("to")) for s in self.switches)]
         if path[-1] != self.final_configuration:
             path.append(self.final_configuration)
+        if len(path) > MAX_ROWS:
+            path = [*path[:MAX_ROWS - 1], f"… ({len(path) - MAX_ROWS} more)", path[-1]]
         rows = "".join(
             f"<tr><td>{escape(label)}</td><td>{self.metrics.get(key, math.nan):.{dec}f}</td></tr>"
             for label, key, dec in metric_rows(self.unit)
@@ -207,8 +214,9 @@ class RunResult:
         switches = "".join(
             f"<li>t = {float(s.get('t_s', math.nan)):.1f} s: {escape(str(s.get('from')))} → "
             f"{escape(str(s.get('to')))} ({escape(str(s.get('action')))})</li>"
-            for s in self.switches
-        )
+            for s in self.switches[:MAX_ROWS]
+        ) + (f"<li>… ({len(self.switches) - MAX_ROWS} more)</li>"
+             if len(self.switches) > MAX_ROWS else "")
         name = self.meta.get("architecture")
         head = (f"<b>{escape(str(name))}</b> · " if name else "") + (
             f"scenario <b>{escape(self.scenario)}</b> · seed {int(self.seed)} · "
@@ -221,6 +229,33 @@ class RunResult:
             + (f"<p>switches:</p><ul>{switches}</ul>" if switches else "")
             + "</div>"
         )
+
+    def plot(self, *others: RunResult, size: str | tuple[float, float] | None = None,
+             title: bool | str = False) -> Any:
+        """The objective error J over time: a :class:`matplotlib.figure.Figure`.
+
+        Switches and fault onsets are marked, the acceptable error drawn where the file
+        declares one. Saved as PDF it embeds TrueType fonts (no Type 3); no title unless
+        asked for. Needs matplotlib.
+
+        Parameters
+        ----------
+        *others : RunResult
+            Runs of the same scenario to draw beside this one (e.g. the fixed run).
+        size : {"one", "two"} or (float, float), optional
+            One column (3.5 in) or two (7.16 in) wide, or (width, height) in inches.
+        title : bool or str
+            True: ``Tracking error: <scenario>``; a string: that title.
+
+        Examples
+        --------
+        >>> res.plot(fixed, size="one").savefig("error.pdf")  # doctest: +SKIP
+
+        See :mod:`archself.reports.figures` for the trajectory and the influence channels.
+        """
+        from archself.sim.plot import plot_run
+
+        return plot_run(*others, self, size=size, title=title)
 
     def write_trace(self, path: str | Path) -> None:
         """Write the trace to ``path``, atomically and deterministically.
