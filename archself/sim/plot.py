@@ -43,7 +43,7 @@ class PaperFigure(Figure):
 
     def _repr_png_(self) -> bytes:
         buf = io.BytesIO()
-        self.savefig(buf, format="png", dpi=80, metadata={"Software": None})
+        self.savefig(buf, format="png", dpi=100, metadata={"Software": None})
         return buf.getvalue()
 
 
