@@ -65,22 +65,34 @@ FORMATS = {
 }
 
 
+#: Saves :func:`figure_bytes` makes at most until two agree.
+SETTLE = 4
+
+
 def figure_bytes(fig: Any, fmt: str = "png", dpi: int = 150) -> bytes:
     """``fig`` saved as ``png``, ``svg`` or ``pdf``: deterministic bytes.
 
     ``dpi`` matters for PNG (and for images inside a vector file); SVG keeps its text
     as text (``svg.fonttype: none``) so a paper's fonts apply, and a fixed hash salt.
+    The figure is saved until two saves agree (at most :data:`SETTLE` times): the
+    constrained layout settles over a few draws at a new resolution (the first PDF after
+    a PNG differed from the next in the 10th digit of a clip box).
     """
     import matplotlib
 
     if fmt not in FORMATS:
         raise ValueError(f"unknown figure format {fmt!r}; known: {', '.join(FORMATS)}")
-    buf = io.BytesIO()
     rc: dict[str, Any] = {"svg.hashsalt": "archself", "svg.fonttype": "none",
                           "pdf.fonttype": 42}
+    last = b""
     with matplotlib.rc_context(rc):  # type: ignore[arg-type]
-        fig.savefig(buf, format=fmt, dpi=dpi, metadata=FORMATS[fmt])
-    return buf.getvalue()
+        for _ in range(SETTLE):
+            buf = io.BytesIO()
+            fig.savefig(buf, format=fmt, dpi=dpi, metadata=FORMATS[fmt])
+            if buf.getvalue() == last:
+                break
+            last = buf.getvalue()
+    return last
 
 
 def _comp(arr: np.ndarray, c: int) -> np.ndarray:
