@@ -84,13 +84,37 @@ def test_to_pandas_columns_dtypes_and_length(run: Any) -> None:
     assert len(df) == n == 600
     cols = list(df.columns)
     assert cols[:2] == ["t", "J"]
-    for name in ("reference_0", "reference_4", "actual_0", "actual_2", "estimate_0",
-                 "command_1", "residual.wheel_left", "configuration"):
+    # vector columns named by the publishing types' element names (output_elements)
+    assert cols[2:15] == ["reference_x", "reference_y", "reference_theta", "reference_v",
+                          "reference_omega", "actual_x", "actual_y", "actual_theta",
+                          "estimate_x", "estimate_y", "estimate_theta", "command_left",
+                          "command_right"]
+    for name in ("residual.wheel_left", "configuration"):
         assert name in cols, name
-    assert "reference_5" not in cols and "actual" not in cols
+    assert not [c for c in cols if c[-2:] in ("_0", "_1")] and "actual" not in cols
     assert all(df[c].dtype == np.float64 for c in cols if c != "configuration")
-    np.testing.assert_array_equal(df["actual_1"].to_numpy(), run.series["actual"][:, 1])
+    np.testing.assert_array_equal(df["actual_y"].to_numpy(), run.series["actual"][:, 1])
+    np.testing.assert_array_equal(df["command_right"].to_numpy(), run.series["command"][:, 1])
     assert df.attrs["scenario"] == "actuator_fault" and df.attrs["unit"] == "m"
+
+
+def test_named_columns_round_trip_through_parquet_and_old_traces_keep_indices(
+        run: Any, tmp_path) -> None:
+    import dataclasses
+
+    run.write_trace(tmp_path / "run.parquet")
+    disk = pd.read_parquet(tmp_path / "run.parquet")
+    assert list(disk.columns) == list(run.to_pandas().columns)
+    back = archself.read_trace(tmp_path / "run.parquet")
+    np.testing.assert_allclose(back.series["reference"], run.series["reference"], rtol=1e-6,
+                               atol=1e-6)
+    # a run without element names (an old trace, a type declaring none): indices, as before
+    old = dataclasses.replace(run, meta={k: v for k, v in run.meta.items() if k != "elements"})
+    assert "reference_4" in old.to_pandas().columns
+    old.write_trace(tmp_path / "old.parquet")
+    assert "actual_2" in pd.read_parquet(tmp_path / "old.parquet").columns
+    np.testing.assert_allclose(archself.read_trace(tmp_path / "old.parquet").series["actual"],
+                               run.series["actual"], rtol=1e-6, atol=1e-6)
 
 
 def test_configuration_column_holds_names(run: Any) -> None:

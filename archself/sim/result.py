@@ -16,7 +16,13 @@ from typing import Any
 import numpy as np
 
 from archself.io.jsondata import jsonable
-from archself.io.trace import TraceParts, read_trace_parts, trace_parts_from_bytes, write_trace
+from archself.io.trace import (
+    TraceParts,
+    component_columns,
+    read_trace_parts,
+    trace_parts_from_bytes,
+    write_trace,
+)
 from archself.sim.metrics import metric_rows
 
 __all__ = ["RunResult", "read_trace", "trace_from_bytes"]
@@ -107,9 +113,12 @@ class RunResult:
 
         Columns, in the order of :attr:`series`: ``t`` [s], ``J`` (the objective
         error, in :attr:`unit`), then every other series; a 2-D series (a vector
-        signal) becomes one column per component, ``<name>_<k>``: ``reference_0`` …,
-        ``actual_0`` … (the objective compares ``runtime.objective.components`` of
-        them), ``estimate_0`` …; ``residual.<module>`` (NaN while inactive) and
+        signal) becomes one column per component, ``<name>_<element>`` where the
+        publishing type names its elements (diffdrive: ``reference_x``, ``reference_y``,
+        ``reference_theta``, ``reference_v``, ``reference_omega``, ``actual_x`` …,
+        ``estimate_x`` …, ``command_left``, ``command_right``), else ``<name>_<k>``
+        (``reference_0`` …); the objective compares ``runtime.objective.components``
+        of ``reference`` and ``actual``; ``residual.<module>`` (NaN while inactive) and
         ``configuration``, the name of the configuration active at that step (a
         categorical over :attr:`configurations`, in file order). ``attrs`` holds
         ``scenario``, ``seed``, ``mode``, ``unit`` and ``objective``.
@@ -124,8 +133,8 @@ class RunResult:
             if name == "configuration":
                 cols[name] = self._configuration_names(pd, a)
             elif a.ndim == 2:
-                for k in range(a.shape[1]):
-                    cols[f"{name}_{k}"] = a[:, k]
+                for k, col in enumerate(component_columns(name, a.shape[1], self.meta)):
+                    cols[col] = a[:, k]
             else:
                 cols[name] = a
         df = pd.DataFrame(cols)
