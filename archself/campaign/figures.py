@@ -51,11 +51,12 @@ PAD_IN = 0.1
 
 
 def _figure(width: float = 6.4, height: float = 3.6, size: Size = None) -> Any:
+    from matplotlib.layout_engine import ConstrainedLayoutEngine
+
     from archself.sim.plot import paper_figure
 
-    fig = paper_figure(width, height, size)
-    fig.get_layout_engine().set(w_pad=PAD_IN, h_pad=PAD_IN)
-    return fig
+    return paper_figure(width, height, size,
+                        layout=ConstrainedLayoutEngine(w_pad=PAD_IN, h_pad=PAD_IN))
 
 
 def _title(set_title: Any, title: bool | str, default: str, **kwargs: Any) -> None:

@@ -38,7 +38,7 @@ class PaperFigure(Figure):
 
     def savefig(self, fname: Any, *args: Any, **kwargs: Any) -> None:
         """:meth:`matplotlib.figure.Figure.savefig` with TrueType fonts in PDF and PS."""
-        with matplotlib.rc_context(PAPER_RC):
+        with matplotlib.rc_context(PAPER_RC):  # type: ignore[arg-type]
             super().savefig(fname, *args, **kwargs)
 
     def _repr_png_(self) -> bytes:
@@ -60,7 +60,8 @@ def paper_figure(width: float, height: float, size: str | tuple[float, float] | 
         height scaled with the width (at least 0.62 of it; 0.8 in one
         column, where a legend goes under the axes); a pair: that size in inches.
     **kwargs
-        Passed to :class:`matplotlib.figure.Figure` (``dpi``).
+        Passed to :class:`matplotlib.figure.Figure` (``dpi``; ``layout``, constrained
+        by default).
 
     Raises
     ------
@@ -75,7 +76,8 @@ def paper_figure(width: float, height: float, size: str | tuple[float, float] | 
         width, height = w, w * max(height / width, 0.8 if size == "one" else 0.62)
     elif size is not None:
         width, height = (float(v) for v in size)
-    return PaperFigure(figsize=(width, height), layout="constrained", **kwargs)
+    kwargs.setdefault("layout", "constrained")
+    return PaperFigure(figsize=(width, height), **kwargs)
 
 
 def tex(s: Any) -> str:
