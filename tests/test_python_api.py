@@ -238,7 +238,9 @@ def test_html_displays_are_short_whatever_the_size(run: Any, tmp_path) -> None:
     odd = big.model_copy(update={"description": "<b>x</b>"})
     assert "<b>x</b>" not in odd._repr_html_() and "&lt;b&gt;x&lt;/b&gt;" in odd._repr_html_()
 
-    rep = build_run_report(None, [run])._repr_html_()
+    report = build_run_report(None, [run])
+    assert "\n" not in repr(report) and len(repr(report)) < 300  # not the series
+    rep = report._repr_html_()
     assert "actuator_fault" in rep and "a1 → a3" in rep and "max error [m]" in rep
 
     campaign = Path(__file__).parents[1] / "docs" / "campaign" / "campaign.parquet"

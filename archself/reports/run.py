@@ -123,6 +123,13 @@ class RunReport:
         a = self.adaptive
         return a.switches if a else ()
 
+    def __repr__(self) -> str:
+        """One line (the series and z channels are left out: thousands of samples)."""
+        runs = ", ".join(f"{r.mode}: {r.configuration}→{r.final_configuration}"
+                         for r in self.runs)
+        return (f"RunReport(architecture={self.architecture!r}, scenario={self.scenario!r}, "
+                f"seed={self.seed}, runs=[{runs}], decision_rows={len(self.decision_rows)})")
+
     def _repr_html_(self) -> str:
         """A short card for notebooks: each run's path and worst error, the decision log's size."""
         from archself.io.html import card, table
