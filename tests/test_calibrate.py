@@ -135,6 +135,15 @@ def test_bands_are_positive_and_finite(cal) -> None:
     assert cell.new_predicted == pytest.approx(0.1, abs=0.03)
 
 
+def test_calibration_shows_in_a_line_and_a_short_card(cal) -> None:
+    text = repr(cal)
+    assert "\n" not in text and len(text) < 200 and "false_switch=0.1" in text
+    assert f"runs={cal.runs}" in text
+    page = cal._repr_html_()
+    assert "observer_a" in page and f"{cal.modules['valve'].new:.4g}" in page
+    assert len(page) < 3000
+
+
 def test_calibrated_bands_hold_their_rate_on_fresh_seeds(cal) -> None:
     """Adaptive nominal runs on 24 unseen seeds: false alarms within the binomial tolerance.
 

@@ -68,7 +68,11 @@ def test_tau_sweep_has_tau_on_x_not_every_point_at_zero(shipped_campaign):
     # the false-switch rates (all 0 in this campaign) are a line with their interval,
     # drawn once: over the fault-free runs it is the same for both faulted scenarios
     false = [line for line in bottom.get_lines() if "false switches" in line.get_label()]
-    assert [line.get_label() for line in false] == ["false switches"]
+    # ... and its legend says over which runs (no panel title saying it differently)
+    assert [line.get_label() for line in false] == ["false switches (over fault-free scenarios)"]
+    assert [ax.get_title() for ax in fig.axes] == ["", ""]  # no title unless asked
+    assert cfig.plot_tau(summary.tau, title=True).axes[0].get_title() == \
+        "τ sweep: runtime.threshold"
     # the legend under the figure, none inside the axes (it hid the intervals)
     assert top.get_legend() is None and bottom.get_legend() is None and fig.legends
 
@@ -115,6 +119,66 @@ def test_influence_figure_says_why_cycles_were_rejected(fault_report):
     legend_texts = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert any(f"{len(top.t)} cycles: compensate_left_wheel: not applicable" in t
                for t in legend_texts)
+
+
+def test_influence_figure_spans_what_happened_and_names_few_channels():
+    """imu_drift: the odometry channel crosses τ at 62.5 s of a 400 s run."""
+    arch = archself.load(DIFFDRIVE)
+    runs = [archself.simulate(arch, "imu_drift"),
+            archself.simulate(arch, "imu_drift", adapt=archself.MapeK(arch))]
+    rep = build_run_report(arch, runs)
+    ax = figures.plot_influence(rep).axes[0]
+    lo, hi = ax.get_xlim()
+    switch = rep.switches[0]["t_s"]
+    assert lo <= rep.faults[0]["onset_s"] and lo < switch < hi
+    assert hi - lo < 0.25 * rep.z_t[-1]  # not the 400 s run
+    names = [t.get_text() for t in ax.get_legend().get_texts()]
+    channels = [n for n in names if n.startswith("|z| ") and "other" not in n]
+    assert channels[0] == "|z| odometry" and len(channels) <= figures.SHOWN_MAX
+    assert f"|z| of {len(rep.z) - len(channels)} other modules" in names
+    assert len(names) <= figures.SHOWN_MAX + 4  # + others, τ, fault onset, switch
+
+
+def test_delay_histogram_counts_have_integer_ticks(shipped_campaign):
+    rows, _ = shipped_campaign
+    few = [r for r in rows if r["replicate"] < 2]  # 2 runs per bar at most: 0.2-step ticks before
+    ax = cfig.plot_delays(few, ["actuator_fault", "imu_drift"]).axes[0]
+    ticks = [t for t in ax.get_yticks() if ax.get_ylim()[0] <= t <= ax.get_ylim()[1]]
+    np.testing.assert_allclose(ticks, np.round(ticks), atol=1e-12)
+    assert len(ticks) >= 2
+
+
+def test_every_api_figure_is_for_a_paper(fault_report, shipped_campaign, tmp_path: Path):
+    """TrueType in a saved PDF (whatever the global rcParams), column sizes, no titles."""
+    import matplotlib
+
+    rows, summary = shipped_campaign
+    names = ["actuator_fault", "imu_drift"]
+    made = {
+        "trajectory": figures.plot_trajectory(fault_report, size="one"),
+        "error": figures.plot_error(fault_report, size="one"),
+        "influence": figures.plot_influence(fault_report, size="two"),
+        "delays": cfig.plot_delays(rows, names, size="one"),
+        "errors": cfig.plot_errors(rows, names, "rms_error", "m", size="two"),
+        "tau": cfig.plot_tau(summary.tau, size=(3.5, 3.0)),
+        "results": cfig.plot_results(CAMPAIGN, "max_error", size="one"),
+    }
+    widths = {"trajectory": 3.5, "error": 3.5, "influence": 7.16, "delays": 3.5,
+              "errors": 7.16, "tau": 3.5, "results": 3.5}
+    for name, fig in made.items():
+        assert fig.get_figwidth() == pytest.approx(widths[name]), name
+        # no title; the error panels are labelled with their scenario
+        titles = {ax.get_title() for ax in fig.axes} - {""}
+        assert not fig.get_suptitle() and titles <= {*names, "nominal"}, (name, titles)
+        with matplotlib.rc_context({"pdf.fonttype": 3}):  # the global default: Type 3
+            fig.savefig(tmp_path / f"{name}.pdf")
+        pdf = (tmp_path / f"{name}.pdf").read_bytes()
+        assert b"/FontType 3" not in pdf and b"/Subtype /Type3" not in pdf, name
+        assert b"/CIDFontType2" in pdf, name  # TrueType (Type 42) fonts embedded
+    with pytest.raises(ValueError, match="size must be one of"):
+        figures.plot_error(fault_report, size="three")
+    assert figures.plot_error(fault_report, title=True).axes[0].get_title() == \
+        "Tracking error: actuator_fault"
 
 
 def test_figure_formats_are_deterministic(fault_report, tmp_path: Path):

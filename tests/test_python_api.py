@@ -84,13 +84,37 @@ def test_to_pandas_columns_dtypes_and_length(run: Any) -> None:
     assert len(df) == n == 600
     cols = list(df.columns)
     assert cols[:2] == ["t", "J"]
-    for name in ("reference_0", "reference_4", "actual_0", "actual_2", "estimate_0",
-                 "command_1", "residual.wheel_left", "configuration"):
+    # vector columns named by the publishing types' element names (output_elements)
+    assert cols[2:15] == ["reference_x", "reference_y", "reference_theta", "reference_v",
+                          "reference_omega", "actual_x", "actual_y", "actual_theta",
+                          "estimate_x", "estimate_y", "estimate_theta", "command_left",
+                          "command_right"]
+    for name in ("residual.wheel_left", "configuration"):
         assert name in cols, name
-    assert "reference_5" not in cols and "actual" not in cols
+    assert not [c for c in cols if c[-2:] in ("_0", "_1")] and "actual" not in cols
     assert all(df[c].dtype == np.float64 for c in cols if c != "configuration")
-    np.testing.assert_array_equal(df["actual_1"].to_numpy(), run.series["actual"][:, 1])
+    np.testing.assert_array_equal(df["actual_y"].to_numpy(), run.series["actual"][:, 1])
+    np.testing.assert_array_equal(df["command_right"].to_numpy(), run.series["command"][:, 1])
     assert df.attrs["scenario"] == "actuator_fault" and df.attrs["unit"] == "m"
+
+
+def test_named_columns_round_trip_through_parquet_and_old_traces_keep_indices(
+        run: Any, tmp_path) -> None:
+    import dataclasses
+
+    run.write_trace(tmp_path / "run.parquet")
+    disk = pd.read_parquet(tmp_path / "run.parquet")
+    assert list(disk.columns) == list(run.to_pandas().columns)
+    back = archself.read_trace(tmp_path / "run.parquet")
+    np.testing.assert_allclose(back.series["reference"], run.series["reference"], rtol=1e-6,
+                               atol=1e-6)
+    # a run without element names (an old trace, a type declaring none): indices, as before
+    old = dataclasses.replace(run, meta={k: v for k, v in run.meta.items() if k != "elements"})
+    assert "reference_4" in old.to_pandas().columns
+    old.write_trace(tmp_path / "old.parquet")
+    assert "actual_2" in pd.read_parquet(tmp_path / "old.parquet").columns
+    np.testing.assert_allclose(archself.read_trace(tmp_path / "old.parquet").series["actual"],
+                               run.series["actual"], rtol=1e-6, atol=1e-6)
 
 
 def test_configuration_column_holds_names(run: Any) -> None:
@@ -194,3 +218,62 @@ def test_reprs_are_one_line_and_dir_is_the_public_api(run: Any) -> None:
     assert repr(arch) == ("Architecture(name='diffdrive', modules=15, edges=39, "
                           "configurations=4, actions=7, scenarios=8)")
     assert dir(archself) == sorted([*archself.__all__, "__version__"])
+
+
+def test_html_displays_are_short_whatever_the_size(run: Any, tmp_path) -> None:
+    """Architecture, RunReport and CampaignOutcome show as bounded, escaped cards."""
+    from pathlib import Path
+
+    from archself.campaign.driver import CampaignOutcome
+    from archself.model.generate import generate_architecture
+    from archself.reports.run import build_run_report
+
+    small = archself.load(DIFFDRIVE)._repr_html_()
+    assert "diffdrive" in small and "a1 (initial)" in small and "15 (" in small
+    big_file = tmp_path / "big.yaml"
+    big_file.write_text(generate_architecture(2000, seed=1), encoding="utf-8")
+    big = archself.load(big_file, check=False)
+    page = big._repr_html_()
+    assert "2000 (" in page and "(1992 more)" in page and len(page) < 2 * len(small) + 500
+    odd = big.model_copy(update={"description": "<b>x</b>"})
+    assert "<b>x</b>" not in odd._repr_html_() and "&lt;b&gt;x&lt;/b&gt;" in odd._repr_html_()
+
+    report = build_run_report(None, [run])
+    assert "\n" not in repr(report) and len(repr(report)) < 300  # not the series
+    rep = report._repr_html_()
+    assert "actuator_fault" in rep and "a1 → a3" in rep and "max error [m]" in rep
+
+    campaign = Path(__file__).parents[1] / "docs" / "campaign" / "campaign.parquet"
+    outcome = CampaignOutcome(campaign, 1008, 0, 1008, 0, 1008, 2, "local", 60.0)
+    card = outcome._repr_html_()
+    assert "1008 in the file" in card and "… (30 more)" in card  # 42 groups, 12 shown
+    assert len(card) < 5000
+    frame = outcome.table()
+    assert len(frame) == 42 and frame["runs"].sum() == 1008
+    assert set(frame.index.names) == {"scenario", "runtime.threshold", "mode"}
+    gone = CampaignOutcome(tmp_path / "none.parquet", 1, 0, 0, 1, 0, 1, "inline", 0.1)
+    assert "no such file" in gone._repr_html_()  # a card saying why, not an exception
+
+
+def test_run_plot_is_the_error_over_time(run: Any) -> None:
+    fixed = dataclasses_replace_mode(run)
+    fig = run.plot(fixed, size="one")
+    (ax,) = fig.axes
+    assert ax.get_ylabel() == "tracking error [m]" and ax.get_title() == ""
+    labels = [line.get_label() for line in ax.get_lines()]
+    assert labels[:2] == ["fixed architecture", "adaptive architecture"]
+    switch = [line for line in ax.get_lines() if line.get_label() == "architecture switch"]
+    np.testing.assert_allclose(switch[0].get_xdata()[0], run.switches[0]["t_s"], atol=1e-9)
+    np.testing.assert_allclose(ax.get_lines()[1].get_ydata(), run.series["J"], rtol=0)
+    assert fig.get_figwidth() == 3.5
+    assert run.plot(title=True).axes[0].get_title() == "Tracking error: actuator_fault"
+    png = fig._repr_png_()
+    assert png[:4] == b"\x89PNG" and len(png) < 60_000
+
+
+def dataclasses_replace_mode(run: Any) -> Any:
+    """The same run relabelled fixed with J doubled: a second curve to tell apart."""
+    import dataclasses
+
+    return dataclasses.replace(run, mode="fixed", switches=[],
+                               series={**run.series, "J": 2 * np.asarray(run.series["J"])})

@@ -56,3 +56,47 @@ def test_pages_render_without_console_errors(pages, tmp_path) -> None:
         assert shot.is_file() and shot.stat().st_size > 5000, page
         bad = [line for line in log.splitlines() if any(b in line for b in BAD)]
         assert not bad, (page.name, bad)
+
+
+#: Measures every text of an inline SVG as the browser lays it out (its own fonts, not
+#: matplotlib's metrics): how far each one's box stays inside the canvas, in CSS px.
+_MEASURE = """<script>
+const svg = document.querySelector('svg'), c = svg.getBoundingClientRect(), out = [];
+for (const t of svg.querySelectorAll('text')) {
+  const b = t.getBoundingClientRect();
+  if (b.width === 0) continue;
+  out.push([t.textContent, Math.min(b.left - c.left, c.right - b.right,
+                                    b.top - c.top, c.bottom - b.bottom)]);
+}
+document.getElementById('out').textContent = JSON.stringify(out);
+</script>"""
+
+
+def test_campaign_figures_keep_their_text_inside_the_canvas(pages, tmp_path) -> None:
+    """Chromium clipped the y label of max.svg: its box touched the canvas's edge.
+
+    Each figure is measured in the browser; every text (labels, ticks, legends) stays at
+    least 5 px inside the canvas (the committed figures before the padding: 1.2–2.1 px;
+    now ≥ 6.7 px).
+    """
+    import json
+    import re
+
+    svgs = sorted((pages[-1].parent).glob("*.svg"))
+    assert {p.stem for p in svgs} >= {"delays", "max", "rms", "tau"}
+    for svg in svgs:
+        body = re.sub(r"^<\?xml[^>]*>\s*(<!DOCTYPE[^>]*>)?", "", svg.read_text(encoding="utf-8"))
+        page = tmp_path / f"{svg.stem}.html"
+        page.write_text(f"<!DOCTYPE html><html><body style='margin:20px'>{body}"
+                        f"<pre id='out'></pre>{_MEASURE}</body></html>", encoding="utf-8")
+        cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu",
+               "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom",
+               page.as_uri()]
+        dom = subprocess.run(cmd, capture_output=True, text=True, timeout=120).stdout
+        found = re.search(r"<pre id=\"out\">(.*?)</pre>", dom, re.S)
+        assert found, (svg.name, dom[-500:])
+        texts = json.loads(found.group(1).replace("&amp;", "&").replace("&lt;", "<")
+                           .replace("&gt;", ">"))
+        assert len(texts) > 5, svg.name
+        worst = min(texts, key=lambda t: t[1])
+        assert worst[1] >= 5.0, (svg.name, worst)

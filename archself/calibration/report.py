@@ -155,9 +155,9 @@ def _cell_row(c: CellResult) -> dict[str, Any]:
     }
 
 def _figure(width: float = 6.4, height: float = 3.2) -> Any:
-    from matplotlib.figure import Figure
+    from archself.sim.plot import paper_figure
 
-    return Figure(figsize=(width, height), layout="constrained")
+    return paper_figure(width, height)
 
 
 def _save(fig: Any, path: Path) -> None:

@@ -87,6 +87,31 @@ class Calibration:
     verify_elapsed_s: float = 0.0
     verify_data: list[Cell] = field(default_factory=list)
 
+    def __repr__(self) -> str:
+        """One line: the file, the rate asked for, the runs, the bands changed."""
+        changed = sum(b.calibrated for b in self.modules.values())
+        return (f"Calibration(architecture={self.architecture!r}, "
+                f"false_switch={self.false_switch:g}, runs={self.runs}, "
+                f"modules={len(self.modules)}, calibrated={changed})")
+
+    def _repr_html_(self) -> str:
+        """A short card for notebooks: the setting, the worst rates, the bands old → new."""
+        from archself.io.html import card, table
+
+        rates = self.rates()
+        rows = [(b.name, f"{b.old:.4g}", f"{b.new:.4g}", "yes" if b.calibrated else b.note)
+                for b in self.modules.values()]
+        return card(f"{self.architecture}: calibration for {self.false_switch:g} false "
+                    f"switches per run", [
+                        ("runs", f"{self.runs} ({self.seeds} seeds × "
+                                 f"{len(self.scenarios)} scenarios × "
+                                 f"{len(self.configurations)} configurations)"),
+                        ("worst cell, predicted", f"{rates['predicted_old']:.3g} → "
+                                                  f"{rates['predicted_new']:.3g}"),
+                        ("worst cell, measured", f"{rates['empirical_old']:.3g} → "
+                                                 f"{rates['empirical_new']:.3g}"),
+                    ], table(["module", "band before", "band after", "calibrated"], rows))
+
     @property
     def bands(self) -> dict[str, float]:
         """module -> new band (as written to the file)."""

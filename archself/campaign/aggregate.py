@@ -123,7 +123,10 @@ class CampaignSummary:
     unit: str | None = None  # of the error metrics (the results' ``unit`` column)
 
     def to_dict(self) -> dict[str, Any]:
+        from archself import __version__
+
         return {
+            "archself_version": __version__,
             "meta": self.meta,
             "runs": self.runs,
             "failed": self.failed,

@@ -77,6 +77,29 @@ class CampaignOutcome:
     elapsed_s: float
     errors: list[str] = field(default_factory=list)
 
+    def table(self) -> Any:
+        """Per scenario, sweep point and mode: runs, median errors, switches (pandas).
+
+        :func:`archself.campaign.results.summary_frame` of :attr:`out`.
+        """
+        from archself.campaign.results import summary_frame
+
+        return summary_frame(self.out)
+
+    def plot(self, metric: str = "max_error", **kwargs: Any) -> Any:
+        """Fixed vs adaptive ``metric`` per scenario: a Figure (``size``, ``title``).
+
+        :func:`archself.campaign.figures.plot_results` of :attr:`out`.
+        """
+        from archself.campaign.figures import plot_results
+
+        return plot_results(self.out, metric, **kwargs)
+
+    def _repr_html_(self) -> str:
+        from archself.campaign.results import outcome_html
+
+        return outcome_html(self)
+
 
 def _existing(out: Path, meta: dict[str, Any]) -> list[dict[str, Any]]:
     from archself.campaign.results import read_results

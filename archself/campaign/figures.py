@@ -28,19 +28,49 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
-__all__ = ["plot_delays", "plot_errors", "plot_tau"]
+#: ``"one"``/``"two"`` columns, (width, height) in inches, or None: the report's size
+#: (:func:`archself.sim.plot.paper_figure`).
+Size = str | tuple[float, float] | None
+
+__all__ = ["plot_delays", "plot_errors", "plot_results", "plot_tau"]
 
 COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
 MODE_COLORS = {"fixed": "#999999", "adaptive": "#1f77b4"}
 MARKERS = ["s", "^", "D", "v", "o", "P"]
+#: Area [pt²] of a run's marker beside its box: ~4 px across at 100 dpi (was 2 px).
+MARKER_AREA = 10
+ERROR_TITLES = {"rms_error": "RMS", "max_error": "Maximum", "final_error": "Final"}
 
 
-def _figure(width: float = 6.4, height: float = 3.6) -> Any:
-    from matplotlib.figure import Figure
+#: Padding [in] around the figure's content: text drawn by a browser in another font than
+#: matplotlib measured (an SVG keeps its text as text) must still fit in the canvas.
+PAD_IN = 0.1
 
-    return Figure(figsize=(width, height), layout="constrained")
+
+def _figure(width: float = 6.4, height: float = 3.6, size: Size = None) -> Any:
+    from matplotlib.layout_engine import ConstrainedLayoutEngine
+
+    from archself.sim.plot import paper_figure
+
+    return paper_figure(width, height, size,
+                        layout=ConstrainedLayoutEngine(w_pad=PAD_IN, h_pad=PAD_IN))
+
+
+def _title(set_title: Any, title: bool | str, default: str, **kwargs: Any) -> None:
+    """``set_title`` (of an axes, or ``fig.suptitle``) with ``default`` for True, a
+    string as given, nothing for False."""
+    if title:
+        set_title(title if isinstance(title, str) else default, **kwargs)
+
+
+def _integer_ticks(axis: Any) -> None:
+    """Counts on ``axis``: ticks on whole numbers only."""
+    from matplotlib.ticker import MaxNLocator
+
+    axis.set_major_locator(MaxNLocator(integer=True))
 
 
 def _ok(r: Mapping[str, Any], metric: str) -> bool:
@@ -62,8 +92,13 @@ def _bins(values: list[float]) -> list[float]:
     return edges
 
 
-def plot_delays(rows: list[dict[str, Any]], names: list[str]) -> Any:
-    """Histogram of the detection delays of the adaptive runs, per faulted scenario."""
+def plot_delays(rows: list[dict[str, Any]], names: list[str], size: Size = None,
+                title: bool | str = False) -> Any:
+    """Histogram of the detection delays of the adaptive runs, per faulted scenario.
+
+    The counts axis has whole-number ticks. ``size``: a paper's column (``"one"``) or
+    page (``"two"``); ``title`` True writes the report's title.
+    """
     data = {n: [r["detection_delay_s"] for r in rows
                 if r["scenario"] == n and r["mode"] == "adaptive"
                 and _ok(r, "detection_delay_s")] for n in names}
@@ -71,7 +106,7 @@ def plot_delays(rows: list[dict[str, Any]], names: list[str]) -> Any:
     if not data:
         return None
     edges = _bins([v for d in data.values() for v in d])
-    fig = _figure()
+    fig = _figure(size=size)
     ax = fig.add_subplot()
     for k, (n, d) in enumerate(data.items()):
         color = COLORS[k % len(COLORS)]
@@ -86,14 +121,20 @@ def plot_delays(rows: list[dict[str, Any]], names: list[str]) -> Any:
     ax.set_xlabel("detection delay [s]")
     ax.set_ylabel("runs")
     ax.set_ylim(top=ax.get_ylim()[1] * 1.08)
+    _integer_ticks(ax.yaxis)
     ax.legend(frameon=False, fontsize=8)
-    ax.set_title("Detection delay: first switch after the fault onset")
+    _title(ax.set_title, title, "Detection delay: first switch after the fault onset")
     return fig
 
 
 def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
-                unit: str | None = None) -> Any:
-    """Fixed vs adaptive ``metric``, one panel per scenario: boxes, every run, medians."""
+                unit: str | None = None, size: Size = None, title: bool | str = False) -> Any:
+    """Fixed vs adaptive ``metric``, one panel per scenario: boxes, every run, medians.
+
+    Every run is a marker beside its box (paired seeds: the same replicate in both
+    modes). ``size``: a paper's column (``"one"``) or page (``"two"``); ``title`` True
+    writes the report's title.
+    """
     panels = []
     for n in names:
         groups = [(mode, [r[metric] for r in rows if r["scenario"] == n
@@ -104,9 +145,9 @@ def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
             panels.append((n, groups))
     if not panels:
         return None
-    fig = _figure(max(6.4, 2.2 * len(panels)), 3.8)
+    fig = _figure(max(6.4, 2.2 * len(panels)), 3.8, size)
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
-    title = {"rms_error": "RMS", "max_error": "Maximum", "final_error": "Final"}[metric]
+    label = ERROR_TITLES[metric]
     u = f" [{unit}]" if unit else ""
     for ax, (n, groups) in zip(axes, panels, strict=True):
         values = [v for _, vs in groups for v in vs]
@@ -119,7 +160,8 @@ def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
             patch.set_alpha(0.45)
             # every run, spread sideways by its rank (deterministic, no random jitter)
             xs = [k + 1.33 + 0.12 * ((i * 0.618) % 1.0) for i in range(len(vs))]
-            ax.scatter(xs, vs, s=4, color=MODE_COLORS[mode], alpha=0.5, lw=0)
+            ax.scatter(xs, vs, s=MARKER_AREA, color=MODE_COLORS[mode], alpha=0.55,
+                       lw=0.4, edgecolors="white")
         for med in parts["medians"]:
             med.set_color("#000000")
         # the median written under its box, where it covers neither box nor points; the
@@ -135,19 +177,47 @@ def plot_errors(rows: list[dict[str, Any]], names: list[str], metric: str,
             ax.set_ylim(lo - pad, hi + pad)
         ax.set_title(n, fontsize=9)
         ax.grid(axis="y", alpha=0.3)
-    axes[0].set_ylabel(f"{title if metric == 'rms_error' else title.lower()} error{u}")
-    fig.suptitle(f"{title} error, fixed vs adaptive (paired seeds; medians under the boxes)",
-                 fontsize=10)
+    axes[0].set_ylabel(f"{label if metric == 'rms_error' else label.lower()} error{u}")
+    _title(fig.suptitle, title,
+           f"{label} error, fixed vs adaptive (paired seeds; medians under the boxes)",
+           fontsize=10)
     return fig
 
 
-def plot_tau(tau: Mapping[str, Any]) -> Any:
-    """The τ sweep: median delay (10–90 %) above, false-switch and detection rates below."""
+def plot_results(path: str | Path, metric: str = "max_error", size: Size = None,
+                 title: bool | str = False) -> Any:
+    """:func:`plot_errors` of a campaign's results file (every scenario in it).
+
+    Raises
+    ------
+    CampaignError
+        If the file is not a campaign's results
+        (:func:`archself.campaign.results.read_results`).
+    ValueError
+        If ``metric`` is none of ``max_error``, ``final_error``, ``rms_error``.
+    """
+    from archself.campaign.results import read_results
+
+    if metric not in ERROR_TITLES:
+        raise ValueError(f"metric must be one of {', '.join(ERROR_TITLES)}, not {metric!r}")
+    rows = read_results(path)[0].to_pylist()
+    names = list(dict.fromkeys(r["scenario"] for r in rows))
+    unit = next((r["unit"] for r in rows if r.get("unit")), None)
+    return plot_errors(rows, names, metric, unit, size, title)
+
+
+def plot_tau(tau: Mapping[str, Any], size: Size = None, title: bool | str = False) -> Any:
+    """The τ sweep: median delay (10–90 %) above, false-switch and detection rates below.
+
+    The legend says over which runs the false-switch rate is (``false switches (over
+    fault-free scenarios)``), as no panel title does. ``size``: a paper's column
+    (``"one"``) or page (``"two"``); ``title`` True writes the report's title.
+    """
     curves = tau.get("curves") or [{"scenario": "all faulted", "points": tau["points"]}]
     curves = [c for c in curves if c["points"]]
     if not curves:
         return None
-    fig = _figure(6.4, 5.8)
+    fig = _figure(6.4, 5.8, size)
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
     basis = ""
     false_rates: list[tuple[str, str, list[float], list[dict[str, Any]]]] = []
@@ -187,10 +257,11 @@ def plot_tau(tau: Mapping[str, Any]) -> Any:
         c = "#555555" if same else color
         bottom.fill_between(xf, [f["lo"] for f in ff], [f["hi"] for f in ff],
                             color=c, alpha=0.15, lw=0)
+        over = f" (over {basis})" if basis else ""
         bottom.plot(xf, [f["rate"] for f in ff], "-o", color=c, ms=4,
-                    label="false switches" if same else f"{name}: false switches")
+                    label=f"false switches{over}" if same else f"{name}: false switches{over}")
     top.set_ylabel("detection delay [s]\n(median, 10–90 %)")
-    top.set_title(f"τ sweep: {tau['path']}")
+    _title(top.set_title, title, f"τ sweep: {tau['path']}")
     top.grid(alpha=0.3)
     top.set_ylim(bottom=0)
     bottom.set_ylabel("rate (95 % CI)")
@@ -206,6 +277,4 @@ def plot_tau(tau: Mapping[str, Any]) -> Any:
     if handles:
         fig.legend(handles, labels, loc="outside lower center", fontsize=8, frameon=False,
                    ncols=2)
-    if basis:
-        bottom.set_title(f"false switches over {basis}", fontsize=8, loc="left")
     return fig

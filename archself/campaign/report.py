@@ -124,11 +124,13 @@ def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | P
     figures: dict[str, str | None] = {}
     faulted = [b["scenario"] for b in summary.scenarios if b["faulted"]]
     specs = [
-        ("delays", lambda: fig.plot_delays(rows, faulted)),
-        ("rms", lambda: fig.plot_errors(rows, names, "rms_error", summary.unit)),
-        ("max", lambda: fig.plot_errors(rows, names, "max_error", summary.unit)),
-        ("final", lambda: fig.plot_errors(rows, names, "final_error", summary.unit)),
-        ("tau", lambda: fig.plot_tau(summary.tau) if summary.tau is not None else None),
+        ("delays", lambda: fig.plot_delays(rows, faulted, title=True)),
+        ("rms", lambda: fig.plot_errors(rows, names, "rms_error", summary.unit, title=True)),
+        ("max", lambda: fig.plot_errors(rows, names, "max_error", summary.unit, title=True)),
+        ("final", lambda: fig.plot_errors(rows, names, "final_error", summary.unit,
+                                          title=True)),
+        ("tau", lambda: (fig.plot_tau(summary.tau, title=True) if summary.tau is not None
+                         else None)),
     ]
     shown = "svg" if "svg" in formats else "png"
     fmts = tuple(dict.fromkeys((*formats, shown)))

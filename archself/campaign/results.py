@@ -50,7 +50,8 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError
 
-__all__ = ["META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "write_results"]
+__all__ = ["META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "summary_frame",
+           "write_results"]
 
 META_KEY = b"archself.campaign"
 
@@ -217,3 +218,58 @@ def _upgrade(table: Any) -> Any:
     table = table.add_column(at, pa.field("unit", pa.string()),
                              pa.array(["m"] * table.num_rows, pa.string()))
     return table.replace_schema_metadata(metadata)
+
+
+def summary_frame(path: str | Path) -> Any:
+    """A results file in one :class:`pandas.DataFrame` row per scenario, sweep point and mode.
+
+    Columns: ``runs``, ``failed``, the medians of ``max_error`` and ``rms_error`` (in
+    the table's ``unit``), the mean ``n_switches`` and the most frequent
+    ``final_configuration``; the index is ``scenario``, the sweep PATHs and ``mode``.
+    What :meth:`archself.campaign.driver.CampaignOutcome.table` returns.
+
+    Raises
+    ------
+    CampaignError
+        As :func:`read_results`.
+    """
+    table, meta = read_results(path)
+    runs = table.to_pandas()
+    keys = ["scenario", *meta.get("sweeps", []), "mode"]
+    frame = runs.groupby(keys, sort=True).agg(
+        runs=("run_id", "size"),
+        failed=("error", lambda e: int(e.notna().sum())),
+        max_error=("max_error", "median"),
+        rms_error=("rms_error", "median"),
+        n_switches=("n_switches", "mean"),
+        final_configuration=("final_configuration", lambda c: c.mode().iat[0]),
+    )
+    frame.attrs["unit"] = runs["unit"].dropna().iat[0] if runs["unit"].notna().any() else None
+    return frame
+
+
+def outcome_html(outcome: Any) -> str:
+    """The notebook card of a :class:`~archself.campaign.driver.CampaignOutcome`.
+
+    The counts, and per scenario and mode the median errors (from the results file,
+    at most :data:`archself.io.html.MAX_ROWS` rows).
+    """
+    from archself.io.html import card, table
+
+    rows = [("results", outcome.out), ("runs", f"{outcome.rows} in the file: {outcome.ran} ran, "
+                                      f"{outcome.skipped} kept, {outcome.failed} failed"),
+            ("executor", f"{outcome.executor}, {outcome.workers} workers, "
+                         f"{outcome.elapsed_s:.1f} s")]
+    if outcome.errors:
+        rows.append(("first error", outcome.errors[0]))
+    try:
+        frame = summary_frame(outcome.out)
+    except (CampaignError, ImportError) as exc:  # the file gone, or no pandas
+        return card("campaign", [*rows, ("table", str(exc))])
+    unit = f" [{frame.attrs['unit']}]" if frame.attrs.get("unit") else ""
+    body = [(*(k if isinstance(k, tuple) else (k,)), r.runs, f"{r.max_error:.4g}",
+             f"{r.rms_error:.4g}", f"{r.n_switches:.2g}", r.final_configuration)
+            for k, r in frame.iterrows()]
+    header = [*frame.index.names, "runs", f"median max error{unit}",
+              f"median RMS error{unit}", "switches", "final configuration"]
+    return card("campaign", rows, table(header, body))

@@ -10,7 +10,9 @@ Parquet layout (``pd.read_parquet(path)`` gives the same columns as
 
 - one row per simulation step; ``t`` float64 [s], every other series float32 (7
   significant digits: finer than the JSON trace's rounding to 1e-6 for values below
-  10), a vector series one column per component (``reference_0`` …),
+  10), a vector series one column per component, named by the element names of
+  ``meta["elements"]`` where the publishing type declares them (``reference_x`` …),
+  else by index (``reference_0`` …): :func:`component_columns`,
   ``configuration`` a dictionary-encoded string (a categorical in pandas);
 - the file's key-value metadata ``archself.trace``: JSON ``{"format": 1, "meta": …,
   "series": [[name, width], …]}`` (``meta`` as in the JSON trace, widths to rebuild the
@@ -47,6 +49,7 @@ from archself.io.jsondata import (
 )
 
 __all__ = [
+    "component_columns",
     "TRACE_KEY",
     "DECISIONS_KEY",
     "TraceError",
@@ -62,6 +65,27 @@ TRACE_KEY = b"archself.trace"
 DECISIONS_KEY = b"archself.decisions"
 FORMAT = 1
 _SUFFIXES = (".parquet", ".pq")
+
+
+def component_columns(name: str, width: int, meta: Any) -> list[str]:
+    """The columns of a vector series ``name`` of ``width`` components.
+
+    ``name_<element>`` when ``meta["elements"][name]`` holds ``width`` distinct names (the
+    types' ``output_elements``), else ``name_0`` … (old traces, undeclared outputs).
+
+    Examples
+    --------
+    >>> component_columns("actual", 3, {"elements": {"actual": ["x", "y", "theta"]}})
+    ['actual_x', 'actual_y', 'actual_theta']
+    >>> component_columns("command", 2, {"elements": {"actual": ["x", "y", "theta"]}})
+    ['command_0', 'command_1']
+    """
+    elements = meta.get("elements") if isinstance(meta, dict) else None
+    names = elements.get(name) if isinstance(elements, dict) else None
+    if (isinstance(names, list) and len(names) == width and len(set(names)) == width
+            and all(isinstance(e, str) and e for e in names)):
+        return [f"{name}_{e}" for e in names]
+    return [f"{name}_{k}" for k in range(width)]
 
 
 def is_parquet_name(path: str | Path) -> bool:
@@ -124,8 +148,8 @@ def parquet_bytes(result: Any) -> bytes:
             else:
                 columns[name] = pa.array(codes)
         elif a.ndim == 2:
-            for k in range(a.shape[1]):
-                columns[f"{name}_{k}"] = pa.array(a[:, k].astype(np.float32))
+            for k, col in enumerate(component_columns(name, a.shape[1], doc_meta)):
+                columns[col] = pa.array(a[:, k].astype(np.float32))
         elif name == "t":
             columns[name] = pa.array(a.astype(np.float64))
         else:
@@ -280,8 +304,8 @@ def _read_parquet(source: Any, p: str) -> TraceParts:
             arrays[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=int)
         elif width:
             arrays[name] = np.column_stack([
-                np.asarray(table.column(f"{name}_{k}").to_numpy(zero_copy_only=False),
-                           dtype=float) for k in range(int(width))])
+                np.asarray(table.column(col).to_numpy(zero_copy_only=False), dtype=float)
+                for col in component_columns(name, int(width), meta)])
         else:
             arrays[name] = np.asarray(table.column(name).to_numpy(zero_copy_only=False),
                                       dtype=float)

@@ -419,6 +419,24 @@ class Architecture(StrictModel):
 
     __str__ = __repr__
 
+    def _repr_html_(self) -> str:
+        """A short card for notebooks: counts and the first few names of each section."""
+        from collections import Counter
+
+        from archself.io.html import card, few
+
+        kinds = Counter(m.kind for m in self.modules.values())
+        initial = self.initial_configuration()
+        return card(f"{self.name}: " + (self.description or "architecture"), [
+            ("modules", f"{len(self.modules)} ({', '.join(f'{v} {k}' for k, v in kinds.items())})"
+                        f": {few(list(self.modules))}"),
+            ("edges", len(self.edges)),
+            ("configurations", few([f"{c} (initial)" if c == initial else c
+                                    for c in self.configurations])),
+            ("actions", few([a.id for a in self.actions]) or "none"),
+            ("scenarios", few(list(self.scenarios)) or "none"),
+        ])
+
     schema_: str | None = Field(None, alias="$schema", description="Optional schema URL.")
     archself: Literal[1] = Field(description="Format version.")
     name: Name

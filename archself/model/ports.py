@@ -87,12 +87,16 @@ class Output:
         One line on what it is.
     size : int, optional
         Length of a vector value (lets ``validate`` check objective components).
+    elements : tuple of str, optional
+        Names of a vector value's elements, in order (``("x", "y", "theta")``): a
+        run's table names its columns by them (``actual_x``), not by index.
     """
 
     name: str
     unit: str = ""
     doc: str = ""
     size: int | None = None
+    elements: tuple[str, ...] = ()
 
 
 def declare(cls: Any) -> None:
@@ -122,6 +126,7 @@ def declare(cls: Any) -> None:
     cls.multi_inputs = tuple(p.name for p in ins if p.multi)
     cls.outputs = tuple(p.name for p in outs)
     cls.output_sizes = {p.name: p.size for p in outs if p.size is not None}
+    cls.output_elements = {p.name: tuple(p.elements) for p in outs if p.elements}
 
 
 def split_ref(ref: str, modules: Iterable[str]) -> tuple[str, str | None]:

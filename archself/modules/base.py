@@ -262,6 +262,9 @@ class RuntimeModule:
     #: Length of each vector output (a scalar is 1); lets ``validate`` check the
     #: objective's component indices. Signals not listed are not checked.
     output_sizes: ClassVar[Mapping[str, int]] = {}
+    #: Names of a vector output's elements (``{"pose": ("x", "y", "theta")}``): a run's
+    #: columns are ``actual_x`` … instead of ``actual_0`` … (``RunResult.to_pandas``).
+    output_elements: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     residual_signals: ClassVar[tuple[str, ...]] = ()
     fault_kinds: ClassVar[frozenset[str]] = frozenset()
     direct_feedthrough: ClassVar[bool] = True

@@ -1,8 +1,10 @@
 """The run report's figures (paper Fig. 2–6) with matplotlib, headless.
 
-matplotlib is imported inside the functions (never at ``archself`` start-up) and
-used through :class:`matplotlib.figure.Figure` with the Agg canvas: no pyplot,
-no global backend switch, no display needed. ``plot_*`` return the Figure,
+This module imports matplotlib: it is imported inside the functions that draw (never
+at ``archself`` start-up). Figures are :class:`archself.sim.plot.PaperFigure` objects on the
+Agg canvas: no pyplot, no global backend switch, no display needed; TrueType fonts in
+a saved PDF, no title unless ``title`` asks for one, ``size="one"``/``"two"`` for a
+paper's column or page width. ``plot_*`` return the Figure,
 :func:`figure_bytes` its bytes (no date or software metadata, so the bytes depend only
 on the data and the matplotlib version). Legends sit where they cover no label: outside
 the axes wherever switch labels ("a1 → a2") are drawn at the top of the axes.
@@ -19,6 +21,21 @@ from typing import Any
 import numpy as np
 
 from archself.reports.run import RunReport
+from archself.sim.plot import (
+    COLORS,
+    LABELS,
+    PaperFigure,
+    error_axes,
+    fault_lines,
+    legend_below,
+    paper_figure,
+    switch_lines,
+)
+from archself.sim.plot import tex as _tex
+
+#: A paper size: ``"one"`` column, ``"two"`` columns, (width, height) in inches, or None
+#: (the report's own size); see :func:`archself.sim.plot.paper_figure`.
+Size = str | tuple[float, float] | None
 
 __all__ = [
     "FORMATS",
@@ -29,18 +46,15 @@ __all__ = [
     "plot_trajectory",
 ]
 
-COLORS = {"fixed": "#c0392b", "adaptive": "#1f77b4", "reference": "#222222"}
-LABELS = {"fixed": "fixed architecture", "adaptive": "adaptive architecture"}
+
+def _figure(w: float = 7.5, h: float = 4.2, size: Size = None) -> PaperFigure:
+    return paper_figure(w, h, size, dpi=100)
 
 
-def _tex(s: Any) -> str:
-    return str(s).replace("$", r"\$")
-
-
-def _figure(w: float = 7.5, h: float = 4.2) -> Any:
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=(w, h), dpi=100, layout="constrained")
+def _title(ax: Any, title: bool | str, default: str) -> None:
+    """The title asked for: ``default`` for True, the string given, none for False."""
+    if title:
+        ax.set_title(_tex(title if isinstance(title, str) else default))
 
 
 #: Figure formats :func:`figure_bytes` writes, and the metadata each gets (no date, no
@@ -52,22 +66,34 @@ FORMATS = {
 }
 
 
+#: Saves :func:`figure_bytes` makes at most until two agree.
+SETTLE = 4
+
+
 def figure_bytes(fig: Any, fmt: str = "png", dpi: int = 150) -> bytes:
     """``fig`` saved as ``png``, ``svg`` or ``pdf``: deterministic bytes.
 
     ``dpi`` matters for PNG (and for images inside a vector file); SVG keeps its text
     as text (``svg.fonttype: none``) so a paper's fonts apply, and a fixed hash salt.
+    The figure is saved until two saves agree (at most :data:`SETTLE` times): the
+    constrained layout settles over a few draws at a new resolution (the first PDF after
+    a PNG differed from the next in the 10th digit of a clip box).
     """
     import matplotlib
 
     if fmt not in FORMATS:
         raise ValueError(f"unknown figure format {fmt!r}; known: {', '.join(FORMATS)}")
-    buf = io.BytesIO()
     rc: dict[str, Any] = {"svg.hashsalt": "archself", "svg.fonttype": "none",
                           "pdf.fonttype": 42}
+    last = b""
     with matplotlib.rc_context(rc):  # type: ignore[arg-type]
-        fig.savefig(buf, format=fmt, dpi=dpi, metadata=FORMATS[fmt])
-    return buf.getvalue()
+        for _ in range(SETTLE):
+            buf = io.BytesIO()
+            fig.savefig(buf, format=fmt, dpi=dpi, metadata=FORMATS[fmt])
+            if buf.getvalue() == last:
+                break
+            last = buf.getvalue()
+    return last
 
 
 def _comp(arr: np.ndarray, c: int) -> np.ndarray:
@@ -75,41 +101,11 @@ def _comp(arr: np.ndarray, c: int) -> np.ndarray:
     return a if a.ndim == 1 else a[:, c]
 
 
-def _legend_below(fig: Any, ax: Any, first: str | None = None) -> None:
-    """The legend under the axes, outside them: it can hide neither a curve nor a label.
-
-    The switch labels ("a1 → a2") sit at the top of the axes, where a legend inside
-    the axes (``upper left``, or ``best``, which ignores text) may cover them; an x–y
-    trajectory fills its axes at equal aspect. ``first``: the label listed first.
-    """
-    handles, labels = ax.get_legend_handles_labels()
-    order = sorted(range(len(labels)), key=lambda i: labels[i] != first)
-    handles, labels = [handles[i] for i in order], [labels[i] for i in order]
-    if handles:
-        fig.legend(handles, labels, loc="outside lower center", fontsize=8,
-                   ncols=min(2, len(handles)), frameon=False)
-
-
-def _switch_lines(ax: Any, rep: RunReport, label: bool = True) -> None:
-    for k, s in enumerate(rep.switches):
-        ax.axvline(s["t_s"], color="#2ca02c", ls="--", lw=1.2,
-                   label=("architecture switch" if label and k == 0 else None))
-        ax.annotate(_tex(f"{s['from']} → {s['to']}"), (s["t_s"], 1.0),
-                    xycoords=("data", "axes fraction"), xytext=(3, -12),
-                    textcoords="offset points", fontsize=8, color="#2ca02c")
-
-
-def _fault_lines(ax: Any, rep: RunReport) -> None:
-    for k, f in enumerate(rep.faults):
-        ax.axvline(f["onset_s"], color="#7f7f7f", ls=":", lw=1.0,
-                   label=("fault onset" if k == 0 else None))
-
-
 def _unit(rep: RunReport) -> str:
     return f" [{_tex(rep.unit)}]" if rep.unit else ""
 
 
-def plot_trajectory(rep: RunReport) -> Any:
+def plot_trajectory(rep: RunReport, size: Size = None, title: bool | str = False) -> PaperFigure:
     """Fig. 2–4: the objective's actual signal against its reference (x–y, or vs. t).
 
     Two or more components: an x–y plot at equal aspect (a metre is as long on both
@@ -117,7 +113,7 @@ def plot_trajectory(rep: RunReport) -> Any:
     drawn last, dashed and on top, so it stays visible where a run follows it closely.
     """
     comps = rep.objective["components"]
-    fig = _figure(7.5, 5.0)
+    fig = _figure(7.5, 5.0, size)
     ax = fig.add_subplot()
     first = next(iter(rep.series.values()))
     xy = len(comps) >= 2 and "reference" in first and np.ndim(first["reference"]) == 2
@@ -150,32 +146,22 @@ def plot_trajectory(rep: RunReport) -> Any:
         ax.set_ylabel(_tex(f"{actual}[{comps[1]}]") + _unit(rep))
         ax.set_aspect("equal", adjustable="datalim")
     else:
-        _switch_lines(ax, rep, label=False)
+        switch_lines(ax, rep.switches, label=False)
         ax.set_xlabel("t [s]")
         ax.set_ylabel(_tex(f"{actual}[{comps[0]}]") + _unit(rep))
-    ax.set_title(_tex(f"Trajectory: {rep.scenario}"))
+    _title(ax, title, f"Trajectory: {rep.scenario}")
     ax.grid(alpha=0.3)
-    _legend_below(fig, ax, first="reference")  # outside: it hides no curve at any size
+    legend_below(fig, ax, first="reference")  # outside: it hides no curve at any size
     return fig
 
 
-def plot_error(rep: RunReport) -> Any:
+def plot_error(rep: RunReport, size: Size = None, title: bool | str = False) -> PaperFigure:
     """Fig. 6: tracking error ‖actual − reference‖ of each run, switches and faults marked."""
-    fig = _figure()
+    fig = _figure(size=size)
     ax = fig.add_subplot()
-    for mode, s in rep.series.items():
-        ax.plot(np.asarray(s["t"]), np.asarray(s["J"], dtype=float), color=COLORS.get(mode),
-                lw=1.4, label=LABELS.get(mode, mode))
-    if rep.acceptable > 0:
-        ax.axhline(rep.acceptable, color="#555555", ls="-.", lw=0.9,
-                   label=f"acceptable J_ref = {rep.acceptable:g}")
-    _fault_lines(ax, rep)
-    _switch_lines(ax, rep)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("tracking error" + _unit(rep))
-    ax.set_title(_tex(f"Tracking error: {rep.scenario}"))
-    ax.grid(alpha=0.3)
-    _legend_below(fig, ax)
+    error_axes(ax, rep.series, rep.switches, rep.faults, rep.acceptable, rep.unit)
+    _title(ax, title, f"Tracking error: {rep.scenario}")
+    legend_below(fig, ax)
     return fig
 
 
@@ -187,45 +173,101 @@ Z_COLORS = ("#1f77b4", "#ff7f0e", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#
 REJECTION_COLORS = ("#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
 
 
-def plot_influence(rep: RunReport) -> Any:
+def plot_influence(rep: RunReport, size: Size = None, title: bool | str = False) -> PaperFigure:
     """Fig. 5: |z_i| per module per MAPE-K cycle, τ, the warm-up and the switch events.
 
     Under the channels, a strip marks the cycles whose candidates changed nothing, one
     row per reason (the action and the planner's verdict, e.g. ``compensate_left_wheel:
     not applicable (only in a1, a2)``: the fault was already compensated), with the
     number of cycles; the legend under the figure says the reason in full.
+
+    The time axis spans what happened (:func:`_span`: faults, switches, rejected cycles,
+    channels near τ), not the whole run when that is mostly quiet; the legend names
+    the few channels that matter (:func:`_channels`), the others are grey.
     """
     rej = rep.rejections[: len(REJECTION_COLORS)]
     if rej:
-        fig = _figure(9.0, 5.4 + 0.25 * len(rej))
+        fig = _figure(9.0, 5.4 + 0.25 * len(rej), size)
         ax, strip = fig.subplots(2, 1, sharex=True,
                                  height_ratios=[4.0, 0.45 + 0.35 * len(rej)])
     else:
-        fig = _figure(9.0, 4.6)
+        fig = _figure(9.0, 4.6, size)
         ax, strip = fig.add_subplot(), None
     if rep.warmup_s > 0:
         ax.axvspan(0, rep.warmup_s, color="#bbbbbb", alpha=0.35,
                    label=f"warm-up ({rep.warmup_s:g} s)")
-    for k, (name, z) in enumerate(rep.z.items()):
-        ax.plot(rep.z_t, z, lw=1.3, color=Z_COLORS[k % len(Z_COLORS)],
-                label=_tex(f"|z| {name}"))
+    shown, rest = _channels(rep)
+    for k, name in enumerate(shown):
+        ax.plot(rep.z_t, rep.z[name], lw=1.3, color=Z_COLORS[k % len(Z_COLORS)],
+                label=_tex(f"|z| {name}"), zorder=3)
+    for k, name in enumerate(rest):
+        ax.plot(rep.z_t, rep.z[name], lw=0.8, color="#aaaaaa", zorder=2,
+                label=(f"|z| of {len(rest)} other modules" if k == 0 else None))
     for k, (label, value) in enumerate(rep.tau):
         ax.axhline(value, color="#000000", ls="--" if k == 0 else ":", lw=1.0,
                    label=f"{label} = {value:g}")
-    _fault_lines(ax, rep)
-    _switch_lines(ax, rep)
+    fault_lines(ax, rep.faults)
+    switch_lines(ax, rep.switches)
     if not rep.z:
         ax.text(0.5, 0.5, "no module influence above zero", ha="center",
                 transform=ax.transAxes, color="#777777")
     if strip is None:
         ax.set_xlabel("t [s]")
     ax.set_ylabel("|z_i| (Eq. 14)")
-    ax.set_title(_tex(f"Influence channels: {rep.scenario}"))
+    _title(ax, title, f"Influence channels: {rep.scenario}")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    if strip is None and fig.get_figwidth() < 5:  # a column: the legend under the axes
+        legend_below(fig, ax)
+    else:
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    span = _span(rep)
+    if span is not None:
+        ax.set_xlim(*span)
     if strip is not None:
         _rejection_strip(fig, strip, rep, rej)
     return fig
+
+
+#: Channels drawn in colour and named in the legend: at most this many, each reaching at
+#: least :data:`SHOWN_SHARE` of the largest |z|; the others are grey, one legend entry.
+SHOWN_MAX = 5
+SHOWN_SHARE = 0.25
+
+
+def _channels(rep: RunReport) -> tuple[list[str], list[str]]:
+    """The channels named in the legend (largest peak first) and the others (file order)."""
+    peaks = {n: float(np.nanmax(z, initial=0.0)) for n, z in rep.z.items()}
+    top = max(peaks.values(), default=0.0)
+    ranked = sorted(peaks, key=lambda n: -peaks[n])
+    shown = [n for n in ranked[:SHOWN_MAX] if peaks[n] >= SHOWN_SHARE * top]
+    return shown, [n for n in rep.z if n not in shown]
+
+
+def _span(rep: RunReport) -> tuple[float, float] | None:
+    """The time span around what happened, or None for the whole run.
+
+    What happened: fault onsets, switches, rejected cycles and every cycle where a
+    channel reached a tenth of τ (of the largest |z| without τ). The span reaches a
+    sixth of its length (at least five cycles) beyond them; None when that is most
+    of the run anyway.
+    """
+    t = np.asarray(rep.z_t, dtype=float)
+    if t.size < 2 or not rep.z:
+        return None
+    level = 0.1 * (rep.tau[0][1] if rep.tau else
+                   max(float(np.nanmax(z, initial=0.0)) for z in rep.z.values()))
+    z = np.vstack([np.nan_to_num(np.asarray(v, dtype=float)) for v in rep.z.values()])
+    near = t[(z >= level).any(axis=0)] if level > 0 else t[:0]
+    events = [*near.tolist(),
+              *(f["onset_s"] for f in rep.faults), *(s["t_s"] for s in rep.switches),
+              *(x for r in rep.rejections for x in r.t)]
+    if not events:
+        return None
+    lo, hi = min(events), max(events)
+    period = rep.period_s if rep.period_s == rep.period_s and rep.period_s > 0 else 1.0
+    pad = max((hi - lo) / 6, 5 * period)
+    lo, hi = max(float(t[0]), lo - pad), min(float(t[-1]), hi + pad)
+    return (lo, hi) if hi - lo < 0.6 * (t[-1] - t[0]) else None
 
 
 def _rejection_strip(fig: Any, ax: Any, rep: RunReport, rej: list[Any]) -> None:

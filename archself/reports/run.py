@@ -133,9 +133,35 @@ class RunReport:
         a = self.adaptive
         return a.switches if a else ()
 
+    def __repr__(self) -> str:
+        """One line (the series and z channels are left out: thousands of samples)."""
+        runs = ", ".join(f"{r.mode}: {r.configuration}→{r.final_configuration}"
+                         for r in self.runs)
+        return (f"RunReport(architecture={self.architecture!r}, scenario={self.scenario!r}, "
+                f"seed={self.seed}, runs=[{runs}], decision_rows={len(self.decision_rows)})")
+
+    def _repr_html_(self) -> str:
+        """A short card for notebooks: each run's path and worst error, the decision log's size."""
+        from archself.io.html import card, table
+
+        unit = f" [{self.unit}]" if self.unit else ""
+        runs = table(["mode", "configurations", f"max error{unit}"], [
+            (r.mode, " → ".join([r.configuration, *(str(s["to"]) for s in r.switches)]),
+             f"{r.metrics.get('max_error', math.nan):.4g}") for r in self.runs])
+        return card(f"{self.architecture} · {self.scenario} · seed {self.seed}", [
+            ("candidates", self.selector),
+            ("faults", ", ".join(f"{f.get('kind')} on {f.get('module')} at {f.get('onset_s')} s"
+                                 for f in self.faults[:4]) or "none"),
+            ("decision log", f"{len(self.decision_rows)} rows; cycles turned down: "
+                             f"{sum(len(r.t) for r in self.rejections)}"),
+        ], runs)
+
     def summary(self) -> dict[str, Any]:
         """Deterministic plain-JSON summary (``summary.json`` of the run report)."""
+        from archself import __version__
+
         return _round({
+            "archself_version": __version__,
             "architecture": self.architecture,
             "scenario": self.scenario,
             "seed": self.seed,

@@ -81,7 +81,7 @@ def _write(arch: Architecture | None, results: list[Any], out: Path,
             "attribute values, labelled with U, and the path the adaptive run took.",
             figures.plot_qualities))
     for stem, _title, _caption, plot in figs:
-        fig = plot(rep)
+        fig = plot(rep, title=True)
         for fmt in fmts:
             write_bytes(out / f"{stem}.{fmt}", figures.figure_bytes(fig, fmt, dpi))
     write_text(out / "summary.json",

@@ -16,7 +16,13 @@ from typing import Any
 import numpy as np
 
 from archself.io.jsondata import jsonable
-from archself.io.trace import TraceParts, read_trace_parts, trace_parts_from_bytes, write_trace
+from archself.io.trace import (
+    TraceParts,
+    component_columns,
+    read_trace_parts,
+    trace_parts_from_bytes,
+    write_trace,
+)
 from archself.sim.metrics import metric_rows
 
 __all__ = ["RunResult", "read_trace", "trace_from_bytes"]
@@ -107,9 +113,12 @@ class RunResult:
 
         Columns, in the order of :attr:`series`: ``t`` [s], ``J`` (the objective
         error, in :attr:`unit`), then every other series; a 2-D series (a vector
-        signal) becomes one column per component, ``<name>_<k>``: ``reference_0`` …,
-        ``actual_0`` … (the objective compares ``runtime.objective.components`` of
-        them), ``estimate_0`` …; ``residual.<module>`` (NaN while inactive) and
+        signal) becomes one column per component, ``<name>_<element>`` where the
+        publishing type names its elements (diffdrive: ``reference_x``, ``reference_y``,
+        ``reference_theta``, ``reference_v``, ``reference_omega``, ``actual_x`` …,
+        ``estimate_x`` …, ``command_left``, ``command_right``), else ``<name>_<k>``
+        (``reference_0`` …); the objective compares ``runtime.objective.components``
+        of ``reference`` and ``actual``; ``residual.<module>`` (NaN while inactive) and
         ``configuration``, the name of the configuration active at that step (a
         categorical over :attr:`configurations`, in file order). ``attrs`` holds
         ``scenario``, ``seed``, ``mode``, ``unit`` and ``objective``.
@@ -124,8 +133,8 @@ class RunResult:
             if name == "configuration":
                 cols[name] = self._configuration_names(pd, a)
             elif a.ndim == 2:
-                for k in range(a.shape[1]):
-                    cols[f"{name}_{k}"] = a[:, k]
+                for k, col in enumerate(component_columns(name, a.shape[1], self.meta)):
+                    cols[col] = a[:, k]
             else:
                 cols[name] = a
         df = pd.DataFrame(cols)
@@ -194,12 +203,19 @@ class RunResult:
                 f"steps={steps}, configurations={path!r}, max_error={worst:.4g}{unit})")
 
     def _repr_html_(self) -> str:
-        """A small HTML summary for notebooks: the run, its configuration path, the metrics."""
+        """A small HTML summary for notebooks: the run, its configuration path, the metrics.
+
+        Bounded: at most :data:`archself.io.html.MAX_ROWS` switches are listed.
+        """
         from html import escape
+
+        from archself.io.html import MAX_ROWS
 
         path = [self.configuration, *(str(s.get("to")) for s in self.switches)]
         if path[-1] != self.final_configuration:
             path.append(self.final_configuration)
+        if len(path) > MAX_ROWS:
+            path = [*path[:MAX_ROWS - 1], f"… ({len(path) - MAX_ROWS} more)", path[-1]]
         rows = "".join(
             f"<tr><td>{escape(label)}</td><td>{self.metrics.get(key, math.nan):.{dec}f}</td></tr>"
             for label, key, dec in metric_rows(self.unit)
@@ -207,8 +223,9 @@ class RunResult:
         switches = "".join(
             f"<li>t = {float(s.get('t_s', math.nan)):.1f} s: {escape(str(s.get('from')))} → "
             f"{escape(str(s.get('to')))} ({escape(str(s.get('action')))})</li>"
-            for s in self.switches
-        )
+            for s in self.switches[:MAX_ROWS]
+        ) + (f"<li>… ({len(self.switches) - MAX_ROWS} more)</li>"
+             if len(self.switches) > MAX_ROWS else "")
         name = self.meta.get("architecture")
         head = (f"<b>{escape(str(name))}</b> · " if name else "") + (
             f"scenario <b>{escape(self.scenario)}</b> · seed {int(self.seed)} · "
@@ -221,6 +238,33 @@ class RunResult:
             + (f"<p>switches:</p><ul>{switches}</ul>" if switches else "")
             + "</div>"
         )
+
+    def plot(self, *others: RunResult, size: str | tuple[float, float] | None = None,
+             title: bool | str = False) -> Any:
+        """The objective error J over time: a :class:`matplotlib.figure.Figure`.
+
+        Switches and fault onsets are marked, the acceptable error drawn where the file
+        declares one. Saved as PDF it embeds TrueType fonts (no Type 3); no title unless
+        asked for. Needs matplotlib.
+
+        Parameters
+        ----------
+        *others : RunResult
+            Runs of the same scenario to draw beside this one (e.g. the fixed run).
+        size : {"one", "two"} or (float, float), optional
+            One column (3.5 in) or two (7.16 in) wide, or (width, height) in inches.
+        title : bool or str
+            True: ``Tracking error: <scenario>``; a string: that title.
+
+        Examples
+        --------
+        >>> res.plot(fixed, size="one").savefig("error.pdf")  # doctest: +SKIP
+
+        See :mod:`archself.reports.figures` for the trajectory and the influence channels.
+        """
+        from archself.sim.plot import plot_run
+
+        return plot_run(*others, self, size=size, title=title)
 
     def write_trace(self, path: str | Path) -> None:
         """Write the trace to ``path``, atomically and deterministically.

@@ -62,8 +62,35 @@ def run_meta(
             "unit": rt.objective.unit,
         },
         "residuals": dict(res_mods),
+        "elements": _elements(arch),
         "report": _report_context(arch, sc),
     }
+
+
+def _elements(arch: Architecture) -> dict[str, list[str]]:
+    """The element names of the vector series whose publishing type declares them
+    (``output_elements``): ``reference``, ``actual`` and each ``runtime.record`` series.
+
+    The objective names its module (``chassis.pose``); a recorded signal is the first
+    module's (file order) whose type publishes it with names.
+    """
+    from archself.model.ports import split_ref
+    from archself.registry import lookup
+
+    rt = arch.runtime
+    types = {m: lookup(spec.type) for m, spec in arch.modules.items()}
+    out: dict[str, list[str]] = {}
+    for key, ref in (("reference", rt.objective.reference), ("actual", rt.objective.actual)):
+        mod, sig = split_ref(ref, arch.modules)
+        names = getattr(types.get(mod), "output_elements", {}).get(sig or "")
+        if names:
+            out[key] = list(names)
+    for key, sig in rt.record.items():
+        names = next((cls.output_elements[sig] for cls in types.values()
+                      if cls is not None and sig in cls.output_elements), None)
+        if names:
+            out[key] = list(names)
+    return out
 
 
 def _report_context(arch: Architecture, sc: Any) -> dict[str, Any]:

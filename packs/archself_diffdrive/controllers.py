@@ -106,6 +106,7 @@ class LqrController(RuntimeModule):
     optional_inputs = ("dynamics", "actuation")
     outputs = ("wheel_cmd",)
     output_sizes = {"wheel_cmd": 2}
+    output_elements = {"wheel_cmd": ("left", "right")}
     residual_signals = ("tracking_error",)
     lanes = "archself_diffdrive.lanes_control:LqrControllerLanes"
 

@@ -170,6 +170,7 @@ class _PoseEstimator(RuntimeModule):
     optional_inputs = ("position",)
     outputs = ("pose_estimate", "covariance")
     output_sizes = {"pose_estimate": 3}
+    output_elements = {"pose_estimate": ("x", "y", "theta")}
     residual_signals: ClassVar[tuple[str, ...]] = ("innovation",)
 
 

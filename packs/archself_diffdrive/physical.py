@@ -91,6 +91,7 @@ class DiffDrivePlant(RuntimeModule):
     inputs = ("wheel_speed_left", "wheel_speed_right")
     outputs = ("pose", "wheel_speeds")
     output_sizes = {"pose": 3, "wheel_speeds": 2}
+    output_elements = {"pose": ("x", "y", "theta"), "wheel_speeds": ("left", "right")}
     direct_feedthrough = False
 
     def __init__(self, name, params, rng):

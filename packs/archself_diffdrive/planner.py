@@ -151,6 +151,7 @@ class SplinePlanner(RuntimeModule):
     outputs = ("reference",)
     lanes = "archself_diffdrive.lanes_planning:SplinePlannerLanes"
     output_sizes = {"reference": 5}  # x, y, θ, v, ω
+    output_elements = {"reference": ("x", "y", "theta", "v", "omega")}
 
     @classmethod
     def memory_estimate(cls, params: dict, dt: float) -> int:

@@ -373,6 +373,7 @@ class SetpointPlanner(RuntimeModule):
     role = "planner"
     outputs = ("setpoint",)
     output_sizes = {"setpoint": 2}  # h_ref, dh_ref/dt
+    output_elements = {"setpoint": ("level", "rate")}
     lanes = "archself_process.lanes_control:SetpointPlannerLanes"
 
     def configure(self) -> None:
