@@ -75,3 +75,19 @@ def test_vectorized_floor_is_the_framework_run() -> None:
         for key in METRICS:
             assert out[key][lane] == pytest.approx(fw.metrics[key], rel=0, abs=1e-9), key
         assert out["mean_error"][lane] == pytest.approx(float(np.mean(fw.series["J"])), abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_same_work_floor_records_the_frameworks_series(seed: int) -> None:
+    """The same-work floor (GPS, every residual signal, the covariance, the recording)
+    gives J and every recorded series of the run, to 1e-9 (bit for bit here)."""
+    fw = framework(seed)
+    out = floor().run_floor_same_work(seed)
+    keys = ["J", "reference", "actual", "estimate", "command",
+            *(f"residual.{m}" for m in floor().RESIDUALS)]
+    for key in keys:
+        assert_allclose(out[key], fw.series[key], rtol=0, atol=1e-9, err_msg=key)
+    # the residuals are signals, not constants: the drift test has values, the wheels react
+    assert np.isfinite(out["residual.odometry"]).sum() > 1000
+    assert np.ptp(out["residual.wheel_left"][np.isfinite(out["residual.wheel_left"])]) > 0.01
+    assert out["covariance"][0, 0] > 0.01  # grown from its start
