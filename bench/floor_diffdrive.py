@@ -757,6 +757,208 @@ def run_floor_lanes(
     return out
 
 
+def run_floor_lanes_same_work(
+    seeds: Sequence[int], setup: Setup | None = None, work: Work | None = None,
+    *, block: int = 400,
+) -> dict[str, Any]:
+    """:func:`run_floor_same_work` for N seeds at once (states with a leading lane axis).
+
+    The work of the framework's lanes: :func:`run_floor_lanes` and the GPS fixes, the
+    wheels' ``command_error``, the odometry's covariance and its innovation window, trend
+    and drift test (the pack's lane classes ``LaneWindows`` and ``DriftWindows``), the
+    LQR's ``tracking_error``, and the recording of every lane's series (J, reference,
+    actual, estimate, command: steps × N × width; the residuals: steps × N × 4), as the
+    framework's lane recording keeps them.
+
+    Returns
+    -------
+    dict
+        The metrics as :func:`run_floor_lanes`, and the series ``J``, ``reference``,
+        ``actual``, ``estimate``, ``command``, ``residual`` (steps × N [× width]).
+    """
+    from archself_diffdrive.drift_glr import DriftWindows
+    from archself_diffdrive.lanes_windows import LaneWindows
+
+    S = setup or load_setup()
+    W = work or load_work()
+    n, dt, N = S.steps, S.dt, len(seeds)
+    ALL = np.arange(N)
+    streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu")) for s in seeds]
+    fixes = int(n * dt / W.gps_period) + 2  # every lane's GPS noise, drawn at once
+    gps = np.stack([stream(s, "gps").standard_normal((fixes, 2)) for s in seeds], axis=1)
+    gps *= W.gps_noise
+    draw = (np.empty((N, block, 4)), np.empty((N, block, 2)), np.empty((N, block)))
+    cha = np.empty((block, 4, N))
+    enc = np.empty((block, 2, N))
+    imu = np.empty((block, N))
+    rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    rc_, rs_ = (a.tolist() for a in S.ref_cs)
+    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
+    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
+    lag = S.tau > 0
+    rdt = r * dt
+    sq_dt = math.sqrt(dt)
+    kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
+    v_design = S.design_speed
+    k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
+    sin, cos, sqrt, absolute, where = np.sin, np.cos, np.sqrt, np.abs, np.where
+    px, py, pth = (np.full(N, p) for p in S.pose0)
+    wl, wr = np.zeros(N), np.zeros(N)
+    ox, oy, oth = (np.full(N, p) for p in W.odo_pose0)
+    var_pos = np.full(N, 0.01)
+    var_th, sv = W.odo_var_th, W.odo_sv
+    window, trend = LaneWindows(N), LaneWindows(N)
+    window.window[:], trend.window[:] = W.windows
+    drift = DriftWindows(N, *W.drift[:3], walk=W.drift[3])
+    moved, drift_last = np.zeros((N, 4)), np.zeros(N)
+    odo_sig = np.full(N, math.nan)
+    next_fix, n_fix, period = 0.0, 0, W.gps_period
+    lag_w = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_response]
+    smooth_w = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_smoothing]
+    expected = [np.zeros(N), np.zeros(N)]
+    cmd_err = [np.full(N, math.nan), np.full(N, math.nan)]
+    prev = None
+    rec = {"J": np.empty((n, N)), "reference": np.empty((n, N, 5)),
+           "actual": np.empty((n, N, 3)), "estimate": np.empty((n, N, 3)),
+           "command": np.empty((n, N, 2)), "residual": np.empty((n, N, 4))}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(n):
+            t = k * dt
+            j = k % block
+            if j == 0:
+                m = min(block, n - k)
+                for lane, (gc, ge, gi) in enumerate(streams):
+                    gc.standard_normal(out=draw[0][lane, :m])
+                    ge.standard_normal(out=draw[1][lane, :m])
+                    gi.standard_normal(out=draw[2][lane, :m])
+                cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
+                enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
+                imu[:m] = draw[2][:, :m].T
+                np.multiply(sig_e, enc, out=enc)
+                np.multiply(sig_h, imu, out=imu)
+                np.multiply(cha[:, 2:], sq_dt, out=cha[:, 2:])
+                np.multiply(S.lateral, cha[:, 2], out=cha[:, 2])
+                np.multiply(S.yaw, cha[:, 3], out=cha[:, 3])
+            rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+            dx, dy = px - rx, py - ry
+            rec["J"][k] = sqrt(dx * dx + dy * dy)
+            rec["reference"][k] = (rx, ry, rth, rv, rw)
+            act = rec["actual"][k]
+            act[:, 0], act[:, 1], act[:, 2] = px, py, pth
+            el = wl + enc[j, 0]
+            er = wr + enc[j, 1]
+            h = (pth + S.imu_bias if S.imu_bias else pth) + imu[j]
+            h = (h + PI) % TWO_PI - PI
+            fix = None
+            if t >= next_fix - 1e-9:
+                next_fix += period * max(1.0, math.floor((t - next_fix) / period) + 1)
+                fix = np.stack([px, py], axis=1) + gps[n_fix]
+                n_fix += 1
+            v = kr * (el + er) / 2.0
+            th0 = oth
+            th1 = th0 + ((h - th0 + PI) % (2 * PI) - PI)
+            if k:
+                mid = 0.5 * (th0 + th1)
+                vdt = v * dt
+                ddx, ddy = vdt * cos(mid), vdt * sin(mid)
+                ox = ox + ddx
+                oy = oy + ddy
+                since = t - drift_last
+                moved[:, 0] += ddy
+                moved[:, 1] -= ddx
+                moved[:, 2] += since * ddy
+                moved[:, 3] -= since * ddx
+                var_pos = var_pos + ((sv * dt) ** 2 + vdt**2 * var_th)
+            oth = (th1 + PI) % (2 * PI) - PI
+            if fix is not None:
+                e = fix - np.stack([ox, oy], axis=1)
+                window.add(t, ALL, e)
+                trend.add(t, ALL, e)
+                drift.add(t, ALL, e, moved)
+                moved[:] = 0.0
+                drift_last[:] = t
+                window.mean_norm(ALL), trend.trend(ALL)
+                odo_sig = drift.value(ALL)
+            if abs(rv - v_design) > 0.005:
+                v_design = rv
+                k00, k01, k02, k10, k11, k12 = _gain(S, rv)
+            dx, dy = ox - rx, oy - ry
+            c, s = rc_[k], rs_[k]
+            e0 = c * dx + s * dy
+            e1 = -s * dx + c * dy
+            e2 = (oth - rth + PI) % TWO_PI - PI
+            vc = rv - (k00 * e0 + k01 * e1 + k02 * e2)
+            wc = rw - (k10 * e0 + k11 * e1 + k12 * e2)
+            tracking = np.hypot(dx, dy)
+            half = wc * kb / 2.0
+            cl = (vc - half) / kr
+            cr = (vc + half) / kr
+            peak = np.maximum(absolute(cl), absolute(cr))
+            over = peak > alim
+            if over.any():
+                cl = where(over, cl * alim / peak, cl)
+                cr = where(over, cr * alim / peak, cr)
+            if prev is not None:
+                for i, meas in ((0, el), (1, er)):
+                    cw = prev[i]
+                    if lag_w[i]:
+                        cw = expected[i] = expected[i] + lag_w[i] * (cw - expected[i])
+                    ew = where(cw >= 0, cw - meas, meas - cw)
+                    last = cmd_err[i]
+                    if smooth_w[i]:
+                        ew = where(last == last, last + smooth_w[i] * (ew - last), ew)
+                    cmd_err[i] = ew
+            prev = (cl, cr)
+            res = rec["residual"][k]
+            res[:, 0], res[:, 1], res[:, 2], res[:, 3] = cmd_err[0], cmd_err[1], odo_sig, tracking
+            est, cmd = rec["estimate"][k], rec["command"][k]
+            est[:, 0], est[:, 1], est[:, 2] = ox, oy, oth
+            cmd[:, 0], cmd[:, 1] = cl, cr
+            cl = np.minimum(np.maximum(cl, -lim), lim)
+            cr = np.minimum(np.maximum(cr, -lim), lim)
+            wl0, wr0 = wl, wr
+            wl = wl0 + a_lag * (cl - wl0)
+            wr = wr0 + a_lag * (cr - wr0)
+            if lag:
+                ul, ur = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
+            else:
+                ul, ur = wl, wr
+            ul = ul + sqrt(slip * absolute(r * ul * dt)) * cha[j, 0] / rdt
+            ur = ur + sqrt(slip * absolute(r * ur * dt)) * cha[j, 1] / rdt
+            vb = r * (ul + ur) / 2.0
+            wb = r * (ur - ul) / b
+            dth = wb * dt
+            th2 = pth + dth
+            straight = absolute(dth) < 1e-9
+            rad = vb / wb
+            s2, c2 = sin(th2), cos(th2)
+            ax = rad * (s2 - sin(pth))
+            ay = rad * (c2 - cos(pth))
+            if straight.any():
+                mth = pth + 0.5 * dth
+                vdt = vb * dt
+                ax = where(straight, vdt * cos(mth), ax)
+                ay = where(straight, -(vdt * sin(mth)), ay)
+            px = px + ax
+            py = py - ay
+            pth = th2
+            lat = cha[j, 2]
+            px = px - s2 * lat
+            py = py + c2 * lat
+            pth = pth + cha[j, 3]
+    J = rec["J"]
+    i = np.argmax(J, axis=0)
+    out: dict[str, Any] = {
+        "max_error": J[i, ALL],
+        "final_error": J[-1],
+        "rms_error": np.sqrt(np.mean(J**2, axis=0)),
+        "mean_error": np.mean(J, axis=0),
+        "peak_time_s": (i + 1) * dt,
+        "covariance_pos": var_pos,
+    }
+    return {**out, **rec}
+
+
 # ---------------------------------------------------------------------- the measurement
 def _best(fn: Any, rounds: int) -> tuple[float, float, float]:
     """Min and median wall time and min CPU time (this process) of ``rounds`` calls of ``fn``.
@@ -846,6 +1048,14 @@ def main(argv: Sequence[str] | None = None) -> None:
                 _best(lambda lanes=lanes: run_floor_lanes(lanes, S, block=args.block), r),
             )
         )
+        rows.append(
+            (
+                f"floor vectorized same work, N = {N}",
+                N,
+                _best(lambda lanes=lanes: run_floor_lanes_same_work(lanes, S, W,
+                                                                    block=args.block), r),
+            )
+        )
     from archself.lanes import simulate_lanes
 
     def framework_lanes(N: int) -> Any:
@@ -870,6 +1080,12 @@ def main(argv: Sequence[str] | None = None) -> None:
             f"{label:32} {wall:>10.3f} ({med:8.3f}) {cpu:>8.3f} {cpu / n / N * 1e6:>19.2f}"
             f" {N / cpu:>13.1f}"
         )
+    cpu_of = {label: c for label, _, (_, _, c) in rows}
+    for N in sorted(set(args.lanes) & set(args.framework_lanes)):
+        fw_n = cpu_of[f"framework lanes, N = {N}"]
+        print(f"framework lanes / floor at N = {N}: "
+              f"{fw_n / cpu_of[f'floor vectorized same work, N = {N}']:.2f}× the same-work "
+              f"floor, {fw_n / cpu_of[f'floor vectorized, N = {N}']:.2f}× the J-only floor")
     fw_cpu, fl_cpu, same_cpu = rows[0][2][2], rows[1][2][2], rows[2][2][2]
     print(
         f"framework / floor per run: {fw_cpu / fl_cpu:.1f}× (CPU), "

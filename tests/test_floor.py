@@ -91,3 +91,19 @@ def test_same_work_floor_records_the_frameworks_series(seed: int) -> None:
     assert np.isfinite(out["residual.odometry"]).sum() > 1000
     assert np.ptp(out["residual.wheel_left"][np.isfinite(out["residual.wheel_left"])]) > 0.01
     assert out["covariance"][0, 0] > 0.01  # grown from its start
+
+
+def test_vectorized_same_work_floor_is_the_frameworks_lanes() -> None:
+    """The vectorized same-work floor records what the framework's lanes record, to 1e-9."""
+    from archself.lanes import simulate_lanes
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    runs = simulate_lanes(arch, "nominal", list(SEEDS), configuration="a1")
+    out = floor().run_floor_lanes_same_work(list(SEEDS), block=300)  # blocks cut mid-run
+    for lane, run in enumerate(runs):
+        for key in ("J", "reference", "actual", "estimate", "command"):
+            assert_allclose(out[key][:, lane], run.series[key], rtol=0, atol=1e-9, err_msg=key)
+        for j, name in enumerate(floor().RESIDUALS):
+            assert_allclose(out["residual"][:, lane, j], run.series[f"residual.{name}"],
+                            rtol=0, atol=1e-9, err_msg=name)
+        assert out["max_error"][lane] == pytest.approx(run.metrics["max_error"], abs=1e-9)
