@@ -62,7 +62,7 @@ def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) ->
 @functools.lru_cache(maxsize=4096)
 def _lqr_gain(v: float, q: tuple[float, ...], r: tuple[float, ...]) -> np.ndarray:
     """:func:`lqr_gain`, once per process for each (v, q, r): a campaign's runs and a
-    batch's lanes design the same gains (the Riccati solve: ~1 ms).
+    batch's lanes design the same gains (the Riccati solve: ~10 ms).
 
     ``K = R⁻¹ Bᵀ X`` with ``X`` the stabilizing solution of the continuous algebraic
     Riccati equation: ``control.lqr(A, B, Q, R)``'s first result, bit for bit.
