@@ -375,6 +375,222 @@ def run_floor(seed: int, setup: Setup | None = None) -> dict[str, Any]:
     return {**_metrics(t, Ja), "t": t, "J": Ja}
 
 
+@dataclass(frozen=True)
+class Work:
+    """What the a1 run does besides J, read once from the compiled modules' parameters
+    (:func:`load_work`): the GPS, the residual signals, the odometry's covariance."""
+
+    gps_period: float
+    gps_noise: float
+    odo_pose0: tuple[float, float, float]
+    odo_var_th: float
+    odo_sv: float  # wheel radius · encoder noise / √2 (the odometry's speed noise)
+    windows: tuple[float, float]  # innovation, trend (s)
+    drift: tuple[float, float, float, float]  # window, span, support (s), walk² (m²/s)
+    wheel_response: tuple[float, float]
+    wheel_smoothing: tuple[float, float]
+
+
+@cache
+def load_work(path: str | Path = DIFFDRIVE) -> Work:
+    """The parameters :func:`run_floor_same_work` needs, as the compiled a1 modules hold them
+    (the file's values and the pack's defaults)."""
+    import archself
+    from archself.system.compiler import compile_system
+
+    arch = archself.load(path)
+    system = compile_system(arch, "a1", seed=1, scenario=arch.scenarios["nominal"])
+    p = {name: system.modules[name].params for name in ("gps", "odometry", "wheel_left",
+                                                       "wheel_right", "kinematic_model")}
+    odo = p["odometry"]
+    return Work(
+        gps_period=1.0 / float(p["gps"]["rate_hz"]),
+        gps_noise=float(p["gps"]["noise_m"]),
+        odo_pose0=tuple(float(v) for v in odo["initial_pose"]),
+        odo_var_th=float(odo["heading_noise_rad"]) ** 2,
+        odo_sv=float(p["kinematic_model"]["wheel_radius_m"]) * float(odo["encoder_noise_rad_s"])
+        / math.sqrt(2.0),
+        windows=(float(odo["innovation_window_s"]), float(odo["trend_window_s"])),
+        drift=(float(odo["drift_window_s"]), float(odo["drift_min_span_s"]),
+               float(odo["drift_min_support_s"]), float(odo["drift_walk_m_sqrt_s"]) ** 2),
+        wheel_response=tuple(float(p[w]["response_time_s"]) for w in ("wheel_left", "wheel_right")),
+        wheel_smoothing=tuple(float(p[w]["error_smoothing_s"])
+                              for w in ("wheel_left", "wheel_right")),
+    )
+
+
+#: The residual signals of a1 the runtime reads, in the order of the run's series.
+RESIDUALS = ("wheel_left", "wheel_right", "odometry", "lqr")
+
+
+def run_floor_same_work(
+    seed: int, setup: Setup | None = None, work: Work | None = None
+) -> dict[str, Any]:
+    """One a1 fixed run doing the work of the shipped scenario, on Python floats.
+
+    :func:`run_floor` and besides: the GPS fixes (its own stream), every residual signal
+    the runtime reads (the wheels' ``command_error``, the odometry's GPS innovation
+    window, trend and drift test — the pack's own :class:`InnovationWindow`,
+    :class:`InnovationTrend` and :class:`DriftGlr` — and the LQR's ``tracking_error``),
+    the odometry's covariance, and the recording of a run (J, the reference, the actual
+    pose and each residual signal at every step, as ``RunResult.series``).
+
+    Returns
+    -------
+    dict
+        As :func:`run_floor`, and ``reference`` (steps × 5), ``actual``, ``estimate``
+        (steps × 3), ``command`` (steps × 2) and ``residual.<module>`` (steps) for each of
+        :data:`RESIDUALS`: the framework's series, bit for bit (tests/test_floor.py).
+    """
+    from archself_diffdrive.drift_glr import DriftGlr
+    from archself_diffdrive.estimators import InnovationTrend, InnovationWindow
+
+    S = setup or load_setup()
+    W = work or load_work()
+    n, dt = S.steps, S.dt
+    cha = stream(seed, "chassis").standard_normal((n, 4)).tolist()
+    enc = stream(seed, "encoders").standard_normal((n, 2)).tolist()
+    imu = stream(seed, "imu").standard_normal(n).tolist()
+    gps_rng = stream(seed, "gps")
+    rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    rc_, rs_ = (a.tolist() for a in S.ref_cs)
+    sin, cos, sqrt, exp, hypot = math.sin, math.cos, math.sqrt, math.exp, math.hypot
+    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
+    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
+    lag = S.tau > 0
+    rdt = r * dt
+    sq_dt = sqrt(dt)
+    kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
+    v_design = S.design_speed
+    k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
+    px, py, pth = S.pose0
+    wl = wr = 0.0
+    ox, oy, oth = W.odo_pose0
+    var_pos, var_th, sv = 0.01, W.odo_var_th, W.odo_sv
+    window, trend = InnovationWindow(W.windows[0]), InnovationTrend(W.windows[1])
+    drift = DriftGlr(math.nan, math.nan, math.nan)
+    drift.configure(*W.drift)
+    next_fix, last_fix, period, gnoise = 0.0, (math.nan, math.nan), W.gps_period, W.gps_noise
+    resp, smooth = W.wheel_response, W.wheel_smoothing
+    prev = None  # the last wheel command
+    expected = [0.0, 0.0]
+    cmd_err = [math.nan, math.nan]
+    odo_sig = tracking = math.nan
+    J = [0.0] * n
+    ref_rec = np.empty((n, 5))
+    act_rec = np.empty((n, 3))
+    res_rec = np.empty((n, 4))
+    est_rec = np.empty((n, 3))
+    cmd_rec = np.empty((n, 2))
+    cov = None
+    for k in range(n):
+        t = k * dt
+        rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+        dx, dy = px - rx, py - ry
+        J[k] = sqrt(dx * dx + dy * dy)
+        ref_rec[k] = (rx, ry, rth, rv, rw)
+        act_rec[k] = (px, py, pth)
+        # encoders, IMU and GPS
+        e = enc[k]
+        el = wl + sig_e * e[0]
+        er = wr + sig_e * e[1]
+        h = pth + S.imu_bias + sig_h * imu[k]
+        h = (h + PI) % TWO_PI - PI
+        fix = None
+        if t >= next_fix - 1e-9:
+            next_fix += period * max(1.0, math.floor((t - next_fix) / period) + 1)
+            fix = np.array([px, py]) + gnoise * gps_rng.standard_normal(2)
+        # dead reckoning, its covariance and its GPS residuals
+        v = kr * (el + er) / 2.0
+        th0 = oth
+        th1 = th0 + ((h - th0 + PI) % (2 * PI) - PI)
+        if k:
+            mid = 0.5 * (th0 + th1)
+            ddx, ddy = v * dt * cos(mid), v * dt * sin(mid)
+            ox += ddx
+            oy += ddy
+            drift.move(t, ddx, ddy)
+            var_pos += (sv * dt) ** 2 + (v * dt) ** 2 * var_th
+        oth = (th1 + PI) % (2 * PI) - PI
+        if fix is not None and (float(fix[0]), float(fix[1])) != last_fix:
+            last_fix = (float(fix[0]), float(fix[1]))
+            ex, ey = last_fix[0] - ox, last_fix[1] - oy
+            window.add(t, ex, ey)
+            trend.add(t, ex, ey)
+            drift.add(t, ex, ey)
+            window.value(), trend.value()
+            odo_sig = drift.value()
+        cov = np.diag([var_pos, var_pos, var_th])
+        # LQR and its tracking error
+        if abs(rv - v_design) > 0.005:
+            v_design = rv
+            k00, k01, k02, k10, k11, k12 = _gain(S, rv)
+        dx, dy = ox - rx, oy - ry
+        c, s = rc_[k], rs_[k]
+        e0 = c * dx + s * dy
+        e1 = -s * dx + c * dy
+        e2 = (oth - rth + PI) % TWO_PI - PI
+        vc = rv - (k00 * e0 + k01 * e1 + k02 * e2)
+        wc = rw - (k10 * e0 + k11 * e1 + k12 * e2)
+        tracking = hypot(ox - rx, oy - ry)
+        half = wc * kb / 2.0
+        cl = (vc - half) / kr
+        cr = (vc + half) / kr
+        peak = max(abs(cl), abs(cr))
+        if peak > alim:
+            cl, cr = cl * alim / peak, cr * alim / peak
+        # the wheels' command error (the last command against this step's encoders)
+        if prev is not None:
+            for i, m in ((0, el), (1, er)):
+                cw = prev[i]
+                if resp[i] > 0:
+                    cw = expected[i] = expected[i] + (1.0 - exp(-dt / resp[i])) * (cw - expected[i])
+                ew = cw - m if cw >= 0 else m - cw
+                last = cmd_err[i]
+                if smooth[i] > 0 and last == last:
+                    ew = last + (1.0 - exp(-dt / smooth[i])) * (ew - last)
+                cmd_err[i] = ew
+        prev = (cl, cr)
+        res_rec[k] = (cmd_err[0], cmd_err[1], odo_sig, tracking)
+        est_rec[k] = (ox, oy, oth)
+        cmd_rec[k] = prev
+        # chassis
+        cl = min(max(cl, -lim), lim)
+        cr = min(max(cr, -lim), lim)
+        wl0, wr0 = wl, wr
+        wl = wl0 + a_lag * (cl - wl0)
+        wr = wr0 + a_lag * (cr - wr0)
+        ul, ur = (0.5 * (wl0 + wl), 0.5 * (wr0 + wr)) if lag else (wl, wr)
+        z = cha[k]
+        ul = ul + sqrt(slip * abs(r * ul * dt)) * z[0] / rdt
+        ur = ur + sqrt(slip * abs(r * ur * dt)) * z[1] / rdt
+        vb = r * (ul + ur) / 2.0
+        wb = r * (ur - ul) / b
+        dth = wb * dt
+        th2 = pth + dth
+        s2, c2 = sin(th2), cos(th2)
+        if abs(dth) < 1e-9:
+            m = pth + 0.5 * dth
+            px += vb * dt * cos(m)
+            py += vb * dt * sin(m)
+        else:
+            rad = vb / wb
+            px += rad * (s2 - sin(pth))
+            py -= rad * (c2 - cos(pth))
+        pth = th2
+        lat = S.lateral * (z[2] * sq_dt)
+        px += -s2 * lat
+        py += c2 * lat
+        pth += S.yaw * (z[3] * sq_dt)
+    t = (np.arange(n) + 1) * dt
+    Ja = np.array(J)
+    out = {**_metrics(t, Ja), "t": t, "J": Ja, "reference": ref_rec, "actual": act_rec,
+           "estimate": est_rec, "command": cmd_rec, "covariance": cov}
+    for j, name in enumerate(RESIDUALS):
+        out[f"residual.{name}"] = res_rec[:, j]
+    return out
+
+
 def run_floor_lanes(
     seeds: Sequence[int], setup: Setup | None = None, *, block: int = 400, record: bool = False
 ) -> dict[str, Any]:
@@ -541,6 +757,208 @@ def run_floor_lanes(
     return out
 
 
+def run_floor_lanes_same_work(
+    seeds: Sequence[int], setup: Setup | None = None, work: Work | None = None,
+    *, block: int = 400,
+) -> dict[str, Any]:
+    """:func:`run_floor_same_work` for N seeds at once (states with a leading lane axis).
+
+    The work of the framework's lanes: :func:`run_floor_lanes` and the GPS fixes, the
+    wheels' ``command_error``, the odometry's covariance and its innovation window, trend
+    and drift test (the pack's lane classes ``LaneWindows`` and ``DriftWindows``), the
+    LQR's ``tracking_error``, and the recording of every lane's series (J, reference,
+    actual, estimate, command: steps × N × width; the residuals: steps × N × 4), as the
+    framework's lane recording keeps them.
+
+    Returns
+    -------
+    dict
+        The metrics as :func:`run_floor_lanes`, and the series ``J``, ``reference``,
+        ``actual``, ``estimate``, ``command``, ``residual`` (steps × N [× width]).
+    """
+    from archself_diffdrive.drift_glr import DriftWindows
+    from archself_diffdrive.lanes_windows import LaneWindows
+
+    S = setup or load_setup()
+    W = work or load_work()
+    n, dt, N = S.steps, S.dt, len(seeds)
+    ALL = np.arange(N)
+    streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu")) for s in seeds]
+    fixes = int(n * dt / W.gps_period) + 2  # every lane's GPS noise, drawn at once
+    gps = np.stack([stream(s, "gps").standard_normal((fixes, 2)) for s in seeds], axis=1)
+    gps *= W.gps_noise
+    draw = (np.empty((N, block, 4)), np.empty((N, block, 2)), np.empty((N, block)))
+    cha = np.empty((block, 4, N))
+    enc = np.empty((block, 2, N))
+    imu = np.empty((block, N))
+    rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    rc_, rs_ = (a.tolist() for a in S.ref_cs)
+    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
+    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
+    lag = S.tau > 0
+    rdt = r * dt
+    sq_dt = math.sqrt(dt)
+    kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
+    v_design = S.design_speed
+    k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
+    sin, cos, sqrt, absolute, where = np.sin, np.cos, np.sqrt, np.abs, np.where
+    px, py, pth = (np.full(N, p) for p in S.pose0)
+    wl, wr = np.zeros(N), np.zeros(N)
+    ox, oy, oth = (np.full(N, p) for p in W.odo_pose0)
+    var_pos = np.full(N, 0.01)
+    var_th, sv = W.odo_var_th, W.odo_sv
+    window, trend = LaneWindows(N), LaneWindows(N)
+    window.window[:], trend.window[:] = W.windows
+    drift = DriftWindows(N, *W.drift[:3], walk=W.drift[3])
+    moved, drift_last = np.zeros((N, 4)), np.zeros(N)
+    odo_sig = np.full(N, math.nan)
+    next_fix, n_fix, period = 0.0, 0, W.gps_period
+    lag_w = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_response]
+    smooth_w = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_smoothing]
+    expected = [np.zeros(N), np.zeros(N)]
+    cmd_err = [np.full(N, math.nan), np.full(N, math.nan)]
+    prev = None
+    rec = {"J": np.empty((n, N)), "reference": np.empty((n, N, 5)),
+           "actual": np.empty((n, N, 3)), "estimate": np.empty((n, N, 3)),
+           "command": np.empty((n, N, 2)), "residual": np.empty((n, N, 4))}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(n):
+            t = k * dt
+            j = k % block
+            if j == 0:
+                m = min(block, n - k)
+                for lane, (gc, ge, gi) in enumerate(streams):
+                    gc.standard_normal(out=draw[0][lane, :m])
+                    ge.standard_normal(out=draw[1][lane, :m])
+                    gi.standard_normal(out=draw[2][lane, :m])
+                cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
+                enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
+                imu[:m] = draw[2][:, :m].T
+                np.multiply(sig_e, enc, out=enc)
+                np.multiply(sig_h, imu, out=imu)
+                np.multiply(cha[:, 2:], sq_dt, out=cha[:, 2:])
+                np.multiply(S.lateral, cha[:, 2], out=cha[:, 2])
+                np.multiply(S.yaw, cha[:, 3], out=cha[:, 3])
+            rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+            dx, dy = px - rx, py - ry
+            rec["J"][k] = sqrt(dx * dx + dy * dy)
+            rec["reference"][k] = (rx, ry, rth, rv, rw)
+            act = rec["actual"][k]
+            act[:, 0], act[:, 1], act[:, 2] = px, py, pth
+            el = wl + enc[j, 0]
+            er = wr + enc[j, 1]
+            h = (pth + S.imu_bias if S.imu_bias else pth) + imu[j]
+            h = (h + PI) % TWO_PI - PI
+            fix = None
+            if t >= next_fix - 1e-9:
+                next_fix += period * max(1.0, math.floor((t - next_fix) / period) + 1)
+                fix = np.stack([px, py], axis=1) + gps[n_fix]
+                n_fix += 1
+            v = kr * (el + er) / 2.0
+            th0 = oth
+            th1 = th0 + ((h - th0 + PI) % (2 * PI) - PI)
+            if k:
+                mid = 0.5 * (th0 + th1)
+                vdt = v * dt
+                ddx, ddy = vdt * cos(mid), vdt * sin(mid)
+                ox = ox + ddx
+                oy = oy + ddy
+                since = t - drift_last
+                moved[:, 0] += ddy
+                moved[:, 1] -= ddx
+                moved[:, 2] += since * ddy
+                moved[:, 3] -= since * ddx
+                var_pos = var_pos + ((sv * dt) ** 2 + vdt**2 * var_th)
+            oth = (th1 + PI) % (2 * PI) - PI
+            if fix is not None:
+                e = fix - np.stack([ox, oy], axis=1)
+                window.add(t, ALL, e)
+                trend.add(t, ALL, e)
+                drift.add(t, ALL, e, moved)
+                moved[:] = 0.0
+                drift_last[:] = t
+                window.mean_norm(ALL), trend.trend(ALL)
+                odo_sig = drift.value(ALL)
+            if abs(rv - v_design) > 0.005:
+                v_design = rv
+                k00, k01, k02, k10, k11, k12 = _gain(S, rv)
+            dx, dy = ox - rx, oy - ry
+            c, s = rc_[k], rs_[k]
+            e0 = c * dx + s * dy
+            e1 = -s * dx + c * dy
+            e2 = (oth - rth + PI) % TWO_PI - PI
+            vc = rv - (k00 * e0 + k01 * e1 + k02 * e2)
+            wc = rw - (k10 * e0 + k11 * e1 + k12 * e2)
+            tracking = np.hypot(dx, dy)
+            half = wc * kb / 2.0
+            cl = (vc - half) / kr
+            cr = (vc + half) / kr
+            peak = np.maximum(absolute(cl), absolute(cr))
+            over = peak > alim
+            if over.any():
+                cl = where(over, cl * alim / peak, cl)
+                cr = where(over, cr * alim / peak, cr)
+            if prev is not None:
+                for i, meas in ((0, el), (1, er)):
+                    cw = prev[i]
+                    if lag_w[i]:
+                        cw = expected[i] = expected[i] + lag_w[i] * (cw - expected[i])
+                    ew = where(cw >= 0, cw - meas, meas - cw)
+                    last = cmd_err[i]
+                    if smooth_w[i]:
+                        ew = where(last == last, last + smooth_w[i] * (ew - last), ew)
+                    cmd_err[i] = ew
+            prev = (cl, cr)
+            res = rec["residual"][k]
+            res[:, 0], res[:, 1], res[:, 2], res[:, 3] = cmd_err[0], cmd_err[1], odo_sig, tracking
+            est, cmd = rec["estimate"][k], rec["command"][k]
+            est[:, 0], est[:, 1], est[:, 2] = ox, oy, oth
+            cmd[:, 0], cmd[:, 1] = cl, cr
+            cl = np.minimum(np.maximum(cl, -lim), lim)
+            cr = np.minimum(np.maximum(cr, -lim), lim)
+            wl0, wr0 = wl, wr
+            wl = wl0 + a_lag * (cl - wl0)
+            wr = wr0 + a_lag * (cr - wr0)
+            if lag:
+                ul, ur = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
+            else:
+                ul, ur = wl, wr
+            ul = ul + sqrt(slip * absolute(r * ul * dt)) * cha[j, 0] / rdt
+            ur = ur + sqrt(slip * absolute(r * ur * dt)) * cha[j, 1] / rdt
+            vb = r * (ul + ur) / 2.0
+            wb = r * (ur - ul) / b
+            dth = wb * dt
+            th2 = pth + dth
+            straight = absolute(dth) < 1e-9
+            rad = vb / wb
+            s2, c2 = sin(th2), cos(th2)
+            ax = rad * (s2 - sin(pth))
+            ay = rad * (c2 - cos(pth))
+            if straight.any():
+                mth = pth + 0.5 * dth
+                vdt = vb * dt
+                ax = where(straight, vdt * cos(mth), ax)
+                ay = where(straight, -(vdt * sin(mth)), ay)
+            px = px + ax
+            py = py - ay
+            pth = th2
+            lat = cha[j, 2]
+            px = px - s2 * lat
+            py = py + c2 * lat
+            pth = pth + cha[j, 3]
+    J = rec["J"]
+    i = np.argmax(J, axis=0)
+    out: dict[str, Any] = {
+        "max_error": J[i, ALL],
+        "final_error": J[-1],
+        "rms_error": np.sqrt(np.mean(J**2, axis=0)),
+        "mean_error": np.mean(J, axis=0),
+        "peak_time_s": (i + 1) * dt,
+        "covariance_pos": var_pos,
+    }
+    return {**out, **rec}
+
+
 # ---------------------------------------------------------------------- the measurement
 def _best(fn: Any, rounds: int) -> tuple[float, float, float]:
     """Min and median wall time and min CPU time (this process) of ``rounds`` calls of ``fn``.
@@ -593,8 +1011,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         return archself.simulate(arch, "nominal", configuration="a1", seed=seed)
 
     # warm (python-control, scipy, the gain cache) and check the trace
+    W = load_work()
     fw, fl = framework(1), run_floor(1, S)
     dev = float(np.max(np.abs(fw.series["J"] - fl["J"])))
+    same = run_floor_same_work(1, S, W)
+    keys = ["J", "reference", "actual", "estimate", "command",
+            *(f"residual.{m}" for m in RESIDUALS)]
+    equal = all(np.array_equal(fw.series[k], same[k], equal_nan=True) for k in keys)
+    print(f"same-work floor, seed 1: {len(keys)} series bit for bit equal: {equal}")
     print(f"load average {_load()} · {os.cpu_count()} cores · {n} steps of {S.dt} s")
     print(
         f"trace check, seed 1: max |J_framework − J_floor| = {dev:.1e} m "
@@ -608,6 +1032,11 @@ def main(argv: Sequence[str] | None = None) -> None:
             1,
             _best(lambda: run_floor(next(seeds), S), args.rounds * 4),
         ),
+        (
+            "floor, same work, one run",
+            1,
+            _best(lambda: run_floor_same_work(next(seeds), S, W), args.rounds * 2),
+        ),
     ]
     for N in args.lanes:
         lanes = list(range(1, N + 1))
@@ -617,6 +1046,14 @@ def main(argv: Sequence[str] | None = None) -> None:
                 f"floor vectorized, N = {N}",
                 N,
                 _best(lambda lanes=lanes: run_floor_lanes(lanes, S, block=args.block), r),
+            )
+        )
+        rows.append(
+            (
+                f"floor vectorized same work, N = {N}",
+                N,
+                _best(lambda lanes=lanes: run_floor_lanes_same_work(lanes, S, W,
+                                                                    block=args.block), r),
             )
         )
     from archself.lanes import simulate_lanes
@@ -643,10 +1080,17 @@ def main(argv: Sequence[str] | None = None) -> None:
             f"{label:32} {wall:>10.3f} ({med:8.3f}) {cpu:>8.3f} {cpu / n / N * 1e6:>19.2f}"
             f" {N / cpu:>13.1f}"
         )
-    fw_cpu, fl_cpu = rows[0][2][2], rows[1][2][2]
+    cpu_of = {label: c for label, _, (_, _, c) in rows}
+    for N in sorted(set(args.lanes) & set(args.framework_lanes)):
+        fw_n = cpu_of[f"framework lanes, N = {N}"]
+        print(f"framework lanes / floor at N = {N}: "
+              f"{fw_n / cpu_of[f'floor vectorized same work, N = {N}']:.2f}× the same-work "
+              f"floor, {fw_n / cpu_of[f'floor vectorized, N = {N}']:.2f}× the J-only floor")
+    fw_cpu, fl_cpu, same_cpu = rows[0][2][2], rows[1][2][2], rows[2][2][2]
     print(
         f"framework / floor per run: {fw_cpu / fl_cpu:.1f}× (CPU), "
-        f"{rows[0][2][0] / rows[1][2][0]:.1f}× (wall)"
+        f"{rows[0][2][0] / rows[1][2][0]:.1f}× (wall); framework / same-work floor: "
+        f"{fw_cpu / same_cpu:.2f}× (CPU)"
     )
     N = max(args.lanes)
     peak = _peak_bytes(lambda: run_floor_lanes(list(range(1, N + 1)), S, block=args.block))

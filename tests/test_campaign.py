@@ -642,3 +642,40 @@ def test_local_workers_run_single_threaded_blas() -> None:
         seen = {v: ex.submit(os.getenv, v).result() for v in BLAS_THREAD_VARIABLES}
     assert seen == {v: os.environ[v] for v in BLAS_THREAD_VARIABLES}
     assert "1" in seen.values()
+
+
+
+def _finish_spread(units, real) -> float:
+    """Units taken in order by whichever of 2 workers is free: (last − first) / last finish."""
+    import heapq
+
+    free = [(0.0, 0), (0.0, 1)]
+    for u in units:
+        t, w = heapq.heappop(free)
+        heapq.heappush(free, (t + len(u) * real[u[0].scenario], w))
+    first, last = sorted(t for t, _ in free)
+    return (last - first) / last
+
+
+@pytest.mark.parametrize("runs", [500, 1000])  # 200: 8.5 % (a last unit of 8
+# runs is ~1/10 of a worker's share)
+def test_lane_units_balance_workers_whatever_the_scenarios_cost(runs: int) -> None:
+    """Units for 2 workers: every run once, one (scenario, mode) per unit, largest first;
+    taken in order by whichever worker is free, the workers finish within 5 % of each
+    other even when one scenario's runs cost 1.6× the other's (the estimate says equal)."""
+    from archself.campaign.plan import MIN_LANES, default_lanes, lane_units
+    from archself.campaign.worker import Job
+
+    jobs = [Job(arch_text="", arch_digest="d", file="f", scenario=("imu", "act")[i % 2],
+                replicate=i // 2, seed=i, run_id=str(i), mode="adaptive") for i in range(runs)]
+    width = default_lanes(jobs, 2)
+    units = lane_units(jobs, width, 2, cost=lambda j: 1.0)
+    assert sorted(j.run_id for u in units for j in u) == sorted(j.run_id for j in jobs)
+    assert all(len({(j.scenario, j.mode) for j in u}) == 1 for u in units)
+    sizes = [len(u) for u in units]
+    assert sizes == sorted(sizes, reverse=True) and min(sizes) >= MIN_LANES
+    assert {units[0][0].scenario, units[1][0].scenario} == {"imu", "act"}  # interleaved
+    real = {"imu": 1.6, "act": 1.0}
+    assert _finish_spread(units, real) < 0.05
+    if runs <= 2 * width:  # without workers: one unit per scenario, one per worker
+        assert _finish_spread(lane_units(jobs, width), real) > 0.3

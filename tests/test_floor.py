@@ -75,3 +75,35 @@ def test_vectorized_floor_is_the_framework_run() -> None:
         for key in METRICS:
             assert out[key][lane] == pytest.approx(fw.metrics[key], rel=0, abs=1e-9), key
         assert out["mean_error"][lane] == pytest.approx(float(np.mean(fw.series["J"])), abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_same_work_floor_records_the_frameworks_series(seed: int) -> None:
+    """The same-work floor (GPS, every residual signal, the covariance, the recording)
+    gives J and every recorded series of the run, to 1e-9 (bit for bit here)."""
+    fw = framework(seed)
+    out = floor().run_floor_same_work(seed)
+    keys = ["J", "reference", "actual", "estimate", "command",
+            *(f"residual.{m}" for m in floor().RESIDUALS)]
+    for key in keys:
+        assert_allclose(out[key], fw.series[key], rtol=0, atol=1e-9, err_msg=key)
+    # the residuals are signals, not constants: the drift test has values, the wheels react
+    assert np.isfinite(out["residual.odometry"]).sum() > 1000
+    assert np.ptp(out["residual.wheel_left"][np.isfinite(out["residual.wheel_left"])]) > 0.01
+    assert out["covariance"][0, 0] > 0.01  # grown from its start
+
+
+def test_vectorized_same_work_floor_is_the_frameworks_lanes() -> None:
+    """The vectorized same-work floor records what the framework's lanes record, to 1e-9."""
+    from archself.lanes import simulate_lanes
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    runs = simulate_lanes(arch, "nominal", list(SEEDS), configuration="a1")
+    out = floor().run_floor_lanes_same_work(list(SEEDS), block=300)  # blocks cut mid-run
+    for lane, run in enumerate(runs):
+        for key in ("J", "reference", "actual", "estimate", "command"):
+            assert_allclose(out[key][:, lane], run.series[key], rtol=0, atol=1e-9, err_msg=key)
+        for j, name in enumerate(floor().RESIDUALS):
+            assert_allclose(out["residual"][:, lane, j], run.series[f"residual.{name}"],
+                            rtol=0, atol=1e-9, err_msg=name)
+        assert out["max_error"][lane] == pytest.approx(run.metrics["max_error"], abs=1e-9)

@@ -387,7 +387,8 @@ def run_campaign(
         last = time.perf_counter()
         while pending:
             alone = [j for j in pending.values() if j.run_id in suspects][:1]
-            units = [tuple(alone)] if alone else lane_units(list(pending.values()), width)
+            units = ([tuple(alone)] if alone
+                     else lane_units(list(pending.values()), width, n_workers))
             try:
                 futures = {ex.submit(unit_fn, u): u for u in units}
             except Exception as exc:  # noqa: BLE001 - a pool that cannot take work

@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +30,7 @@ __all__ = [
     "MAX_LANES",
     "MAX_RUNS",
     "MAX_STEPS",
+    "MIN_LANES",
     "MODES",
     "available_memory",
     "default_lanes",
@@ -38,6 +39,7 @@ __all__ = [
     "plan_campaign",
     "run_id",
     "run_seeds",
+    "run_steps",
 ]
 
 MODES = ("fixed", "adaptive")
@@ -321,10 +323,32 @@ def default_lanes(
     return max(1, width)
 
 
-def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
+def run_steps(job: Job) -> int:
+    """The simulated steps of a job's run: its scenario's duration over the step, at its
+    sweep point (the estimated cost :func:`lane_units` balances)."""
+    arch = job.architecture()
+    return max(1, round(float(arch.scenarios[job.scenario].duration_s)
+                        / float(arch.runtime.step_s)))
+
+
+#: Fewest runs in a unit the balancing makes (a lane's step costs more in small units).
+MIN_LANES = 8
+
+
+def lane_units(
+    jobs: Sequence[Job], width: int, workers: int = 0,
+    cost: Callable[[Job], float] | None = None,
+) -> list[tuple[Job, ...]]:
     """Units of work: runs of one file, scenario and mode in batches of at most ``width``.
 
-    The order of the jobs is kept: a unit stands where its first job stood.
+    Without ``workers`` the order of the jobs is kept: a unit stands where its first job
+    stood. With ``workers`` the units are balanced for that many workers, each taking the
+    next unit when it is free (guided self-scheduling): a unit holds about
+    1/(2·``workers``) of the estimated cost not yet handed out (``cost(job)``, default
+    :func:`run_steps`), at least :data:`MIN_LANES` runs, from the (file, scenario,
+    mode) with the most cost left. So the units come largest first, interleaved across
+    scenarios, and the last ones are small: the workers finish within about one small
+    unit of each other, whatever the real costs of the scenarios.
 
     Examples
     --------
@@ -336,16 +360,56 @@ def lane_units(jobs: Sequence[Job], width: int) -> list[tuple[Job, ...]]:
     ...         job(4, "fixed"), job(5, "adaptive")]
     >>> [[j.run_id for j in u] for u in lane_units(jobs, 2)]
     [['0', '2'], ['1', '5'], ['3'], ['4']]
+    >>> many = [job(i, "adaptive", "st"[i % 2]) for i in range(200)]
+    >>> [(len(u), u[0].scenario) for u in lane_units(many, 256, 2, cost=lambda j: 1.0)]
+    ... # doctest: +NORMALIZE_WHITESPACE
+    [(50, 's'), (38, 't'), (28, 't'), (21, 's'), (16, 't'), (12, 's'), (9, 't'), (9, 's'),
+     (9, 't'), (8, 's')]
     """
     if width <= 1:
         return [(j,) for j in jobs]
-    units: list[list[Job]] = []
-    open_: dict[tuple[str, str, str], list[Job]] = {}
+    groups: dict[tuple[str, str, str], list[Job]] = {}
     for j in jobs:
-        key = (j.arch_digest, j.scenario, j.mode)
-        unit = open_.get(key)
-        if unit is None or len(unit) >= width:
-            unit = open_[key] = []
-            units.append(unit)
-        unit.append(j)
-    return [tuple(u) for u in units]
+        groups.setdefault((j.arch_digest, j.scenario, j.mode), []).append(j)
+    if workers <= 0:
+        order = {id(j): k for k, j in enumerate(jobs)}
+        units = [g[k:k + width] for g in groups.values() for k in range(0, len(g), width)]
+        return [tuple(u) for u in sorted(units, key=lambda u: order[id(u[0])])]
+    return _guided_units(groups, width, workers, cost or _cached_steps())
+
+
+def _cached_steps() -> Callable[[Job], float]:
+    """:func:`run_steps`, computed once per (file, sweep point, scenario)."""
+    known: dict[tuple[Any, ...], float] = {}
+
+    def steps(job: Job) -> float:
+        key = (job.arch_digest, tuple(job.point), job.scenario)
+        if key not in known:
+            known[key] = float(run_steps(job))
+        return known[key]
+
+    return steps
+
+
+def _guided_units(
+    groups: dict[tuple[str, str, str], list[Job]], width: int, workers: int,
+    cost: Callable[[Job], float],
+) -> list[tuple[Job, ...]]:
+    """:func:`lane_units` for ``workers``: the next unit from the group with most cost
+    left, about 1/(2·workers) of all the cost left (``MIN_LANES`` … ``width`` runs)."""
+    costs = {k: [cost(j) for j in g] for k, g in groups.items()}
+    left = {k: math.fsum(c) for k, c in costs.items()}
+    done = dict.fromkeys(groups, 0)
+    units: list[tuple[tuple[Job, ...], float]] = []
+    while any(done[k] < len(g) for k, g in groups.items()):
+        key = max((k for k in groups if done[k] < len(groups[k])), key=lambda k: left[k])
+        g, at = groups[key], done[key]
+        per = max(left[key] / (len(g) - at), 1e-12)
+        target = math.fsum(left.values()) / (2 * workers)
+        n = min(width, len(g) - at, max(MIN_LANES, round(target / per)))
+        if len(g) - at - n < MIN_LANES:  # no remnant smaller than a unit
+            n = min(width, len(g) - at)
+        units.append((tuple(g[at:at + n]), math.fsum(costs[key][at:at + n])))
+        done[key] = at + n
+        left[key] = math.fsum(costs[key][at + n:])
+    return [u for u, _ in sorted(units, key=lambda uc: -uc[1])]  # largest first

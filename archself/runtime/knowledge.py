@@ -20,15 +20,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import networkx as nx
 import numpy as np
 import scipy.sparse
 
 from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
+
+if TYPE_CHECKING:  # networkx (~0.1 s to import) only when the graph is asked for
+    import networkx as nx
 
 __all__ = ["Knowledge", "active_edges"]
 
@@ -160,6 +162,8 @@ class Knowledge:
         """All modules and edges; ``active`` flags follow the running system."""
         g = self._graph
         if g is None:
+            import networkx as nx
+
             g = self._graph = nx.DiGraph()
             for name, mod in self.arch.modules.items():
                 # the params dict is Knowledge's own: it stays in step
