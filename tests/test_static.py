@@ -41,22 +41,22 @@ def test_typed_doors_pass_mypy_strict() -> None:
 
 
 def test_simulate_imports_only_what_its_modules_need() -> None:
-    """``archself simulate`` of the diffdrive (adaptive imu_drift) never imports
-    python-control (the LQR solves its Riccati equation with scipy) nor what it pulls
-    in (scipy.signal, matplotlib), nor networkx (the Knowledge's graph is made when asked
-    for); filterpy comes with the EKF's first GPS update."""
-    from conftest import DIFFDRIVE
+    """``archself simulate`` imports python-control and filterpy only when a module of
+    the file needs them: the process plant's modules (PI, tank, valve, observers) need
+    neither, so its run imports neither, nor what python-control pulls in
+    (scipy.signal, matplotlib), nor pandas."""
+    plant = ROOT / "architectures" / "process_plant.yaml"
 
     code = (
         "import sys\n"
         "from archself.cli import app\n"
         "try:\n"
-        f"    app(['simulate', {str(DIFFDRIVE)!r}, '--scenario', 'imu_drift'])\n"
+        f"    app(['simulate', {str(plant)!r}, '--scenario', 'valve_loss'])\n"
         "except SystemExit as e:\n"
         "    assert e.code == 0, e.code\n"
         "print(sorted(m for m in ('control', 'matplotlib', 'scipy.signal', 'pandas', "
-        "'networkx', 'filterpy') if m in sys.modules))\n"
+        "'filterpy') if m in sys.modules))\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.strip().splitlines()[-1] == "['filterpy']"
+    assert proc.stdout.strip().splitlines()[-1] == "[]"

@@ -2,17 +2,15 @@
 
 Both regulate ``e = [e_along, e_lateral, e_heading]`` (see
 :func:`archself_diffdrive.kinematics.tracking_error`) with the gain of
-the LQR on the linearized error dynamics at the reference speed
+``control.lqr`` on the linearized error dynamics at the reference speed
 (:func:`archself_diffdrive.kinematics.error_dynamics`, straight-line point), plus
 feed-forward of the reference speed and yaw rate:
 
     [v, ω] = [v_ref, ω_ref] − K e,   wheel_cmd = body_to_wheels(v, ω).
 
-The gain is the continuous-time LQR solved by :func:`scipy.linalg.solve_continuous_are`,
-the call python-control's ``control.lqr`` makes (without slycot) and the same arithmetic,
-bit for bit (``control.lqr`` is the test oracle, tests/test_modules.py): importing
-python-control costs a process ~0.7 s (it pulls scipy.signal and matplotlib) for two
-lines. Each (v, q, r) is designed once per process.
+python-control is imported when a gain is first computed, not at import time (it costs a
+process ~0.7 s: it pulls scipy.signal and matplotlib); each (v, q, r) is designed once per
+process.
 """
 
 from __future__ import annotations
@@ -62,20 +60,13 @@ def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) ->
 @functools.lru_cache(maxsize=4096)
 def _lqr_gain(v: float, q: tuple[float, ...], r: tuple[float, ...]) -> np.ndarray:
     """:func:`lqr_gain`, once per process for each (v, q, r): a campaign's runs and a
-    batch's lanes design the same gains (the Riccati solve: ~10 ms).
-
-    ``K = R⁻¹ Bᵀ X`` with ``X`` the stabilizing solution of the continuous algebraic
-    Riccati equation: ``control.lqr(A, B, Q, R)``'s first result, bit for bit.
-    """
-    import scipy.linalg
+    batch's lanes design the same gains (python-control's Riccati solve: ~12 ms)."""
+    import control
 
     A, B = error_dynamics(v)
-    A = np.array(A, ndmin=2, dtype=float)
-    B = np.array(B, ndmin=2, dtype=float)
     Q = np.diag([max(x, 1e-9) for x in q])
-    R = np.diag(list(r))
-    X = scipy.linalg.solve_continuous_are(A, B, Q, R)
-    K = np.linalg.solve(R, B.T @ X)
+    K, _, _ = control.lqr(A, B, Q, np.diag(list(r)))
+    K = np.asarray(K, dtype=float)
     K.setflags(write=False)
     return K
 
