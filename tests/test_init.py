@@ -125,7 +125,7 @@ def test_an_unknown_template_gets_did_you_mean_and_the_choices(tmp_path: Path,
     result = CliRunner().invoke(app, ["init", "x", "--template", "tnak"])
     assert result.exit_code == 2
     assert "did you mean 'tank'?" in result.stderr
-    assert "tank, lti, process, diffdrive, motor" in result.stderr
+    assert "tank, lti, process, diffdrive, motor, thermal" in result.stderr
     assert not (tmp_path / "x.yaml").exists()
-    assert "[tank|lti|process|diffdrive|motor]" in CliRunner().invoke(
+    assert "[tank|lti|process|diffdrive|motor|thermal]" in CliRunner().invoke(
         app, ["init", "--help"]).stdout

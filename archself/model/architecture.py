@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, PrivateAttr, model_validator
 
 from archself.model.qualities import Qualities, Quality
 from archself.model.runtime import (
@@ -159,6 +159,12 @@ class Module(StrictModel):
 
 
 # --------------------------------------------------------------------------- edges
+def _influence(w: float) -> float:
+    if w < 0:
+        raise ValueError(f"negative weight {w:g}: influence weights must be ≥ 0 (Eq. 13)")
+    return w
+
+
 class Edge(StrictModel):
     """A dependency (m_j, m_i) ∈ Γ: m_j provides ``carries`` to m_i (Eq. 8–9).
 
@@ -186,7 +192,10 @@ class Edge(StrictModel):
         description="Receiving module m_i, or its input port as `module.port` (default: the "
         "input named like `carries`).",
     )
-    weight: NonNeg = Field(description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).")
+    weight: Annotated[Finite, AfterValidator(_influence)] = Field(
+        description="Influence ω_ji = W_ji of m_j on m_i, ≥ 0 (Eq. 13).",
+        json_schema_extra={"minimum": 0},  # editors refuse a negative weight too
+    )
     carries: Name = Field(
         "",  # "" until archself.model.ports fills it from a port; no default in the schema
         description="The signal that flows, named as the source outputs it; required unless "

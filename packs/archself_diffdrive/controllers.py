@@ -124,9 +124,15 @@ class LqrController(RuntimeModule):
 
     @classmethod
     def check_params(cls, name: str, params: dict, dt: float) -> str | None:
-        """Nothing to add to the declared ranges: every weight in them has a stabilizing
-        Riccati solution (q floored at 1e-9, r > 0, design speed > 0); not building one
-        keeps python-control out of ``archself validate``."""
+        """Each weight and the design speed must be one number (a list passes the declared
+        ranges, entry by entry); within the ranges every weight has a stabilizing Riccati
+        solution (q floored at 1e-9, r > 0, design speed > 0), and not building one keeps
+        python-control out of ``archself validate``."""
+        for key in ("q_along", "q_lateral", "q_heading", "r_speed", "r_turn",
+                    "design_speed_mps"):
+            value = params.get(key, 0.0)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                return f"{key}: expected one number, got {type(value).__name__} {value!r}"
         return None
 
     def configure(self) -> None:
