@@ -21,7 +21,7 @@ propagation instead of applying it once more:
   bands make it) gives 0 rather than a negative source.
 - **Hidden modules.** A module without a ``residual`` block (a plant, a sensor)
   has no observed residual: the runtime gives it ``r = 0``, which would cut every
-  chain at it (heater → *zone* → *sensor* → observer: the observer's residual
+  chain at it (heater → *room* → *sensor* → observer: the observer's residual
   would look like its own fault). Its residual is unknown, not zero, so it is
   filled in with the echo the observed residuals predict,
   ``x_H = (I − W_HHᵀ)⁻¹ (r_H + W_OHᵀ r_O)`` (``O`` observed, ``H`` hidden), and the
@@ -95,12 +95,12 @@ class SourceEstimator:
 
     Examples
     --------
-    A fault at the head of heater → zone → sensor → observer, where only the
-    heater and the observer carry a residual (zone and sensor are hidden):
+    A fault at the head of heater → room → sensor → observer, where only the
+    heater and the observer carry a residual (room and sensor are hidden):
 
     >>> from archself.runtime.influence import weight_matrix, influence
-    >>> names = ["heater", "zone", "sensor", "observer"]
-    >>> W = weight_matrix(names, [("heater", "zone", 0.8), ("zone", "sensor", 0.9),
+    >>> names = ["heater", "room", "sensor", "observer"]
+    >>> W = weight_matrix(names, [("heater", "room", 0.8), ("room", "sensor", 0.9),
     ...                           ("sensor", "observer", 0.7)])
     >>> r = [1.0, 0.0, 0.0, 0.5]                  # the observer sees the fault's echo
     >>> influence(W, r).round(3).tolist()         # the paper's z: largest at the observer
@@ -332,19 +332,19 @@ class SourceFit:
     Examples
     --------
     The heater has no residual; its fault shows at the observer and, through it, at
-    the controller. Heater, zone and observer reach the observed modules only through the
+    the controller. Heater, room and observer reach the observed modules only through the
     observer: one class, the same estimate for each.
 
     >>> from archself.runtime.influence import weight_matrix
-    >>> names = ["heater", "zone", "observer", "controller"]
-    >>> W = weight_matrix(names, [("heater", "zone", 1.2), ("zone", "observer", 2.0),
+    >>> names = ["heater", "room", "observer", "controller"]
+    >>> W = weight_matrix(names, [("heater", "room", 1.2), ("room", "observer", 2.0),
     ...                           ("observer", "controller", 0.25),
     ...                           ("controller", "heater", 0.15)])
     >>> fit = SourceFit(W, observed=[False, False, True, True])
     >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()
     [4.12, 4.12, 4.12, 0.0]
     >>> [[names[j] for j in c] for c in fit.classes]
-    [['heater', 'zone', 'observer']]
+    [['heater', 'room', 'observer']]
     """
 
     def __init__(self, W: Any, observed: Any = None) -> None:
