@@ -386,3 +386,52 @@ def test_multi_hop_changes_the_decision_for_the_better(hidden):
         _ends_at_the_heater(_run(flat, "heater_loss", s), hidden) for s in range(20)
     )
     assert right >= 19 and right_flat == 0, (right, right_flat)
+
+
+# --------------------------------------------------------------------------- shipped file
+SHIPPED = ROOT / "architectures" / "heated_chain.yaml"
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_architecture(SHIPPED).arch
+
+
+def _flat(arch):
+    """The ablation z = r: no propagation through W."""
+    a = arch.model_copy(deep=True)
+    a.runtime.ablation.propagation = False
+    return a
+
+
+def test_shipped_heated_chain_is_the_hidden_source_with_a_tempting_pi(shipped):
+    assert shipped.modules["heater_a"].residual is None
+    cheapest = min(shipped.actions, key=lambda a: a.cost)
+    assert (cheapest.id, cheapest.module, cheapest.kind) == ("faster_pi", "pi", "parameter_update")
+    fit = _run(_with(shipped, "fit", 80.0), "heater_loss", 1)
+    flat = _run(_with(_flat(shipped), "fit", 80.0), "heater_loss", 1)
+    assert [s["action"] for s in fit.switches] == ["use_heater_b"]
+    assert [s["action"] for s in flat.switches] == ["use_sensor_b"]
+
+
+@pytest.mark.slow
+def test_shipped_heated_chain_multi_hop_changes_the_decision_for_the_better(shipped):
+    """Done-when (issue 34 point 4) on the shipped file, seeds 0–19 (as bench --multihop).
+
+    The fit ends at the backup heater on ≥ 19/20 with the faster PI in the file, its
+    ablation z = r on none; on the same seeds the fit's RMS error is lower on ≥ 19;
+    nominal: no switch and no parameter update on 20/20.
+    """
+    from archself.sim.run import simulate
+
+    def rms(arch, seed):
+        loop = MapeK(arch)
+        res = simulate(arch, "heater_loss", seed=seed, adapt=loop)
+        return _ends_at_the_heater(loop, arch), float(res.metrics["rms_error"])
+
+    fit = [rms(_with(shipped, "fit", 120.0), s) for s in range(20)]
+    flat = [rms(_with(_flat(shipped), "fit", 120.0), s) for s in range(20)]
+    assert sum(f[0] for f in fit) >= 19 and sum(f[0] for f in flat) == 0
+    assert sum(a[1] < b[1] for a, b in zip(fit, flat, strict=True)) >= 19
+    nominal = [_run(shipped, "nominal", s) for s in range(20)]
+    assert [len(n.switches) + len(n.updates) for n in nominal] == [0] * 20
