@@ -247,11 +247,15 @@ def test_fit_finds_a_hidden_source_and_keeps_its_equivalence_class():
     fit = SourceFit(W, observed)
     e = fit.estimate(r)
     # heater, zone, sensor and observer reach {observer, pi} only through the observer:
-    # collinear columns, one class, the same estimate: the size of what it explains
+    # collinear columns, one class, the same estimate: the size of what it explains, or
+    # the paper's z of it at a member when larger (here the observer's: the loop returns
+    # part of the pi's residual to it)
     assert [[names[j] for j in c] for c in fit.classes] == [
         ["heater", "zone", "sensor", "observer"]
     ]
-    assert_allclose(e[:4], np.linalg.norm(r[3:]), rtol=1e-12)
+    z = influence(W, r)
+    assert z[3] > np.linalg.norm(r[3:])
+    assert_allclose(e[:4], z[3], rtol=1e-9)
     assert e[4] == 0.0
     # the clipped inverse never reaches the hidden heater: 0 there
     assert SourceEstimator(W, observed).estimate(r)[0] == 0.0
@@ -264,6 +268,7 @@ def test_fit_separates_what_the_observed_modules_can_tell_apart():
     fit = SourceFit(W, observed)
     e = fit.estimate(r)
     assert [[names[j] for j in c] for c in fit.classes] == [["heater"]]
+    assert np.linalg.norm(r) > influence(W, r)[0]  # the head: its z is only its own r
     assert_allclose(e[0], np.linalg.norm(r), rtol=1e-9)
     assert_allclose(e[1:], 0.0, atol=1e-12)
 
@@ -435,3 +440,19 @@ def test_shipped_heated_chain_multi_hop_changes_the_decision_for_the_better(ship
     assert sum(a[1] < b[1] for a, b in zip(fit, flat, strict=True)) >= 19
     nominal = [_run(shipped, "nominal", s) for s in range(20)]
     assert [len(n.switches) + len(n.updates) for n in nominal] == [0] * 20
+
+
+def test_a_lone_residual_on_a_loop_gets_its_z_not_less():
+    """The fit's estimate is never below the paper's z of the residuals it explains.
+
+    a ⇄ b (0.5, 0.4), only a's residual out of its band: z_a = 1 / (1 − 0.2) = 1.25
+    (a's residual returned through the loop); the size of what a explains is
+    ‖[1, 0.5]‖ = 1.118 (b's echo 0.5 inside its band). ê_a is z_a, so τ means for a
+    lone fault what it means for z (detection no later than with z).
+    """
+    W = weight_matrix(["a", "b"], [("a", "b", 0.5), ("b", "a", 0.4)])
+    fit = SourceFit(W)
+    e = fit.estimate([1.0, 0.0])
+    assert fit.classes == [[0]]
+    assert_allclose(e, [1.25, 0.0], rtol=1e-12)
+    assert_allclose(e[0], influence(W, [1.0, 0.0])[0], rtol=1e-12)

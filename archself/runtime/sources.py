@@ -341,8 +341,8 @@ class SourceFit:
     ...                           ("observer", "controller", 0.25),
     ...                           ("controller", "heater", 0.15)])
     >>> fit = SourceFit(W, observed=[False, False, True, True])
-    >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()
-    [4.12, 4.12, 4.12, 0.0]
+    >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()  # z at the observer
+    [4.79, 4.79, 4.79, 0.0]
     >>> [[names[j] for j in c] for c in fit.classes]
     [['heater', 'room', 'observer']]
     """
@@ -360,12 +360,14 @@ class SourceFit:
         self._row = np.full(n, -1)
         self._row[self.observed_index] = np.arange(self.observed_index.size)
         self._P_O: np.ndarray | None = None
+        self._P: np.ndarray | None = None
         self._WT = S.T.tocsr()  # parents of i: row i of Wᵀ
         self._cols: dict[int, np.ndarray] = {}
         self._solver: InfluenceSolver | None = None
         self._adjoint: InfluenceSolver | None = None
         if n <= DENSE_MAX:
-            self._P_O = propagation_matrix(S)[self.observed_index] if n else np.zeros((0, 0))
+            self._P = propagation_matrix(S) if n else np.zeros((0, 0))
+            self._P_O = self._P[self.observed_index]
         else:
             self._solver = InfluenceSolver()
             self._solver.set_matrix(S, key=0)
@@ -459,7 +461,10 @@ class SourceFit:
         U = A / norms
         members, reps = _collinear_classes(U)
         x, support = _parsimonious_fit(U[:, reps], r_O, PARSIMONY * total)
-        size = _censored_fit(U[:, [reps[c] for c in support]], r_O, x[support])
+        chosen = U[:, [reps[c] for c in support]]
+        size = _censored_fit(chosen, r_O, x[support])
+        size = np.maximum(size, self._explained_z(chosen * size, r_O, [
+            cand[members[c]] for c in support]))
         for k in np.argsort(-size, kind="stable").tolist():
             if size[k] <= 0.0:
                 continue
@@ -467,6 +472,35 @@ class SourceFit:
             e[cand[idx]] = size[k]
             self.classes.append(cand[idx].tolist())
         return e
+
+
+    def _explained_z(
+        self, echoes: np.ndarray, r_O: np.ndarray, classes: list[np.ndarray]
+    ) -> np.ndarray:
+        """Per chosen class, the paper's z of the residuals it explains, at its members.
+
+        Each observed residual is shared among the chosen sources in proportion to the
+        echo each predicts there (``echoes``, one column per class); the z of a class's
+        share, ``(I − Wᵀ)⁻¹ a_c``, is taken at its members and the largest returned. A
+        source's estimate is never below it (:meth:`estimate`): a fault that shows only
+        in its own residual gets exactly the z Algorithm 1 would give it, feedback
+        through its loop included, so τ keeps the meaning it has for z; the echoes of
+        other sources are not added to it, as z adds them.
+        """
+        total = echoes.sum(axis=1)
+        share = np.divide(echoes, total[:, None], out=np.zeros_like(echoes),
+                          where=total[:, None] > 0.0)
+        out = np.zeros(len(classes))
+        for k, idx in enumerate(classes):
+            a = np.zeros(self.n)
+            a[self.observed_index] = share[:, k] * r_O
+            if self._P is not None:
+                z = self._P[idx] @ a
+            else:
+                assert self._solver is not None
+                z = self._solver.solve(a)[idx]
+            out[k] = float(z.max()) if z.size else 0.0
+        return out
 
 
 def _nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
