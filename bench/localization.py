@@ -377,7 +377,8 @@ def multihop(seeds: int, workers: int) -> dict[str, Any]:
 
     heater_loss: runs that end in a configuration with the backup heater (compensated
     at the source), the first switch's action and delay after the onset, the worst and
-    mean max error, the worst |J| from :data:`LATE_S` after the onset; nominal: runs with any switch or parameter update (false).
+    mean max error, the worst |J| from :data:`LATE_S` after the onset; nominal: runs with
+    any switch or parameter update (false).
     """
     from concurrent.futures import ProcessPoolExecutor
 
