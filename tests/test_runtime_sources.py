@@ -456,3 +456,29 @@ def test_a_lone_residual_on_a_loop_gets_its_z_not_less():
     assert fit.classes == [[0]]
     assert_allclose(e, [1.25, 0.0], rtol=1e-12)
     assert_allclose(e[0], influence(W, [1.0, 0.0])[0], rtol=1e-12)
+
+
+def test_a_downstream_update_while_the_source_waits_out_the_dwell_time():
+    """process_plant drift_then_valve, seed 1: the valve's switch waits (dwell after the
+    transmitter's); the PI-gain update on the valve's echo is weighed with the z of the
+    valve's share, as the paper's z weighs it: the same update at the same time as z."""
+    from archself.sim.run import simulate
+
+    arch = load_architecture(ROOT / "architectures" / "process_plant.yaml").arch
+    arch.scenarios["drift_then_valve"].duration_s = 160.0
+    runs = {}
+    for mode in ("fit", "influence"):
+        a = _with(arch, mode)
+        loop = MapeK(a)
+        res = simulate(a, "drift_then_valve", seed=1, adapt=loop)
+        runs[mode] = (loop, float(res.metrics["max_error"]))
+    fit, z = runs["fit"][0], runs["influence"][0]
+    assert [(u["t_s"], u["action"]) for u in fit.updates] == [
+        (u["t_s"], u["action"]) for u in z.updates
+    ]
+    (update,) = fit.updates
+    first, second = fit.switches
+    assert first["t_s"] < update["t_s"] < second["t_s"]  # inside the dwell time
+    note = next(d.note for d in fit.decisions if d.t == update["t_s"])
+    assert note == "valve waits out the dwell time: raise_pi_gain on its echo at pi"
+    assert_allclose(runs["fit"][1], runs["influence"][1], rtol=1e-12)

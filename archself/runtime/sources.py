@@ -328,6 +328,10 @@ class SourceFit:
     classes : list of list of int
         After :meth:`estimate`: the equivalence classes of the chosen sources, largest
         explained share first (module indices; one element when identifiable).
+    shares : list of numpy.ndarray
+        After :meth:`estimate`, one per class: the part of each observed residual the
+        class explains (its predicted echo's share of the residual; 0 on hidden
+        modules). Off the class's members it is the source's echo downstream.
 
     Examples
     --------
@@ -357,6 +361,7 @@ class SourceFit:
         self.observed_index = np.flatnonzero(self.observed)
         self.hidden_index = np.flatnonzero(~self.observed)
         self.classes: list[list[int]] = []
+        self.shares: list[np.ndarray] = []
         self._row = np.full(n, -1)
         self._row[self.observed_index] = np.arange(self.observed_index.size)
         self._P_O: np.ndarray | None = None
@@ -441,6 +446,7 @@ class SourceFit:
         """
         r = _residuals(r, self.n)
         self.classes = []
+        self.shares = []
         e = np.zeros(self.n)
         h, o = self.hidden_index, self.observed_index
         r_O = np.maximum(r[o], 0.0)
@@ -463,44 +469,52 @@ class SourceFit:
         x, support = _parsimonious_fit(U[:, reps], r_O, PARSIMONY * total)
         chosen = U[:, [reps[c] for c in support]]
         size = _censored_fit(chosen, r_O, x[support])
-        size = np.maximum(size, self._explained_z(chosen * size, r_O, [
-            cand[members[c]] for c in support]))
+        z_share, shares = self._explained_z(chosen * size, r_O, [
+            cand[members[c]] for c in support])
+        size = np.maximum(size, z_share)
         for k in np.argsort(-size, kind="stable").tolist():
             if size[k] <= 0.0:
                 continue
             idx = members[support[k]]
             e[cand[idx]] = size[k]
             self.classes.append(cand[idx].tolist())
+            self.shares.append(shares[k])
         return e
 
 
     def _explained_z(
         self, echoes: np.ndarray, r_O: np.ndarray, classes: list[np.ndarray]
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, list[np.ndarray]]:
         """Per chosen class, the paper's z of the residuals it explains, at its members.
 
         Each observed residual is shared among the chosen sources in proportion to the
         echo each predicts there (``echoes``, one column per class); the z of a class's
-        share, ``(I − Wᵀ)⁻¹ a_c``, is taken at its members and the largest returned. A
-        source's estimate is never below it (:meth:`estimate`): a fault that shows only
-        in its own residual gets exactly the z Algorithm 1 would give it, feedback
-        through its loop included, so τ keeps the meaning it has for z; the echoes of
-        other sources are not added to it, as z adds them.
+        share ``a_c``, ``(I − Wᵀ)⁻¹ a_c``, is taken at its members and the largest
+        returned, with the shares (length ``n``, 0 on hidden modules). A source's
+        estimate is never below it (:meth:`estimate`): a fault that shows only in its own
+        residual gets exactly the z Algorithm 1 would give it, feedback through its loop
+        included, so τ keeps the meaning it has for z; the echoes of other sources are
+        not added to it, as z adds them.
         """
         total = echoes.sum(axis=1)
         share = np.divide(echoes, total[:, None], out=np.zeros_like(echoes),
                           where=total[:, None] > 0.0)
         out = np.zeros(len(classes))
+        shares = []
         for k, idx in enumerate(classes):
             a = np.zeros(self.n)
             a[self.observed_index] = share[:, k] * r_O
-            if self._P is not None:
-                z = self._P[idx] @ a
-            else:
-                assert self._solver is not None
-                z = self._solver.solve(a)[idx]
+            shares.append(a)
+            z = self.influence(a)[idx]
             out[k] = float(z.max()) if z.size else 0.0
-        return out
+        return out, shares
+
+    def influence(self, a: np.ndarray) -> np.ndarray:
+        """The paper's z of residuals ``a`` (length n): ``(I − Wᵀ)⁻¹ a``, by this fit's P."""
+        if self._P is not None:
+            return self._P @ a
+        assert self._solver is not None
+        return self._solver.solve(a)
 
 
 def _nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
