@@ -13,11 +13,23 @@ Two parts:
 - ``--campaign``: adaptive campaigns of every shipped system (and the chain fixture)
   with ``runtime.localization`` influence and source, the same seeds; the expected final
   configuration per scenario (as in the systems' docs) is "correct".
+- ``--hidden``: the hidden-source comparison (z, the clipped inverse, the fit) with W
+  exact and ±40 % off the true propagation.
+- ``--multihop``: the shipped ``architectures/heated_chain.yaml`` (the heater, without a
+  residual, at the head of a loop; a cheap faster-PI action downstream), seeds 0…N−1,
+  the fit against its ablation z = r (``ablation.propagation: false``), the paper's z
+  and the clipped inverse, with and without the faster PI: runs that end compensated at
+  the source, first switch, switches in nominal, worst error.
+- ``--paired SYSTEM BLOCK VALUE ONSET``: one cell of the robustness matrix
+  (bench/robustness.py), influence against the fit on the same seeds (paired).
 
 Usage::
 
     python bench/localization.py --fits
     python bench/localization.py --campaign --seeds 10 --workers 2 --out /tmp/loc
+    python bench/localization.py --hidden
+    python bench/localization.py --multihop --seeds 20 --workers 2
+    python bench/localization.py --paired diffdrive "right wheel loss" 0.05 50 --seeds 20
 """
 
 from __future__ import annotations
@@ -61,6 +73,10 @@ SYSTEMS: dict[str, dict[str, Any]] = {
                    "drift_then_drive": "m4", "both_drives_weak": "m3"},
     },
     "heated_chain": {
+        "file": "architectures/heated_chain.yaml",
+        "expect": {"nominal": "c1", "heater_loss": "c3", "sensor_drift": "c2"},
+    },
+    "chain_fixture": {
         "file": "tests/fixtures/valid/heated_chain.yaml",
         "expect": {"nominal": "c1", "heater_loss": "c3", "sensor_drift": "c2"},
     },
@@ -144,13 +160,15 @@ def compare_fits(cases: int = 400, seed: int = 0) -> dict[str, Any]:
     return out
 
 
-def hidden_case(rng: np.random.Generator, n: int, shape: str, k: int) -> dict[str, Any]:
+def hidden_case(rng: np.random.Generator, n: int, shape: str, k: int,
+                off: float = 0.4) -> dict[str, Any]:
     """A case whose faults may sit on hidden modules (issue 34).
 
     ``chain``: 0 → 1 → … → n−1 with a loop-closing edge back to 0; the head (the fault,
     with ``k = 2`` a second one further down) is hidden, as are a third of the others.
     ``random``: a random DAG with some feedback, 40 % hidden, the ``k`` faults drawn
-    among all modules with a path to an observed one.
+    among all modules with a path to an observed one. The true propagation is W with
+    each edge ``± off`` (uniform) off.
     """
     if shape == "chain":
         edges = [(i, i + 1) for i in range(n - 1)] + [(n - 1, 0)]
@@ -176,7 +194,7 @@ def hidden_case(rng: np.random.Generator, n: int, shape: str, k: int) -> dict[st
         faults = rng.choice(seen, size=min(k, seen.size), replace=False).tolist()
     e = np.zeros(n)
     e[faults] = rng.uniform(2.0, 6.0, len(faults))
-    true_W = W * rng.uniform(0.6, 1.4, W.shape)  # W ±40 % off
+    true_W = W * rng.uniform(1.0 - off, 1.0 + off, W.shape)  # W ±40 % off by default
     r = np.maximum(0.0, influence(true_W, e) + rng.normal(0, 0.3, n) - 0.3)
     r[~observed] = 0.0
     return {"W": W, "observed": observed, "faults": set(faults), "r": r}
@@ -188,12 +206,13 @@ def _ranked_sets(values: np.ndarray) -> list[list[int]]:
     return [[int(i)] for i in order if values[i] > 0]
 
 
-def compare_hidden(cases: int = 200, seed: int = 0) -> dict[str, Any]:
+def compare_hidden(cases: int = 200, seed: int = 0, off: float = 0.4) -> dict[str, Any]:
     """Top-1/top-2 of z, today's ê and the source fit with hidden faults.
 
     A rank of the fit is an equivalence class (modules the data cannot tell apart):
     top-1 counts a hit when the first class holds a true fault, and the mean size of
-    that class is reported beside it (1 = identified).
+    that class is reported beside it (1 = identified). ``off``: how far each edge of the
+    true propagation is from W (0.4: ±40 %; 0: W exact).
     """
     rng = np.random.default_rng(seed)
     out: dict[str, Any] = {}
@@ -202,7 +221,7 @@ def compare_hidden(cases: int = 200, seed: int = 0) -> dict[str, Any]:
             tally = {m: [0, 0] for m in ("z", "ê (clipped inverse)", "fit")}
             size, done = 0, 0
             for _ in range(cases):
-                c = hidden_case(rng, n, shape, k)
+                c = hidden_case(rng, n, shape, k, off)
                 if not c["r"].any():
                     continue
                 done += 1
@@ -306,10 +325,157 @@ def campaign(out: Path, seeds: int, workers: int, systems: list[str]) -> dict[st
     return summary
 
 
+# --------------------------------------------------------------------------- multi-hop
+#: the variants of the multi-hop study: (localization, propagation, keep the faster PI)
+MULTIHOP: dict[str, tuple[str, bool, bool]] = {
+    "fit (default)": ("fit", True, True),
+    "fit, z = r (no propagation)": ("fit", False, True),
+    "influence (paper's z)": ("influence", True, True),
+    "source (clipped ê)": ("source", True, True),
+    "fit, no faster PI": ("fit", True, False),
+    "fit, z = r, no faster PI": ("fit", False, False),
+    "influence, no faster PI": ("influence", True, False),
+}
+
+
+#: the "late" error is the largest |J| from this long after the onset (past the transient)
+LATE_S = 30.0
+
+
+def _multihop_run(job: tuple[str, str, int]) -> dict[str, Any]:
+    """One run of the multi-hop study: variant, scenario, seed."""
+    from archself.model.loader import load_architecture
+    from archself.runtime import MapeK
+    from archself.sim.run import simulate
+
+    variant, scenario, seed = job
+    mode, propagate, faster = MULTIHOP[variant]
+    arch = load_architecture(ROOT / SYSTEMS["heated_chain"]["file"]).arch
+    arch.runtime.localization = mode
+    arch.runtime.ablation.propagation = propagate
+    if not faster:
+        arch.actions = [a for a in arch.actions if a.id != "faster_pi"]
+    loop = MapeK(arch)
+    res = simulate(arch, scenario, seed=seed, adapt=loop)
+    onset = min((f.onset_s for f in arch.scenarios[scenario].faults), default=None)
+    t, J = np.asarray(res.series["t"]), np.abs(np.asarray(res.series["J"], dtype=float))
+    late = J[t >= (onset or 0.0) + LATE_S]
+    return {
+        "variant": variant, "scenario": scenario, "seed": seed,
+        "at_source": "heater_b" in arch.configurations[res.final_configuration].modules,
+        "final": res.final_configuration,
+        "first": loop.switches[0]["action"] if loop.switches else None,
+        "first_t": loop.switches[0]["t_s"] - (onset or 0.0) if loop.switches else None,
+        "switches": len(loop.switches), "updates": len(loop.updates),
+        "max_error": float(res.metrics["max_error"]), "rms_error": float(res.metrics["rms_error"]),
+        "late_max_error": float(late.max()) if late.size else 0.0,
+    }
+
+
+def multihop(seeds: int, workers: int) -> dict[str, Any]:
+    """The multi-hop study on architectures/heated_chain.yaml (docs/localization.md).
+
+    heater_loss: runs that end in a configuration with the backup heater (compensated
+    at the source), the first switch's action and delay after the onset, the worst and
+    mean max error, the worst |J| from :data:`LATE_S` after the onset; nominal: runs with
+    any switch or parameter update (false).
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    jobs = [(v, s, k) for v in MULTIHOP for s in ("heater_loss", "nominal") for k in range(seeds)]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        runs = list(pool.map(_multihop_run, jobs, chunksize=4))
+    out: dict[str, Any] = {}
+    for v in MULTIHOP:
+        loss = [r for r in runs if r["variant"] == v and r["scenario"] == "heater_loss"]
+        nom = [r for r in runs if r["variant"] == v and r["scenario"] == "nominal"]
+        firsts: dict[str, int] = {}
+        for r in loss:
+            firsts[str(r["first"])] = firsts.get(str(r["first"]), 0) + 1
+        delays = sorted(r["first_t"] for r in loss if r["first_t"] is not None)
+        out[v] = {
+            "at_source": sum(r["at_source"] for r in loss), "runs": len(loss),
+            "first_switch": firsts,
+            "first_delay_median_s": delays[len(delays) // 2] if delays else None,
+            "pi_updates": sum(r["updates"] for r in loss),
+            "max_error_worst": max(r["max_error"] for r in loss),
+            "max_error_mean": float(np.mean([r["max_error"] for r in loss])),
+            "rms_error_mean": float(np.mean([r["rms_error"] for r in loss])),
+            "late_max_error_worst": max(r["late_max_error"] for r in loss),
+            "nominal_false": sum((r["switches"] + r["updates"]) > 0 for r in nom),
+            "nominal_runs": len(nom),
+        }
+    return out
+
+
+def paired(system: str, block: str, value: float, onset: float, seeds: int,
+           workers: int, out: Path) -> dict[str, Any]:
+    """One robustness-matrix cell, influence against fit on the same seeds (paired).
+
+    The cell is the matrix's (bench/robustness.py: its file copy, root seed 1, so the
+    same seeds as the matrix's cell). Reported: right switches, false switches, the
+    per-seed max errors, their paired differences (fit − influence: mean, sd, how many
+    seeds better/worse) and the detection delays.
+    """
+    sys.path.insert(0, str(ROOT / "bench"))
+    import robustness as rb
+    from ruamel.yaml import YAML
+
+    from archself.campaign import parse_sweep, plan_campaign, run_campaign
+    from archself.campaign.results import read_results
+    from archself.model.loader import load_architecture
+
+    spec = rb.SYSTEMS[system]
+    out.mkdir(parents=True, exist_ok=True)
+    slug = rb._slug(block)
+    sweeps = [parse_sweep(f"scenarios.{slug}.faults[0].magnitude={value:g}"),
+              parse_sweep(f"scenarios.{slug}.faults[0].onset_s={onset:g}")]
+    want = spec["faults"][block]["expect"]
+    res: dict[str, Any] = {}
+    for mode in ("influence", "fit"):
+        file = out / f"{system}_{mode}.yaml"
+        rb.matrix_file(spec, ROOT / spec["file"], file)
+        yaml = YAML()
+        data = yaml.load(file.read_text(encoding="utf-8"))
+        data["runtime"]["localization"] = mode
+        with file.open("w", encoding="utf-8") as fh:
+            yaml.dump(data, fh)
+        arch = load_architecture(file).arch
+        jobs, meta = plan_campaign(file, [slug], seeds, sweeps, modes=("adaptive",),
+                                   root_seed=1, yes=True)
+        table = out / f"{system}_{mode}.parquet"
+        run_campaign(jobs, meta, table, workers=workers, force=True)
+        rows = sorted(read_results(table)[0].to_pylist(), key=lambda r: r["seed"])
+        res[mode] = {
+            "seeds": [r["seed"] for r in rows],
+            "max_error": [float(r["max_error"]) for r in rows],
+            "delay": [r["detection_delay_s"] for r in rows],
+            "right": sum(want in arch.configurations[r["final_configuration"]].modules
+                         and not r["false_switches"] for r in rows),
+            "false_switches": sum(int(r["false_switches"] or 0) for r in rows),
+            "paths": sorted({r["configuration_path"] for r in rows}),
+        }
+    a, b = res["influence"], res["fit"]
+    assert a["seeds"] == b["seeds"]
+    d = np.array(b["max_error"]) - np.array(a["max_error"])
+    res["paired"] = {
+        "diff_mean": float(d.mean()), "diff_sd": float(d.std(ddof=1)) if d.size > 1 else 0.0,
+        "fit_better": int((d < -1e-9).sum()), "fit_worse": int((d > 1e-9).sum()),
+        "worst": [max(a["max_error"]), max(b["max_error"])],
+        "mean": [float(np.mean(a["max_error"])), float(np.mean(b["max_error"]))],
+    }
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fits", action="store_true", help="synthetic comparison and timing")
     ap.add_argument("--campaign", action="store_true", help="campaigns of the shipped systems")
+    ap.add_argument("--hidden", action="store_true",
+                    help="hidden sources only, W exact and ±40 %% off")
+    ap.add_argument("--multihop", action="store_true", help="the shipped heated_chain study")
+    ap.add_argument("--paired", nargs=4, metavar=("SYSTEM", "BLOCK", "VALUE", "ONSET"),
+                    help="one robustness cell, influence vs fit on the same seeds")
     ap.add_argument("--systems", nargs="*", default=list(SYSTEMS))
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--workers", type=int, default=2)
@@ -319,8 +485,17 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(compare_fits(), indent=1))
         print(json.dumps(compare_hidden(), indent=1))
         print(json.dumps(timing(), indent=1))
+    if args.hidden:
+        print(json.dumps({f"W ±{off:.0%} off": compare_hidden(off=off) for off in (0.0, 0.4)},
+                         indent=1))
     if args.campaign:
         campaign(args.out, args.seeds, args.workers, args.systems)
+    if args.multihop:
+        print(json.dumps(multihop(args.seeds, args.workers), indent=1))
+    if args.paired:
+        system, block, value, onset = args.paired
+        print(json.dumps(paired(system, block, float(value), float(onset), args.seeds,
+                                args.workers, args.out), indent=1))
     return 0
 
 

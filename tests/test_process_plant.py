@@ -136,16 +136,17 @@ def test_flickering_valve_fault_switches_once(arch):
 
 
 def test_second_fault_during_dwell_gets_parameter_update_then_switch(arch):
-    """With the paper's z; the source fit (the default) acts on the valve only.
+    """With the source fit (the default) and with the paper's z.
 
-    The PI's residual is the valve fault's echo, so the fit gives the PI no estimate
-    and takes no PI-gain update during T_min (issue 34: acting at the source); the
-    valve's switch after T_min compensates both faults either way.
+    The PI's residual is the valve fault's echo, so the fit gives the PI no estimate of
+    its own; while the valve's switch waits out T_min, the PI is weighed with the z of
+    the valve's share (issue 34) and gets the PI-gain update inside T_min, as with z.
     """
     for seed in (1, 2):
         loop, res = run(arch, "drift_then_valve", seed)
         assert [(s["from"], s["to"]) for s in res.switches] == [("p1", "p2"), ("p2", "p4")]
-        assert loop.updates == []
+        assert [u["action"] for u in loop.updates] == ["raise_pi_gain"]
+        assert res.switches[0]["t_s"] < loop.updates[0]["t_s"] < res.switches[1]["t_s"]
     arch = arch.model_copy(deep=True)
     arch.runtime.localization = "influence"
     updated = 0

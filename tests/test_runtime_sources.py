@@ -247,11 +247,15 @@ def test_fit_finds_a_hidden_source_and_keeps_its_equivalence_class():
     fit = SourceFit(W, observed)
     e = fit.estimate(r)
     # heater, zone, sensor and observer reach {observer, pi} only through the observer:
-    # collinear columns, one class, the same estimate: the size of what it explains
+    # collinear columns, one class, the same estimate: the size of what it explains, or
+    # the paper's z of it at a member when larger (here the observer's: the loop returns
+    # part of the pi's residual to it)
     assert [[names[j] for j in c] for c in fit.classes] == [
         ["heater", "zone", "sensor", "observer"]
     ]
-    assert_allclose(e[:4], np.linalg.norm(r[3:]), rtol=1e-12)
+    z = influence(W, r)
+    assert z[3] > np.linalg.norm(r[3:])
+    assert_allclose(e[:4], z[3], rtol=1e-9)
     assert e[4] == 0.0
     # the clipped inverse never reaches the hidden heater: 0 there
     assert SourceEstimator(W, observed).estimate(r)[0] == 0.0
@@ -264,6 +268,7 @@ def test_fit_separates_what_the_observed_modules_can_tell_apart():
     fit = SourceFit(W, observed)
     e = fit.estimate(r)
     assert [[names[j] for j in c] for c in fit.classes] == [["heater"]]
+    assert np.linalg.norm(r) > influence(W, r)[0]  # the head: its z is only its own r
     assert_allclose(e[0], np.linalg.norm(r), rtol=1e-9)
     assert_allclose(e[1:], 0.0, atol=1e-12)
 
@@ -386,3 +391,94 @@ def test_multi_hop_changes_the_decision_for_the_better(hidden):
         _ends_at_the_heater(_run(flat, "heater_loss", s), hidden) for s in range(20)
     )
     assert right >= 19 and right_flat == 0, (right, right_flat)
+
+
+# --------------------------------------------------------------------------- shipped file
+SHIPPED = ROOT / "architectures" / "heated_chain.yaml"
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_architecture(SHIPPED).arch
+
+
+def _flat(arch):
+    """The ablation z = r: no propagation through W."""
+    a = arch.model_copy(deep=True)
+    a.runtime.ablation.propagation = False
+    return a
+
+
+def test_shipped_heated_chain_is_the_hidden_source_with_a_tempting_pi(shipped):
+    assert shipped.modules["heater_a"].residual is None
+    cheapest = min(shipped.actions, key=lambda a: a.cost)
+    assert (cheapest.id, cheapest.module, cheapest.kind) == ("faster_pi", "pi", "parameter_update")
+    fit = _run(_with(shipped, "fit", 80.0), "heater_loss", 1)
+    flat = _run(_with(_flat(shipped), "fit", 80.0), "heater_loss", 1)
+    assert [s["action"] for s in fit.switches] == ["use_heater_b"]
+    assert [s["action"] for s in flat.switches] == ["use_sensor_b"]
+
+
+@pytest.mark.slow
+def test_shipped_heated_chain_multi_hop_changes_the_decision_for_the_better(shipped):
+    """Done-when (issue 34 point 4) on the shipped file, seeds 0–19 (as bench --multihop).
+
+    The fit ends at the backup heater on ≥ 19/20 with the faster PI in the file, its
+    ablation z = r on none; on the same seeds the fit's RMS error is lower on ≥ 19;
+    nominal: no switch and no parameter update on 20/20.
+    """
+    from archself.sim.run import simulate
+
+    def rms(arch, seed):
+        loop = MapeK(arch)
+        res = simulate(arch, "heater_loss", seed=seed, adapt=loop)
+        return _ends_at_the_heater(loop, arch), float(res.metrics["rms_error"])
+
+    fit = [rms(_with(shipped, "fit", 120.0), s) for s in range(20)]
+    flat = [rms(_with(_flat(shipped), "fit", 120.0), s) for s in range(20)]
+    assert sum(f[0] for f in fit) >= 19 and sum(f[0] for f in flat) == 0
+    assert sum(a[1] < b[1] for a, b in zip(fit, flat, strict=True)) >= 19
+    nominal = [_run(shipped, "nominal", s) for s in range(20)]
+    assert [len(n.switches) + len(n.updates) for n in nominal] == [0] * 20
+
+
+def test_a_lone_residual_on_a_loop_gets_its_z_not_less():
+    """The fit's estimate is never below the paper's z of the residuals it explains.
+
+    a ⇄ b (0.5, 0.4), only a's residual out of its band: z_a = 1 / (1 − 0.2) = 1.25
+    (a's residual returned through the loop); the size of what a explains is
+    ‖[1, 0.5]‖ = 1.118 (b's echo 0.5 inside its band). ê_a is z_a, so τ means for a
+    lone fault what it means for z (detection no later than with z).
+    """
+    W = weight_matrix(["a", "b"], [("a", "b", 0.5), ("b", "a", 0.4)])
+    fit = SourceFit(W)
+    e = fit.estimate([1.0, 0.0])
+    assert fit.classes == [[0]]
+    assert_allclose(e, [1.25, 0.0], rtol=1e-12)
+    assert_allclose(e[0], influence(W, [1.0, 0.0])[0], rtol=1e-12)
+
+
+def test_a_downstream_update_while_the_source_waits_out_the_dwell_time():
+    """process_plant drift_then_valve, seed 1: the valve's switch waits (dwell after the
+    transmitter's); the PI-gain update on the valve's echo is weighed with the z of the
+    valve's share, as the paper's z weighs it: the same update at the same time as z."""
+    from archself.sim.run import simulate
+
+    arch = load_architecture(ROOT / "architectures" / "process_plant.yaml").arch
+    arch.scenarios["drift_then_valve"].duration_s = 160.0
+    runs = {}
+    for mode in ("fit", "influence"):
+        a = _with(arch, mode)
+        loop = MapeK(a)
+        res = simulate(a, "drift_then_valve", seed=1, adapt=loop)
+        runs[mode] = (loop, float(res.metrics["max_error"]))
+    fit, z = runs["fit"][0], runs["influence"][0]
+    assert [(u["t_s"], u["action"]) for u in fit.updates] == [
+        (u["t_s"], u["action"]) for u in z.updates
+    ]
+    (update,) = fit.updates
+    first, second = fit.switches
+    assert first["t_s"] < update["t_s"] < second["t_s"]  # inside the dwell time
+    note = next(d.note for d in fit.decisions if d.t == update["t_s"])
+    assert note == "valve waits out the dwell time: raise_pi_gain on its echo at pi"
+    assert_allclose(runs["fit"][1], runs["influence"][1], rtol=1e-12)

@@ -92,6 +92,14 @@ class CandidateSelector:
     ) -> list[str]:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def entering(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
+        """The modules that would enter C on ``z`` now, without changing the selector's state.
+
+        A second look in the same cycle (the echo of a source whose action waits out the
+        dwell time, :class:`~archself.runtime.mapek.MapeK`); stateless selectors select.
+        """
+        return self.select(z, values)
+
     def reset(self) -> None:
         """Forget any state (nothing for the stateless selectors)."""
 
@@ -169,6 +177,10 @@ class HysteresisSelector(CandidateSelector):
             enter = {keys[i] for i in (np.abs(values) >= self.on).nonzero()[0].tolist()}
         self.members = keep | enter
         return _ranked(z, self.members)
+
+    def entering(self, z: Mapping[str, float], values: np.ndarray | None = None) -> list[str]:
+        """``|z| ≥ on``, the members left as they are."""
+        return threshold_candidates(z, self.on)
 
     def reset(self) -> None:
         self.members.clear()

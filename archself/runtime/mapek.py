@@ -44,6 +44,7 @@ appends a :class:`~archself.runtime.decisions.DecisionRecord` to
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -224,6 +225,8 @@ class MapeK:
             evaluations, action, ev = self.strategies.cycle(system, state, record)
         else:
             evaluations, action, ev = self.planner.plan(system, state, candidates)
+            if action is None and self.localization == "fit" and self.propagate:
+                evaluations, action, ev = self._echo_plan(system, state, evaluations, record)
         record.evaluations = evaluations
         if action is None or ev is None:
             return []
@@ -311,6 +314,38 @@ class MapeK:
                 [names[j] for j in c] for c in self._estimator.classes if len(c) > 1
             ]
         return e
+
+    def _echo_plan(
+        self, system: ManagedSystem, state: PlanState, evaluations: list, record: DecisionRecord
+    ) -> tuple[list, Any, Any]:
+        """While a source's structural action waits out the dwell time: its echo downstream.
+
+        The fit acts at the source, so a module whose residual is the source's echo is no
+        candidate. While the source's action is rejected for ``dwell``, the modules
+        outside its class are planned on with the paper's z of the residuals the source
+        explains (:attr:`SourceFit.shares`): a downstream compensation (a parameter
+        update; structural actions wait too) is weighed as z would weigh it if the
+        waiting source's residuals were all there was.
+        """
+        fit, k = self._estimator, self.knowledge
+        waiting = {ev.module for ev in evaluations if ev.rejected == "dwell"}
+        if not waiting or not isinstance(fit, SourceFit):
+            return evaluations, None, None
+        echo = np.zeros(len(k.names))
+        for members, share in zip(fit.classes, fit.shares, strict=True):
+            if waiting.intersection(k.names[j] for j in members):
+                echo += fit.influence(share)
+                echo[members] = 0.0
+        values = echo[k.active_index]
+        drive = ValueMap(k.active_names, k.active_pos, values)
+        more = self.selector.entering(drive, values)
+        if not more:
+            return evaluations, None, None
+        extra, action, ev = self.planner.plan(system, replace(state, z=drive), more)
+        if action is not None:
+            record.note = (f"{', '.join(sorted(waiting))} waits out the dwell time: "
+                           f"{action.id} on its echo at {action.module}")
+        return evaluations + extra, action, ev
 
     def _still_compensated(self, configuration: str, active: frozenset[str]) -> None:
         """Drop the modules whose compensation is gone in ``configuration``.

@@ -21,7 +21,7 @@ propagation instead of applying it once more:
   bands make it) gives 0 rather than a negative source.
 - **Hidden modules.** A module without a ``residual`` block (a plant, a sensor)
   has no observed residual: the runtime gives it ``r = 0``, which would cut every
-  chain at it (heater → *zone* → *sensor* → observer: the observer's residual
+  chain at it (heater → *room* → *sensor* → observer: the observer's residual
   would look like its own fault). Its residual is unknown, not zero, so it is
   filled in with the echo the observed residuals predict,
   ``x_H = (I − W_HHᵀ)⁻¹ (r_H + W_OHᵀ r_O)`` (``O`` observed, ``H`` hidden), and the
@@ -95,12 +95,12 @@ class SourceEstimator:
 
     Examples
     --------
-    A fault at the head of heater → zone → sensor → observer, where only the
-    heater and the observer carry a residual (zone and sensor are hidden):
+    A fault at the head of heater → room → sensor → observer, where only the
+    heater and the observer carry a residual (room and sensor are hidden):
 
     >>> from archself.runtime.influence import weight_matrix, influence
-    >>> names = ["heater", "zone", "sensor", "observer"]
-    >>> W = weight_matrix(names, [("heater", "zone", 0.8), ("zone", "sensor", 0.9),
+    >>> names = ["heater", "room", "sensor", "observer"]
+    >>> W = weight_matrix(names, [("heater", "room", 0.8), ("room", "sensor", 0.9),
     ...                           ("sensor", "observer", 0.7)])
     >>> r = [1.0, 0.0, 0.0, 0.5]                  # the observer sees the fault's echo
     >>> influence(W, r).round(3).tolist()         # the paper's z: largest at the observer
@@ -328,23 +328,27 @@ class SourceFit:
     classes : list of list of int
         After :meth:`estimate`: the equivalence classes of the chosen sources, largest
         explained share first (module indices; one element when identifiable).
+    shares : list of numpy.ndarray
+        After :meth:`estimate`, one per class: the part of each observed residual the
+        class explains (its predicted echo's share of the residual; 0 on hidden
+        modules). Off the class's members it is the source's echo downstream.
 
     Examples
     --------
     The heater has no residual; its fault shows at the observer and, through it, at
-    the controller. Heater, zone and observer reach the observed modules only through the
+    the controller. Heater, room and observer reach the observed modules only through the
     observer: one class, the same estimate for each.
 
     >>> from archself.runtime.influence import weight_matrix
-    >>> names = ["heater", "zone", "observer", "controller"]
-    >>> W = weight_matrix(names, [("heater", "zone", 1.2), ("zone", "observer", 2.0),
+    >>> names = ["heater", "room", "observer", "controller"]
+    >>> W = weight_matrix(names, [("heater", "room", 1.2), ("room", "observer", 2.0),
     ...                           ("observer", "controller", 0.25),
     ...                           ("controller", "heater", 0.15)])
     >>> fit = SourceFit(W, observed=[False, False, True, True])
-    >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()
-    [4.12, 4.12, 4.12, 0.0]
+    >>> fit.estimate([0.0, 0.0, 4.0, 1.0]).round(2).tolist()  # z at the observer
+    [4.79, 4.79, 4.79, 0.0]
     >>> [[names[j] for j in c] for c in fit.classes]
-    [['heater', 'zone', 'observer']]
+    [['heater', 'room', 'observer']]
     """
 
     def __init__(self, W: Any, observed: Any = None) -> None:
@@ -357,15 +361,18 @@ class SourceFit:
         self.observed_index = np.flatnonzero(self.observed)
         self.hidden_index = np.flatnonzero(~self.observed)
         self.classes: list[list[int]] = []
+        self.shares: list[np.ndarray] = []
         self._row = np.full(n, -1)
         self._row[self.observed_index] = np.arange(self.observed_index.size)
         self._P_O: np.ndarray | None = None
+        self._P: np.ndarray | None = None
         self._WT = S.T.tocsr()  # parents of i: row i of Wᵀ
         self._cols: dict[int, np.ndarray] = {}
         self._solver: InfluenceSolver | None = None
         self._adjoint: InfluenceSolver | None = None
         if n <= DENSE_MAX:
-            self._P_O = propagation_matrix(S)[self.observed_index] if n else np.zeros((0, 0))
+            self._P = propagation_matrix(S) if n else np.zeros((0, 0))
+            self._P_O = self._P[self.observed_index]
         else:
             self._solver = InfluenceSolver()
             self._solver.set_matrix(S, key=0)
@@ -439,6 +446,7 @@ class SourceFit:
         """
         r = _residuals(r, self.n)
         self.classes = []
+        self.shares = []
         e = np.zeros(self.n)
         h, o = self.hidden_index, self.observed_index
         r_O = np.maximum(r[o], 0.0)
@@ -459,14 +467,54 @@ class SourceFit:
         U = A / norms
         members, reps = _collinear_classes(U)
         x, support = _parsimonious_fit(U[:, reps], r_O, PARSIMONY * total)
-        size = _censored_fit(U[:, [reps[c] for c in support]], r_O, x[support])
+        chosen = U[:, [reps[c] for c in support]]
+        size = _censored_fit(chosen, r_O, x[support])
+        z_share, shares = self._explained_z(chosen * size, r_O, [
+            cand[members[c]] for c in support])
+        size = np.maximum(size, z_share)
         for k in np.argsort(-size, kind="stable").tolist():
             if size[k] <= 0.0:
                 continue
             idx = members[support[k]]
             e[cand[idx]] = size[k]
             self.classes.append(cand[idx].tolist())
+            self.shares.append(shares[k])
         return e
+
+
+    def _explained_z(
+        self, echoes: np.ndarray, r_O: np.ndarray, classes: list[np.ndarray]
+    ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Per chosen class, the paper's z of the residuals it explains, at its members.
+
+        Each observed residual is shared among the chosen sources in proportion to the
+        echo each predicts there (``echoes``, one column per class); the z of a class's
+        share ``a_c``, ``(I − Wᵀ)⁻¹ a_c``, is taken at its members and the largest
+        returned, with the shares (length ``n``, 0 on hidden modules). A source's
+        estimate is never below it (:meth:`estimate`): a fault that shows only in its own
+        residual gets exactly the z Algorithm 1 would give it, feedback through its loop
+        included, so τ keeps the meaning it has for z; the echoes of other sources are
+        not added to it, as z adds them.
+        """
+        total = echoes.sum(axis=1)
+        share = np.divide(echoes, total[:, None], out=np.zeros_like(echoes),
+                          where=total[:, None] > 0.0)
+        out = np.zeros(len(classes))
+        shares = []
+        for k, idx in enumerate(classes):
+            a = np.zeros(self.n)
+            a[self.observed_index] = share[:, k] * r_O
+            shares.append(a)
+            z = self.influence(a)[idx]
+            out[k] = float(z.max()) if z.size else 0.0
+        return out, shares
+
+    def influence(self, a: np.ndarray) -> np.ndarray:
+        """The paper's z of residuals ``a`` (length n): ``(I − Wᵀ)⁻¹ a``, by this fit's P."""
+        if self._P is not None:
+            return self._P @ a
+        assert self._solver is not None
+        return self._solver.solve(a)
 
 
 def _nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
