@@ -179,7 +179,9 @@ def load_setup(path: str | Path = DIFFDRIVE, scenario: str = "nominal") -> Setup
 
     raw = YAML(typ="safe").load(Path(path).read_text(encoding="utf-8"))
     mods = raw["modules"]
-    if set(raw["configurations"]["a1"]["modules"]) != A1:
+    import archself  # a1 as the loader expands it (its subsystem modes and own modules)
+
+    if set(archself.load(path).configurations["a1"].modules) != A1:
         raise ValueError("configuration a1 is not the one the floor implements")
     sc = raw["scenarios"][scenario]
     if sc.get("faults"):

@@ -301,7 +301,7 @@ def _steps(rep: RunReport, mode: str, key: Any) -> tuple[np.ndarray, np.ndarray]
     return t, y
 
 
-def plot_qualities(rep: RunReport) -> Any:
+def plot_qualities(rep: RunReport, size: Size = None, title: bool | str = False) -> PaperFigure:
     """The quality attributes over time and the trade-off the loop made (one figure).
 
     Left: the utility of each attribute (thin) and the weighted utility U (thick) of the
@@ -314,7 +314,7 @@ def plot_qualities(rep: RunReport) -> Any:
     assert q is not None
     confs, prefs = q["configurations"], q["preferences"]
     names = sorted(prefs, key=lambda n: -prefs[n])
-    fig = _figure(11.0, 4.6)
+    fig = _figure(11.0, 4.6, size)
     ax, tr = fig.subplots(1, 2, width_ratios=[1.5, 1.0])
     main = "adaptive" if rep.adaptive is not None else rep.runs[0].mode
     for mode in [r.mode for r in rep.runs]:
@@ -328,11 +328,11 @@ def plot_qualities(rep: RunReport) -> Any:
             t, u = _steps(rep, mode, lambda c, n=n: confs[c]["attributes"][n]["utility"])
             ax.step(t, u, where="post", lw=1.1, color=Z_COLORS[(k + 1) % len(Z_COLORS)],
                     label=_tex(f"u {n} (weight {prefs[n]:g})"))
-    _switch_lines(ax, rep, label=False)
+    switch_lines(ax, rep.switches, label=False)
     ax.set_ylim(-0.05, 1.12)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("utility (0..1)")
-    ax.set_title(_tex(f"Quality attributes: {rep.scenario}"))
+    _title(ax, title, f"Quality attributes: {rep.scenario}")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="lower left")
     _trade_off(tr, rep, names)
