@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from archself.calibration.identify_fit import TargetFit
+from archself import __version__
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
 
@@ -190,6 +191,7 @@ class IdentificationDoc(_Out):
     edges: list[EdgeDoc]
     targets: dict[str, dict[str, TargetDoc]]
     experiments: list[ExperimentDoc]
+    archself_version: str = Field(default_factory=lambda: __version__)
     not_perturbed: dict[str, list[str]] = Field(
         description="per configuration, the modules not perturbed and why")
     executor: str

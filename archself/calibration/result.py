@@ -14,6 +14,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from archself.calibration.bands import Cell, Prediction
+from archself import __version__
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
 
@@ -245,6 +246,7 @@ class CalibrationDoc(_Out):
     elapsed_s: float
     verify_seeds: int
     verify_elapsed_s: float
+    archself_version: str = Field(default_factory=lambda: __version__)
 
 
 #: The fields a :class:`Calibration` and its document share as they are.
