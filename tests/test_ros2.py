@@ -122,7 +122,8 @@ def test_lifecycle_and_parameters_seen_by_a_plain_rclpy_client(tmp_path: Path) -
     from archself.reports.export import node_modules
 
     # The paper's z localization raises the PI gains while the valve's switch waits out
-    # its dwell; the default source fit makes no such update (docs/localization.md).
+    # its dwell (the default source fit makes the same update: docs/localization.md); the
+    # test pins the paper's mechanism.
     plant = tmp_path / "process_plant.yaml"
     text = PLANT.read_text(encoding="utf-8")
     assert text.count("\nruntime:\n") == 1
