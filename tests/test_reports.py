@@ -397,3 +397,41 @@ def test_condense_keeps_every_module_of_unconnected_graphs() -> None:
     small = condense(Dsm("architecture", "loose", mods, {}, {}, 0.0), max_modules=20)
     assert len(small.modules) == 20
     assert sum(int(m.type.split()[0]) for m in small.modules) == 300
+
+
+@pytest.mark.skipif(shutil.which("dot") is None, reason="Graphviz `dot` is not installed")
+def test_configuration_graph_is_cropped_to_what_it_shows(tmp_path):
+    """a1's graph keeps the whole architecture's positions but not its empty band: the
+    drawing is cropped to its visible modules, edges and title (issue 40), and every module
+    of a1 lies inside the crop."""
+    from archself.reports.architecture import visible_viewport
+
+    dot = shutil.which("dot")
+    arch = load_architecture(DIFFDRIVE).arch
+    write_architecture_report(arch, tmp_path / "r", dot=True)
+    out = tmp_path / "r"
+
+    def height(name: str) -> float:
+        m = re.search(r'<svg width="[\d.]+pt" height="([\d.]+)pt"',
+                      (out / name).read_text(encoding="utf-8"))
+        assert m, name
+        return float(m.group(1))
+
+    whole, a1 = height("graph-architecture.svg"), height("graph-config-a1.svg")
+    assert a1 < 0.9 * whole
+    view = visible_viewport(out / "graph-config-a1.dot", dot)
+    assert view is not None
+    w, h, zoom, cx, cy = (float(v) for v in view.split(","))
+    assert zoom == 1.0 and abs(h - a1) <= 1.0
+    layout = json.loads(subprocess.run([dot, "-Tjson", str(out / "graph-config-a1.dot")],
+                                       capture_output=True, text=True, check=True).stdout)
+    active = set(arch.configurations["a1"].modules)
+    seen = 0
+    for obj in layout["objects"]:
+        if obj.get("name") in active:
+            x, y = (float(v) for v in obj["pos"].split(","))
+            assert abs(x - cx) <= w / 2 and abs(y - cy) <= h / 2, obj["name"]
+            seen += 1
+    assert seen == len(active)
+    # the architecture's own graph is not cropped (nothing in it is invisible)
+    assert visible_viewport(out / "graph-architecture.dot", dot) is None

@@ -28,6 +28,7 @@ not empty is replaced only with ``force`` and only if it holds a report (an
 
 from __future__ import annotations
 
+import json
 import os
 import secrets
 import shutil
@@ -121,17 +122,70 @@ def new_folder(path: Path) -> Iterator[Path]:
 LAYOUT_MAX = 500
 
 
-def render_dot(dot_file: Path, fmt: str, dot: str) -> tuple[bytes | None, str]:
-    """Run ``dot -T<fmt>`` on ``dot_file``; ``(output, "")`` or ``(None, error text)``."""
+def render_dot(dot_file: Path, fmt: str, dot: str, *args: str) -> tuple[bytes | None, str]:
+    """Run ``dot -T<fmt> ARGS`` on ``dot_file``; ``(output, "")`` or ``(None, error text)``."""
     try:
-        proc = subprocess.run([dot, f"-T{fmt}", str(dot_file)], capture_output=True, timeout=120,
-                              check=False)
+        proc = subprocess.run([dot, f"-T{fmt}", *args, str(dot_file)], capture_output=True,
+                              timeout=120, check=False)
     except (OSError, subprocess.TimeoutExpired) as exc:
         return None, f"{type(exc).__name__}: {exc}"
     if proc.returncode != 0:
         lines = proc.stderr.decode("utf-8", "replace").strip().splitlines()
         return None, lines[-1] if lines else f"dot exited with {proc.returncode}"
     return proc.stdout, ""
+
+
+#: Margin kept around what a cropped drawing shows (points).
+CROP_MARGIN = 8.0
+
+
+def visible_viewport(dot_file: Path, dot: str) -> str | None:
+    """A Graphviz ``viewport`` that crops a drawing to what it shows, or None.
+
+    A configuration's graph keeps the whole architecture's positions (its inactive modules
+    and edges are drawn invisible, so drawings and diffs line up); where the invisible part
+    lies at an edge of the drawing it leaves an empty band. The box of the visible
+    elements (``dot -Tjson``: every node, cluster and edge not ``invis``, and the graph's
+    label) plus :data:`CROP_MARGIN` is the viewport, when it is at least 5 % smaller
+    than the drawing in one direction; positions inside it are unchanged.
+    """
+    data, _err = render_dot(dot_file, "json", dot)
+    if data is None:
+        return None
+    j = json.loads(data)
+    xs: list[float] = []
+    ys: list[float] = []
+
+    def take(el: dict[str, Any]) -> None:
+        if "invis" in str(el.get("style", "")):
+            return
+        for key in ("_draw_", "_ldraw_", "_hdraw_", "_tdraw_", "_hldraw_", "_tldraw_"):
+            for op in el.get(key, ()):
+                if "points" in op:
+                    xs.extend(x for x, _ in op["points"])
+                    ys.extend(y for _, y in op["points"])
+                elif "rect" in op:
+                    cx, cy, rx, ry = op["rect"]
+                    xs.extend((cx - rx, cx + rx))
+                    ys.extend((cy - ry, cy + ry))
+                elif "pt" in op:
+                    (x, y), w = op["pt"], float(op.get("width", 0.0))
+                    lo = {"l": x, "r": x - w}.get(op.get("align", "c"), x - w / 2)
+                    xs.extend((lo, lo + w))
+                    ys.extend((y - 0.3 * op.get("size", 14.0), y + op.get("size", 14.0)))
+
+    take({"_ldraw_": j.get("_ldraw_", ())})
+    for el in (*j.get("objects", ()), *j.get("edges", ())):
+        take(el)
+    x0, y0, x1, y1 = (float(v) for v in j["bb"].split(","))
+    if not xs:
+        return None
+    lo_x, hi_x = max(x0, min(xs) - CROP_MARGIN), min(x1, max(xs) + CROP_MARGIN)
+    lo_y, hi_y = max(y0, min(ys) - CROP_MARGIN), min(y1, max(ys) + CROP_MARGIN)
+    w, h = hi_x - lo_x, hi_y - lo_y
+    if w > 0.95 * (x1 - x0) and h > 0.95 * (y1 - y0):
+        return None
+    return f"{w:.2f},{h:.2f},1,{(lo_x + hi_x) / 2:.2f},{(lo_y + hi_y) / 2:.2f}"
 
 
 def count_report_files(arch: Architecture, rendered: bool) -> int:
@@ -348,8 +402,11 @@ def _render_graphs(rep: ArchitectureReport, out: Path, dot_exe: str | None, n: i
                     "FILE.svg` if you need it).")
     elif dot_exe:
         for name in [f for f in rep.files if f.endswith(".dot")]:
+            view = (visible_viewport(out / name, dot_exe) if name.startswith("graph-config-")
+                    else None)
+            args = (f"-Gviewport={view}",) if view else ()
             for fmt in ("svg", "png"):
-                data, err = render_dot(out / name, fmt, dot_exe)
+                data, err = render_dot(out / name, fmt, dot_exe, *args)
                 if data is None:
                     failures.append(f"{name} → {fmt}: {err}")
                     continue
