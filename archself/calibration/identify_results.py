@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from archself.calibration.identify_fit import TargetFit
 from archself import __version__
+from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
 

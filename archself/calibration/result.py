@@ -13,8 +13,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from archself.calibration.bands import Cell, Prediction
 from archself import __version__
+from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
 
