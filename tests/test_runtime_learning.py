@@ -189,3 +189,33 @@ def test_sampled_rollouts_spread_and_determinism(plant):
                      if e.spread is not None][:4])
     assert runs[0] == runs[1] and runs[0]  # same seed, same draws
     assert all(spread > 0 for _, spread in runs[0])  # the draws differ: the noise was resampled
+
+
+@pytest.mark.parametrize(("risk", "rollout", "expected"), [
+    ({"draws": 4}, False, "runtime.risk.draws: draws 4: no action estimates its improvement "
+                          "by rollout"),
+    ({"draws": 1, "rule": "cvar"}, True, "runtime.risk.rule: rule cvar over one draw"),
+    ({"draws": 4, "rule": "cvar"}, True, None),
+    ({}, False, None),
+])
+def test_validate_warns_of_a_risk_setting_that_changes_nothing(plant, risk, rollout, expected):
+    """`runtime.risk` with draws but no rollout estimate, or a rule over one draw, cannot
+    change a decision: validate says so (a warning at the setting), and is quiet when the
+    setting can act."""
+    from archself.check import check
+    from archself.model.loader import load_text
+
+    data = plant.model_dump(mode="json", by_alias=True, exclude_none=True)
+    data["runtime"]["risk"] = risk
+    if rollout:
+        data["actions"][0]["improvement"] = {"method": "rollout", "horizon_s": 4.0}
+    else:
+        for a in data["actions"]:
+            if a["improvement"]["method"] == "rollout":
+                a["improvement"] = {"method": "table", "value": 1.0}
+    found = [f"{f.path}: {f.message}" for f in check(load_text(json.dumps(data), "t.json"))
+             if f.path.startswith("runtime.risk")]
+    if expected is None:
+        assert found == []
+    else:
+        assert len(found) == 1 and found[0].startswith(expected), found

@@ -145,6 +145,24 @@ def check_actions(ctx: Context) -> None:
                         f"removes {sorted(removed) or 'nothing'})",
                         (*base, "kind"))
 
+    _check_risk(ctx)
+
+
+def _check_risk(ctx: Context) -> None:
+    """``runtime.risk`` that cannot change a decision: K draws when no action's Δ is a
+    rollout (sensitivity and table estimates have one value), or a rule other than the
+    mean over one draw (its spread is 0: the rule is the mean)."""
+    risk = ctx.arch.runtime.risk
+    if risk.draws > 1 and not any(a.improvement.method == "rollout" for a in ctx.arch.actions):
+        ctx.add("warning", "action",
+                f"draws {risk.draws}: no action estimates its improvement by rollout, so "
+                "every estimate has one value and the draws change nothing",
+                ("runtime", "risk", "draws"))
+    elif risk.draws == 1 and risk.rule != "mean":
+        ctx.add("warning", "action",
+                f"rule {risk.rule} over one draw: the spread is 0, so it ranks as the mean; "
+                "set runtime.risk.draws > 1", ("runtime", "risk", "rule"))
+
 
 def check_qualities(ctx: Context) -> None:
     """Quality attributes: declared values name configurations, and cover every one."""
