@@ -275,6 +275,12 @@ class RuntimeModule:
     noise_levels: dict[str, float] | None = None
     #: Longest time without a published value before the module counts as silent (s).
     max_silence_s: float | None = None
+    #: True when finite inputs and parameters always give finite outputs (or None): the
+    #: executor then skips the scan of this type's outputs for NaN/inf, unless a fault
+    #: is injected into them or the module declares ``noise_levels`` or
+    #: ``max_silence_s`` (:func:`archself.system.health.needs_checks`). False (the
+    #: default, safe): every output is checked every step (docs/hardening.md).
+    finite_outputs: ClassVar[bool] = False
     #: The batched class of this type (a :class:`archself.lanes.LaneModule` subclass built
     #: from N instances, or its ``"package.module:Class"`` path), or None: lanes of it run
     #: one by one (:class:`archself.lanes.PerLane`). See docs/lanes.md.

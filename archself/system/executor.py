@@ -56,7 +56,7 @@ from archself.errors import SimulationError
 from archself.model.architecture import Architecture
 from archself.modules.base import RuntimeModule
 from archself.system.dataflow import algebraic_loop
-from archself.system.health import NOT_NUMERIC, STALE_REPEATS, Publishing
+from archself.system.health import NOT_NUMERIC, STALE_REPEATS, Publishing, needs_checks
 from archself.system.linearizing import Linearizing
 from archself.system.objective import component_error, objective_norm
 from archself.system.snapshot import Snapshots
@@ -125,6 +125,8 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
         self._scope: frozenset[str] | None = None  # a partial copy's modules (snapshot(only=))
         self._scoped: dict[str, StepPlan] = {}  # its plans, restricted to them
         self._plan = self._make_plan(configuration)  # instantiates the active modules
+        # (plan, publishing ops, state-only ops) of the current plan (_bind); None: to make
+        self._bound: tuple[StepPlan, list[tuple[Any, ...]], list[tuple[Any, ...]]] | None = None
         self.configuration = configuration
 
     # ------------------------------------------------------------------ plans
@@ -214,28 +216,62 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
                 inputs[carries] = val
         return inputs
 
+    def _bind(self, plan: StepPlan) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
+        """The ops of ``plan`` on this system's modules: what :meth:`step` runs, flat.
+
+        One tuple per publishing module, ``(name, module, stepped, direct routes,
+        required inputs, checked)``, and one per state-only module of phase 3,
+        ``(name, module, direct routes, required inputs)``. ``checked`` is False for
+        a module :func:`~archself.system.health.needs_checks` finds nothing to check
+        on: its outputs are published as they are. Made when the plan or a module's
+        parameters change (:meth:`set_params`), never per step.
+        """
+        pool = self._pool
+        publishing = [
+            (n, pool[n], stepped, plan.direct[n] if stepped else (), plan.required[n],
+             needs_checks(pool[n], self._faults.get(n)))
+            for n, stepped in plan.publishing
+        ]
+        advancing = [(n, pool[n], plan.direct[n], plan.required[n]) for n in plan.nonft]
+        return publishing, advancing
+
     def step(self) -> None:
         """Advance the system by one step ``dt``."""
         t = self.t
         dt = self.dt
-        pool = self._pool
         plan = self._plan
-        req = plan.required
+        bound = self._bound
+        if bound is None or bound[0] is not plan:
+            bound = self._bound = (plan, *self._bind(plan))
+        outs = self.outputs
         ok = self._ok
         why = self._why
         publish = self._publish
         gather = self._gather
+        inputs: dict[str, Any] = {}
         # phases 1 and 2: the state-only outputs, then the feedthrough modules in order
-        for name, stepped in plan.publishing:
-            inputs = gather(name) if stepped else None
+        for name, mod, stepped, direct, req, checked in bound[1]:
+            if stepped:
+                if direct is None:
+                    inputs = gather(name)
+                else:  # inputs that pass unchanged, gathered inline
+                    inputs = {}
+                    for carries, src in direct:
+                        so = outs.get(src)
+                        val = None if so is None else so.get(carries)
+                        if val is not None or carries not in inputs:
+                            inputs[carries] = val
             try:
-                mod = pool[name]
-                out = mod.output(t) if inputs is None else mod.step(t, dt, inputs)
-                reason = publish(name, out, t)
+                out = mod.step(t, dt, inputs) if stepped else mod.output(t)
+                if checked:
+                    reason = publish(name, out, t)
+                else:
+                    outs[name] = {} if out is None else out
+                    reason = None
             except Exception as exc:  # noqa: BLE001 - a failing module must not stop the run
                 reason = f"raised {type(exc).__name__}"
-            if reason is None and inputs is not None:
-                for s in req[name]:
+            if reason is None and stepped:
+                for s in req:
                     if inputs.get(s) is None:
                         reason = f"lost input {s}"
                         break
@@ -247,16 +283,24 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
                 ok[name] = False
                 why[name] = reason
         # phase 3: the state-only modules advance to t + dt
-        for name in plan.nonft:
-            inputs = gather(name)
+        for name, mod, direct, req in bound[2]:
+            if direct is None:
+                inputs = gather(name)
+            else:
+                inputs = {}
+                for carries, src in direct:
+                    so = outs.get(src)
+                    val = None if so is None else so.get(carries)
+                    if val is not None or carries not in inputs:
+                        inputs[carries] = val
             try:
-                pool[name].step(t, dt, inputs)
+                mod.step(t, dt, inputs)
             except Exception as exc:  # noqa: BLE001
                 ok[name] = False
                 why[name] = f"raised {type(exc).__name__}"
                 continue
             if ok[name]:
-                for s in req[name]:
+                for s in req:
                     if inputs.get(s) is None:
                         ok[name] = False
                         why[name] = f"lost input {s}"
@@ -364,6 +408,7 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
     def set_params(self, module: str, values: Mapping[str, Any]) -> None:
         """Apply a parameter update to ``module`` (instantiated if not yet used)."""
         self._module(module).set_params(dict(values))
+        self._bound = None  # its noise levels or silence limit may have changed
 
     def pool(self) -> dict[str, RuntimeModule]:
         """Every module instantiated so far (active or not)."""

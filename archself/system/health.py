@@ -20,7 +20,7 @@ import numpy as np
 
 from archself.modules.base import RuntimeModule
 
-__all__ = ["NOT_NUMERIC", "Publishing", "STALE_REPEATS", "is_bad"]
+__all__ = ["NOT_NUMERIC", "Publishing", "STALE_REPEATS", "is_bad", "needs_checks"]
 
 _isfinite = math.isfinite
 NOT_NUMERIC: frozenset[type] = frozenset({str, bool, type(None)})  # never numbers
@@ -42,6 +42,23 @@ def is_bad(value: Any) -> bool:
     if isinstance(value, (float, np.floating)):
         return not math.isfinite(float(value))
     return False
+
+
+def needs_checks(module: RuntimeModule, faults: Any = None) -> bool:
+    """Whether the executor checks what ``module`` publishes (:meth:`Publishing._publish`).
+
+    False only when nothing there can fail: the type declares ``finite_outputs``
+    (:class:`~archself.modules.base.RuntimeModule`: finite inputs give finite outputs),
+    no fault is injected into its outputs, and it declares neither a silence limit
+    (``max_silence_s``) nor noise levels (``noise_levels``). A type that declares
+    nothing keeps every check. Raising and lost inputs are checked for every module.
+    """
+    return bool(
+        faults
+        or not getattr(type(module), "finite_outputs", False)
+        or getattr(module, "max_silence_s", None) is not None
+        or getattr(module, "noise_levels", None)
+    )
 
 
 class Publishing:

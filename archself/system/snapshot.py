@@ -40,6 +40,7 @@ class Snapshots:
     _broken: set[str]
     _faults: dict[str, list[tuple[str, Any]]]
     _delay: dict[int, Any]
+    _bound: Any
     _edge_rng: dict[int, Any]
     _obj_actual: Any
     _obj_ref: Any
@@ -60,6 +61,7 @@ class Snapshots:
         """
         memo = {id(self.arch): self.arch, id(self._factory): self._factory}
         memo.update((id(p), p) for p in (*self._plans.values(), *self._scoped.values()))
+        memo[id(self._bound)] = None  # the ops bind this system's modules: made again
         if only is None:
             return copy.deepcopy(self, memo)
         keep = frozenset(only) if self._scope is None else self._scope.intersection(only)

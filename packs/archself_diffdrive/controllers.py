@@ -85,6 +85,7 @@ class LqrController(RuntimeModule):
     |estimate − reference| position (m).
     """
 
+    finite_outputs = True  # a gain times finite errors, clipped (needs_checks)
     state_fields = ()  # static: v_ref and K are scheduled from the reference
 
     parameters: ClassVar[dict[str, Param]] = {

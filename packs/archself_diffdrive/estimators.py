@@ -211,6 +211,7 @@ class Odometry(_PoseEstimator):
     array([0.5, 0. , 0. ])
     """
 
+    finite_outputs = True  # sums of finite increments (needs_checks)
     state_fields = ("x", "y", "th")  # the variance grows open loop: not a signal
 
     parameters = {

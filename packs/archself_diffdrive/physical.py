@@ -56,6 +56,8 @@ class DiffDrivePlant(RuntimeModule):
     array([0.5, 0. , 0. ])
     """
 
+    finite_outputs = True  # wheel speeds clipped: a bounded move a step (needs_checks)
+
     state_fields = ("pose", "wl", "wr")
 
     parameters = {
@@ -204,6 +206,8 @@ class WheelActuator(RuntimeModule):
     >>> round(w.local_signals()["command_error"], 3)   # faster than commanded
     -0.3
     """
+
+    finite_outputs = True  # a finite command times a finite effectiveness (needs_checks)
 
     state_fields = ("prev_cmd", "expected")
 

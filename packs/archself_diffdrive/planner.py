@@ -139,6 +139,8 @@ class SplinePlanner(RuntimeModule):
     array([1. , 0. , 0. , 0.5, 0. ])
     """
 
+    finite_outputs = True  # a precomputed table (archself.system.health.needs_checks)
+
     parameters = {
         "waypoints": Param(unit="m", doc="list of at least two [x, y] points", min=-1e6, max=1e6),
         "speed_mps": Param(0.5, "m/s", "speed along the path", min=0.001, max=50.0),
