@@ -163,6 +163,52 @@ def test_failing_module_is_held_and_flagged(toys):
     assert flags[1.6] == (True, pytest.approx(1.6))  # recovered
 
 
+class _FlakyFinite(_Flaky):
+    finite_outputs = True  # a false declaration: its NaN goes unchecked
+
+
+def test_declared_finite_outputs_skip_the_scan_and_a_fault_restores_it(toys):
+    """A type declaring ``finite_outputs`` is not scanned for NaN (its declaration is
+    trusted); the same type with a fault on its outputs, or a type declaring nothing,
+    is (health.needs_checks)."""
+    from archself.system.health import needs_checks
+
+    register("toy.flaky_finite")(_FlakyFinite)
+    try:
+        a = toy_arch(
+            {"src": "toy.clock", "f": "toy.flaky_finite", "sink": "toy.pass"},
+            [{"from": "src", "to": "f"}, {"from": "f", "to": "sink"}],
+        )
+        s = compile_system(a, "c", seed=0)
+        for _ in range(25):  # to t = 1.2: it publishes NaN from t = 1.0
+            s.step()
+        assert s.available()["f"] is True
+        assert math.isnan(s.outputs["f"]["value"])  # published unchecked
+        mod = s.modules["f"]
+        assert not needs_checks(mod)
+        assert needs_checks(mod, [("value", object())])  # a fault on its outputs
+        assert needs_checks(s.modules["sink"])  # declares nothing: checked
+        mod.noise_levels = {"value": 0.1}
+        assert needs_checks(mod)  # a stale test to run
+    finally:
+        unregister("toy.flaky_finite")
+
+
+def test_keep_records_only_the_series_asked_for(arch):
+    """``simulate(keep=())`` records J alone, with the same J and metrics as a full
+    recording; an unknown series is a located error with the known names."""
+    full = simulate(arch, "nominal", configuration="a1", seed=3)
+    lean = simulate(arch, "nominal", configuration="a1", seed=3, keep=())
+    some = simulate(arch, "nominal", configuration="a1", seed=3, keep=["actual"])
+    assert sorted(lean.series) == ["J", "configuration", "t"]
+    assert sorted(some.series) == ["J", "actual", "configuration", "t"]
+    assert_array_equal(lean.series["J"], full.series["J"])
+    assert_array_equal(some.series["actual"], full.series["actual"])
+    assert lean.metrics == full.metrics
+    with pytest.raises(SimulationError, match="unknown series 'refrence'; did you mean"):
+        simulate(arch, "nominal", configuration="a1", seed=3, keep=["refrence"])
+
+
 def test_lost_input_marks_unavailable(arch):
     from archself.model.architecture import Fault, Scenario
 

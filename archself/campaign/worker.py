@@ -120,7 +120,9 @@ def run_job(job: Job) -> dict[str, Any]:
 
             adapt = MapeK(arch)
         # the cached model is shared by the runs of this process: give each run its own copy
-        result = simulate(arch.model_copy(deep=True), job.scenario, seed=job.seed, adapt=adapt)
+        # a row keeps J's metrics and the switches: the series only for a trace
+        result = simulate(arch.model_copy(deep=True), job.scenario, seed=job.seed, adapt=adapt,
+                          keep=None if job.trace is not None else ())
         updates = None
         if adapt is not None:
             updates = [(u["action"], u["t_s"]) for u in adapt.updates]

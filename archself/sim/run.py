@@ -24,7 +24,7 @@ The metrics are in :mod:`archself.sim.metrics` and :class:`RunResult` in
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,7 +40,7 @@ from archself.system.objective import objective_norm
 
 __all__ = [
     "METRICS", "METRE_ALIASES", "Recording", "RunResult", "simulate", "error_metrics",
-    "metric_rows",
+    "metric_rows", "series_names",
 ]
 
 
@@ -161,20 +161,34 @@ class Recording:
     conf: np.ndarray
     res: np.ndarray
     cols: dict[str, np.ndarray] = field(default_factory=dict)
+    keep: frozenset[str] | None = None
 
     @classmethod
-    def of(cls, arch: Architecture, scenario: str, width: int) -> Recording:
-        """Empty series of ``width`` runs of ``scenario`` (a scenario of ``arch``)."""
+    def of(
+        cls, arch: Architecture, scenario: str, width: int, keep: Collection[str] | None = None
+    ) -> Recording:
+        """Empty series of ``width`` runs of ``scenario`` (a scenario of ``arch``).
+
+        ``keep``: the series to record besides ``t``, ``J`` and ``configuration``
+        (:func:`series_names`); None: every one.
+        """
         rt = arch.runtime
         dt = float(rt.step_s)
         n = int(round(arch.scenarios[scenario].duration_s / dt))
-        res_mods = [(m, spec.residual.signal) for m, spec in arch.modules.items() if spec.residual]
+        wanted = None if keep is None else frozenset(keep)
+        res_mods = [(m, spec.residual.signal) for m, spec in arch.modules.items()
+                    if spec.residual and (wanted is None or f"residual.{m}" in wanted)]
+        record = [(k, sig) for k, sig in rt.record.items() if wanted is None or k in wanted]
         return cls(
-            scenario, n, dt, list(rt.objective.components), list(rt.record.items()), res_mods,
+            scenario, n, dt, list(rt.objective.components), record, res_mods,
             {c: k for k, c in enumerate(arch.configurations)}, np.empty(n),
             np.full((n, width), np.nan), np.zeros((n, width), dtype=int),
-            np.full((n, width, len(res_mods)), np.nan),
+            np.full((n, width, len(res_mods)), np.nan), keep=wanted,
         )
+
+    def wants(self, key: str) -> bool:
+        """Whether series ``key`` is recorded."""
+        return self.keep is None or key in self.keep
 
     def put(self, key: str, i: int, val: Any) -> None:
         """One run's value of series ``key`` at step ``i``: any number or vector, its width
@@ -250,7 +264,7 @@ class _Run:
 
 def _plan(
     arch: Architecture | str | Path, scenario: str, configuration: str | None, seed: int | None,
-    adapt: Any, progress: Any,
+    adapt: Any, progress: Any, keep: Collection[str] | None = None,
 ) -> _Run:
     """Check the arguments, load the file if a path, compile the start configuration.
 
@@ -275,10 +289,36 @@ def _plan(
     sc = arch.scenarios.get(scenario)
     if sc is None:
         raise SimulationError(unknown("scenario", scenario, arch.scenarios))
+    if keep is not None:
+        names = series_names(arch)
+        keep = [keep] if isinstance(keep, str) else list(keep)
+        for key in keep:
+            if key not in names:
+                raise SimulationError(unknown("series", key, names))
     seed = sc.seed if seed is None else int(seed)
     start = configuration or arch.initial_configuration()
     system = compile_system(arch, start, seed=seed, scenario=sc)
-    return _Run(arch, seed, start, system, Recording.of(arch, scenario, 1))
+    return _Run(arch, seed, start, system, Recording.of(arch, scenario, 1, keep))
+
+
+def series_names(arch: Architecture) -> list[str]:
+    """The series a run can record besides ``t``, ``J`` and ``configuration``: the
+    objective's ``reference`` and ``actual``, each ``runtime.record`` series and
+    ``residual.<module>`` of each module with a residual block (``simulate(keep=…)``)."""
+    return ["reference", "actual", *arch.runtime.record,
+            *(f"residual.{m}" for m, spec in arch.modules.items() if spec.residual)]
+
+
+def _columns(rec: Recording, values: list[tuple[str, Any, str]]) -> list[Any]:
+    """The recorded vector series of a configuration: ``[key, module, signal, row view,
+    row shape]``; a series without a column yet gets it from :meth:`Recording.put` (the
+    width of its first value), its view then."""
+    cols = []
+    for key, src, sig in values:
+        arr = rec.cols.get(key)
+        cols.append([key, src, sig, None if arr is None else arr[:, 0],
+                     None if arr is None else arr.shape[2:]])
+    return cols
 
 
 def _step(
@@ -286,41 +326,51 @@ def _step(
     adapt: Callable[[Any], list[dict[str, Any]] | None] | None,
     progress: Callable[[int, int], None] | None,
 ) -> list[dict[str, Any]]:
-    """Step the run's system through the scenario, record every step, call ``adapt``
-    every ``runtime.period_s``; the switches it made."""
+    """Step the run's system through the scenario, record every step (the series the
+    recording keeps), call ``adapt`` every ``runtime.period_s``; the switches it made."""
     system, rec, rt = run.system, run.rec, run.arch.runtime
     n = rec.n
     per = max(1, int(round(rt.period_s / rec.dt)))
     every = max(1, n // 100)
     act_mod, act_sig = rt.objective.actual.rsplit(".", 1)
     ref_mod, ref_sig = rt.objective.reference.rsplit(".", 1)
+    fixed = [(k, m, sig) for k, m, sig in (("reference", ref_mod, ref_sig),
+                                           ("actual", act_mod, act_sig)) if rec.wants(k)]
     switches: list[dict[str, Any]] = []
-    sources: list[tuple[str, str, str]] = []  # (series, module, signal) of the configuration
+    cols: list[Any] = []  # _columns of the configuration
     res_idx: list[tuple[int, Any, str]] = []
     cur_conf, index = None, -1
     outputs = system.outputs
+    t_col, J_col, conf_col, res = rec.t, rec.J[:, 0], rec.conf[:, 0], rec.res[:, 0]
+    comps, put, empty = rec.comps, rec.put, {}
     for i in range(n):
         system.step()
         if system.configuration != cur_conf:
             cur_conf = system.configuration
             index = rec.conf_index.get(cur_conf, -1)
-            sources = [(key, src, sig) for key, sig in rec.record
-                       if (src := _publisher(system, sig)) is not None]
+            cols = _columns(rec, fixed + [(key, src, sig) for key, sig in rec.record
+                                             if (src := _publisher(system, sig)) is not None])
             active, modules = system.active, system.modules
             res_idx = [(j, modules[m], s) for j, (m, s) in enumerate(rec.res_mods) if m in active]
-        rec.t[i] = system.t
-        a = outputs.get(act_mod, {}).get(act_sig)
-        r = outputs.get(ref_mod, {}).get(ref_sig)
-        rec.J[i, 0] = objective_norm(a, r, rec.comps)
-        rec.conf[i, 0] = index
-        rec.put("reference", i, r)
-        rec.put("actual", i, a)
-        for key, src, sig in sources:
-            rec.put(key, i, outputs.get(src, {}).get(sig))
+        t_col[i] = system.t
+        J_col[i] = objective_norm(outputs.get(act_mod, empty).get(act_sig),
+                                  outputs.get(ref_mod, empty).get(ref_sig), comps)
+        conf_col[i] = index
+        for col in cols:
+            val = outputs.get(col[1], empty).get(col[2])
+            if val is None:
+                continue
+            if col[3] is not None and type(val) is np.ndarray and val.shape == col[4]:
+                col[3][i] = val  # the common case: a vector of the column's width
+            else:
+                put(col[0], i, val)
+                if col[3] is None and col[0] in rec.cols:  # its first value made the column
+                    arr = rec.cols[col[0]]
+                    col[3], col[4] = arr[:, 0], arr.shape[2:]
         for j, mod, s in res_idx:
             sigs = getattr(mod, "signals", None)
             v = sigs.get(s) if sigs is not None else None
-            rec.res[i, 0, j] = mod.local_signals().get(s, math.nan) if v is None else v
+            res[i, j] = mod.local_signals().get(s, math.nan) if v is None else v
         if adapt is not None and (i + 1) % per == 0:
             out = adapt(system)
             if out:
@@ -338,6 +388,7 @@ def simulate(
     seed: int | None = None,
     adapt: Callable[[Any], list[dict[str, Any]] | None] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    keep: Collection[str] | None = None,
 ) -> RunResult:
     """Simulate ``scenario`` on ``arch``, fixed or with an adaptation loop.
 
@@ -357,6 +408,11 @@ def simulate(
         If it has a ``decisions`` list attribute, that log goes into the trace.
     progress : callable, optional
         ``progress(done_steps, total_steps)``, called about 100 times.
+    keep : collection of str, optional
+        The series to record besides ``t``, ``J`` and ``configuration`` (names from
+        :func:`series_names`: ``reference``, ``actual``, the ``runtime.record`` series,
+        ``residual.<module>``); ``()`` records J alone (a campaign that keeps the
+        metrics). None (the default): every series.
 
     Returns
     -------
@@ -365,11 +421,11 @@ def simulate(
     Raises
     ------
     SimulationError
-        Unknown scenario.
+        Unknown scenario or series.
     CompileError
         The configuration cannot be built.
     """
-    run = _plan(arch, scenario, configuration, seed, adapt, progress)
+    run = _plan(arch, scenario, configuration, seed, adapt, progress, keep)
     switches = _step(run, adapt, progress)
     return run.rec.result(
         0, run.arch, run.seed, "fixed" if adapt is None else "adaptive", run.start,
