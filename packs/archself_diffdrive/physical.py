@@ -137,11 +137,39 @@ class DiffDrivePlant(RuntimeModule):
             u = (self.wl, self.wr)
         if self.slip > 0 or self.lateral > 0 or self.yaw > 0:
             u = self._disturb(u, dt)
-            self.pose = integrate_pose(t, self.pose, u, self._kp)
-            self.pose += self._process_noise(dt)
+            self.pose = self._noisy_pose(self._move(u, dt), dt)
         else:
             self.pose = integrate_pose(t, self.pose, u, self._kp)
         return {}
+
+    def _move(self, u: tuple[float, float], dt: float) -> tuple[float, float, float]:
+        """:func:`integrate_pose` of the pose on floats (the same operations, no arrays)."""
+        (el, er), r, b = self._kp["effectiveness"], self.radius, self._kp["wheel_base_m"]
+        wl, wr = float(u[0]) * el, float(u[1]) * er
+        v = r * (wl + wr) / 2.0
+        w = r * (wr - wl) / b
+        px, py, th = self.pose.tolist()
+        dth = w * dt
+        if abs(dth) < 1e-9:
+            mid = th + 0.5 * dth
+            px += v * dt * math.cos(mid)
+            py += v * dt * math.sin(mid)
+        else:
+            rad = v / w
+            px += rad * (math.sin(th + dth) - math.sin(th))
+            py -= rad * (math.cos(th + dth) - math.cos(th))
+        return px, py, th + dth
+
+    def _noisy_pose(self, pose: tuple[float, float, float], dt: float) -> np.ndarray:
+        """``pose`` plus the lateral and yaw noise over ``dt`` (two draws)."""
+        px, py, th = pose
+        if (self.lateral <= 0 and self.yaw <= 0) or dt <= 0:
+            return np.array([px, py, th])
+        sq = math.sqrt(dt)
+        n0, n1 = self.rng.standard_normal(2).tolist()
+        lat = self.lateral * (n0 * sq)
+        return np.array([px + -math.sin(th) * lat, py + math.cos(th) * lat,
+                         th + self.yaw * (n1 * sq)])
 
     def _disturb(self, u: tuple[float, float], dt: float) -> tuple[float, float]:
         """Wheel speeds whose ground travel carries the slip: σ² = k·|r·ω·dt| per wheel."""
@@ -154,15 +182,6 @@ class DiffDrivePlant(RuntimeModule):
             wl + math.sqrt(self.slip * abs(r * wl * dt)) * float(n[0]) / (r * dt),
             wr + math.sqrt(self.slip * abs(r * wr * dt)) * float(n[1]) / (r * dt),
         )
-
-    def _process_noise(self, dt: float) -> np.ndarray:
-        """Pose increment of the lateral and yaw noise over ``dt``."""
-        if (self.lateral <= 0 and self.yaw <= 0) or dt <= 0:
-            return np.zeros(3)
-        n = self.rng.standard_normal(2) * math.sqrt(dt)
-        th = float(self.pose[2])
-        lat = self.lateral * float(n[0])
-        return np.array([-math.sin(th) * lat, math.cos(th) * lat, self.yaw * float(n[1])])
 
     def export_state(self):
         return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
