@@ -56,7 +56,13 @@ from archself.errors import SimulationError
 from archself.model.architecture import Architecture
 from archself.modules.base import RuntimeModule
 from archself.system.dataflow import algebraic_loop
-from archself.system.health import NOT_NUMERIC, STALE_REPEATS, Publishing, needs_checks
+from archself.system.health import (
+    NOT_NUMERIC,
+    STALE_REPEATS,
+    Publishing,
+    declared_limits,
+    needs_checks,
+)
 from archself.system.linearizing import Linearizing
 from archself.system.objective import component_error, objective_norm
 from archself.system.snapshot import Snapshots
@@ -220,16 +226,17 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
         """The ops of ``plan`` on this system's modules: what :meth:`step` runs, flat.
 
         One tuple per publishing module, ``(name, module, stepped, direct routes,
-        required inputs, checked)``, and one per state-only module of phase 3,
-        ``(name, module, direct routes, required inputs)``. ``checked`` is False for
-        a module :func:`~archself.system.health.needs_checks` finds nothing to check
-        on: its outputs are published as they are. Made when the plan or a module's
-        parameters change (:meth:`set_params`), never per step.
+        required inputs, limits)``, and one per state-only module of phase 3,
+        ``(name, module, direct routes, required inputs)``. ``limits`` is None for a
+        module :func:`~archself.system.health.needs_checks` finds nothing to check on
+        (its outputs are published as they are), else its ``(max_silence_s,
+        noise_levels)``. Made when the plan or a module's parameters change
+        (:meth:`set_params`), never per step.
         """
         pool = self._pool
         publishing = [
             (n, pool[n], stepped, plan.direct[n] if stepped else (), plan.required[n],
-             needs_checks(pool[n], self._faults.get(n)))
+             declared_limits(pool[n]) if needs_checks(pool[n], self._faults.get(n)) else None)
             for n, stepped in plan.publishing
         ]
         advancing = [(n, pool[n], plan.direct[n], plan.required[n]) for n in plan.nonft]
@@ -250,7 +257,7 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
         gather = self._gather
         inputs: dict[str, Any] = {}
         # phases 1 and 2: the state-only outputs, then the feedthrough modules in order
-        for name, mod, stepped, direct, req, checked in bound[1]:
+        for name, mod, stepped, direct, req, limits in bound[1]:
             if stepped:
                 if direct is None:
                     inputs = gather(name)
@@ -263,8 +270,8 @@ class LiveSystem(Publishing, Linearizing, Snapshots):
                             inputs[carries] = val
             try:
                 out = mod.step(t, dt, inputs) if stepped else mod.output(t)
-                if checked:
-                    reason = publish(name, out, t)
+                if limits is not None:
+                    reason = publish(name, out, t, limits)
                 else:
                     outs[name] = {} if out is None else out
                     reason = None

@@ -20,7 +20,8 @@ import numpy as np
 
 from archself.modules.base import RuntimeModule
 
-__all__ = ["NOT_NUMERIC", "Publishing", "STALE_REPEATS", "is_bad", "needs_checks"]
+__all__ = ["NOT_NUMERIC", "Publishing", "STALE_REPEATS", "declared_limits", "is_bad",
+           "needs_checks"]
 
 _isfinite = math.isfinite
 NOT_NUMERIC: frozenset[type] = frozenset({str, bool, type(None)})  # never numbers
@@ -42,6 +43,11 @@ def is_bad(value: Any) -> bool:
     if isinstance(value, (float, np.floating)):
         return not math.isfinite(float(value))
     return False
+
+
+def declared_limits(module: RuntimeModule) -> tuple[Any, Any]:
+    """``(max_silence_s, noise_levels)`` of ``module``: what its silence and stale checks need."""
+    return getattr(module, "max_silence_s", None), getattr(module, "noise_levels", None)
 
 
 def needs_checks(module: RuntimeModule, faults: Any = None) -> bool:
@@ -73,12 +79,15 @@ class Publishing:
     _broken: set[str]
     _not_numeric: set[type]
 
-    def _publish(self, name: str, out: dict[str, Any] | None, t: float) -> str | None:
+    def _publish(
+        self, name: str, out: dict[str, Any] | None, t: float, limits: tuple[Any, Any] | None = None
+    ) -> str | None:
         """Apply the faults and publish ``out``; the reason the module is unavailable, or None.
 
         The reason covers the module's own output only: a non-finite value, silence
         longer than its ``max_silence_s``, or a noisy signal (``noise_levels``) that
-        repeated itself ``STALE_REPEATS`` times.
+        repeated itself ``STALE_REPEATS`` times. ``limits``: the module's
+        ``(max_silence_s, noise_levels)`` as the caller read them (None: read here).
         """
         if out is None:
             out = {}
@@ -110,19 +119,17 @@ class Publishing:
                 return "non-finite output"
             heard = True
         self.outputs[name] = out
-        mod = self._pool[name]
         if heard:
             self._heard[name] = t
             if self._broken:
                 self._broken.discard(name)
         elif name in self._broken:  # its last value was NaN: broken until a good one comes
             return "non-finite output"
-        limit = getattr(mod, "max_silence_s", None)
+        limit, levels = limits or declared_limits(self._pool[name])
         if limit is not None:  # (quiet is 0 when heard now)
             quiet = t - self._heard.setdefault(name, t)
             if quiet > float(limit) + 1e-9:
                 return f"silent for {quiet:.3g} s"
-        levels = getattr(mod, "noise_levels", None)
         return self._count_repeats(name, levels, out) if levels else None
 
     def _count_repeats(
