@@ -342,7 +342,8 @@ def _step(
     cur_conf, index = None, -1
     outputs = system.outputs
     t_col, J_col, conf_col, res = rec.t, rec.J[:, 0], rec.conf[:, 0], rec.res[:, 0]
-    comps, put, empty = rec.comps, rec.put, {}
+    comps, put = rec.comps, rec.put
+    empty: dict[str, Any] = {}
     for i in range(n):
         system.step()
         if system.configuration != cur_conf:

@@ -113,6 +113,8 @@ class DiffDrivePlant(RuntimeModule):
             "effectiveness": [float(e) for e in p["effectiveness"]],
         }
         self.radius = float(p["wheel_radius_m"])
+        self._base = float(p["wheel_base_m"])
+        self._eff = (float(p["effectiveness"][0]), float(p["effectiveness"][1]))
         self.slip = float(p["slip_variance_m"])
         self.lateral = float(p["lateral_noise_m_sqrt_s"])
         self.yaw = float(p["yaw_noise_rad_sqrt_s"])
@@ -144,7 +146,7 @@ class DiffDrivePlant(RuntimeModule):
 
     def _move(self, u: tuple[float, float], dt: float) -> tuple[float, float, float]:
         """:func:`integrate_pose` of the pose on floats (the same operations, no arrays)."""
-        (el, er), r, b = self._kp["effectiveness"], self.radius, self._kp["wheel_base_m"]
+        (el, er), r, b = self._eff, self.radius, self._base
         wl, wr = float(u[0]) * el, float(u[1]) * er
         v = r * (wl + wr) / 2.0
         w = r * (wr - wl) / b
