@@ -29,7 +29,7 @@ from archself_diffdrive.drift_glr import DriftGlr
 from archself_diffdrive.models import Kinematics
 
 __all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf", "predict_rows",
-           "update_heading_rows"]
+           "update_heading_rows", "update_position_rows"]
 
 _DEFAULT_KIN = Kinematics()
 #: Parameters both estimators take.
@@ -379,7 +379,10 @@ class Ekf(_PoseEstimator):
     Predict with the encoder speeds (unicycle model, encoder noise propagated
     into Q) and the bias as a local ramp (``b ← b + ḃ·dt``); update with the IMU
     heading (``h = θ + b``) every step and with a GPS position whenever a fix
-    arrives (filterpy's ``ExtendedKalmanFilter.update``).
+    arrives. The three steps are closed forms written once for one row here and L
+    rows in :class:`~archself_diffdrive.lanes_estimators.EkfLanes`
+    (:func:`predict_rows`, :func:`update_heading_rows`, :func:`update_position_rows`);
+    filterpy's ``ExtendedKalmanFilter`` is their test oracle (tests/test_modules.py).
 
     Why a rate state: a gyro's heading bias drifts — an integrated rate error
     grows linearly in time (Groves, *Principles of GNSS, Inertial, and
@@ -444,7 +447,6 @@ class Ekf(_PoseEstimator):
 
     lanes = "archself_diffdrive.lanes_estimators:EkfLanes"
     _N = 5  # state size
-    _H_GPS = np.eye(2, 5)
 
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
@@ -490,19 +492,22 @@ class Ekf(_PoseEstimator):
         self.x, self.P = x[0], P[0]
 
     def update_position(self, pos) -> tuple[float, float]:
-        """Update with a GPS fix (filterpy's ``ExtendedKalmanFilter.update``).
+        """Update with a GPS fix (:func:`update_position_rows` of one row).
 
         Returns the innovation ``z − Hx``.
-        """
-        from filterpy.kalman import ExtendedKalmanFilter
 
+        Raises
+        ------
+        ValueError
+            The position covariance is not finite (as filterpy's update raises).
+        """
         ex = float(pos[0]) - float(self.x[0])
         ey = float(pos[1]) - float(self.x[1])
-        kf = ExtendedKalmanFilter(dim_x=self._N, dim_z=2)
-        kf.x = self.x.copy()
-        kf.P = self.P.copy()
-        kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
-        self.x, self.P = kf.x, kf.P
+        if not math.isfinite(float(self.P[:2, :2].sum())):
+            raise ValueError("array must not contain infs or NaNs")
+        z = np.array([[float(pos[0]), float(pos[1])]])
+        x, P = update_position_rows(self.x[None], self.P[None], z, self.R_gps[0, 0])
+        self.x, self.P = x[0], P[0]
         return ex, ey
 
     # data flow ---------------------------------------------------------------
@@ -611,9 +616,23 @@ def update_heading_rows(x, P, heading, r_head):
     return x, A
 
 
-def _h_gps(x):
-    return np.array([x[0], x[1]])
-
-
-def _h_gps_jac(x):
-    return Ekf._H_GPS
+def update_position_rows(x, P, z, r2):
+    """:meth:`Ekf.update_position` of every row: a GPS fix ``z`` (L, 2) with
+    ``H = [I₂ 0]`` and ``R = r2·I₂`` (``r2`` per row or a scalar), Joseph form
+    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` written out: ``S`` is P's leading 2×2 block plus
+    R, inverted by its adjugate, ``K = P[:, :2] S⁻¹``. filterpy's
+    ``ExtendedKalmanFilter.update`` is the test's oracle (1e-12 relative).
+    """
+    r2 = np.broadcast_to(np.asarray(r2, dtype=float), x.shape[:1])
+    ph = P[:, :, :2]  # P Hᵀ
+    a, b, d = ph[:, 0, 0] + r2, ph[:, 0, 1], ph[:, 1, 1] + r2  # S = [[a, b], [b, d]]
+    det = a * d - b * b
+    K = np.empty_like(ph)
+    K[:, :, 0] = (ph[:, :, 0] * d[:, None] - ph[:, :, 1] * b[:, None]) / det[:, None]
+    K[:, :, 1] = (ph[:, :, 1] * a[:, None] - ph[:, :, 0] * b[:, None]) / det[:, None]
+    Kt = K.transpose(0, 2, 1)
+    A = P - K @ P[:, :2, :]  # (I − K H) P
+    A = A - A[:, :, :2] @ Kt + r2[:, None, None] * (K @ Kt)
+    A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
+    x = x + (K @ (z - x[:, :2])[:, :, None])[:, :, 0]
+    return x, A
