@@ -164,6 +164,102 @@ def test_lqr_gain_closed_form(v, q):
     assert_allclose(K, expected, rtol=1e-6, atol=1e-9)
 
 
+@pytest.fixture
+def design_cache(tmp_path, monkeypatch):
+    """A fresh, empty design cache and memo (archself.linear.designs)."""
+    from archself.linear import designs
+
+    monkeypatch.setenv("ARCHSELF_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("ARCHSELF_CACHE", raising=False)
+    monkeypatch.setattr(designs, "_MEMO", {})
+    return tmp_path / "designs"
+
+
+def _design_inputs():
+    A, B = error_dynamics(0.7)
+    return A, B, np.diag([1.0, 0.3, 0.05]), np.diag([1.5, 0.7])
+
+
+def test_lqr_design_cache_hit_and_miss_give_the_same_gain_to_the_bit(design_cache) -> None:
+    import control
+
+    from archself.linear import designs
+
+    want = np.asarray(control.lqr(*_design_inputs())[0], dtype=float)
+    miss = designs.lqr(*_design_inputs())
+    (entry,) = design_cache.glob("*.json")  # one entry, named by its key
+    assert miss.tobytes() == want.tobytes() and not miss.flags.writeable
+    assert designs.lqr(*_design_inputs()) is miss  # the in-process memo
+    designs._MEMO.clear()
+    hit = designs.lqr(*_design_inputs())  # read back from the file
+    assert hit is not miss and hit.tobytes() == want.tobytes()
+    # other inputs (here R) are another design and another entry
+    A, B, Q, R = _design_inputs()
+    other = designs.lqr(A, B, Q, 2.0 * R)
+    assert len(list(design_cache.glob("*.json"))) == 2
+    assert np.abs(other - want).max() > 1e-3
+    assert entry.read_text().startswith('{"key": ')
+
+
+@pytest.mark.parametrize("damage", ["corrupt", "truncated", "foreign", "wrong shape"])
+def test_a_damaged_or_foreign_design_entry_is_ignored_and_rewritten(design_cache,
+                                                                   damage) -> None:
+    import json
+
+    from archself.linear import designs
+
+    want = designs.lqr(*_design_inputs())
+    (entry,) = design_cache.glob("*.json")
+    good = json.loads(entry.read_text())
+    bad = {"corrupt": "not json {",
+           "truncated": entry.read_text()[:40],
+           "foreign": json.dumps({**good, "key": "0" * 64,
+                                  "gain": [float(9.0).hex()] * 6}),
+           "wrong shape": json.dumps({**good, "shape": [3, 2]})}[damage]
+    entry.write_text(bad)
+    designs._MEMO.clear()
+    got = designs.lqr(*_design_inputs())
+    assert got.tobytes() == want.tobytes()
+    assert json.loads(entry.read_text()) == good  # designed again and rewritten
+
+
+def test_the_design_cache_can_be_switched_off_or_unwritable(design_cache, monkeypatch) -> None:
+    from archself.linear import designs
+
+    monkeypatch.setenv("ARCHSELF_CACHE", "off")
+    assert designs.cache_dir() is None
+    off = designs.lqr(*_design_inputs())
+    assert not design_cache.exists()
+    monkeypatch.delenv("ARCHSELF_CACHE")
+    design_cache.parent.joinpath("file").write_text("")
+    monkeypatch.setenv("ARCHSELF_CACHE_DIR", str(design_cache.parent / "file"))
+    designs._MEMO.clear()
+    assert designs.lqr(*_design_inputs()).tobytes() == off.tobytes()  # no error either
+
+
+def test_a_run_with_cached_designs_imports_no_python_control_and_is_the_same(
+    tmp_path,
+) -> None:
+    """Two processes with one design cache: the first designs (python-control), the
+    second reads the gains and never imports python-control; the traces are equal."""
+    import os
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from archself.sim.run import simulate\n"
+        f"res = simulate({str(DIFFDRIVE)!r}, 'imu_drift', seed=2)\n"
+        "sys.stdout.write(np.asarray(res.series['J'], dtype=float).tobytes().hex()\n"
+        "                 + ' ' + str('control' in sys.modules))\n"
+    )
+    env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env=env) for _ in range(2)]
+    (j1, imported1), (j2, imported2) = (r.stdout.split() for r in runs)
+    assert (imported1, imported2) == ("True", "False"), runs[1].stderr[-2000:]
+    assert j1 == j2 and len(j1) > 1000
+
+
 def test_lqr_linearization_is_stable_and_updates():
     c = LqrController(
         "lqr",
