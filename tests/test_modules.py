@@ -214,7 +214,7 @@ def test_a_damaged_or_foreign_design_entry_is_ignored_and_rewritten(design_cache
     bad = {"corrupt": "not json {",
            "truncated": entry.read_text()[:40],
            "foreign": json.dumps({**good, "key": "0" * 64,
-                                  "gain": [float(9.0).hex()] * 6}),
+                                  "gain": [(9.0).hex()] * 6}),
            "wrong shape": json.dumps({**good, "shape": [3, 2]})}[damage]
     entry.write_text(bad)
     designs._MEMO.clear()
