@@ -44,7 +44,10 @@ def cache_dir() -> Path | None:
     root = os.environ.get("ARCHSELF_CACHE_DIR")
     if not root:
         xdg = os.environ.get("XDG_CACHE_HOME")
-        root = str(Path(xdg) / "archself") if xdg else str(Path.home() / ".cache" / "archself")
+        try:
+            root = str(Path(xdg) / "archself") if xdg else str(Path.home() / ".cache" / "archself")
+        except RuntimeError:  # no home folder to be found: no cache
+            return None
     return Path(root) / "designs"
 
 
