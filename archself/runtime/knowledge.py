@@ -213,6 +213,20 @@ class Knowledge:
             scale=self.w_scale,
         )
 
+    def set_weight(self, source: str, target: str, weight: float) -> None:
+        """Set the weight of the pair ``source → target`` (online W, runtime/online.py).
+
+        Parallel edges of the pair keep their shares; the factorization and the
+        weights' users re-read W at their next use.
+        """
+        keys = [k for k in self._weights if k[0] == source and k[1] == target]
+        total = sum(self._weights[k] for k in keys)
+        for k in keys:
+            self._weights[k] = weight * (self._weights[k] / total if total else 1 / len(keys))
+        self.solver.key = None
+        if self._graph is not None and self._graph.has_edge(source, target):
+            self._graph.edges[source, target]["weight"] = weight
+
     def arch_weight(self, source: str, target: str, carries: str) -> float:
         """Declared weight of an edge (parallel edges with the same ``carries`` add up)."""
         return self._weights.get((source, target, carries), 0.0)

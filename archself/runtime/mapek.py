@@ -56,6 +56,7 @@ from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.learning import learning_of
 from archself.runtime.monitor import Monitor
+from archself.runtime.online import online_of
 from archself.runtime.planner import Planner, PlanState
 from archself.runtime.sources import SourceEstimator, SourceFit
 from archself.runtime.stability import apply_action
@@ -114,6 +115,7 @@ class MapeK:
         if self.learning is not None:
             self.knowledge.learned = self.learning.table
         self.planner.learning = self.learning
+        self.online = online_of(arch, self.knowledge, self.monitor)  # runtime.online: None off
         self.decisions: list[DecisionRecord] = []
         self.switches: list[dict[str, Any]] = []
         self.updates: list[dict[str, Any]] = []
@@ -201,6 +203,8 @@ class MapeK:
         self.cycle += 1
         if self.learning is not None:
             self.learning.cycle(record)
+        if self.online is not None and self.online.cycle(record, obs):
+            self._sources_key = None  # W changed: the source fit is rebuilt
         if warm or not (candidates or self.strategies.running):
             return []
 
