@@ -34,12 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
 from archself.calibration.identify_jobs import IdJob, run_identify_job
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
 from archself.calibration.identify_write import set_weights, written_copy
 from archself.calibration.runs import seeds_from
 from archself.errors import unknown
+from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 

@@ -164,7 +164,8 @@ def simulate(
     knowledge: Annotated[
         Path | None,
         typer.Option("--knowledge", metavar="FILE", help="Start from what earlier runs learned "
-                     "(a table --save-knowledge wrote); switches runtime.learning on "
+                     "(a table --save-knowledge wrote, or the trace of a run with learning "
+                     "on); switches runtime.learning on "
                      "(docs/learning.md)."),
     ] = None,
     save_knowledge: Annotated[
@@ -204,7 +205,7 @@ def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None], fi
 
     if source is None:
         return OutcomeTable()
-    _inputs(source, what="a knowledge table (JSON)")
+    _inputs(source, what="a knowledge table (JSON) or a trace")
     return load_table(source)
 
 

@@ -198,8 +198,13 @@ class OnlineBands(StrictModel):
         1.5, description="An update moves a band by at most this factor."
     )
     max_factor: Annotated[float, Field(ge=1, le=100)] = Field(
-        4.0,
-        description="In total a band stays within [declared/max_factor, declared·max_factor].",
+        4.0, description="In total a band stays at most declared·max_factor."
+    )
+    min_factor: Annotated[float, Field(ge=0.01, le=1)] = Field(
+        1.0,
+        description="In total a band stays at least declared·min_factor: 1 (default), never "
+        "tighter than the file's (a band learned in quiet windows would false-alarm when "
+        "the conditions change); lower it to let a band the file set too wide come down.",
     )
 
 

@@ -371,6 +371,22 @@ class MapeK:
                     break
 
     # ------------------------------------------------------------------ output
+    def saved_knowledge(self) -> dict[str, Any] | None:
+        """What the loop learned, for the trace's ``meta.knowledge``; None when nothing is.
+
+        ``learned``: the outcome table (``runtime.learning``; ``--knowledge TRACE`` reads
+        it back) and ``outcomes``, every measured outcome; ``online``: every update of W and
+        the bands and what moved (``runtime.online``).
+        """
+        out: dict[str, Any] = {}
+        if self.learning is not None:
+            out["learned"] = self.learning.table.to_dict()
+            out["outcomes"] = list(self.learning.events)
+        if self.online is not None:
+            out["online"] = self.online.to_dict()
+        return out or None
+
+    # ------------------------------------------------------------------ output
     def log(self) -> list[dict[str, Any]]:
         """The decision log as JSON-ready dicts."""
         return [d.to_dict() for d in self.decisions]

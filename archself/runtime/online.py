@@ -31,7 +31,8 @@ nominal window). Per module the largest filtered signal of each nominal window i
 (:func:`~archself.runtime.tails.quantile_level` of the maxima at the share ``rate/K`` of
 the K active channels, divided by the alarm factor ``1 + τ/(c_j·σ_j)``,
 :func:`~archself.runtime.tails.band_of_level`), moved by at most the factor ``max_step``
-per update and kept within ``[declared/max_factor, declared·max_factor]``.
+per update and kept within ``[declared·min_factor, declared·max_factor]`` (by default
+never tighter than the file's: ``min_factor`` 1).
 
 docs/learning.md shows both at work and how they fail.
 """
@@ -106,19 +107,18 @@ class Online:
             self._due = {"weights": t + self.s.weights.every_s, "bands": t + self.s.bands.every_s}
         names = tuple(obs.signal_names)
         values = np.abs(np.asarray(obs.signal_values, dtype=float))
-        usable = bool(np.all(obs.signal_ok)) and bool(np.all(np.isfinite(values)))
+        values[~np.asarray(obs.signal_ok, dtype=bool)] = math.nan  # an unusable sample: none
         notes: list[str] = []
         changed = False
         if self.s.weights.enabled:
-            if usable:
-                self._history.append((t, conf, names, values.copy()))
+            self._history.append((t, conf, names, values))
             while self._history and self._history[0][0] < t - self.s.weights.window_s - 1e-9:
                 self._history.popleft()
             if t >= self._due["weights"] - 1e-9:
                 self._due["weights"] = t + self.s.weights.every_s
                 changed = self._update_weights(t, conf, notes)
         if self.s.bands.enabled:
-            self._note_window(record, t, conf, names, values, usable)
+            self._note_window(record, t, conf, names, values)
             if t >= self._due["bands"] - 1e-9:
                 self._due["bands"] = t + self.s.bands.every_s
                 self._update_bands(t, notes)
@@ -151,7 +151,10 @@ class Online:
             return (), np.zeros((0, 0)), []
         names = rows[-1][2]
         rows = [h for h in rows if h[2] == names]
-        return names, np.array([h[3] for h in rows]), [rows[0][0], rows[-1][0]]
+        x = np.array([h[3] for h in rows])
+        keep = np.isfinite(x).all(axis=0)  # the modules usable throughout the window
+        return (tuple(n for n, k in zip(names, keep, strict=True) if k), x[:, keep],
+                [rows[0][0], rows[-1][0]])
 
     def _update_weights(self, t: float, conf: str, notes: list[str]) -> bool:
         s = self.s.weights
@@ -223,27 +226,34 @@ class Online:
         return changed > 0
 
     # ------------------------------------------------------------------ bands
-    def _nominal_cycle(self, record: Any, t: float, conf: str, usable: bool) -> bool:
+    def _nominal_cycle(self, record: Any, t: float) -> bool:
+        """J acceptable, no module down or limit violated, no action, dwell over, settled."""
         last = self._last
-        return (usable and record.phase != "warmup" and not record.kappa
-                and math.isfinite(record.j_obs) and record.j_obs <= self.acceptable
+        findings = any(not k.get("available", True) or k.get("violations")
+                       for k in record.kappa.values())
+        return (record.phase != "warmup" and not findings and math.isfinite(record.j_obs)
+                and record.j_obs <= self.acceptable
                 and not (last is not None and last.chosen)
                 and t - self.k.t_last >= self.dwell - 1e-9
                 and self._entered is not None and t - self._entered[1] >= self.settle - 1e-9)
 
     def _note_window(self, record: Any, t: float, conf: str, names: tuple[str, ...],
-                     values: np.ndarray, usable: bool) -> None:
-        """Add the cycle to the current window; close it when it is ``window_s`` long."""
+                     values: np.ndarray) -> None:
+        """Add the cycle to the current window; close it when it is ``window_s`` long.
+
+        A module's maximum counts only when its every sample in the window was usable.
+        """
         w = self._window
         if w is None or w["conf"] != conf or w["names"] != names:
             w = self._window = {"t0": t, "conf": conf, "names": names, "ok": True,
                                 "max": np.zeros(len(names))}
-        w["ok"] = w["ok"] and self._nominal_cycle(record, t, conf, usable)
-        if usable:
-            w["max"] = np.maximum(w["max"], values)
+        w["ok"] = w["ok"] and self._nominal_cycle(record, t)
+        w["max"] = np.maximum(w["max"], values)  # NaN stays NaN: that module's window is lost
         if t - w["t0"] >= self.s.bands.window_s - 1e-9:
             if w["ok"]:
                 for n, v in zip(names, w["max"].tolist(), strict=True):
+                    if not math.isfinite(v):
+                        continue
                     self._maxima.setdefault(n, deque(maxlen=self.s.bands.windows)).append(
                         (w["t0"], t, v))
             self._window = None
@@ -271,7 +281,7 @@ class Online:
                             "rejected: no signal in the nominal windows")
                 continue
             new = _clip(_clip(want, old / s.max_step, old * s.max_step),
-                        decl / s.max_factor, decl * s.max_factor)
+                        decl * s.min_factor, decl * s.max_factor)
             why = "calibrated" if new == want else "calibrated, bounded"
             ev = self._event(t, "bands", n, old, want, new, window, s.windows,
                              f"{why} ({s.windows} nominal windows of {s.window_s:g} s)")
