@@ -11,9 +11,11 @@ target module) over the last ``window_s`` of the Monitor's filtered residual sig
 in the loop's units (:func:`~archself.runtime.identify_fit.delta_residuals`: σ·|s̄|/n)
 and centred on the window's mean. The run's own fluctuations stand in for identify's
 perturbation experiments: row i of ``(I − Wᵀ) r = e`` reads ``Δr_i = Σ_k W_ki Δr_k + Δe_i``
-and the fit takes ``Δe_i`` as noise independent of the sources' (no feedback from i to
-its sources inside the window). Only the cycles of the current configuration count, and
-only edges whose two ends have a residual are fitted. A fitted weight is taken when its
+and the fit takes ``Δe_i`` as noise independent of the sources'. That fails on a cycle
+(a control loop): the source's residual then carries the target's own noise back, and
+the fit would find the loop's reverse direction; edges on a cycle of the active graph
+are therefore not fitted (logged as rejected). Only the cycles of the current
+configuration count, and only edges whose two ends have a residual are fitted. A fitted weight is taken when its
 source is excited (``min_excitation``) and the target's R² ≥ ``min_r2``; it moves at most
 ``max_change`` of its value per update and stays within ``[declared/max_factor,
 declared·max_factor]`` and ≥ 0. An update whose W breaks the rule of ``archself
@@ -56,6 +58,23 @@ MIN_ROWS = 10  # cycles a W fit needs
 
 def _clip(value: float, low: float, high: float) -> float:
     return min(max(value, low), high)
+
+
+def _on_cycle(edges: set[tuple[str, str]]) -> set[tuple[str, str]]:
+    """The edges a → b on a cycle (b reaches a): their Δr_a holds b's own Δe_b."""
+    succ: dict[str, set[str]] = {}
+    for a, b in edges:
+        succ.setdefault(a, set()).add(b)
+    reach: dict[str, set[str]] = {}
+    for start in succ:
+        seen, todo = set(), [start]
+        while todo:
+            for nxt in succ.get(todo.pop(), ()):
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+        reach[start] = seen
+    return {(a, b) for a, b in edges if a == b or a in reach.get(b, ())}
 
 
 class Online:
@@ -172,10 +191,14 @@ class Online:
         du = u - u.mean(axis=0)
         pairs = self._pairs()
         sources: dict[str, list[str]] = {}
-        for a, b, _c in sorted(self.k.edges):
-            if a in col and b in col and a != b and a not in sources.get(b, []):
-                sources.setdefault(b, []).append(a)
         proposed: dict[tuple[str, str], tuple[float, float, str]] = {}
+        on_cycle = _on_cycle({(a, b) for a, b, _c in self.k.edges})
+        for a, b, _c in sorted(self.k.edges):
+            if (a, b) in on_cycle and a in col and b in col:
+                proposed[(a, b)] = (pairs[(a, b)], math.nan, "on a cycle: its source carries "
+                                    "the target's own noise back (not fitted online)")
+            elif a in col and b in col and a != b and a not in sources.get(b, []):
+                sources.setdefault(b, []).append(a)
         for b, srcs in sources.items():
             fit = fit_target(du[:, [col[a] for a in srcs]], du[:, col[b]],
                              min_excitation=s.min_excitation)
