@@ -15,12 +15,12 @@ and the fit takes ``Δe_i`` as noise independent of the sources'. That fails on 
 (a control loop): the source's residual then carries the target's own noise back, and
 the fit would find the loop's reverse direction; edges on a cycle of the active graph
 are therefore not fitted (logged as rejected). Only the cycles of the current
-configuration count, and only edges whose two ends have a residual are fitted. A fitted weight is taken when its
-source is excited (``min_excitation``) and the target's R² ≥ ``min_r2``; it moves at most
-``max_change`` of its value per update and stays within ``[declared/max_factor,
-declared·max_factor]`` and ≥ 0. An update whose W breaks the rule of ``archself
-validate`` (ρ(W) < ``runtime.max_spectral_radius``, ``I − Wᵀ`` not singular) is rejected
-as a whole.
+configuration count, and only edges whose two ends have a residual are fitted. A fitted
+weight is taken when its source is excited (``min_excitation``) and the target's R² ≥
+``min_r2``; it moves at most ``max_change`` of its value per update and stays within
+``[declared/max_factor, declared·max_factor]`` and ≥ 0. An update whose W breaks the rule
+of ``archself validate`` (ρ(W) < ``runtime.max_spectral_radius``, ``I − Wᵀ`` not
+singular) is rejected as a whole.
 
 **Bands** (``runtime.online.bands``): the run is cut into windows of ``window_s``. A
 window is *nominal* when every cycle in it is: J_obs within ``objective.acceptable``, no
@@ -48,10 +48,9 @@ from typing import Any
 import numpy as np
 
 from archself.runtime.identify_fit import delta_residuals, fit_target
-from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 from archself.runtime.tails import band_of_level, quantile_level
 
-__all__ = ["Online", "online_of"]
+__all__ = ["Online", "on_cycles", "online_of"]
 
 MIN_ROWS = 10  # cycles a W fit needs
 
@@ -60,8 +59,14 @@ def _clip(value: float, low: float, high: float) -> float:
     return min(max(value, low), high)
 
 
-def _on_cycle(edges: set[tuple[str, str]]) -> set[tuple[str, str]]:
-    """The edges a → b on a cycle (b reaches a): their Δr_a holds b's own Δe_b."""
+def on_cycles(edges: set[tuple[str, str]]) -> set[tuple[str, str]]:
+    """The edges a → b on a cycle (b reaches a): their Δr_a holds b's own Δe_b.
+
+    Examples
+    --------
+    >>> sorted(on_cycles({("a", "b"), ("b", "c"), ("c", "a"), ("c", "d")}))
+    [('a', 'b'), ('b', 'c'), ('c', 'a')]
+    """
     succ: dict[str, set[str]] = {}
     for a, b in edges:
         succ.setdefault(a, set()).add(b)
@@ -192,7 +197,7 @@ class Online:
         pairs = self._pairs()
         sources: dict[str, list[str]] = {}
         proposed: dict[tuple[str, str], tuple[float, float, str]] = {}
-        on_cycle = _on_cycle({(a, b) for a, b, _c in self.k.edges})
+        on_cycle = on_cycles({(a, b) for a, b, _c in self.k.edges})
         for a, b, _c in sorted(self.k.edges):
             if (a, b) in on_cycle and a in col and b in col:
                 proposed[(a, b)] = (pairs[(a, b)], math.nan, "on a cycle: its source carries "
@@ -220,6 +225,8 @@ class Online:
     def _apply_weights(self, t: float, pairs: dict, proposed: dict, window: list[float],
                        rows: int, notes: list[str]) -> bool:
         """Check the spectral rule on the whole W; apply and log, or reject all."""
+        from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
+
         trial = dict(pairs)
         trial.update({p: v[0] for p, v in proposed.items()})
         W = weight_matrix(self.k.names, [(a, b, w) for (a, b), w in trial.items()])
