@@ -9,7 +9,7 @@ Cases on architectures/process_plant.yaml (docs/learning.md, "Online W and bands
 - ``drift``: the file's bands, scenario ``level_drift`` made slower and later
   (transmitter A drifts at 0.05 mm/s from 300 s): the plant changes inside windows
   judged nominal (J still acceptable), so the drift is learned as noise. Runs: ``off``,
-  ``bands`` (the default bounds: ×1.5 per update, ×4 in total) and ``unbounded``
+  ``bands`` (the default bounds: ×1.5 per update, ×2 in total) and ``unbounded``
   (×100 and ×100): how far the drift widens the bands, and what the bounds keep.
 - ``weights``: ``valve_loss`` with runtime.online.weights on: accepted and rejected
   updates (the run's own fluctuations rarely fit W; the rejections keep it).

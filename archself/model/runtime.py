@@ -198,7 +198,9 @@ class OnlineBands(StrictModel):
         1.5, description="An update moves a band by at most this factor."
     )
     max_factor: Annotated[float, Field(ge=1, le=100)] = Field(
-        4.0, description="In total a band stays at most declared·max_factor."
+        2.0,
+        description="In total a band stays at most declared·max_factor: what a fault that "
+        "grows inside windows judged nominal (a slow drift) can widen it by.",
     )
     min_factor: Annotated[float, Field(ge=0.01, le=1)] = Field(
         1.0,
