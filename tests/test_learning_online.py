@@ -16,6 +16,7 @@ from numpy.testing import assert_allclose
 from test_runtime_fakes import FakeSystem, make_arch, run_loop
 from typer.testing import CliRunner
 
+from archself.check import check
 from archself.cli import app
 from archself.errors import ArchselfError
 from archself.model.architecture import Architecture
@@ -224,3 +225,28 @@ def test_a_tactic_that_failed_here_is_held_back_like_a_single_action():
     (held,) = [e for e in loop.decisions[0].evaluations if e.action == "tune"]
     assert held.rejected == "held back" and held.learned["trials"] == 1
     assert "tune not admissible (held back) → switch" in loop.decisions[0].note
+
+
+# ---------------------------------------------------------------- validate and the CLI
+def test_validate_says_when_online_cannot_update():
+    loaded = load_architecture(PLANT)
+    loaded.arch.runtime.online = Online.model_validate(
+        {"weights": {"enabled": True}, "bands": {"enabled": True}})
+    found = [f for f in check(loaded) if f.code == "online"]
+    assert [(f.severity, f.path) for f in found] == [
+        ("warning", "runtime.online.weights.enabled")]
+    assert "on a cycle" in found[0].message
+    loaded.arch.runtime.online = Online.model_validate({})
+    assert not [f for f in check(loaded) if f.code == "online"]
+
+
+def test_cli_online_switches_both_updates_on(tmp_path):
+    trace = tmp_path / "t.json"
+    out = CliRunner().invoke(app, ["simulate", str(PLANT), "-s", "nominal", "--online",
+                                   "--trace", str(trace)])
+    assert out.exit_code == 0, out.output
+    meta = json.loads(trace.read_text())["meta"]
+    events = meta["knowledge"]["online"]["events"]
+    assert {e["kind"] for e in events} == {"weights", "bands"}
+    assert all(e["outcome"] == "rejected" for e in events if e["kind"] == "weights")
+    assert "learned" not in meta["knowledge"]
