@@ -108,6 +108,7 @@ def test_a_mis_declared_weight_is_refitted_within_its_bounds():
     z = loop.knowledge.influence(e)
     assert_allclose(z[loop.knowledge.index["ctl_a"]], final, rtol=0.1)
     assert any(d.note.startswith("online W:") for d in loop.decisions)
+    assert loop.knowledge.online is loop.online.events  # the record is Knowledge's
     saved = loop.saved_knowledge()["online"]
     assert {"edge": "est_a→ctl_a", "declared": 0.5, "now": final} in saved["weights"]
 

@@ -99,6 +99,8 @@ class Knowledge:
         Time of the last architectural change (−inf before the first).
     learned : OutcomeTable or None
         What the loop learned from its actions' outcomes (``runtime.learning``).
+    online : list of dict or None
+        Every update of W and of the bands (``runtime.online``), accepted or rejected.
     w_scale : float
         Factor applied to every weight so that ρ(W) ≤ ``runtime.max_spectral_radius``
         (1.0 when the file's weights already satisfy it).
@@ -127,6 +129,7 @@ class Knowledge:
             self._weights[key] = self._weights.get(key, 0.0) + e.weight
         self.t_last = -math.inf
         self.learned: Any = None  # runtime.learning: the OutcomeTable (runtime/learning.py)
+        self.online: Any = None  # runtime.online: its updates, accepted or rejected (events)
         self.solver = InfluenceSolver()
         # Normalize W so that ρ(W) stays below the declared bound (paper: "the
         # weights are normalized such that ρ(W) < 1"). W of any active subset is

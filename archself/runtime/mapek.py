@@ -116,6 +116,8 @@ class MapeK:
             self.knowledge.learned = self.learning.table
         self.planner.learning = self.learning
         self.online = online_of(arch, self.knowledge, self.monitor)  # runtime.online: None off
+        if self.online is not None:
+            self.knowledge.online = self.online.events
         self.decisions: list[DecisionRecord] = []
         self.switches: list[dict[str, Any]] = []
         self.updates: list[dict[str, Any]] = []
