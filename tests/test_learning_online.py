@@ -199,7 +199,7 @@ def test_the_learned_table_is_in_the_trace_and_loads_from_it(plant, tmp_path):
 
 # ---------------------------------------------------------------- D: tactics reviewed
 def test_a_tactic_that_failed_here_is_held_back_like_a_single_action():
-    arch = make_arch(learning={"enabled": True, "hold_s": 100.0})
+    arch = make_arch(learning={"enabled": True, "hold_s": 100.0, "settle_s": 2.0})
     arch.strategies = {"actuator": Strategy.model_validate({
         "module": "act", "start": "tune",
         "steps": {
@@ -214,13 +214,16 @@ def test_a_tactic_that_failed_here_is_held_back_like_a_single_action():
         loop = MapeK(arch, learned=table)
         system = FakeSystem(arch, signals, linearizations={
             "base": [[-1.0, 0.0], [0.0, -2.0]], "alt_ctl": [[-1.0, 0.0], [0.0, -2.0]]})
-        run_loop(loop, system, 3.0)
+        run_loop(loop, system, 4.0)
         return loop, system
 
     loop, system = run(OutcomeTable())  # nothing learned: the first tactic runs
     assert system.param_log == [(1.0, "ctl_a", {"gain": 2.0})]
+    # its outcome is measured in the context the review asks: (tactic, its module, conf)
+    (ev,) = [e for e in loop.learning.events if e["action"] == "tune"]
+    assert (ev["module"], ev["configuration"], ev["outcome"]) == ("ctl_a", "base", "success")
     failed = OutcomeTable()
-    failed.add("tune", "act", "base", -0.5, ok=False)
+    failed.add("tune", "ctl_a", "base", -0.5, ok=False)
     loop, system = run(failed)
     assert system.param_log == [] and system.applied == [(1.0, "alt_ctl")]
     (held,) = [e for e in loop.decisions[0].evaluations if e.action == "tune"]

@@ -118,7 +118,7 @@ class Strategies:
                                       z=abs(state.z.get(st.module, 0.0)), cost=action.cost)
                 if not holds(step.when, state.configuration, r_i, record.j_obs):
                     ev.rejected, ev.detail = "not applicable", f"{where}: 'when' does not hold"
-                elif not self._held(action, st.module, state, ev):
+                elif not self._held(action, state, ev):
                     ev.rejected, ev.detail = self.planner.check(action, state, system)
                 out[0].append(ev)
                 if ev.rejected is None:
@@ -148,17 +148,19 @@ class Strategies:
         record.note = "; ".join(notes)
         return out
 
-    def _held(self, action: Action, module: str, state: Any, ev: ActionEvaluation) -> bool:
+    def _held(self, action: Action, state: Any, ev: ActionEvaluation) -> bool:
         """The learning review of a tactic (``runtime.learning``), as of a single action.
 
-        A tactic whose last outcome in this context (the strategy's module, the
-        configuration) failed is ``held back`` for ``hold_s``: the step waits, then
-        takes its ``failure`` branch. Its learned record goes to the log.
+        A tactic whose last outcome in this context (the action's module, the
+        configuration: where the loop's Execute stage measures every executed action's
+        outcome) failed is ``held back`` for ``hold_s``: the step waits, then takes its
+        ``failure`` branch. Its learned record goes to the log.
         """
         learning = self.planner.learning
         if learning is None:
             return False
-        _, held, ev.learned = learning.review(action.id, module, state.configuration, state.t)
+        _, held, ev.learned = learning.review(action.id, action.module, state.configuration,
+                                              state.t)
         if held:
             ev.rejected, ev.detail = "held back", held
         return bool(held)
