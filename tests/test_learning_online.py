@@ -254,3 +254,7 @@ def test_cli_online_switches_both_updates_on(tmp_path):
     assert {e["kind"] for e in events} == {"weights", "bands"}
     assert all(e["outcome"] == "rejected" for e in events if e["kind"] == "weights")
     assert "learned" not in meta["knowledge"]
+    shown = CliRunner().invoke(app, ["explain", str(trace)])
+    assert shown.exit_code == 0 and "online W:" in shown.output
+    taken = sum(e["outcome"] == "accepted" for e in events)
+    assert f"online: {taken} of {len(events)} update(s) accepted" in shown.output

@@ -337,3 +337,8 @@ def explain(
         f"{meta.get('configuration')} → {meta.get('final_configuration')}"
     )
     typer.echo(render(decisions))
+    if meta.get("knowledge"):  # runtime.learning / runtime.online: what the run learned
+        from archself.runtime.online import knowledge_summary
+
+        for line in knowledge_summary(meta["knowledge"]):
+            typer.echo(line)

@@ -50,7 +50,7 @@ import numpy as np
 from archself.runtime.identify_fit import delta_residuals, fit_target
 from archself.runtime.tails import band_of_level, quantile_level
 
-__all__ = ["Online", "on_cycles", "online_of"]
+__all__ = ["Online", "knowledge_summary", "on_cycles", "online_of"]
 
 MIN_ROWS = 10  # cycles a W fit needs
 
@@ -338,6 +338,28 @@ class Online:
         bands = [{"module": n, "declared": self.declared_band[n], "now": float(v)}
                  for n, v in zip(names, now, strict=True) if float(v) != self.declared_band[n]]
         return {"events": list(self.events), "weights": weights, "bands": bands}
+
+
+def knowledge_summary(known: Any) -> list[str]:
+    """Lines for a person: what a run learned (a trace's ``meta.knowledge``, or {})."""
+    if not isinstance(known, dict):
+        return []
+    lines = []
+    outcomes = known.get("outcomes")
+    if isinstance(outcomes, list):
+        failed = sum(1 for o in outcomes if isinstance(o, dict) and o.get("outcome") == "failure")
+        lines.append(f"learned: {len(outcomes)} outcome(s) measured, {failed} failure(s)")
+    online = known.get("online")
+    if isinstance(online, dict):
+        events = [e for e in online.get("events") or [] if isinstance(e, dict)]
+        taken = sum(1 for e in events if e.get("outcome") == "accepted")
+        moved = [f"{w.get('edge')} {w.get('declared'):.3g} → {w.get('now'):.3g}"
+                 for w in online.get("weights") or []]
+        moved += [f"{b.get('module')} {b.get('declared'):.3g} → {b.get('now'):.3g}"
+                  for b in online.get("bands") or []]
+        lines.append(f"online: {taken} of {len(events)} update(s) accepted; declared → now: "
+                     + (", ".join(moved) or "nothing moved"))
+    return lines
 
 
 def online_of(arch: Any, knowledge: Any, monitor: Any) -> Online | None:
