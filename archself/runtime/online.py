@@ -153,10 +153,13 @@ class Online:
 
     def _event(self, t: float, kind: str, what: str, old: float, proposed: float | None,
                new: float, window: list[float], samples: int, reason: str) -> dict[str, Any]:
+        """Log one update; ``accepted`` when the value changed (a bound that keeps it says so)."""
+        moved = math.isfinite(new) and new != old
+        if not moved and not reason.startswith(("rejected", "poor", "source", "on a", "too")):
+            reason += "; unchanged (at its bound)"
         ev = {"t_s": t, "kind": kind, "what": what, "old": old, "proposed": proposed,
               "new": new, "window": window, "samples": samples,
-              "outcome": "accepted" if math.isfinite(new) and new != old else "rejected",
-              "reason": reason}
+              "outcome": "accepted" if moved else "rejected", "reason": reason}
         self.events.append(ev)
         return ev
 
