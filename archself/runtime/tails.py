@@ -31,7 +31,7 @@ class TailFit:
       maximum over many cycles;
     - an exponential law fitted to the excesses of the largest ``k`` values over
       the next one, u (k = the top 20 %, at least 5): the tail of a Gumbel law,
-      fitted to the tail only, so that a narrow bulk (e.g. the same setpoint
+      fitted to the tail only, so that a narrow bulk (e.g. the same reference
       ramp in every run) cannot hide rare large values.
 
     ``predicted(s)`` is the larger of the two tail probabilities (the
