@@ -1,6 +1,6 @@
 """``archself identify``: edge weights W estimated from perturbation experiments.
 
-(a) the fitting maths (:mod:`archself.calibration.identify_fit`) on synthetic Δr;
+(a) the fitting maths (:mod:`archself.runtime.identify_fit`) on synthetic Δr;
 (b) end to end on a small architecture of a test-only module type whose residuals
     propagate exactly as the model says;
 (c) the command line.
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from archself.calibration.identify_fit import (
+from archself.runtime.identify_fit import (
     fit_edges,
     fit_target,
     propagate,

@@ -28,7 +28,7 @@ Bands are n_j = s·b_j: a *shape* b and one common *scale* s.
   (found by bisection per cycle), so its tail is modelled as a Gumbel law's:
   a Gumbel distribution fitted to all the runs' S (scipy.stats.gumbel_r, maximum
   likelihood) and an exponential fitted to the top 20 % of them (the Gumbel tail,
-  fitted to the tail only; :class:`~archself.calibration.tails.TailFit`); the same for
+  fitted to the tail only; :class:`~archself.runtime.tails.TailFit`); the same for
   each module's S_j (its residual alone, :func:`channel_scales`). The predicted rate is the larger
   of the whole-run fit and the sum over the modules (:class:`Prediction`). The
   scale is the smallest s at which the predicted and the empirical rate are both
@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.tails import TailFit, empirical_level, quantile_level
+from archself.runtime.tails import TailFit, band_of_level, empirical_level, quantile_level
 
 __all__ = [
     "Cell",
@@ -328,4 +328,4 @@ def channel_shape(cell: Cell, module: str, p: float, tau: float,
     share = p * float(w.get(module, 1.0)) / total if total > 0 else p
     level = quantile_level(cell.run_max(module), share)
     gain = float(np.abs(cell.m[:, j]).max() * abs(cell.sens[j])) if cell.m.size else 0.0
-    return level / (1.0 + tau / gain) if gain > 0 else level
+    return band_of_level(level, tau, gain)

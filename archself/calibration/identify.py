@@ -8,7 +8,7 @@ block) alike. The runs are sampled like calibration runs (the Monitor's filtered
 residual signals every ``runtime.period_s``, :class:`archself.calibration.runs.Recorder`),
 time-averaged after the settling time, and the difference perturbed − nominal
 of the same seed (common random numbers) gives Δr in the loop's units. The
-weights are then fitted per target module (:mod:`~archself.calibration.identify_fit`)
+weights are then fitted per target module (:mod:`~archself.runtime.identify_fit`)
 and compared with the declared ones (times the loop's ρ(W) scale).
 
 The runs go to the campaign executors (local process pool, Dask, or inline).
@@ -34,12 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.identify_fit import TargetFit, delta_residuals, fit_edges
 from archself.calibration.identify_jobs import IdJob, run_identify_job
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
 from archself.calibration.identify_write import set_weights, written_copy
 from archself.calibration.runs import seeds_from
 from archself.errors import unknown
+from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 

@@ -16,9 +16,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from archself import __version__
-from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
 from archself.io.jsondata import finite_or_none
+from archself.runtime.identify_fit import TargetFit
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
            "IdentifyError"]

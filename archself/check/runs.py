@@ -146,6 +146,35 @@ def check_actions(ctx: Context) -> None:
                         (*base, "kind"))
 
     _check_risk(ctx)
+    _check_online(ctx)
+
+
+def _check_online(ctx: Context) -> None:
+    """``runtime.online`` that cannot update: bands without a threshold τ (``top_k``), W
+    without an edge the online fit takes (both ends with a residual, off every cycle of
+    a configuration)."""
+    arch, online = ctx.arch, ctx.arch.runtime.online
+    if online.bands.enabled and arch.runtime.threshold is None and arch.runtime.hysteresis is None:
+        ctx.add("warning", "online",
+                "runtime.top_k has no threshold τ to set bands against: the bands are never "
+                "updated online", ("runtime", "online", "bands", "enabled"))
+    if not online.weights.enabled:
+        return
+    from archself.runtime.online import on_cycles
+
+    observed = {n for n, m in arch.modules.items() if m.residual is not None}
+    for conf in arch.configurations.values():
+        on = set(conf.modules)
+        off = {tuple(p) for p in conf.disabled_edges}
+        pairs = {(e.source, e.target) for e in arch.edges
+                 if {e.source, e.target} <= on and (e.source, e.target) not in off}
+        if any({a, b} <= observed for a, b in pairs - on_cycles(pairs)):
+            return
+    ctx.add("warning", "online",
+            "no edge can be refitted online: in every configuration each edge between two "
+            "modules with a residual is on a cycle (a control loop) or none joins two such "
+            "modules; W stays as declared (docs/learning.md)",
+            ("runtime", "online", "weights", "enabled"))
 
 
 def _check_risk(ctx: Context) -> None:

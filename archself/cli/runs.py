@@ -164,7 +164,8 @@ def simulate(
     knowledge: Annotated[
         Path | None,
         typer.Option("--knowledge", metavar="FILE", help="Start from what earlier runs learned "
-                     "(a table --save-knowledge wrote); switches runtime.learning on "
+                     "(a table --save-knowledge wrote, or the trace of a run with learning "
+                     "on); switches runtime.learning on "
                      "(docs/learning.md)."),
     ] = None,
     save_knowledge: Annotated[
@@ -173,6 +174,12 @@ def simulate(
                      "learned from its actions' outcomes to FILE (JSON); switches "
                      "runtime.learning on."),
     ] = None,
+    online: Annotated[
+        bool,
+        typer.Option("--online", help="Switch runtime.online's updates of W and of the bands "
+                     "on for the adaptive run, with the file's other online settings; every "
+                     "update is in the trace and the decision log (docs/learning.md)."),
+    ] = False,
 ) -> None:
     """Simulate a scenario: adaptive MAPE-K by default, --fixed for a fixed architecture.
 
@@ -182,7 +189,7 @@ def simulate(
     _simulate(
         arch_path, scenario, config=config, fixed=fixed, compare=compare, seed=seed,
         json_out=json_out, trace=trace, report=report, fig_format=fig_format, dpi=dpi, yes=yes,
-        knowledge=(knowledge, save_knowledge),
+        knowledge=(knowledge, save_knowledge), online=online,
     )
 
 
@@ -204,7 +211,7 @@ def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None], fi
 
     if source is None:
         return OutcomeTable()
-    _inputs(source, what="a knowledge table (JSON)")
+    _inputs(source, what="a knowledge table (JSON) or a trace")
     return load_table(source)
 
 
@@ -212,7 +219,7 @@ def _simulate(
     arch_path: Path, scenario: str, *, config: str | None, fixed: bool, compare: bool,
     seed: int | None, json_out: bool, trace: Path | None, report: Path | None,
     fig_format: list[Any] | None, dpi: int, yes: bool,
-    knowledge: tuple[Path | None, Path | None] = (None, None),
+    knowledge: tuple[Path | None, Path | None] = (None, None), online: bool = False,
 ) -> None:
     """``archself simulate``: the options guarded, the runs made, written and printed."""
     if fixed and compare:
@@ -248,6 +255,8 @@ def _simulate(
                      [trace, fixed_trace if compare else None, report, knowledge[1]]), \
                 _numeric(arch_path):
             arch = _load(arch_path)
+            if online:  # --online: both updates on, the file's other settings
+                arch.runtime.online.weights.enabled = arch.runtime.online.bands.enabled = True
             _known_configuration(arch, config, arch_path)
             _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
             show = show_progress(json_out)
@@ -328,3 +337,8 @@ def explain(
         f"{meta.get('configuration')} → {meta.get('final_configuration')}"
     )
     typer.echo(render(decisions))
+    if meta.get("knowledge"):  # runtime.learning / runtime.online: what the run learned
+        from archself.runtime.online import knowledge_summary
+
+        for line in knowledge_summary(meta["knowledge"]):
+            typer.echo(line)

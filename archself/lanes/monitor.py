@@ -76,7 +76,8 @@ class _Group:
 
 def _gather(monitors: list[Monitor], lanes: Any, idx: np.ndarray) -> _Group | None:
     """The samples of the lanes ``idx`` the bulk path can observe; None when it cannot
-    (operating limits, every lane unavailable, no residual, a lane out of step)."""
+    (operating limits, every lane unavailable, no residual, a lane out of step, bands
+    that differ between lanes)."""
     first = monitors[int(idx[0])]
     active = lanes.active_set(int(idx[0]))
     lay0 = first.layout(active)
@@ -100,6 +101,9 @@ def _gather(monitors: list[Monitor], lanes: Any, idx: np.ndarray) -> _Group | No
         dt = period
     if any(monitors[i]._t_prev != prev for i in keep):
         return None  # a lane out of step with the group: every lane observes alone
+    if any(monitors[i].nominal is not first.nominal
+           and not np.array_equal(monitors[i].nominal, first.nominal) for i in keep):
+        return None  # bands that differ (runtime.online.bands): every lane observes alone
     lays = [monitors[i].layout(active) for i in keep]
     partial = not F.all()
     whole = F.all(axis=1) if partial else None  # the lanes with every sample usable

@@ -3,7 +3,7 @@
 The clock (``step_s``, ``period_s``), the objective J (Eq. 11), the candidate selector
 (τ, top-k or hysteresis; Eq. 16, 28), localization, warm-up, dwell time, the cost
 weight λ (Eq. 25), the stability filter (Eq. 21–24), the ablation switches, learning from
-outcomes and the risk attitude of Δ (docs/learning.md).
+outcomes, the risk attitude of Δ and the online updates of W and bands (docs/learning.md).
 :class:`archself.model.architecture.Architecture` holds one :class:`Runtime`; the names are
 importable from :mod:`archself.model.architecture` too.
 """
@@ -22,6 +22,7 @@ from archself.model.values import (
     Name,
     NonNeg,
     Positive,
+    PositiveSeconds,
     Seconds,
     StrictModel,
 )
@@ -135,6 +136,96 @@ class Learning(StrictModel):
         description="Floor of the learned factor (successes + 1)/(trials + 1) that scales "
         "the action's estimated Δ in its context.",
     )
+
+
+class OnlineWeights(StrictModel):
+    """Online W (docs/learning.md): the identify fit over a sliding window of the run."""
+
+    enabled: bool = Field(
+        False,
+        description="true: every every_s the weights of the active edges between modules with "
+        "a residual are refitted from the residual history of the last window_s (the fit of "
+        "archself identify, on the run's own fluctuations), each change bounded and logged.",
+    )
+    every_s: PositiveSeconds = Field(60.0, description="Time between two refits.")
+    window_s: PositiveSeconds = Field(
+        120.0, description="The sliding window of residual history a refit uses."
+    )
+    max_change: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.2,
+        description="An update moves a weight by at most this share of its current value.",
+    )
+    max_factor: Annotated[float, Field(ge=1, le=100)] = Field(
+        4.0,
+        description="In total a weight stays within [declared/max_factor, declared·max_factor] "
+        "(and ≥ 0; a weight declared 0 stays 0).",
+    )
+    min_r2: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.5,
+        description="A target's fit counts only with an uncentred R² of at least this; "
+        "otherwise its weights are kept (logged as rejected).",
+    )
+    min_excitation: NonNeg = Field(
+        0.05,
+        description="A source whose residual moves by no more than this in the window (its "
+        "unit: r's) is not identifiable: its weight is kept.",
+    )
+
+
+class OnlineBands(StrictModel):
+    """Online bands (docs/learning.md): the calibrate statistics over nominal windows."""
+
+    enabled: bool = Field(
+        False,
+        description="true: every every_s the bands (residual.nominal) of the active modules "
+        "are recomputed from the largest filtered signal in each of the last `windows` "
+        "nominal windows (J within acceptable, no action, not in dwell), as archself "
+        "calibrate does over runs, each change bounded and logged.",
+    )
+    every_s: PositiveSeconds = Field(60.0, description="Time between two updates.")
+    window_s: PositiveSeconds = Field(20.0, description="The length of one window.")
+    windows: int = Field(
+        10, ge=3, le=10_000,
+        description="The nominal windows an update pools (the most recent); none before "
+        "this many.",
+    )
+    rate: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.01,
+        description="The share of nominal windows in which a band may raise a candidate "
+        "(split over the active channels, as calibrate's p over runs).",
+    )
+    max_step: Annotated[float, Field(ge=1, le=100)] = Field(
+        1.5, description="An update moves a band by at most this factor."
+    )
+    max_factor: Annotated[float, Field(ge=1, le=100)] = Field(
+        2.0,
+        description="In total a band stays at most declared·max_factor: what a fault that "
+        "grows inside windows judged nominal (a slow drift) can widen it by.",
+    )
+    min_factor: Annotated[float, Field(ge=0.01, le=1)] = Field(
+        1.0,
+        description="In total a band stays at least declared·min_factor: 1 (default), never "
+        "tighter than the file's (a band learned in quiet windows would false-alarm when "
+        "the conditions change); lower it to let a band the file set too wide come down.",
+    )
+
+
+class Online(StrictModel):
+    """Online updates of W and of the residual bands: off by default, bounded, logged."""
+
+    weights: OnlineWeights = Field(
+        default_factory=lambda: OnlineWeights.model_validate({}),
+        description="W refitted over a sliding window (the identify fit).",
+    )
+    bands: OnlineBands = Field(
+        default_factory=lambda: OnlineBands.model_validate({}),
+        description="Residual bands from nominal windows (the calibrate statistics).",
+    )
+
+    @property
+    def enabled(self) -> bool:
+        """Whether either update runs."""
+        return self.weights.enabled or self.bands.enabled
 
 
 class Risk(StrictModel):
@@ -257,6 +348,11 @@ class Runtime(StrictModel):
     risk: Risk = Field(
         default_factory=lambda: Risk.model_validate({}),
         description="Δ over sampled noise draws and the risk attitude that ranks them.",
+    )
+    online: Online = Field(
+        default_factory=lambda: Online.model_validate({}),
+        description="Online updates of W and of the residual bands (off by default; "
+        "docs/learning.md).",
     )
 
     @property

@@ -99,6 +99,8 @@ class Knowledge:
         Time of the last architectural change (−inf before the first).
     learned : OutcomeTable or None
         What the loop learned from its actions' outcomes (``runtime.learning``).
+    online : list of dict or None
+        Every update of W and of the bands (``runtime.online``), accepted or rejected.
     w_scale : float
         Factor applied to every weight so that ρ(W) ≤ ``runtime.max_spectral_radius``
         (1.0 when the file's weights already satisfy it).
@@ -127,6 +129,7 @@ class Knowledge:
             self._weights[key] = self._weights.get(key, 0.0) + e.weight
         self.t_last = -math.inf
         self.learned: Any = None  # runtime.learning: the OutcomeTable (runtime/learning.py)
+        self.online: Any = None  # runtime.online: its updates, accepted or rejected (events)
         self.solver = InfluenceSolver()
         # Normalize W so that ρ(W) stays below the declared bound (paper: "the
         # weights are normalized such that ρ(W) < 1"). W of any active subset is
@@ -212,6 +215,20 @@ class Knowledge:
             [(s, t, self.arch_weight(s, t, c)) for s, t, c in sorted(self.edges)],
             scale=self.w_scale,
         )
+
+    def set_weight(self, source: str, target: str, weight: float) -> None:
+        """Set the weight of the pair ``source → target`` (online W, runtime/online.py).
+
+        Parallel edges of the pair keep their shares; the factorization and the
+        weights' users re-read W at their next use.
+        """
+        keys = [k for k in self._weights if k[0] == source and k[1] == target]
+        total = sum(self._weights[k] for k in keys)
+        for k in keys:
+            self._weights[k] = weight * (self._weights[k] / total if total else 1 / len(keys))
+        self.solver.key = None
+        if self._graph is not None and self._graph.has_edge(source, target):
+            self._graph.edges[source, target]["weight"] = weight
 
     def arch_weight(self, source: str, target: str, carries: str) -> float:
         """Declared weight of an edge (parallel edges with the same ``carries`` add up)."""

@@ -24,8 +24,10 @@ last outcome. The planner asks :meth:`Learning.review` for each action it evalua
   table changes nothing).
 
 The table is the loop's Knowledge (``knowledge.learned``); ``to_dict``/``save`` and
-``load`` keep it across runs (``archself simulate --knowledge FILE --save-knowledge
-FILE``). docs/learning.md says what is learned, when it is trusted and how it fails.
+``load_table`` keep it across runs (``archself simulate --knowledge FILE --save-knowledge
+FILE``); the trace of a run holds it too (``meta.knowledge.learned``), and
+``--knowledge TRACE`` reads it from there. docs/learning.md says what is learned, when it
+is trusted and how it fails.
 """
 
 from __future__ import annotations
@@ -122,18 +124,44 @@ class OutcomeTable:
 
 
 def load_table(path: str | Path) -> OutcomeTable:
-    """Read a table written by :meth:`OutcomeTable.save` (one-line errors)."""
+    """Read a table: a file :meth:`OutcomeTable.save` wrote, or a trace (one-line errors).
+
+    A trace (Parquet, or JSON with ``meta`` and ``series``) holds the table of its run
+    in ``meta.knowledge.learned`` when ``runtime.learning`` was on.
+    """
     from archself.io.file_text import read_text
     from archself.io.jsondata import loads
 
-    text = read_text(Path(path))
     try:
-        data = loads(text)
-    except ValueError as exc:  # json.JSONDecodeError and JsonLimitError
-        line = getattr(exc, "lineno", None)
-        at = f":{line}:{exc.colno}" if line is not None else ""  # type: ignore[attr-defined]
-        raise ArchselfError(f"{path}{at}: not a knowledge table: {exc}") from None
+        with open(path, "rb") as fh:
+            parquet = fh.read(4) == b"PAR1"
+    except OSError:
+        parquet = False  # read_text says what is wrong with the path
+    data: Any = None
+    if not parquet:
+        text = read_text(Path(path))
+        try:
+            data = loads(text)
+        except ValueError as exc:  # json.JSONDecodeError and JsonLimitError
+            line = getattr(exc, "lineno", None)
+            at = f":{line}:{exc.colno}" if line is not None else ""  # type: ignore[attr-defined]
+            raise ArchselfError(f"{path}{at}: not a knowledge table: {exc}") from None
+    if parquet or (isinstance(data, dict) and "meta" in data and "series" in data):
+        return _table_of_trace(path)
     return OutcomeTable.from_dict(data, str(path))
+
+
+def _table_of_trace(path: str | Path) -> OutcomeTable:
+    """The learned table in a trace's ``meta.knowledge.learned`` (the trace checked)."""
+    from archself.io.trace import read_trace_parts
+
+    meta = read_trace_parts(path).meta
+    known = meta.get("knowledge")
+    table = known.get("learned") if isinstance(known, dict) else None
+    if table is None:
+        raise ArchselfError(f"{path}: meta.knowledge.learned: expected the learned table of "
+                            f"the run (a trace of a run with runtime.learning on)")
+    return OutcomeTable.from_dict(table, f"{path}: meta.knowledge.learned")
 
 
 @dataclass

@@ -56,6 +56,7 @@ from archself.runtime.decisions import DecisionRecord, ValueMap
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.learning import learning_of
 from archself.runtime.monitor import Monitor
+from archself.runtime.online import online_of
 from archself.runtime.planner import Planner, PlanState
 from archself.runtime.sources import SourceEstimator, SourceFit
 from archself.runtime.stability import apply_action
@@ -114,6 +115,9 @@ class MapeK:
         if self.learning is not None:
             self.knowledge.learned = self.learning.table
         self.planner.learning = self.learning
+        self.online = online_of(arch, self.knowledge, self.monitor)  # runtime.online: None off
+        if self.online is not None:
+            self.knowledge.online = self.online.events
         self.decisions: list[DecisionRecord] = []
         self.switches: list[dict[str, Any]] = []
         self.updates: list[dict[str, Any]] = []
@@ -201,6 +205,8 @@ class MapeK:
         self.cycle += 1
         if self.learning is not None:
             self.learning.cycle(record)
+        if self.online is not None and self.online.cycle(record, obs):
+            self._sources_key = None  # W changed: the source fit is rebuilt
         if warm or not (candidates or self.strategies.running):
             return []
 
@@ -365,6 +371,22 @@ class MapeK:
                 if a.applies_in is None or configuration in a.applies_in:
                     del self.compensated[name]
                     break
+
+    # ------------------------------------------------------------------ output
+    def saved_knowledge(self) -> dict[str, Any] | None:
+        """What the loop learned, for the trace's ``meta.knowledge``; None when nothing is.
+
+        ``learned``: the outcome table (``runtime.learning``; ``--knowledge TRACE`` reads
+        it back) and ``outcomes``, every measured outcome; ``online``: every update of W and
+        the bands and what moved (``runtime.online``).
+        """
+        out: dict[str, Any] = {}
+        if self.learning is not None:
+            out["learned"] = self.learning.table.to_dict()
+            out["outcomes"] = list(self.learning.events)
+        if self.online is not None:
+            out["online"] = self.online.to_dict()
+        return out or None
 
     # ------------------------------------------------------------------ output
     def log(self) -> list[dict[str, Any]]:

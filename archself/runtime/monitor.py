@@ -293,6 +293,18 @@ class Monitor:
         self._t_prev: float | None = None
         self.r_sat = unavailable_residual(arch.runtime)
 
+    def bands(self, names: Any) -> np.ndarray:
+        """The current ``residual.nominal`` of ``names`` (modules with a residual block)."""
+        slot = {self.names[k]: j for j, k in enumerate(self.res_pos.tolist())}
+        return self.nominal[[slot[n] for n in names]].copy()
+
+    def set_nominal(self, name: str, value: float) -> None:
+        """Set the band of ``name`` from the next cycle on (online bands, runtime/online.py)."""
+        j = int(np.flatnonzero(self.res_pos == self.index[name])[0])
+        self.nominal[j] = float(value)
+        if self._layout is not None:
+            self._layout.nominal = self.nominal[self._layout.res_on]
+
     def layout(self, active: frozenset[str]) -> Layout:
         """The layout of ``active`` (rebuilt, carrying the filter state, when the set changes)."""
         lay = self._layout

@@ -4,9 +4,11 @@ A strategy (:mod:`archself.model.strategies`) starts when its module is a candid
 its first step's ``when`` holds, and no other strategy runs. While it runs it replaces
 the Plan stage's scoring: each cycle :meth:`Strategies.cycle` either
 
-- *executes* the current step's tactic — when its ``when`` holds and the planner's own
-  checks pass (applicable, available, constraints and budgets, limits, dwell, stability;
-  ``Planner.check``) — then waits ``settle_s``;
+- *executes* the current step's tactic — when its ``when`` holds, the learning review
+  does not hold it back (``runtime.learning``: a tactic that failed in this context, as
+  a single action) and the planner's own checks pass (applicable, available,
+  constraints and budgets, limits, dwell, stability; ``Planner.check``) — then waits
+  ``settle_s``;
 - *waits* for the tactic to become admissible, at most ``timeout_s`` (default: one
   cycle), then takes the ``failure`` branch;
 - after settling, checks ``post`` (r_i of the strategy's module, J_obs, the
@@ -116,7 +118,7 @@ class Strategies:
                                       z=abs(state.z.get(st.module, 0.0)), cost=action.cost)
                 if not holds(step.when, state.configuration, r_i, record.j_obs):
                     ev.rejected, ev.detail = "not applicable", f"{where}: 'when' does not hold"
-                else:
+                elif not self._held(action, state, ev):
                     ev.rejected, ev.detail = self.planner.check(action, state, system)
                 out[0].append(ev)
                 if ev.rejected is None:
@@ -145,6 +147,23 @@ class Strategies:
             run.step, run.phase, run.since = nxt, "execute", state.t
         record.note = "; ".join(notes)
         return out
+
+    def _held(self, action: Action, state: Any, ev: ActionEvaluation) -> bool:
+        """The learning review of a tactic (``runtime.learning``), as of a single action.
+
+        A tactic whose last outcome in this context (the action's module, the
+        configuration: where the loop's Execute stage measures every executed action's
+        outcome) failed is ``held back`` for ``hold_s``: the step waits, then takes its
+        ``failure`` branch. Its learned record goes to the log.
+        """
+        learning = self.planner.learning
+        if learning is None:
+            return False
+        _, held, ev.learned = learning.review(action.id, action.module, state.configuration,
+                                              state.t)
+        if held:
+            ev.rejected, ev.detail = "held back", held
+        return bool(held)
 
     def _rollback(self, st: Strategy, run: Running, current: str) -> Action:
         key = (run.name, run.origin)

@@ -406,7 +406,8 @@ def simulate(
     adapt : callable, optional
         ``adapt(system) -> list of switch dicts`` called every
         ``runtime.period_s`` (the MAPE-K loop); None runs the architecture fixed.
-        If it has a ``decisions`` list attribute, that log goes into the trace.
+        If it has a ``decisions`` list attribute, that log goes into the trace; what a
+        ``saved_knowledge()`` method returns (not None) goes into ``meta["knowledge"]``.
     progress : callable, optional
         ``progress(done_steps, total_steps)``, called about 100 times.
     keep : collection of str, optional
@@ -428,7 +429,12 @@ def simulate(
     """
     run = _plan(arch, scenario, configuration, seed, adapt, progress, keep)
     switches = _step(run, adapt, progress)
-    return run.rec.result(
+    res = run.rec.result(
         0, run.arch, run.seed, "fixed" if adapt is None else "adaptive", run.start,
         run.system.configuration, switches, list(getattr(adapt, "decisions", None) or []),
     )
+    saved = getattr(adapt, "saved_knowledge", None)  # what the loop learned: in the trace
+    known = saved() if callable(saved) else None
+    if known is not None:
+        res.meta["knowledge"] = known
+    return res

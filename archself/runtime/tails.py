@@ -15,7 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TailFit", "empirical_level", "quantile_level", "rate_at", "scale_for_rate"]
+__all__ = [
+    "TailFit", "band_of_level", "empirical_level", "quantile_level", "rate_at", "scale_for_rate",
+]
 
 
 @dataclass
@@ -29,7 +31,7 @@ class TailFit:
       maximum over many cycles;
     - an exponential law fitted to the excesses of the largest ``k`` values over
       the next one, u (k = the top 20 %, at least 5): the tail of a Gumbel law,
-      fitted to the tail only, so that a narrow bulk (e.g. the same setpoint
+      fitted to the tail only, so that a narrow bulk (e.g. the same reference
       ramp in every run) cannot hide rare large values.
 
     ``predicted(s)`` is the larger of the two tail probabilities (the
@@ -154,3 +156,18 @@ def scale_for_rate(values: np.ndarray, p: float) -> tuple[float, TailFit]:
 def quantile_level(values: np.ndarray, p: float) -> float:
     """The (1 − p) level of per-run maxima: :func:`scale_for_rate` on them (0 if all 0)."""
     return scale_for_rate(values, p)[0]
+
+
+def band_of_level(level: float, tau: float, gain: float) -> float:
+    """The band n at which a signal at ``level`` raises max_i |z_i| = τ on its own.
+
+    With only r_j ≠ 0, max_i |z_i| = gain·(x/n − 1), gain = c_j·σ_j (c_j the largest
+    influence of a unit r_j), so x = n·(1 + τ/gain). A channel that cannot raise a
+    candidate (gain 0) keeps its level.
+
+    Examples
+    --------
+    >>> band_of_level(1.5, 0.5, 1.0)
+    1.0
+    """
+    return level / (1.0 + tau / gain) if gain > 0 else level
