@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from archself.lanes.linearize import lane_loop
 from archself.lanes.module import row
 
 if TYPE_CHECKING:
@@ -151,7 +152,8 @@ class LaneView:
         return self._live().closed_loop(configuration)
 
     def whole_loop(self, configuration: str | None = None, steps: int = 1) -> WholeLoop:
-        return self._live().whole_loop(configuration, steps)
+        """The lane's whole loop, its perturbed copies stepped as lanes (:func:`lane_loop`)."""
+        return lane_loop(self._live(), configuration, steps)
 
     def state_error(self) -> np.ndarray:
         return self._live().state_error()
