@@ -1335,6 +1335,53 @@ def _load() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def ratios(lanes: Sequence[int], rounds: int, cases: Sequence[str]) -> None:
+    """Framework lanes against the same-work vectorized floor, case by case, interleaved.
+
+    Cases: ``a1`` (fixed a1, nominal: :func:`run_floor_lanes_same_work`), ``a2`` (fixed a2,
+    nominal) and ``adaptive`` (imu_drift with a MAPE-K loop per lane; the floor replays
+    the switches the framework's first round made: :func:`run_floor_lanes_switching`).
+    Each round runs the framework, then the floor, on the same seeds; CPU of this
+    process, the median of the rounds per lane-step, and their ratio.
+    """
+    import archself
+    from archself.lanes import simulate_lanes
+
+    arch = archself.load(DIFFDRIVE)
+    S, W, F = load_setup(), load_work(), load_fused()
+    Sd = load_setup(scenario="imu_drift")
+    for N in lanes:
+        seeds = list(range(1, N + 1))
+        for case in cases:
+            switches: list[int] = []
+
+            def fw(case: str = case, seeds: list[int] = seeds) -> Any:
+                if case == "adaptive":
+                    runs = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
+                    switches[:] = [int(round(r.switches[0]["t_s"] / S.dt)) - 1
+                                   if r.switches else -1 for r in runs]
+                    return runs
+                return simulate_lanes(arch, "nominal", seeds, configuration=case)
+
+            def fl(case: str = case, seeds: list[int] = seeds) -> Any:
+                if case == "a1":
+                    return run_floor_lanes_same_work(seeds, S, W)
+                if case == "a2":
+                    return run_floor_lanes_switching(seeds, S, W, F, start="a2")
+                return run_floor_lanes_switching(seeds, Sd, W, F, switches=switches)
+
+            cpu_fw, cpu_fl = [], []
+            for _ in range(rounds):
+                cpu_fw.append(_best(fw, 1)[2])
+                cpu_fl.append(_best(fl, 1)[2])
+            a, b = float(np.median(cpu_fw)), float(np.median(cpu_fl))
+            per = 1e6 / (N * S.steps)
+            print(f"N = {N:5} {case:9} framework {a:8.2f} s ({a * per:6.2f} µs/lane-step)  "
+                  f"floor {b:7.2f} s ({b * per:5.2f} µs)  framework/floor {a / b:5.2f}×  "
+                  f"[rounds: {' '.join(f'{x:.1f}' for x in cpu_fw)} / "
+                  f"{' '.join(f'{x:.1f}' for x in cpu_fl)}; load {_load()}]", flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Measure the framework's a1 fixed run, the floor and the vectorized floor side by side."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
@@ -1343,7 +1390,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--block", type=int, default=400, help="noise block of the vectorized floor")
     ap.add_argument("--framework-lanes", type=int, nargs="*", default=[10, 100],
                     help="N of the framework's lane-batched runs (archself.lanes.simulate_lanes)")
+    ap.add_argument("--ratios", nargs="*", default=None, metavar="CASE",
+                    help="only framework lanes / same-work floor at --lanes for the cases "
+                         "a1, a2, adaptive (default: all three)")
     args = ap.parse_args(argv)
+    if args.ratios is not None:
+        ratios(args.lanes, args.rounds, args.ratios or ["a1", "a2", "adaptive"])
+        return
 
     import archself
 
