@@ -272,10 +272,14 @@ class LoopProbes:
     columns: list[list[tuple[str, int, float]]]  # per perturbed pair: (module, entry, h)
     shifts: list[dict[str, tuple[int, float]]]
 
-    def assemble(self, runs: Any) -> WholeLoop:
+    def assemble(self, runs: Any, read: Callable[[Any, str], np.ndarray] | None = None
+                 ) -> WholeLoop:
         """A from the stepped copies of :attr:`shifts` (``runs[k]``: the copy of shift k,
-        read once each, in order)."""
+        read once each, in order; ``read(run, module)``: its state, default
+        :meth:`_Probe.read` of a copied system)."""
         probe, offset, reach, labels = self.probe, self.offset, self.reach, self.labels
+        if read is not None:
+            probe.read = read  # type: ignore[method-assign]
         f0 = {n: probe.read(runs[0], n) for n in self.stateful}
         rows: list[int] = []
         cols: list[int] = []
