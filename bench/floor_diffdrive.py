@@ -1355,7 +1355,8 @@ def ratios(lanes: Sequence[int], rounds: int, cases: Sequence[str]) -> None:
         for case in cases:
             switches: list[int] = []
 
-            def fw(case: str = case, seeds: list[int] = seeds) -> Any:
+            def fw(case: str = case, seeds: list[int] = seeds,
+                   switches: list[int] = switches) -> Any:
                 if case == "adaptive":
                     runs = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
                     switches[:] = [int(round(r.switches[0]["t_s"] / S.dt)) - 1
@@ -1363,7 +1364,8 @@ def ratios(lanes: Sequence[int], rounds: int, cases: Sequence[str]) -> None:
                     return runs
                 return simulate_lanes(arch, "nominal", seeds, configuration=case)
 
-            def fl(case: str = case, seeds: list[int] = seeds) -> Any:
+            def fl(case: str = case, seeds: list[int] = seeds,
+                   switches: list[int] = switches) -> Any:
                 if case == "a1":
                     return run_floor_lanes_same_work(seeds, S, W)
                 if case == "a2":

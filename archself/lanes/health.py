@@ -232,7 +232,11 @@ class LaneHealth:
     ) -> None:
         """Add ``lost input <s>`` to the lanes of ``idx`` without a reason whose ``s`` is absent."""
         for s in required:
-            for i in idx[~_present(inputs.get(s), len(idx))].tolist():
+            v = inputs.get(s)
+            if type(v) is np.ndarray:  # present in every lane unless the sum is NaN
+                if not math.isnan(np.add.reduce(v if v.ndim == 1 else v[:, 0])):
+                    continue
+            for i in idx[~_present(v, len(idx))].tolist():
                 reasons.setdefault(i, f"lost input {s}")
 
     def forget(self, name: str, lanes: np.ndarray) -> None:

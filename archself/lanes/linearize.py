@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from archself.lanes.batching import lane_module_class
+from archself.lanes.faults import VECTOR_KINDS
 from archself.lanes.module import PerLane
 from archself.lanes.system import LaneSystem
 from archself.linear.closed_loop import WholeLoop
@@ -94,7 +95,8 @@ def _shell(base: Any, shift: dict[str, tuple[int, float]], x0: dict[str, np.ndar
         type(pool[n]).set_state(pool[n], x)
     shell = copy.copy(base)
     shell._pool = pool
-    shell._faults = {n: [(sig, copy.deepcopy(inj)) for sig, inj in fs]
-                     for n, fs in base._faults.items()}
+    shell._faults = {n: [(sig, inj if inj.kind in VECTOR_KINDS else copy.deepcopy(inj))
+                         for sig, inj in fs]
+                     for n, fs in base._faults.items()}  # (the vector kinds keep no state)
     shell._edge_rng = {e: _fresh(g) for e, g in base._edge_rng.items()}
     return shell

@@ -129,9 +129,9 @@ class LaneSystem:
                 sig: stack([(s.outputs.get(name) or {}).get(sig) for s in systems]) for sig in out
             }
         lanes.health.resume(systems)
-        for e, line in first._delay.items():
+        for e in first._delay:
             lanes._delay[e] = Delay.resume(lanes.n, [s._delay[e] for s in systems])
-        for e, rng in first._edge_rng.items():
+        for e in first._edge_rng:
             noise = lanes._noise(e)
             if noise is not None:  # the streams where the runs stand, not where they started
                 lanes._edge_noise[e] = (noise[0], LaneNormals([s._edge_rng[e] for s in systems]))
