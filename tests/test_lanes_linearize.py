@@ -1,6 +1,6 @@
 """A lane's whole-loop linearization, its perturbed copies stepped as lanes, is the per-run one.
 
-:func:`archself.lanes.linearize.lane_loop` (what a lane's stability check uses) against
+:func:`archself.lanes.view.lane_loop` (what a lane's stability check uses) against
 :func:`archself.system.linearizing.numerical_loop` on the same running system: the same
 A entry by entry (bit for bit here; 1e-9 asserted), the same problems.
 """
@@ -14,8 +14,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 import archself
-from archself.lanes.linearize import lane_loop
 from archself.lanes.system import LaneSystem
+from archself.lanes.view import lane_loop
 from archself.system.compiler import compile_system
 from archself.system.linearizing import numerical_loop
 

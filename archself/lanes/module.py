@@ -175,7 +175,7 @@ class LaneModule:
     """
 
     #: Whether the class steps what its per-run twin steps with ``smooth`` set (the
-    #: whole-loop linearization, :mod:`archself.lanes.linearize`); a class whose twin
+    #: whole-loop linearization, :mod:`archself.lanes.view`); a class whose twin
     #: reads ``smooth`` and that does not sets False, and runs lane by lane there.
     follows_smooth: bool = True
 

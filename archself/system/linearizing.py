@@ -260,7 +260,7 @@ class LoopProbes:
     """What :func:`numerical_loop` steps: the smoothed base copy, the perturbations
     (``shifts``: the nominal run first, then +h and −h of each column group), and
     how their states make A (:meth:`assemble`). A lane executor may step the copies
-    together (``archself.lanes.linearize``) and hand them to :meth:`assemble`."""
+    together (``archself.lanes.view``) and hand them to :meth:`assemble`."""
 
     system: Any
     probe: _Probe
