@@ -13,6 +13,7 @@ required input absent in that lane).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -64,7 +65,7 @@ class LaneHealth:
         self._constants: dict[str, tuple[Any, Any]] = {}
         self._any_broken: dict[str, bool] = {}
 
-    def resume(self, systems: list[Any]) -> None:
+    def resume(self, systems: Sequence[Any]) -> None:
         """Take over the per-run systems' bookkeeping (one per lane): availability and
         reasons, the time each module was last heard, the broken modules, stale counts."""
         names = {n for s in systems for n in (*s._ok, *s._why, *s._heard, *s._broken)}

@@ -278,9 +278,8 @@ class LoopProbes:
         read once each, in order; ``read(run, module)``: its state, default
         :meth:`_Probe.read` of a copied system)."""
         probe, offset, reach, labels = self.probe, self.offset, self.reach, self.labels
-        if read is not None:
-            probe.read = read  # type: ignore[method-assign]
-        f0 = {n: probe.read(runs[0], n) for n in self.stateful}
+        read = read or probe.read
+        f0 = {n: read(runs[0], n) for n in self.stateful}
         rows: list[int] = []
         cols: list[int] = []
         vals: list[float] = []
@@ -292,7 +291,8 @@ class LoopProbes:
                     for n in reach[j]:
                         if n not in offset:
                             continue
-                        d = probe.slopes(plus, minus, n, f0[n], h, labels, offset[n], col)
+                        fp, fm = read(plus, n), read(minus, n)
+                        d = probe.slopes(fp, fm, n, f0[n], h, labels, offset[n], col)
                         if d is None:
                             continue
                         nz = np.flatnonzero(d)
@@ -396,13 +396,13 @@ class _Probe:
             return np.full(self.x0[n].size, np.nan)
         return x
 
-    def slopes(self, plus: Any, minus: Any, n: str, f0: np.ndarray, h: float,
+    def slopes(self, fp: np.ndarray, fm: np.ndarray, n: str, f0: np.ndarray, h: float,
                labels: list[str], row0: int, col: int) -> np.ndarray | None:
-        """Central differences of ``n``'s state against entry ``col``; None if not finite.
+        """Central differences of ``n``'s state (``fp``, ``fm``: after +h and −h) against
+        entry ``col``; None if not finite.
 
         One-sided slopes that disagree (a discontinuity) are recorded as a problem.
         """
-        fp, fm = self.read(plus, n), self.read(minus, n)
         d = (fp - fm) / (2 * h)
         right = (fp - f0) / h
         left = (f0 - fm) / h
