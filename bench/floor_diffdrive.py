@@ -17,16 +17,29 @@ odometry's residuals read it; its stream is its own), the residual signals
 odometry's covariance, the model nodes (constants here) and the recording of anything
 but J.
 
-Two functions:
+The J-only floors:
 
 - :func:`run_floor` (one seed; Python floats, the per-run floor), and
 - :func:`run_floor_lanes` (N seeds at once: every state a numpy array with a leading
   lane axis, one loop over the time steps; the "limit" of lane batching).
 
+The same-work floors (issue 38: the GPS, every residual signal, the recording; every
+recorded series bit for bit the framework's):
+
+- :func:`run_floor_same_work` (a1, one seed), :func:`run_floor_lanes_same_work` (a1, N
+  seeds), and
+- :func:`run_floor_lanes_switching` (N seeds: fixed a2 with the EKF, or adaptive
+  imu_drift with the framework's switches replayed and the Monitor's bands by hand).
+
+The vectorized floors share their noise blocks, chassis and wheels' command errors
+(:class:`_Noise`, :class:`_Chassis`, :class:`_WheelErrors`).
+
 ``python bench/floor_diffdrive.py`` prints, side by side, the framework's a1 fixed run
 (``archself.simulate``, as bench/test_bench_sim.py), the floor's per-run time and step
 cost, the vectorized floor's runs/s for N = 1, 10, 100, 1000 lanes and its memory per
-lane (docs/benchmarks.md, "A hand-written floor").
+lane (docs/benchmarks.md, "A hand-written floor"); ``--ratios [a1 a2 adaptive] --lanes
+200 1000`` the framework's lanes against the same-work floors (docs/benchmarks.md,
+"Lanes against their floors").
 """
 
 from __future__ import annotations
