@@ -17,16 +17,29 @@ odometry's residuals read it; its stream is its own), the residual signals
 odometry's covariance, the model nodes (constants here) and the recording of anything
 but J.
 
-Two functions:
+The J-only floors:
 
 - :func:`run_floor` (one seed; Python floats, the per-run floor), and
 - :func:`run_floor_lanes` (N seeds at once: every state a numpy array with a leading
   lane axis, one loop over the time steps; the "limit" of lane batching).
 
+The same-work floors (issue 38: the GPS, every residual signal, the recording; every
+recorded series bit for bit the framework's):
+
+- :func:`run_floor_same_work` (a1, one seed), :func:`run_floor_lanes_same_work` (a1, N
+  seeds), and
+- :func:`run_floor_lanes_switching` (N seeds: fixed a2 with the EKF, or adaptive
+  imu_drift with the framework's switches replayed and the Monitor's bands by hand).
+
+The vectorized floors share their noise blocks, chassis and wheels' command errors
+(:class:`_Noise`, :class:`_Chassis`, :class:`_WheelErrors`).
+
 ``python bench/floor_diffdrive.py`` prints, side by side, the framework's a1 fixed run
 (``archself.simulate``, as bench/test_bench_sim.py), the floor's per-run time and step
 cost, the vectorized floor's runs/s for N = 1, 10, 100, 1000 lanes and its memory per
-lane (docs/benchmarks.md, "A hand-written floor").
+lane (docs/benchmarks.md, "A hand-written floor"); ``--ratios [a1 a2 adaptive] --lanes
+200 1000`` the framework's lanes against the same-work floors (docs/benchmarks.md,
+"Lanes against their floors").
 """
 
 from __future__ import annotations
@@ -161,6 +174,8 @@ class Setup:
     design_speed: float
     ref: tuple[np.ndarray, ...]
     ref_cs: tuple[np.ndarray, np.ndarray]
+    #: the scenario's IMU heading bias drift (onset s, rad/s), or None (fault-free)
+    drift: tuple[float, float] | None = None
 
 
 def _value(mods: dict, module: str, key: str, default: Any) -> Any:
@@ -173,7 +188,9 @@ def load_setup(path: str | Path = DIFFDRIVE, scenario: str = "nominal") -> Setup
     """The parameters of configuration a1 and the reference of ``scenario``.
 
     The file is read as plain YAML; a parameter it does not set takes the pack's
-    default. Raises ``ValueError`` for a scenario with faults or a different a1.
+    default. Raises ``ValueError`` for a scenario with faults other than one IMU heading
+    drift (kept in ``drift``; only :func:`run_floor_lanes_switching` runs it) or a
+    different a1.
     """
     from ruamel.yaml import YAML
 
@@ -184,8 +201,13 @@ def load_setup(path: str | Path = DIFFDRIVE, scenario: str = "nominal") -> Setup
     if set(archself.load(path).configurations["a1"].modules) != A1:
         raise ValueError("configuration a1 is not the one the floor implements")
     sc = raw["scenarios"][scenario]
-    if sc.get("faults"):
-        raise ValueError(f"scenario {scenario!r} has faults; the floor runs fault-free ones")
+    faults = sc.get("faults") or []
+    drift = None
+    if faults:  # an IMU heading drift alone (imu_drift): run_floor_lanes_switching runs it
+        f = faults[0]
+        if len(faults) > 1 or (f["module"], f["kind"]) != ("imu", "bias_drift"):
+            raise ValueError(f"scenario {scenario!r} has faults the floor does not run")
+        drift = (float(f["onset_s"]), float(f["magnitude"]))
     dt = float(raw["runtime"]["step_s"])
     steps = int(round(float(sc["duration_s"]) / dt))
 
@@ -238,6 +260,7 @@ def load_setup(path: str | Path = DIFFDRIVE, scenario: str = "nominal") -> Setup
         design_speed=float(v("lqr", "design_speed_mps", 0.5)),
         ref=tuple(ref),
         ref_cs=tuple(np.array([f(x) for x in ref[2].tolist()]) for f in (math.cos, math.sin)),
+        drift=drift,
     )
 
 
@@ -627,26 +650,14 @@ def run_floor_lanes(
     """
     S = setup or load_setup()
     n, dt, N = S.steps, S.dt, len(seeds)
-    streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu")) for s in seeds]
-    # each lane's block of each stream is drawn into a lane-major buffer (contiguous per
-    # lane), then transposed once per block to step-major for the loop (contiguous per step)
-    draw = (np.empty((N, block, 4)), np.empty((N, block, 2)), np.empty((N, block)))
-    cha = np.empty((block, 4, N))
-    enc = np.empty((block, 2, N))
-    imu = np.empty((block, N))
+    noise = _Noise(seeds, S, block)
     rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
     rc_, rs_ = (a.tolist() for a in S.ref_cs)
-    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
-    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
-    lag = S.tau > 0
-    rdt = r * dt
-    sq_dt = math.sqrt(dt)
     kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
     v_design = S.design_speed
     k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
     sin, cos, sqrt, absolute, where = np.sin, np.cos, np.sqrt, np.abs, np.where
-    px, py, pth = (np.full(N, p) for p in S.pose0)
-    wl, wr = np.zeros(N), np.zeros(N)
+    chassis = _Chassis(S, N)
     ox, oy, oth = np.zeros(N), np.zeros(N), np.zeros(N)
     jmax, tmax = np.full(N, -np.inf), np.zeros(N)
     jsum, j2sum = np.zeros(N), np.zeros(N)
@@ -654,23 +665,9 @@ def run_floor_lanes(
     J = jmax
     with np.errstate(divide="ignore", invalid="ignore"):
         for k in range(n):
-            j = k % block
-            if j == 0:  # the next block of every lane's streams
-                m = min(block, n - k)
-                for lane, (gc, ge, gi) in enumerate(streams):
-                    gc.standard_normal(out=draw[0][lane, :m])
-                    ge.standard_normal(out=draw[1][lane, :m])
-                    gi.standard_normal(out=draw[2][lane, :m])
-                cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
-                enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
-                imu[:m] = draw[2][:, :m].T
-                # the modules' scalings of their noise, elementwise (the same products)
-                np.multiply(sig_e, enc, out=enc)
-                np.multiply(sig_h, imu, out=imu)
-                np.multiply(cha[:, 2:], sq_dt, out=cha[:, 2:])
-                np.multiply(S.lateral, cha[:, 2], out=cha[:, 2])
-                np.multiply(S.yaw, cha[:, 3], out=cha[:, 3])
+            enc, imu, cha = noise.step(k)
             rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+            px, py, pth = chassis.px, chassis.py, chassis.pth
             dx, dy = px - rx, py - ry
             J = sqrt(dx * dx + dy * dy)
             if Jrec is not None:
@@ -681,9 +678,9 @@ def run_floor_lanes(
             jsum += J
             j2sum += J * J
             # encoders and IMU
-            el = wl + enc[j, 0]
-            er = wr + enc[j, 1]
-            h = (pth + S.imu_bias if S.imu_bias else pth) + imu[j]  # x + 0.0 is x
+            el = chassis.wl + enc[0]
+            er = chassis.wr + enc[1]
+            h = (pth + S.imu_bias if S.imu_bias else pth) + imu  # x + 0.0 is x
             h = (h + PI) % TWO_PI - PI
             # dead reckoning
             v = kr * (el + er) / 2.0
@@ -714,39 +711,7 @@ def run_floor_lanes(
             if over.any():
                 cl = where(over, cl * alim / peak, cl)
                 cr = where(over, cr * alim / peak, cr)
-            # chassis
-            cl = np.minimum(np.maximum(cl, -lim), lim)
-            cr = np.minimum(np.maximum(cr, -lim), lim)
-            wl0, wr0 = wl, wr
-            wl = wl0 + a_lag * (cl - wl0)
-            wr = wr0 + a_lag * (cr - wr0)
-            if lag:
-                ul, ur = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
-            else:
-                ul, ur = wl, wr
-            ul = ul + sqrt(slip * absolute(r * ul * dt)) * cha[j, 0] / rdt
-            ur = ur + sqrt(slip * absolute(r * ur * dt)) * cha[j, 1] / rdt
-            vb = r * (ul + ur) / 2.0
-            wb = r * (ur - ul) / b
-            dth = wb * dt
-            th2 = pth + dth
-            straight = absolute(dth) < 1e-9
-            rad = vb / wb
-            s2, c2 = sin(th2), cos(th2)
-            ax = rad * (s2 - sin(pth))
-            ay = rad * (c2 - cos(pth))
-            if straight.any():
-                mth = pth + 0.5 * dth
-                vdt = vb * dt
-                ax = where(straight, vdt * cos(mth), ax)
-                ay = where(straight, -(vdt * sin(mth)), ay)
-            px = px + ax
-            py = py - ay
-            pth = th2
-            lat = cha[j, 2]
-            px = px - s2 * lat  # x + (−s)·l is x − s·l exactly
-            py = py + c2 * lat
-            pth = pth + cha[j, 3]
+            chassis.step(cl, cr, cha)
     out: dict[str, Any] = {
         "max_error": jmax,
         "final_error": J,
@@ -785,27 +750,17 @@ def run_floor_lanes_same_work(
     W = work or load_work()
     n, dt, N = S.steps, S.dt, len(seeds)
     ALL = np.arange(N)
-    streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu")) for s in seeds]
+    noise = _Noise(seeds, S, block)
     fixes = int(n * dt / W.gps_period) + 2  # every lane's GPS noise, drawn at once
     gps = np.stack([stream(s, "gps").standard_normal((fixes, 2)) for s in seeds], axis=1)
     gps *= W.gps_noise
-    draw = (np.empty((N, block, 4)), np.empty((N, block, 2)), np.empty((N, block)))
-    cha = np.empty((block, 4, N))
-    enc = np.empty((block, 2, N))
-    imu = np.empty((block, N))
     rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
     rc_, rs_ = (a.tolist() for a in S.ref_cs)
-    r, b, lim, slip, sig_e, sig_h = S.radius, S.base, S.limit, S.slip, S.enc_noise, S.imu_noise
-    a_lag = 1.0 - math.exp(-dt / S.tau) if S.tau > 0 else 1.0
-    lag = S.tau > 0
-    rdt = r * dt
-    sq_dt = math.sqrt(dt)
     kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
     v_design = S.design_speed
     k00, k01, k02, k10, k11, k12 = _gain(S, v_design)
     sin, cos, sqrt, absolute, where = np.sin, np.cos, np.sqrt, np.abs, np.where
-    px, py, pth = (np.full(N, p) for p in S.pose0)
-    wl, wr = np.zeros(N), np.zeros(N)
+    chassis = _Chassis(S, N)
     ox, oy, oth = (np.full(N, p) for p in W.odo_pose0)
     var_pos = np.full(N, 0.01)
     var_th, sv = W.odo_var_th, W.odo_sv
@@ -815,41 +770,24 @@ def run_floor_lanes_same_work(
     moved, drift_last = np.zeros((N, 4)), np.zeros(N)
     odo_sig = np.full(N, math.nan)
     next_fix, n_fix, period = 0.0, 0, W.gps_period
-    lag_w = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_response]
-    smooth_w = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_smoothing]
-    expected = [np.zeros(N), np.zeros(N)]
-    cmd_err = [np.full(N, math.nan), np.full(N, math.nan)]
-    prev = None
+    wheels = _WheelErrors(W, dt, N)
     rec = {"J": np.empty((n, N)), "reference": np.empty((n, N, 5)),
            "actual": np.empty((n, N, 3)), "estimate": np.empty((n, N, 3)),
            "command": np.empty((n, N, 2)), "residual": np.empty((n, N, 4))}
     with np.errstate(divide="ignore", invalid="ignore"):
         for k in range(n):
             t = k * dt
-            j = k % block
-            if j == 0:
-                m = min(block, n - k)
-                for lane, (gc, ge, gi) in enumerate(streams):
-                    gc.standard_normal(out=draw[0][lane, :m])
-                    ge.standard_normal(out=draw[1][lane, :m])
-                    gi.standard_normal(out=draw[2][lane, :m])
-                cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
-                enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
-                imu[:m] = draw[2][:, :m].T
-                np.multiply(sig_e, enc, out=enc)
-                np.multiply(sig_h, imu, out=imu)
-                np.multiply(cha[:, 2:], sq_dt, out=cha[:, 2:])
-                np.multiply(S.lateral, cha[:, 2], out=cha[:, 2])
-                np.multiply(S.yaw, cha[:, 3], out=cha[:, 3])
+            enc, imu, cha = noise.step(k)
             rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+            px, py, pth = chassis.px, chassis.py, chassis.pth
             dx, dy = px - rx, py - ry
             rec["J"][k] = sqrt(dx * dx + dy * dy)
             rec["reference"][k] = (rx, ry, rth, rv, rw)
             act = rec["actual"][k]
             act[:, 0], act[:, 1], act[:, 2] = px, py, pth
-            el = wl + enc[j, 0]
-            er = wr + enc[j, 1]
-            h = (pth + S.imu_bias if S.imu_bias else pth) + imu[j]
+            el = chassis.wl + enc[0]
+            er = chassis.wr + enc[1]
+            h = (pth + S.imu_bias if S.imu_bias else pth) + imu
             h = (h + PI) % TWO_PI - PI
             fix = None
             if t >= next_fix - 1e-9:
@@ -900,54 +838,14 @@ def run_floor_lanes_same_work(
             if over.any():
                 cl = where(over, cl * alim / peak, cl)
                 cr = where(over, cr * alim / peak, cr)
-            if prev is not None:
-                for i, meas in ((0, el), (1, er)):
-                    cw = prev[i]
-                    if lag_w[i]:
-                        cw = expected[i] = expected[i] + lag_w[i] * (cw - expected[i])
-                    ew = where(cw >= 0, cw - meas, meas - cw)
-                    last = cmd_err[i]
-                    if smooth_w[i]:
-                        ew = where(last == last, last + smooth_w[i] * (ew - last), ew)
-                    cmd_err[i] = ew
-            prev = (cl, cr)
+            err = wheels.step(el, er)
+            wheels.prev = (cl, cr)
             res = rec["residual"][k]
-            res[:, 0], res[:, 1], res[:, 2], res[:, 3] = cmd_err[0], cmd_err[1], odo_sig, tracking
+            res[:, 0], res[:, 1], res[:, 2], res[:, 3] = err[0], err[1], odo_sig, tracking
             est, cmd = rec["estimate"][k], rec["command"][k]
             est[:, 0], est[:, 1], est[:, 2] = ox, oy, oth
             cmd[:, 0], cmd[:, 1] = cl, cr
-            cl = np.minimum(np.maximum(cl, -lim), lim)
-            cr = np.minimum(np.maximum(cr, -lim), lim)
-            wl0, wr0 = wl, wr
-            wl = wl0 + a_lag * (cl - wl0)
-            wr = wr0 + a_lag * (cr - wr0)
-            if lag:
-                ul, ur = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
-            else:
-                ul, ur = wl, wr
-            ul = ul + sqrt(slip * absolute(r * ul * dt)) * cha[j, 0] / rdt
-            ur = ur + sqrt(slip * absolute(r * ur * dt)) * cha[j, 1] / rdt
-            vb = r * (ul + ur) / 2.0
-            wb = r * (ur - ul) / b
-            dth = wb * dt
-            th2 = pth + dth
-            straight = absolute(dth) < 1e-9
-            rad = vb / wb
-            s2, c2 = sin(th2), cos(th2)
-            ax = rad * (s2 - sin(pth))
-            ay = rad * (c2 - cos(pth))
-            if straight.any():
-                mth = pth + 0.5 * dth
-                vdt = vb * dt
-                ax = where(straight, vdt * cos(mth), ax)
-                ay = where(straight, -(vdt * sin(mth)), ay)
-            px = px + ax
-            py = py - ay
-            pth = th2
-            lat = cha[j, 2]
-            px = px - s2 * lat
-            py = py + c2 * lat
-            pth = pth + cha[j, 3]
+            chassis.step(cl, cr, cha)
     J = rec["J"]
     i = np.argmax(J, axis=0)
     out: dict[str, Any] = {
@@ -959,6 +857,465 @@ def run_floor_lanes_same_work(
         "covariance_pos": var_pos,
     }
     return {**out, **rec}
+
+
+class _Noise:
+    """Every lane's sensor and chassis noise, drawn per stream and lane in blocks of
+    ``block`` steps (a lane-major buffer, transposed once per block to step-major) and
+    scaled as the modules scale it (the same products)."""
+
+    def __init__(self, seeds: Sequence[int], S: Setup, block: int) -> None:
+        N = len(seeds)
+        self.S, self.block, self.n = S, block, S.steps
+        self.streams = [(stream(s, "chassis"), stream(s, "encoders"), stream(s, "imu"))
+                        for s in seeds]
+        self.draw = (np.empty((N, block, 4)), np.empty((N, block, 2)), np.empty((N, block)))
+        self.cha = np.empty((block, 4, N))
+        self.enc = np.empty((block, 2, N))
+        self.imu = np.empty((block, N))
+
+    def step(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Step ``k``'s encoder noise (2 × N), IMU noise (N) and chassis noise (4 × N)."""
+        j = k % self.block
+        if j == 0:
+            S, draw, cha, enc, imu = self.S, self.draw, self.cha, self.enc, self.imu
+            m = min(self.block, self.n - k)
+            for lane, (gc, ge, gi) in enumerate(self.streams):
+                gc.standard_normal(out=draw[0][lane, :m])
+                ge.standard_normal(out=draw[1][lane, :m])
+                gi.standard_normal(out=draw[2][lane, :m])
+            cha[:m] = draw[0][:, :m].transpose(1, 2, 0)
+            enc[:m] = draw[1][:, :m].transpose(1, 2, 0)
+            imu[:m] = draw[2][:, :m].T
+            np.multiply(S.enc_noise, enc, out=enc)
+            np.multiply(S.imu_noise, imu, out=imu)
+            np.multiply(cha[:, 2:], math.sqrt(S.dt), out=cha[:, 2:])
+            np.multiply(S.lateral, cha[:, 2], out=cha[:, 2])
+            np.multiply(S.yaw, cha[:, 3], out=cha[:, 3])
+        return self.enc[j], self.imu[j], self.cha[j]
+
+
+class _Chassis:
+    """The true pose and wheel speeds of every lane (plant.diffdrive): lag, limit, slip,
+    the exact arc, lateral and yaw noise."""
+
+    def __init__(self, S: Setup, N: int) -> None:
+        self.S = S
+        self.px, self.py, self.pth = (np.full(N, p) for p in S.pose0)
+        self.wl, self.wr = np.zeros(N), np.zeros(N)
+        self.a_lag = 1.0 - math.exp(-S.dt / S.tau) if S.tau > 0 else 1.0
+
+    def step(self, cl: np.ndarray, cr: np.ndarray, cha: np.ndarray) -> None:
+        """One step with wheel commands ``cl``, ``cr`` and noise ``cha`` (4 × N)."""
+        S, absolute, where, sin, cos = self.S, np.abs, np.where, np.sin, np.cos
+        r, b, lim, slip, dt = S.radius, S.base, S.limit, S.slip, S.dt
+        rdt = r * dt
+        cl = np.minimum(np.maximum(cl, -lim), lim)
+        cr = np.minimum(np.maximum(cr, -lim), lim)
+        wl0, wr0 = self.wl, self.wr
+        wl = self.wl = wl0 + self.a_lag * (cl - wl0)
+        wr = self.wr = wr0 + self.a_lag * (cr - wr0)
+        if S.tau > 0:
+            ul, ur = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
+        else:
+            ul, ur = wl, wr
+        ul = ul + np.sqrt(slip * absolute(r * ul * dt)) * cha[0] / rdt
+        ur = ur + np.sqrt(slip * absolute(r * ur * dt)) * cha[1] / rdt
+        vb = r * (ul + ur) / 2.0
+        wb = r * (ur - ul) / b
+        dth = wb * dt
+        pth = self.pth
+        th2 = pth + dth
+        straight = absolute(dth) < 1e-9
+        rad = vb / wb
+        s2, c2 = sin(th2), cos(th2)
+        ax = rad * (s2 - sin(pth))
+        ay = rad * (c2 - cos(pth))
+        if straight.any():
+            mth = pth + 0.5 * dth
+            vdt = vb * dt
+            ax = where(straight, vdt * cos(mth), ax)
+            ay = where(straight, -(vdt * sin(mth)), ay)
+        lat = cha[2]
+        self.px = (self.px + ax) - s2 * lat  # x + (−s)·l is x − s·l exactly
+        self.py = (self.py - ay) + c2 * lat
+        self.pth = th2 + cha[3]
+
+
+class _WheelErrors:
+    """The wheels' ``command_error`` in every lane: the last command (through the wheel's
+    response lag) against this step's encoder speed, smoothed."""
+
+    def __init__(self, W: Work, dt: float, N: int) -> None:
+        self.lag = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_response]
+        self.smooth = [1.0 - math.exp(-dt / x) if x > 0 else 0.0 for x in W.wheel_smoothing]
+        self.expected = [np.zeros(N), np.zeros(N)]
+        self.err = [np.full(N, math.nan), np.full(N, math.nan)]
+        self.prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    def step(self, el: np.ndarray, er: np.ndarray) -> list[np.ndarray]:
+        """Both wheels' errors against the encoder speeds ``el``, ``er`` (before the new
+        command: set :attr:`prev` after)."""
+        if self.prev is not None:
+            where = np.where
+            for i, meas in ((0, el), (1, er)):
+                cw = self.prev[i]
+                if self.lag[i]:
+                    cw = self.expected[i] = self.expected[i] + self.lag[i] * (cw - self.expected[i])
+                ew = where(cw >= 0, cw - meas, meas - cw)
+                last = self.err[i]
+                if self.smooth[i]:
+                    ew = where(last == last, last + self.smooth[i] * (ew - last), ew)
+                self.err[i] = ew
+        return self.err
+
+
+@dataclass(frozen=True)
+class Fused:
+    """What configuration a2 runs besides a1's modules, read once from the compiled
+    modules (:func:`load_fused`): the EKF's noises, prior and window, lqr_fused's weights,
+    the hand-over threshold of the odometry's drift, the Monitor's residual bands."""
+
+    q2: tuple[float, ...]  # the EKF's process-noise densities squared
+    r_head: float
+    sig_enc: float
+    R_gps: np.ndarray
+    P0: np.ndarray
+    pose0: tuple[float, float, float]
+    window: float  # the EKF's innovation window (s)
+    latency: int  # steps of the GPS -> EKF edge
+    q: tuple[float, float, float]  # lqr_fused's weights
+    r: tuple[float, float]
+    handover_z: float
+    #: residual modules (the recorded order), their sensitivity, nominal and smoothing (s)
+    residual: tuple[tuple[str, float, float, float], ...]
+    threshold: float
+    period: int  # steps per MAPE-K cycle
+
+
+@cache
+def load_fused(path: str | Path = DIFFDRIVE) -> Fused:
+    """The parameters :func:`run_floor_lanes_switching` needs besides :func:`load_work`'s."""
+    import archself
+    from archself.system.compiler import compile_system
+
+    arch = archself.load(path)
+    system = compile_system(arch, "a2", seed=1, scenario=arch.scenarios["nominal"])
+    ekf, lqr = system.modules["ekf"], system.modules["lqr_fused"]
+    edge = next(e for e in arch.edges if e.source == "gps" and e.target == "ekf")
+    p = lqr.params
+    dt = arch.runtime.step_s
+    return Fused(
+        q2=tuple(ekf._q2), r_head=ekf.r_head, sig_enc=ekf.sig_enc, R_gps=ekf.R_gps.copy(),
+        P0=ekf._initial_covariance(), pose0=tuple(float(v) for v in ekf.x[:3]),
+        window=float(ekf.monitor.window_s), latency=int(round(edge.latency_s / dt)),
+        q=(float(p["q_along"]), float(p["q_lateral"]), float(p["q_heading"])),
+        r=(float(p["r_speed"]), float(p["r_turn"])),
+        handover_z=float(compile_system(arch, "a1", seed=1).modules["odometry"]
+                         .params["drift_handover_z"]),
+        residual=tuple((name, m.residual.sensitivity, m.residual.nominal, m.residual.smoothing_s)
+                       for name, m in arch.modules.items()
+                       if m.residual is not None and name in SWITCHING_RESIDUALS),
+        threshold=float(arch.runtime.threshold),
+        period=int(round(arch.runtime.period_s / dt)),
+    )
+
+
+#: The residual signals of a1 and a2 recorded by :func:`run_floor_lanes_switching`.
+SWITCHING_RESIDUALS = ("wheel_left", "wheel_right", "odometry", "ekf", "lqr", "lqr_fused")
+
+
+def _gps_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray) -> tuple[Any, Any]:
+    """The EKF's GPS update of every row, as the pack's lanes do it (filterpy's Joseph form:
+    stacked products, scipy's 2×2 inverses one by one)."""
+    import scipy.linalg as linalg
+
+    H = np.eye(2, 5)
+    PHT = P @ H.T
+    S = H @ PHT + R
+    K = PHT @ np.array([linalg.inv(s, check_finite=False) for s in S])
+    x = x + (K @ (z - x[:, :2])[:, :, None])[:, :, 0]
+    I_KH = np.eye(5) - K @ H
+    P = (I_KH @ P) @ I_KH.transpose(0, 2, 1) + (K @ R) @ K.transpose(0, 2, 1)
+    return x, P
+
+
+def run_floor_lanes_switching(
+    seeds: Sequence[int], setup: Setup | None = None, work: Work | None = None,
+    fused: Fused | None = None, *, start: str = "a1", switches: Sequence[int] | None = None,
+    block: int = 400,
+) -> dict[str, Any]:
+    """Fixed a2, or adaptive (a1, then a2 where the framework switched), for N seeds at once.
+
+    The same work as the framework's lanes (:func:`run_floor_lanes_same_work` and besides):
+    in a2 the 5-state EKF with its GPS fixes through the edge's latency, written out as the
+    pack's lanes do it (the pack's closed-form :func:`predict_rows` and
+    :func:`update_heading_rows`, the GPS update as :func:`_gps_update`), its innovation
+    window, and lqr_fused (its own gains); the scenario's IMU bias drift (``setup``); every
+    ``runtime.period_s`` the Monitor's stage by hand on every lane — each residual signal
+    filtered (its ``smoothing_s``), normalized (``nominal``, ``sensitivity``) and compared
+    with the band (``runtime.threshold``) — and at a switch the hand-over (the odometry's
+    drift estimate, :meth:`DriftWindows.estimate`, into the EKF's state and covariance;
+    lqr_fused takes lqr's design speed).
+
+    The floor does not decide: it **replays the framework's decisions** (``switches``: per
+    lane, the step after which the framework's loop switched it a1 -> a2, or -1), so it
+    has no Analyze, Plan or stability test; the Monitor's comparisons are its cost only.
+
+    Parameters
+    ----------
+    start : {"a1", "a2"}
+        The configuration every lane starts in (``"a2"`` with no switches: fixed a2).
+    switches : sequence of int, optional
+        One per lane (``start="a1"``).
+
+    Returns
+    -------
+    dict
+        ``max_error`` (per lane), and the series ``J``, ``reference``, ``actual``,
+        ``estimate``, ``command`` (steps × N [× width]) and ``residual`` (steps × N × 6, in
+        :data:`SWITCHING_RESIDUALS` order, NaN where inactive), as the framework's lanes.
+    """
+    from archself_diffdrive.drift_glr import DriftWindows
+    from archself_diffdrive.estimators import predict_rows, update_heading_rows
+    from archself_diffdrive.lanes_windows import LaneWindows
+
+    S, W, F = setup or load_setup(), work or load_work(), fused or load_fused()
+    n, dt, N = S.steps, S.dt, len(seeds)
+    ALL = np.arange(N)
+    noise = _Noise(seeds, S, block)
+    fixes = int(n * dt / W.gps_period) + 2
+    gps = np.stack([stream(s, "gps").standard_normal((fixes, 2)) for s in seeds], axis=1)
+    gps *= W.gps_noise
+    rx_, ry_, rth_, rv_, rw_ = (a.tolist() for a in S.ref)
+    rc_, rs_ = (a.tolist() for a in S.ref_cs)
+    kr, kb, alim = S.kin_radius, S.kin_base, S.act_limit
+    v_design = S.design_speed
+    gains = {"a1": _gain(S, v_design), "a2": _cached_gain(round(v_design, 2), F.q, F.r)}
+    sqrt, absolute, where = np.sqrt, np.abs, np.where
+    chassis = _Chassis(S, N)
+    # a1: dead reckoning and its GPS tests
+    ox, oy, oth = (np.full(N, p) for p in W.odo_pose0)
+    var_pos = np.full(N, 0.01)
+    var_th, sv = W.odo_var_th, W.odo_sv
+    window, trend = LaneWindows(N), LaneWindows(N)
+    window.window[:], trend.window[:] = W.windows
+    drift = DriftWindows(N, *W.drift[:3], walk=W.drift[3])
+    moved, drift_last = np.zeros((N, 4)), np.zeros(N)
+    odo_sig = np.full(N, math.nan)
+    # a2: the EKF
+    x = np.zeros((N, 5))
+    x[:, :3] = F.pose0
+    P = np.repeat(F.P0[None], N, axis=0)
+    started = np.zeros(N, dtype=bool)
+    ekf_win = LaneWindows(N)
+    ekf_win.window[:] = F.window
+    ekf_sig = np.full(N, math.nan)
+    q2 = np.array(F.q2)[None].repeat(N, axis=0)
+    r_head = np.full(N, F.r_head)
+    in2 = np.full(N, start == "a2")
+    since = np.where(in2, 0, n + 1)  # the step each lane entered a2 (its latency line starts)
+    after: dict[int, list[int]] = {}
+    for lane, k in enumerate(switches if switches is not None else ()):
+        if k >= 0:
+            after.setdefault(int(k), []).append(lane)
+    fix_at: dict[int, np.ndarray] = {}
+    next_fix, n_fix, period = 0.0, 0, W.gps_period
+    wheels = _WheelErrors(W, dt, N)
+    # the Monitor's filters by hand (every residual module, every lane)
+    sens = np.array([m[1] for m in F.residual])
+    nom = np.array([m[2] for m in F.residual])
+    gain_m = 1.0 - np.exp(-(F.period * dt) / np.array([m[3] for m in F.residual]))
+    filt = np.full((N, len(F.residual)), math.nan)
+    col = {m[0]: j for j, m in enumerate(F.residual)}
+    over = 0
+    rec = {"J": np.empty((n, N)), "reference": np.empty((n, N, 5)),
+           "actual": np.empty((n, N, 3)), "estimate": np.empty((n, N, 3)),
+           "command": np.empty((n, N, 2)),
+           "residual": np.full((n, N, len(SWITCHING_RESIDUALS)), math.nan)}
+    groups = _groups_of(in2)
+    K = None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(n):
+            t = k * dt
+            enc, imu, cha = noise.step(k)
+            rx, ry, rth, rv, rw = rx_[k], ry_[k], rth_[k], rv_[k], rw_[k]
+            px, py, pth = chassis.px, chassis.py, chassis.pth
+            dx, dy = px - rx, py - ry
+            rec["J"][k] = sqrt(dx * dx + dy * dy)
+            rec["reference"][k] = (rx, ry, rth, rv, rw)
+            act = rec["actual"][k]
+            act[:, 0], act[:, 1], act[:, 2] = px, py, pth
+            wl, wr = chassis.wl, chassis.wr
+            el = wl + enc[0]
+            er = wr + enc[1]
+            h = (pth + S.imu_bias if S.imu_bias else pth) + imu
+            h = (h + PI) % TWO_PI - PI
+            if S.drift is not None and S.drift[0] <= t + 1e-9:
+                h = h + S.drift[1] * (t - S.drift[0])
+            fix = None
+            if t >= next_fix - 1e-9:
+                next_fix += period * max(1.0, math.floor((t - next_fix) / period) + 1)
+                fix = fix_at[k] = np.stack([px, py], axis=1) + gps[n_fix]
+                n_fix += 1
+            est = np.empty((N, 3))
+            res = rec["residual"][k]
+            for conf, idx in groups:
+                sel = ALL if idx is None else idx
+                if conf == "a1":
+                    v = kr * (el[sel] + er[sel]) / 2.0
+                    th0 = oth[sel]
+                    th1 = th0 + ((h[sel] - th0 + PI) % (2 * PI) - PI)
+                    if k:
+                        mid = 0.5 * (th0 + th1)
+                        vdt = v * dt
+                        ddx, ddy = vdt * np.cos(mid), vdt * np.sin(mid)
+                        ox[sel] = ox[sel] + ddx
+                        oy[sel] = oy[sel] + ddy
+                        lag = t - drift_last[sel]
+                        m = moved[sel]
+                        m[:, 0] += ddy
+                        m[:, 1] -= ddx
+                        m[:, 2] += lag * ddy
+                        m[:, 3] -= lag * ddx
+                        moved[sel] = m
+                        var_pos[sel] = var_pos[sel] + ((sv * dt) ** 2 + vdt**2 * var_th)
+                    oth[sel] = (th1 + PI) % (2 * PI) - PI
+                    if fix is not None:
+                        lanes = ALL if idx is None else idx
+                        e = fix[lanes] - np.stack([ox[lanes], oy[lanes]], axis=1)
+                        window.add(t, lanes, e)
+                        trend.add(t, lanes, e)
+                        drift.add(t, lanes, e, moved[lanes])
+                        moved[lanes] = 0.0
+                        drift_last[lanes] = t
+                        window.mean_norm(lanes), trend.trend(lanes)
+                        odo_sig[lanes] = drift.value(lanes)
+                    est[sel, 0], est[sel, 1], est[sel, 2] = ox[sel], oy[sel], oth[sel]
+                    res[sel, col["odometry"]] = odo_sig[sel]
+                else:
+                    lanes = ALL if idx is None else idx
+                    xs, Ps = x[lanes], P[lanes]
+                    go = started[lanes]
+                    v = kr * (el[lanes] + er[lanes]) / 2.0
+                    w = kr * (er[lanes] - el[lanes]) / kb
+                    sig2 = F.sig_enc**2
+                    if go.all():
+                        xs, Ps = predict_rows(xs, Ps, dt, v, w, sig2, kr, kb, q2[lanes])
+                    else:
+                        j = np.flatnonzero(go)
+                        if len(j):
+                            xs[j], Ps[j] = predict_rows(xs[j], Ps[j], dt, v[j], w[j], sig2, kr,
+                                                        kb, q2[lanes][j])
+                        first = np.flatnonzero(~go)
+                        xs[first, 2] = h[lanes][first] - xs[first, 3]
+                    started[lanes] = True
+                    xs, Ps = update_heading_rows(xs, Ps, h[lanes], r_head[lanes])
+                    late = fix_at.get(k - F.latency)
+                    if late is not None:
+                        has = since[lanes] <= k - F.latency
+                        if has.any():
+                            j = np.flatnonzero(has)
+                            z = late[lanes][j]
+                            e = z - xs[j, :2]
+                            xs[j], Ps[j] = _gps_update(xs[j], Ps[j], z, F.R_gps)
+                            ekf_win.add(t, lanes[j], e)
+                            ekf_sig[lanes[j]] = ekf_win.mean_norm(lanes[j])
+                    x[lanes], P[lanes] = xs, Ps
+                    est[lanes] = xs[:, :3]
+                    res[lanes, col["ekf"]] = ekf_sig[lanes]
+            fix_at.pop(k - F.latency, None)
+            if abs(rv - v_design) > 0.005:
+                v_design = rv
+                gains = {"a1": _gain(S, rv), "a2": _cached_gain(round(max(rv, 0.05), 2), F.q, F.r)}
+                K = None
+            if K is None:  # each lane's controller's gain (a lane's row of a1's or a2's)
+                K = (gains[groups[0][0]] if len(groups) == 1 else
+                     tuple(where(in2, f, o) for o, f in zip(gains["a1"], gains["a2"], strict=True)))
+            k00, k01, k02, k10, k11, k12 = K
+            dx, dy = est[:, 0] - rx, est[:, 1] - ry
+            c, s = rc_[k], rs_[k]
+            e0 = c * dx + s * dy
+            e1 = -s * dx + c * dy
+            e2 = (est[:, 2] - rth + PI) % TWO_PI - PI
+            vc = rv - (k00 * e0 + k01 * e1 + k02 * e2)
+            wc = rw - (k10 * e0 + k11 * e1 + k12 * e2)
+            tracking = np.hypot(dx, dy)
+            half = wc * kb / 2.0
+            cl = (vc - half) / kr
+            cr = (vc + half) / kr
+            peak = np.maximum(absolute(cl), absolute(cr))
+            big = peak > alim
+            if big.any():
+                cl = where(big, cl * alim / peak, cl)
+                cr = where(big, cr * alim / peak, cr)
+            res[:, col["wheel_left"]], res[:, col["wheel_right"]] = wheels.step(el, er)
+            wheels.prev = (cl, cr)
+            for conf, idx in groups:
+                sel = ALL if idx is None else idx
+                res[sel, col["lqr" if conf == "a1" else "lqr_fused"]] = tracking[sel]
+            rec["estimate"][k] = est
+            cmd = rec["command"][k]
+            cmd[:, 0], cmd[:, 1] = cl, cr
+            chassis.step(cl, cr, cha)
+            if (k + 1) % F.period == 0:  # the Monitor's stage by hand: filters and bands
+                sample = np.isfinite(res)
+                filt = where(sample, where(filt == filt, filt + gain_m * (res - filt), res), filt)
+                r = sens * np.maximum(absolute(filt) - nom, 0.0) / nom
+                over += int((r > F.threshold).sum())
+            lane_list = after.get(k)
+            if lane_list:  # the framework's switches after this step, replayed
+                _hand_over(np.array(lane_list), drift, F, ox, oy, oth, var_pos, var_th, x, P,
+                           started)
+                in2[lane_list] = True
+                since[lane_list] = k + 1
+                groups, K = _groups_of(in2), None
+    J = rec["J"]
+    return {"max_error": J.max(axis=0), "band_crossings": over, **rec}
+
+
+def _groups_of(in2: np.ndarray) -> list[tuple[str, np.ndarray | None]]:
+    """The lanes of a1 and of a2 (None: every lane)."""
+    if in2.all():
+        return [("a2", None)]
+    if not in2.any():
+        return [("a1", None)]
+    return [("a1", np.flatnonzero(~in2)), ("a2", np.flatnonzero(in2))]
+
+
+def _hand_over(L: np.ndarray, drift: Any, F: Fused, ox, oy, oth, var_pos, var_th, x, P,
+               started) -> None:
+    """a1 -> a2 in lanes ``L``: the odometry's state (and the drift it found, where its
+    test passes ``drift_handover_z``) into the EKF (``export_state``/``import_state``)."""
+    z, rate, rate_std, _, error, extra, extra_std = drift.estimate(L)
+    hand = absolute_ge(z, F.handover_z)
+    px, py, th = ox[L].copy(), oy[L].copy(), oth[L].copy()
+    c22 = np.full(len(L), var_th)
+    bias, brate = np.zeros(len(L)), np.zeros(len(L))
+    if hand.any():
+        j = np.flatnonzero(hand)
+        px[j] = px[j] + error[j, 0]
+        py[j] = py[j] + error[j, 1]
+        th[j] = (th[j] - extra[j] + PI) % (2 * PI) - PI
+        c22[j] = c22[j] + extra_std[j] ** 2
+        bias[j] = 0.0 + extra[j]
+        brate[j] = 0.0 + rate[j]
+    x[L] = np.stack([px, py, th, bias, brate], axis=1)
+    P0 = np.repeat(F.P0[None], len(L), axis=0)
+    P0[:, 0, 0] += var_pos[L]
+    P0[:, 1, 1] += var_pos[L]
+    P0[:, 2, 2] += c22
+    for kk, std in ((3, extra_std), (4, rate_std)):
+        use = hand & np.isfinite(std)
+        P0[use, kk, kk] = np.maximum(P0[use, kk, kk], std[use] ** 2)
+    P[L] = P0
+    started[L] = True
+
+
+def absolute_ge(z: np.ndarray, limit: float) -> np.ndarray:
+    """``abs(z) >= limit`` (False for NaN, as the per-run test)."""
+    with np.errstate(invalid="ignore"):
+        return np.abs(z) >= limit
 
 
 # ---------------------------------------------------------------------- the measurement
@@ -991,6 +1348,55 @@ def _load() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def ratios(lanes: Sequence[int], rounds: int, cases: Sequence[str]) -> None:
+    """Framework lanes against the same-work vectorized floor, case by case, interleaved.
+
+    Cases: ``a1`` (fixed a1, nominal: :func:`run_floor_lanes_same_work`), ``a2`` (fixed a2,
+    nominal) and ``adaptive`` (imu_drift with a MAPE-K loop per lane; the floor replays
+    the switches the framework's first round made: :func:`run_floor_lanes_switching`).
+    Each round runs the framework, then the floor, on the same seeds; CPU of this
+    process, the median of the rounds per lane-step, and their ratio.
+    """
+    import archself
+    from archself.lanes import simulate_lanes
+
+    arch = archself.load(DIFFDRIVE)
+    S, W, F = load_setup(), load_work(), load_fused()
+    Sd = load_setup(scenario="imu_drift")
+    for N in lanes:
+        seeds = list(range(1, N + 1))
+        for case in cases:
+            switches: list[int] = []
+
+            def fw(case: str = case, seeds: list[int] = seeds,
+                   switches: list[int] = switches) -> Any:
+                if case == "adaptive":
+                    runs = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
+                    switches[:] = [int(round(r.switches[0]["t_s"] / S.dt)) - 1
+                                   if r.switches else -1 for r in runs]
+                    return runs
+                return simulate_lanes(arch, "nominal", seeds, configuration=case)
+
+            def fl(case: str = case, seeds: list[int] = seeds,
+                   switches: list[int] = switches) -> Any:
+                if case == "a1":
+                    return run_floor_lanes_same_work(seeds, S, W)
+                if case == "a2":
+                    return run_floor_lanes_switching(seeds, S, W, F, start="a2")
+                return run_floor_lanes_switching(seeds, Sd, W, F, switches=switches)
+
+            cpu_fw, cpu_fl = [], []
+            for _ in range(rounds):
+                cpu_fw.append(_best(fw, 1)[2])
+                cpu_fl.append(_best(fl, 1)[2])
+            a, b = float(np.median(cpu_fw)), float(np.median(cpu_fl))
+            per = 1e6 / (N * S.steps)
+            print(f"N = {N:5} {case:9} framework {a:8.2f} s ({a * per:6.2f} µs/lane-step)  "
+                  f"floor {b:7.2f} s ({b * per:5.2f} µs)  framework/floor {a / b:5.2f}×  "
+                  f"[rounds: {' '.join(f'{x:.1f}' for x in cpu_fw)} / "
+                  f"{' '.join(f'{x:.1f}' for x in cpu_fl)}; load {_load()}]", flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Measure the framework's a1 fixed run, the floor and the vectorized floor side by side."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
@@ -999,7 +1405,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--block", type=int, default=400, help="noise block of the vectorized floor")
     ap.add_argument("--framework-lanes", type=int, nargs="*", default=[10, 100],
                     help="N of the framework's lane-batched runs (archself.lanes.simulate_lanes)")
+    ap.add_argument("--ratios", nargs="*", default=None, metavar="CASE",
+                    help="only framework lanes / same-work floor at --lanes for the cases "
+                         "a1, a2, adaptive (default: all three)")
     args = ap.parse_args(argv)
+    if args.ratios is not None:
+        ratios(args.lanes, args.rounds, args.ratios or ["a1", "a2", "adaptive"])
+        return
 
     import archself
 

@@ -107,3 +107,43 @@ def test_vectorized_same_work_floor_is_the_frameworks_lanes() -> None:
             assert_allclose(out["residual"][:, lane, j], run.series[f"residual.{name}"],
                             rtol=0, atol=1e-9, err_msg=name)
         assert out["max_error"][lane] == pytest.approx(run.metrics["max_error"], abs=1e-9)
+
+
+def _same_series(out: dict, runs: list) -> None:
+    """Every lane's recorded series of the switching floor against the framework's lanes."""
+    for lane, run in enumerate(runs):
+        for key in ("J", "reference", "actual", "estimate", "command"):
+            assert_allclose(out[key][:, lane], run.series[key], rtol=0, atol=1e-9, err_msg=key)
+        for j, name in enumerate(floor().SWITCHING_RESIDUALS):
+            assert_allclose(out["residual"][:, lane, j], run.series[f"residual.{name}"],
+                            rtol=0, atol=1e-9, err_msg=name)
+        assert out["max_error"][lane] == pytest.approx(run.metrics["max_error"], abs=1e-9)
+
+
+def test_fixed_a2_floor_is_the_frameworks_lanes() -> None:
+    """The a2 floor (EKF with the GPS through the edge's latency, lqr_fused) records what
+    the framework's lanes record, to 1e-9 (bit for bit here)."""
+    from archself.lanes import simulate_lanes
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    runs = simulate_lanes(arch, "nominal", list(SEEDS), configuration="a2")
+    out = floor().run_floor_lanes_switching(list(SEEDS), start="a2", block=300)
+    _same_series(out, runs)
+    ekf = out["residual"][:, :, floor().SWITCHING_RESIDUALS.index("ekf")]
+    assert np.isfinite(ekf).sum() > 1000 and np.isnan(out["residual"][:, :, 2]).all()
+
+
+def test_adaptive_floor_replays_the_frameworks_switches() -> None:
+    """Adaptive imu_drift: the floor, given the framework's switch steps, hands over as the
+    framework does (the drift estimate into the EKF) and records the same series."""
+    from archself.lanes import simulate_lanes
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    seeds = [1, 2, 3]
+    runs = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
+    S = floor().load_setup(scenario="imu_drift")
+    steps = [int(round(r.switches[0]["t_s"] / S.dt)) - 1 for r in runs]
+    assert len(set(steps)) > 1  # the lanes switch at different steps: mixed groups run
+    out = floor().run_floor_lanes_switching(seeds, S, switches=steps, block=300)
+    _same_series(out, runs)
+    assert out["band_crossings"] > 0  # the Monitor's bands by hand saw the drift

@@ -13,7 +13,7 @@ from typing import Any
 from archself.errors import SimulationError
 from archself.lanes.module import LaneModule, PerLane
 
-__all__ = ["batched_types", "lane_module"]
+__all__ = ["batched_types", "lane_module", "lane_module_class"]
 
 
 def batched_types(arch: Any) -> bool:
@@ -32,14 +32,14 @@ def batched_types(arch: Any) -> bool:
     )
 
 
-def lane_module(modules: Sequence[Any]) -> LaneModule:
-    """The batched module of N per-run instances: the type's ``lanes`` class or PerLane.
+def lane_module_class(module: Any) -> type[LaneModule]:
+    """The lane class of a per-run instance's type: its ``lanes`` class or PerLane.
 
     ``lanes`` is a :class:`~archself.lanes.module.LaneModule` subclass or its
     ``"package.module:Class"`` path (imported on first use: a pack's batched code
     costs nothing to a run that does not batch).
     """
-    kind = type(modules[0])
+    kind = type(module)
     cls = getattr(kind, "lanes", None)
     if isinstance(cls, str):
         import importlib
@@ -52,4 +52,9 @@ def lane_module(modules: Sequence[Any]) -> LaneModule:
                 f"module type {kind.__name__}: its lanes class {kind.lanes!r} "
                 f"cannot be imported: {exc}"
             ) from None
-    return cls(modules) if cls is not None else PerLane(modules)
+    return cls if cls is not None else PerLane
+
+
+def lane_module(modules: Sequence[Any]) -> LaneModule:
+    """The batched module of N per-run instances (:func:`lane_module_class`)."""
+    return lane_module_class(modules[0])(modules)

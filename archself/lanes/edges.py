@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
-from archself.lanes.module import LaneNormals
+from archself.lanes.module import LaneNormals, stack
 
 __all__ = ["Delay", "add_noise"]
 
@@ -23,6 +23,21 @@ class Delay:
         self.n, self.delay = n, delay
         self.buf: np.ndarray | None = None
         self.head = np.zeros(n, dtype=np.intp)
+
+    @classmethod
+    def resume(cls, n: int, lines: list[Any]) -> Delay:
+        """The line of ``n`` lanes from the per-run lines (deques, oldest value first)."""
+        line = cls(n, len(lines[0]))
+        cols = [stack([ln[j] for ln in lines]) for j in range(line.delay)]
+        first = next((c for c in cols if c is not None), None)
+        if first is not None:
+            if type(first) is list:
+                raise SimulationError("an edge latency on a non-numeric signal cannot run in lanes")
+            line.buf = np.full((line.delay,) + first.shape, math.nan)
+            for j, c in enumerate(cols):
+                if c is not None:
+                    line.buf[j] = c
+        return line
 
     def exchange(self, val: Any, idx: np.ndarray) -> Any:
         """Push ``val`` (lanes ``idx``) and return what entered ``delay`` steps before."""

@@ -13,6 +13,7 @@ required input absent in that lane).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -35,6 +36,15 @@ def _present(value: Any, n: int) -> np.ndarray:
     return ~np.isnan(col)
 
 
+def _floats(value: Any) -> np.ndarray | None:
+    """A per-run stale-count value (an array's bytes or a number) as a float row."""
+    if value is None:
+        return None
+    if type(value) is bytes:
+        return np.frombuffer(value, dtype=float)
+    return np.asarray(value, dtype=float).ravel()
+
+
 class LaneHealth:
     """Availability of every module in N lanes (the per-run ``_ok``/``_why`` bookkeeping).
 
@@ -54,6 +64,29 @@ class LaneHealth:
         self.repeats: dict[tuple[str, str], np.ndarray] = {}
         self._constants: dict[str, tuple[Any, Any]] = {}
         self._any_broken: dict[str, bool] = {}
+
+    def resume(self, systems: Sequence[Any]) -> None:
+        """Take over the per-run systems' bookkeeping (one per lane): availability and
+        reasons, the time each module was last heard, the broken modules, stale counts."""
+        names = {n for s in systems for n in (*s._ok, *s._why, *s._heard, *s._broken)}
+        for name in sorted(names):
+            ok, why = self._arrays(name)
+            for i, s in enumerate(systems):
+                ok[i] = s._ok.get(name, True)
+                if s._why.get(name):
+                    why[i] = s._why[name]
+                self.heard[name][i] = s._heard.get(name, math.nan)
+                self.broken[name][i] = name in s._broken
+            self._any_broken[name] = bool(self.broken[name].any())
+        for key in {k for s in systems for k in s._repeats}:
+            self.repeats[key] = np.array([s._repeats.get(key, 0) for s in systems])
+            last = [_floats(s._last.get(key)) for s in systems]
+            width = next((v.size for v in last if v is not None), None)
+            if width is not None:
+                arr = self.last[key] = np.full((self.n, width), math.nan)
+                for i, v in enumerate(last):
+                    if v is not None:
+                        arr[i] = v
 
     def _arrays(self, name: str) -> tuple[np.ndarray, dict[int, str]]:
         ok = self.ok.get(name)
@@ -200,7 +233,11 @@ class LaneHealth:
     ) -> None:
         """Add ``lost input <s>`` to the lanes of ``idx`` without a reason whose ``s`` is absent."""
         for s in required:
-            for i in idx[~_present(inputs.get(s), len(idx))].tolist():
+            v = inputs.get(s)
+            if type(v) is np.ndarray:  # present in every lane unless the sum is NaN
+                if not math.isnan(np.add.reduce(v if v.ndim == 1 else v[:, 0])):
+                    continue
+            for i in idx[~_present(v, len(idx))].tolist():
                 reasons.setdefault(i, f"lost input {s}")
 
     def forget(self, name: str, lanes: np.ndarray) -> None:

@@ -174,6 +174,11 @@ class LaneModule:
         their last outputs. Set by the module; cleared by the executor.
     """
 
+    #: Whether the class steps what its per-run twin steps with ``smooth`` set (the
+    #: whole-loop linearization, :mod:`archself.lanes.view`); a class whose twin
+    #: reads ``smooth`` and that does not sets False, and runs lane by lane there.
+    follows_smooth: bool = True
+
     def __init__(self, modules: Sequence[RuntimeModule]) -> None:
         self.modules = list(modules)
         self.n = len(self.modules)

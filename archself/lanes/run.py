@@ -33,6 +33,7 @@ from archself.errors import SimulationError, unknown
 from archself.lanes.module import ALL
 from archself.lanes.system import LaneSystem
 from archself.model.architecture import Architecture
+from archself.model.loader import gc_paused
 from archself.sim.result import RunResult
 from archself.sim.run import Recording
 from archself.system.compiler import compile_system
@@ -99,7 +100,8 @@ def simulate_lanes(
         The configuration cannot be built.
     """
     plan = _plan(arch, scenario, seeds, configuration, adapt)
-    switches = _step(plan)
+    with gc_paused():  # no reference cycles are made; the decision logs grow (see _step)
+        switches = _step(plan)
     loops = plan.loops
     return [
         plan.rec.result(
@@ -193,7 +195,13 @@ def _layouts(plan: _Lanes) -> Callable[[str], tuple[list, list]]:
 
 def _step(plan: _Lanes) -> list[list[dict[str, Any]]]:
     """Step the lanes through the scenario, record every step, call each lane's loop
-    every ``runtime.period_s``; the switches of each lane."""
+    every ``runtime.period_s``; the switches of each lane.
+
+    The caller pauses the cyclic garbage collector: stepping and the loops make no
+    reference cycles (a 20-lane adaptive run left none to collect), but the lanes'
+    decision logs grow by a record per lane and cycle, and the collector walked them
+    again and again (14 % of 100 adaptive imu_drift lanes' CPU, 14.2 -> 12.4 s).
+    """
     lanes, rec = plan.lanes, plan.rec
     N, rt = lanes.n, plan.archs[0].runtime
     per = max(1, int(round(rt.period_s / rec.dt)))

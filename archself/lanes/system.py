@@ -29,11 +29,11 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
-from archself.lanes.batching import lane_module
+from archself.lanes.batching import lane_module, lane_module_class
 from archself.lanes.edges import Delay, add_noise
 from archself.lanes.faults import LaneFault
 from archself.lanes.health import LaneHealth
-from archself.lanes.module import ALL, LaneModule, LaneNormals
+from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, stack
 from archself.system.executor import LiveSystem
 from archself.system.streams import module_rng
 
@@ -99,6 +99,43 @@ class LaneSystem:
         self.objective: np.ndarray | None = None
         self._arrays: dict[str, dict[str, np.ndarray]] = {}
         self._arrays_k = -1
+
+    @classmethod
+    def resume(cls, systems: Sequence[LiveSystem], *, smooth: bool = False) -> LaneSystem:
+        """Lanes that go on from running per-run systems (one configuration, one time).
+
+        What a per-run step reads besides the modules' state is taken over: the
+        outputs of the last step, each module's availability, reason, last heard time
+        and stale counts, the edges' latency lines and noise streams. With ``smooth``
+        (the whole-loop linearization), a type whose lane class does not follow the
+        per-run ``smooth`` flag (``LaneModule.follows_smooth``) runs lane by lane.
+
+        Raises
+        ------
+        SimulationError
+            Systems of different structure, configuration or time.
+        """
+        first = systems[0]
+        if any(s.configuration != first.configuration or s.k != first.k for s in systems):
+            raise SimulationError("resumed lanes must share their configuration and step")
+        lanes = cls(systems)
+        lanes.t, lanes.k = first.t, first.k
+        for name in lanes.plan(first.configuration).active:
+            mods = [s._module(name) for s in systems]
+            if smooth and not getattr(lane_module_class(mods[0]), "follows_smooth", True):
+                lanes.modules[name] = PerLane(mods)
+        for name, out in first.outputs.items():
+            lanes.outputs[name] = {
+                sig: stack([(s.outputs.get(name) or {}).get(sig) for s in systems]) for sig in out
+            }
+        lanes.health.resume(systems)
+        for e in first._delay:
+            lanes._delay[e] = Delay.resume(lanes.n, [s._delay[e] for s in systems])
+        for e in first._edge_rng:
+            noise = lanes._noise(e)
+            if noise is not None:  # the streams where the runs stand, not where they started
+                lanes._edge_noise[e] = (noise[0], LaneNormals([s._edge_rng[e] for s in systems]))
+        return lanes
 
     # ------------------------------------------------------------------ structure
     def plan(self, configuration: str) -> Any:

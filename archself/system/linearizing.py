@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -23,7 +24,7 @@ from archself.linear.wiring import ClosedLoop, Wire, gc_paused, interconnect, lo
 from archself.modules.base import LinearModel, Port, RuntimeModule, _numeric
 from archself.system.step_plan import StepPlan
 
-__all__ = ["Linearizing", "numerical_loop"]
+__all__ = ["Linearizing", "LoopProbes", "loop_probes", "numerical_loop"]
 
 
 class Linearizing:
@@ -240,6 +241,74 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
     gives a non-finite state, and one-sided slopes that disagree (a
     discontinuity), are recorded in ``problems``.
     """
+    probes = loop_probes(system, configuration, steps)
+    return probes.assemble(_Runs(probes))
+
+
+class _Runs:
+    """The copies of :attr:`LoopProbes.shifts`, each stepped when first read (in order)."""
+
+    def __init__(self, probes: LoopProbes) -> None:
+        self.probes = probes
+
+    def __getitem__(self, k: int) -> Any:
+        return self.probes.probe.run(self.probes.shifts[k])
+
+
+@dataclass
+class LoopProbes:
+    """What :func:`numerical_loop` steps: the smoothed base copy, the perturbations
+    (``shifts``: the nominal run first, then +h and −h of each column group), and
+    how their states make A (:meth:`assemble`). A lane executor may step the copies
+    together (``archself.lanes.view``) and hand them to :meth:`assemble`."""
+
+    system: Any
+    probe: _Probe
+    stateful: list[str]
+    offset: dict[str, int]
+    owners: list[str]
+    labels: list[str]
+    reach: dict[str, set[str]]
+    columns: list[list[tuple[str, int, float]]]  # per perturbed pair: (module, entry, h)
+    shifts: list[dict[str, tuple[int, float]]]
+
+    def assemble(self, runs: Any, read: Callable[[Any, str], np.ndarray] | None = None
+                 ) -> WholeLoop:
+        """A from the stepped copies of :attr:`shifts` (``runs[k]``: the copy of shift k,
+        read once each, in order; ``read(run, module)``: its state, default
+        :meth:`_Probe.read` of a copied system)."""
+        probe, offset, reach, labels = self.probe, self.offset, self.reach, self.labels
+        read = read or probe.read
+        f0 = {n: read(runs[0], n) for n in self.stateful}
+        rows: list[int] = []
+        cols: list[int] = []
+        vals: list[float] = []
+        with np.errstate(all="ignore"):
+            for k, members in enumerate(self.columns):
+                plus, minus = runs[1 + 2 * k], runs[2 + 2 * k]
+                for j, i, h in members:
+                    col = offset[j] + i
+                    for n in reach[j]:
+                        if n not in offset:
+                            continue
+                        fp, fm = read(plus, n), read(minus, n)
+                        d = probe.slopes(fp, fm, n, f0[n], h, labels, offset[n], col)
+                        if d is None:
+                            continue
+                        nz = np.flatnonzero(d)
+                        rows += (offset[n] + nz).tolist()
+                        cols += [col] * nz.size
+                        vals += d[nz].tolist()
+        total = len(self.owners)
+        A: Any = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
+        if total <= DENSE_MAX:
+            A = A.toarray()
+        return WholeLoop(A, float(self.system.dt), int(probe.steps), self.owners, labels,
+                         self.stateful, probe.problems)
+
+
+def loop_probes(system: Any, configuration: str | None = None, steps: int = 1) -> LoopProbes:
+    """The base copy and the perturbations of :func:`numerical_loop` (nothing stepped yet)."""
     base = system.snapshot()
     if configuration is not None and configuration != base.configuration:
         base.apply_configuration(configuration)
@@ -253,35 +322,16 @@ def numerical_loop(system: Any, configuration: str | None = None, steps: int = 1
     for _ in range(steps - 1):  # what a module reaches in `steps` steps
         reach = {j: set().union(*(reach[m] for m in r)) for j, r in reach.items()}
     groups = _groups(stateful, {j: reach[j] & set(stateful) for j in stateful})
-    nominal = probe.run({})
-    f0 = {n: probe.read(nominal, n) for n in stateful}
-    rows: list[int] = []
-    cols: list[int] = []
-    vals: list[float] = []
-    with np.errstate(all="ignore"):
-        for group in groups:
-            for i in range(max(probe.x0[j].size for j in group)):
-                members = [j for j in group if i < probe.x0[j].size]
-                h = {j: FD_STEP * max(1.0, abs(float(probe.x0[j][i]))) for j in members}
-                plus = probe.run({j: (i, h[j]) for j in members})
-                minus = probe.run({j: (i, -h[j]) for j in members})
-                for j in members:
-                    col = offset[j] + i
-                    for n in reach[j]:
-                        if n not in offset:
-                            continue
-                        d = probe.slopes(plus, minus, n, f0[n], h[j], labels, offset[n], col)
-                        if d is None:
-                            continue
-                        nz = np.flatnonzero(d)
-                        rows += (offset[n] + nz).tolist()
-                        cols += [col] * nz.size
-                        vals += d[nz].tolist()
-    total = len(owners)
-    A: Any = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
-    if total <= DENSE_MAX:
-        A = A.toarray()
-    return WholeLoop(A, float(system.dt), int(steps), owners, labels, stateful, probe.problems)
+    columns: list[list[tuple[str, int, float]]] = []
+    shifts: list[dict[str, tuple[int, float]]] = [{}]
+    for group in groups:
+        for i in range(max(probe.x0[j].size for j in group)):
+            members = [j for j in group if i < probe.x0[j].size]
+            h = {j: FD_STEP * max(1.0, abs(float(probe.x0[j][i]))) for j in members}
+            columns.append([(j, i, h[j]) for j in members])
+            shifts.append({j: (i, h[j]) for j in members})
+            shifts.append({j: (i, -h[j]) for j in members})
+    return LoopProbes(system, probe, stateful, offset, owners, labels, reach, columns, shifts)
 
 
 def _state_labels(
@@ -312,19 +362,29 @@ class _Probe:
         self.base, self.x0, self.steps = base, x0, steps
         self.problems: list[str] = []
 
-    def run(self, shift: dict[str, tuple[int, float]]) -> Any:
-        """A copy with entry ``i`` of each module's state moved by ``h``, stepped."""
-        copy_ = self.base.snapshot()
+    def copy(self, shift: dict[str, tuple[int, float]], only: Any = None) -> Any:
+        """A copy of the base (of the modules ``only``) with entry ``i`` of each module's
+        state moved by ``h``."""
+        copy_ = self.base.snapshot(only)
         for n, (i, h) in shift.items():
             x = self.x0[n].copy()
             x[i] += h
             mod = copy_._pool[n]
             type(mod).set_state(mod, x)
+        return copy_
+
+    def raised(self, why: dict[str, str | None]) -> None:
+        """Record the first module whose step raised (``why``: module -> reason)."""
+        raised = [n for n, w in why.items() if w and w.startswith("raised")]
+        if raised and not self.problems:
+            self.problems.append(f"{raised[0]}'s step {why[raised[0]]}")
+
+    def run(self, shift: dict[str, tuple[int, float]]) -> Any:
+        """A copy with entry ``i`` of each module's state moved by ``h``, stepped."""
+        copy_ = self.copy(shift)
         for _ in range(self.steps):
             copy_.step()
-        raised = [n for n, why in copy_._why.items() if why and why.startswith("raised")]
-        if raised and not self.problems:
-            self.problems.append(f"{raised[0]}'s step {copy_._why[raised[0]]}")
+        self.raised(copy_._why)
         return copy_
 
     def read(self, copy_: Any, n: str) -> np.ndarray:
@@ -336,13 +396,13 @@ class _Probe:
             return np.full(self.x0[n].size, np.nan)
         return x
 
-    def slopes(self, plus: Any, minus: Any, n: str, f0: np.ndarray, h: float,
+    def slopes(self, fp: np.ndarray, fm: np.ndarray, n: str, f0: np.ndarray, h: float,
                labels: list[str], row0: int, col: int) -> np.ndarray | None:
-        """Central differences of ``n``'s state against entry ``col``; None if not finite.
+        """Central differences of ``n``'s state (``fp``, ``fm``: after +h and −h) against
+        entry ``col``; None if not finite.
 
         One-sided slopes that disagree (a discontinuity) are recorded as a problem.
         """
-        fp, fm = self.read(plus, n), self.read(minus, n)
         d = (fp - fm) / (2 * h)
         right = (fp - f0) / h
         left = (f0 - fm) / h

@@ -240,6 +240,7 @@ class SensorLanes(BlockLanes):
     """
 
     index: np.ndarray
+    follows_smooth = False  # the per-run sensor drops its quantizer when smooth
 
     def __init__(self, modules) -> None:
         self.normals = LaneNormals([m.rng for m in modules])

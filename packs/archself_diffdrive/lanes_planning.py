@@ -28,8 +28,18 @@ class SplinePlannerLanes(_Lanes):
     #: At most this many groups of lanes are computed one by one.
     few_groups = 4
 
+    @staticmethod
+    def _key(m) -> bytes:
+        wp = np.asarray(m.params["waypoints"], dtype=float)
+        return wp.tobytes() + str((wp.shape, m.ds, m.speed)).encode()
+
     def load(self, lanes):
         mods = self.modules  # the groups span every lane, whichever lanes are read
+        if not isinstance(lanes, slice) and all(  # a lane moved, its path unchanged
+            self._keys[i] == self._key(mods[i]) for i in lanes.tolist()
+        ):
+            return
+        self._keys = [self._key(m) for m in mods]
         tables: dict[bytes, int] = {}  # (waypoints, resolution) -> first row in self.table
         groups: dict[tuple[int, float], int] = {}
         parts: list[np.ndarray] = []

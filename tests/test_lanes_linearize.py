@@ -1,0 +1,70 @@
+"""A lane's whole-loop linearization, its perturbed copies stepped as lanes, is the per-run one.
+
+:func:`archself.lanes.view.lane_loop` (what a lane's stability check uses) against
+:func:`archself.system.linearizing.numerical_loop` on the same running system: the same
+A entry by entry (bit for bit here; 1e-9 asserted), the same problems.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+import archself
+from archself.lanes.system import LaneSystem
+from archself.lanes.view import lane_loop
+from archself.system.compiler import compile_system
+from archself.system.linearizing import numerical_loop
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _dense(A):
+    return A.toarray() if hasattr(A, "toarray") else np.asarray(A)
+
+
+@pytest.mark.parametrize(
+    ("file", "start", "target", "scenario", "t_s", "steps"),
+    [
+        ("diffdrive.yaml", "a1", "a2", "imu_drift", 47.3, 24),  # EKF, GPS latency line
+        ("diffdrive.yaml", "a2", None, "nominal", 12.0, 24),
+        ("motor_drive.yaml", "m1", "m2", "nominal", 3.0, 2),  # a quantizing sensor: lane by lane
+    ],
+)
+def test_lane_loop_is_the_per_run_loop(file, start, target, scenario, t_s, steps) -> None:
+    arch = archself.load(ROOT / "architectures" / file)
+    system = compile_system(arch, start, seed=3, scenario=arch.scenarios[scenario])
+    for _ in range(int(round(t_s / system.dt))):
+        system.step()
+    before = system.snapshot()
+    one = numerical_loop(system, target, steps)
+    lanes = lane_loop(system, target, steps)
+    assert_allclose(_dense(lanes.A), _dense(one.A), rtol=0, atol=1e-9)
+    assert lanes.labels == one.labels and lanes.problems == one.problems
+    assert np.abs(_dense(one.A)).max() > 0.1  # a loop with dynamics, not an empty matrix
+    for name in system._plan.active:  # the running system is not changed
+        assert_allclose(system.modules[name].state(), before.modules[name].state(), rtol=0,
+                        atol=0, err_msg=name)
+
+
+def test_resume_takes_over_the_outputs_and_latency_lines() -> None:
+    """Lanes resumed from running systems step as those systems do (the EKF's delayed fixes)."""
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    systems = [compile_system(arch, "a2", seed=s, scenario=arch.scenarios["nominal"])
+               for s in (1, 2)]
+    for s in systems:
+        for _ in range(41):  # a fix at 2.0 s still in the GPS -> EKF latency line
+            s.step()
+    lanes = LaneSystem.resume([s.snapshot() for s in systems])
+    for _ in range(3):
+        lanes.step()
+        for s in systems:
+            s.step()
+    for i, s in enumerate(systems):
+        assert_allclose(lanes.signal("ekf", "pose_estimate")[i], s.outputs["ekf"]["pose_estimate"],
+                        rtol=0, atol=1e-12)
+        assert_allclose(lanes.module("ekf").state()[i], s.modules["ekf"].state(), rtol=0,
+                        atol=1e-12)
