@@ -200,6 +200,19 @@ class MeasuredSystem:
             :attr:`max_jump_s` (the first measurement's time is free). The
             measurement refused changes nothing.
         """
+        t = self._checked_time(t)
+        new_outputs, new_signals = self._checked_values(outputs, signals, health, configuration)
+        self.t = t
+        self.measured += 1
+        self.outputs.update(new_outputs)
+        self._signals.update(new_signals)
+        for m, why in (health or {}).items():
+            self._health[str(m)] = None if why is None else str(why)
+        if configuration is not None and configuration != self.configuration:
+            self._switch(configuration, by="plant")
+
+    def _checked_time(self, t: Any) -> float:
+        """The measurement's time as a float, refused if not finite, going back or jumping."""
         if isinstance(t, (str, bytes)):
             raise LiveError(f"t: measurement time {t[:40]!r} is not a number (a string)")
         try:
@@ -216,6 +229,16 @@ class MeasuredSystem:
             if self.max_jump_s is not None and t - self.t > self.max_jump_s:
                 raise LiveError(f"t: measurement time {t:g} s jumps {t - self.t:g} s past the "
                                 f"last one, {self.t:g} s (at most {self.max_jump_s:g} s)")
+        return t
+
+    def _checked_values(
+        self,
+        outputs: Mapping[str, Mapping[str, Any]] | None,
+        signals: Mapping[str, Mapping[str, Any]] | None,
+        health: Mapping[str, str | None] | None,
+        configuration: str | None,
+    ) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, float]]]:
+        """The measurement's outputs and signals, checked (nothing is kept before all pass)."""
         for what, value in (("outputs", outputs), ("signals", signals), ("health", health)):
             if value is not None and not isinstance(value, Mapping):
                 raise LiveError(f"measurement {what} must be a mapping of modules")
@@ -236,14 +259,7 @@ class MeasuredSystem:
             known = ", ".join(self.arch.configurations)
             raise LiveError(f"configuration: the plant reports unknown configuration "
                             f"{configuration!r}; known: {known}")
-        self.t = t
-        self.measured += 1
-        self.outputs.update(new_outputs)
-        self._signals.update(new_signals)
-        for m, why in (health or {}).items():
-            self._health[str(m)] = None if why is None else str(why)
-        if configuration is not None and configuration != self.configuration:
-            self._switch(configuration, by="plant")
+        return new_outputs, new_signals
 
     def step(self) -> None:
         """Refused: the plant advances itself; measurements come by :meth:`update`.
