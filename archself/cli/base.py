@@ -4,7 +4,8 @@ The app with its root callback, the options shared by the commands that run many
 simulations, the one-line error helpers (``_fail``, ``_die``), ``_emit`` (stdout or
 an atomic file), input checks, the numeric-trouble guard and ``main`` (the
 ``archself`` script: signals, Ctrl-C, one-line errors, exit codes). The commands
-live in the sibling modules and are registered in :mod:`archself.cli`.
+live in the sibling modules; :func:`register` adds them to the app (``main``: only the
+one it runs, so a command imports only its own module).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
+from importlib import import_module
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -449,11 +451,47 @@ def _load(path: Path):
     return loaded.arch
 
 
+#: command → (module of :mod:`archself.cli`, function), in the order of ``--help``
+COMMANDS = {
+    "validate": ("files", "validate"),
+    "schema": ("files", "schema"),
+    "docs": ("files", "docs"),
+    "init": ("files", "init"),
+    "simulate": ("runs", "simulate"),
+    "report": ("reports", "report"),
+    "explain": ("runs", "explain"),
+    "live": ("live", "live"),
+    "ros2": ("ros2", "ros2"),
+    "campaign": ("campaigns", "campaign"),
+    "campaign-report": ("campaigns", "campaign_report_cmd"),
+    "export": ("files", "export"),
+    "info": ("files", "info"),
+    "calibrate": ("calibration", "calibrate"),
+    "identify": ("calibration", "identify"),
+    "generate": ("files", "generate"),
+}
+_WRAPPED: dict[str, Any] = {}
+
+
+def register(names: Any = None) -> Any:
+    """The app with the commands ``names`` (default: all) registered, in :data:`COMMANDS` order."""
+    app.registered_commands = []
+    for name, (module, function) in COMMANDS.items():
+        if names is None or name in names:
+            if name not in _WRAPPED:
+                command = getattr(import_module(f"archself.cli.{module}"), function)
+                _WRAPPED[name] = with_verbosity(command)
+            app.command(name)(_WRAPPED[name])
+    return app
+
+
 def main() -> None:
-    """Entry point of the ``archself`` script."""
-    from archself.campaign.executors import single_thread_blas
+    """Entry point of the ``archself`` script: the command named, else every command, runs."""
+    from archself.campaign.local_executor import single_thread_blas
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
+    first = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
+    register([first] if first in COMMANDS else None)
     import signal
 
     from archself.errors import Terminated, raise_terminated
