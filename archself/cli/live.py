@@ -105,10 +105,7 @@ def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, roll
             _known_configuration(arch, config, arch_path)
             loop = LiveLoop(arch, configuration=config, rollout=rollout, max_jump_s=max_jump)
             start = loop.configuration
-            loop.on_command(lambda c: typer.echo(
-                f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
-                if c.kind == "configuration" else
-                f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
+            loop.on_command(_say_command)
             journal = None if log is None else _Journal(log, loop, arch_path, start)
             try:
                 served = run_remote(loop, host, port, timeout_s=timeout, token=token)
@@ -125,17 +122,8 @@ def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, roll
 
 def _print_live(name: str, loop: Any, start: str, served: int, json_out: bool) -> None:
     """The run's summary: one JSON object, or a line and the commands in time order."""
-    result = {
-        "architecture": name,
-        "measurements": served,
-        "cycles": loop.mapek.cycle,
-        "configuration": start,
-        "final_configuration": loop.configuration,
-        "switches": loop.switches,
-        "updates": loop.updates,
-    }
     if json_out:
-        typer.echo(json.dumps(result, indent=1))
+        typer.echo(json.dumps(_result(name, start, loop, served), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
     typer.echo(f"{name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")
@@ -143,6 +131,22 @@ def _print_live(name: str, loop: Any, start: str, served: int, json_out: bool) -
     lines += [(u["t_s"], f"{u['module']} ← {u['set']} ({u['action']})") for u in loop.updates]
     for t_s, what in sorted(lines, key=lambda line: line[0]):  # in time order
         typer.echo(f"  t = {t_s:g} s: {what}")
+
+
+def _say_command(c: Any) -> None:
+    """A command the loop sent to the plant, on stderr."""
+    typer.echo(f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
+               if c.kind == "configuration" else
+               f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True)
+
+
+def _result(name: str, start: str, loop: Any, measurements: int) -> dict[str, Any]:
+    """The run's summary as ``--json`` prints it (``ros2`` adds its figures)."""
+    return {
+        "architecture": name, "measurements": measurements, "cycles": loop.mapek.cycle,
+        "configuration": start, "final_configuration": loop.configuration,
+        "switches": loop.switches, "updates": loop.updates,
+    }
 
 
 def _ending(exc: BaseException) -> str:
