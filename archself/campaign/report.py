@@ -63,21 +63,11 @@ def summary_text(s: CampaignSummary) -> str:
 
 
 def _environment() -> Any:
-    from jinja2 import FileSystemLoader, StrictUndefined
-    from jinja2.sandbox import SandboxedEnvironment
+    """The report templates' environment with this report's ``pct`` and ``num`` filters."""
+    from archself.reports.render import environment
 
-    from archself.resources import data_dir
-
-    env = SandboxedEnvironment(
-        loader=FileSystemLoader(str(data_dir("templates"))),
-        undefined=StrictUndefined,
-        autoescape=True,
-        trim_blocks=True,
-        lstrip_blocks=True,
-        keep_trailing_newline=True,
-    )
-    env.filters["pct"] = _pct
-    env.filters["num"] = _num
+    env = environment().overlay()
+    env.filters = {**env.filters, "pct": _pct, "num": _num}  # not the shared dict
     return env
 
 
