@@ -23,16 +23,6 @@ import typer
 
 from archself.errors import ArchselfError
 
-app = typer.Typer(
-    name="archself",
-    help="Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K).",
-    no_args_is_help=True,
-    add_completion=True,
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-    context_settings={"help_option_names": ["-h", "--help"]},
-)
-
 
 def _version(value: bool) -> None:
     if value:
@@ -42,7 +32,6 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
 def _root(
     version: Annotated[
         bool, typer.Option("--version", "-V", callback=_version, is_eager=True,
@@ -50,6 +39,25 @@ def _root(
     ] = False,
 ) -> None:
     """Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K)."""
+
+
+def _new_app() -> typer.Typer:
+    """The typer app with its root options, without commands (:func:`register` adds them)."""
+    new = typer.Typer(
+        name="archself",
+        help="Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K).",
+        no_args_is_help=True,
+        add_completion=True,
+        pretty_exceptions_enable=False,
+        rich_markup_mode=None,
+        context_settings={"help_option_names": ["-h", "--help"]},
+    )
+    new.callback()(_root)
+    return new
+
+
+#: the app of every command (``archself.cli.app``; :func:`main` runs one of its own)
+app = _new_app()
 
 
 class FigureFormat(StrEnum):
@@ -473,16 +481,18 @@ COMMANDS = {
 _WRAPPED: dict[str, Any] = {}
 
 
-def register(names: Any = None) -> Any:
-    """The app with the commands ``names`` (default: all) registered, in :data:`COMMANDS` order."""
-    app.registered_commands = []
+def register(names: Any = None, into: typer.Typer | None = None) -> typer.Typer:
+    """``into`` (default :data:`app`) with the commands ``names`` (default: all), in
+    :data:`COMMANDS` order."""
+    into = app if into is None else into
+    into.registered_commands = []
     for name, (module, function) in COMMANDS.items():
         if names is None or name in names:
             if name not in _WRAPPED:
                 command = getattr(import_module(f"archself.cli.{module}"), function)
                 _WRAPPED[name] = with_verbosity(command)
-            app.command(name)(_WRAPPED[name])
-    return app
+            into.command(name)(_WRAPPED[name])
+    return into
 
 
 def main() -> None:
@@ -491,7 +501,7 @@ def main() -> None:
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
     first = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
-    register([first] if first in COMMANDS else None)
+    cli = register([first], _new_app()) if first in COMMANDS else register()
     import signal
 
     from archself.errors import Terminated, raise_terminated
@@ -503,7 +513,7 @@ def main() -> None:
         return SystemExit(143 if terminated else 130)
 
     try:
-        app()
+        cli()
     except SystemExit as exc:
         # typer turns Ctrl-C into a silent exit 130: say what happened
         cause = exc.__context__.__cause__ if exc.__context__ is not None else None
