@@ -123,6 +123,9 @@ WorkersOption = Annotated[
 RootSeedOption = Annotated[
     int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
 ]
+PastCapOption = Annotated[  # simulate, campaign
+    bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
+]
 
 
 class TraceFormat(StrEnum):

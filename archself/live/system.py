@@ -201,7 +201,26 @@ class MeasuredSystem:
             measurement refused changes nothing.
         """
         t = self._checked_time(t)
-        new_outputs, new_signals = self._checked_values(outputs, signals, health, configuration)
+        for what, value in (("outputs", outputs), ("signals", signals), ("health", health)):
+            if value is not None and not isinstance(value, Mapping):
+                raise LiveError(f"measurement {what} must be a mapping of modules")
+            for m, sigs in (value or {}).items() if what != "health" else ():
+                if sigs is not None and not isinstance(sigs, Mapping):
+                    raise LiveError(f"measurement {what} of module {str(m)!r} must be a "
+                                    "mapping of signals")
+        if configuration is not None and not isinstance(configuration, str):
+            raise LiveError(f"the plant reports configuration {configuration!r}, not a name")
+        new_outputs = {str(m): {str(k): _value(v, f"outputs.{m}.{k}")
+                                for k, v in (sigs or {}).items()}
+                       for m, sigs in (outputs or {}).items()}
+        new_signals = {str(m): {str(k): _number(v, f"signals.{m}.{k}")
+                                for k, v in (sigs or {}).items()}
+                       for m, sigs in (signals or {}).items()}
+        if configuration is not None and configuration != self.configuration and (
+                configuration not in self.arch.configurations):
+            known = ", ".join(self.arch.configurations)
+            raise LiveError(f"configuration: the plant reports unknown configuration "
+                            f"{configuration!r}; known: {known}")
         self.t = t
         self.measured += 1
         self.outputs.update(new_outputs)
@@ -230,36 +249,6 @@ class MeasuredSystem:
                 raise LiveError(f"t: measurement time {t:g} s jumps {t - self.t:g} s past the "
                                 f"last one, {self.t:g} s (at most {self.max_jump_s:g} s)")
         return t
-
-    def _checked_values(
-        self,
-        outputs: Mapping[str, Mapping[str, Any]] | None,
-        signals: Mapping[str, Mapping[str, Any]] | None,
-        health: Mapping[str, str | None] | None,
-        configuration: str | None,
-    ) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, float]]]:
-        """The measurement's outputs and signals, checked (nothing is kept before all pass)."""
-        for what, value in (("outputs", outputs), ("signals", signals), ("health", health)):
-            if value is not None and not isinstance(value, Mapping):
-                raise LiveError(f"measurement {what} must be a mapping of modules")
-            for m, sigs in (value or {}).items() if what != "health" else ():
-                if sigs is not None and not isinstance(sigs, Mapping):
-                    raise LiveError(f"measurement {what} of module {str(m)!r} must be a "
-                                    "mapping of signals")
-        if configuration is not None and not isinstance(configuration, str):
-            raise LiveError(f"the plant reports configuration {configuration!r}, not a name")
-        new_outputs = {str(m): {str(k): _value(v, f"outputs.{m}.{k}")
-                                for k, v in (sigs or {}).items()}
-                       for m, sigs in (outputs or {}).items()}
-        new_signals = {str(m): {str(k): _number(v, f"signals.{m}.{k}")
-                                for k, v in (sigs or {}).items()}
-                       for m, sigs in (signals or {}).items()}
-        if configuration is not None and configuration != self.configuration and (
-                configuration not in self.arch.configurations):
-            known = ", ".join(self.arch.configurations)
-            raise LiveError(f"configuration: the plant reports unknown configuration "
-                            f"{configuration!r}; known: {known}")
-        return new_outputs, new_signals
 
     def step(self) -> None:
         """Refused: the plant advances itself; measurements come by :meth:`update`.
