@@ -54,3 +54,15 @@ def test_running_one_command_keeps_every_command_on_the_app(monkeypatch) -> None
     assert [c.name for c in app.registered_commands] == list(COMMANDS)
     res = CliRunner().invoke(app, ["-h"])
     assert res.exit_code == 0 and "campaign-report" in res.stdout
+
+
+def test_root_help_before_a_command_lists_every_command(monkeypatch, capsys) -> None:
+    from archself.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["archself", "--help", "schema"])
+    try:
+        main()
+    except SystemExit as exc:
+        assert exc.code == 0
+    out = capsys.readouterr().out
+    assert "campaign-report" in out and "simulate" in out and "Commands:" in out

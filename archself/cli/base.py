@@ -503,7 +503,7 @@ def main() -> None:
     from archself.campaign.local_executor import single_thread_blas
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
-    first = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
+    first = sys.argv[1] if len(sys.argv) > 1 else None  # `archself --help x`: every command
     cli = register([first], _new_app()) if first in COMMANDS else register()
     import signal
 
