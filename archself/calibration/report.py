@@ -154,22 +154,18 @@ def _cell_row(c: CellResult) -> dict[str, Any]:
         "scale_needed": _fmt(c.scale_needed, 4),
     }
 
-def _figure(width: float = 6.4, height: float = 3.2) -> Any:
-    from archself.sim.plot import paper_figure
-
-    return paper_figure(width, height)
-
 
 def _save(fig: Any, path: Path) -> None:
-    from archself.io.atomic import write_bytes
-    from archself.reports.figures import figure_bytes
+    from archself.reports.figures import write_figure
 
-    write_bytes(path, figure_bytes(fig, "svg"))
+    write_figure(path.parent, path.stem, fig, ["svg"], 150)
 
 
 def _fig_module(cal: Calibration, module: str, path: Path) -> bool:
+    from archself.sim.plot import paper_figure
+
     b = cal.modules[module]
-    fig = _figure()
+    fig = paper_figure(6.4, 3.2)
     ax = fig.add_subplot()
     drawn = False
     for c in cal.data:
@@ -200,7 +196,9 @@ def _fig_module(cal: Calibration, module: str, path: Path) -> bool:
 def _fig_tail(cal: Calibration, path: Path) -> bool:
     from scipy.stats import gumbel_r
 
-    fig = _figure(6.4, 3.6)
+    from archself.sim.plot import paper_figure
+
+    fig = paper_figure(6.4, 3.6)
     ax = fig.add_subplot()
     drawn = False
     for c in cal.cells:

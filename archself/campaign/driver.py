@@ -11,6 +11,17 @@ table is the same whatever the number of workers or the order they finish in.
 Results are written atomically to the Parquet file every few seconds and at
 the end; an interrupted campaign keeps every finished run and ``resume``
 continues it, skipping the runs already in the file (failed runs are retried).
+
+A local worker that dies (killed, out of memory, a crash in C code) breaks the
+pool and every run on it: the pool is started again and the unfinished runs
+are submitted again. The runs that were on the workers (the first
+``workers + 1`` unfinished ones: the pool is FIFO) are retried one at a time
+first, so that a run that kills its worker is found: alone on the pool
+:data:`MAX_ATTEMPTS` times, it becomes a failed row (``--resume`` retries
+failed rows) and the campaign goes on. After :data:`MAX_POOL_RESTARTS`
+restarts the campaign stops with a message naming ``--resume``; the finished
+rows are saved.
+
 The planning (validation, size, seeds, jobs) is in :mod:`archself.campaign.plan`;
 :func:`plan_campaign`, :func:`run_seeds` and :class:`CampaignEstimate` are
 re-exported here.
@@ -278,15 +289,7 @@ def run_campaign(
         workers, within half the free memory, at most 256) where every module type of
         the file is batched (``meta["lane_types"]``), else 1.
 
-    A local worker that dies (killed, out of memory, a crash in C code) breaks the
-    pool and every run on it: the pool is started again and the unfinished runs
-    are submitted again. The runs that were on the workers (the first
-    ``workers + 1`` unfinished ones: the pool is FIFO) are retried one at a time
-    first, so that a run that kills its worker is found: alone on the pool
-    :data:`MAX_ATTEMPTS` times, it becomes a failed row (``--resume`` retries
-    failed rows) and the campaign goes on. After :data:`MAX_POOL_RESTARTS`
-    restarts the campaign stops with a message naming ``--resume``; the finished
-    rows are saved.
+    A local worker that dies: its runs are retried, as the module's docstring says.
 
     Raises
     ------
@@ -298,24 +301,29 @@ def run_campaign(
     OutputError
         ``out`` or a trace is an input file; the traces folder cannot be written.
     """
-    from archself.campaign.executors import make_executor
-    from archself.campaign.results import write_results
-
-    if progress is True:
-        bar = RunProgress("{total:,} runs")
-        try:
-            return run_campaign(jobs, meta, out, executor=executor, workers=workers,
-                                address=address, resume=resume, force=force,
-                                progress=bar.update, flush_s=flush_s, notice=notice,
-                                job_fn=job_fn, lanes=lanes)
-        finally:
+    run = _plan_run(jobs, meta, Path(out), executor, resume=resume, force=force)
+    if not run.todo:
+        run.flush()
+        return run.outcome()
+    bar = RunProgress("{total:,} runs") if progress is True else None
+    run.progress = bar.update if bar is not None else progress if callable(progress) else None
+    run.say = notice or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    run.flush_s, run.unit_fn = flush_s, functools.partial(run_unit, job_fn)
+    try:
+        run.open(workers, address, lanes)
+        run.run()
+    finally:
+        if bar is not None:
             bar.close()
-    progress = progress if callable(progress) else None
-    out = Path(out)
+    return run.outcome()
+
+
+def _plan_run(jobs: Sequence[Job], meta: dict[str, Any], out: Path, executor: str, *,
+              resume: bool, force: bool) -> _Campaign:
+    """Check the outputs, keep the rows to resume from: the runs to do."""
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise CampaignError(f"{out}: cannot write: folder {folder} does not exist")
-    say = notice or (lambda msg: print(msg, file=sys.stderr, flush=True))
     _check_outputs(jobs, out)
     rows: list[dict[str, Any]] = []
     if out.exists() and resume:
@@ -325,143 +333,178 @@ def run_campaign(
     done_ids = {r["run_id"] for r in rows}
     # replicate-major submission: an interrupted campaign has seeds of every cell
     todo = sorted((j for j in jobs if j.run_id not in done_ids), key=lambda j: j.replicate)
-    sweep_paths = list(meta.get("sweeps", []))
-    t0 = time.perf_counter()
-    ran = failed = 0
-    errors: list[str] = []
+    return _Campaign(jobs, meta, out, executor, rows, todo)
 
-    def flush() -> None:
-        write_results(out, rows, sweep_paths, meta)
 
-    def saved() -> str:
-        n = len(rows)
-        return (f"{n} run{'s' * (n != 1)} saved in {out}; "
+def _lane_width(lanes: int | None, meta: dict[str, Any], jobs: Sequence[Job],
+                todo: list[Job], n_workers: int) -> int:
+    """Runs per unit of work: ``lanes``, else :func:`default_lanes` where lanes pay."""
+    if lanes is None and not meta.get("lane_types", True):
+        return 1  # some module type would run lane by lane: lanes would not pay
+    if lanes is None:
+        steps = int(meta.get("steps", 0)) // max(1, len(jobs))
+        return default_lanes(todo, n_workers, steps, available_memory())
+    return max(1, int(lanes))
+
+
+class _Campaign:
+    """The runs of a campaign on one executor: submit, keep the rows, recover a dead pool.
+
+    A worker that dies: as the module's docstring says.
+    """
+
+    def __init__(self, jobs: Sequence[Job], meta: dict[str, Any], out: Path, executor: str,
+                 rows: list[dict[str, Any]], todo: list[Job]) -> None:
+        self.jobs, self.meta, self.out, self.executor = jobs, meta, out, executor
+        self.rows, self.todo = rows, todo
+        self.pending: dict[str, Job] = {j.run_id: j for j in todo}  # in submission order
+        self.suspects: set[str] = set()  # on a worker when the pool broke: one at a time
+        self.attempts: dict[str, int] = {}  # pool breaks while a run was alone on it
+        self.ran = self.failed = self.restarts = 0
+        self.errors: list[str] = []
+        self.futures: dict[Any, tuple[Job, ...]] = {}
+        self.progress: Callable[[int, int], None] | None = None
+        self.say: Callable[[str], None] = print
+        self.flush_s = 2.0
+        self.unit_fn: Callable[..., Any] = run_unit
+        self.width = 1
+        self.t0 = time.perf_counter()
+
+    def flush(self) -> None:
+        from archself.campaign.results import write_results
+
+        write_results(self.out, self.rows, list(self.meta.get("sweeps", [])), self.meta)
+
+    def saved(self) -> str:
+        n = len(self.rows)
+        return (f"{n} run{'s' * (n != 1)} saved in {self.out}; "
                 "run the same command with --resume to continue")
 
-    if not todo:
-        flush()
-        return CampaignOutcome(out, len(jobs), len(jobs), 0, 0, len(rows), 0, executor, 0.0)
+    def open(self, workers: int | None, address: str | None, lanes: int | None) -> None:
+        """Start the executor; the runs per unit of work from its workers."""
+        # no more local processes than runs (--workers 100000 on 2 runs starts 2)
+        self.n_start = None if workers is None else max(1, min(int(workers), len(self.todo)))
+        self.address = address
+        self.start()
+        self.n_workers = self.ex.workers
+        self.width = _lane_width(lanes, self.meta, self.jobs, self.todo, self.n_workers)
 
-    # no more local processes than runs (--workers 100000 on 2 runs starts 2)
-    n_start = None if workers is None else max(1, min(int(workers), len(todo)))
+    def start(self) -> None:
+        """Start the executor (again after a worker died)."""
+        from archself.campaign.executors import make_executor
 
-    def start() -> Any:
         try:
-            return make_executor(
-                executor, workers=n_start, address=address, preload=["archself.campaign.worker"]
-            )
+            self.ex = make_executor(self.executor, workers=self.n_start, address=self.address,
+                                    preload=["archself.campaign.worker"])
         except (OSError, RuntimeError) as exc:
-            raise CampaignError(f"cannot start the {executor} workers: {exc}") from None
+            raise CampaignError(f"cannot start the {self.executor} workers: {exc}") from None
 
-    def keep(job: Job, row: dict[str, Any]) -> None:
-        nonlocal ran, failed
-        pending.pop(job.run_id, None)
-        suspects.discard(job.run_id)
-        rows.append(row)
-        ran += 1
+    def keep(self, job: Job, row: dict[str, Any]) -> None:
+        """A finished run's row: kept, counted, reported to ``progress``."""
+        self.pending.pop(job.run_id, None)
+        self.suspects.discard(job.run_id)
+        self.rows.append(row)
+        self.ran += 1
         if row.get("error"):
-            failed += 1
-            if len(errors) < 5:
-                errors.append(f"{row['run_id']}: {row['error']}")
-        if progress is not None:
-            progress(ran, len(todo))
+            self.failed += 1
+            if len(self.errors) < 5:
+                self.errors.append(f"{row['run_id']}: {row['error']}")
+        if self.progress is not None:
+            self.progress(self.ran, len(self.todo))
 
-    unit_fn = functools.partial(run_unit, job_fn)
-    pending: dict[str, Job] = {j.run_id: j for j in todo}  # in submission order
-    suspects: set[str] = set()  # on a worker when the pool broke: retried one at a time
-    attempts: dict[str, int] = {}  # pool breaks while a run was alone on it
-    restarts = 0
-    ex = start()
-    n_workers = ex.workers
-    if lanes is None and not meta.get("lane_types", True):
-        width = 1  # some module type would run lane by lane: lanes would not pay
-    elif lanes is None:
-        steps = int(meta.get("steps", 0)) // max(1, len(jobs))
-        width = default_lanes(todo, n_workers, steps, available_memory())
-    else:
-        width = max(1, int(lanes))
-    futures: dict[Any, tuple[Job, ...]] = {}
-    try:
-        if progress is not None:
-            progress(0, len(todo))
-        last = time.perf_counter()
-        while pending:
-            alone = [j for j in pending.values() if j.run_id in suspects][:1]
-            units = ([tuple(alone)] if alone
-                     else lane_units(list(pending.values()), width, n_workers))
+    def run(self) -> None:
+        """Rounds of submission until no run is pending; Ctrl-C or an error saves the rows."""
+        try:
+            if self.progress is not None:
+                self.progress(0, len(self.todo))
+            self.last = time.perf_counter()
+            while self.pending:
+                self.round()
+            self.flush()
+        except KeyboardInterrupt as exc:
+            from archself.errors import Terminated
+
+            _abort(self.ex, self.futures)
+            self.flush()
+            terminated = isinstance(exc, Terminated)
+            err = CampaignInterrupted(
+                f"{'terminated' if terminated else 'interrupted'}: {self.saved()}")
+            err.exit_code = 143 if terminated else 130
+            raise err from None
+        except BaseException:
+            _abort(self.ex, self.futures)
+            self.flush()
+            raise
+        self.ex.close()
+
+    def round(self) -> None:
+        """Submit the pending runs (a suspect alone), keep the rows as they finish."""
+        alone = [j for j in self.pending.values() if j.run_id in self.suspects][:1]
+        units = ([tuple(alone)] if alone
+                 else lane_units(list(self.pending.values()), self.width, self.n_workers))
+        try:
+            self.futures = {self.ex.submit(self.unit_fn, u): u for u in units}
+        except Exception as exc:  # noqa: BLE001 - a pool that cannot take work
+            if not _worker_died(exc) and not isinstance(exc, OSError):
+                raise
+            raise CampaignError(f"the {self.executor} workers could not start: {exc}") from None
+        for fut in self.ex.as_completed(list(self.futures)):
+            unit = self.futures[fut]
             try:
-                futures = {ex.submit(unit_fn, u): u for u in units}
-            except Exception as exc:  # noqa: BLE001 - a pool that cannot take work
-                if not _worker_died(exc) and not isinstance(exc, OSError):
-                    raise
-                raise CampaignError(f"the {executor} workers could not start: {exc}") from None
-            died: BaseException | None = None
-            for fut in ex.as_completed(list(futures)):
-                unit = futures[fut]
-                try:
-                    unit_rows = fut.result()
-                except Exception as exc:  # noqa: BLE001 - infrastructure, not the run
-                    if _worker_died(exc) and executor != "dask":
-                        died = exc
-                        break
-                    unit_rows = [_failed_row(j, f"{type(exc).__name__}: {exc}") for j in unit]
-                for job, row in zip(unit, unit_rows, strict=True):
-                    keep(job, row)
-                now = time.perf_counter()
-                if now - last >= flush_s:
-                    flush()
-                    last = now
-            if died is None:
-                continue
-            # a worker died: keep what finished, then find the run that was on it
-            for fut, unit in futures.items():
-                if unit[0].run_id in pending and fut.done() and not fut.cancelled():
-                    if fut.exception() is None:
-                        for job, row in zip(unit, fut.result(), strict=True):
-                            keep(job, row)
-            flush()
-            if alone:  # it was alone on the pool: it is the one
-                job = alone[0]
-                attempts[job.run_id] = attempts.get(job.run_id, 0) + 1
-                if attempts[job.run_id] >= MAX_ATTEMPTS:
-                    keep(job, _failed_row(job, f"worker process died ({MAX_ATTEMPTS + 1} tries)"))
-            else:  # FIFO: the first workers + 1 unfinished units were on a worker or queued
-                left = [u for u in units if u[0].run_id in pending]
-                suspects.update(j.run_id for u in left[: n_workers + 1] for j in u)
-            with contextlib.suppress(Exception):  # the pool is broken already
-                getattr(ex, "abort", ex.close)()
-            restarts += 1
-            if restarts > MAX_POOL_RESTARTS:
-                flush()
-                raise CampaignError(
-                    f"worker processes died {restarts} times ({type(died).__name__}); {saved()}"
-                )
-            say(
-                f"a worker process died ({type(died).__name__}); pool restarted "
-                f"({restarts}/{MAX_POOL_RESTARTS}), {len(pending)} runs to go"
-                + (f", {len(suspects)} retried one at a time" if suspects else "")
-            )
-            if pending:
-                ex = start()
-        flush()
-    except KeyboardInterrupt as exc:
-        from archself.errors import Terminated
+                unit_rows = fut.result()
+            except Exception as exc:  # noqa: BLE001 - infrastructure, not the run
+                if _worker_died(exc) and self.executor != "dask":
+                    self.recover(exc, units, alone)
+                    return
+                unit_rows = [_failed_row(j, f"{type(exc).__name__}: {exc}") for j in unit]
+            for job, row in zip(unit, unit_rows, strict=True):
+                self.keep(job, row)
+            now = time.perf_counter()
+            if now - self.last >= self.flush_s:
+                self.flush()
+                self.last = now
 
-        _abort(ex, futures)
-        flush()
-        terminated = isinstance(exc, Terminated)
-        err = CampaignInterrupted(f"{'terminated' if terminated else 'interrupted'}: {saved()}")
-        err.exit_code = 143 if terminated else 130
-        raise err from None
-    except BaseException:
-        _abort(ex, futures)
-        flush()
-        raise
-    ex.close()
-    return CampaignOutcome(
-        out, len(jobs), len(jobs) - len(todo), ran, failed, len(rows), n_workers, ex.name,
-        time.perf_counter() - t0, errors,
-    )
+    def recover(self, died: BaseException, units: list[tuple[Job, ...]],
+                alone: list[Job]) -> None:
+        """A worker died: keep what finished, find the run that was on it, restart the pool."""
+        for fut, unit in self.futures.items():
+            if unit[0].run_id in self.pending and fut.done() and not fut.cancelled():
+                if fut.exception() is None:
+                    for job, row in zip(unit, fut.result(), strict=True):
+                        self.keep(job, row)
+        self.flush()
+        if alone:  # it was alone on the pool: it is the one
+            job = alone[0]
+            self.attempts[job.run_id] = self.attempts.get(job.run_id, 0) + 1
+            if self.attempts[job.run_id] >= MAX_ATTEMPTS:
+                self.keep(job, _failed_row(job, f"worker process died ({MAX_ATTEMPTS + 1} tries)"))
+        else:  # FIFO: the first workers + 1 unfinished units were on a worker or queued
+            left = [u for u in units if u[0].run_id in self.pending]
+            self.suspects.update(j.run_id for u in left[: self.n_workers + 1] for j in u)
+        with contextlib.suppress(Exception):  # the pool is broken already
+            getattr(self.ex, "abort", self.ex.close)()
+        self.restarts += 1
+        if self.restarts > MAX_POOL_RESTARTS:
+            self.flush()
+            raise CampaignError(f"worker processes died {self.restarts} times "
+                                f"({type(died).__name__}); {self.saved()}")
+        self.say(
+            f"a worker process died ({type(died).__name__}); pool restarted "
+            f"({self.restarts}/{MAX_POOL_RESTARTS}), {len(self.pending)} runs to go"
+            + (f", {len(self.suspects)} retried one at a time" if self.suspects else "")
+        )
+        if self.pending:
+            self.start()
+
+    def outcome(self) -> CampaignOutcome:
+        """What the campaign did (nothing to run: no workers, no time)."""
+        n = len(self.jobs)
+        if not self.todo:
+            return CampaignOutcome(self.out, n, n, 0, 0, len(self.rows), 0, self.executor, 0.0)
+        return CampaignOutcome(
+            self.out, n, n - len(self.todo), self.ran, self.failed, len(self.rows),
+            self.n_workers, self.ex.name, time.perf_counter() - self.t0, self.errors,
+        )
 
 
 def _failed_row(job: Job, error: str) -> dict[str, Any]:

@@ -7,46 +7,30 @@ command line. Its futures (:class:`_Deferred`) compute on first ``result()``.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future
 from typing import Any
 
 __all__ = ["InlineExecutor"]
 
 
-class _Deferred:
+class _Deferred(Future):
     """A future of :class:`InlineExecutor`: computed when first asked for."""
 
     def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
-        self._fn, self._args = fn, args
-        self._done = self._cancelled = False
-        self._value: Any = None
-        self._exc: BaseException | None = None
+        super().__init__()
+        self._call = fn, args
 
     def _run(self) -> None:
-        if not self._done and not self._cancelled:
+        if not self.done() and self.set_running_or_notify_cancel():
+            fn, args = self._call
             try:
-                self._value = self._fn(*self._args)
+                self.set_result(fn(*args))
             except Exception as exc:  # noqa: BLE001 - kept for result(), like a real future
-                self._exc = exc
-            self._done = True
+                self.set_exception(exc)
 
-    def result(self) -> Any:
-        if self._cancelled:
-            import concurrent.futures
-
-            raise concurrent.futures.CancelledError()
+    def result(self, timeout: float | None = None) -> Any:
         self._run()
-        if self._exc is not None:
-            raise self._exc
-        return self._value
-
-    def done(self) -> bool:
-        return self._done or self._cancelled
-
-    def cancel(self) -> bool:
-        if self._done:
-            return False
-        self._cancelled = True
-        return True
+        return super().result(timeout)
 
 
 class InlineExecutor:
@@ -67,7 +51,7 @@ class InlineExecutor:
 
     def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
         for f in list(futures):
-            if not f._cancelled:
+            if not f.cancelled():
                 f._run()
                 yield f
 

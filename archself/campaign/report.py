@@ -63,21 +63,11 @@ def summary_text(s: CampaignSummary) -> str:
 
 
 def _environment() -> Any:
-    from jinja2 import FileSystemLoader, StrictUndefined
-    from jinja2.sandbox import SandboxedEnvironment
+    """The report templates' environment with this report's ``pct`` and ``num`` filters."""
+    from archself.reports.render import environment
 
-    from archself.resources import data_dir
-
-    env = SandboxedEnvironment(
-        loader=FileSystemLoader(str(data_dir("templates"))),
-        undefined=StrictUndefined,
-        autoescape=True,
-        trim_blocks=True,
-        lstrip_blocks=True,
-        keep_trailing_newline=True,
-    )
-    env.filters["pct"] = _pct
-    env.filters["num"] = _num
+    env = environment().overlay()
+    env.filters = {**env.filters, "pct": _pct, "num": _num}  # not the shared dict
     return env
 
 
@@ -117,8 +107,8 @@ def campaign_report(
 def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | Path,
            formats: tuple[str, ...], dpi: int) -> None:
     from archself.campaign import figures as fig
-    from archself.io.atomic import write_bytes, write_text
-    from archself.reports.figures import figure_bytes
+    from archself.io.atomic import write_text
+    from archself.reports.figures import shown_formats, write_figure
 
     names = [b["scenario"] for b in summary.scenarios]
     figures: dict[str, str | None] = {}
@@ -132,14 +122,12 @@ def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | P
         ("tau", lambda: (fig.plot_tau(summary.tau, title=True) if summary.tau is not None
                          else None)),
     ]
-    shown = "svg" if "svg" in formats else "png"
-    fmts = tuple(dict.fromkeys((*formats, shown)))
+    shown, fmts = shown_formats(formats)
     for key, draw in specs:
         figure = draw()
         figures[key] = None if figure is None else f"{key}.{shown}"
         if figure is not None:
-            for fmt in fmts:
-                write_bytes(out / f"{key}.{fmt}", figure_bytes(figure, fmt, dpi))
+            write_figure(out, key, figure, fmts, dpi)
     env = _environment()
     html = env.get_template("campaign_report.html.j2").render(
         s=summary.to_dict(),

@@ -11,36 +11,23 @@ The app and what the commands share are in :mod:`archself.cli.base`; the command
 :mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.reports`,
 :mod:`~archself.cli.campaigns`, :mod:`~archself.cli.calibration`, :mod:`~archself.cli.live` and
 :mod:`~archself.cli.ros2`.
-They are registered here, in the order ``archself --help`` lists them, each with the
-shared ``--quiet``/``--verbose`` options (:func:`~archself.cli.base.with_verbosity`).
+They are registered by :func:`~archself.cli.base.register`, in the order ``archself
+--help`` lists them (:data:`~archself.cli.base.COMMANDS`), each with the shared
+``--quiet``/``--verbose`` options (:func:`~archself.cli.base.with_verbosity`).
+``archself.cli.app`` is the app with every command; :func:`main` (the ``archself``
+script) imports only the module of the command it runs.
 """
 
 from __future__ import annotations
 
-from archself.cli.base import app, main, with_verbosity
-from archself.cli.calibration import calibrate, identify
-from archself.cli.campaigns import campaign, campaign_report_cmd
-from archself.cli.files import docs, export, generate, info, init, schema, validate
-from archself.cli.live import live
-from archself.cli.reports import report
-from archself.cli.ros2 import ros2
-from archself.cli.runs import explain, simulate
+from typing import Any
 
-app.command()(with_verbosity(validate))
-app.command()(with_verbosity(schema))
-app.command()(with_verbosity(docs))
-app.command()(with_verbosity(init))
-app.command()(with_verbosity(simulate))
-app.command()(with_verbosity(report))
-app.command()(with_verbosity(explain))
-app.command()(with_verbosity(live))
-app.command()(with_verbosity(ros2))
-app.command()(with_verbosity(campaign))
-app.command("campaign-report")(with_verbosity(campaign_report_cmd))
-app.command()(with_verbosity(export))
-app.command()(with_verbosity(info))
-app.command()(with_verbosity(calibrate))
-app.command()(with_verbosity(identify))
-app.command()(with_verbosity(generate))
+from archself.cli.base import COMMANDS, main, register
 
-__all__ = ["app", "main"]
+__all__ = ["COMMANDS", "app", "main", "register"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "app":
+        return register()
+    raise AttributeError(f"module 'archself.cli' has no attribute {name!r}")

@@ -4,7 +4,8 @@ The app with its root callback, the options shared by the commands that run many
 simulations, the one-line error helpers (``_fail``, ``_die``), ``_emit`` (stdout or
 an atomic file), input checks, the numeric-trouble guard and ``main`` (the
 ``archself`` script: signals, Ctrl-C, one-line errors, exit codes). The commands
-live in the sibling modules and are registered in :mod:`archself.cli`.
+live in the sibling modules; :func:`register` adds them to the app (``main``: only the
+one it runs, so a command imports only its own module).
 """
 
 from __future__ import annotations
@@ -14,22 +15,13 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
+from importlib import import_module
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from archself.errors import ArchselfError
-
-app = typer.Typer(
-    name="archself",
-    help="Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K).",
-    no_args_is_help=True,
-    add_completion=True,
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-    context_settings={"help_option_names": ["-h", "--help"]},
-)
 
 
 def _version(value: bool) -> None:
@@ -40,7 +32,6 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
 def _root(
     version: Annotated[
         bool, typer.Option("--version", "-V", callback=_version, is_eager=True,
@@ -48,6 +39,25 @@ def _root(
     ] = False,
 ) -> None:
     """Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K)."""
+
+
+def _new_app() -> typer.Typer:
+    """The typer app with its root options, without commands (:func:`register` adds them)."""
+    new = typer.Typer(
+        name="archself",
+        help="Carry a system's architecture as data: validate it, simulate it, adapt it (MAPE-K).",
+        no_args_is_help=True,
+        add_completion=True,
+        pretty_exceptions_enable=False,
+        rich_markup_mode=None,
+        context_settings={"help_option_names": ["-h", "--help"]},
+    )
+    new.callback()(_root)
+    return new
+
+
+#: the app of every command (``archself.cli.app``; :func:`main` runs one of its own)
+app = _new_app()
 
 
 class FigureFormat(StrEnum):
@@ -112,6 +122,9 @@ WorkersOption = Annotated[
 ]
 RootSeedOption = Annotated[
     int, typer.Option("--root-seed", min=0, help="Root of the seed sequence (≥ 0).")
+]
+PastCapOption = Annotated[  # simulate, campaign
+    bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
 ]
 
 
@@ -449,11 +462,49 @@ def _load(path: Path):
     return loaded.arch
 
 
+#: command → (module of :mod:`archself.cli`, function), in the order of ``--help``
+COMMANDS = {
+    "validate": ("files", "validate"),
+    "schema": ("files", "schema"),
+    "docs": ("files", "docs"),
+    "init": ("files", "init"),
+    "simulate": ("runs", "simulate"),
+    "report": ("reports", "report"),
+    "explain": ("runs", "explain"),
+    "live": ("live", "live"),
+    "ros2": ("ros2", "ros2"),
+    "campaign": ("campaigns", "campaign"),
+    "campaign-report": ("campaigns", "campaign_report_cmd"),
+    "export": ("files", "export"),
+    "info": ("files", "info"),
+    "calibrate": ("calibration", "calibrate"),
+    "identify": ("calibration", "identify"),
+    "generate": ("files", "generate"),
+}
+_WRAPPED: dict[str, Any] = {}
+
+
+def register(names: Any = None, into: typer.Typer | None = None) -> typer.Typer:
+    """``into`` (default :data:`app`) with the commands ``names`` (default: all), in
+    :data:`COMMANDS` order."""
+    into = app if into is None else into
+    into.registered_commands = []
+    for name, (module, function) in COMMANDS.items():
+        if names is None or name in names:
+            if name not in _WRAPPED:
+                command = getattr(import_module(f"archself.cli.{module}"), function)
+                _WRAPPED[name] = with_verbosity(command)
+            into.command(name)(_WRAPPED[name])
+    return into
+
+
 def main() -> None:
-    """Entry point of the ``archself`` script."""
-    from archself.campaign.executors import single_thread_blas
+    """Entry point of the ``archself`` script: the command named, else every command, runs."""
+    from archself.campaign.local_executor import single_thread_blas
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
+    first = sys.argv[1] if len(sys.argv) > 1 else None  # `archself --help x`: every command
+    cli = register([first], _new_app()) if first in COMMANDS else register()
     import signal
 
     from archself.errors import Terminated, raise_terminated
@@ -465,7 +516,7 @@ def main() -> None:
         return SystemExit(143 if terminated else 130)
 
     try:
-        app()
+        cli()
     except SystemExit as exc:
         # typer turns Ctrl-C into a silent exit 130: say what happened
         cause = exc.__context__.__cause__ if exc.__context__ is not None else None

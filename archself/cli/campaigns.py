@@ -16,6 +16,7 @@ from archself.cli.base import (
     ExecutorOption,
     FormatOption,
     Mode,
+    PastCapOption,
     RootSeedOption,
     RunProgress,
     TraceFormat,
@@ -76,9 +77,7 @@ def campaign(
         typer.Option("--json", help="Print the outcome as one JSON object {out, skipped, ran, "
                      "failed, rows, executor, workers, elapsed_s, errors} (docs/json.md)."),
     ] = False,
-    yes: Annotated[
-        bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
-    ] = False,
+    yes: PastCapOption = False,
     lanes: Annotated[
         int | None,
         typer.Option("--lanes", min=1, help="Runs stepped together per batch (1: one "

@@ -18,7 +18,6 @@ from archself.cli.base import (
     _inputs,
     _load,
     _read_stdin,
-    app,
 )
 from archself.errors import ArchselfError
 
@@ -157,6 +156,7 @@ def docs(
     check: Annotated[bool, typer.Option("--check", help="Exit 1 if a page is stale.")] = False,
 ) -> None:
     """Regenerate the reference pages (format.md from the schema, cli.md from this CLI)."""
+    from archself.cli import app  # every command, whichever this process runs
     from archself.reports.docgen import reference_pages
 
     for name, text in reference_pages(app).items():  # docgen never imports this module

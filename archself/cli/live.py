@@ -69,17 +69,33 @@ def live(
     Stops when the plant ends the run; on any other end (the plant gone, silent or
     malformed, Ctrl-C, SIGTERM) --log FILE still holds every decision taken.
     """
+    host, port = _guards(connect, rollout, max_jump)
+    arch, loop, start, served = _run_live(arch_path, host, port, config=config, rollout=rollout,
+                                          timeout=timeout, log=log, token=token,
+                                          max_jump=max_jump)
+    _print_live(arch.name, loop, start, served, json_out)
+
+
+def _guards(connect: str, rollout: str, max_jump: float | None) -> tuple[str, int]:
+    """The options checked before anything is read: the plant's host and port."""
     if rollout not in ("refuse", "reject"):
         raise _fail(f"--rollout must be refuse or reject, not {rollout!r}", 2)
     if max_jump is not None and not (math.isfinite(max_jump) and max_jump > 0):
         raise _fail(f"--max-jump {max_jump:g}: expected a finite number of seconds > 0", 2)
-    from archself.live import LiveLoop, parse_address, run_remote
+    from archself.live import parse_address
 
     try:
-        host, port = parse_address(connect)
+        return parse_address(connect)
     except ArchselfError as exc:
         raise _fail(f"--connect: {exc}", 2) from None
+
+
+def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, rollout: str,
+              timeout: float, log: Path | None, token: str | None,
+              max_jump: float | None) -> tuple[Any, Any, str, int]:
+    """Load the file, serve the plant until it ends; (arch, loop, start, measurements)."""
     from archself.io.atomic import protect
+    from archself.live import LiveLoop, run_remote
 
     try:
         _inputs(arch_path)
@@ -89,10 +105,7 @@ def live(
             _known_configuration(arch, config, arch_path)
             loop = LiveLoop(arch, configuration=config, rollout=rollout, max_jump_s=max_jump)
             start = loop.configuration
-            loop.on_command(lambda c: typer.echo(
-                f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
-                if c.kind == "configuration" else
-                f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
+            loop.on_command(_say_command)
             journal = None if log is None else _Journal(log, loop, arch_path, start)
             try:
                 served = run_remote(loop, host, port, timeout_s=timeout, token=token)
@@ -104,24 +117,36 @@ def live(
                 journal.finish(None)
     except ArchselfError as exc:
         raise _die(exc) from None
-    result = {
-        "architecture": arch.name,
-        "measurements": served,
-        "cycles": loop.mapek.cycle,
-        "configuration": start,
-        "final_configuration": loop.configuration,
-        "switches": loop.switches,
-        "updates": loop.updates,
-    }
+    return arch, loop, start, served
+
+
+def _print_live(name: str, loop: Any, start: str, served: int, json_out: bool) -> None:
+    """The run's summary: one JSON object, or a line and the commands in time order."""
     if json_out:
-        typer.echo(json.dumps(result, indent=1))
+        typer.echo(json.dumps(_result(name, start, loop, served), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
-    typer.echo(f"{arch.name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")
+    typer.echo(f"{name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")
     lines = [(s["t_s"], f"{s['from']} → {s['to']} ({s['action']})") for s in loop.switches]
     lines += [(u["t_s"], f"{u['module']} ← {u['set']} ({u['action']})") for u in loop.updates]
     for t_s, what in sorted(lines, key=lambda line: line[0]):  # in time order
         typer.echo(f"  t = {t_s:g} s: {what}")
+
+
+def _say_command(c: Any) -> None:
+    """A command the loop sent to the plant, on stderr."""
+    typer.echo(f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
+               if c.kind == "configuration" else
+               f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True)
+
+
+def _result(name: str, start: str, loop: Any, measurements: int) -> dict[str, Any]:
+    """The run's summary as ``--json`` prints it (``ros2`` adds its figures)."""
+    return {
+        "architecture": name, "measurements": measurements, "cycles": loop.mapek.cycle,
+        "configuration": start, "final_configuration": loop.configuration,
+        "switches": loop.switches, "updates": loop.updates,
+    }
 
 
 def _ending(exc: BaseException) -> str:

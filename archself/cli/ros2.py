@@ -98,7 +98,7 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
     """The command's work: check the options and the file, start the demo plant if asked,
     run the bridge until the plant ends (or the timeout), write the log, print the result."""
     clock = _check_options(clock, rollout, demo, scenario)
-    from archself.cli.live import _check_log, _log, _write_log
+    from archself.cli.live import _check_log, _log, _say_command, _write_log
     from archself.io.atomic import protect
     from archself.ros2.base import require_rclpy
 
@@ -127,10 +127,7 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
                                 rollout=rollout, service_timeout_s=timeout,
                                 use_sim_time=demo and clock == "timer")
             start = bridge.loop.configuration
-            bridge.loop.on_command(lambda c: typer.echo(
-                f"t = {c.t_s:g} s: {c.previous} → {c.configuration} ({c.action})"
-                if c.kind == "configuration" else
-                f"t = {c.t_s:g} s: {c.module} ← {c.values} ({c.action})", err=True))
+            bridge.loop.on_command(_say_command)
             bridge.start()
             until = (lambda: child.poll() is not None) if child is not None else None
             stats = run_bridge(bridge, timeout_s=timeout, until=until)
@@ -194,13 +191,10 @@ def _demo_command(arch_path: Path, scenario: str, timeout: float, linger: float,
 def _print_result(name: str, start: str, loop: Any, stats: dict[str, Any],
                   json_out: bool) -> None:
     """The run's summary on stdout: JSON, or one line and the switches, updates and figures."""
-    result: dict[str, Any] = {
-        "architecture": name, "measurements": loop.measurements,
-        "cycles": loop.mapek.cycle, "configuration": start,
-        "final_configuration": loop.configuration, "switches": loop.switches,
-        "updates": loop.updates, "ros2": stats,
-    }
+    from archself.cli.live import _result
+
     if json_out:
+        result = {**_result(name, start, loop, loop.measurements), "ros2": stats}
         typer.echo(json.dumps(jsonable(result), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])

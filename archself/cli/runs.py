@@ -13,6 +13,7 @@ from archself.cli.base import (
     _RUN_REPORT_FILES,
     DpiOption,
     FormatOption,
+    PastCapOption,
     _die,
     _fail,
     _formats,
@@ -158,9 +159,7 @@ def simulate(
     ] = None,
     fig_format: FormatOption = None,
     dpi: DpiOption = 150,
-    yes: Annotated[
-        bool, typer.Option("--yes", help="Run even past the size cap (see docs/hardening.md).")
-    ] = False,
+    yes: PastCapOption = False,
     knowledge: Annotated[
         Path | None,
         typer.Option("--knowledge", metavar="FILE", help="Start from what earlier runs learned "

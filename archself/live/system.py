@@ -200,22 +200,7 @@ class MeasuredSystem:
             :attr:`max_jump_s` (the first measurement's time is free). The
             measurement refused changes nothing.
         """
-        if isinstance(t, (str, bytes)):
-            raise LiveError(f"t: measurement time {t[:40]!r} is not a number (a string)")
-        try:
-            t = float(t)
-        except (TypeError, ValueError, OverflowError):
-            what = "an integer beyond a float's range" if isinstance(t, int) else type(t).__name__
-            raise LiveError(f"t: measurement time is not a number ({what})") from None
-        if not math.isfinite(t):
-            raise LiveError(f"t: measurement time {t!r} is not finite")
-        if self.measured:
-            if t < self.t:
-                raise LiveError(f"t: measurement time {t:g} s goes back before the last "
-                                f"one, {self.t:g} s (time must not decrease)")
-            if self.max_jump_s is not None and t - self.t > self.max_jump_s:
-                raise LiveError(f"t: measurement time {t:g} s jumps {t - self.t:g} s past the "
-                                f"last one, {self.t:g} s (at most {self.max_jump_s:g} s)")
+        t = self._checked_time(t)
         for what, value in (("outputs", outputs), ("signals", signals), ("health", health)):
             if value is not None and not isinstance(value, Mapping):
                 raise LiveError(f"measurement {what} must be a mapping of modules")
@@ -244,6 +229,26 @@ class MeasuredSystem:
             self._health[str(m)] = None if why is None else str(why)
         if configuration is not None and configuration != self.configuration:
             self._switch(configuration, by="plant")
+
+    def _checked_time(self, t: Any) -> float:
+        """The measurement's time as a float, refused if not finite, going back or jumping."""
+        if isinstance(t, (str, bytes)):
+            raise LiveError(f"t: measurement time {t[:40]!r} is not a number (a string)")
+        try:
+            t = float(t)
+        except (TypeError, ValueError, OverflowError):
+            what = "an integer beyond a float's range" if isinstance(t, int) else type(t).__name__
+            raise LiveError(f"t: measurement time is not a number ({what})") from None
+        if not math.isfinite(t):
+            raise LiveError(f"t: measurement time {t!r} is not finite")
+        if self.measured:
+            if t < self.t:
+                raise LiveError(f"t: measurement time {t:g} s goes back before the last "
+                                f"one, {self.t:g} s (time must not decrease)")
+            if self.max_jump_s is not None and t - self.t > self.max_jump_s:
+                raise LiveError(f"t: measurement time {t:g} s jumps {t - self.t:g} s past the "
+                                f"last one, {self.t:g} s (at most {self.max_jump_s:g} s)")
+        return t
 
     def step(self) -> None:
         """Refused: the plant advances itself; measurements come by :meth:`update`.

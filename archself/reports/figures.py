@@ -16,6 +16,8 @@ so that a ``$`` in a name is shown, not parsed as mathtext.
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -40,6 +42,8 @@ Size = str | tuple[float, float] | None
 __all__ = [
     "FORMATS",
     "figure_bytes",
+    "shown_formats",
+    "write_figure",
     "plot_error",
     "plot_influence",
     "plot_qualities",
@@ -94,6 +98,20 @@ def figure_bytes(fig: Any, fmt: str = "png", dpi: int = 150) -> bytes:
                 break
             last = buf.getvalue()
     return last
+
+
+def shown_formats(formats: Sequence[str]) -> tuple[str, tuple[str, ...]]:
+    """The format a report's HTML shows (SVG if asked for, else PNG) and every one to write."""
+    shown = "svg" if "svg" in formats else "png"
+    return shown, tuple(dict.fromkeys((*formats, shown)))
+
+
+def write_figure(out: Path, stem: str, fig: Any, formats: Sequence[str], dpi: int) -> None:
+    """``fig`` as ``out/stem.<format>`` in every one of ``formats`` (atomic files)."""
+    from archself.io.atomic import write_bytes
+
+    for fmt in formats:
+        write_bytes(out / f"{stem}.{fmt}", figure_bytes(fig, fmt, dpi))
 
 
 def _comp(arr: np.ndarray, c: int) -> np.ndarray:

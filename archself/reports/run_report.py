@@ -21,7 +21,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from archself.io.atomic import write_bytes, write_text
+from archself.io.atomic import write_text
 from archself.model.architecture import Architecture
 from archself.reports.architecture import new_folder
 from archself.reports.render import render
@@ -55,8 +55,7 @@ def _write(arch: Architecture | None, results: list[Any], out: Path,
     from archself.sim.metrics import metric_rows
 
     rep = build_run_report(arch, results)
-    shown = "svg" if "svg" in formats else "png"
-    fmts = tuple(dict.fromkeys((*formats, shown)))
+    shown, fmts = figures.shown_formats(formats)
     figs = [
         ("trajectory", "Trajectory against the reference (cf. paper Fig. 2–4)",
          f"{rep.objective['actual']} components {rep.objective['components']} against "
@@ -81,9 +80,7 @@ def _write(arch: Architecture | None, results: list[Any], out: Path,
             "attribute values, labelled with U, and the path the adaptive run took.",
             figures.plot_qualities))
     for stem, _title, _caption, plot in figs:
-        fig = plot(rep, title=True)
-        for fmt in fmts:
-            write_bytes(out / f"{stem}.{fmt}", figures.figure_bytes(fig, fmt, dpi))
+        figures.write_figure(out, stem, plot(rep, title=True), fmts, dpi)
     write_text(out / "summary.json",
                json.dumps(rep.summary(), indent=2, ensure_ascii=False, sort_keys=True) + "\n")
     write_text(out / "index.html", render(
