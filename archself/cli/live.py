@@ -11,7 +11,7 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
-from archself.io.jsondata import jsonable
+from archself.io.jsondata import DecisionRecordDoc, document, jsonable
 
 
 def live(
@@ -166,7 +166,7 @@ class _Journal:
         if self.fh is None:
             return
         try:
-            self._line(record.to_dict())
+            self._line(document(DecisionRecordDoc, record))
         except OSError as exc:
             typer.echo(f"warning: {self.part}: cannot write: {exc.strerror or exc}; the "
                        f"decision log is kept in memory until the end", err=True)
@@ -239,4 +239,4 @@ def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
         "updates": loop.updates,
         "configurations": list(loop.arch.configurations),
     }
-    return {"meta": meta, "series": {}, "decisions": [d.to_dict() for d in loop.decisions]}
+    return {"meta": meta, "series": {}, "decisions": loop.mapek.log()}

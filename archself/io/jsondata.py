@@ -27,6 +27,7 @@ True
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import types
@@ -34,11 +35,21 @@ import typing
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainValidator,
+    TypeAdapter,
+    ValidationError,
+    WithJsonSchema,
+    model_validator,
+)
 
-__all__ = ["CampaignMeta", "DecisionLog", "DecisionRecordDoc", "JsonLimitError",
-           "ParquetHead", "SavedRunsMeta", "TraceDocument", "TraceMeta", "finite_or_none",
-           "json_kind", "jsonable", "loads", "problem"]
+__all__ = ["CampaignMeta", "ChosenDoc", "DecisionLog", "DecisionRecordDoc", "EvaluationDoc",
+           "JsonLimitError", "ParquetHead", "RunContext", "RunDoc", "SavedRunsMeta",
+           "TraceDocument", "TraceMeta", "document", "finite_or_none", "json_kind", "jsonable",
+           "loads", "problem"]
 
 
 class JsonLimitError(ValueError):
@@ -104,10 +115,10 @@ def json_kind(x: Any) -> str:
 def jsonable(x: Any) -> Any:
     """``x`` as plain JSON data (dict, list, str, int, float, bool, None).
 
-    Mappings become dicts with string keys; lists and tuples lists; sets lists
-    sorted by their text; numpy arrays and scalars (anything with ``tolist``)
-    their Python values; other numbers (``__float__``) floats; non-finite floats
-    ``None``; anything else its ``str``.
+    Mappings become dicts with string keys, dataclass objects dicts of their fields;
+    lists and tuples lists; sets lists sorted by their text; numpy arrays and scalars
+    (anything with ``tolist``) their Python values; other numbers (``__float__``)
+    floats; non-finite floats ``None``; anything else its ``str``.
 
     Examples
     --------
@@ -128,6 +139,8 @@ def jsonable(x: Any) -> Any:
         return [jsonable(v) for v in x]
     if isinstance(x, (set, frozenset)):
         return [jsonable(v) for v in sorted(x, key=str)]
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return {f.name: jsonable(getattr(x, f.name)) for f in dataclasses.fields(x)}
     if isinstance(x, (bool, str)):
         return x
     if hasattr(x, "tolist") and not isinstance(x, (int, float)):
@@ -140,60 +153,104 @@ def jsonable(x: Any) -> Any:
     return str(x)
 
 
-# ------------------------------------------------------------------ the documents read back
-Num = float | None  # a number, or null (a non-finite number as jsonable writes it)
+# ------------------------------------------------------------------ the documents
+def _number(v: Any) -> Any:
+    if v is None or type(v) is float or type(v) is int:
+        return v
+    raise ValueError(f"expected a number, got {json_kind(v)}")
+
+
+#: A number as it is (an int stays an int), or null (NaN as :func:`jsonable` writes it).
+Num = typing.Annotated[Any, PlainValidator(_number),
+                       WithJsonSchema({"anyOf": [{"type": "number"}, {"type": "null"}]})]
 Modules = typing.Annotated[dict[str, Num] | None, Field(description="an object of modules")]
 Names = typing.Annotated[list[str] | None, Field(description="a list of module names")]
 
 
-class _Doc(BaseModel):
-    """A JSON object read back: JSON types only (no coercion), other keys allowed."""
+def _none(v: Any) -> bool:
+    return v is None
 
-    model_config = ConfigDict(strict=True, extra="allow")
+
+def _empty(v: Any) -> bool:
+    return not v
+
+
+class _Doc(BaseModel):
+    """A JSON document archself writes and reads back: JSON types only (no coercion),
+    other keys allowed; written in the order of its fields (:func:`document`)."""
+
+    model_config = ConfigDict(strict=True, extra="allow", populate_by_name=True)
 
 
 # ------------------------------------------------------------------ the decision log
 class EvaluationDoc(_Doc):
-    """One action of a cycle's Plan stage (``ActionEvaluation``)."""
+    """One action of a cycle's Plan stage (``ActionEvaluation``); ``utility`` (qualities),
+    ``mean``, ``spread``, ``draws``, ``rule`` (``runtime.risk``) and ``learned``
+    (``runtime.learning``) only when set."""
 
     model_config = ConfigDict(title="an object with an action")
     action: Any
+    module: str | None = None
+    kind: str | None = None
+    to: str | None = None
     z: Num = None
     delta: Num = None
     cost: Num = None
     score: Num = None
     stability: dict[str, Any] | None = None
+    rejected: str | None = None
+    detail: str | None = None
+    utility: dict[str, Any] | None = Field(None, exclude_if=_none)
+    mean: Num = Field(None, exclude_if=_none)
+    spread: Num = Field(None, exclude_if=_none)
+    draws: int | None = Field(None, exclude_if=_none)
+    rule: str | None = Field(None, exclude_if=_none)
+    learned: dict[str, Any] | None = Field(None, exclude_if=_none)
 
 
 class ChosenDoc(_Doc):
-    """The action a cycle chose."""
+    """The action a cycle chose: ``set`` for a parameter update, ``from`` and ``to`` for a
+    switch."""
 
     model_config = ConfigDict(title="an object with an action, or null")
     action: Any
+    kind: str | None = None
+    module: str | None = None
     z: Num = None
-    score: Num = None
     source: Num = None
+    delta: Num = None
+    score: Num = None
+    set: dict[str, Any] | None = Field(None, exclude_if=_none)
+    from_: str | None = Field(None, alias="from", exclude_if=_none)
+    to: str | None = Field(None, exclude_if=_none)
 
 
 class DecisionRecordDoc(_Doc):
-    """One MAPE-K cycle (``DecisionRecord.to_dict()``)."""
+    """One MAPE-K cycle (``DecisionRecord``): ``source`` only with a source estimate,
+    ``equivalent`` and ``compensated`` only when not empty. A field added later is
+    optional (``exclude_if`` when unset), so older logs still read."""
 
     model_config = ConfigDict(title="a decision record (an object)")
     cycle: Num = None
     t: Num = None
+    configuration: str | None = None
+    phase: str | None = None
     j_obs: Num = None
     j_ref: Num = None
     r_global: Num = None
     r: Modules = None
     z: Modules = None
-    source: Modules = None
-    kappa: dict[str, Any] | None = Field(None, description="an object of modules")
-    candidates: Names = None
-    compensated: Names = None
+    source: Modules = Field(None, exclude_if=_none)
     equivalent: list[list[str]] | None = Field(
-        None, description="a list of lists of module names")
+        None, description="a list of lists of module names", exclude_if=_empty)
+    localization: str | None = None
+    candidates: Names = None
+    selector: str | None = None
+    kappa: dict[str, Any] | None = Field(None, description="an object of modules")
     evaluations: list[EvaluationDoc] | None = None
     chosen: ChosenDoc | None = None
+    note: str | None = None
+    compensated: Names = Field(None, exclude_if=_empty)
 
 
 DecisionLog = typing.Annotated[list[DecisionRecordDoc],
@@ -202,7 +259,28 @@ DecisionLog = typing.Annotated[list[DecisionRecordDoc],
 
 # ------------------------------------------------------------------ a trace
 class SwitchDoc(_Doc):
+    """One switch of the architecture: when, from and to which configuration, by which
+    action of which module."""
+
     t_s: float
+    from_: str | None = Field(None, alias="from")
+    to: str | None = None
+    action: str | None = None
+    module: str | None = None
+
+
+class RunDoc(_Doc):
+    """One run (``archself simulate --json``'s ``runs``; the run part of a trace's ``meta``).
+    ``metrics`` in ``unit``, null when not finite."""
+
+    scenario: str
+    seed: int
+    mode: str
+    configuration: str
+    final_configuration: str
+    unit: str | None = None
+    metrics: dict[str, Num]
+    switches: list[SwitchDoc] | None = None
 
 
 class ObjectiveDoc(_Doc):
@@ -213,6 +291,8 @@ class ObjectiveDoc(_Doc):
 
 
 class FaultDoc(_Doc):
+    module: str | None = None
+    kind: str | None = None
     onset_s: float
 
 
@@ -225,13 +305,14 @@ class HysteresisDoc(_Doc):
 class ReportDoc(_Doc):
     """What the run report needs beyond the series (``archself report --trace``)."""
 
+    scenario_description: str | None = None
+    faults: list[FaultDoc] | None = None
     acceptable: Num = None
     threshold: Num = None
+    top_k: Num = None
+    hysteresis: HysteresisDoc | None = None
     warmup_s: Num = None
     min_confidence: Num = None
-    top_k: Num = None
-    faults: list[FaultDoc] | None = None
-    hysteresis: HysteresisDoc | None = None
 
     @model_validator(mode="after")
     def _selector(self) -> ReportDoc:
@@ -240,23 +321,25 @@ class ReportDoc(_Doc):
         return self
 
 
-class TraceMeta(_Doc):
-    """A trace's ``meta``: the run (``RunResult.trace_meta()``)."""
+class RunContext(_Doc):
+    """What a trace's ``meta`` holds of the file: its clock, objective, residual signals,
+    the series' element names and the run report's context (``sim.run.run_meta``)."""
 
-    scenario: str
-    seed: int
-    mode: str
-    configuration: str
-    final_configuration: str
-    metrics: dict[str, Num]
-    configurations: list[str] | None = Field(None, description="a list of names")
-    switches: list[SwitchDoc] | None = None
-    unit: str | None = None
+    architecture: str | None = None
     step_s: Num = None
     period_s: Num = None
     duration_s: Num = None
     objective: ObjectiveDoc | None = None
+    residuals: dict[str, str] | None = Field(None, description="an object of modules")
+    elements: dict[str, list[str]] | None = Field(None, description="an object of series")
     report: ReportDoc | None = None
+
+
+class TraceMeta(RunDoc, RunContext):
+    """A trace's ``meta``: the file's context, the run and the configuration names
+    (``RunResult.trace_meta()``)."""
+
+    configurations: list[str] | None = Field(None, description="a list of names")
 
 
 class TraceDocument(_Doc):
@@ -386,3 +469,36 @@ def problem(tp: Any, data: Any, root: str = "") -> str | None:
         bound = f" ≥ {err['ctx']['ge']}" if err["type"] == "greater_than_equal" else ""
         return f"{path}: expected {_expected(tp, loc)}{bound}, got {got}"
     return None
+
+
+def document(tp: Any, data: Any, root: str = "") -> Any:
+    """``data`` as plain JSON data of the document type ``tp``, as archself writes it.
+
+    ``data`` (for a model, an object whose attributes it takes) is cleaned
+    (:func:`jsonable`: dataclass objects, numpy values, NaN → null), validated by ``tp``
+    and dumped in the order of its fields, without the keys a field
+    excludes (``exclude_if``) or ``data`` lacks (an older log written back stays as it
+    was); keys the model does not name follow its fields.
+
+    Raises
+    ------
+    ArchselfError
+        ``error: the document would not read back: path: expected …`` (a writer's bug).
+
+    Examples
+    --------
+    >>> document(ChosenDoc, {"to": "b", "action": "x", "z": float("nan"), "from": "a"})
+    {'action': 'x', 'z': None, 'from': 'a', 'to': 'b'}
+    """
+    from archself.errors import ArchselfError
+
+    if isinstance(tp, type) and not isinstance(data, Mapping):  # an object: its attributes
+        data = {k: getattr(data, k) for k in tp.model_fields if hasattr(data, k)}
+    clean = jsonable(data)
+    adapter = _adapter(tp)
+    try:
+        obj = adapter.validate_python(clean)
+    except ValidationError:
+        raise ArchselfError("error: the document would not read back: "
+                            f"{problem(tp, clean, root)}") from None
+    return adapter.dump_python(obj, mode="json", by_alias=True, exclude_unset=True)
