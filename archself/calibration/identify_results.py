@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from archself import __version__
 from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
+from archself.io.jobs import JobDoc, OutDoc
 from archself.io.jsondata import finite_or_none
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
@@ -134,11 +134,7 @@ class Identification:
 Number = int | float  # as given: an int stays an int in the JSON
 
 
-class _Out(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class EdgeDoc(_Out):
+class EdgeDoc(OutDoc):
     """One edge of one configuration: declared, effective and fitted weight."""
 
     configuration: str
@@ -154,7 +150,7 @@ class EdgeDoc(_Out):
     differs: bool | None = Field(description="|fitted − effective| > 2 SE; null without one")
 
 
-class TargetDoc(_Out):
+class TargetDoc(OutDoc):
     """The fit of one target module's residual."""
 
     rows: int
@@ -163,7 +159,7 @@ class TargetDoc(_Out):
     moved: float | None = Field(description="how far the residual moved")
 
 
-class ExperimentDoc(_Out):
+class ExperimentDoc(OutDoc):
     """One perturbed module and what it excited."""
 
     configuration: str
@@ -175,15 +171,11 @@ class ExperimentDoc(_Out):
     max_delta: float | None
 
 
-class IdentificationDoc(_Out):
+class IdentificationDoc(JobDoc):
     """``archself identify --json``."""
 
-    architecture: str
-    file: str
     scenario: str
     configurations: list[str]
-    seeds: int
-    root_seed: int
     runs: int
     failed: list[str]
     w_scale: Number
@@ -191,8 +183,5 @@ class IdentificationDoc(_Out):
     edges: list[EdgeDoc]
     targets: dict[str, dict[str, TargetDoc]]
     experiments: list[ExperimentDoc]
-    archself_version: str = Field(default_factory=lambda: __version__)
     not_perturbed: dict[str, list[str]] = Field(
         description="per configuration, the modules not perturbed and why")
-    executor: str
-    elapsed_s: float

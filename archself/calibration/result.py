@@ -11,11 +11,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from archself import __version__
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
+from archself.io.jobs import JobDoc, OutDoc
 from archself.io.jsondata import finite_or_none
 
 __all__ = ["Calibration", "CalibrationDoc", "CalibrationError", "CellResult", "ModuleBand"]
@@ -165,11 +165,7 @@ Number = int | float  # as given: an int stays an int in the JSON
 Rate = float | None  # a rate or a fit's value; null when it could not be had
 
 
-class _Out(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class BandDoc(_Out):
+class BandDoc(OutDoc):
     """One module's band, old and new ``residual.nominal``."""
 
     old: Number | None
@@ -181,14 +177,14 @@ class BandDoc(_Out):
     weight: Number = Field(description="its share of the false-alarm budget (--weight)")
 
 
-class GumbelDoc(_Out):
+class GumbelDoc(OutDoc):
     """The Gumbel fit of the cell's largest residual per run (new bands)."""
 
     loc: Rate
     scale: Rate
 
 
-class TailDoc(_Out):
+class TailDoc(OutDoc):
     """The generalized-Pareto tail above ``u`` (``beta``, its ``share`` of the runs)."""
 
     u: Rate
@@ -196,7 +192,7 @@ class TailDoc(_Out):
     share: Rate
 
 
-class RatesDoc(_Out):
+class RatesDoc(OutDoc):
     """False-switch rates: the worst cell's, predicted and counted, new and old bands."""
 
     predicted_new: Rate
@@ -207,7 +203,7 @@ class RatesDoc(_Out):
     verify_old: Rate
 
 
-class CellDoc(_Out):
+class CellDoc(OutDoc):
     """False switches of one (scenario, configuration) cell."""
 
     scenario: str
@@ -226,15 +222,11 @@ class CellDoc(_Out):
     verify_old: Rate
 
 
-class CalibrationDoc(_Out):
+class CalibrationDoc(JobDoc):
     """``archself calibrate --json`` and the report's ``calibration.json``."""
 
-    architecture: str
-    file: str
     tau: Number
     false_switch: Number
-    seeds: int
-    root_seed: int
     scenarios: list[str]
     configurations: list[str]
     runs: int
@@ -242,11 +234,8 @@ class CalibrationDoc(_Out):
     bands: dict[str, BandDoc]
     rates: RatesDoc
     cells: list[CellDoc]
-    executor: str
-    elapsed_s: float
     verify_seeds: int
     verify_elapsed_s: float
-    archself_version: str = Field(default_factory=lambda: __version__)
 
 
 #: The fields a :class:`Calibration` and its document share as they are.

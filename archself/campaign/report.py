@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.aggregate import CampaignSummary, summarize
-from archself.io.jsondata import jsonable
+from archself.io.commands import CampaignReportDoc
+from archself.io.jsondata import document
 
 __all__ = ["campaign_report", "summary_text"]
 
@@ -140,14 +141,15 @@ def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | P
         if figure is not None:
             for fmt in fmts:
                 write_bytes(out / f"{key}.{fmt}", figure_bytes(figure, fmt, dpi))
+    doc = document(CampaignReportDoc, summary, complete=True)
     env = _environment()
     html = env.get_template("campaign_report.html.j2").render(
-        s=summary.to_dict(),
+        s=doc,
         figures=figures,
         results_name=Path(results).name,
     )
     write_text(out / "index.html", html)
     write_text(
         out / "summary.json",
-        json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n",
+        json.dumps(doc, indent=2, ensure_ascii=False) + "\n",
     )

@@ -83,10 +83,8 @@ def validate(
         failed |= bool(bad)
         table = _stability_table(loaded, stability)
         if json_out:
-            report.append(
-                {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings],
-                 "stability": [v.to_dict() for v in table or ()]}
-            )
+            report.append({"file": str(path), "ok": not bad, "findings": findings,
+                           "stability": list(table or ())})
         else:
             for f in findings:
                 _err(str(f), failing=f in bad)
@@ -98,7 +96,11 @@ def validate(
 
                     typer.echo(table_text(table))
     if json_out:  # one shape: a list, whatever the number of files
-        typer.echo(json.dumps(report, indent=2, ensure_ascii=False))
+        from archself.io.commands import ValidateList
+        from archself.io.jsondata import document
+
+        typer.echo(json.dumps(document(ValidateList, report, complete=True), indent=2,
+                              ensure_ascii=False))
     raise typer.Exit(1 if failed else 0)
 
 
@@ -398,8 +400,11 @@ def info(
         from archself.check.stability import loop_table, table_text
 
         table = loop_table(loaded)
-    data["stability"] = [v.to_dict() for v in table or ()]
     if as_json:
+        from archself.io.commands import InfoDoc
+        from archself.io.jsondata import document
+
+        data = document(InfoDoc, {**data, "stability": list(table or ())}, complete=True)
         typer.echo(json.dumps(data, indent=2))
     else:
         typer.echo(summary_text(data) + ("" if table is None else "\n" + table_text(table)))

@@ -104,17 +104,13 @@ def live(
                 journal.finish(None)
     except ArchselfError as exc:
         raise _die(exc) from None
-    result = {
-        "architecture": arch.name,
-        "measurements": served,
-        "cycles": loop.mapek.cycle,
-        "configuration": start,
-        "final_configuration": loop.configuration,
-        "switches": loop.switches,
-        "updates": loop.updates,
-    }
     if json_out:
-        typer.echo(json.dumps(result, indent=1))
+        from archself.io.commands import LiveDoc
+
+        typer.echo(json.dumps(document(LiveDoc, {
+            "architecture": arch.name, "measurements": served, "cycles": loop.mapek.cycle,
+            "configuration": start, "final_configuration": loop.configuration,
+            "switches": loop.switches, "updates": loop.updates}, complete=True), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
     typer.echo(f"{arch.name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")

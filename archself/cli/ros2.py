@@ -201,7 +201,10 @@ def _print_result(name: str, start: str, loop: Any, stats: dict[str, Any],
         "updates": loop.updates, "ros2": stats,
     }
     if json_out:
-        typer.echo(json.dumps(jsonable(result), indent=1))
+        from archself.io.commands import Ros2Doc
+        from archself.io.jsondata import document
+
+        typer.echo(json.dumps(document(Ros2Doc, result, complete=True), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
     typer.echo(f"{name} · ros2 · {loop.measurements} measurements · {loop.mapek.cycle} "

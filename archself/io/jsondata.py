@@ -471,14 +471,15 @@ def problem(tp: Any, data: Any, root: str = "") -> str | None:
     return None
 
 
-def document(tp: Any, data: Any, root: str = "") -> Any:
+def document(tp: Any, data: Any, root: str = "", *, complete: bool = False) -> Any:
     """``data`` as plain JSON data of the document type ``tp``, as archself writes it.
 
     ``data`` (for a model, an object whose attributes it takes) is cleaned
     (:func:`jsonable`: dataclass objects, numpy values, NaN → null), validated by ``tp``
     and dumped in the order of its fields, without the keys a field
     excludes (``exclude_if``) or ``data`` lacks (an older log written back stays as it
-    was); keys the model does not name follow its fields.
+    was; ``complete``: those take their defaults, as a command's output); keys the model
+    does not name follow its fields.
 
     Raises
     ------
@@ -492,7 +493,7 @@ def document(tp: Any, data: Any, root: str = "") -> Any:
     """
     from archself.errors import ArchselfError
 
-    if isinstance(tp, type) and not isinstance(data, Mapping):  # an object: its attributes
+    if isinstance(tp, type) and not isinstance(data, Mapping | list):  # an object's attributes
         data = {k: getattr(data, k) for k in tp.model_fields if hasattr(data, k)}
     clean = jsonable(data)
     adapter = _adapter(tp)
@@ -501,4 +502,4 @@ def document(tp: Any, data: Any, root: str = "") -> Any:
     except ValidationError:
         raise ArchselfError("error: the document would not read back: "
                             f"{problem(tp, clean, root)}") from None
-    return adapter.dump_python(obj, mode="json", by_alias=True, exclude_unset=True)
+    return adapter.dump_python(obj, mode="json", by_alias=True, exclude_unset=not complete)
