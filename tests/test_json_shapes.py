@@ -18,11 +18,19 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import typer.main
 from typer.testing import CliRunner
 
+from archself.calibration.identify_results import IdentificationDoc
+from archself.calibration.result import CalibrationDoc
 from archself.cli import app
+from archself.errors import ArchselfError
+from archself.io.commands import SimulateDoc
+from archself.io.jobs import CampaignDoc, JobDoc
+from archself.io.jsondata import DecisionLog, DecisionRecordDoc, document
+from archself.runtime.decisions import ActionEvaluation, DecisionRecord
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT
 
@@ -217,6 +225,9 @@ def test_campaign_and_campaign_report(work: Path) -> None:
     ]
     _check("campaign", runs)
     assert [(r["ran"], r["skipped"]) for r in runs] == [(4, 0), (2, 4), (2, 0)]
+    # the job record's leading fields (io.jobs.JobDoc), as calibrate and identify have them
+    assert [(r["file"], r["seeds"], r["root_seed"]) for r in runs] == [
+        ("minimal.yaml", 2, 0), ("minimal.yaml", 3, 0), ("minimal.yaml", 1, 0)]
     reports = [
         _cli(["campaign-report", str(both), "-o", str(work / "r1"), "--json"]),
         _cli(["campaign-report", str(both), "-o", str(work / "r2"), "--expect", "calm=only",
@@ -263,6 +274,7 @@ def test_calibrate_and_identify(work: Path) -> None:
     ]
     _check("calibrate", cals)
     assert {b["calibrated"] for b in cals[0]["bands"].values()} == {True, False}
+    assert (cals[0]["seeds"], cals[0]["root_seed"], cals[0]["runs"]) == (2, 0, 2)
     idents = [
         _cli(["identify", str(plant), "--seeds", "1", "-c", "p1", "--executor", "inline",
               "--json"]),
@@ -271,3 +283,49 @@ def test_calibrate_and_identify(work: Path) -> None:
     ]
     _check("identify", idents)
     assert any(e["identifiable"] for e in idents[0]["edges"])
+
+
+# ------------------------------------------------------------------ the models as writers
+def test_one_job_record() -> None:
+    """campaign, calibrate and identify lead with the same seven fields (io.jobs.JobDoc)."""
+    lead = list(JobDoc.model_fields)
+    assert lead == ["architecture", "file", "seeds", "root_seed", "executor", "elapsed_s",
+                    "archself_version"]
+    for doc in (CampaignDoc, CalibrationDoc, IdentificationDoc):
+        assert issubclass(doc, JobDoc) and list(doc.model_fields)[:7] == lead
+
+
+def test_a_decision_record_is_written_by_its_model() -> None:
+    """Field order, numbers as they are (numpy cleaned, NaN null, an int stays an int),
+    the optional keys only when set, a key the model does not name kept (H1's records)."""
+    chosen = {"to": "b", "from": "a", "action": "sw", "kind": "switch", "module": "m",
+              "z": 2.0, "source": 1.0, "delta": 0.5, "score": 0.25}
+    rec = DecisionRecord(
+        cycle=3, t=0.5, configuration="a", phase="adapt", j_obs=np.float64(0.25), j_ref=0.1,
+        r_global=float("nan"), r={"m": np.float32(1.5)}, z={"m": 2}, candidates=["m"],
+        selector="threshold", chosen=chosen,
+        evaluations=[ActionEvaluation("sw", "m", "switch", "b", z=2.0, cost=1)])
+    d = document(DecisionRecordDoc, rec)
+    assert list(d) == ["cycle", "t", "configuration", "phase", "j_obs", "j_ref", "r_global",
+                       "r", "z", "localization", "candidates", "selector", "kappa",
+                       "evaluations", "chosen", "note"]
+    assert d["r_global"] is None and d["r"] == {"m": 1.5} and d["z"] == {"m": 2}
+    assert type(d["z"]["m"]) is int and type(d["j_obs"]) is float
+    assert list(d["chosen"]) == ["action", "kind", "module", "z", "source", "delta", "score",
+                                 "from", "to"]
+    ev = d["evaluations"][0]
+    assert ev["cost"] == 1 and "utility" not in ev and "learned" not in ev
+    rec.source, rec.compensated = {"m": 0.5}, ["m"]
+    d = document(DecisionRecordDoc, rec)
+    assert list(d)[9] == "source" and list(d)[-1] == "compensated"
+    assert document(DecisionRecordDoc, {"cycle": 1, "update": {"w": 0.5}}) == {
+        "cycle": 1, "update": {"w": 0.5}}
+
+
+def test_a_writer_bug_is_one_located_line() -> None:
+    with pytest.raises(ArchselfError) as err:
+        document(DecisionLog, [{"t": 1.0}, {"z": {"a": "x"}}], "decisions")
+    assert str(err.value) == ("error: the document would not read back: decisions[1].z.a: "
+                              "expected a number, got a string")
+    with pytest.raises(ArchselfError, match=r"runs\[0\]\.seed: expected an integer"):
+        document(SimulateDoc, {"runs": [{"scenario": "s", "seed": 1.5}]})

@@ -11,7 +11,7 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
-from archself.io.jsondata import DecisionRecordDoc, document, jsonable
+from archself.io.jsondata import DecisionRecordDoc, TraceDocument, document, jsonable
 
 
 def live(
@@ -175,7 +175,7 @@ class _Journal:
         if ended is not None:
             doc["meta"]["ended"] = ended
         try:
-            _write_log(self.log, json.dumps(jsonable(doc), separators=(",", ":")) + "\n")
+            _write_log(self.log, json.dumps(doc, separators=(",", ":")) + "\n")
         finally:
             if self.fh is not None:
                 self.fh.close()
@@ -218,7 +218,8 @@ def _write_log(log: Path, text: str) -> None:
 
 
 def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
-    """The run as a trace document without series: ``{meta, series, decisions}``."""
+    """The run as a trace document without series: ``{meta, series, decisions}`` (a
+    :class:`~archself.io.jsondata.TraceDocument`)."""
     meta = {
         "architecture": loop.arch.name,
         "file": str(arch_path),
@@ -235,4 +236,4 @@ def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
         "updates": loop.updates,
         "configurations": list(loop.arch.configurations),
     }
-    return {"meta": meta, "series": {}, "decisions": loop.mapek.log()}
+    return document(TraceDocument, {"meta": meta, "series": {}, "decisions": loop.decisions})
