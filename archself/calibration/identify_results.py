@@ -18,7 +18,7 @@ from pydantic import Field
 from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
 from archself.io.jobs import JobDoc, OutDoc
-from archself.io.jsondata import finite_or_none
+from archself.io.jsondata import document
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
            "IdentifyError"]
@@ -111,23 +111,13 @@ class Identification:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON data (``--json``): an :class:`IdentificationDoc`."""
-        num = finite_or_none
-        return IdentificationDoc(
-            **{f: getattr(self, f) for f in ("architecture", "file", "scenario",
-                                             "configurations", "seeds", "root_seed", "runs",
-                                             "failed", "w_scale", "settle_s")},
-            edges=[EdgeDoc(**{**{f: getattr(r, f) for f in EdgeDoc.model_fields},
-                              "fitted": num(r.fitted), "se": num(r.se)}) for r in self.rows],
-            targets={c: {t: TargetDoc(rows=f.rows, r2=num(f.r2), rms=num(f.rms),
-                                      moved=num(f.moved)) for t, f in fits.items()}
-                     for c, fits in self.fits.items()},
-            experiments=[ExperimentDoc(**{**vars(e), "own_delta": num(e.own_delta),
-                                          "max_delta": num(e.max_delta)})
-                         for e in self.experiments],
-            not_perturbed=self.skipped, executor=self.executor,
-            elapsed_s=round(self.elapsed_s, 3),
-        ).model_dump()
+        """Plain JSON data (``--json``): an :class:`IdentificationDoc` (NaN: null)."""
+        return document(
+            IdentificationDoc, self, complete=True, elapsed_s=round(self.elapsed_s, 3),
+            edges=[{f: getattr(r, f) for f in EdgeDoc.model_fields} for r in self.rows],
+            targets={c: {t: {f: getattr(fit, f) for f in TargetDoc.model_fields}
+                         for t, fit in fits.items()} for c, fits in self.fits.items()},
+            not_perturbed=self.skipped)
 
 
 # ------------------------------------------------------------------ the JSON document

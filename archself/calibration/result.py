@@ -16,7 +16,7 @@ from pydantic import Field
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
 from archself.io.jobs import JobDoc, OutDoc
-from archself.io.jsondata import finite_or_none
+from archself.io.jsondata import document
 
 __all__ = ["Calibration", "CalibrationDoc", "CalibrationError", "CellResult", "ModuleBand"]
 
@@ -137,27 +137,18 @@ class Calibration:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON data (``--json``; ``calibration.json`` of the report): a
-        :class:`CalibrationDoc`."""
-        num = finite_or_none
-        return CalibrationDoc(
-            **{f: getattr(self, f) for f in _SAME}, scale=num(self.scale),
-            bands={m: BandDoc(**{f: getattr(b, f) for f in BandDoc.model_fields})
+        :class:`CalibrationDoc` (NaN: null)."""
+        return document(
+            CalibrationDoc, self, complete=True, rates=self.rates(),
+            bands={m: {f: getattr(b, f) for f in BandDoc.model_fields}
                    for m, b in self.modules.items()},
-            rates=RatesDoc(**{k: num(v) for k, v in self.rates().items()}),
-            cells=[CellDoc(
-                **{f: getattr(c, f) for f in ("scenario", "configuration", "runs", "forced",
-                                               "verify_runs")},
-                failed=len(c.failed),
-                gumbel=GumbelDoc(loc=c.fit_new.all.loc, scale=c.fit_new.all.scale),
-                tail=TailDoc(u=c.fit_new.all.tail_u, beta=c.fit_new.all.tail_beta,
-                             share=c.fit_new.all.tail_share),
-                predicted_new=num(c.new_predicted), empirical_new=num(c.new_empirical),
-                predicted_old=num(c.old_predicted), empirical_old=num(c.old_empirical),
-                verify_new=num(c.verify_new), verify_old=num(c.verify_old),
-            ) for c in self.cells],
-            executor=self.executor, elapsed_s=round(self.elapsed_s, 3),
-            verify_seeds=self.verify_seeds, verify_elapsed_s=round(self.verify_elapsed_s, 3),
-        ).model_dump()
+            cells=[{**{f: getattr(c, f) for f in _SAME_CELL}, "failed": len(c.failed),
+                    "gumbel": {"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
+                    "tail": {"u": c.fit_new.all.tail_u, "beta": c.fit_new.all.tail_beta,
+                             "share": c.fit_new.all.tail_share},
+                    **{f"{k}_{age}": getattr(c, f"{age}_{k}") for age in ("new", "old")
+                       for k in ("predicted", "empirical")}} for c in self.cells],
+            elapsed_s=round(self.elapsed_s, 3), verify_elapsed_s=round(self.verify_elapsed_s, 3))
 
 
 # ------------------------------------------------------------------ the JSON document
@@ -238,6 +229,6 @@ class CalibrationDoc(JobDoc):
     verify_elapsed_s: float
 
 
-#: The fields a :class:`Calibration` and its document share as they are.
-_SAME = ("architecture", "file", "tau", "false_switch", "seeds", "root_seed", "scenarios",
-         "configurations", "runs")
+#: The fields a :class:`CellResult` and its document share as they are.
+_SAME_CELL = ("scenario", "configuration", "runs", "forced", "verify_runs", "verify_new",
+              "verify_old")

@@ -235,29 +235,13 @@ class LiveDoc(OutDoc):
     updates: list[UpdateDoc]
 
 
-class Ros2Stats(OutDoc):
-    """The bridge's counters and timings (ms: ``{n, mean, p50, p95, max}``, null when
-    nothing was timed); ``plant``: what the demo plant reported (null without --demo)."""
-
-    cycles: int
-    ticks: int
-    messages: int
-    cycle_ms: dict[str, Any] | None
-    act_ms: dict[str, Any] | None
-    refused: list[str]
-    skipped: int
-    lifecycle_nodes: list[str]
-    wall_s: Number
-    cpu_s: Number
-    cpu_percent: Maybe
-    messages_per_s: Maybe
-    plant: dict[str, Any] | None
-
-
 class Ros2Doc(LiveDoc):
-    """``archself ros2 --json``: the keys of ``live`` and the bridge's ``ros2``."""
+    """``archself ros2 --json``: the keys of ``live`` and ``ros2``, the bridge's counters
+    and timings (docs/ros2.md)."""
 
-    ros2: Ros2Stats
+    ros2: dict[str, Any] = Field(description="cycles, ticks, messages, cycle_ms, act_ms, "
+                                 "refused, skipped, lifecycle_nodes, wall_s, cpu_s, "
+                                 "cpu_percent, messages_per_s, plant")
 
 
 # ------------------------------------------------------------------ campaign-report

@@ -35,20 +35,13 @@ import typing
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    PlainValidator,
-    TypeAdapter,
-    ValidationError,
-    WithJsonSchema,
-    model_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic.functional_validators import PlainValidator, model_validator
+from pydantic.json_schema import WithJsonSchema
 
 __all__ = ["CampaignMeta", "ChosenDoc", "DecisionLog", "DecisionRecordDoc", "EvaluationDoc",
            "JsonLimitError", "ParquetHead", "RunContext", "RunDoc", "SavedRunsMeta",
-           "TraceDocument", "TraceMeta", "document", "finite_or_none", "json_kind", "jsonable",
+           "TraceDocument", "TraceMeta", "document", "json_kind", "jsonable",
            "loads", "problem"]
 
 
@@ -87,17 +80,6 @@ def loads(text: str | bytes, **kw: Any) -> Any:
         return json.loads(text, parse_int=_int, **kw)
     except RecursionError:
         raise JsonLimitError("nested too deeply") from None
-
-
-def finite_or_none(v: float) -> float | None:
-    """``v`` as a float, or None when it is NaN or infinite (JSON has neither).
-
-    Examples
-    --------
-    >>> finite_or_none(2), finite_or_none(float("nan"))
-    (2.0, None)
-    """
-    return float(v) if v == v and not math.isinf(v) else None
 
 
 def json_kind(x: Any) -> str:
@@ -471,10 +453,12 @@ def problem(tp: Any, data: Any, root: str = "") -> str | None:
     return None
 
 
-def document(tp: Any, data: Any, root: str = "", *, complete: bool = False) -> Any:
+def document(tp: Any, data: Any, root: str = "", *, complete: bool = False,
+             **fields: Any) -> Any:
     """``data`` as plain JSON data of the document type ``tp``, as archself writes it.
 
-    ``data`` (for a model, an object whose attributes it takes) is cleaned
+    ``data`` (for a model, an object whose attributes it takes; ``fields`` replace
+    some) is cleaned
     (:func:`jsonable`: dataclass objects, numpy values, NaN → null), validated by ``tp``
     and dumped in the order of its fields, without the keys a field
     excludes (``exclude_if``) or ``data`` lacks (an older log written back stays as it
@@ -495,7 +479,7 @@ def document(tp: Any, data: Any, root: str = "", *, complete: bool = False) -> A
 
     if isinstance(tp, type) and not isinstance(data, Mapping | list):  # an object's attributes
         data = {k: getattr(data, k) for k in tp.model_fields if hasattr(data, k)}
-    clean = jsonable(data)
+    clean = jsonable({**data, **fields} if fields else data)
     adapter = _adapter(tp)
     try:
         obj = adapter.validate_python(clean)

@@ -276,25 +276,14 @@ class RunResult:
     @classmethod
     def from_trace(cls, parts: TraceParts) -> RunResult:
         """The run a trace holds (:func:`archself.io.trace.read_trace_parts`)."""
-        meta, series, decisions = parts
-        keep = {k: v for k, v in meta.items()
-                if k not in ("scenario", "seed", "mode", "configuration", "final_configuration",
-                             "unit", "metrics", "switches", "configurations")}
-        return cls(
-            scenario=str(meta["scenario"]),
-            seed=int(meta["seed"]),
-            mode=str(meta["mode"]),
-            configuration=str(meta["configuration"]),
-            final_configuration=str(meta["final_configuration"]),
-            metrics={k: (math.nan if v is None else float(v))
-                     for k, v in dict(meta["metrics"]).items()},
-            switches=[dict(s) for s in meta.get("switches") or []],
-            series=series,
-            decisions=decisions,
-            meta=keep,
-            configurations=[str(c) for c in meta.get("configurations") or []],
-            unit=meta.get("unit"),
-        )
+        meta, series, decisions = parts  # checked: a TraceMeta
+        run = {k: meta.get(k) for k in (*RunDoc.model_fields, "configurations")}
+        return cls(**{**run, "metrics": {k: math.nan if v is None else float(v)
+                                         for k, v in meta["metrics"].items()},
+                      "switches": [dict(s) for s in run["switches"] or []],
+                      "configurations": list(run["configurations"] or [])},
+                   series=series, decisions=decisions,
+                   meta={k: v for k, v in meta.items() if k not in run})
 
 
 def read_trace(path: str | Path) -> RunResult:
