@@ -27,9 +27,14 @@ from archself.calibration.identify_results import IdentificationDoc
 from archself.calibration.result import CalibrationDoc
 from archself.cli import app
 from archself.errors import ArchselfError
-from archself.io.commands import SimulateDoc
-from archself.io.jobs import CampaignDoc, JobDoc
-from archself.io.jsondata import DecisionLog, DecisionRecordDoc, document
+from archself.io.jsondata import (
+    CampaignDoc,
+    DecisionLog,
+    DecisionRecordDoc,
+    JobDoc,
+    SimulateDoc,
+    document,
+)
 from archself.runtime.decisions import ActionEvaluation, DecisionRecord
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT
@@ -225,7 +230,7 @@ def test_campaign_and_campaign_report(work: Path) -> None:
     ]
     _check("campaign", runs)
     assert [(r["ran"], r["skipped"]) for r in runs] == [(4, 0), (2, 4), (2, 0)]
-    # the job record's leading fields (io.jobs.JobDoc), as calibrate and identify have them
+    # the job record's leading fields (io.jsondata.JobDoc), as calibrate and identify have them
     assert [(r["file"], r["seeds"], r["root_seed"]) for r in runs] == [
         ("minimal.yaml", 2, 0), ("minimal.yaml", 3, 0), ("minimal.yaml", 1, 0)]
     reports = [
@@ -287,7 +292,7 @@ def test_calibrate_and_identify(work: Path) -> None:
 
 # ------------------------------------------------------------------ the models as writers
 def test_one_job_record() -> None:
-    """campaign, calibrate and identify lead with the same seven fields (io.jobs.JobDoc)."""
+    """campaign, calibrate and identify lead with the same seven fields (io.jsondata.JobDoc)."""
     lead = list(JobDoc.model_fields)
     assert lead == ["architecture", "file", "seeds", "root_seed", "executor", "elapsed_s",
                     "archself_version"]

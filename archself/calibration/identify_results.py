@@ -17,8 +17,7 @@ from pydantic import Field
 
 from archself.calibration.identify_fit import TargetFit
 from archself.errors import ArchselfError
-from archself.io.jobs import JobDoc, OutDoc
-from archself.io.jsondata import document
+from archself.io.jsondata import JobDoc, OutDoc, document
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
            "IdentifyError"]

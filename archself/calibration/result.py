@@ -15,8 +15,7 @@ from pydantic import Field
 
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
-from archself.io.jobs import JobDoc, OutDoc
-from archself.io.jsondata import document
+from archself.io.jsondata import JobDoc, OutDoc, document
 
 __all__ = ["Calibration", "CalibrationDoc", "CalibrationError", "CellResult", "ModuleBand"]
 

@@ -111,7 +111,7 @@ def parse_expect(items: Sequence[str]) -> dict[str, str]:
 @dataclass
 class CampaignSummary:
     """The numbers of a campaign report (``summary.json``: its
-    :class:`~archself.io.commands.CampaignReportDoc`)."""
+    :class:`~archself.io.jsondata.CampaignReportDoc`)."""
 
     meta: dict[str, Any]
     runs: int

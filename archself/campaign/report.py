@@ -16,8 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.aggregate import CampaignSummary, summarize
-from archself.io.commands import CampaignReportDoc
-from archself.io.jsondata import document
+from archself.io.jsondata import CampaignReportDoc, document
 
 __all__ = ["campaign_report", "summary_text"]
 

@@ -156,7 +156,7 @@ def _campaign(
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
-        from archself.io.jobs import CampaignDoc
+        from archself.io.jsondata import CampaignDoc
 
         doc = CampaignDoc(**{**vars(outcome), "out": str(outcome.out),
                              "elapsed_s": round(outcome.elapsed_s, 3)},
@@ -220,8 +220,7 @@ def campaign_report_cmd(
         raise _die(exc) from None
     if json_out:
 
-        from archself.io.commands import CampaignReportDoc
-        from archself.io.jsondata import document
+        from archself.io.jsondata import CampaignReportDoc, document
 
         typer.echo(json.dumps(document(CampaignReportDoc, summary, complete=True), indent=2,
                               ensure_ascii=False))

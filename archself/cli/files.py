@@ -96,8 +96,7 @@ def validate(
 
                     typer.echo(table_text(table))
     if json_out:  # one shape: a list, whatever the number of files
-        from archself.io.commands import ValidateList
-        from archself.io.jsondata import document
+        from archself.io.jsondata import ValidateList, document
 
         typer.echo(json.dumps(document(ValidateList, report, complete=True), indent=2,
                               ensure_ascii=False))
@@ -401,8 +400,7 @@ def info(
 
         table = loop_table(loaded)
     if as_json:
-        from archself.io.commands import InfoDoc
-        from archself.io.jsondata import document
+        from archself.io.jsondata import InfoDoc, document
 
         data = document(InfoDoc, {**data, "stability": list(table or ())}, complete=True)
         typer.echo(json.dumps(data, indent=2))

@@ -105,7 +105,7 @@ def live(
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
-        from archself.io.commands import LiveDoc
+        from archself.io.jsondata import LiveDoc
 
         typer.echo(json.dumps(document(LiveDoc, {
             "architecture": arch.name, "measurements": served, "cycles": loop.mapek.cycle,

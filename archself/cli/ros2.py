@@ -201,8 +201,7 @@ def _print_result(name: str, start: str, loop: Any, stats: dict[str, Any],
         "updates": loop.updates, "ros2": stats,
     }
     if json_out:
-        from archself.io.commands import Ros2Doc
-        from archself.io.jsondata import document
+        from archself.io.jsondata import Ros2Doc, document
 
         typer.echo(json.dumps(document(Ros2Doc, result, complete=True), indent=1))
         return

@@ -275,7 +275,7 @@ def _simulate(
         # one shape whatever the options: an object with the list of runs
         from archself.io.jsondata import RunDoc, document
 
-        data = {"runs": [document(RunDoc, r) for r in results]}  # io.commands.SimulateDoc
+        data = {"runs": [document(RunDoc, r) for r in results]}  # io.jsondata.SimulateDoc
         typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
     else:
         typer.echo(_summary(results))
@@ -312,8 +312,7 @@ def explain(
         raise _die(exc) from None
     meta, decisions = res.trace_meta(), res.trace_decisions()
     if json_out:
-        from archself.io.commands import ExplainDoc
-        from archself.io.jsondata import document
+        from archself.io.jsondata import ExplainDoc, document
 
         # one shape for logs with and without the source estimate ê (older traces)
         data = document(ExplainDoc, {"run": meta, **explain_data(decisions)}, complete=True)

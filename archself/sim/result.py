@@ -277,7 +277,7 @@ class RunResult:
     def from_trace(cls, parts: TraceParts) -> RunResult:
         """The run a trace holds (:func:`archself.io.trace.read_trace_parts`)."""
         meta, series, decisions = parts  # checked: a TraceMeta
-        run = {k: meta.get(k) for k in (*RunDoc.model_fields, "configurations")}
+        run: dict[str, Any] = {k: meta.get(k) for k in (*RunDoc.model_fields, "configurations")}
         return cls(**{**run, "metrics": {k: math.nan if v is None else float(v)
                                          for k, v in meta["metrics"].items()},
                       "switches": [dict(s) for s in run["switches"] or []],
