@@ -21,7 +21,6 @@ from archself.calibration.bands import _max_abs_z, cycle_scales, influence_block
 from archself.calibration.edit import format_band, set_nominals
 from archself.calibration.runs import Recorder, seeds_from
 from archself.cli import app
-from archself.io.jsondata import DecisionRecordDoc, document
 
 from conftest import ROOT
 
@@ -118,7 +117,7 @@ def test_offline_z_is_the_runtimes(tmp_path: Path) -> None:
     records = [d for d in loop.decisions if d.phase != "warmup"]
     assert len(records) == len(offline) == 90 and not loop.switches
     for k, rec_k in enumerate(records):
-        z = [abs(v) for v in document(DecisionRecordDoc, rec_k)["z"].values() if v is not None]
+        z = [abs(v) for v in rec_k.to_dict()["z"].values() if v is not None]
         assert offline[k] == pytest.approx(max(z), rel=1e-9, abs=1e-12)
     assert offline.max() > 0 and np.count_nonzero(offline) > 10
 

@@ -10,7 +10,6 @@ from numpy.testing import assert_allclose, assert_array_equal
 from ruamel.yaml import YAML
 
 from archself.errors import SimulationError
-from archself.io.jsondata import DecisionRecordDoc, document
 from archself.lanes import ALL, LaneNormals, LaneSystem, PerLane, row, simulate_lanes, stack
 from archself.model.architecture import Architecture
 from archself.resources import data_dir
@@ -324,7 +323,7 @@ def test_adaptive_lanes_make_the_per_run_decisions(diffdrive_raw, scenario) -> N
         assert got.final_configuration == want.final_configuration
         assert len(got.decisions) == len(want.decisions)
         for a, b in zip(got.decisions, want.decisions, strict=True):
-            _close(document(DecisionRecordDoc, a), document(DecisionRecordDoc, b))
+            _close(a.to_dict(), b.to_dict())
         for key, val in want.series.items():
             assert_allclose(got.series[key], val, rtol=0, atol=1e-9, err_msg=key)
 

@@ -14,7 +14,6 @@ from typer.testing import CliRunner
 
 from archself.cli import app
 from archself.errors import ArchselfError
-from archself.io.jsondata import DecisionRecordDoc, document
 from archself.model.architecture import Architecture
 from archself.model.loader import load_architecture
 from archself.model.runtime import Learning as LearningSettings
@@ -42,7 +41,7 @@ def test_off_by_default_changes_nothing(plant):
     loop = MapeK(plant)
     assert loop.learning is None and loop.knowledge.learned is None
     simulate(plant, "valve_loss", seed=1, adapt=loop)
-    evs = [e for d in loop.log() for e in d["evaluations"]]
+    evs = [e.to_dict() for d in loop.decisions for e in d.evaluations]
     assert evs and not any({"learned", "spread", "mean", "draws", "rule"} & e.keys() for e in evs)
 
 
@@ -172,7 +171,7 @@ def test_risk_averse_ranking_changes_the_decision(plant, monkeypatch):
         simulate(plant, "valve_loss", seed=1, adapt=loop)
         rec = next(d for d in loop.decisions if d.chosen)
         chosen[rule] = rec.chosen["action"]
-        logged = {e["action"]: e for e in document(DecisionRecordDoc, rec)["evaluations"]}
+        logged = {e.action: e.to_dict() for e in rec.evaluations}
         assert_allclose([logged[a]["mean"] for a in ("risky_to_p4", "safe_to_p3")], [1.0, 1.0])
         assert_allclose(logged["risky_to_p4"]["spread"], 2.0)
         assert logged["safe_to_p3"]["spread"] == 0.0

@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 from test_runtime_fakes import FakeSystem, high, make_arch, run_loop
 
 import archself.runtime as runtime_pkg
-from archself.io.jsondata import DecisionRecordDoc, document
 from archself.runtime import InfluenceSolver, MapeK, explain
 from archself.runtime.knowledge import Knowledge
 from archself.runtime.monitor import Monitor, ResidualFilter, filter_gain, module_residual
@@ -164,7 +163,7 @@ def test_monitor_survives_failing_system():
     arch = make_arch()
     loop = MapeK(arch)
     assert loop(Broken(arch)) == []
-    rec = document(DecisionRecordDoc, loop.decisions[-1])
+    rec = loop.decisions[-1].to_dict()
     assert rec["j_obs"] is None
     json.dumps(rec, allow_nan=False)
 

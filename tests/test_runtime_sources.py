@@ -17,7 +17,6 @@ import pytest
 import scipy.sparse
 from numpy.testing import assert_allclose
 
-from archself.io.jsondata import DecisionRecordDoc, document
 from archself.model.loader import load_architecture
 from archself.runtime import MapeK, explain
 from archself.runtime.decisions import explain_data
@@ -190,9 +189,9 @@ def test_z_is_unchanged_and_both_are_logged(chain):
     for a, b in zip(infl.decisions[:first], src.decisions[:first], strict=True):
         assert dict(a.z) == dict(b.z) and dict(a.r) == dict(b.r)
         assert dict(a.source) == dict(b.source)
-    rec = document(DecisionRecordDoc, src.decisions[first])
+    rec = src.decisions[first].to_dict()
     assert rec["localization"] == "fit" and set(rec["source"]) == set(rec["z"])
-    assert document(DecisionRecordDoc, infl.decisions[first])["localization"] == "influence"
+    assert infl.decisions[first].to_dict()["localization"] == "influence"
     assert src.selector.describe() == "|ê| >= 1"
     for d in src.decisions:
         vals = np.array(list(d.source.values()))
@@ -208,8 +207,7 @@ def test_explain_shows_z_and_source(chain):
     assert data["switches"] and "source" in data["switches"][0]
     old = []
     for d in loop.decisions:
-        rec = {k: v for k, v in document(DecisionRecordDoc, d).items()
-               if k not in ("source", "localization")}
+        rec = {k: v for k, v in d.to_dict().items() if k not in ("source", "localization")}
         if rec["chosen"]:
             rec["chosen"] = {k: v for k, v in rec["chosen"].items() if k != "source"}
         old.append(rec)

@@ -14,7 +14,6 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from archself.errors import CompileError, SimulationError
-from archself.io.jsondata import RunDoc, document
 from archself.model.architecture import Architecture
 from archself.model.loader import load_architecture
 from archself.modules.base import RuntimeModule
@@ -307,7 +306,7 @@ def test_simulate_is_deterministic(arch, tmp_path):
         "residual.wheel_left",
         "residual.odometry",
     } <= set(doc["series"])
-    d = document(RunDoc, a)
+    d = a.to_dict()
     assert d["mode"] == "fixed" and d["switches"] == [] and d["seed"] == 5
     assert d["configuration"] == d["final_configuration"] == "a1"
     assert set(d["metrics"]) == {"max_error", "final_error", "rms_error", "peak_time_s",

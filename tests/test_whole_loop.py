@@ -10,7 +10,6 @@ from typer.testing import CliRunner
 from archself.check import check
 from archself.check.stability import loop_table
 from archself.cli import app
-from archself.io.jsondata import DecisionRecordDoc, document
 from archself.model.loader import load_architecture, load_text
 from archself.modules.base import RuntimeModule
 from archself.runtime import MapeK
@@ -320,7 +319,7 @@ def test_info_stability_prints_the_table() -> None:
 # ------------------------------------------------------------------ at run time
 def _decisions(arch):
     res = simulate(arch, "main_loss", seed=1, adapt=MapeK(arch))
-    evals = [ev for d in res.decisions for ev in document(DecisionRecordDoc, d)["evaluations"]
+    evals = [ev for d in res.decisions for ev in d.to_dict()["evaluations"]
              if ev.get("stability")]
     return res, evals
 

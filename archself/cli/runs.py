@@ -273,9 +273,7 @@ def _simulate(
         sys.stdout.write(json_text(results[0]))
     elif json_out:
         # one shape whatever the options: an object with the list of runs
-        from archself.io.jsondata import RunDoc, document
-
-        data = {"runs": [document(RunDoc, r) for r in results]}  # io.jsondata.SimulateDoc
+        data = {"runs": [r.to_dict() for r in results]}  # io.jsondata.SimulateDoc
         typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
     else:
         typer.echo(_summary(results))

@@ -11,8 +11,8 @@ verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
 ``no improvement``, ``unstable``), with ``runtime.risk`` Δ's mean, spread and rule,
 with ``runtime.learning`` the context's learned record, its score (Eq. 25) and the
 action chosen (Eq. 26). Written as the pydantic model
-:class:`~archself.io.jsondata.DecisionRecordDoc` (``document(DecisionRecordDoc, record)``;
-a log: ``MapeK.log()``): lists, strings, numbers and ``None`` for non-finite numbers.
+:class:`~archself.io.jsondata.DecisionRecordDoc` (``record.to_dict()``; a log:
+``MapeK.log()``): lists, strings, numbers and ``None`` for non-finite numbers.
 
 :func:`explain` renders a log for a person asking "why did it switch?"
 (:mod:`archself.runtime.explanation`, re-exported here).
@@ -24,6 +24,7 @@ from collections.abc import ItemsView, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from archself.io.jsondata import DecisionRecordDoc, EvaluationDoc, document
 from archself.runtime.explanation import explain, explain_data
 
 __all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "explain_data"]
@@ -125,6 +126,10 @@ class ActionEvaluation:
     rule: str | None = None
     learned: dict[str, Any] | None = None  # runtime.learning: this context's record
 
+    def to_dict(self) -> dict[str, Any]:
+        """JSON data: the :class:`~archself.io.jsondata.EvaluationDoc` of the evaluation."""
+        return document(EvaluationDoc, self)  # type: ignore[no-any-return]
+
 
 @dataclass
 class DecisionRecord:
@@ -149,3 +154,7 @@ class DecisionRecord:
     source: Mapping[str, float] | None = None
     localization: str = "influence"
     equivalent: list[list[str]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON data: the :class:`~archself.io.jsondata.DecisionRecordDoc` of the record."""
+        return document(DecisionRecordDoc, self)  # type: ignore[no-any-return]

@@ -1,8 +1,8 @@
 """The outcome of one simulation: :class:`RunResult`, its trace, its pandas frames.
 
 A :class:`RunResult` holds a run's recorded series, metrics, switches and decision
-log; it gives them as plain data (:meth:`RunResult.trace`, the models of
-:mod:`archself.io.jsondata`),
+log; it gives them as plain data (:meth:`RunResult.to_dict`, :meth:`RunResult.trace`:
+the models of :mod:`archself.io.jsondata`),
 as tidy pandas frames (:meth:`RunResult.to_pandas`, :meth:`RunResult.decisions_frame`),
 as a notebook summary, and writes the trace file (:mod:`archself.io.trace`).
 """
@@ -80,6 +80,11 @@ class RunResult:
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
     configurations: list[str] = dataclasses.field(default_factory=list)
     unit: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The run as JSON data (one of ``archself simulate --json``'s ``runs``): its
+        :class:`~archself.io.jsondata.RunDoc`."""
+        return document(RunDoc, self)  # type: ignore[no-any-return]
 
     def trace(self) -> dict[str, Any]:
         """The trace document ``{meta, series, decisions}`` as plain JSON data."""
