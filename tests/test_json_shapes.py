@@ -334,3 +334,18 @@ def test_a_writer_bug_is_one_located_line() -> None:
                               "expected a number, got a string")
     with pytest.raises(ArchselfError, match=r"runs\[0\]\.seed: expected an integer"):
         document(SimulateDoc, {"runs": [{"scenario": "s", "seed": 1.5}]})
+
+
+def test_explain_of_a_sparse_log_keeps_its_shape(tmp_path: Path) -> None:
+    """A log whose records lack most fields (the reader allows it) explains in one shape."""
+    meta = {"scenario": "s", "seed": 1, "mode": "adaptive", "configuration": "a",
+            "final_configuration": "b", "metrics": {}}
+    log = [{"t": 1.0}, {"t": 2.0}, {"t": 3.0, "chosen": {"action": "x", "to": "b"}},
+           {"chosen": {"action": "y", "kind": "parameter_update"}}]
+    path = tmp_path / "sparse.json"
+    path.write_text(json.dumps({"meta": meta, "series": {}, "decisions": log}), "utf-8")
+    out = _cli(["explain", str(path), "--json"])
+    _check("explain", [out])
+    assert [(s["from"], s["to"], s["equivalent"]) for s in out["switches"]] == [(None, "b", [])]
+    assert [(u["t"], u["action"], u["set"]) for u in out["updates"]] == [(None, "y", None)]
+    assert out["run"]["architecture"] is None and out["cycles"] == 4

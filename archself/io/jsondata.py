@@ -581,9 +581,9 @@ class ChoiceDoc(OutDoc):
     written before it; ``equivalent``: the modules the residuals cannot tell apart from
     its module (empty when it was identified)."""
 
-    t: Number
-    action: str
-    module: str
+    t: Maybe
+    action: str | None
+    module: str | None
     z: Maybe
     score: Maybe
     source: Maybe = None
@@ -591,12 +591,12 @@ class ChoiceDoc(OutDoc):
 
 
 class SwitchChoice(ChoiceDoc):
-    from_: str = Field(alias="from")
-    to: str
+    from_: str | None = Field(alias="from")
+    to: str | None
 
 
 class UpdateChoice(ChoiceDoc):
-    set: dict[str, Any]
+    set: dict[str, Any] | None
 
 
 class CycleSegment(OutDoc):
@@ -610,11 +610,11 @@ class RepeatSegment(OutDoc):
     """A run of repeated cycles, summarized."""
 
     kind: Literal["repeat"]
-    t_from: Number
-    t_to: Number
+    t_from: Maybe
+    t_to: Maybe
     cycles: int
-    phase: str
-    configuration: str
+    phase: str | None
+    configuration: str | None
     candidates: list[str]
     max_abs_z: Maybe
     max_source: Maybe = None
