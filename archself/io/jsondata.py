@@ -437,7 +437,6 @@ class CampaignDoc(JobDoc):
 
 # ------------------------------------------------------------------ outputs: the commands' --json
 Number = int | float  # as computed: an int stays an int
-Maybe = Number | None  # a number, or null when it does not apply (or is not finite)
 
 
 # ------------------------------------------------------------------ validate, info
@@ -463,11 +462,11 @@ class VerdictDoc(OutDoc):
     stateful: int
     active: int
     states: int
-    max_lambda: Maybe = Field(description="max |λ| per step")
+    max_lambda: Num = Field(description="max |λ| per step")
     marginal: list[str] = Field(description="modes: '|λ| (modules: states)'")
     unstable: list[str]
     why: str = Field(description="why it is unverified ('' otherwise)")
-    margin: Maybe = Field(None, description="1 − max_lambda; null when unverified")
+    margin: Num = Field(None, description="1 − max_lambda; null when unverified")
 
     @model_validator(mode="after")
     def _margin(self) -> VerdictDoc:
@@ -533,7 +532,7 @@ class InfoRuntime(OutDoc):
     step_s: Number
     period_s: Number
     selector: Literal["threshold", "top_k", "hysteresis"]
-    threshold: Maybe = None
+    threshold: Num = None
     top_k: int | None = None
     hysteresis: dict[str, Number] | None = Field(None, description="{on, off}")
     warmup_steps: int
@@ -581,12 +580,12 @@ class ChoiceDoc(OutDoc):
     written before it; ``equivalent``: the modules the residuals cannot tell apart from
     its module (empty when it was identified)."""
 
-    t: Maybe
+    t: Num
     action: str | None
     module: str | None
-    z: Maybe
-    score: Maybe
-    source: Maybe = None
+    z: Num
+    score: Num
+    source: Num = None
     equivalent: list[str] = Field(default_factory=list)
 
 
@@ -610,14 +609,14 @@ class RepeatSegment(OutDoc):
     """A run of repeated cycles, summarized."""
 
     kind: Literal["repeat"]
-    t_from: Maybe
-    t_to: Maybe
+    t_from: Num
+    t_to: Num
     cycles: int
     phase: str | None
     configuration: str | None
     candidates: list[str]
-    max_abs_z: Maybe
-    max_source: Maybe = None
+    max_abs_z: Num
+    max_source: Num = None
 
 
 class ExplainDoc(OutDoc):
@@ -665,20 +664,20 @@ class RateDoc(OutDoc):
 
     k: int
     n: int
-    rate: Maybe
-    lo: Maybe
-    hi: Maybe
+    rate: Num
+    lo: Num
+    hi: Num
 
 
 class DistributionDoc(OutDoc):
     """A distribution (null but ``n`` when empty)."""
 
     n: int
-    mean: Maybe
-    p10: Maybe
-    median: Maybe
-    p90: Maybe
-    max: Maybe
+    mean: Num
+    p10: Num
+    median: Num
+    p90: Num
+    max: Num
 
 
 class CountDoc(OutDoc):
@@ -696,7 +695,7 @@ class ScenarioDoc(OutDoc):
     runs: dict[Literal["fixed", "adaptive"], int]
     correct: RateDoc
     false_switch: RateDoc
-    false_switches_per_run: Maybe
+    false_switches_per_run: Num
     final_configurations: list[CountDoc]
     paths: list[CountDoc]
     detected: RateDoc | None
