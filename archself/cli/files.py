@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import warnings
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -84,7 +84,7 @@ def validate(
         table = _stability_table(loaded, stability)
         if json_out:
             report.append({"file": str(path), "ok": not bad, "findings": findings,
-                           "stability": list(table or ())})
+                           "stability": _verdicts(table)})
         else:
             for f in findings:
                 _err(str(f), failing=f in bad)
@@ -402,7 +402,7 @@ def info(
     if as_json:
         from archself.io.jsondata import InfoDoc, document
 
-        data = document(InfoDoc, {**data, "stability": list(table or ())}, complete=True)
+        data = document(InfoDoc, {**data, "stability": _verdicts(table)}, complete=True)
         typer.echo(json.dumps(data, indent=2))
     else:
         typer.echo(summary_text(data) + ("" if table is None else "\n" + table_text(table)))
@@ -448,3 +448,8 @@ def generate(
     fan_in = min(fan_in, n)  # no module has more than N − 1 predecessors
     text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
     _emit(text, output, f"{output}: {n} modules")
+
+
+def _verdicts(table: Any) -> list[dict[str, Any]]:
+    """The whole-loop table as the data of ``--json`` (``VerdictDoc``: with the margin)."""
+    return [{**vars(v), "margin": v.margin} for v in table or ()]

@@ -466,13 +466,7 @@ class VerdictDoc(OutDoc):
     marginal: list[str] = Field(description="modes: '|λ| (modules: states)'")
     unstable: list[str]
     why: str = Field(description="why it is unverified ('' otherwise)")
-    margin: Num = Field(None, description="1 − max_lambda; null when unverified")
-
-    @model_validator(mode="after")
-    def _margin(self) -> VerdictDoc:
-        if self.margin is None and self.max_lambda is not None:
-            self.margin = 1.0 - self.max_lambda
-        return self
+    margin: Num = Field(description="1 − max_lambda; null when unverified")
 
 
 class ValidateDoc(OutDoc):
