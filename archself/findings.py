@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Literal
 
 from archself.errors import located
@@ -39,7 +39,3 @@ class Finding:
 
     def __str__(self) -> str:
         return located(self.file, self.line, self.col, self.path, self.message, self.severity)
-
-    def to_dict(self) -> dict[str, object]:
-        """JSON-ready dict of the finding."""
-        return asdict(self)

@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 
 from archself.cli import app
 from archself.cli.base import RunProgress, colorize
+from archself.io.jsondata import ValidateList
 
 from conftest import DIFFDRIVE, FIXTURES
 
@@ -34,7 +35,7 @@ def test_validate_json_is_always_a_list(files) -> None:
     res = CliRunner().invoke(app, ["validate", "--json", *map(str, files)])
     data = json.loads(res.stdout)
     assert isinstance(data, list) and len(data) == len(files)
-    assert all(set(d) == {"file", "ok", "findings", "stability"} for d in data)
+    ValidateList.model_validate(data, strict=True)  # the shape docs/json.md gives
     assert [d["file"] for d in data] == [str(f) for f in files]
 
 

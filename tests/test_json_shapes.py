@@ -1,10 +1,11 @@
-"""Every command's ``--json`` has one shape, the one docs/json.md gives (issue 15).
+"""Every command's ``--json`` has one shape, the model docs/json.md gives (issues 15, 41).
 
-docs/json.md is the specification: each ``## command`` section holds the command's shape
-as a JSON block. Every command with a ``--json`` option is run here with its option
-variants (one file or several, one run or a comparison, a fixed or an adaptive trace,
-a threshold or a top-k selector, with or without a τ sweep, ...) and each output must
-match its section's shape exactly: the same keys, values of the given types.
+docs/json.md is the specification: each ``## command`` section holds the JSON Schema of
+the pydantic model the command's output is built from (tools/json_docs.py). Every command
+with a ``--json`` option is run here with its option variants (one file or several, one
+run or a comparison, a fixed or an adaptive trace, a threshold or a top-k selector, with
+or without a τ sweep, ...) and each output is validated with its model: no other key,
+JSON types as they are (no conversion).
 """
 
 from __future__ import annotations
@@ -17,11 +18,24 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import typer.main
 from typer.testing import CliRunner
 
+from archself.calibration.identify_results import IdentificationDoc
+from archself.calibration.result import CalibrationDoc
 from archself.cli import app
+from archself.errors import ArchselfError
+from archself.io.jsondata import (
+    CampaignDoc,
+    DecisionLog,
+    DecisionRecordDoc,
+    JobDoc,
+    SimulateDoc,
+    document,
+)
+from archself.runtime.decisions import ActionEvaluation, DecisionRecord
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT
 
@@ -31,59 +45,19 @@ BAD = FIXTURES / "invalid" / "bad_kind.yaml"
 PLANT = ROOT / "architectures" / "process_plant.yaml"
 CAMPAIGN = ROOT / "docs" / "campaign" / "campaign.parquet"
 JSON_DOCS = runpy.run_path(str(ROOT / "tools" / "json_docs.py"))
-TYPES: dict[str, Any] = {
-    "string": lambda v: isinstance(v, str),
-    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
-    "number": lambda v: isinstance(v, int | float) and not isinstance(v, bool),
-    "boolean": lambda v: isinstance(v, bool),
-    "null": lambda v: v is None,
-    "object": lambda v: isinstance(v, dict),
-    "any": lambda v: True,
-}
 
 
 # ------------------------------------------------------------------ the specification
 def documented_shapes() -> dict[str, Any]:
-    """Command → shape, from the first ``json`` block of each ``## command`` section; a
-    block generated from a pydantic model (tools/json_docs.py) gives the model."""
+    """Command → the model of its section (``<!-- schema: module:Model -->``)."""
     shapes: dict[str, Any] = {}
     commands = PAGE.read_text(encoding="utf-8").split("\n# Documents archself reads back")[0]
     for section in re.split(r"^## ", commands, flags=re.M)[1:]:
         name = section.split("\n", 1)[0].strip()
         generated = re.search(r"<!-- schema: ([\w.]+):(\w+) -->", section)
-        block = re.search(r"```json\n(.*?)```", section, flags=re.S)
-        assert block, f"docs/json.md: section {name} has no json block"
-        shapes[name] = JSON_DOCS["model"](*generated.groups()) if generated else json.loads(
-            block.group(1))
+        assert generated, f"docs/json.md: section {name} has no generated schema"
+        shapes[name] = JSON_DOCS["model"](*generated.groups())
     return shapes
-
-
-def mismatches(value: Any, shape: Any, where: str = "$") -> list[str]:
-    """Where ``value`` departs from ``shape`` (empty: it conforms); see docs/json.md."""
-    if isinstance(shape, str):
-        names = shape.split("|")
-        assert all(n in TYPES for n in names), f"docs/json.md: unknown type {shape!r}"
-        ok = any(TYPES[n](value) for n in names)
-        return [] if ok else [f"{where}: expected {shape}, got {type(value).__name__}"]
-    if isinstance(shape, list):
-        if not isinstance(value, list):
-            return [f"{where}: expected a list, got {type(value).__name__}"]
-        out: list[str] = []
-        for i, item in enumerate(value):
-            tries = [mismatches(item, alt, f"{where}[{i}]") for alt in shape]
-            if all(tries):
-                out += min(tries, key=len)
-        return out
-    if not isinstance(value, dict):
-        return [f"{where}: expected an object, got {type(value).__name__}"]
-    if set(shape) == {"*"}:
-        return [m for k, v in value.items() for m in mismatches(v, shape["*"], f"{where}.{k}")]
-    out = [f"{where}: missing key {k!r}" for k in shape if k not in value]
-    out += [f"{where}: undocumented key {k!r}" for k in value if k not in shape]
-    for k in shape:
-        if k in value:
-            out += mismatches(value[k], shape[k], f"{where}.{k}")
-    return out
 
 
 SHAPES = documented_shapes()
@@ -106,21 +80,13 @@ def test_the_schemas_are_the_models() -> None:
     assert JSON_DOCS["render"](text) == text, "docs/json.md is out of date: " \
         "python tools/json_docs.py"
     names = [m[3] for m in JSON_DOCS["BLOCK"].finditer(text)]
-    assert names == ["CalibrationDoc", "IdentificationDoc", "TraceDocument", "ParquetHead",
-                     "SavedRunsMeta", "CampaignMeta"]
+    assert names == ["ValidateList", "SimulateDoc", "ExplainDoc", "LiveDoc", "Ros2Doc",
+                     "CampaignDoc", "CampaignReportDoc", "InfoDoc", "CalibrationDoc",
+                     "IdentificationDoc", "TraceDocument", "ParquetHead", "SavedRunsMeta",
+                     "CampaignMeta"]
     schema = json.loads(text.split("<!-- schema: archself.io.jsondata:TraceDocument -->\n")[1]
                         .split("```json\n")[1].split("```")[0])
     assert schema["required"] == ["meta", "series", "decisions"] and "TraceMeta" in schema["$defs"]
-
-
-def test_the_checker_rejects_what_departs() -> None:
-    shape = {"runs": [{"n": "integer", "x": "number|null", "m": {"*": "string"}}]}
-    assert mismatches({"runs": [{"n": 1, "x": None, "m": {"a": "b"}}]}, shape) == []
-    assert mismatches({"runs": [{"n": 1.5, "x": 2, "m": {}}]}, shape) == [
-        "$.runs[0].n: expected integer, got float"]
-    assert mismatches({"runs": [], "extra": 1}, shape) == ["$: undocumented key 'extra'"]
-    assert mismatches([{"n": True}], shape) == ["$: expected an object, got list"]
-    assert mismatches({"runs": [{"n": 1, "x": 0.1}]}, shape) == ["$.runs[0]: missing key 'm'"]
 
 
 # ------------------------------------------------------------------ the runs
@@ -156,13 +122,9 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _check(command: str, outputs: list[Any]) -> None:
-    shape = SHAPES[command]
-    for i, out in enumerate(outputs):
-        if isinstance(shape, type):  # a model: no other key, JSON types as they are
-            shape.model_validate(out, strict=True)
-            continue
-        bad = mismatches(out, shape)
-        assert not bad, (command, f"variant {i}", bad[:5])
+    """Each output validates with its command's model: no other key, no conversion."""
+    for out in outputs:
+        SHAPES[command].model_validate(out, strict=True)
 
 
 def test_validate(work: Path) -> None:
@@ -268,6 +230,9 @@ def test_campaign_and_campaign_report(work: Path) -> None:
     ]
     _check("campaign", runs)
     assert [(r["ran"], r["skipped"]) for r in runs] == [(4, 0), (2, 4), (2, 0)]
+    # the job record's leading fields (io.jsondata.JobDoc), as calibrate and identify have them
+    assert [(r["file"], r["seeds"], r["root_seed"]) for r in runs] == [
+        ("minimal.yaml", 2, 0), ("minimal.yaml", 3, 0), ("minimal.yaml", 1, 0)]
     reports = [
         _cli(["campaign-report", str(both), "-o", str(work / "r1"), "--json"]),
         _cli(["campaign-report", str(both), "-o", str(work / "r2"), "--expect", "calm=only",
@@ -314,6 +279,7 @@ def test_calibrate_and_identify(work: Path) -> None:
     ]
     _check("calibrate", cals)
     assert {b["calibrated"] for b in cals[0]["bands"].values()} == {True, False}
+    assert (cals[0]["seeds"], cals[0]["root_seed"], cals[0]["runs"]) == (2, 0, 2)
     idents = [
         _cli(["identify", str(plant), "--seeds", "1", "-c", "p1", "--executor", "inline",
               "--json"]),
@@ -322,3 +288,64 @@ def test_calibrate_and_identify(work: Path) -> None:
     ]
     _check("identify", idents)
     assert any(e["identifiable"] for e in idents[0]["edges"])
+
+
+# ------------------------------------------------------------------ the models as writers
+def test_one_job_record() -> None:
+    """campaign, calibrate and identify lead with the same seven fields (io.jsondata.JobDoc)."""
+    lead = list(JobDoc.model_fields)
+    assert lead == ["architecture", "file", "seeds", "root_seed", "executor", "elapsed_s",
+                    "archself_version"]
+    for doc in (CampaignDoc, CalibrationDoc, IdentificationDoc):
+        assert issubclass(doc, JobDoc) and list(doc.model_fields)[:7] == lead
+
+
+def test_a_decision_record_is_written_by_its_model() -> None:
+    """Field order, numbers as they are (numpy cleaned, NaN null, an int stays an int),
+    the optional keys only when set, a key the model does not name kept (H1's records)."""
+    chosen = {"to": "b", "from": "a", "action": "sw", "kind": "switch", "module": "m",
+              "z": 2.0, "source": 1.0, "delta": 0.5, "score": 0.25}
+    rec = DecisionRecord(
+        cycle=3, t=0.5, configuration="a", phase="adapt", j_obs=np.float64(0.25), j_ref=0.1,
+        r_global=float("nan"), r={"m": np.float32(1.5)}, z={"m": 2}, candidates=["m"],
+        selector="threshold", chosen=chosen,
+        evaluations=[ActionEvaluation("sw", "m", "switch", "b", z=2.0, cost=1)])
+    d = document(DecisionRecordDoc, rec)
+    assert list(d) == ["cycle", "t", "configuration", "phase", "j_obs", "j_ref", "r_global",
+                       "r", "z", "localization", "candidates", "selector", "kappa",
+                       "evaluations", "chosen", "note"]
+    assert d["r_global"] is None and d["r"] == {"m": 1.5} and d["z"] == {"m": 2}
+    assert type(d["z"]["m"]) is int and type(d["j_obs"]) is float
+    assert list(d["chosen"]) == ["action", "kind", "module", "z", "source", "delta", "score",
+                                 "from", "to"]
+    ev = d["evaluations"][0]
+    assert ev["cost"] == 1 and "utility" not in ev and "learned" not in ev
+    rec.source, rec.compensated = {"m": 0.5}, ["m"]
+    d = document(DecisionRecordDoc, rec)
+    assert list(d)[9] == "source" and list(d)[-1] == "compensated"
+    assert document(DecisionRecordDoc, {"cycle": 1, "update": {"w": 0.5}}) == {
+        "cycle": 1, "update": {"w": 0.5}}
+
+
+def test_a_writer_bug_is_one_located_line() -> None:
+    with pytest.raises(ArchselfError) as err:
+        document(DecisionLog, [{"t": 1.0}, {"z": {"a": "x"}}], "decisions")
+    assert str(err.value) == ("error: the document would not read back: decisions[1].z.a: "
+                              "expected a number, got a string")
+    with pytest.raises(ArchselfError, match=r"runs\[0\]\.seed: expected an integer"):
+        document(SimulateDoc, {"runs": [{"scenario": "s", "seed": 1.5}]})
+
+
+def test_explain_of_a_sparse_log_keeps_its_shape(tmp_path: Path) -> None:
+    """A log whose records lack most fields (the reader allows it) explains in one shape."""
+    meta = {"scenario": "s", "seed": 1, "mode": "adaptive", "configuration": "a",
+            "final_configuration": "b", "metrics": {}}
+    log = [{"t": 1.0}, {"t": 2.0}, {"t": 3.0, "chosen": {"action": "x", "to": "b"}},
+           {"chosen": {"action": "y", "kind": "parameter_update"}}]
+    path = tmp_path / "sparse.json"
+    path.write_text(json.dumps({"meta": meta, "series": {}, "decisions": log}), "utf-8")
+    out = _cli(["explain", str(path), "--json"])
+    _check("explain", [out])
+    assert [(s["from"], s["to"], s["equivalent"]) for s in out["switches"]] == [(None, "b", [])]
+    assert [(u["t"], u["action"], u["set"]) for u in out["updates"]] == [(None, "y", None)]
+    assert out["run"]["architecture"] is None and out["cycles"] == 4

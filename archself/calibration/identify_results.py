@@ -13,11 +13,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from archself import __version__
 from archself.errors import ArchselfError
-from archself.io.jsondata import finite_or_none
+from archself.io.jsondata import JobDoc, OutDoc, document
 from archself.runtime.identify_fit import TargetFit
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
@@ -111,34 +110,20 @@ class Identification:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON data (``--json``): an :class:`IdentificationDoc`."""
-        num = finite_or_none
-        return IdentificationDoc(
-            **{f: getattr(self, f) for f in ("architecture", "file", "scenario",
-                                             "configurations", "seeds", "root_seed", "runs",
-                                             "failed", "w_scale", "settle_s")},
-            edges=[EdgeDoc(**{**{f: getattr(r, f) for f in EdgeDoc.model_fields},
-                              "fitted": num(r.fitted), "se": num(r.se)}) for r in self.rows],
-            targets={c: {t: TargetDoc(rows=f.rows, r2=num(f.r2), rms=num(f.rms),
-                                      moved=num(f.moved)) for t, f in fits.items()}
-                     for c, fits in self.fits.items()},
-            experiments=[ExperimentDoc(**{**vars(e), "own_delta": num(e.own_delta),
-                                          "max_delta": num(e.max_delta)})
-                         for e in self.experiments],
-            not_perturbed=self.skipped, executor=self.executor,
-            elapsed_s=round(self.elapsed_s, 3),
-        ).model_dump()
+        """Plain JSON data (``--json``): an :class:`IdentificationDoc` (NaN: null)."""
+        return document(
+            IdentificationDoc, self, complete=True, elapsed_s=round(self.elapsed_s, 3),
+            edges=[{f: getattr(r, f) for f in EdgeDoc.model_fields} for r in self.rows],
+            targets={c: {t: {f: getattr(fit, f) for f in TargetDoc.model_fields}
+                         for t, fit in fits.items()} for c, fits in self.fits.items()},
+            not_perturbed=self.skipped)
 
 
 # ------------------------------------------------------------------ the JSON document
 Number = int | float  # as given: an int stays an int in the JSON
 
 
-class _Out(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class EdgeDoc(_Out):
+class EdgeDoc(OutDoc):
     """One edge of one configuration: declared, effective and fitted weight."""
 
     configuration: str
@@ -154,7 +139,7 @@ class EdgeDoc(_Out):
     differs: bool | None = Field(description="|fitted − effective| > 2 SE; null without one")
 
 
-class TargetDoc(_Out):
+class TargetDoc(OutDoc):
     """The fit of one target module's residual."""
 
     rows: int
@@ -163,7 +148,7 @@ class TargetDoc(_Out):
     moved: float | None = Field(description="how far the residual moved")
 
 
-class ExperimentDoc(_Out):
+class ExperimentDoc(OutDoc):
     """One perturbed module and what it excited."""
 
     configuration: str
@@ -175,15 +160,11 @@ class ExperimentDoc(_Out):
     max_delta: float | None
 
 
-class IdentificationDoc(_Out):
+class IdentificationDoc(JobDoc):
     """``archself identify --json``."""
 
-    architecture: str
-    file: str
     scenario: str
     configurations: list[str]
-    seeds: int
-    root_seed: int
     runs: int
     failed: list[str]
     w_scale: Number
@@ -191,8 +172,5 @@ class IdentificationDoc(_Out):
     edges: list[EdgeDoc]
     targets: dict[str, dict[str, TargetDoc]]
     experiments: list[ExperimentDoc]
-    archself_version: str = Field(default_factory=lambda: __version__)
     not_perturbed: dict[str, list[str]] = Field(
         description="per configuration, the modules not perturbed and why")
-    executor: str
-    elapsed_s: float

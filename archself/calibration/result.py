@@ -11,12 +11,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from archself import __version__
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
-from archself.io.jsondata import finite_or_none
+from archself.io.jsondata import JobDoc, OutDoc, document
 
 __all__ = ["Calibration", "CalibrationDoc", "CalibrationError", "CellResult", "ModuleBand"]
 
@@ -137,27 +136,18 @@ class Calibration:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON data (``--json``; ``calibration.json`` of the report): a
-        :class:`CalibrationDoc`."""
-        num = finite_or_none
-        return CalibrationDoc(
-            **{f: getattr(self, f) for f in _SAME}, scale=num(self.scale),
-            bands={m: BandDoc(**{f: getattr(b, f) for f in BandDoc.model_fields})
+        :class:`CalibrationDoc` (NaN: null)."""
+        return document(
+            CalibrationDoc, self, complete=True, rates=self.rates(),
+            bands={m: {f: getattr(b, f) for f in BandDoc.model_fields}
                    for m, b in self.modules.items()},
-            rates=RatesDoc(**{k: num(v) for k, v in self.rates().items()}),
-            cells=[CellDoc(
-                **{f: getattr(c, f) for f in ("scenario", "configuration", "runs", "forced",
-                                               "verify_runs")},
-                failed=len(c.failed),
-                gumbel=GumbelDoc(loc=c.fit_new.all.loc, scale=c.fit_new.all.scale),
-                tail=TailDoc(u=c.fit_new.all.tail_u, beta=c.fit_new.all.tail_beta,
-                             share=c.fit_new.all.tail_share),
-                predicted_new=num(c.new_predicted), empirical_new=num(c.new_empirical),
-                predicted_old=num(c.old_predicted), empirical_old=num(c.old_empirical),
-                verify_new=num(c.verify_new), verify_old=num(c.verify_old),
-            ) for c in self.cells],
-            executor=self.executor, elapsed_s=round(self.elapsed_s, 3),
-            verify_seeds=self.verify_seeds, verify_elapsed_s=round(self.verify_elapsed_s, 3),
-        ).model_dump()
+            cells=[{**{f: getattr(c, f) for f in _SAME_CELL}, "failed": len(c.failed),
+                    "gumbel": {"loc": c.fit_new.all.loc, "scale": c.fit_new.all.scale},
+                    "tail": {"u": c.fit_new.all.tail_u, "beta": c.fit_new.all.tail_beta,
+                             "share": c.fit_new.all.tail_share},
+                    **{f"{k}_{age}": getattr(c, f"{age}_{k}") for age in ("new", "old")
+                       for k in ("predicted", "empirical")}} for c in self.cells],
+            elapsed_s=round(self.elapsed_s, 3), verify_elapsed_s=round(self.verify_elapsed_s, 3))
 
 
 # ------------------------------------------------------------------ the JSON document
@@ -165,11 +155,7 @@ Number = int | float  # as given: an int stays an int in the JSON
 Rate = float | None  # a rate or a fit's value; null when it could not be had
 
 
-class _Out(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class BandDoc(_Out):
+class BandDoc(OutDoc):
     """One module's band, old and new ``residual.nominal``."""
 
     old: Number | None
@@ -181,14 +167,14 @@ class BandDoc(_Out):
     weight: Number = Field(description="its share of the false-alarm budget (--weight)")
 
 
-class GumbelDoc(_Out):
+class GumbelDoc(OutDoc):
     """The Gumbel fit of the cell's largest residual per run (new bands)."""
 
     loc: Rate
     scale: Rate
 
 
-class TailDoc(_Out):
+class TailDoc(OutDoc):
     """The generalized-Pareto tail above ``u`` (``beta``, its ``share`` of the runs)."""
 
     u: Rate
@@ -196,7 +182,7 @@ class TailDoc(_Out):
     share: Rate
 
 
-class RatesDoc(_Out):
+class RatesDoc(OutDoc):
     """False-switch rates: the worst cell's, predicted and counted, new and old bands."""
 
     predicted_new: Rate
@@ -207,7 +193,7 @@ class RatesDoc(_Out):
     verify_old: Rate
 
 
-class CellDoc(_Out):
+class CellDoc(OutDoc):
     """False switches of one (scenario, configuration) cell."""
 
     scenario: str
@@ -226,15 +212,11 @@ class CellDoc(_Out):
     verify_old: Rate
 
 
-class CalibrationDoc(_Out):
+class CalibrationDoc(JobDoc):
     """``archself calibrate --json`` and the report's ``calibration.json``."""
 
-    architecture: str
-    file: str
     tau: Number
     false_switch: Number
-    seeds: int
-    root_seed: int
     scenarios: list[str]
     configurations: list[str]
     runs: int
@@ -242,13 +224,10 @@ class CalibrationDoc(_Out):
     bands: dict[str, BandDoc]
     rates: RatesDoc
     cells: list[CellDoc]
-    executor: str
-    elapsed_s: float
     verify_seeds: int
     verify_elapsed_s: float
-    archself_version: str = Field(default_factory=lambda: __version__)
 
 
-#: The fields a :class:`Calibration` and its document share as they are.
-_SAME = ("architecture", "file", "tau", "false_switch", "seeds", "root_seed", "scenarios",
-         "configurations", "runs")
+#: The fields a :class:`CellResult` and its document share as they are.
+_SAME_CELL = ("scenario", "configuration", "runs", "forced", "verify_runs", "verify_new",
+              "verify_old")

@@ -46,7 +46,7 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
     import numpy as np
 
     from archself.io.atomic import write_bytes
-    from archself.io.jsondata import SavedRunsMeta
+    from archself.io.jsondata import SavedRunsMeta, document
 
     arrays: dict[str, Any] = {}
     rows = []
@@ -59,7 +59,7 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
         )
         if r["error"] is None:
             arrays.update({f"{name}{k}": r[name] for name in ("x", "forced", "t")})
-    doc = SavedRunsMeta.model_validate({**meta, "runs": rows}).model_dump(exclude_unset=True)
+    doc = document(SavedRunsMeta, {**meta, "runs": rows})
     arrays["meta"] = np.array(json.dumps(doc, ensure_ascii=False))
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)

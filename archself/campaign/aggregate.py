@@ -110,7 +110,8 @@ def parse_expect(items: Sequence[str]) -> dict[str, str]:
 
 @dataclass
 class CampaignSummary:
-    """The numbers of a campaign report (``to_dict()`` is ``summary.json``)."""
+    """The numbers of a campaign report (``summary.json``: its
+    :class:`~archself.io.jsondata.CampaignReportDoc`)."""
 
     meta: dict[str, Any]
     runs: int
@@ -121,22 +122,6 @@ class CampaignSummary:
     expect: dict[str, str]
     errors: list[str] = field(default_factory=list)
     unit: str | None = None  # of the error metrics (the results' ``unit`` column)
-
-    def to_dict(self) -> dict[str, Any]:
-        from archself import __version__
-
-        return {
-            "archself_version": __version__,
-            "meta": self.meta,
-            "runs": self.runs,
-            "failed": self.failed,
-            "unit": self.unit,
-            "expect": self.expect,
-            "scenarios": self.scenarios,
-            "tau": self.tau,
-            "sweeps": self.sweeps,
-            "errors": self.errors,
-        }
 
 
 def _pair_key(row: Mapping[str, Any], sweeps: Sequence[str]) -> tuple[Any, ...]:

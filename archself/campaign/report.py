@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.aggregate import CampaignSummary, summarize
-from archself.io.jsondata import jsonable
+from archself.io.jsondata import CampaignReportDoc, document
 
 __all__ = ["campaign_report", "summary_text"]
 
@@ -128,14 +128,15 @@ def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | P
         figures[key] = None if figure is None else f"{key}.{shown}"
         if figure is not None:
             write_figure(out, key, figure, fmts, dpi)
+    doc = document(CampaignReportDoc, summary, complete=True)
     env = _environment()
     html = env.get_template("campaign_report.html.j2").render(
-        s=summary.to_dict(),
+        s=doc,
         figures=figures,
         results_name=Path(results).name,
     )
     write_text(out / "index.html", html)
     write_text(
         out / "summary.json",
-        json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False) + "\n",
+        json.dumps(doc, indent=2, ensure_ascii=False) + "\n",
     )

@@ -90,11 +90,11 @@ def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = Non
     """The :class:`pyarrow.Schema` of a campaign's results table."""
     import pyarrow as pa
 
-    from archself.io.jsondata import CampaignMeta
+    from archself.io.jsondata import CampaignMeta, document
 
     cols = _BEFORE + [(p, "float64") for p in sweep_paths] + _AFTER
     fields = [pa.field(name, _type(pa, t)) for name, t in cols]
-    doc = CampaignMeta.model_validate(meta or {}).model_dump(exclude_unset=True)
+    doc = document(CampaignMeta, meta or {})
     metadata = {META_KEY: json.dumps(doc, sort_keys=True).encode()}
     return pa.schema(fields, metadata=metadata)
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -111,11 +111,6 @@ class LoopVerdict:
     def margin(self) -> float | None:
         """1 − max |λ| per step."""
         return None if self.max_lambda is None else 1.0 - self.max_lambda
-
-    def to_dict(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["margin"] = self.margin
-        return out
 
     def row(self) -> str:
         """One line of the table ``validate`` prints."""

@@ -74,8 +74,9 @@ def campaign(
     root_seed: RootSeedOption = 0,
     json_out: Annotated[
         bool,
-        typer.Option("--json", help="Print the outcome as one JSON object {out, skipped, ran, "
-                     "failed, rows, executor, workers, elapsed_s, errors} (docs/json.md)."),
+        typer.Option("--json", help="Print the outcome as one JSON object {architecture, "
+                     "file, seeds, root_seed, executor, elapsed_s, archself_version, out, "
+                     "planned, skipped, ran, failed, rows, workers, errors} (docs/json.md)."),
     ] = False,
     yes: PastCapOption = False,
     lanes: Annotated[
@@ -153,20 +154,14 @@ def _campaign(
                 bar.close()
     except ArchselfError as exc:
         raise _die(exc) from None
-    data = {
-        "out": str(outcome.out),
-        "planned": outcome.planned,
-        "skipped": outcome.skipped,
-        "ran": outcome.ran,
-        "failed": outcome.failed,
-        "rows": outcome.rows,
-        "executor": outcome.executor,
-        "workers": outcome.workers,
-        "elapsed_s": round(outcome.elapsed_s, 3),
-        "errors": outcome.errors,
-    }
     if json_out:
-        typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
+        from archself.io.jsondata import CampaignDoc
+
+        doc = CampaignDoc(**{**vars(outcome), "out": str(outcome.out),
+                             "elapsed_s": round(outcome.elapsed_s, 3)},
+                          architecture=meta["architecture"], file=meta["file"], seeds=seeds,
+                          root_seed=root_seed)
+        typer.echo(json.dumps(doc.model_dump(mode="json"), indent=2, ensure_ascii=False))
     else:
         rate = f", {outcome.ran / outcome.elapsed_s:.2f} runs/s" if outcome.elapsed_s > 0 else ""
         typer.echo(
@@ -223,9 +218,11 @@ def campaign_report_cmd(
     except ArchselfError as exc:
         raise _die(exc) from None
     if json_out:
-        from archself.io.jsondata import jsonable
 
-        typer.echo(json.dumps(jsonable(summary.to_dict()), indent=2, ensure_ascii=False))
+        from archself.io.jsondata import CampaignReportDoc, document
+
+        typer.echo(json.dumps(document(CampaignReportDoc, summary, complete=True), indent=2,
+                              ensure_ascii=False))
     else:
         typer.echo(summary_text(summary))
         note(f"report: {out_dir / 'index.html'}")

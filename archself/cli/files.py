@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import warnings
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -82,10 +82,8 @@ def validate(
         failed |= bool(bad)
         table = _stability_table(loaded, stability)
         if json_out:
-            report.append(
-                {"file": str(path), "ok": not bad, "findings": [f.to_dict() for f in findings],
-                 "stability": [v.to_dict() for v in table or ()]}
-            )
+            report.append({"file": str(path), "ok": not bad, "findings": findings,
+                           "stability": _verdicts(table)})
         else:
             for f in findings:
                 _err(str(f), failing=f in bad)
@@ -97,7 +95,10 @@ def validate(
 
                     typer.echo(table_text(table))
     if json_out:  # one shape: a list, whatever the number of files
-        typer.echo(json.dumps(report, indent=2, ensure_ascii=False))
+        from archself.io.jsondata import ValidateList, document
+
+        typer.echo(json.dumps(document(ValidateList, report, complete=True), indent=2,
+                              ensure_ascii=False))
     raise typer.Exit(1 if failed else 0)
 
 
@@ -398,8 +399,10 @@ def info(
         from archself.check.stability import loop_table, table_text
 
         table = loop_table(loaded)
-    data["stability"] = [v.to_dict() for v in table or ()]
     if as_json:
+        from archself.io.jsondata import InfoDoc, document
+
+        data = document(InfoDoc, {**data, "stability": _verdicts(table)}, complete=True)
         typer.echo(json.dumps(data, indent=2))
     else:
         typer.echo(summary_text(data) + ("" if table is None else "\n" + table_text(table)))
@@ -445,3 +448,8 @@ def generate(
     fan_in = min(fan_in, n)  # no module has more than N − 1 predecessors
     text = generate_architecture(n, seed=seed, fan_in=fan_in, feedback=feedback)
     _emit(text, output, f"{output}: {n} modules")
+
+
+def _verdicts(table: Any) -> list[dict[str, Any]]:
+    """The whole-loop table as the data of ``--json`` (``VerdictDoc``: with the margin)."""
+    return [{**vars(v), "margin": v.margin} for v in table or ()]

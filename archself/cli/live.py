@@ -11,7 +11,7 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
-from archself.io.jsondata import jsonable
+from archself.io.jsondata import DecisionRecordDoc, TraceDocument, document, jsonable
 
 
 def live(
@@ -123,7 +123,10 @@ def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, roll
 def _print_live(name: str, loop: Any, start: str, served: int, json_out: bool) -> None:
     """The run's summary: one JSON object, or a line and the commands in time order."""
     if json_out:
-        typer.echo(json.dumps(_result(name, start, loop, served), indent=1))
+        from archself.io.jsondata import LiveDoc
+
+        typer.echo(json.dumps(document(LiveDoc, _result(name, start, loop, served),
+                                       complete=True), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
     typer.echo(f"{name} · live · {served} measurements · {loop.mapek.cycle} cycles · {path}")
@@ -191,7 +194,7 @@ class _Journal:
         if self.fh is None:
             return
         try:
-            self._line(record.to_dict())
+            self._line(document(DecisionRecordDoc, record))
         except OSError as exc:
             typer.echo(f"warning: {self.part}: cannot write: {exc.strerror or exc}; the "
                        f"decision log is kept in memory until the end", err=True)
@@ -204,7 +207,7 @@ class _Journal:
         if ended is not None:
             doc["meta"]["ended"] = ended
         try:
-            _write_log(self.log, json.dumps(jsonable(doc), separators=(",", ":")) + "\n")
+            _write_log(self.log, json.dumps(doc, separators=(",", ":")) + "\n")
         finally:
             if self.fh is not None:
                 self.fh.close()
@@ -247,7 +250,8 @@ def _write_log(log: Path, text: str) -> None:
 
 
 def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
-    """The run as a trace document without series: ``{meta, series, decisions}``."""
+    """The run as a trace document without series: ``{meta, series, decisions}`` (a
+    :class:`~archself.io.jsondata.TraceDocument`)."""
     meta = {
         "architecture": loop.arch.name,
         "file": str(arch_path),
@@ -264,4 +268,4 @@ def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
         "updates": loop.updates,
         "configurations": list(loop.arch.configurations),
     }
-    return {"meta": meta, "series": {}, "decisions": [d.to_dict() for d in loop.decisions]}
+    return document(TraceDocument, {"meta": meta, "series": {}, "decisions": loop.decisions})

@@ -194,8 +194,10 @@ def _print_result(name: str, start: str, loop: Any, stats: dict[str, Any],
     from archself.cli.live import _result
 
     if json_out:
+        from archself.io.jsondata import Ros2Doc, document
+
         result = {**_result(name, start, loop, loop.measurements), "ros2": stats}
-        typer.echo(json.dumps(jsonable(result), indent=1))
+        typer.echo(json.dumps(document(Ros2Doc, result, complete=True), indent=1))
         return
     path = " → ".join([start, *(str(s["to"]) for s in loop.switches)])
     typer.echo(f"{name} · ros2 · {loop.measurements} measurements · {loop.mapek.cycle} "

@@ -281,7 +281,7 @@ def _simulate(
         sys.stdout.write(json_text(results[0]))
     elif json_out:
         # one shape whatever the options: an object with the list of runs
-        data = {"runs": [r.to_dict() for r in results]}
+        data = {"runs": [r.to_dict() for r in results]}  # io.jsondata.SimulateDoc
         typer.echo(json.dumps(data, indent=2, ensure_ascii=False))
     else:
         typer.echo(_summary(results))
@@ -318,17 +318,11 @@ def explain(
         raise _die(exc) from None
     meta, decisions = res.trace_meta(), res.trace_decisions()
     if json_out:
-        run = {k: meta.get(k) for k in ("architecture", "scenario", "seed", "mode",
-                                        "configuration", "final_configuration")}
-        data = explain_data(decisions)
+        from archself.io.jsondata import ExplainDoc, document
+
         # one shape for logs with and without the source estimate ê (older traces)
-        for item in (*data["switches"], *data["updates"]):
-            item.setdefault("source", None)
-            item.setdefault("equivalent", [])  # modules the residuals cannot tell apart
-        for seg in data["segments"]:
-            if seg["kind"] == "repeat":
-                seg.setdefault("max_source", None)
-        typer.echo(json.dumps({"run": run, **data}, indent=1))
+        data = document(ExplainDoc, {"run": meta, **explain_data(decisions)}, complete=True)
+        typer.echo(json.dumps(data, indent=1))
         return
     typer.echo(
         f"{meta.get('architecture', '?')} · scenario {meta.get('scenario')} · "

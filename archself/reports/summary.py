@@ -46,9 +46,8 @@ def summarize(arch: Architecture) -> dict[str, Any]:
         "scenarios": [{"name": n, "duration_s": s.duration_s,
                        "faults": [f"{f.kind} on {f.module} at {f.onset_s:g} s" for f in s.faults]}
                       for n, s in arch.scenarios.items()],
-        # one shape whatever the selector: the two not chosen are null
+        # one shape whatever the selector: the two not chosen are null (io.jsondata.InfoDoc)
         "runtime": {"step_s": rt.step_s, "period_s": rt.period_s, "selector": chosen,
-                    "threshold": None, "top_k": None, "hysteresis": None,
                     chosen: value, "warmup_steps": rt.warmup_steps,
                     "dwell_s": rt.dwell_s, "objective": rt.objective.model_dump()},
     }

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.io.jsondata import jsonable
+from archself.io.jsondata import DecisionRecordDoc, document, jsonable
 from archself.live import Command, LiveLoop
 from archself.model.architecture import Architecture
 from archself.reports.export import node_modules
@@ -287,7 +287,7 @@ class Ros2Bridge:
         commands = self.loop.push(float(tick["t"]), self.outputs, self.signals, self.health,
                                   seen)
         if self.loop.mapek.cycle != cycles:
-            record = jsonable(self.loop.decisions[-1].to_dict())
+            record = document(DecisionRecordDoc, self.loop.decisions[-1])
             self.decisions_pub.publish(self._String(data=json.dumps(record)))
         self.stats["cycle_ms"].append((time.perf_counter() - tick["received_at"]) * 1e3)
         self._ack = {"t": tick["t"], "configuration": self.loop.configuration,

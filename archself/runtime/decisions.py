@@ -10,8 +10,9 @@ verdict (Eq. 21/24), why it was rejected (``not applicable``, ``no change``,
 ``unavailable``, ``constraint``, ``budget``, ``limit``, ``dwell``, ``held back``,
 ``no improvement``, ``unstable``), with ``runtime.risk`` Δ's mean, spread and rule,
 with ``runtime.learning`` the context's learned record, its score (Eq. 25) and the
-action chosen (Eq. 26). Records are plain JSON (``to_dict``): lists, strings, floats
-and ``None`` for non-finite numbers.
+action chosen (Eq. 26). Written as the pydantic model
+:class:`~archself.io.jsondata.DecisionRecordDoc` (``record.to_dict()``; a log:
+``MapeK.log()``): lists, strings, numbers and ``None`` for non-finite numbers.
 
 :func:`explain` renders a log for a person asking "why did it switch?"
 (:mod:`archself.runtime.explanation`, re-exported here).
@@ -20,10 +21,10 @@ and ``None`` for non-finite numbers.
 from __future__ import annotations
 
 from collections.abc import ItemsView, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
-from archself.io.jsondata import jsonable
+from archself.io.jsondata import DecisionRecordDoc, EvaluationDoc, document
 from archself.runtime.explanation import explain, explain_data
 
 __all__ = ["ActionEvaluation", "DecisionRecord", "ValueMap", "explain", "explain_data"]
@@ -42,7 +43,7 @@ class ValueMap(Mapping[str, float]):
 
     What a :class:`DecisionRecord` keeps for ``r`` and ``z``: the cycle's arrays
     themselves, not a dict of 10^4 floats per cycle. It compares equal to the
-    dict it stands for, and :func:`jsonable` turns it into that dict.
+    dict it stands for, and :func:`~archself.io.jsondata.jsonable` turns it into that dict.
 
     Parameters
     ----------
@@ -126,13 +127,8 @@ class ActionEvaluation:
     learned: dict[str, Any] | None = None  # runtime.learning: this context's record
 
     def to_dict(self) -> dict[str, Any]:
-        return jsonable({
-            f.name: v for f in fields(self)
-            if (v := getattr(self, f.name)) is not None or f.name not in _OPTIONAL
-        })
-
-
-_OPTIONAL = frozenset({"utility", "mean", "spread", "draws", "rule", "learned"})
+        """JSON data: the :class:`~archself.io.jsondata.EvaluationDoc` of the evaluation."""
+        return document(EvaluationDoc, self)  # type: ignore[no-any-return]
 
 
 @dataclass
@@ -160,26 +156,5 @@ class DecisionRecord:
     equivalent: list[list[str]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return jsonable(
-            {
-                "cycle": self.cycle,
-                "t": self.t,
-                "configuration": self.configuration,
-                "phase": self.phase,
-                "j_obs": self.j_obs,
-                "j_ref": self.j_ref,
-                "r_global": self.r_global,
-                "r": self.r,
-                "z": self.z,
-                **({"source": self.source} if self.source is not None else {}),
-                **({"equivalent": self.equivalent} if self.equivalent else {}),
-                "localization": self.localization,
-                "candidates": self.candidates,
-                "selector": self.selector,
-                "kappa": self.kappa,
-                "evaluations": [e.to_dict() for e in self.evaluations],
-                "chosen": self.chosen,
-                "note": self.note,
-                **({"compensated": self.compensated} if self.compensated else {}),
-            }
-        )
+        """JSON data: the :class:`~archself.io.jsondata.DecisionRecordDoc` of the record."""
+        return document(DecisionRecordDoc, self)  # type: ignore[no-any-return]

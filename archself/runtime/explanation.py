@@ -4,13 +4,14 @@
 action or saw a candidate, with J, the largest z (or ê) and each evaluation's Δ,
 score and reason; quiet cycles are folded. :func:`explain_data` is the same as
 segments of plain data. Both read :class:`~archself.runtime.decisions.DecisionRecord`
-objects or their ``to_dict()`` form (a trace's log); importing this module costs
+objects or their JSON form (a trace's log); importing this module costs
 neither scipy nor networkx.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import is_dataclass
 from typing import Any
 
 from archself.io.jsondata import json_kind, jsonable
@@ -30,14 +31,16 @@ def _fmt(x: Any, spec: str = ".3g") -> str:
 
 def _as_dict(d: Any) -> dict[str, Any]:
     """A record as plain data."""
-    return d.to_dict() if hasattr(d, "to_dict") else dict(d)
+    from archself.io.jsondata import DecisionRecordDoc, document
+
+    return dict(d) if isinstance(d, Mapping) else dict(document(DecisionRecordDoc, d))
 
 
 def decision_log_problem(decisions: Any) -> str | None:
     """What makes ``decisions`` not a decision log (``decisions[3].z: expected …``), or None.
 
     A log is a list of records (:class:`~archself.runtime.decisions.DecisionRecord` or
-    their ``to_dict()`` form, as a trace stores them), checked by the model
+    their JSON form, as a trace stores them), checked by the model
     :data:`archself.io.jsondata.DecisionLog`: a field may be missing, but one that is
     there has its type.
     """
@@ -48,7 +51,7 @@ def decision_log_problem(decisions: Any) -> str | None:
                 if isinstance(decisions, str) or hasattr(decisions, "decisions") else "")
         return f"decisions: expected a list of decision records, got {json_kind(decisions)}{hint}"
     # a DecisionRecord object is one by construction: {} keeps the indices
-    return problem(DecisionLog, [{} if hasattr(d, "to_dict") else d for d in decisions],
+    return problem(DecisionLog, [{} if is_dataclass(d) else d for d in decisions],
                    "decisions")
 
 

@@ -83,7 +83,7 @@ class MapeK:
     knowledge : Knowledge
         The live architecture graph, current configuration, t_last.
     decisions : list of DecisionRecord
-        One record per cycle (``[d.to_dict() for d in decisions]`` is JSON).
+        One record per cycle (:meth:`log` is JSON).
     switches : list of dict
         Every architectural change: ``{t_s, from, to, action, module}``.
     updates : list of dict
@@ -390,5 +390,7 @@ class MapeK:
 
     # ------------------------------------------------------------------ output
     def log(self) -> list[dict[str, Any]]:
-        """The decision log as JSON-ready dicts."""
-        return [d.to_dict() for d in self.decisions]
+        """The decision log as JSON data (:data:`~archself.io.jsondata.DecisionLog`)."""
+        from archself.io.jsondata import DecisionLog, document
+
+        return list(document(DecisionLog, self.decisions, "decisions"))

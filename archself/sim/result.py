@@ -1,7 +1,8 @@
 """The outcome of one simulation: :class:`RunResult`, its trace, its pandas frames.
 
 A :class:`RunResult` holds a run's recorded series, metrics, switches and decision
-log; it gives them as plain data (:meth:`RunResult.to_dict`, :meth:`RunResult.trace`),
+log; it gives them as plain data (:meth:`RunResult.to_dict`, :meth:`RunResult.trace`:
+the models of :mod:`archself.io.jsondata`),
 as tidy pandas frames (:meth:`RunResult.to_pandas`, :meth:`RunResult.decisions_frame`),
 as a notebook summary, and writes the trace file (:mod:`archself.io.trace`).
 """
@@ -15,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.io.jsondata import jsonable
+from archself.io.jsondata import DecisionLog, RunDoc, TraceMeta, document
 from archself.io.trace import (
     TraceParts,
     component_columns,
@@ -81,31 +82,26 @@ class RunResult:
     unit: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """Summary as plain data (one of the ``runs`` of ``archself simulate --json``)."""
-        return {
-            "scenario": self.scenario,
-            "seed": self.seed,
-            "mode": self.mode,
-            "configuration": self.configuration,
-            "final_configuration": self.final_configuration,
-            "unit": self.unit,
-            "metrics": {k: jsonable(v) for k, v in self.metrics.items()},
-            "switches": jsonable(self.switches),
-        }
+        """The run as JSON data (one of ``archself simulate --json``'s ``runs``): its
+        :class:`~archself.io.jsondata.RunDoc`."""
+        return document(RunDoc, self)  # type: ignore[no-any-return]
 
     def trace(self) -> dict[str, Any]:
         """The trace document ``{meta, series, decisions}`` as plain JSON data."""
         series = {name: _series_list(arr) for name, arr in self.series.items()}
         return {"meta": self.trace_meta(), "series": series,
-                "decisions": jsonable(self.trace_decisions())}
+                "decisions": self.trace_decisions()}
 
     def trace_meta(self) -> dict[str, Any]:
-        """The trace's ``meta``: :attr:`meta`, :meth:`to_dict` and the configuration names."""
-        return {**self.meta, **self.to_dict(), "configurations": list(self.configurations)}
+        """The trace's ``meta`` (a :class:`~archself.io.jsondata.TraceMeta`): :attr:`meta`,
+        the run (a :class:`~archself.io.jsondata.RunDoc`, one of ``simulate --json``'s
+        ``runs``) and the configuration names."""
+        return document(TraceMeta, {**self.meta, **{
+            k: getattr(self, k) for k in (*RunDoc.model_fields, "configurations")}})
 
     def trace_decisions(self) -> list[Any]:
         """The decision log as plain data (dicts), as the trace stores it."""
-        return [_decision(d) for d in self.decisions]
+        return list(document(DecisionLog, self.decisions, "decisions"))
 
     # ------------------------------------------------------------------ notebooks
     def to_pandas(self) -> Any:
@@ -285,25 +281,14 @@ class RunResult:
     @classmethod
     def from_trace(cls, parts: TraceParts) -> RunResult:
         """The run a trace holds (:func:`archself.io.trace.read_trace_parts`)."""
-        meta, series, decisions = parts
-        keep = {k: v for k, v in meta.items()
-                if k not in ("scenario", "seed", "mode", "configuration", "final_configuration",
-                             "unit", "metrics", "switches", "configurations")}
-        return cls(
-            scenario=str(meta["scenario"]),
-            seed=int(meta["seed"]),
-            mode=str(meta["mode"]),
-            configuration=str(meta["configuration"]),
-            final_configuration=str(meta["final_configuration"]),
-            metrics={k: (math.nan if v is None else float(v))
-                     for k, v in dict(meta["metrics"]).items()},
-            switches=[dict(s) for s in meta.get("switches") or []],
-            series=series,
-            decisions=decisions,
-            meta=keep,
-            configurations=[str(c) for c in meta.get("configurations") or []],
-            unit=meta.get("unit"),
-        )
+        meta, series, decisions = parts  # checked: a TraceMeta
+        run: dict[str, Any] = {k: meta.get(k) for k in (*RunDoc.model_fields, "configurations")}
+        return cls(**{**run, "metrics": {k: math.nan if v is None else float(v)
+                                         for k, v in meta["metrics"].items()},
+                      "switches": [dict(s) for s in run["switches"] or []],
+                      "configurations": list(run["configurations"] or [])},
+                   series=series, decisions=decisions,
+                   meta={k: v for k, v in meta.items() if k not in run})
 
 
 def read_trace(path: str | Path) -> RunResult:
@@ -356,12 +341,3 @@ def _series_list(arr: np.ndarray) -> list:
     if a.ndim == 1:
         return [v if math.isfinite(v) else None for v in a.tolist()]
     return [[v if math.isfinite(v) else None for v in row] for row in a.tolist()]
-
-
-def _decision(d: Any) -> Any:
-    """A decision record as plain data."""
-    if hasattr(d, "to_dict"):
-        return d.to_dict()
-    if dataclasses.is_dataclass(d) and not isinstance(d, type):
-        return dataclasses.asdict(d)
-    return d
