@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -12,6 +15,17 @@ ROOT = Path(__file__).resolve().parents[1]
 # collection) would put it on sys.path and register its types in every test.
 collect_ignore = ["packs", "ros2_plain_client.py"]  # the ROS 2 client imports rclpy: a script
 FIXTURES = ROOT / "tests" / "fixtures"
+
+#: The persistent design cache (archself.linear.designs) of this session and of the
+#: processes it starts: a fresh folder, never the user's (set when the suite is collected,
+#: so the doctests of archself/ and packs/ use it too); removed at the end.
+DESIGN_CACHE = tempfile.mkdtemp(prefix="archself-test-cache-")
+os.environ["ARCHSELF_CACHE_DIR"] = DESIGN_CACHE
+os.environ.pop("ARCHSELF_CACHE", None)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    shutil.rmtree(DESIGN_CACHE, ignore_errors=True)
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -170,6 +172,100 @@ def test_spectrum_of_a_large_graph_by_components() -> None:
 def test_spectrum_near_one_still_detects_a_singular_block() -> None:
     rho, singular = spectrum_summary(["a", "b"], [("a", "b", 1.0), ("b", "a", 1.0)])
     assert rho == pytest.approx(1.0) and singular
+
+
+def _weights(n: int, edges: list[tuple[int, int, float]]) -> np.ndarray:
+    W = np.zeros((n, n))
+    for j, i, w in edges:
+        W[j, i] += w
+    return W
+
+
+@pytest.mark.parametrize(("edges", "singular"), [
+    ([(0, 1, 0.5), (1, 2, 0.4), (2, 0, 0.3)], False),
+    ([(0, 1, 1.0), (1, 0, 1.0)], True),  # W has the eigenvalue 1
+    ([(0, 1, 1.0), (1, 0, 1.0 - 1e-14)], True),  # near-singular: a pivot ~1e-14
+    ([(0, 1, 1.0), (1, 0, 1.0 - 1e-9)], False),  # close, but a pivot 1e-9 is no rounding
+    ([(0, 1, 1e9), (1, 2, 0.2)], True),  # ρ = 0, a pivot 5e-9 of 1e9: singular in floats
+])
+def test_singular_verdict_is_the_same_dense_in_numpy_and_sparse_in_scipy(
+    edges: list[tuple[int, int, float]], singular: bool
+) -> None:
+    """One rule (singular_pivots), two solvers by size: numpy's LU up to DENSE_MAX
+    modules, SuperLU above; the runtime's LAPACK LU refuses the same matrices."""
+    import scipy.linalg
+    import scipy.sparse
+
+    from archself.runtime.influence import InfluenceSolver, is_singular, lu_pivots
+
+    W = _weights(3, edges)
+    assert is_singular(W) is singular
+    assert is_singular(scipy.sparse.csr_matrix(W), dense_max=0) is singular
+    refused = False
+    try:
+        InfluenceSolver().set_matrix(W)
+    except np.linalg.LinAlgError:
+        refused = True
+    assert refused is singular
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+        lu, _ = scipy.linalg.lu_factor(np.eye(3) - W.T)
+    np.testing.assert_allclose(lu_pivots(np.eye(3) - W.T), np.abs(np.diag(lu)),
+                               rtol=1e-12, atol=1e-300)
+
+
+def test_numpy_lu_pivots_are_lapacks_on_random_matrices() -> None:
+    import scipy.linalg
+
+    from archself.runtime.influence import lu_pivots
+
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 5, 17, 60):
+        M = np.eye(n) - rng.random((n, n)) * (rng.random((n, n)) < 0.3)
+        lu, _ = scipy.linalg.lu_factor(M)
+        np.testing.assert_allclose(lu_pivots(M), np.abs(np.diag(lu)), rtol=1e-9)
+
+
+def test_spectrum_of_a_small_graph_imports_no_scipy() -> None:
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from archself.check.graph import spectrum_summary\n"
+            "print(spectrum_summary(['a', 'b'], [('a', 'b', 1.0), ('b', 'a', 1.0)]),\n"
+            "      any(m.startswith('scipy') for m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.split() == ["(1.0,", "True)", "False"], out.stderr[-2000:]
+
+
+def test_the_data_flow_checks_find_what_scipy_finds() -> None:
+    """Connected components (validate's ``incomplete``) and strong components (the
+    algebraic loop) in plain Python, against scipy.sparse.csgraph on random graphs."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    from archself.check.graph import _components
+    from archself.system.dataflow import strong_components
+
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        n = int(rng.integers(1, 25))
+        pairs = [(int(a), int(b)) for a, b in rng.integers(0, n, (int(rng.integers(0, 2 * n)), 2))]
+        names = [f"m{i:02d}" for i in range(n)]
+        links = [(names[a], names[b]) for a, b in pairs]
+        g = scipy.sparse.coo_matrix(([1.0] * len(pairs), ([a for a, _ in pairs],
+                                     [b for _, b in pairs])), shape=(n, n))
+        for strong in (False, True):
+            _, want = scipy.sparse.csgraph.connected_components(
+                g, directed=strong, connection="strong")
+            if strong:
+                label = strong_components(names, links)
+                got = [label[m] for m in names]
+            else:
+                parts = _components(names, links)
+                got = [next(k for k, p in enumerate(parts) if m in p) for m in names]
+            same = np.equal.outer(got, got)
+            np.testing.assert_array_equal(same, np.equal.outer(want, want))
 
 
 # --------------------------------------------------------------------------- registry

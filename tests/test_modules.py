@@ -28,6 +28,8 @@ from archself_diffdrive.models import (
 from archself_diffdrive.physical import DiffDrivePlant, Gps, Imu, WheelActuator, WheelEncoders
 from archself_diffdrive.planner import SplinePlanner
 
+from conftest import DIFFDRIVE
+
 KEYS = [
     "plant.diffdrive",
     "actuator.wheel",
@@ -160,6 +162,102 @@ def test_lqr_gain_closed_form(v, q):
         ]
     )
     assert_allclose(K, expected, rtol=1e-6, atol=1e-9)
+
+
+@pytest.fixture
+def design_cache(tmp_path, monkeypatch):
+    """A fresh, empty design cache and memo (archself.linear.designs)."""
+    from archself.linear import designs
+
+    monkeypatch.setenv("ARCHSELF_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("ARCHSELF_CACHE", raising=False)
+    monkeypatch.setattr(designs, "_MEMO", {})
+    return tmp_path / "designs"
+
+
+def _design_inputs():
+    A, B = error_dynamics(0.7)
+    return A, B, np.diag([1.0, 0.3, 0.05]), np.diag([1.5, 0.7])
+
+
+def test_lqr_design_cache_hit_and_miss_give_the_same_gain_to_the_bit(design_cache) -> None:
+    import control
+
+    from archself.linear import designs
+
+    want = np.asarray(control.lqr(*_design_inputs())[0], dtype=float)
+    miss = designs.lqr(*_design_inputs())
+    (entry,) = design_cache.glob("*.json")  # one entry, named by its key
+    assert miss.tobytes() == want.tobytes() and not miss.flags.writeable
+    assert designs.lqr(*_design_inputs()) is miss  # the in-process memo
+    designs._MEMO.clear()
+    hit = designs.lqr(*_design_inputs())  # read back from the file
+    assert hit is not miss and hit.tobytes() == want.tobytes()
+    # other inputs (here R) are another design and another entry
+    A, B, Q, R = _design_inputs()
+    other = designs.lqr(A, B, Q, 2.0 * R)
+    assert len(list(design_cache.glob("*.json"))) == 2
+    assert np.abs(other - want).max() > 1e-3
+    assert entry.read_text().startswith('{"key": ')
+
+
+@pytest.mark.parametrize("damage", ["corrupt", "truncated", "foreign", "wrong shape"])
+def test_a_damaged_or_foreign_design_entry_is_ignored_and_rewritten(design_cache,
+                                                                   damage) -> None:
+    import json
+
+    from archself.linear import designs
+
+    want = designs.lqr(*_design_inputs())
+    (entry,) = design_cache.glob("*.json")
+    good = json.loads(entry.read_text())
+    bad = {"corrupt": "not json {",
+           "truncated": entry.read_text()[:40],
+           "foreign": json.dumps({**good, "key": "0" * 64,
+                                  "gain": [(9.0).hex()] * 6}),
+           "wrong shape": json.dumps({**good, "shape": [3, 2]})}[damage]
+    entry.write_text(bad)
+    designs._MEMO.clear()
+    got = designs.lqr(*_design_inputs())
+    assert got.tobytes() == want.tobytes()
+    assert json.loads(entry.read_text()) == good  # designed again and rewritten
+
+
+def test_the_design_cache_can_be_switched_off_or_unwritable(design_cache, monkeypatch) -> None:
+    from archself.linear import designs
+
+    monkeypatch.setenv("ARCHSELF_CACHE", "off")
+    assert designs.cache_dir() is None
+    off = designs.lqr(*_design_inputs())
+    assert not design_cache.exists()
+    monkeypatch.delenv("ARCHSELF_CACHE")
+    design_cache.parent.joinpath("file").write_text("")
+    monkeypatch.setenv("ARCHSELF_CACHE_DIR", str(design_cache.parent / "file"))
+    designs._MEMO.clear()
+    assert designs.lqr(*_design_inputs()).tobytes() == off.tobytes()  # no error either
+
+
+def test_a_run_with_cached_designs_imports_no_python_control_and_is_the_same(
+    tmp_path,
+) -> None:
+    """Two processes with one design cache: the first designs (python-control), the
+    second reads the gains and never imports python-control; the traces are equal."""
+    import os
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from archself.sim.run import simulate\n"
+        f"res = simulate({str(DIFFDRIVE)!r}, 'imu_drift', seed=2)\n"
+        "sys.stdout.write(np.asarray(res.series['J'], dtype=float).tobytes().hex()\n"
+        "                 + ' ' + str('control' in sys.modules))\n"
+    )
+    env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env=env) for _ in range(2)]
+    (j1, imported1), (j2, imported2) = (r.stdout.split() for r in runs)
+    assert (imported1, imported2) == ("True", "False"), runs[1].stderr[-2000:]
+    assert j1 == j2 and len(j1) > 1000
 
 
 def test_lqr_linearization_is_stable_and_updates():
@@ -389,28 +487,66 @@ def test_ekf_closed_form_matches_filterpy_matrix_form(seed: int) -> None:
     assert_allclose(f.x, ref.x.ravel(), rtol=1e-12)
 
 
-def test_ekf_gps_update_is_the_kalman_update_and_the_state_is_kept_once():
+@pytest.mark.parametrize("seed", range(5))
+def test_ekf_gps_update_is_filterpys_and_the_state_is_kept_once(seed: int) -> None:
+    """The closed-form GPS update (``update_position_rows``, shared with the lanes) is
+    filterpy's ``ExtendedKalmanFilter.update`` with ``H = [I₂ 0]`` on random states,
+    one row per run and many rows at once."""
     from filterpy.kalman import ExtendedKalmanFilter
 
-    g = np.random.default_rng(7)
-    f = Ekf("ekf", {"r_gps_m": 0.4}, g)
-    L = g.normal(size=(5, 5))
-    P0 = L @ L.T + 0.1 * np.eye(5)
-    x0 = g.normal(size=5)
-    f.x, f.P = x0, P0
-    z = x0[:2] + np.array([0.3, -0.2])
-    innovation = f.update_position(z)
-    H = np.eye(2, 5)
-    R = 0.4**2 * np.eye(2)
-    K = P0 @ H.T @ np.linalg.inv(H @ P0 @ H.T + R)
-    I_KH = np.eye(5) - K @ H
-    assert_allclose(innovation, [0.3, -0.2], rtol=1e-12)
-    assert_allclose(f.x, x0 + K @ (z - x0[:2]), rtol=1e-12)
-    assert_allclose(f.P, I_KH @ P0 @ I_KH.T + K @ R @ K.T, rtol=1e-10, atol=1e-14)
+    from archself_diffdrive.estimators import update_position_rows
+
+    g = np.random.default_rng(seed)
+    r_gps = float(g.uniform(0.05, 2.0))
+    f = Ekf("ekf", {"r_gps_m": r_gps}, g)
+    rows_x, rows_P, rows_z, want_x, want_P = [], [], [], [], []
+    for _ in range(8):
+        L = g.normal(size=(5, 5)) * g.uniform(0.01, 3.0, size=5)
+        P0 = L @ L.T + 0.01 * np.eye(5)  # a dense covariance
+        x0 = g.normal(size=5)
+        z = x0[:2] + g.normal(scale=r_gps, size=2)
+        ref = ExtendedKalmanFilter(dim_x=5, dim_z=2)
+        ref.x, ref.P = x0.copy(), P0.copy()
+        ref.update(z, lambda _x: np.eye(2, 5), lambda x: x[:2], R=r_gps**2 * np.eye(2))
+        f.x, f.P = x0.copy(), P0.copy()
+        innovation = f.update_position(z)
+        assert_allclose(innovation, z - x0[:2], rtol=1e-15)
+        scale = np.abs(ref.P).max()
+        assert_allclose(f.x, ref.x, rtol=1e-12, atol=1e-12 * np.abs(ref.x).max())
+        assert_allclose(f.P, ref.P, rtol=1e-12, atol=1e-12 * scale)
+        assert_allclose(f.P, f.P.T, rtol=0, atol=0)  # exactly symmetric
+        rows_x.append(x0)
+        rows_P.append(P0)
+        rows_z.append(z)
+        want_x.append(f.x)
+        want_P.append(f.P)
+    x, P = update_position_rows(np.array(rows_x), np.array(rows_P), np.array(rows_z),
+                                r_gps**2)
+    assert_allclose(x, want_x, rtol=0, atol=0)  # a lane is its run, bit for bit
+    assert_allclose(P, want_P, rtol=0, atol=0)
     # one copy of the state: no filterpy filter is kept between GPS updates
     assert not any(isinstance(v, ExtendedKalmanFilter) for v in vars(f).values())
     f.predict(0.05, np.array([5.0, 5.0]))
     assert f.export_state()["pose"][0] == pytest.approx(f.x[0])
+
+
+def test_ekf_gps_update_of_a_non_finite_covariance_raises() -> None:
+    f = Ekf("ekf", {}, rng())
+    f.P[0, 1] = f.P[1, 0] = math.inf
+    with pytest.raises(ValueError, match="infs or NaNs"):
+        f.update_position(np.array([1.0, 2.0]))
+
+
+def test_a_diffdrive_run_imports_no_filterpy() -> None:
+    code = (
+        "import sys\n"
+        "from archself.sim.run import simulate\n"
+        f"simulate({str(DIFFDRIVE)!r}, 'imu_drift', seed=1)\n"
+        "print('filterpy' in sys.modules)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split()[-1] == "False"
 
 
 def test_ekf_handover_from_odometry():

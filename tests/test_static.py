@@ -60,3 +60,22 @@ def test_simulate_imports_only_what_its_modules_need() -> None:
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_validate_imports_no_scipy_control_filterpy_or_matplotlib() -> None:
+    """``archself validate`` of the diff-drive file: ρ(W) and the singularity of I − Wᵀ
+    by numpy (a small W), the data-flow checks in plain Python (docs/benchmarks.md,
+    "Start-up" lists what it imports)."""
+    code = (
+        "import sys\n"
+        "from archself.cli import app\n"
+        "try:\n"
+        f"    app(['validate', {str(ROOT / 'architectures' / 'diffdrive.yaml')!r}])\n"
+        "except SystemExit as e:\n"
+        "    assert e.code == 0, e.code\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'control', "
+        "'filterpy', 'matplotlib', 'pandas', 'networkx'}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip().splitlines()[-1] == "[]"

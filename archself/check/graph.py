@@ -78,7 +78,10 @@ def spectrum_summary(
     the eigenvalue 1 only if ρ ≥ 1, but the LU factorization the runtime uses
     (:class:`~archself.runtime.influence.InfluenceSolver`) also refuses an ``I − Wᵀ``
     that is singular in floating point (weights like 1e9 beside 0.1: condition ~1e18,
-    which validated and then stopped the run with exit 3): it is tried whatever ρ.
+    which validated and then stopped the run with exit 3): it is tried whatever ρ,
+    by the runtime's rule (:func:`~archself.runtime.influence.is_singular`). Up to
+    :data:`~archself.runtime.influence.DENSE_MAX` modules W is a dense numpy array and
+    neither needs scipy; above, W is sparse and scipy is imported.
 
     Returns
     -------
@@ -95,9 +98,8 @@ def spectrum_summary(
     (0.5, False)
     """
     import numpy as np
-    import scipy.sparse
 
-    from archself.runtime.influence import InfluenceSolver, spectral_radius
+    from archself.runtime.influence import DENSE_MAX, is_singular, spectral_radius
 
     index = {name: k for k, name in enumerate(names)}
     rows, cols, data = [], [], []
@@ -108,15 +110,15 @@ def spectrum_summary(
             cols.append(i)
             data.append(float(weight))
     n = len(names)
-    W = scipy.sparse.coo_matrix((np.asarray(data, dtype=float), (rows, cols)),
-                                shape=(n, n)).tocsr()  # parallel edges add up
-    rho = spectral_radius(W)
-    singular = False
-    try:
-        InfluenceSolver().set_matrix(W, key=0)
-    except np.linalg.LinAlgError:
-        singular = True
-    return rho, singular
+    values = np.asarray(data, dtype=float)
+    if n <= DENSE_MAX:
+        W: Any = np.zeros((n, n))
+        np.add.at(W, (rows, cols), values)  # parallel edges add up
+    else:
+        import scipy.sparse
+
+        W = scipy.sparse.coo_matrix((values, (rows, cols)), shape=(n, n)).tocsr()
+    return spectral_radius(W), is_singular(W)
 
 
 def check_ports(ctx: Context) -> None:
@@ -308,9 +310,6 @@ def _inputs(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, A
 
 def _flow(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any]]) -> None:
     """The data flow of a configuration: no algebraic loop, connected, within the budgets."""
-    import scipy.sparse
-    import scipy.sparse.csgraph
-
     from archself.system.dataflow import algebraic_loop
 
     arch = ctx.arch
@@ -329,19 +328,9 @@ def _flow(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any
                 "module whose outputs depend on its state only (direct_feedthrough = False)",
                 (*base, "modules"))
     if len(active) > 1:
-        nodes = sorted(active)
-        pos = {m: k for k, m in enumerate(nodes)}
-        links = scipy.sparse.coo_matrix(
-            ([1.0] * len(edges),
-             ([pos[e.source] for _, e in edges], [pos[e.target] for _, e in edges])),
-            shape=(len(nodes), len(nodes)),
-        )
-        ncomp, labels = scipy.sparse.csgraph.connected_components(links, directed=False)
-        if ncomp > 1:
-            parts: dict[int, list[str]] = {}  # in the order of their first module
-            for m, label in zip(nodes, labels.tolist(), strict=True):
-                parts.setdefault(label, []).append(m)
-            lonely = min(parts.values(), key=len)
+        parts = _components(sorted(active), [(e.source, e.target) for _, e in edges])
+        if len(parts) > 1:
+            lonely = min(parts, key=len)
             ctx.add("error", "incomplete",
                     f"configuration '{cname}' is not connected: {', '.join(lonely)} "
                     "has no active edge to the rest", (*base, "modules"))
@@ -352,3 +341,34 @@ def _flow(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any
                     f"configuration '{cname}' uses {use:g} {b.resource} > budget {b.max:g} "
                     "(Eq. 27); the runtime will never choose it", base, key=True)
 
+
+
+def _components(nodes: list[str], links: list[tuple[str, str]]) -> list[list[str]]:
+    """The connected components of an undirected graph, each in the order of ``nodes``,
+    the components in the order of their first node.
+
+    Examples
+    --------
+    >>> _components(["a", "b", "c", "d"], [("d", "b")])
+    [['a'], ['b', 'd'], ['c']]
+    """
+    near: dict[str, list[str]] = {m: [] for m in nodes}
+    for s, t in links:
+        near[s].append(t)
+        near[t].append(s)
+    label: dict[str, int] = {}
+    parts: list[list[str]] = []
+    for m in nodes:
+        if m in label:
+            continue
+        label[m] = len(parts)
+        todo = [m]
+        while todo:
+            for t in near[todo.pop()]:
+                if t not in label:
+                    label[t] = len(parts)
+                    todo.append(t)
+        parts.append([])
+    for m in nodes:
+        parts[label[m]].append(m)
+    return parts

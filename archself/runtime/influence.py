@@ -19,25 +19,30 @@ The solve never forms an inverse: ``I - Wᵀ`` is LU-factorized once (dense
 :func:`scipy.linalg.lu_factor` for small graphs, sparse
 :func:`scipy.sparse.linalg.splu` for large ones) and the factorization is reused
 for as long as ``W`` is unchanged (:class:`InfluenceSolver`).
+
+scipy is imported where a function needs it: ρ(W) and the singularity test of a
+small dense W (:func:`spectral_radius`, :func:`is_singular`, used by
+``archself validate``) need numpy only.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import warnings
 from collections.abc import Hashable, Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.linalg
-import scipy.sparse
-import scipy.sparse.csgraph
-import scipy.sparse.linalg
+
+if TYPE_CHECKING:  # pragma: no cover
+    import scipy.sparse
 
 __all__ = [
     "DENSE_MAX",
     "InfluenceSolver",
     "influence",
+    "is_singular",
     "matrix_key",
     "neumann_influence",
     "spectral_radius",
@@ -46,6 +51,15 @@ __all__ = [
 
 #: Graphs with at most this many modules are handled with dense linear algebra.
 DENSE_MAX = 400
+#: A pivot of the LU of ``I − Wᵀ`` at most this times the largest (or 1) makes it singular.
+PIVOT_RTOL = 1e-12
+
+
+def _issparse(W: Any) -> bool:
+    """Whether ``W`` is a scipy.sparse matrix (without importing scipy: if it is not
+    imported, nothing can be one)."""
+    sparse = sys.modules.get("scipy.sparse")
+    return sparse is not None and bool(sparse.issparse(W))
 
 
 def weight_matrix(
@@ -99,6 +113,8 @@ def weight_matrix(
             rows.append(index[source])
             cols.append(index[target])
             data.append(w * scale)
+    import scipy.sparse
+
     n = len(names)
     W = scipy.sparse.coo_matrix((data, (rows, cols)), shape=(n, n), dtype=float)
     return W.tocsr()  # duplicates are summed
@@ -130,19 +146,20 @@ def spectral_radius(W: Any, *, dense_max: int = DENSE_MAX, tol: float = 1e-9) ->
     >>> round(spectral_radius([[0.0, 0.5], [0.5, 0.0]]), 6)
     0.5
     """
-    if scipy.sparse.issparse(W):
-        A = scipy.sparse.csr_matrix(W, dtype=float)
-    else:
-        A = np.asarray(W, dtype=float)
-    n = A.shape[0]
+    sparse = _issparse(W)
+    n = W.shape[0] if sparse else np.shape(W)[0]
     if n == 0:
         return 0.0
     if n <= dense_max:
-        dense = A.toarray() if scipy.sparse.issparse(A) else A
+        dense = W.toarray() if sparse else np.asarray(W, dtype=float)
         if not np.any(dense):
             return 0.0
         return float(np.max(np.abs(np.linalg.eigvals(dense))))
-    S = scipy.sparse.csr_matrix(A)
+    import scipy.sparse
+    import scipy.sparse.csgraph
+    import scipy.sparse.linalg
+
+    S = scipy.sparse.csr_matrix(W, dtype=float)
     S.eliminate_zeros()
     ncomp, labels = scipy.sparse.csgraph.connected_components(S, directed=True, connection="strong")
     diag = S.diagonal()
@@ -193,6 +210,9 @@ def _block_triangular_order(S: scipy.sparse.spmatrix) -> np.ndarray | None:
     descending label puts sources first, so ``I − Wᵀ`` permuted symmetrically is
     block lower triangular. Verified on the edges; None if it does not hold.
     """
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
     C = scipy.sparse.coo_matrix(S)
     _, labels = scipy.sparse.csgraph.connected_components(C, directed=True, connection="strong")
     src, dst = labels[C.row], labels[C.col]
@@ -201,10 +221,77 @@ def _block_triangular_order(S: scipy.sparse.spmatrix) -> np.ndarray | None:
     return np.argsort(-labels, kind="stable")
 
 
+def singular_pivots(pivots: np.ndarray) -> bool:
+    """The rule: ``I − Wᵀ`` is singular (or numerically so) when a pivot of its LU is
+    at most :data:`PIVOT_RTOL` times the largest pivot (or 1).
+
+    One rule for every solver: the runtime's dense (LAPACK) and sparse (SuperLU)
+    factorizations and the numpy one of :func:`is_singular`. Weights like 1e9 beside
+    0.1 give pivots ~1e-18 of the largest: ρ(W) < 1, but no solve is meaningful.
+
+    Examples
+    --------
+    >>> singular_pivots(np.array([1.0, 0.5])), singular_pivots(np.array([1e9, 1e-4]))
+    (False, True)
+    """
+    return bool(len(pivots)) and float(pivots.min()) <= PIVOT_RTOL * max(1.0, float(pivots.max()))
+
+
+def lu_pivots(M: np.ndarray) -> np.ndarray:
+    """``|u_kk|`` of the LU factorization of ``M`` with partial pivoting, in numpy.
+
+    The algorithm of LAPACK's ``getrf`` (row of the largest entry of the column
+    as pivot, rank-one updates), so the pivots are LAPACK's up to rounding; a zero
+    column below the diagonal gives a zero pivot (``getrf``'s ``info > 0``).
+
+    Examples
+    --------
+    >>> lu_pivots(np.array([[1.0, 2.0], [3.0, 4.0]])).round(12).tolist()
+    [3.0, 0.666666666667]
+    """
+    A = np.array(M, dtype=float)
+    n = A.shape[0]
+    out = np.empty(n)
+    for k in range(n):
+        p = k + int(np.argmax(np.abs(A[k:, k])))
+        if p != k:
+            A[[k, p], k:] = A[[p, k], k:]
+        pivot = A[k, k]
+        out[k] = abs(pivot)
+        if pivot != 0.0 and k + 1 < n:
+            A[k + 1:, k + 1:] -= np.outer(A[k + 1:, k] / pivot, A[k, k + 1:])
+    return out
+
+
+def is_singular(W: Any, *, dense_max: int = DENSE_MAX) -> bool:
+    """Whether ``I − Wᵀ`` is singular, or numerically so (:func:`singular_pivots`).
+
+    The runtime's verdict without its solver: up to ``dense_max`` modules the pivots
+    of :func:`lu_pivots` (numpy only, no scipy import), above it the sparse
+    factorization :class:`InfluenceSolver` uses (scipy, imported then).
+
+    Examples
+    --------
+    >>> is_singular(np.array([[0.0, 1.0], [1.0, 0.0]])), is_singular(np.zeros((2, 2)))
+    (True, False)
+    """
+    n = W.shape[0] if _issparse(W) else np.shape(W)[0]
+    if n == 0:
+        return False
+    if n <= dense_max:
+        dense = W.toarray() if _issparse(W) else np.asarray(W, dtype=float)
+        return singular_pivots(lu_pivots(np.eye(n) - dense.T))
+    try:
+        InfluenceSolver(dense_max).set_matrix(W, key=0)
+    except np.linalg.LinAlgError:
+        return True
+    return False
+
+
 def matrix_key(W: Any) -> Hashable:
     """A hashable fingerprint of a matrix's sparsity pattern and values."""
-    if scipy.sparse.issparse(W):
-        C = scipy.sparse.csr_matrix(W)
+    if _issparse(W):
+        C = W.tocsr(copy=True)
         C.sum_duplicates()
         C.sort_indices()
         return (C.shape, C.indptr.tobytes(), C.indices.tobytes(), C.data.tobytes())
@@ -281,7 +368,9 @@ class InfluenceSolver:
             return False
         n = W.shape[0]
         if n <= self.dense_max:
-            dense = W.toarray() if scipy.sparse.issparse(W) else np.asarray(W, dtype=float)
+            import scipy.linalg
+
+            dense = W.toarray() if _issparse(W) else np.asarray(W, dtype=float)
             M = np.eye(n) - dense.T
             if n == 0:
                 self._dense = (np.zeros((0, 0)), np.zeros(0, dtype=np.int32))
@@ -289,14 +378,16 @@ class InfluenceSolver:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
                     lu, piv = scipy.linalg.lu_factor(M, check_finite=True)
-                diag = np.abs(np.diag(lu))
-                if diag.min() <= 1e-12 * max(1.0, diag.max()):
+                if singular_pivots(np.abs(np.diag(lu))):
                     raise np.linalg.LinAlgError("I - W^T is singular")
                 self._dense = (lu, piv)
                 # LAPACK getrs, the routine lu_solve calls, without its per-call checks
                 (self._getrs,) = scipy.linalg.get_lapack_funcs(("getrs",), (lu,))
             self._sparse = None
         else:
+            import scipy.sparse
+            import scipy.sparse.linalg
+
             S = scipy.sparse.csc_matrix(W, dtype=float)
             M = (scipy.sparse.identity(n, format="csc") - S.T).tocsc()
             # Scale fix: SuperLU's default COLAMD ordering took minutes on a 10^5-module
@@ -314,6 +405,8 @@ class InfluenceSolver:
                     )
             except RuntimeError as exc:  # "Factor is exactly singular"
                 raise np.linalg.LinAlgError(f"I - W^T is singular: {exc}") from exc
+            if singular_pivots(np.abs(self._sparse.U.diagonal())):
+                raise np.linalg.LinAlgError("I - W^T is singular")
             self._order = order
             self._dense = None
         self.key = key
@@ -375,7 +468,7 @@ def neumann_influence(W: Any, r: Any, terms: int = 200) -> np.ndarray:
 
     Converges to :func:`influence` when ρ(W) < 1.
     """
-    Wt = W.T if scipy.sparse.issparse(W) else np.asarray(W, dtype=float).T
+    Wt = W.T if _issparse(W) else np.asarray(W, dtype=float).T
     term = np.asarray(r, dtype=float).ravel().copy()
     total = term.copy()
     for _ in range(terms):

@@ -11,9 +11,7 @@ from __future__ import annotations
 import heapq
 from collections.abc import Sequence
 
-import numpy as np
-
-__all__ = ["algebraic_loop", "topological_order"]
+__all__ = ["algebraic_loop", "strong_components", "topological_order"]
 
 
 def algebraic_loop(flow: Sequence[tuple[str, str]]) -> list[str] | None:
@@ -23,7 +21,7 @@ def algebraic_loop(flow: Sequence[tuple[str, str]]) -> list[str] | None:
     feedthrough; a cycle of it is an algebraic loop, and the step cannot be
     ordered. This is the one check of it, used by the executor
     (:class:`LiveSystem`) and by ``archself validate`` (:mod:`archself.check`).
-    The strong components come from :mod:`scipy.sparse.csgraph`. The cycle
+    The strong components come from :func:`strong_components`. The cycle
     returned is a self-loop if there is one, else it starts at the module that
     is first a source in ``flow`` among those on a cycle and follows, from each
     module, its first edge that stays in the strong component.
@@ -35,29 +33,21 @@ def algebraic_loop(flow: Sequence[tuple[str, str]]) -> list[str] | None:
     >>> algebraic_loop([("a", "b"), ("a", "c")]) is None
     True
     """
-    import scipy.sparse
-    import scipy.sparse.csgraph
-
     for s, t in flow:
         if s == t:
             return [s]
     names = list(dict.fromkeys([s for s, _ in flow] + [t for _, t in flow]))  # sources first
-    index = {name: i for i, name in enumerate(names)}
-    n = len(index)
-    rows = [index[s] for s, _ in flow]
-    cols = [index[t] for _, t in flow]
-    graph = scipy.sparse.coo_matrix((np.ones(len(flow)), (rows, cols)), shape=(n, n))
-    ncomp, labels = scipy.sparse.csgraph.connected_components(
-        graph, directed=True, connection="strong"
-    )
-    if ncomp == n:
+    labels = strong_components(names, flow)
+    size = dict.fromkeys(labels.values(), 0)
+    for c in labels.values():
+        size[c] += 1
+    start = next((m for m in names if size[labels[m]] > 1), None)
+    if start is None:
         return None
-    on_cycle = np.bincount(labels)[labels] > 1
-    start = names[int(np.flatnonzero(on_cycle)[0])]
-    comp = labels[index[start]]
+    comp = labels[start]
     succ: dict[str, list[str]] = {}
     for s, t in flow:
-        if labels[index[t]] == comp:
+        if labels[t] == comp:
             succ.setdefault(s, []).append(t)
     path, seen = [start], {start: 0}
     while True:
@@ -88,3 +78,50 @@ def topological_order(
             if indegree[t] == 0:
                 heapq.heappush(ready, (rank[t], t))
     return order
+
+
+def strong_components(
+    nodes: Sequence[str], flow: Sequence[tuple[str, str]]
+) -> dict[str, int]:
+    """The strongly connected component of each node (Tarjan's algorithm, iterative):
+    two nodes have the same label when each reaches the other.
+
+    Examples
+    --------
+    >>> c = strong_components(["a", "b", "c"], [("a", "b"), ("b", "c"), ("c", "b")])
+    >>> c["b"] == c["c"] != c["a"]
+    True
+    """
+    succ: dict[str, list[str]] = {n: [] for n in nodes}
+    for s, t in flow:
+        succ[s].append(t)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    label: dict[str, int] = {}
+    stack: list[str] = []
+    for root in nodes:
+        if root in index:
+            continue
+        work = [(root, 0)]
+        while work:
+            v, i = work.pop()
+            if i == 0:
+                index[v] = low[v] = len(index)
+                stack.append(v)
+            elif (w := succ[v][i - 1]) not in label:  # returned from w
+                low[v] = min(low[v], low[w])
+            for j in range(i, len(succ[v])):
+                w = succ[v][j]
+                if w not in index:
+                    work += [(v, j + 1), (w, 0)]
+                    break
+                if w not in label:
+                    low[v] = min(low[v], index[w])
+            else:
+                if low[v] == index[v]:
+                    while True:
+                        w = stack.pop()
+                        label[w] = index[v]
+                        if w == v:
+                            break
+    return label

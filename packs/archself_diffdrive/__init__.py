@@ -14,7 +14,7 @@ sensor.imu                  :class:`~archself_diffdrive.physical.Imu`
 sensor.gps                  :class:`~archself_diffdrive.physical.Gps`
 planner.spline              :class:`~archself_diffdrive.planner.SplinePlanner`
 estimator.odometry          :class:`~archself_diffdrive.estimators.Odometry`
-estimator.ekf               :class:`~archself_diffdrive.estimators.Ekf` (filterpy)
+estimator.ekf               :class:`~archself_diffdrive.estimators.Ekf` (closed form)
 controller.lqr              :class:`~archself_diffdrive.controllers.LqrController` (python-control)
 controller.asym_lqr         :class:`~archself_diffdrive.controllers.AsymLqrController`
 model.diffdrive_kinematics  :class:`~archself_diffdrive.models.DiffDriveKinematicsModel`

@@ -8,19 +8,20 @@ feed-forward of the reference speed and yaw rate:
 
     [v, ω] = [v_ref, ω_ref] − K e,   wheel_cmd = body_to_wheels(v, ω).
 
-python-control is imported when a gain is first computed, not at import time (it costs a
-process ~0.7 s: it pulls scipy.signal and matplotlib); each (v, q, r) is designed once per
-process.
+python-control designs every gain (:func:`archself.linear.designs.lqr`): once per
+process and design inputs, and kept in the user's design cache, so a later process
+with the same weights imports neither python-control nor what it pulls in (scipy.signal,
+matplotlib: ≈ 0.7 s of a process).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import ClassVar
 
 import numpy as np
 
+from archself.linear.designs import lqr
 from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.kinematics import error_dynamics, tracking_error_floats
 from archself_diffdrive.models import Actuation, Dynamics, Kinematics
@@ -33,6 +34,9 @@ _MIN_DESIGN_SPEED = 0.05
 
 def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) -> np.ndarray:
     """LQR gain K (2×3) of the tracking-error dynamics at speed ``v``.
+
+    Designed by :func:`archself.linear.designs.lqr` (python-control), once per process
+    and set of design inputs and cached across processes.
 
     Parameters
     ----------
@@ -54,21 +58,9 @@ def lqr_gain(v: float, q: tuple[float, float, float], r: tuple[float, float]) ->
            [0., 1., 1.]])
     """
     v = max(float(v), _MIN_DESIGN_SPEED)
-    return _lqr_gain(v, tuple(float(x) for x in q), tuple(float(x) for x in r)).copy()
-
-
-@functools.lru_cache(maxsize=4096)
-def _lqr_gain(v: float, q: tuple[float, ...], r: tuple[float, ...]) -> np.ndarray:
-    """:func:`lqr_gain`, once per process for each (v, q, r): a campaign's runs and a
-    batch's lanes design the same gains (python-control's Riccati solve: ~12 ms)."""
-    import control
-
     A, B = error_dynamics(v)
-    Q = np.diag([max(x, 1e-9) for x in q])
-    K, _, _ = control.lqr(A, B, Q, np.diag(list(r)))
-    K = np.asarray(K, dtype=float)
-    K.setflags(write=False)
-    return K
+    Q = np.diag([max(float(x), 1e-9) for x in q])
+    return lqr(A, B, Q, np.diag([float(x) for x in r])).copy()
 
 
 class LqrController(RuntimeModule):

@@ -28,8 +28,9 @@ from archself.modules.base import Param, RuntimeModule
 from archself_diffdrive.drift_glr import DriftGlr
 from archself_diffdrive.models import Kinematics
 
-__all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf", "predict_rows",
-           "update_heading_rows"]
+__all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf", "predict_entries",
+           "predict_rows", "update_heading_entries", "update_heading_rows",
+           "update_position_entries", "update_position_rows"]
 
 _DEFAULT_KIN = Kinematics()
 #: Parameters both estimators take.
@@ -380,7 +381,11 @@ class Ekf(_PoseEstimator):
     Predict with the encoder speeds (unicycle model, encoder noise propagated
     into Q) and the bias as a local ramp (``b ← b + ḃ·dt``); update with the IMU
     heading (``h = θ + b``) every step and with a GPS position whenever a fix
-    arrives (filterpy's ``ExtendedKalmanFilter.update``).
+    arrives. The three steps are closed forms written once on the entries of the state
+    and of P's upper triangle (:func:`predict_entries`, :func:`update_heading_entries`,
+    :func:`update_position_entries`): floats here, arrays over the lanes in
+    :class:`~archself_diffdrive.lanes_estimators.EkfLanes`; filterpy's
+    ``ExtendedKalmanFilter`` is their test oracle (tests/test_modules.py).
 
     Why a rate state: a gyro's heading bias drifts — an integrated rate error
     grows linearly in time (Groves, *Principles of GNSS, Inertial, and
@@ -445,7 +450,6 @@ class Ekf(_PoseEstimator):
 
     lanes = "archself_diffdrive.lanes_estimators:EkfLanes"
     _N = 5  # state size
-    _H_GPS = np.eye(2, 5)
 
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
@@ -460,6 +464,7 @@ class Ekf(_PoseEstimator):
         self.r_head = float(p["r_heading_rad"])
         self.sig_enc = float(p["encoder_noise_rad_s"])
         self.R_gps = np.eye(2) * float(p["r_gps_m"]) ** 2
+        self._r2_gps = float(self.R_gps[0, 0])
         q = ("q_position_m", "q_position_m", "q_heading_rad", "q_bias_rad", "q_bias_rate_rad_s")
         self._q2 = tuple(float(p[k]) ** 2 for k in q)
         sd = (
@@ -475,53 +480,72 @@ class Ekf(_PoseEstimator):
         pos, th, b, rate = self._p0
         return np.diag([pos**2, pos**2, th**2, b**2, rate**2])
 
-    def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
-        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``
-        (:func:`predict_rows` of one row)."""
+    def _entries(self) -> tuple[list[float], list[float]]:
+        """The state and P's upper triangle as floats (the ``*_entries`` functions')."""
+        return self.x.tolist(), self.P[_UI, _UJ].tolist()
+
+    def _set(self, x: list[float], p: list[float]) -> None:
+        self.x = np.array(x)
+        self.P = np.array(p)[_FULL]
+
+    def _predict(self, x, p, dt: float, enc, kin: Kinematics):
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
         sig2 = (self.sig_enc if enc is not None else 10.0) ** 2
-        x, P = predict_rows(self.x[None], self.P[None], dt, v, w, sig2, kin.wheel_radius_m,
-                            kin.wheel_base_m, np.array([self._q2]))
-        self.x, self.P = x[0], P[0]
+        return predict_entries(x, p, dt, v, w, sig2, kin.wheel_radius_m, kin.wheel_base_m,
+                               self._q2)
+
+    def _update_position(self, x, p, pos) -> tuple[list, list, float, float]:
+        """The GPS update and the innovation ``z − Hx``; raises ValueError (as filterpy's
+        update does) when the position covariance is not finite."""
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[5])):
+            self._set(x, p)
+            raise ValueError("array must not contain infs or NaNs")
+        z0, z1 = float(pos[0]), float(pos[1])
+        ex, ey = z0 - x[0], z1 - x[1]
+        x, p = update_position_entries(x, p, z0, z1, self._r2_gps)
+        return x, p, ex, ey
+
+    def predict(self, dt: float, enc, kin: Kinematics = _DEFAULT_KIN) -> None:
+        """Propagate state and covariance over ``dt`` with encoder speeds ``enc``
+        (:func:`predict_entries`)."""
+        self._set(*self._predict(*self._entries(), dt, enc, kin))
 
     def update_heading(self, heading: float) -> None:
-        """Update with an IMU heading ``h = θ + b`` (:func:`update_heading_rows` of one row)."""
-        x, P = update_heading_rows(self.x[None], self.P[None], np.array([float(heading)]),
-                                   np.array([self.r_head]))
-        self.x, self.P = x[0], P[0]
+        """Update with an IMU heading ``h = θ + b`` (:func:`update_heading_entries`)."""
+        self._set(*update_heading_entries(*self._entries(), float(heading), self.r_head))
 
     def update_position(self, pos) -> tuple[float, float]:
-        """Update with a GPS fix (filterpy's ``ExtendedKalmanFilter.update``).
+        """Update with a GPS fix (:func:`update_position_entries`).
 
         Returns the innovation ``z − Hx``.
-        """
-        from filterpy.kalman import ExtendedKalmanFilter
 
-        ex = float(pos[0]) - float(self.x[0])
-        ey = float(pos[1]) - float(self.x[1])
-        kf = ExtendedKalmanFilter(dim_x=self._N, dim_z=2)
-        kf.x = self.x.copy()
-        kf.P = self.P.copy()
-        kf.update(np.asarray(pos, dtype=float)[:2], _h_gps_jac, _h_gps, R=self.R_gps)
-        self.x, self.P = kf.x, kf.P
+        Raises
+        ------
+        ValueError
+            The position covariance is not finite (as filterpy's update raises).
+        """
+        x, p, ex, ey = self._update_position(*self._entries(), pos)
+        self._set(x, p)
         return ex, ey
 
     # data flow ---------------------------------------------------------------
     def step(self, t, dt, inputs):
         kin = inputs.get("kinematics") or _DEFAULT_KIN
         heading = inputs.get("heading")
+        x, p = self._entries()
         if self.started:
-            self.predict(dt, inputs.get("encoder_speeds"), kin)
+            x, p = self._predict(x, p, dt, inputs.get("encoder_speeds"), kin)
         elif heading is not None:
-            self.x[2] = float(heading) - self.x[3]
+            x[2] = float(heading) - x[3]
         self.started = True
         if heading is not None:
-            self.update_heading(heading)
+            x, p = update_heading_entries(x, p, float(heading), self.r_head)
         pos = inputs.get("position")
         if pos is not None:
-            ex, ey = self.update_position(pos)
+            x, p, ex, ey = self._update_position(x, p, pos)
             self.monitor.add(t, ex, ey)
             self.signals["innovation"] = self.monitor.value()
+        self._set(x, p)
         return {"pose_estimate": self.x[:3].copy(), "covariance": self.P[:3, :3].copy()}
 
     def export_state(self):
@@ -553,68 +577,129 @@ class Ekf(_PoseEstimator):
         self.signals["innovation"] = math.nan  # no stale residual from an earlier activation
 
 
-_LOWER = np.tril_indices(5, -1)
+#: The covariance's upper triangle, row by row: entry k of ``p`` is ``P[_UI[k], _UJ[k]]``.
+_UI, _UJ = np.triu_indices(5)
+#: ``P`` from its upper triangle: ``P = p[_FULL]`` (a symmetric matrix, exactly).
+_FULL = np.zeros((5, 5), dtype=int)
+_FULL[_UI, _UJ] = _FULL[_UJ, _UI] = np.arange(15)
+#: ``_AT[i][j]``: the entry of ``p`` holding ``P[i, j]``.
+_AT = _FULL.tolist()
 
 
-def predict_rows(x, P, dt, v, w, sig2, r, base, q):
-    """:meth:`Ekf.predict` of every row: states ``x`` (L, 5), covariances ``P`` (L, 5, 5).
+def _trig(a):
+    """``(cos a, sin a)``: math's for a float, numpy's for an array."""
+    if isinstance(a, np.ndarray):
+        return np.cos(a), np.sin(a)
+    return math.cos(a), math.sin(a)
+
+
+def _wrap(a):
+    """An angle into [−π, π)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+# The EKF's three steps, written once on the entries of the state x (5) and of the
+# covariance's upper triangle p (15): each entry a float (one run) or an array over
+# lanes (EkfLanes), the same floating-point operations in the same order for both.
+# filterpy's ExtendedKalmanFilter is the tests' oracle (tests/test_modules.py).
+
+
+def predict_entries(x, p, dt, v, w, sig2, r, base, q):
+    """:meth:`Ekf.predict` on entries: ``x`` (5), ``p`` (15, upper triangle of P).
 
     ``x ← f(x, u)`` (unicycle, midpoint heading; ``b ← b + ḃ dt``), ``P ← F P Fᵀ + Q``
     with ``Q = σ_enc² G Gᵀ + diag(q²) dt``, G the Jacobian of the motion with respect to
     the two wheel speeds, ``F = I + f₀ e₀e₂ᵀ + f₁ e₁e₂ᵀ + dt e₃e₄ᵀ``: three row and three
-    column operations (filterpy's ``predict`` is the test's oracle). ``v``, ``w``
-    (body speeds), ``sig2`` (encoder variance), ``r``, ``base`` (wheels): per row or
-    scalars; ``q`` (L, 5) the process-noise densities squared. The lower triangle is
-    copied from the upper (P stays exactly symmetric).
+    column operations. ``v``, ``w`` (body speeds), ``sig2`` (encoder variance), ``r``,
+    ``base`` (wheels) and the five process-noise densities squared ``q``: entries too.
     """
-    th = x[:, 2]
+    x0, x1, th, b, bd = x
     mid = th + 0.5 * w * dt
-    c, s = np.cos(mid), np.sin(mid)
-    f0 = (-v * dt * s)[:, None]  # F[0, 2]
-    f1 = (v * dt * c)[:, None]  # F[1, 2]
+    c, s = _trig(mid)
+    f0 = -v * dt * s  # F[0, 2]
+    f1 = v * dt * c  # F[1, 2]
     h = 0.5 * r * dt
     k = r * dt / base
     u0, u1 = h * c, h * s
-    A = P.copy()
-    A[:, 0] = P[:, 0] + f0 * P[:, 2]
-    A[:, 1] = P[:, 1] + f1 * P[:, 2]
-    A[:, 3] = P[:, 3] + dt * P[:, 4]
-    A[:, :, 0] += f0 * A[:, :, 2]
-    A[:, :, 1] += f1 * A[:, :, 2]
-    A[:, :, 3] += dt * A[:, :, 4]
-    A[:, 0, 0] += q[:, 0] * dt + 2 * sig2 * u0 * u0
-    A[:, 0, 1] += 2 * sig2 * u0 * u1
-    A[:, 1, 1] += q[:, 1] * dt + 2 * sig2 * u1 * u1
-    A[:, 2, 2] += q[:, 2] * dt + 2 * sig2 * k * k
-    A[:, 3, 3] += q[:, 3] * dt
-    A[:, 4, 4] += q[:, 4] * dt
-    A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
+    P = [[p[_AT[i][j]] for j in range(5)] for i in range(5)]
+    R = [P[0], P[1], P[2], P[3], P[4]]  # the rows after F's row operations
+    R[0] = [P[0][j] + f0 * P[2][j] for j in range(5)]
+    R[1] = [P[1][j] + f1 * P[2][j] for j in range(5)]
+    R[3] = [P[3][j] + dt * P[4][j] for j in range(5)]
+    out = []
+    for i, j in zip(_UI.tolist(), _UJ.tolist(), strict=True):  # then the columns
+        a = R[i][j]
+        if j == 0:
+            a = a + f0 * R[i][2]
+        elif j == 1:
+            a = a + f1 * R[i][2]
+        elif j == 3:
+            a = a + dt * R[i][4]
+        out.append(a)
+    sig2_2 = 2 * sig2
+    out[0] = out[0] + (q[0] * dt + sig2_2 * u0 * u0)
+    out[1] = out[1] + sig2_2 * u0 * u1
+    out[5] = out[5] + (q[1] * dt + sig2_2 * u1 * u1)
+    out[9] = out[9] + (q[2] * dt + sig2_2 * k * k)
+    out[12] = out[12] + q[3] * dt
+    out[14] = out[14] + q[4] * dt
     vdt = v * dt
-    bd = x[:, 4]
-    x = np.stack([x[:, 0] + vdt * c, x[:, 1] + vdt * s, th + w * dt, x[:, 3] + bd * dt, bd], 1)
-    return x, A
+    return [x0 + vdt * c, x1 + vdt * s, th + w * dt, b + bd * dt, bd], out
+
+
+def update_heading_entries(x, p, heading, r_head):
+    """:meth:`Ekf.update_heading` on entries: ``H = [0, 0, 1, 1, 0]``, Joseph form
+    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` written out (the angle residual wrapped)."""
+    r2 = r_head * r_head
+    y = _wrap(heading - (x[2] + x[3]))
+    P = [[p[_AT[i][j]] for j in range(5)] for i in range(5)]
+    hv = [P[i][2] + P[i][3] for i in range(5)]  # P Hᵀ
+    S = hv[2] + hv[3] + r2
+    K = [hv[i] / S for i in range(5)]
+    A = [[P[i][j] - K[i] * hv[j] for j in range(5)] for i in range(5)]  # (I − K H) P
+    ci = [A[i][2] + A[i][3] for i in range(5)]
+    out = [A[i][j] - ci[i] * K[j] + r2 * K[i] * K[j]
+           for i, j in zip(_UI.tolist(), _UJ.tolist(), strict=True)]
+    x = [x[i] + K[i] * y for i in range(5)]
+    x[2] = _wrap(x[2])
+    return x, out
+
+
+def update_position_entries(x, p, z0, z1, r2):
+    """:meth:`Ekf.update_position` on entries: a GPS fix ``(z0, z1)`` with
+    ``H = [I₂ 0]`` and ``R = r2·I₂``, Joseph form ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``
+    written out: ``S`` is P's leading 2×2 block plus R, inverted by its adjugate,
+    ``K = P[:, :2] S⁻¹``."""
+    P = [[p[_AT[i][j]] for j in range(5)] for i in range(5)]
+    a, b, d = P[0][0] + r2, P[0][1], P[1][1] + r2  # S = [[a, b], [b, d]]
+    det = a * d - b * b
+    K0 = [(P[i][0] * d - P[i][1] * b) / det for i in range(5)]
+    K1 = [(P[i][1] * a - P[i][0] * b) / det for i in range(5)]
+    A = [[P[i][j] - (K0[i] * P[0][j] + K1[i] * P[1][j]) for j in range(5)]
+         for i in range(5)]  # (I − K H) P
+    out = [A[i][j] - (A[i][0] * K0[j] + A[i][1] * K1[j])
+           + r2 * (K0[i] * K0[j] + K1[i] * K1[j])
+           for i, j in zip(_UI.tolist(), _UJ.tolist(), strict=True)]
+    y0, y1 = z0 - x[0], z1 - x[1]
+    return [x[i] + (K0[i] * y0 + K1[i] * y1) for i in range(5)], out
+
+
+def _rows(fn, x, P, *args):
+    """``fn`` (an ``*_entries`` step) on rows: ``x`` (L, 5), ``P`` (L, 5, 5)."""
+    xe, pe = fn(list(x.T), list(P[:, _UI, _UJ].T), *args)
+    return np.stack(xe, 1), np.stack(pe, 1)[:, _FULL]
+
+
+def predict_rows(x, P, dt, v, w, sig2, r, base, q):
+    """:func:`predict_entries` of every row: ``x`` (L, 5), ``P`` (L, 5, 5), ``q`` (L, 5)."""
+    return _rows(predict_entries, x, P, dt, v, w, sig2, r, base, list(q.T))
 
 
 def update_heading_rows(x, P, heading, r_head):
-    """:meth:`Ekf.update_heading` of every row: ``H = [0, 0, 1, 1, 0]``, Joseph form
-    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` written out (the angle residual wrapped)."""
-    r2 = r_head**2
-    y = (heading - (x[:, 2] + x[:, 3]) + math.pi) % (2 * math.pi) - math.pi
-    hv = P[:, :, 2] + P[:, :, 3]  # P Hᵀ
-    S = hv[:, 2] + hv[:, 3] + r2
-    K = hv / S[:, None]
-    A = P - K[:, :, None] * hv[:, None, :]  # (I − K H) P = P − K hᵀ (P symmetric)
-    ci = A[:, :, 2] + A[:, :, 3]
-    A = A - ci[:, :, None] * K[:, None, :] + (r2[:, None] * K)[:, :, None] * K[:, None, :]
-    A[:, _LOWER[0], _LOWER[1]] = A[:, _LOWER[1], _LOWER[0]]
-    x = x + K * y[:, None]
-    x[:, 2] = (x[:, 2] + math.pi) % (2 * math.pi) - math.pi
-    return x, A
+    """:func:`update_heading_entries` of every row."""
+    return _rows(update_heading_entries, x, P, heading, r_head)
 
 
-def _h_gps(x):
-    return np.array([x[0], x[1]])
-
-
-def _h_gps_jac(x):
-    return Ekf._H_GPS
+def update_position_rows(x, P, z, r2):
+    """:func:`update_position_entries` of every row: fixes ``z`` (L, 2)."""
+    return _rows(update_position_entries, x, P, z[:, 0], z[:, 1], r2)

@@ -4,10 +4,11 @@
 classes of :class:`~archself_diffdrive.estimators.Odometry` and
 :class:`~archself_diffdrive.estimators.Ekf`: every lane computes what its per-run
 instance computes from the same inputs, with the same floating-point operations in
-the same order — the EKF's closed-form predict and heading update are the per-run
-instance's own (:func:`~archself_diffdrive.estimators.predict_rows`, one row there, L
-rows here), its GPS update as filterpy's Joseph form (stacked products, scipy's
-2×2 inverse) — so a lane's pose and covariance are its run's but for an ulp of
+the same order — the EKF's closed-form predict, heading and GPS updates are the
+per-run instance's own (:func:`~archself_diffdrive.estimators.predict_rows`,
+:func:`~archself_diffdrive.estimators.update_heading_rows`,
+:func:`~archself_diffdrive.estimators.update_position_rows`: one row there, L rows
+here) — so a lane's pose and covariance are its run's but for an ulp of
 ``np.cos`` (none on x86-64 with numpy 2.4: the poses, commands and J of a1–a4 runs
 are the per-run runs' bit for bit). The residual signals may differ in the last
 bits (``np.hypot`` against ``math.hypot``; the trend's sums in another order). The
@@ -27,19 +28,21 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import scipy.linalg as linalg
 
 from archself.lanes.module import LaneModule, ModelFields
 from archself_diffdrive.drift_glr import DriftWindows
-from archself_diffdrive.estimators import _DEFAULT_KIN, predict_rows, update_heading_rows
+from archself_diffdrive.estimators import (
+    _DEFAULT_KIN,
+    predict_rows,
+    update_heading_rows,
+    update_position_rows,
+)
 from archself_diffdrive.lanes_windows import LaneWindows
 
 __all__ = ["EkfLanes", "OdometryLanes", "kinematics_fields"]
 
 PI = math.pi
 TWO_PI = 2 * math.pi
-_EYE5 = np.eye(5)
-_H_GPS = np.eye(2, 5)
 
 
 def kinematics_fields() -> ModelFields:
@@ -255,7 +258,7 @@ class EkfLanes(_EstimatorLanes):
         pos = inputs.get("position")
         if pos is not None:
             has = ~np.isnan(pos[:, 0])
-            # a covariance gone non-finite makes the per-run update raise (scipy's check)
+            # a covariance gone non-finite makes the per-run update raise
             raised = has & ~np.isfinite(P[:, :2, :2]).all((1, 2))
             if raised.any():
                 for i in self.indices(lanes)[raised]:
@@ -263,7 +266,9 @@ class EkfLanes(_EstimatorLanes):
                 has &= ~raised
             if has.any():
                 e = pos[has, :2] - x[has, :2]
-                x[has], P[has] = self._update_position(x[has], P[has], pos[has, :2], lanes, has)
+                x[has], P[has] = update_position_rows(
+                    x[has], P[has], pos[has, :2], self.r2_gps[lanes][has]
+                )
                 idx = self.indices(lanes)[has]
                 self.monitor.add(t, idx, e)
                 self.innovation[idx] = self.monitor.mean_norm(idx)
@@ -280,23 +285,6 @@ class EkfLanes(_EstimatorLanes):
         sig2 = (sig_enc if absent is None else np.where(absent, 10.0, sig_enc)) ** 2
         return predict_rows(x, P, dt, v, w, sig2, r, base, self.q2[lanes])
 
-    def _update_position(self, x, P, z, lanes, has):
-        """``ExtendedKalmanFilter.update`` with ``H = [I₂ 0]`` of every row (Joseph form).
-
-        The products stacked (numpy's matmul gives each matrix's ``dot`` bit for bit),
-        the 2×2 inverses by scipy one by one, as filterpy takes them (numpy's differ in
-        the last bits; scipy batches only from 1.16). The caller has checked that the
-        covariances are finite (filterpy's ``check_finite``).
-        """
-        R = self.R_gps[lanes][has]
-        PHT = P @ _H_GPS.T
-        S = _H_GPS @ PHT + R
-        K = PHT @ np.array([linalg.inv(s, check_finite=False) for s in S])
-        x = x + (K @ (z - x[:, :2])[:, :, None])[:, :, 0]
-        I_KH = _EYE5 - K @ _H_GPS
-        P = (I_KH @ P) @ I_KH.transpose(0, 2, 1) + (K @ R) @ K.transpose(0, 2, 1)
-        return x, P
-
     def local_signals(self, lanes):
         return {"innovation": self.innovation[lanes].copy()}
 
@@ -310,7 +298,7 @@ class EkfLanes(_EstimatorLanes):
             self.innovation[i] = m.signals["innovation"]
         self.r_head = self.lane_attr("r_head")
         self.sig_enc = self.lane_attr("sig_enc")
-        self.R_gps = np.array([m.R_gps for m in self.modules], dtype=float)
+        self.r2_gps = np.array([m.R_gps[0, 0] for m in self.modules], dtype=float)
         self.q2 = np.array([m._q2 for m in self.modules], dtype=float)
 
     def store(self, lanes):
