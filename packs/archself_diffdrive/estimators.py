@@ -33,6 +33,7 @@ __all__ = ["InnovationTrend", "InnovationWindow", "Odometry", "Ekf", "predict_en
            "update_position_entries", "update_position_rows"]
 
 _DEFAULT_KIN = Kinematics()
+_ZERO3 = np.zeros((3, 3))
 #: Parameters both estimators take.
 _COMMON = {
     "encoder_noise_rad_s": Param(
@@ -157,7 +158,7 @@ class InnovationTrend:
 
 
 def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:
-    wl, wr = float(enc[0]), float(enc[1])
+    wl, wr = enc.tolist() if type(enc) is np.ndarray else (float(enc[0]), float(enc[1]))
     r = kin.wheel_radius_m
     return r * (wl + wr) / 2.0, r * (wr - wl) / kin.wheel_base_m
 
@@ -330,7 +331,10 @@ class Odometry(_PoseEstimator):
 
     def covariance(self) -> np.ndarray:
         """Pose covariance (isotropic position variance, heading variance)."""
-        return np.diag([self.var_pos, self.var_pos, self.var_th])
+        c = _ZERO3.copy()  # (np.diag's 1.4 µs a step; this 0.3)
+        c[0, 0] = c[1, 1] = self.var_pos
+        c[2, 2] = self.var_th
+        return c
 
     def export_state(self):
         state = {
