@@ -39,7 +39,8 @@ class _Normals:
     __slots__ = ("rng", "block", "buf", "pos")
 
     def __init__(self, rng: np.random.Generator, block: int = 256) -> None:
-        self.rng, self.block, self.buf, self.pos = rng, block, [], 0
+        self.rng, self.block, self.pos = rng, block, 0
+        self.buf: list[float] = []
 
     def take(self, k: int) -> list[float]:
         """The next ``k`` normals (``k`` ≤ ``block``)."""
