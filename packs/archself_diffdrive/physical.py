@@ -27,7 +27,9 @@ class _Normals:
     The numbers, in order, of ``rng.standard_normal(k)`` call after call (a generator's
     normals are one stream however they are chunked), for a module that draws nothing
     else from ``rng``: one refill every ``block`` numbers instead of a call per step.
-    The stream is ahead of what was used; a copy of the module copies both.
+    The stream is ahead of what was used; a copy of the module copies both. Lanes build
+    their own block draws (``LaneNormals``) on the per-run instances' generators, which
+    they take unstepped, so those instances' buffers are empty.
 
     Examples
     --------
