@@ -187,6 +187,10 @@ class LqrController(RuntimeModule):
     # data flow ---------------------------------------------------------------
     def body_command(self, ref, est) -> tuple[float, float]:
         """``(v, ω)`` from the reference and the pose estimate."""
+        if type(ref) is np.ndarray:  # floats once (indexing an array costs more)
+            ref = ref.tolist()
+        if type(est) is np.ndarray:
+            est = est.tolist()
         v_ref = float(ref[3])
         if abs(v_ref - self.v_ref) > 0.005:
             self.v_ref = v_ref
