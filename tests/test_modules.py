@@ -796,26 +796,3 @@ def test_fault_kinds():
     assert draws.std() == pytest.approx(0.1 * math.sqrt(8), rel=0.03)
     with pytest.raises(ValueError):
         FaultInjector("melt", 0.0)
-
-
-def test_sensor_and_plant_noise_in_blocks_is_the_per_call_stream() -> None:
-    """The block-drawn normals (physical._Normals) are the per-call draws, in order,
-    across a refill (300 steps > the block of 256), and a copy taken mid-run (a
-    rollout's snapshot) goes on with the same numbers as the original."""
-    import copy
-
-    ws = np.array([4.0, -3.0])
-    enc = WheelEncoders("enc", {"noise_rad_s": 0.1}, np.random.default_rng(7))
-    imu = Imu("imu", {"noise_rad": 0.02}, np.random.default_rng(8))
-    got_e, got_h, twin = [], [], None
-    for k in range(300):
-        if k == 250:
-            twin = copy.deepcopy(enc)
-        got_e.append(enc.step(0.05 * k, 0.05, {"wheel_speeds": ws})["encoder_speeds"])
-        got_h.append(imu.step(0.05 * k, 0.05, {"pose": np.array([0.0, 0.0, 0.3])})["heading"])
-    want_e = ws + 0.1 * np.random.default_rng(7).standard_normal((300, 2))
-    want_h = 0.3 + 0.02 * np.random.default_rng(8).standard_normal(300)
-    assert_allclose(np.array(got_e), want_e, rtol=0, atol=0)
-    assert_allclose(np.array(got_h), want_h, rtol=0, atol=1e-15)
-    again = [twin.step(0.0, 0.05, {"wheel_speeds": ws})["encoder_speeds"] for _ in range(50)]
-    assert_allclose(np.array(again), want_e[250:], rtol=0, atol=0)
