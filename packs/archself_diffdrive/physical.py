@@ -21,40 +21,6 @@ __all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
 _SENSOR_FAULTS = frozenset({"bias_drift", "bias", "noise_increase", "dropout", "stuck", "nan"})
 
 
-class _Normals:
-    """A module's standard normals drawn ``block`` at a time, as floats.
-
-    The numbers, in order, of ``rng.standard_normal(k)`` call after call (a generator's
-    normals are one stream however they are chunked), for a module that draws nothing
-    else from ``rng``: one refill every ``block`` numbers instead of a call per step.
-    The stream is ahead of what was used; a copy of the module copies both. Lanes build
-    their own block draws (``LaneNormals``) on the per-run instances' generators, which
-    they take unstepped, so those instances' buffers are empty.
-
-    Examples
-    --------
-    >>> z = _Normals(np.random.default_rng(1), block=3)
-    >>> z.take(2) + z.take(2) == np.random.default_rng(1).standard_normal(4).tolist()
-    True
-    """
-
-    __slots__ = ("rng", "block", "buf", "pos")
-
-    def __init__(self, rng: np.random.Generator, block: int = 256) -> None:
-        self.rng, self.block, self.pos = rng, block, 0
-        self.buf: list[float] = []
-
-    def take(self, k: int) -> list[float]:
-        """The next ``k`` normals (``k`` ≤ ``block``)."""
-        p = self.pos
-        q = p + k
-        if q > len(self.buf):
-            self.buf = self.buf[p:] + self.rng.standard_normal(self.block).tolist()
-            p, q = 0, k
-        self.pos = q
-        return self.buf[p:q]
-
-
 class DiffDrivePlant(RuntimeModule):
     """Differential-drive chassis with first-order wheel-speed lag, speed limits and disturbances.
 
@@ -133,7 +99,6 @@ class DiffDrivePlant(RuntimeModule):
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
         self.pose = np.array(self.params["initial_pose"], dtype=float)
-        self.normals = _Normals(rng)  # slip and pose noise: every draw of this module
         self.wl = 0.0
         self.wr = 0.0
 
@@ -203,7 +168,7 @@ class DiffDrivePlant(RuntimeModule):
         if (self.lateral <= 0 and self.yaw <= 0) or dt <= 0:
             return np.array([px, py, th])
         sq = math.sqrt(dt)
-        n0, n1 = self.normals.take(2)
+        n0, n1 = self.rng.standard_normal(2).tolist()
         lat = self.lateral * (n0 * sq)
         return np.array([px + -math.sin(th) * lat, py + math.cos(th) * lat,
                          th + self.yaw * (n1 * sq)])
@@ -213,11 +178,11 @@ class DiffDrivePlant(RuntimeModule):
         if self.slip <= 0 or dt <= 0:
             return u
         r = self.radius
-        n0, n1 = self.normals.take(2)
+        n = self.rng.standard_normal(2)
         wl, wr = u
         return (
-            wl + math.sqrt(self.slip * abs(r * wl * dt)) * n0 / (r * dt),
-            wr + math.sqrt(self.slip * abs(r * wr * dt)) * n1 / (r * dt),
+            wl + math.sqrt(self.slip * abs(r * wl * dt)) * float(n[0]) / (r * dt),
+            wr + math.sqrt(self.slip * abs(r * wr * dt)) * float(n[1]) / (r * dt),
         )
 
     def export_state(self):
@@ -346,10 +311,6 @@ class WheelEncoders(RuntimeModule):
     output_sizes = {"encoder_speeds": 2}
     fault_kinds = _SENSOR_FAULTS | {"effectiveness_loss"}
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self.normals = _Normals(rng)
-
     def configure(self) -> None:
         self.noise = float(self.params["noise_rad_s"])
         self.noise_levels = {"encoder_speeds": self.noise}
@@ -358,9 +319,7 @@ class WheelEncoders(RuntimeModule):
         ws = inputs.get("wheel_speeds")
         if ws is None:
             return {"encoder_speeds": None}
-        n0, n1 = self.normals.take(2)
-        w0, w1 = ws.tolist() if type(ws) is np.ndarray else (float(ws[0]), float(ws[1]))
-        return {"encoder_speeds": np.array([w0 + self.noise * n0, w1 + self.noise * n1])}
+        return {"encoder_speeds": ws + self.noise * self.rng.standard_normal(2)}
 
 
 class Imu(RuntimeModule):
@@ -384,10 +343,6 @@ class Imu(RuntimeModule):
     lanes = "archself_diffdrive.lanes_physical:ImuLanes"
     fault_kinds = _SENSOR_FAULTS
 
-    def __init__(self, name, params, rng):
-        super().__init__(name, params, rng)
-        self.normals = _Normals(rng)
-
     def configure(self) -> None:
         self.noise = float(self.params["noise_rad"])
         self.bias = float(self.params["bias_rad"])
@@ -397,7 +352,7 @@ class Imu(RuntimeModule):
         pose = inputs.get("pose")
         if pose is None:
             return {"heading": None}
-        h = float(pose[2]) + self.bias + self.noise * self.normals.take(1)[0]
+        h = float(pose[2]) + self.bias + self.noise * float(self.rng.standard_normal())
         return {"heading": (h + math.pi) % (2.0 * math.pi) - math.pi}
 
 
