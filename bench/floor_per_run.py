@@ -32,6 +32,7 @@ if __name__ == "__main__":  # as the archself command and bench/conftest.py: bef
 
 import argparse  # noqa: E402
 import copy  # noqa: E402
+import importlib.util  # noqa: E402
 import math  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
@@ -45,7 +46,15 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+if "floor_diffdrive" not in sys.modules:  # its sibling, without putting bench/ on sys.path
+    # (a test importing this file would otherwise make `conftest` bench's in every
+    # worker process the test suite starts afterwards)
+    _spec = importlib.util.spec_from_file_location(
+        "floor_diffdrive", Path(__file__).resolve().with_name("floor_diffdrive.py"))
+    assert _spec is not None and _spec.loader is not None
+    _sibling = importlib.util.module_from_spec(_spec)
+    sys.modules["floor_diffdrive"] = _sibling
+    _spec.loader.exec_module(_sibling)
 from floor_diffdrive import (  # noqa: E402
     DIFFDRIVE,
     PI,

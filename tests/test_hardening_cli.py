@@ -560,7 +560,8 @@ def test_sigterm_keeps_the_finished_runs_and_exits_143(tmp_path, arch) -> None:
 def test_a_killed_worker_is_replaced_and_the_campaign_finishes(tmp_path, arch) -> None:
     from archself.campaign.results import read_results
 
-    proc, kids, err = _start_campaign(tmp_path, arch, seeds=6)
+    # enough runs that the kill lands while work is left (a run of X.yaml takes ~0.05 s)
+    proc, kids, err = _start_campaign(tmp_path, arch, seeds=60)
     try:
         time.sleep(1.0)
         workers = _workers(proc.pid)
@@ -575,7 +576,7 @@ def test_a_killed_worker_is_replaced_and_the_campaign_finishes(tmp_path, arch) -
     assert code == 0, text
     assert "a worker process died" in text and "pool restarted (1/10)" in text
     table, _ = read_results(tmp_path / "r.parquet")
-    assert table.num_rows == 12 and all(e is None for e in table.column("error").to_pylist())
+    assert table.num_rows == 120 and all(e is None for e in table.column("error").to_pylist())
 
 
 def poison_job(job):
