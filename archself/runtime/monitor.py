@@ -343,22 +343,11 @@ class Monitor:
         lay = self.layout(active)
         r = np.zeros(len(self.names))
         available, reasons, down_names = self._availability(system, lay, r)
-        any_down = available is not self._true
         violations = _violations(system, local, lay)
-        ok, residual_ok = self._filters(lay, local, available, any_down, dt, r)
-        flagged = self._flagged(lay, available, residual_ok, violations, any_down)
-        kappa = StatusMap(
-            self.names,
-            self.index,
-            lay.active,
-            available,
-            residual_ok,
-            confidence_reader(lay),
-            violations,
-            reasons,
-            flagged,
-            down_names,
-        )
+        ok, residual_ok = self._filters(lay, local, available, dt, r)
+        flagged = self._flagged(lay, available, residual_ok, violations)
+        kappa = StatusMap(self.names, self.index, lay.active, available, residual_ok,
+                          confidence_reader(lay), violations, reasons, flagged, down_names)
         return Observation(t, j_obs, j_ref, j_ref - j_obs, r, kappa, lay.on_names, lay.value, ok)
 
     def _step(self, t: float) -> float:
@@ -406,13 +395,7 @@ class Monitor:
         return available, reasons, down_names
 
     def _filters(
-        self,
-        lay: Layout,
-        local: Mapping[str, Any],
-        available: np.ndarray,
-        any_down: bool,
-        dt: float,
-        r: np.ndarray,
+        self, lay: Layout, local: Mapping[str, Any], available: np.ndarray, dt: float, r: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """The residual filters of the active modules, ``y ← y + g·(s − y)`` where the
         sample is usable (r_i written into ``r``).
@@ -423,7 +406,7 @@ class Monitor:
         if not lay.pairs:
             return lay.all_ok, self._true
         raw = [(local.get(m) or {}).get(sig, math.nan) for m, sig in lay.pairs]
-        avail_on = available[lay.on_pos] if any_down else None
+        avail_on = available[lay.on_pos] if available is not self._true else None
         ok = self._update(lay, raw, avail_on, dt, r)
         if ok is lay.all_ok:
             return ok, self._true
@@ -432,16 +415,11 @@ class Monitor:
         return ok, residual_ok
 
     def _flagged(
-        self,
-        lay: Layout,
-        available: np.ndarray,
-        residual_ok: np.ndarray,
-        violations: dict[str, list[str]],
-        any_down: bool,
+        self, lay: Layout, available: np.ndarray, residual_ok: np.ndarray, violations: dict
     ) -> np.ndarray:
         """Positions of the active modules with a finding (down, unusable sample or a
         violated constraint)."""
-        if not (any_down or residual_ok is not self._true or violations):
+        if available is self._true and residual_ok is self._true and not violations:
             return np.zeros(0, dtype=np.intp)
         finding = ~available | ~residual_ok
         if violations:
