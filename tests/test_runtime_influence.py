@@ -19,10 +19,25 @@ from archself.runtime.candidates import (
 from archself.runtime.influence import (
     InfluenceSolver,
     influence,
-    neumann_influence,
     spectral_radius,
     weight_matrix,
 )
+
+
+def neumann_influence(W, r, terms: int = 200) -> np.ndarray:
+    """Truncated Neumann series ``Σ_k (Wᵀ)^k r`` of Eq. 15 (the oracle).
+
+    Converges to :func:`influence` when ρ(W) < 1.
+    """
+    Wt = W.T if scipy.sparse.issparse(W) else np.asarray(W, dtype=float).T
+    term = np.asarray(r, dtype=float).ravel().copy()
+    total = term.copy()
+    for _ in range(terms):
+        term = Wt @ term
+        total += term
+        if not np.any(term):
+            break
+    return np.asarray(total).ravel()
 
 
 def test_weight_matrix_orientation_and_parallel_edges():

@@ -14,7 +14,7 @@ from archself.runtime.stability import action_target, apply_action, rollout_copy
 __all__ = ["estimate_improvement", "rollout_improvement"]
 
 
-def _mean_objective(system: SystemSnapshot, steps: int) -> float:
+def mean_objective(system: SystemSnapshot, steps: int) -> float:
     """Step ``system`` ``steps`` times; the mean objective error J over them."""
     total = 0.0
     for _ in range(steps):
@@ -35,7 +35,7 @@ def rollout_improvement(system: ManagedSystem, action: Action, horizon_s: float)
     base = rollout_copy(system, system.configuration, steps)
     trial = rollout_copy(system, action_target(system, action), steps)
     apply_action(trial, action)
-    return _mean_objective(base, steps) - _mean_objective(trial, steps)
+    return mean_objective(base, steps) - mean_objective(trial, steps)
 
 
 def estimate_improvement(

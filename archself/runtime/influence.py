@@ -44,7 +44,6 @@ __all__ = [
     "influence",
     "is_singular",
     "matrix_key",
-    "neumann_influence",
     "spectral_radius",
     "weight_matrix",
 ]
@@ -461,19 +460,3 @@ def influence(W: Any, r: Any) -> np.ndarray:
     solver = InfluenceSolver()
     solver.set_matrix(W, key=0)
     return solver.solve(r)
-
-
-def neumann_influence(W: Any, r: Any, terms: int = 200) -> np.ndarray:
-    """Truncated Neumann series ``Σ_k (Wᵀ)^k r`` of Eq. 15 (reference for tests).
-
-    Converges to :func:`influence` when ρ(W) < 1.
-    """
-    Wt = W.T if _issparse(W) else np.asarray(W, dtype=float).T
-    term = np.asarray(r, dtype=float).ravel().copy()
-    total = term.copy()
-    for _ in range(terms):
-        term = Wt @ term
-        total += term
-        if not np.any(term):
-            break
-    return np.asarray(total).ravel()

@@ -199,6 +199,21 @@ def _reported(system: ManagedSystem, method: str) -> Any:
         return {}
 
 
+def _violations(
+    system: ManagedSystem, local: Mapping[str, Any], lay: Layout
+) -> dict[str, list[str]]:
+    """The constraint violations of the active modules, by module."""
+    violations: dict[str, list[str]] = {}
+    outputs = getattr(system, "outputs", None) or {}
+    for _k, name, fixed, limits in lay.constrained:
+        found = list(fixed)
+        if limits:
+            found += limit_violations(limits, local.get(name) or {}, outputs.get(name))
+        if found:
+            violations[name] = found
+    return violations
+
+
 @dataclass
 class Observation:
     """Everything the Monitor stage measured in one cycle.
@@ -315,90 +330,102 @@ class Monitor:
         return lay
 
     def observe(self, system: ManagedSystem, active: frozenset[str]) -> Observation:
-        """Sample the system once (Algorithm 1, steps 1–2); never raises on bad signals."""
+        """Sample the system once (Algorithm 1, steps 1–2); never raises on bad signals.
+
+        Plan → run → collect: the time step and the active set's layout, then
+        availability, constraint violations and the residual filters, then the
+        modules with a finding and κ_i.
+        """
         t = float(system.t)
+        dt = self._step(t)
+        j_obs, j_ref = self._objective(system)
+        local = _reported(system, "local_signals")
+        lay = self.layout(active)
+        r = np.zeros(len(self.names))
+        available, reasons, down_names = self._availability(system, lay, r)
+        violations = _violations(system, local, lay)
+        ok, residual_ok = self._filters(lay, local, available, dt, r)
+        flagged = self._flagged(lay, available, residual_ok, violations)
+        kappa = StatusMap(self.names, self.index, lay.active, available, residual_ok,
+                          confidence_reader(lay), violations, reasons, flagged, down_names)
+        return Observation(t, j_obs, j_ref, j_ref - j_obs, r, kappa, lay.on_names, lay.value, ok)
+
+    def _step(self, t: float) -> float:
+        """The time since the last sample (the period on the first or a non-advancing one)."""
         dt = self.arch.runtime.period_s if self._t_prev is None else t - self._t_prev
         if dt <= 0:
             dt = self.arch.runtime.period_s
         self._t_prev = t
+        return dt
 
+    def _objective(self, system: ManagedSystem) -> tuple[float, float]:
+        """``(J_obs, J_ref)``; J_obs is NaN when the objective raises."""
         try:
             j_obs = to_float(system.objective_error())
         except Exception:  # noqa: BLE001 - a failing objective must not stop the loop
             j_obs = math.nan
-        j_ref = float(self.arch.runtime.objective.acceptable)
-        r_global = j_ref - j_obs
+        return j_obs, float(self.arch.runtime.objective.acceptable)
 
-        local = _reported(system, "local_signals")
+    def _availability(
+        self, system: ManagedSystem, lay: Layout, r: np.ndarray
+    ) -> tuple[np.ndarray, dict[str, str | None], set[str]]:
+        """Availability (κ), the reasons of the active modules that are down and the
+        saturated residual of their own failures (written into ``r``).
+
+        Returns ``(available, reasons, down_names)``; ``available`` is the shared
+        all-true mask when every module is up.
+        """
         avail = _reported(system, "available")
-
-        names, index = self.names, self.index
-        n = len(names)
-        lay = self.layout(active)
-        r = np.zeros(n)
-
-        # availability (κ) and the saturated residual of own failures
-        available = self._true
         reasons: dict[str, str | None] = {}
-        any_down = not all(avail.values())
-        down_names: set[str] = set()
-        if any_down:
-            down_names = {m for m, ok in avail.items() if not ok and m in index}
-            down = [index[m] for m in down_names]
-            available = self._true.copy()
-            available[down] = False
-            down_active = sorted(k for k in down if lay.active[k])
-            if down_active:
-                why = _reported(system, "health")
-                for k in down_active:
-                    reason = why.get(names[k])
-                    reasons[names[k]] = reason
-                    if reason is not None and is_own_failure(reason):
-                        r[k] = self.r_sat
+        if all(avail.values()):
+            return self._true, reasons, set()
+        names, index = self.names, self.index
+        down_names = {m for m, ok in avail.items() if not ok and m in index}
+        down = [index[m] for m in down_names]
+        available = self._true.copy()
+        available[down] = False
+        down_active = sorted(k for k in down if lay.active[k])
+        if down_active:
+            why = _reported(system, "health")
+            for k in down_active:
+                reason = why.get(names[k])
+                reasons[names[k]] = reason
+                if reason is not None and is_own_failure(reason):
+                    r[k] = self.r_sat
+        return available, reasons, down_names
 
-        # constraint violations of the active modules
-        violations: dict[str, list[str]] = {}
-        outputs = getattr(system, "outputs", None) or {}
-        for _k, name, fixed, limits in lay.constrained:
-            found = list(fixed)
-            if limits:
-                found += limit_violations(limits, local.get(name) or {}, outputs.get(name))
-            if found:
-                violations[name] = found
+    def _filters(
+        self, lay: Layout, local: Mapping[str, Any], available: np.ndarray, dt: float, r: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The residual filters of the active modules, ``y ← y + g·(s − y)`` where the
+        sample is usable (r_i written into ``r``).
 
-        # residual filters of the active modules: y ← y + g·(s − y) where the sample is usable
-        residual_ok = self._true
-        ok = lay.all_ok
-        if lay.pairs:
-            raw = [(local.get(m) or {}).get(sig, math.nan) for m, sig in lay.pairs]
-            avail_on = available[lay.on_pos] if any_down else None
-            ok = self._update(lay, raw, avail_on, dt, r)
-            if ok is not lay.all_ok:
-                residual_ok = self._true.copy()
-                residual_ok[lay.on_pos] = ok
+        Returns ``(ok, residual_ok)``: the usable-sample mask over the residual
+        modules and over all modules (the shared masks when every sample was usable).
+        """
+        if not lay.pairs:
+            return lay.all_ok, self._true
+        raw = [(local.get(m) or {}).get(sig, math.nan) for m, sig in lay.pairs]
+        avail_on = available[lay.on_pos] if available is not self._true else None
+        ok = self._update(lay, raw, avail_on, dt, r)
+        if ok is lay.all_ok:
+            return ok, self._true
+        residual_ok = self._true.copy()
+        residual_ok[lay.on_pos] = ok
+        return ok, residual_ok
 
-        if any_down or residual_ok is not self._true or violations:
-            finding = ~available | ~residual_ok
-            if violations:
-                finding[[k for k, name, *_ in lay.constrained if name in violations]] = True
-            finding &= lay.active
-            flagged = finding.nonzero()[0]
-        else:
-            flagged = np.zeros(0, dtype=np.intp)
-
-        kappa = StatusMap(
-            names,
-            index,
-            lay.active,
-            available,
-            residual_ok,
-            confidence_reader(lay),
-            violations,
-            reasons,
-            flagged,
-            down_names,
-        )
-        return Observation(t, j_obs, j_ref, r_global, r, kappa, lay.on_names, lay.value, ok)
+    def _flagged(
+        self, lay: Layout, available: np.ndarray, residual_ok: np.ndarray, violations: dict
+    ) -> np.ndarray:
+        """Positions of the active modules with a finding (down, unusable sample or a
+        violated constraint)."""
+        if available is self._true and residual_ok is self._true and not violations:
+            return np.zeros(0, dtype=np.intp)
+        finding = ~available | ~residual_ok
+        if violations:
+            finding[[k for k, name, *_ in lay.constrained if name in violations]] = True
+        finding &= lay.active
+        return finding.nonzero()[0]
 
     def _update(
         self, lay: Layout, raw: list[Any], avail_on: np.ndarray | None, dt: float, r: np.ndarray

@@ -28,7 +28,7 @@ import numpy as np
 from archself.contracts import ManagedSystem
 from archself.model.architecture import Action, Architecture
 from archself.model.runtime import Risk
-from archself.runtime.improvement import estimate_improvement
+from archself.runtime.improvement import estimate_improvement, mean_objective
 from archself.runtime.stability import action_target, apply_action, rollout_copy
 from archself.system.streams import stable_hash
 
@@ -92,14 +92,6 @@ def reseed(system: Any, base: int) -> int:
     return n
 
 
-def _mean_objective(system: Any, steps: int) -> float:
-    total = 0.0
-    for _ in range(steps):
-        system.step()
-        total += float(system.objective_error())
-    return total / steps
-
-
 def sampled_rollouts(
     system: ManagedSystem, action: Action, horizon_s: float, draws: int
 ) -> tuple[np.ndarray, int]:
@@ -125,7 +117,7 @@ def sampled_rollouts(
             streams = reseed(base, seed)
             reseed(trial, seed)
         apply_action(trial, action)
-        values[k] = _mean_objective(base, steps) - _mean_objective(trial, steps)
+        values[k] = mean_objective(base, steps) - mean_objective(trial, steps)
     return values, streams
 
 

@@ -45,6 +45,7 @@ class ModuleStatus:
         return out
 
 
+@dataclass(eq=False, repr=False)
 class StatusMap(Mapping[str, ModuleStatus]):
     """κ of every module (Eq. 17) as a read-only mapping, built on demand.
 
@@ -75,30 +76,17 @@ class StatusMap(Mapping[str, ModuleStatus]):
         The names where ``available`` is False.
     """
 
-    def __init__(
-        self,
-        names: list[str],
-        index: dict[str, int],
-        active: np.ndarray,
-        available: np.ndarray,
-        residual_ok: np.ndarray,
-        confidence: Callable[[int], float],
-        violations: dict[str, list[str]],
-        reasons: dict[str, str | None],
-        finding: np.ndarray,
-        unavailable: set[str],
-    ) -> None:
-        self._names = names
-        self._index = index
-        self._active = active
-        self._available = available
-        self._residual_ok = residual_ok
-        self._confidence = confidence
-        self._violations = violations
-        self._reasons = reasons
-        self._finding = finding
-        self._built: dict[str, ModuleStatus] = {}
-        self._down = unavailable
+    _names: list[str]
+    _index: dict[str, int]
+    _active: np.ndarray
+    _available: np.ndarray
+    _residual_ok: np.ndarray
+    _confidence: Callable[[int], float]
+    _violations: dict[str, list[str]]
+    _reasons: dict[str, str | None]
+    _finding: np.ndarray
+    _down: set[str]
+    _built: dict[str, ModuleStatus] = field(default_factory=dict, init=False)
 
     def __getitem__(self, name: str) -> ModuleStatus:
         status = self._built.get(name)
