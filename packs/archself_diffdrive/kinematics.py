@@ -30,6 +30,7 @@ __all__ = [
     "wheels_to_body",
     "body_to_wheels",
     "unicycle_rhs",
+    "arc_step",
     "integrate_pose",
     "tracking_error",
     "error_dynamics",
@@ -149,9 +150,22 @@ def integrate_pose(t: float, x, u, params: dict[str, Any]) -> np.ndarray:
         lim = float(lim)
         wl = min(max(wl, -lim), lim)
         wr = min(max(wr, -lim), lim)
+    return np.array(arc_step(float(x[0]), float(x[1]), float(x[2]), r, b, wl, wr, dt))
+
+
+def arc_step(px: float, py: float, th: float, r: float, b: float, wl: float, wr: float,
+             dt: float) -> tuple[float, float, float]:
+    """The pose after ``dt`` at wheel speeds ``wl``, ``wr`` (exact arc; the midpoint
+    rule when the heading barely turns), on floats: :func:`integrate_pose`'s step, also
+    the plant's.
+
+    Examples
+    --------
+    >>> [round(v, 4) for v in arc_step(0.0, 0.0, 0.0, 0.1, 0.5, 2.0, 4.0, 1.0)]
+    [0.2921, 0.0592, 0.4]
+    """
     v = r * (wl + wr) / 2.0
     w = r * (wr - wl) / b
-    px, py, th = float(x[0]), float(x[1]), float(x[2])
     dth = w * dt
     if abs(dth) < 1e-9:
         mid = th + 0.5 * dth
@@ -161,7 +175,7 @@ def integrate_pose(t: float, x, u, params: dict[str, Any]) -> np.ndarray:
         rad = v / w
         px += rad * (math.sin(th + dth) - math.sin(th))
         py -= rad * (math.cos(th + dth) - math.cos(th))
-    return np.array([px, py, th + dth])
+    return px, py, th + dth
 
 
 def tracking_error(pose, reference) -> np.ndarray:

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from archself.modules.base import Param, RuntimeModule
-from archself_diffdrive.kinematics import integrate_pose
+from archself_diffdrive.kinematics import arc_step, integrate_pose
 from archself_diffdrive.models import Dynamics, Kinematics, parameters_of
 
 __all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
@@ -147,20 +147,8 @@ class DiffDrivePlant(RuntimeModule):
     def _move(self, u: tuple[float, float], dt: float) -> tuple[float, float, float]:
         """:func:`integrate_pose` of the pose on floats (the same operations, no arrays)."""
         (el, er), r, b = self._eff, self.radius, self._base
-        wl, wr = float(u[0]) * el, float(u[1]) * er
-        v = r * (wl + wr) / 2.0
-        w = r * (wr - wl) / b
         px, py, th = self.pose.tolist()
-        dth = w * dt
-        if abs(dth) < 1e-9:
-            mid = th + 0.5 * dth
-            px += v * dt * math.cos(mid)
-            py += v * dt * math.sin(mid)
-        else:
-            rad = v / w
-            px += rad * (math.sin(th + dth) - math.sin(th))
-            py -= rad * (math.cos(th + dth) - math.cos(th))
-        return px, py, th + dth
+        return arc_step(px, py, th, r, b, float(u[0]) * el, float(u[1]) * er, dt)
 
     def _noisy_pose(self, pose: tuple[float, float, float], dt: float) -> np.ndarray:
         """``pose`` plus the lateral and yaw noise over ``dt`` (two draws)."""
