@@ -10,7 +10,7 @@ import functools
 import re
 from pathlib import Path
 
-from archself.campaign.executors import single_thread_blas
+from archself.resources import single_thread_blas
 
 single_thread_blas()  # as the archself command does, before numpy loads
 

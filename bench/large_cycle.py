@@ -34,7 +34,7 @@ import time
 import tracemalloc
 from typing import Any
 
-from archself.campaign.executors import single_thread_blas
+from archself.resources import single_thread_blas
 
 single_thread_blas()
 

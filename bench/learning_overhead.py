@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 _ROUND = """
 import sys, time, tempfile
-from archself.campaign.executors import single_thread_blas
+from archself.resources import single_thread_blas
 single_thread_blas()
 from archself.campaign.plan import plan_campaign
 from archself.campaign.driver import run_campaign

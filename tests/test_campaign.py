@@ -22,11 +22,7 @@ from archself.campaign.driver import (
     run_campaign,
     run_seeds,
 )
-from archself.campaign.executors import (
-    BLAS_THREAD_VARIABLES,
-    LocalExecutor,
-    single_thread_blas,
-)
+from archself.campaign.executors import LocalExecutor
 from archself.campaign.results import read_results
 from archself.campaign.sweep import (
     CampaignError,
@@ -38,6 +34,7 @@ from archself.campaign.sweep import (
     sweep_points,
 )
 from archself.cli import app
+from archself.resources import BLAS_THREAD_VARIABLES, single_thread_blas
 
 from conftest import DIFFDRIVE, FIXTURES
 

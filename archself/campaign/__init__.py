@@ -4,10 +4,8 @@
 file                          role
 ============================  ==============================================
 ``sweep.py``                  PATH parsing, sweep values, applying them to the data
-``executors.py``              the ``Executor`` interface: local process pool, Dask
-``local_executor.py``         the local process pool (forkserver, dies with the driver)
-``dask_executor.py``          a dask.distributed client (scheduler or LocalCluster)
-``inline_executor.py``        every job in the calling process (debugging, tests)
+``executors.py``              the ``Executor`` interface: local process pool (forkserver,
+                              dies with the driver), Dask, inline (debugging, tests)
 ``worker.py``                 one job → one results row (architecture cached per process)
 ``results.py``                the Parquet results table and its schema
 ``plan.py``                   validate, size and list the jobs (seeds, run ids)
@@ -36,8 +34,8 @@ _LAZY = {
     "parse_sweep": "sweep",
     "apply_values": "sweep",
     "Executor": "executors",
-    "LocalExecutor": "local_executor",
-    "DaskExecutor": "dask_executor",
+    "LocalExecutor": "executors",
+    "DaskExecutor": "executors",
     "make_executor": "executors",
     "Job": "worker",
     "run_job": "worker",

@@ -500,7 +500,7 @@ def register(names: Any = None, into: typer.Typer | None = None) -> typer.Typer:
 
 def main() -> None:
     """Entry point of the ``archself`` script: the command named, else every command, runs."""
-    from archself.campaign.local_executor import single_thread_blas
+    from archself.resources import single_thread_blas
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
     first = sys.argv[1] if len(sys.argv) > 1 else None  # `archself --help x`: every command

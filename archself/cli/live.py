@@ -11,7 +11,6 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
-from archself.io.jsondata import DecisionRecordDoc, TraceDocument, document, jsonable
 
 
 def live(
@@ -123,7 +122,7 @@ def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, roll
 def _print_live(name: str, loop: Any, start: str, served: int, json_out: bool) -> None:
     """The run's summary: one JSON object, or a line and the commands in time order."""
     if json_out:
-        from archself.io.jsondata import LiveDoc
+        from archself.io.jsondata import LiveDoc, document
 
         typer.echo(json.dumps(document(LiveDoc, _result(name, start, loop, served),
                                        complete=True), indent=1))
@@ -186,6 +185,8 @@ class _Journal:
         loop.on_cycle(self.add)
 
     def _line(self, data: Any) -> None:
+        from archself.io.jsondata import jsonable
+
         self.fh.write(json.dumps(jsonable(data), separators=(",", ":")) + "\n")
         self.fh.flush()
 
@@ -193,6 +194,8 @@ class _Journal:
         """Append one decision record (a write error: warned once, the run goes on)."""
         if self.fh is None:
             return
+        from archself.io.jsondata import DecisionRecordDoc, document
+
         try:
             self._line(document(DecisionRecordDoc, record))
         except OSError as exc:
@@ -252,6 +255,8 @@ def _write_log(log: Path, text: str) -> None:
 def _log(loop: Any, arch_path: Path, start: str, served: int) -> dict[str, Any]:
     """The run as a trace document without series: ``{meta, series, decisions}`` (a
     :class:`~archself.io.jsondata.TraceDocument`)."""
+    from archself.io.jsondata import TraceDocument, document
+
     meta = {
         "architecture": loop.arch.name,
         "file": str(arch_path),

@@ -12,7 +12,6 @@ import typer
 
 from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
 from archself.errors import ArchselfError
-from archself.io.jsondata import jsonable
 
 
 def ros2(
@@ -133,6 +132,8 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
             stats = run_bridge(bridge, timeout_s=timeout, until=until)
             loop = bridge.loop
             if log is not None:
+                from archself.io.jsondata import jsonable
+
                 _write_log(log, json.dumps(jsonable(_log(loop, arch_path, start,
                                                          loop.measurements)),
                                            separators=(",", ":")) + "\n")
