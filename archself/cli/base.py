@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager, nullcontext
 from enum import StrEnum
 from importlib import import_module
 from pathlib import Path
@@ -389,6 +389,47 @@ def _inputs(*paths: Path, what: str = "an architecture file") -> None:
     for p in paths:
         if str(p) != "-":  # stdin, read by _load
             check_input(p, what)
+
+
+@contextmanager
+def guard(
+    *inputs: Path | tuple[Path | None, str] | None,
+    refuse: Iterable[tuple[str, Path | None]] = (),
+    locks: Iterable[Path | None] = (),
+    check: Callable[[], None] | None = None,
+    what: str = "an architecture file",
+    numeric: bool = True,
+) -> Iterator[None]:
+    """The one input guard of the commands, around a command's work.
+
+    In this order: every input (None skipped) is a regular file, ``-`` (stdin) passes
+    (:func:`_inputs`; ``what``, or the second item of an input ``(path, what)``, names it
+    in the message); no output of ``refuse``
+    (``(flag, path)``, None and ``-`` skipped) is one of the inputs; ``check`` (the
+    command's own output checks) runs; then, while the block runs, the inputs are not
+    written over and ``locks`` are locked against other commands (``io.atomic.protect``)
+    and numeric trouble is a located line about the first input (:func:`_numeric`,
+    unless ``numeric`` is False). An :class:`ArchselfError` of any step or of the block
+    is its one-line message and exit code (:func:`_die`).
+    """
+    from archself.io.atomic import protect
+    from archself.io.outputs import refuse_same_file
+
+    pairs = [item if isinstance(item, tuple) else (item, what) for item in inputs]
+    given = [p for p, _ in pairs if p is not None]
+    try:
+        for path, kind in pairs:
+            if path is not None:
+                _inputs(path, what=kind)
+        for flag, target in refuse:
+            if target is not None and str(target) != "-":
+                refuse_same_file(given, target, flag)
+        if check is not None:
+            check()
+        with protect(given, locks), _numeric(given[0]) if numeric else nullcontext():
+            yield
+    except ArchselfError as exc:
+        raise _die(exc) from None
 
 
 @contextmanager

@@ -17,15 +17,12 @@ from archself.cli.base import (
     RootSeedOption,
     RunProgress,
     WorkersOption,
-    _die,
     _emit,
     _fail,
-    _inputs,
-    _numeric,
+    guard,
     note,
     show_progress,
 )
-from archself.errors import ArchselfError
 
 ConfigurationsOption = Annotated[
     list[str] | None,
@@ -139,7 +136,8 @@ def _calibrate(
     if in_place and not force:
         raise _fail("--in-place overwrites ARCH: pass --force as well", 2)
     target = arch_path if in_place else output
-    try:
+
+    def outputs() -> None:
         if target is not None:
             check_output(arch_path, target, in_place=in_place, force=force)
         if save_runs is not None:
@@ -148,32 +146,30 @@ def _calibrate(
             from archself.io.outputs import refuse_foreign_folder
 
             refuse_foreign_folder(report_dir, "calibration.json", "--report")
-        from archself.io.atomic import protect
 
-        with protect([], [target, save_runs, report_dir]):
-            show = show_progress(json_out)
-            bar = RunProgress("{total:,} runs")
-            try:
-                cal = run_calibration(
-                    arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
-                    configurations=configurations, root_seed=root_seed,
-                    executor=executor.value, workers=workers, address=address,
-                    verify_seeds=verify_seeds, progress=bar.update if show else None,
-                    save_runs=save_runs, from_runs=from_runs, envelope=envelope or (),
-                    weights=weights,
-                )
-            finally:
-                bar.close()
-            if target is not None:
-                from archself.io.atomic import write_text
+    with guard(None if in_place else arch_path, check=outputs,  # in place: written
+               locks=[target, save_runs, report_dir], numeric=False):
+        show = show_progress(json_out)
+        bar = RunProgress("{total:,} runs")
+        try:
+            cal = run_calibration(
+                arch_path, false_switch=false_switch, seeds=seeds, scenarios=scenarios,
+                configurations=configurations, root_seed=root_seed,
+                executor=executor.value, workers=workers, address=address,
+                verify_seeds=verify_seeds, progress=bar.update if show else None,
+                save_runs=save_runs, from_runs=from_runs, envelope=envelope or (),
+                weights=weights,
+            )
+        finally:
+            bar.close()
+        if target is not None:
+            from archself.io.atomic import write_text
 
-                write_text(target, cal.text)
-            if report_dir is not None:
-                from archself.calibration.report import write_report
+            write_text(target, cal.text)
+        if report_dir is not None:
+            from archself.calibration.report import write_report
 
-                index = write_report(cal, report_dir)
-    except ArchselfError as exc:
-        raise _die(exc) from None
+            index = write_report(cal, report_dir)
     if json_out:
         typer.echo(json.dumps(cal.to_dict(), indent=2, ensure_ascii=False))
     else:
@@ -291,35 +287,16 @@ def _identify(
     if not math.isfinite(magnitude):
         raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)
     overrides = _perturbations(perturb)
-    from contextlib import ExitStack
-
-    from archself.io.atomic import protect
-
-    locked = ExitStack()  # the outputs, locked until written
-    try:
-        from archself.io.outputs import refuse_same_file
-
-        _inputs(arch_path)
-
-        if output is not None and str(output) != "-":
-            refuse_same_file([arch_path], output, "-o")
-        if write_back is not None:
-            check_output(arch_path, write_back, in_place=False, force=force)
-        locked.enter_context(protect([], [output, write_back]))
-        with _numeric(arch_path):
-            ident = run_identify(
-                arch_path, configurations=configurations, scenario=scenario, seeds=seeds,
-                kind=kind, magnitude=magnitude, perturb=overrides, settle_s=settle,
-                min_excitation=min_excitation, root_seed=root_seed, executor=executor.value,
-                workers=workers, address=address,
-            )
+    with guard(arch_path, refuse=[("-o", output)], locks=[output, write_back],
+               check=None if write_back is None else lambda: check_output(
+                   arch_path, write_back, in_place=False, force=force)):
+        ident = run_identify(
+            arch_path, configurations=configurations, scenario=scenario, seeds=seeds,
+            kind=kind, magnitude=magnitude, perturb=overrides, settle_s=settle,
+            min_excitation=min_excitation, root_seed=root_seed, executor=executor.value,
+            workers=workers, address=address,
+        )
         copy = written_copy(ident) if write_back is not None else None
-    except BaseException as exc:
-        locked.close()
-        if isinstance(exc, ArchselfError):
-            raise _die(exc) from None
-        raise
-    with locked:
         if json_out:
             typer.echo(json.dumps(ident.to_dict(), indent=2, ensure_ascii=False))
         elif output is None or str(output) != "-":
@@ -329,8 +306,5 @@ def _identify(
         if write_back is not None and copy is not None:
             from archself.io.atomic import write_text
 
-            try:
-                write_text(write_back, copy)
-            except ArchselfError as exc:
-                raise _die(exc) from None
+            write_text(write_back, copy)
             note(f"wrote {write_back}")

@@ -21,16 +21,13 @@ from archself.cli.base import (
     RunProgress,
     TraceFormat,
     WorkersOption,
-    _die,
     _err,
     _fail,
     _formats,
-    _inputs,
-    _numeric,
+    guard,
     note,
     show_progress,
 )
-from archself.errors import ArchselfError
 
 
 def campaign(
@@ -111,49 +108,40 @@ def _campaign(
     printed."""
     from archself.campaign.driver import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_same_file
-
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
-
-    try:
-        _inputs(arch_path)
-        refuse_same_file([arch_path], out, "--out")
+    with guard(arch_path, refuse=[("--out", out)], locks=[out, traces]):
         sweeps = [parse_sweep(s) for s in sweep or []]
-        with protect([arch_path], [out, traces]), _numeric(arch_path):
-            jobs, meta = plan_campaign(
-                arch_path,
-                scenarios,
-                seeds,
-                sweeps,
-                modes=("fixed", "adaptive") if mode is Mode.both else (mode.value,),
-                root_seed=root_seed,
-                traces=traces,
-                trace_format=trace_format.value,
-                yes=yes,
+        jobs, meta = plan_campaign(
+            arch_path,
+            scenarios,
+            seeds,
+            sweeps,
+            modes=("fixed", "adaptive") if mode is Mode.both else (mode.value,),
+            root_seed=root_seed,
+            traces=traces,
+            trace_format=trace_format.value,
+            yes=yes,
+        )
+        show = show_progress(json_out)
+        per = int(meta.get("steps", 0)) // max(len(jobs), 1)
+        bar = RunProgress(f"{{total:,}} runs × {per:,} steps")
+        try:
+            outcome = run_campaign(
+                jobs,
+                meta,
+                out,
+                executor=executor.value,
+                workers=workers,
+                address=address,
+                resume=resume,
+                force=force,
+                progress=bar.update if show else None,
+                notice=lambda msg: _err(f"warning: {msg}"),
+                lanes=lanes,
             )
-            show = show_progress(json_out)
-            per = int(meta.get("steps", 0)) // max(len(jobs), 1)
-            bar = RunProgress(f"{{total:,}} runs × {per:,} steps")
-            try:
-                outcome = run_campaign(
-                    jobs,
-                    meta,
-                    out,
-                    executor=executor.value,
-                    workers=workers,
-                    address=address,
-                    resume=resume,
-                    force=force,
-                    progress=bar.update if show else None,
-                    notice=lambda msg: _err(f"warning: {msg}"),
-                    lanes=lanes,
-                )
-            finally:
-                bar.close()
-    except ArchselfError as exc:
-        raise _die(exc) from None
+        finally:
+            bar.close()
     if json_out:
         from archself.io.jsondata import CampaignDoc
 
@@ -203,22 +191,13 @@ def campaign_report_cmd(
     """
     from archself.campaign.aggregate import parse_expect
     from archself.campaign.report import campaign_report, summary_text
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_same_file
-
-    try:
-        _inputs(results, what="a results file (Parquet)")
-        for name in _RUN_REPORT_FILES:
-            refuse_same_file([results], out_dir / name, "-o")
-        with protect([results], [out_dir]), _numeric(results):
-            summary = campaign_report(
-                results, out_dir, expect=parse_expect(expect or []), tau_path=tau,
-                formats=_formats(fig_format, "svg"), dpi=dpi,
-            )
-    except ArchselfError as exc:
-        raise _die(exc) from None
+    with guard((results, "a results file (Parquet)"), locks=[out_dir],
+               refuse=[("-o", out_dir / name) for name in _RUN_REPORT_FILES]):
+        summary = campaign_report(
+            results, out_dir, expect=parse_expect(expect or []), tau_path=tau,
+            formats=_formats(fig_format, "svg"), dpi=dpi,
+        )
     if json_out:
-
         from archself.io.jsondata import CampaignReportDoc, document
 
         typer.echo(json.dumps(document(CampaignReportDoc, summary, complete=True), indent=2,

@@ -18,6 +18,7 @@ from archself.cli.base import (
     _inputs,
     _load,
     _read_stdin,
+    guard,
 )
 from archself.errors import ArchselfError
 
@@ -175,10 +176,8 @@ def _write_or_check(text: str, output: Path | None, check_file: Path | None, reg
     """
     if check_file is not None:
         try:
-            _inputs(check_file, what="a file")
-            current = check_file.read_text(encoding="utf-8")
-        except ArchselfError as exc:
-            raise _die(exc) from None
+            with guard((check_file, "a file"), numeric=False):
+                current = check_file.read_text(encoding="utf-8")
         except UnicodeDecodeError:
             raise _fail(f"{check_file}: error: not UTF-8 text") from None
         except OSError as exc:
@@ -360,18 +359,11 @@ def export(
         from archself.errors import unknown
 
         raise _fail(f"error: --to: {unknown('format', to, FORMATS)}", 2)
-    _inputs(arch)
-    try:
-        if output is not None and str(output) != "-":
-            from archself.io.outputs import refuse_same_file
-
-            refuse_same_file([arch], output, "--output")
+    with guard(arch, refuse=[("--output", output)], numeric=False):
         from archself.reports.export import export as export_text
 
         parts = [n.strip() for n in nodes.split(",") if n.strip()] if nodes else None
         text = export_text(_load(arch), to, nodes=parts)
-    except ArchselfError as exc:
-        raise _die(exc) from None
     _emit(text, output, f"{output}: {to}")
 
 
@@ -388,12 +380,9 @@ def info(
     """What a file holds: modules, configurations, actions, scenarios and runtime settings."""
     from archself.reports.summary import summarize, summary_text
 
-    _inputs(arch)
-    try:
+    with guard(arch, numeric=False):
         loaded = _load(arch)
         data = summarize(loaded)
-    except ArchselfError as exc:
-        raise _die(exc) from None
     table = None
     if stability:
         from archself.check.stability import loop_table, table_text

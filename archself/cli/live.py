@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
+from archself.cli.base import _fail, _known_configuration, _load, guard
 from archself.errors import ArchselfError
 
 
@@ -93,29 +93,23 @@ def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, roll
               timeout: float, log: Path | None, token: str | None,
               max_jump: float | None) -> tuple[Any, Any, str, int]:
     """Load the file, serve the plant until it ends; (arch, loop, start, measurements)."""
-    from archself.io.atomic import protect
     from archself.live import LiveLoop, run_remote
 
-    try:
-        _inputs(arch_path)
-        _check_log(arch_path, log)
-        with protect([arch_path], [log]), _numeric(arch_path):
-            arch = _load(arch_path)
-            _known_configuration(arch, config, arch_path)
-            loop = LiveLoop(arch, configuration=config, rollout=rollout, max_jump_s=max_jump)
-            start = loop.configuration
-            loop.on_command(_say_command)
-            journal = None if log is None else _Journal(log, loop, arch_path, start)
-            try:
-                served = run_remote(loop, host, port, timeout_s=timeout, token=token)
-            except BaseException as exc:
-                if journal is not None:
-                    journal.finish(_ending(exc))
-                raise
+    with guard(arch_path, check=lambda: _check_log(arch_path, log), locks=[log]):
+        arch = _load(arch_path)
+        _known_configuration(arch, config, arch_path)
+        loop = LiveLoop(arch, configuration=config, rollout=rollout, max_jump_s=max_jump)
+        start = loop.configuration
+        loop.on_command(_say_command)
+        journal = None if log is None else _Journal(log, loop, arch_path, start)
+        try:
+            served = run_remote(loop, host, port, timeout_s=timeout, token=token)
+        except BaseException as exc:
             if journal is not None:
-                journal.finish(None)
-    except ArchselfError as exc:
-        raise _die(exc) from None
+                journal.finish(_ending(exc))
+            raise
+        if journal is not None:
+            journal.finish(None)
     return arch, loop, start, served
 
 

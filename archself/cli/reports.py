@@ -11,15 +11,12 @@ from archself.cli.base import (
     _RUN_REPORT_FILES,
     DpiOption,
     FormatOption,
-    _die,
     _fail,
     _formats,
-    _inputs,
     _load,
-    _numeric,
+    guard,
     note,  # --quiet/--verbose
 )
-from archself.errors import ArchselfError
 
 
 def report(
@@ -64,39 +61,34 @@ def report(
     the saved trace(s) without running anything (ARCH is then optional); a DIR that holds
     other files and no earlier run report needs --force.
     """
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_input_inside
-
     if trace:
         _report_from_traces(arch_path, trace, output, _formats(fig_format), dpi, force)
         return
     if arch_path is None:
         raise _fail("missing argument ARCH (or --trace TRACE for a run report)", 2)
-    try:
-        _inputs(arch_path)
-        refuse_input_inside([arch_path], output, "-o")
-        with protect([arch_path], [output]), _numeric(arch_path):
-            arch = _load(arch_path)
-            import shutil
+    from archself.io.outputs import refuse_input_inside
 
-            from archself.reports.architecture import (
-                MAX_FILES,
-                count_report_files,
-                write_architecture_report,
+    with guard(arch_path, locks=[output],
+               check=lambda: refuse_input_inside([arch_path], output, "-o")):
+        arch = _load(arch_path)
+        import shutil
+
+        from archself.reports.architecture import (
+            MAX_FILES,
+            count_report_files,
+            write_architecture_report,
+        )
+
+        files = count_report_files(arch, not no_render and shutil.which("dot") is not None)
+        if files > MAX_FILES and not yes:
+            raise _fail(
+                f"{arch_path}: error: the report would be {files:,} files "
+                f"({len(arch.configurations):,} configurations), more than the cap of "
+                f"{MAX_FILES:,}; pass --yes to write them"
             )
-
-            files = count_report_files(arch, not no_render and shutil.which("dot") is not None)
-            if files > MAX_FILES and not yes:
-                raise _fail(
-                    f"{arch_path}: error: the report would be {files:,} files "
-                    f"({len(arch.configurations):,} configurations), more than the cap of "
-                    f"{MAX_FILES:,}; pass --yes to write them"
-                )
-            if files > MAX_FILES:
-                note(f"writing {files:,} files into {output}")
-            rep = write_architecture_report(arch, output, dot=not no_render, force=force)
-    except ArchselfError as exc:
-        raise _die(exc) from None
+        if files > MAX_FILES:
+            note(f"writing {files:,} files into {output}")
+        rep = write_architecture_report(arch, output, dot=not no_render, force=force)
     if rep.note and not no_render:
         note(f"note: {rep.note}")
     typer.echo(str(rep.index))
@@ -107,49 +99,40 @@ def _report_from_traces(
     force: bool = False,
 ) -> None:
     """``report --trace``: the run report of saved traces (one run, or fixed + adaptive)."""
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_foreign_folder, refuse_same_file
+    from archself.io.outputs import refuse_foreign_folder
     from archself.sim.result import read_trace
 
     if len(traces) > 2:
         raise _fail("--trace takes one run, or two (fixed and adaptive)", 2)
-    inputs = [*traces, *([arch_path] if arch_path is not None else [])]
-    try:
-        _inputs(*traces, what="a trace")
+    with guard(*((t, "a trace") for t in traces), arch_path, locks=[output],
+               refuse=[("-o", output / name) for name in _RUN_REPORT_FILES],
+               check=None if force else lambda: refuse_foreign_folder(output, "summary.json",
+                                                                      "-o")):
+        results = [read_trace(t) for t in traces]
+        for t, r in zip(traces, results, strict=True):
+            if not {"t", "J"} <= set(r.series):
+                raise _fail(f"{t}: error: the trace has no series t and J (a live run's "
+                            "decision log?); a run report needs a trace of simulate --trace")
+            if arch_path is None and not isinstance(r.meta.get("report"), dict):
+                raise _fail(f"{t}: error: the trace does not hold the run report's "
+                            "settings (written by an older archself); pass the "
+                            "architecture file: archself report ARCH --trace TRACE -o DIR")
+        if len(results) == 2:
+            a, b = results
+            if {a.mode, b.mode} != {"fixed", "adaptive"} or (a.scenario, a.seed) != (
+                    b.scenario, b.seed):
+                raise _fail(
+                    f"{traces[1]}: error: two traces must be a fixed and an adaptive run "
+                    f"of one scenario and seed; got {a.mode} {a.scenario} seed {a.seed} "
+                    f"and {b.mode} {b.scenario} seed {b.seed}")
+            results.sort(key=lambda r: r.mode != "fixed")  # fixed first, as --compare
+        arch = None
         if arch_path is not None:
-            _inputs(arch_path)
-        for name in _RUN_REPORT_FILES:
-            refuse_same_file(inputs, output / name, "-o")
-        if not force:
-            refuse_foreign_folder(output, "summary.json", "-o")
-        with protect(inputs, [output]), _numeric(traces[0]):
-            results = [read_trace(t) for t in traces]
-            for t, r in zip(traces, results, strict=True):
-                if not {"t", "J"} <= set(r.series):
-                    raise _fail(f"{t}: error: the trace has no series t and J (a live run's "
-                                "decision log?); a run report needs a trace of simulate --trace")
-                if arch_path is None and not isinstance(r.meta.get("report"), dict):
-                    raise _fail(f"{t}: error: the trace does not hold the run report's "
-                                "settings (written by an older archself); pass the "
-                                "architecture file: archself report ARCH --trace TRACE -o DIR")
-            if len(results) == 2:
-                a, b = results
-                if {a.mode, b.mode} != {"fixed", "adaptive"} or (a.scenario, a.seed) != (
-                        b.scenario, b.seed):
-                    raise _fail(
-                        f"{traces[1]}: error: two traces must be a fixed and an adaptive run "
-                        f"of one scenario and seed; got {a.mode} {a.scenario} seed {a.seed} "
-                        f"and {b.mode} {b.scenario} seed {b.seed}")
-                results.sort(key=lambda r: r.mode != "fixed")  # fixed first, as --compare
-            arch = None
-            if arch_path is not None:
-                arch = _load(arch_path)
-                if results[0].scenario not in arch.scenarios:
-                    raise _fail(f"{arch_path}: error: has no scenario "
-                                f"'{results[0].scenario}' of the trace")
-            from archself.reports.run_report import write_run_report
+            arch = _load(arch_path)
+            if results[0].scenario not in arch.scenarios:
+                raise _fail(f"{arch_path}: error: has no scenario "
+                            f"'{results[0].scenario}' of the trace")
+        from archself.reports.run_report import write_run_report
 
-            write_run_report(arch, results, output, formats=formats, dpi=dpi)
-    except ArchselfError as exc:
-        raise _die(exc) from None
+        write_run_report(arch, results, output, formats=formats, dpi=dpi)
     typer.echo(str(output / "index.html"))

@@ -10,8 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from archself.cli.base import _die, _fail, _inputs, _known_configuration, _load, _numeric
-from archself.errors import ArchselfError
+from archself.cli.base import _fail, _known_configuration, _load, guard
 
 
 def ros2(
@@ -98,14 +97,11 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
     run the bridge until the plant ends (or the timeout), write the log, print the result."""
     clock = _check_options(clock, rollout, demo, scenario)
     from archself.cli.live import _check_log, _log, _say_command, _write_log
-    from archself.io.atomic import protect
     from archself.ros2.base import require_rclpy
 
     child: subprocess.Popen[str] | None = None
     try:
-        _inputs(arch_path)
-        _check_log(arch_path, log)
-        with protect([arch_path], [log]), _numeric(arch_path):
+        with guard(arch_path, check=lambda: _check_log(arch_path, log), locks=[log]):
             arch = _load(arch_path)
             _known_configuration(arch, config, arch_path)
             if demo and scenario not in arch.scenarios:
@@ -138,8 +134,6 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
                                                          loop.measurements)),
                                            separators=(",", ":")) + "\n")
             bridge.destroy()
-    except ArchselfError as exc:
-        raise _die(exc) from None
     finally:
         if child is not None:
             _end(child, linger)

@@ -14,17 +14,14 @@ from archself.cli.base import (
     DpiOption,
     FormatOption,
     PastCapOption,
-    _die,
     _fail,
     _formats,
-    _inputs,
     _known_configuration,
     _load,
-    _numeric,
+    guard,
     note,
     show_progress,
 )
-from archself.errors import ArchselfError
 
 #: ``simulate`` refuses more steps than this (runs × duration / step) without --yes.
 SIM_MAX_STEPS = 5_000_000
@@ -192,26 +189,18 @@ def simulate(
     )
 
 
-def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None], fixed: bool) -> Any:
+def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None]) -> Any:
     """The learned table ``--knowledge`` reads (an empty one for ``--save-knowledge``)."""
     source, target = paths
     if source is None and target is None:
         return None
-    if fixed:
-        raise _fail("--knowledge and --save-knowledge need the adaptive run (not --fixed)", 2)
     if target is not None:
         if not target.name or not target.parent.is_dir():
             raise _fail(f"{target}: cannot write: --save-knowledge takes a file in a folder "
                         f"that exists")
-        from archself.io.outputs import refuse_same_file
-
-        refuse_same_file([arch_path, *([source] if source else [])], target, "--save-knowledge")
     from archself.runtime.learning import OutcomeTable, load_table
 
-    if source is None:
-        return OutcomeTable()
-    _inputs(source, what="a knowledge table (JSON) or a trace")
-    return load_table(source)
+    return OutcomeTable() if source is None else load_table(source)
 
 
 def _simulate(
@@ -223,6 +212,8 @@ def _simulate(
     """``archself simulate``: the options guarded, the runs made, written and printed."""
     if fixed and compare:
         raise _fail("--fixed and --compare exclude each other", 2)
+    if fixed and knowledge != (None, None):
+        raise _fail("--knowledge and --save-knowledge need the adaptive run (not --fixed)", 2)
     to_stdout = trace is not None and str(trace) == "-"
     if to_stdout and compare:
         raise _fail(
@@ -236,44 +227,42 @@ def _simulate(
         raise _fail(f"{trace}: cannot write: is a folder; --trace takes a file name")
     if trace is not None and not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_foreign_folder, refuse_same_file
-
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
-    try:
-        _inputs(arch_path)
-        for target in (trace, fixed_trace if compare else None):
-            if target is not None:
-                refuse_same_file([arch_path], target, "--trace")
-        if report is not None:
-            for name in _RUN_REPORT_FILES:
-                refuse_same_file([arch_path], report / name, "--report")
-            refuse_foreign_folder(report, "summary.json", "--report")
-        learned = _knowledge_table(arch_path, knowledge, fixed)
-        with protect([arch_path, *filter(None, knowledge[:1])],
-                     [trace, fixed_trace if compare else None, report, knowledge[1]]), \
-                _numeric(arch_path):
-            arch = _load(arch_path)
-            if online:  # --online: both updates on, the file's other settings
-                arch.runtime.online.weights.enabled = arch.runtime.online.bands.enabled = True
-            _known_configuration(arch, config, arch_path)
-            _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
-            show = show_progress(json_out)
-            modes = [False, True] if compare else [not fixed]
-            results = [_run(arch, scenario, config, seed, adaptive, show,
-                            learned if adaptive else None) for adaptive in modes]
-            if knowledge[1] is not None:
-                learned.save(knowledge[1])
-            if trace is not None:
-                for r in results:
-                    r.write_trace(fixed_trace if compare and r.mode == "fixed" else trace)
-            if report is not None:
-                from archself.reports.run_report import write_run_report
+    fixed_trace = fixed_trace if compare else None
+    learned = None
 
-                write_run_report(arch, results, report, formats=_formats(fig_format), dpi=dpi)
-                note(f"report: {report / 'index.html'}")
-    except ArchselfError as exc:
-        raise _die(exc) from None
+    def outputs() -> None:  # the report folder and the knowledge table, before any run
+        nonlocal learned
+        if report is not None:
+            from archself.io.outputs import refuse_foreign_folder
+
+            refuse_foreign_folder(report, "summary.json", "--report")
+        learned = _knowledge_table(arch_path, knowledge)
+
+    report_files = [("--report", report / n) for n in _RUN_REPORT_FILES] if report else []
+    with guard(arch_path, (knowledge[0], "a knowledge table (JSON) or a trace"),
+               refuse=[("--trace", trace), ("--trace", fixed_trace), *report_files,
+                       ("--save-knowledge", knowledge[1])],
+               locks=[trace, fixed_trace, report, knowledge[1]], check=outputs):
+        arch = _load(arch_path)
+        if online:  # --online: both updates on, the file's other settings
+            arch.runtime.online.weights.enabled = arch.runtime.online.bands.enabled = True
+        _known_configuration(arch, config, arch_path)
+        _check_simulation_size(arch, scenario, 2 if compare else 1, yes)
+        show = show_progress(json_out)
+        modes = [False, True] if compare else [not fixed]
+        results = [_run(arch, scenario, config, seed, adaptive, show,
+                        learned if adaptive else None) for adaptive in modes]
+        if knowledge[1] is not None:
+            learned.save(knowledge[1])
+        if trace is not None:
+            for r in results:
+                r.write_trace(fixed_trace if r.mode == "fixed" and compare else trace)
+        if report is not None:
+            from archself.reports.run_report import write_run_report
+
+            write_run_report(arch, results, report, formats=_formats(fig_format), dpi=dpi)
+            note(f"report: {report / 'index.html'}")
     if to_stdout:
         from archself.io.trace import json_text
 
@@ -306,16 +295,13 @@ def explain(
     from archself.runtime.decisions import explain_data
     from archself.sim.result import read_trace, trace_from_bytes
 
-    try:
-        _inputs(trace, what="a trace (Parquet or JSON)")
+    with guard((trace, "a trace (Parquet or JSON)"), numeric=False):
         if str(trace) == "-":
             from archself.io.yaml_source import MAX_FILE_BYTES
 
             res = trace_from_bytes(sys.stdin.buffer.read(MAX_FILE_BYTES), "<stdin>")
         else:
             res = read_trace(trace)
-    except ArchselfError as exc:
-        raise _die(exc) from None
     meta, decisions = res.trace_meta(), res.trace_decisions()
     if json_out:
         from archself.io.jsondata import ExplainDoc, document
