@@ -9,8 +9,8 @@ start-up.
 
 The app and what the commands share are in :mod:`archself.cli.base`; the commands in
 :mod:`~archself.cli.files`, :mod:`~archself.cli.runs`, :mod:`~archself.cli.reports`,
-:mod:`~archself.cli.campaigns`, :mod:`~archself.cli.calibration`, :mod:`~archself.cli.live` and
-:mod:`~archself.cli.ros2`.
+:mod:`~archself.cli.campaigns`, :mod:`~archself.cli.calibration` and
+:mod:`~archself.cli.live` (live, ros2).
 They are registered by :func:`~archself.cli.base.register`, in the order ``archself
 --help`` lists them (:data:`~archself.cli.base.COMMANDS`), each with the shared
 ``--quiet``/``--verbose`` options (:func:`~archself.cli.base.with_verbosity`).

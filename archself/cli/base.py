@@ -513,7 +513,7 @@ COMMANDS = {
     "report": ("reports", "report"),
     "explain": ("runs", "explain"),
     "live": ("live", "live"),
-    "ros2": ("ros2", "ros2"),
+    "ros2": ("live", "ros2"),
     "campaign": ("campaigns", "campaign"),
     "campaign-report": ("campaigns", "campaign_report_cmd"),
     "export": ("files", "export"),
