@@ -203,13 +203,10 @@ def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None]) ->
     return OutcomeTable() if source is None else load_table(source)
 
 
-def _simulate(
-    arch_path: Path, scenario: str, *, config: str | None, fixed: bool, compare: bool,
-    seed: int | None, json_out: bool, trace: Path | None, report: Path | None,
-    fig_format: list[Any] | None, dpi: int, yes: bool,
-    knowledge: tuple[Path | None, Path | None] = (None, None), online: bool = False,
-) -> None:
-    """``archself simulate``: the options guarded, the runs made, written and printed."""
+def _check_options(trace: Path | None, *, fixed: bool, compare: bool, json_out: bool,
+                   knowledge: tuple[Path | None, Path | None]) -> None:
+    """``simulate``'s options that exclude each other (usage errors, exit 2) and a
+    ``--trace`` with no file name or folder (exit 1), before anything is read."""
     if fixed and compare:
         raise _fail("--fixed and --compare exclude each other", 2)
     if fixed and knowledge != (None, None):
@@ -221,12 +218,26 @@ def _simulate(
         )
     if to_stdout and json_out:
         raise _fail("--trace - and --json both write to stdout: choose one", 2)
-    if to_stdout:
-        trace = None
-    if trace is not None and not trace.name:  # '' or '.': no file name to write
+    if trace is None or to_stdout:
+        return
+    if not trace.name:  # '' or '.': no file name to write
         raise _fail(f"{trace}: cannot write: is a folder; --trace takes a file name")
-    if trace is not None and not trace.parent.is_dir():
+    if not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
+
+
+def _simulate(
+    arch_path: Path, scenario: str, *, config: str | None, fixed: bool, compare: bool,
+    seed: int | None, json_out: bool, trace: Path | None, report: Path | None,
+    fig_format: list[Any] | None, dpi: int, yes: bool,
+    knowledge: tuple[Path | None, Path | None] = (None, None), online: bool = False,
+) -> None:
+    """``archself simulate``: the options checked, the runs made and written (guarded),
+    the outcome printed."""
+    to_stdout = trace is not None and str(trace) == "-"
+    _check_options(trace, fixed=fixed, compare=compare, json_out=json_out,
+                   knowledge=knowledge)
+    trace = None if to_stdout else trace
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
     fixed_trace = fixed_trace if compare else None
     learned = None
@@ -263,6 +274,12 @@ def _simulate(
 
             write_run_report(arch, results, report, formats=_formats(fig_format), dpi=dpi)
             note(f"report: {report / 'index.html'}")
+    _print_runs(results, to_stdout, json_out)
+
+
+def _print_runs(results: list[Any], to_stdout: bool, json_out: bool) -> None:
+    """The runs on stdout: the trace (``--trace -``; the summary on stderr), one JSON
+    object (``--json``) or the summary table."""
     if to_stdout:
         from archself.io.trace import json_text
 
