@@ -455,16 +455,21 @@ def _numeric(path: Path) -> Iterator[None]:
                 f"({type(exc).__name__}: {detail}); use smaller magnitudes"
             ) from None
         # after a success only: an error's one-line message is not led by warnings
-        seen: set[str] = set()
-        for w in caught:
-            if not _numeric_warning(w):
-                continue
-            text = str(w.message).splitlines()[0] if str(w.message) else ""
-            where = Path(w.filename).name
-            line = f"{path}: warning: {w.category.__name__}: {text} (in {where})"
-            if line not in seen and (len(seen) < 5 or LEVEL[0] > 0) and LEVEL[0] >= 0:
-                seen.add(line)  # at most 5 (every one with --verbose; none with --quiet)
-                typer.echo(line, err=True)
+        lines = numeric_lines(caught, lambda w, text: f"{path}: warning: {w.category.__name__}: "
+                              f"{text} (in {Path(w.filename).name})", LEVEL[0] <= 0)
+        for line in lines if LEVEL[0] >= 0 else ():  # none with --quiet
+            typer.echo(line, err=True)
+
+
+def numeric_lines(caught: list[Any], form: Callable[[Any, str], str], cap: bool) -> list[str]:
+    """The distinct lines ``form(warning, first line of its message)`` of the numeric
+    warnings in ``caught`` (:func:`_numeric_warning`), in order; at most 5 with ``cap``."""
+    out: list[str] = []
+    for w in filter(_numeric_warning, caught):
+        line = form(w, (str(w.message).splitlines() or [""])[0])
+        if line not in out and (len(out) < 5 or not cap):
+            out.append(line)
+    return out
 
 
 def _numeric_warning(w: Any) -> bool:

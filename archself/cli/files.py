@@ -115,20 +115,12 @@ def _stability_table(loaded: object, asked: bool) -> list | None:
 
 def _warning_findings(caught: list, file: str) -> list:
     """numpy/scipy warnings of a check as findings (once each): no warning text on the terminal."""
-    from archself.cli.base import _numeric_warning
+    from archself.cli.base import numeric_lines
     from archself.findings import Finding
 
-    out: list[Finding] = []
-    seen: set[str] = set()
-    for w in caught:
-        if not _numeric_warning(w):
-            continue
-        text = (str(w.message).splitlines() or [""])[0]
-        msg = f"numeric trouble while checking: {w.category.__name__}: {text}"
-        if msg not in seen and len(seen) < 5:
-            seen.add(msg)
-            out.append(Finding("warning", "numeric", msg, "", file, None, None))
-    return out
+    lines = numeric_lines(caught, lambda w, text: "numeric trouble while checking: "
+                          f"{w.category.__name__}: {text}", True)
+    return [Finding("warning", "numeric", msg, "", file, None, None) for msg in lines]
 
 
 def schema(
