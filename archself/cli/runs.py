@@ -240,7 +240,7 @@ def _simulate(
     trace = None if to_stdout else trace
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
     fixed_trace = fixed_trace if compare else None
-    learned = None
+    learned: Any = None
 
     def outputs() -> None:  # the report folder and the knowledge table, before any run
         nonlocal learned
