@@ -7,8 +7,9 @@ import json
 import pytest
 from typer.testing import CliRunner
 
+from archself.campaign.driver import RunProgress
 from archself.cli import app
-from archself.cli.base import RunProgress, colorize
+from archself.cli.base import colorize
 from archself.io.jsondata import ValidateList
 
 from conftest import DIFFDRIVE, FIXTURES
@@ -124,10 +125,8 @@ def test_run_progress_rate_is_the_throughput_since_the_start() -> None:
     """Issue 40: two runs finishing 0.3 ms apart after 30 s showed "6660.87 runs/s" at 2/4."""
     import io
 
-    from archself.campaign.driver import RunProgress as Bar
-
     clock = iter([0.0, 0.0, 30.0, 30.0003, 60.0]).__next__
-    bar = Bar("{total} runs", file=io.StringIO(), clock=clock)
+    bar = RunProgress("{total} runs", file=io.StringIO(), clock=clock)
     bar.update(0, 4)
     assert bar.rate() == ""  # nothing done yet
     bar.update(1, 4)

@@ -327,14 +327,6 @@ def show_progress(json_out: bool = False) -> bool:
     return LEVEL[0] > 0 or sys.stderr.isatty()
 
 
-def RunProgress(label: str, unit: str = "runs") -> Any:  # noqa: N802 - a class, loaded late
-    """The progress bar of many runs, :class:`archself.campaign.driver.RunProgress` (rich),
-    imported when a command draws one (never at start-up)."""
-    from archself.campaign.driver import RunProgress as Bar
-
-    return Bar(label, unit)
-
-
 def _fail(msg: str, code: int = 1) -> typer.Exit:
     _err(msg if ":" in msg else f"error: {msg}")
     return typer.Exit(code)

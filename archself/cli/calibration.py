@@ -15,7 +15,6 @@ from archself.cli.base import (
     ExecutorOption,
     IdentifyExecutor,
     RootSeedOption,
-    RunProgress,
     WorkersOption,
     _emit,
     _fail,
@@ -121,6 +120,7 @@ def _calibrate(
     """``archself calibrate``: the options guarded, the bands derived, written and printed."""
     from archself.calibration.driver import calibrate as run_calibration
     from archself.calibration.edit import check_output
+    from archself.campaign.driver import RunProgress
 
     if not 0.0 < false_switch < 1.0:
         raise _fail(f"--false-switch {false_switch:g}: expected a rate between 0 and 1", 2)

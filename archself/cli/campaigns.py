@@ -18,7 +18,6 @@ from archself.cli.base import (
     Mode,
     PastCapOption,
     RootSeedOption,
-    RunProgress,
     TraceFormat,
     WorkersOption,
     _err,
@@ -106,7 +105,7 @@ def _campaign(
 ) -> None:
     """``archself campaign``: the options guarded, the campaign planned and run, the outcome
     printed."""
-    from archself.campaign.driver import plan_campaign, run_campaign
+    from archself.campaign.driver import RunProgress, plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
