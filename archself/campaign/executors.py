@@ -38,7 +38,7 @@ import signal
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future
-from typing import Any, Protocol
+from typing import Any, Protocol, Self
 
 from archself.campaign.sweep import CampaignError
 from archself.resources import single_thread_blas
@@ -80,6 +80,23 @@ class Executor(Protocol):
     def __enter__(self) -> Executor: ...
 
     def __exit__(self, *exc: object) -> None: ...
+
+
+class _Closing:
+    """What the executors share: ``with`` closes them; ``cancel`` cancels each future."""
+
+    def cancel(self, futures: Iterable[Any]) -> None:
+        for f in futures:
+            f.cancel()
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def make_executor(
@@ -192,7 +209,7 @@ if (
     die_with_parent(watchdog=False)
 
 
-class LocalExecutor:
+class LocalExecutor(_Closing):
     """A process pool on this machine (the default executor).
 
     Parameters
@@ -239,10 +256,6 @@ class LocalExecutor:
     def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
         return self._cf.as_completed(list(futures))
 
-    def cancel(self, futures: Iterable[Any]) -> None:
-        for f in futures:
-            f.cancel()
-
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
@@ -257,18 +270,12 @@ class LocalExecutor:
         with contextlib.suppress(Exception):  # a broken pool is fine here
             self._pool.shutdown(wait=True, cancel_futures=False)
 
-    def __enter__(self) -> LocalExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 #: How long the client waits for the scheduler (seconds).
 TIMEOUT_S = 30.0
 
 
-class DaskExecutor:
+class DaskExecutor(_Closing):
     """A dask.distributed client: on a scheduler at ``address`` or on a LocalCluster.
 
     Parameters
@@ -351,12 +358,6 @@ class DaskExecutor:
             self._cluster.close()
             self._cluster = None
 
-    def __enter__(self) -> DaskExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 class _Deferred(Future):
     """A future of :class:`InlineExecutor`: computed when first asked for."""
@@ -378,7 +379,7 @@ class _Deferred(Future):
         return super().result(timeout)
 
 
-class InlineExecutor:
+class InlineExecutor(_Closing):
     """Runs every job in the calling process, one after the other, when its result is asked for.
 
     For debugging (a breakpoint in a module works) and for tests; not offered by
@@ -400,15 +401,5 @@ class InlineExecutor:
                 f._run()
                 yield f
 
-    def cancel(self, futures: Iterable[Any]) -> None:
-        for f in futures:
-            f.cancel()
-
     def close(self) -> None:
         pass
-
-    def __enter__(self) -> InlineExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
