@@ -2,7 +2,8 @@
 
 The app with its root callback, the options shared by the commands that run many
 simulations, the one-line error helpers (``_fail``, ``_die``), ``_emit`` (stdout or
-an atomic file), input checks, the numeric-trouble guard and ``main`` (the
+an atomic file), :func:`guard` (the one input guard of every command), the
+numeric-trouble guard and ``main`` (the
 ``archself`` script: signals, Ctrl-C, one-line errors, exit codes). The commands
 live in the sibling modules; :func:`register` adds them to the app (``main``: only the
 one it runs, so a command imports only its own module).
@@ -394,15 +395,26 @@ def guard(
 ) -> Iterator[None]:
     """The one input guard of the commands, around a command's work.
 
-    In this order: every input (None skipped) is a regular file, ``-`` (stdin) passes
-    (:func:`_inputs`; ``what``, or the second item of an input ``(path, what)``, names it
-    in the message); no output of ``refuse``
-    (``(flag, path)``, None and ``-`` skipped) is one of the inputs; ``check`` (the
-    command's own output checks) runs; then, while the block runs, the inputs are not
-    written over and ``locks`` are locked against other commands (``io.atomic.protect``)
-    and numeric trouble is a located line about the first input (:func:`_numeric`,
-    unless ``numeric`` is False). An :class:`ArchselfError` of any step or of the block
-    is its one-line message and exit code (:func:`_die`).
+    In this order: every input is a regular file (``-``, stdin, passes); no output of
+    ``refuse`` is one of the inputs; ``check`` runs; then, while the block runs, the
+    inputs are not written over, ``locks`` are locked against other commands
+    (``io.atomic.protect``) and numeric trouble is a located line about the first input
+    (:func:`_numeric`). An :class:`ArchselfError` of any step or of the block is its
+    one-line message and exit code (:func:`_die`).
+
+    Parameters
+    ----------
+    *inputs : path, (path, what) or None
+        The files the command reads (None: left out); ``what`` names one in the message
+        of a missing or wrong input (default: the ``what`` keyword).
+    refuse : iterable of (flag, path)
+        Outputs that must not be an input (None and ``-`` left out).
+    locks : iterable of path
+        The files and folders the command writes.
+    check : callable, optional
+        The command's own output checks, before anything is locked.
+    numeric : bool
+        Catch numeric trouble (False: the command has none or handles it).
     """
     from archself.io.atomic import protect
     from archself.io.outputs import refuse_same_file
