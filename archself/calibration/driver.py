@@ -206,7 +206,7 @@ def _plan(
     CalibrationError, LoadError
         As :func:`calibrate`, before any run.
     """
-    from archself.calibration.saved_runs import band_free_digest
+    from archself.calibration.runs import band_free_digest
     from archself.campaign.sweep import sweep_points
 
     p = float(false_switch)
@@ -244,7 +244,7 @@ def _saved(plan: _Plan, from_runs: str | Path) -> tuple[_Plan, _Runs]:
     CalibrationError
         Runs of another architecture (not only the bands differ), a damaged file.
     """
-    from archself.calibration.saved_runs import load_runs
+    from archself.calibration.runs import load_runs
 
     arch, file = plan.arch, plan.file
     meta, saved = load_runs(from_runs)
@@ -281,7 +281,6 @@ def _run(
 ) -> _Runs:
     """Run the calibration (and verification) replicates; write them to ``save_runs``."""
     from archself.calibration import runs as R
-    from archself.calibration.saved_runs import save_runs as write_runs
 
     def run(phase: str, first: int, n: int) -> tuple[list[dict[str, Any]], float]:
         """Replicates ``first … first+n−1`` (each envelope point its own seeds)."""
@@ -312,7 +311,7 @@ def _run(
             "elapsed_s": elapsed,
             "verify_elapsed_s": verify_elapsed,
         }
-        write_runs(save_runs, meta, results + vres)
+        R.save_runs(save_runs, meta, results + vres)
     return _Runs(results, vres, elapsed, verify_elapsed)
 
 

@@ -14,12 +14,9 @@ and compared with the declared ones (times the loop's ρ(W) scale).
 The runs go to the campaign executors (local process pool, Dask, or inline).
 :func:`set_weights` writes the fitted weights into a copy of the file's text,
 comments and layout kept, like :mod:`archself.calibration.edit` does for bands.
-See docs/identify.md. The result types are in
-:mod:`~archself.calibration.identify_results`, the runs in
-:mod:`~archself.calibration.identify_jobs`, the tables in
-:mod:`~archself.calibration.identify_report` and the write-back in
-:mod:`~archself.calibration.identify_write` (:func:`set_weights` and
-:func:`written_copy` are re-exported here).
+See docs/identify.md. The result types and their
+tables are in :mod:`~archself.calibration.identify_results`; :func:`set_weights` (in
+:mod:`~archself.calibration.edit`) is re-exported here.
 """
 
 from __future__ import annotations
@@ -34,17 +31,83 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.identify_jobs import IdJob, run_identify_job
+from archself.calibration.edit import set_weights
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
-from archself.calibration.identify_write import set_weights, written_copy
 from archself.calibration.runs import seeds_from
+from archself.campaign.worker import RunJob, run_error
 from archself.errors import unknown
 from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
 
-# --------------------------------------------------------------------------- driver
+@dataclass(frozen=True, kw_only=True)
+class IdJob(RunJob):
+    """One run: (configuration, seed), unperturbed or with one perturbation
+    (:class:`~archself.campaign.worker.RunJob` and the following).
+
+    ``perturb`` is ``(module, kind, magnitude)`` or None for the nominal run.
+    """
+
+    configuration: str
+    perturb: tuple[str, str, float] | None
+    settle_s: float
+
+
+def run_identify_job(job: IdJob) -> dict[str, Any]:
+    """Run one job; never raises for a failed run.
+
+    Returns
+    -------
+    dict
+        ``configuration``, ``replicate``, ``seed``, ``experiment`` (the perturbed
+        module or None), ``mean`` (time-averaged |s̄| per residual module after
+        ``settle_s``, float64, in the file's module order), ``error``.
+    """
+    from archself.calibration.runs import Recorder
+    from archself.model.architecture import Fault
+    from archself.sim.run import simulate
+
+    out: dict[str, Any] = {
+        "configuration": job.configuration,
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "experiment": job.perturb[0] if job.perturb else None,
+        "error": None,
+    }
+    try:
+        arch = job.architecture().model_copy(deep=True)
+        if job.perturb is not None:
+            module, kind, magnitude = job.perturb
+            arch.scenarios[job.scenario].faults.append(
+                Fault.model_validate(
+                    {"module": module, "kind": kind, "onset_s": 0.0, "magnitude": magnitude}
+                )
+            )
+        rec = Recorder(arch)
+        simulate(arch, job.scenario, configuration=job.configuration, seed=job.seed, adapt=rec)
+        got = rec.arrays()
+        keep = got["t"] >= job.settle_s - 1e-9
+        if not keep.any():
+            raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
+        out["mean"] = got["x"][keep].mean(axis=0)
+    except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
+        out["error"] = run_error(exc)
+    return out
+
+
+def written_copy(ident: Identification) -> str:
+    """The file's text with the fitted weights (pooled over configurations) written in."""
+    values = {k: w for k, (w, _) in ident.fitted_weights().items()}
+    if not values:
+        raise IdentifyError(f"{ident.file}: no edge was identifiable; nothing to write back")
+    comment = (
+        f"archself identify, {ident.seeds} seeds, scenario {ident.scenario}, "
+        f"configurations {'/'.join(ident.configurations)}"
+    )
+    return set_weights(ident.text, ident.file, values, comment)
+
+
 def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[str] | None):
     from archself.calibration.prepare import chosen_configurations, load_checked
 
@@ -172,7 +235,7 @@ def identify(
                  min_excitation, root_seed)
     t0 = time.perf_counter()
     results = run_on_executor(
-        plan.jobs, run_identify_job, "archself.calibration.identify_jobs",
+        plan.jobs, run_identify_job, "archself.calibration.identify",
         executor=executor, workers=workers, address=address, progress=progress,
     )
     return _collect(plan, results, time.perf_counter() - t0, executor)
