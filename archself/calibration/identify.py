@@ -64,9 +64,7 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         module or None), ``mean`` (time-averaged |s̄| per residual module after
         ``settle_s``, float64, in the file's module order), ``error``.
     """
-    from archself.calibration.runs import Recorder
-    from archself.model.architecture import Fault
-    from archself.sim.run import simulate
+    from archself.calibration.runs import record
 
     out: dict[str, Any] = {
         "configuration": job.configuration,
@@ -78,15 +76,8 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
     try:
         arch = job.architecture().model_copy(deep=True)
         if job.perturb is not None:
-            module, kind, magnitude = job.perturb
-            arch.scenarios[job.scenario].faults.append(
-                Fault.model_validate(
-                    {"module": module, "kind": kind, "onset_s": 0.0, "magnitude": magnitude}
-                )
-            )
-        rec = Recorder(arch)
-        simulate(arch, job.scenario, configuration=job.configuration, seed=job.seed, adapt=rec)
-        got = rec.arrays()
+            arch.scenarios[job.scenario].faults.append(_fault(*job.perturb))
+        got = record(arch, job)
         keep = got["t"] >= job.settle_s - 1e-9
         if not keep.any():
             raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
@@ -156,15 +147,20 @@ def _experiments(
     return chosen, skipped
 
 
+def _fault(module: str, kind: str, magnitude: float) -> Any:
+    """An experiment's fault: ``kind`` of ``magnitude`` on ``module`` from t = 0."""
+    from archself.model.architecture import Fault
+
+    return Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,
+                                 "magnitude": magnitude})
+
+
 def _check_fault(path: str | Path, module: str, kind: str, magnitude: float, own: bool) -> None:
     """Refuse a perturbation the fault model refuses, before any run (each run failed)."""
     from pydantic import ValidationError
 
-    from archself.model.architecture import Fault
-
     try:
-        Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,
-                              "magnitude": magnitude})
+        _fault(module, kind, magnitude)
     except ValidationError as exc:
         err = exc.errors()[0]
         opt = f"--perturb {module}={kind}:{magnitude:g}" if own else f"--magnitude {magnitude:g}"

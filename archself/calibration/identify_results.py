@@ -126,9 +126,12 @@ def _f(v: float, digits: int = 3) -> str:
     return "—" if not (isinstance(v, float | int) and math.isfinite(v)) else f"{v:.{digits}f}"
 
 
-def _flag(r: EdgeRow) -> str:
+def _cells(r: EdgeRow) -> tuple[str, str, str]:
+    """Fitted W, SE and flag of an edge as the tables show them."""
+    if not r.identifiable:
+        return "—", "—", f"not identifiable: {r.reason}"
     d = r.differs
-    return "" if d is None else ("DIFFERS" if d else "ok")
+    return f"{r.fitted:.3f}", _f(r.se), "" if d is None else ("DIFFERS" if d else "ok")
 
 
 def summary_text(ident: Identification, *, all_edges: bool = False) -> str:
@@ -147,17 +150,9 @@ def summary_text(ident: Identification, *, all_edges: bool = False) -> str:
         width = max([len(f"{r.source} -> {r.target}") for r in shown] + [4])
         lines.append(f"  {'edge':<{width}}  {'declared':>8}  {'fitted':>8}  {'SE':>7}  flag")
         for r in shown:
-            edge = f"{r.source} -> {r.target}"
-            if r.identifiable:
-                lines.append(
-                    f"  {edge:<{width}}  {r.effective:>8.3f}  {r.fitted:>8.3f}  "
-                    f"{_f(r.se):>7}  {_flag(r)}"
-                )
-            else:
-                lines.append(
-                    f"  {edge:<{width}}  {r.effective:>8.3f}  {'—':>8}  {'—':>7}  "
-                    f"not identifiable: {r.reason}"
-                )
+            fitted, se, flag = _cells(r)
+            lines.append(f"  {f'{r.source} -> {r.target}':<{width}}  {r.effective:>8.3f}  "
+                         f"{fitted:>8}  {se:>7}  {flag}")
         hidden = len(rows) - len(shown)
         if hidden:
             lines.append(f"  ({hidden} more edge{'s' * (hidden != 1)} not identifiable; --all)")
@@ -188,16 +183,9 @@ def markdown_table(ident: Identification) -> str:
         "| --- | --- | ---: | ---: | ---: | --- |",
     ]
     for r in ident.rows:
-        if r.identifiable:
-            out.append(
-                f"| {r.configuration} | {r.source} → {r.target} | {r.effective:.3f} | "
-                f"{r.fitted:.3f} | {_f(r.se)} | {_flag(r)} |"
-            )
-        else:
-            out.append(
-                f"| {r.configuration} | {r.source} → {r.target} | {r.effective:.3f} | — | — | "
-                f"not identifiable: {r.reason} |"
-            )
+        fitted, se, flag = _cells(r)
+        out.append(f"| {r.configuration} | {r.source} → {r.target} | {r.effective:.3f} | "
+                   f"{fitted} | {se} | {flag} |")
     out += [
         "",
         "| configuration | target | equations | largest Δr | R² | RMS of the fit |",

@@ -40,6 +40,7 @@ __all__ = [
     "band_free_digest",
     "load_runs",
     "plan_runs",
+    "record",
     "run_calibration_job",
     "run_jobs",
     "run_calibration_unit",
@@ -226,21 +227,20 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
     """
     out = _row(job)
     try:
-        arch = job.architecture()
-        from archself.sim.run import simulate
-
-        rec = Recorder(arch)
-        simulate(
-            arch.model_copy(deep=True),
-            job.scenario,
-            configuration=job.configuration,
-            seed=job.seed,
-            adapt=rec,
-        )
-        out.update(rec.arrays())
+        out.update(record(job.architecture().model_copy(deep=True), job))
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
         out["error"] = run_error(exc)
     return out
+
+
+def record(arch: Any, job: Any) -> dict[str, Any]:
+    """:meth:`Recorder.arrays` of ``job``'s scenario run fixed in its configuration with its
+    seed on ``arch`` (stepped: pass a copy); the runs of calibrate and identify."""
+    from archself.sim.run import simulate
+
+    rec = Recorder(arch)
+    simulate(arch, job.scenario, configuration=job.configuration, seed=job.seed, adapt=rec)
+    return rec.arrays()
 
 
 def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
