@@ -41,64 +41,6 @@ from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
 
-@dataclass(frozen=True, kw_only=True)
-class IdJob(RunJob):
-    """One run: (configuration, seed), unperturbed or with one perturbation
-    (:class:`~archself.campaign.worker.RunJob` and the following).
-
-    ``perturb`` is ``(module, kind, magnitude)`` or None for the nominal run.
-    """
-
-    configuration: str
-    perturb: tuple[str, str, float] | None
-    settle_s: float
-
-
-def run_identify_job(job: IdJob) -> dict[str, Any]:
-    """Run one job; never raises for a failed run.
-
-    Returns
-    -------
-    dict
-        ``configuration``, ``replicate``, ``seed``, ``experiment`` (the perturbed
-        module or None), ``mean`` (time-averaged |s̄| per residual module after
-        ``settle_s``, float64, in the file's module order), ``error``.
-    """
-    from archself.calibration.runs import record
-
-    out: dict[str, Any] = {
-        "configuration": job.configuration,
-        "replicate": job.replicate,
-        "seed": job.seed,
-        "experiment": job.perturb[0] if job.perturb else None,
-        "error": None,
-    }
-    try:
-        arch = job.architecture().model_copy(deep=True)
-        if job.perturb is not None:
-            arch.scenarios[job.scenario].faults.append(_fault(*job.perturb))
-        got = record(arch, job)
-        keep = got["t"] >= job.settle_s - 1e-9
-        if not keep.any():
-            raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
-        out["mean"] = got["x"][keep].mean(axis=0)
-    except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
-        out["error"] = run_error(exc)
-    return out
-
-
-def written_copy(ident: Identification) -> str:
-    """The file's text with the fitted weights (pooled over configurations) written in."""
-    values = {k: w for k, (w, _) in ident.fitted_weights().items()}
-    if not values:
-        raise IdentifyError(f"{ident.file}: no edge was identifiable; nothing to write back")
-    comment = (
-        f"archself identify, {ident.seeds} seeds, scenario {ident.scenario}, "
-        f"configurations {'/'.join(ident.configurations)}"
-    )
-    return set_weights(ident.text, ident.file, values, comment)
-
-
 def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[str] | None):
     from archself.calibration.prepare import chosen_configurations, load_checked
 
@@ -324,6 +266,53 @@ def _check_size(path: str | Path, arch: Any, confs: Sequence[str], seeds: int) -
         )
 
 
+# --------------------------------------------------------------------------- runs
+@dataclass(frozen=True, kw_only=True)
+class IdJob(RunJob):
+    """One run: (configuration, seed), unperturbed or with one perturbation
+    (:class:`~archself.campaign.worker.RunJob` and the following).
+
+    ``perturb`` is ``(module, kind, magnitude)`` or None for the nominal run.
+    """
+
+    configuration: str
+    perturb: tuple[str, str, float] | None
+    settle_s: float
+
+
+def run_identify_job(job: IdJob) -> dict[str, Any]:
+    """Run one job; never raises for a failed run.
+
+    Returns
+    -------
+    dict
+        ``configuration``, ``replicate``, ``seed``, ``experiment`` (the perturbed
+        module or None), ``mean`` (time-averaged |s̄| per residual module after
+        ``settle_s``, float64, in the file's module order), ``error``.
+    """
+    from archself.calibration.runs import record
+
+    out: dict[str, Any] = {
+        "configuration": job.configuration,
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "experiment": job.perturb[0] if job.perturb else None,
+        "error": None,
+    }
+    try:
+        arch = job.architecture().model_copy(deep=True)
+        if job.perturb is not None:
+            arch.scenarios[job.scenario].faults.append(_fault(*job.perturb))
+        got = record(arch, job)
+        keep = got["t"] >= job.settle_s - 1e-9
+        if not keep.any():
+            raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
+        out["mean"] = got["x"][keep].mean(axis=0)
+    except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
+        out["error"] = run_error(exc)
+    return out
+
+
 def _collect(
     plan: _Plan, results: list[dict[str, Any]], elapsed: float, executor: str
 ) -> Identification:
@@ -409,3 +398,15 @@ def _fit(
         rows.append(EdgeRow(c, s, t, carries, declared, declared * knowledge.w_scale,
                             e.weight, e.se, e.identifiable, e.reason))
     return fits
+
+
+def written_copy(ident: Identification) -> str:
+    """The file's text with the fitted weights (pooled over configurations) written in."""
+    values = {k: w for k, (w, _) in ident.fitted_weights().items()}
+    if not values:
+        raise IdentifyError(f"{ident.file}: no edge was identifiable; nothing to write back")
+    comment = (
+        f"archself identify, {ident.seeds} seeds, scenario {ident.scenario}, "
+        f"configurations {'/'.join(ident.configurations)}"
+    )
+    return set_weights(ident.text, ident.file, values, comment)
