@@ -383,9 +383,9 @@ def _bands(plan: _Plan, cells: list[Cell]) -> _Bands:
 
 def _cell_results(
     plan: _Plan, cells: list[Cell], bands: _Bands, vres: list[dict[str, Any]]
-) -> tuple[list[CellResult], list[Cell]]:
+) -> list[CellResult]:
     """Predicted and empirical rates of the old and new bands per cell, and on fresh
-    seeds (``vres``) where verified; the verification's cells."""
+    seeds (``vres``) where verified."""
     tau = plan.tau
     results = []
     for c, s_needed in zip(cells, bands.needed, strict=True):
@@ -406,10 +406,8 @@ def _cell_results(
                 fit_new=f_new,
             )
         )
-    verify_cells: list[Cell] = []
     if vres:
-        verify_cells = _cells(plan.arch, vres)
-        by_key = {(c.scenario, c.configuration): c for c in verify_cells}
+        by_key = {(c.scenario, c.configuration): c for c in _cells(plan.arch, vres)}
         for r in results:
             vc = by_key.get((r.scenario, r.configuration))
             if vc is None or vc.runs == 0:
@@ -417,7 +415,7 @@ def _cell_results(
             r.verify_runs = vc.runs
             r.verify_new = float(np.mean(critical_scales(vc, bands.new, tau) >= 1.0))
             r.verify_old = float(np.mean(critical_scales(vc, bands.old, tau) >= 1.0))
-    return results, verify_cells
+    return results
 
 
 def _comment(plan: _Plan, cells: list[Cell]) -> str:
@@ -454,7 +452,7 @@ def _collect(plan: _Plan, runs: _Runs) -> Calibration:
                 f"{c.failed[0]}"
             )
     bands = _bands(plan, cells)
-    results_cells, verify_cells = _cell_results(plan, cells, bands, runs.vres)
+    results_cells = _cell_results(plan, cells, bands, runs.vres)
     comment = _comment(plan, cells)
     new_text = set_nominals(
         plan.text, plan.file, {m: bands.new[m] for m in bands.calibrated}, comment)
@@ -475,5 +473,4 @@ def _collect(plan: _Plan, runs: _Runs) -> Calibration:
         data=cells, text=new_text, comment=comment, executor=plan.executor,
         workers=plan.workers, elapsed_s=runs.elapsed, runs=len(runs.results),
         verify_seeds=plan.verify_seeds, verify_elapsed_s=runs.verify_elapsed,
-        verify_data=verify_cells,
     )
