@@ -275,7 +275,7 @@ def _cached_gain(v: float, q: tuple[float, ...], r: tuple[float, ...]) -> tuple[
 
 
 def _metrics(t: np.ndarray, J: np.ndarray) -> dict[str, float]:
-    """The framework's metrics of J (``archself.sim.metrics.error_metrics``) and its mean."""
+    """The framework's metrics of J (``archself.sim.result.error_metrics``) and its mean."""
     i = int(np.argmax(J))
     return {
         "max_error": float(J[i]),

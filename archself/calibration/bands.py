@@ -204,6 +204,11 @@ class Cell:
     def runs(self) -> int:
         return len(self.x)
 
+    def cycles(self, module: str) -> np.ndarray:
+        """Every cycle's |s̄_j| of ``module`` after the warm-up, the runs one after another."""
+        j = self.modules.index(module)
+        return np.concatenate([xr[:, j] for xr in self.x]) if self.x else np.zeros(0)
+
     def run_max(self, module: str) -> np.ndarray:
         """Per run: the largest |s̄_j| of ``module`` after the warm-up."""
         j = self.modules.index(module)

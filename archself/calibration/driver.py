@@ -206,7 +206,7 @@ def _plan(
     CalibrationError, LoadError
         As :func:`calibrate`, before any run.
     """
-    from archself.calibration.saved_runs import band_free_digest
+    from archself.calibration.runs import band_free_digest
     from archself.campaign.sweep import sweep_points
 
     p = float(false_switch)
@@ -244,7 +244,7 @@ def _saved(plan: _Plan, from_runs: str | Path) -> tuple[_Plan, _Runs]:
     CalibrationError
         Runs of another architecture (not only the bands differ), a damaged file.
     """
-    from archself.calibration.saved_runs import load_runs
+    from archself.calibration.runs import load_runs
 
     arch, file = plan.arch, plan.file
     meta, saved = load_runs(from_runs)
@@ -281,7 +281,6 @@ def _run(
 ) -> _Runs:
     """Run the calibration (and verification) replicates; write them to ``save_runs``."""
     from archself.calibration import runs as R
-    from archself.calibration.saved_runs import save_runs as write_runs
 
     def run(phase: str, first: int, n: int) -> tuple[list[dict[str, Any]], float]:
         """Replicates ``first … first+n−1`` (each envelope point its own seeds)."""
@@ -312,7 +311,7 @@ def _run(
             "elapsed_s": elapsed,
             "verify_elapsed_s": verify_elapsed,
         }
-        write_runs(save_runs, meta, results + vres)
+        R.save_runs(save_runs, meta, results + vres)
     return _Runs(results, vres, elapsed, verify_elapsed)
 
 
@@ -384,9 +383,9 @@ def _bands(plan: _Plan, cells: list[Cell]) -> _Bands:
 
 def _cell_results(
     plan: _Plan, cells: list[Cell], bands: _Bands, vres: list[dict[str, Any]]
-) -> tuple[list[CellResult], list[Cell]]:
+) -> list[CellResult]:
     """Predicted and empirical rates of the old and new bands per cell, and on fresh
-    seeds (``vres``) where verified; the verification's cells."""
+    seeds (``vres``) where verified."""
     tau = plan.tau
     results = []
     for c, s_needed in zip(cells, bands.needed, strict=True):
@@ -407,10 +406,8 @@ def _cell_results(
                 fit_new=f_new,
             )
         )
-    verify_cells: list[Cell] = []
     if vres:
-        verify_cells = _cells(plan.arch, vres)
-        by_key = {(c.scenario, c.configuration): c for c in verify_cells}
+        by_key = {(c.scenario, c.configuration): c for c in _cells(plan.arch, vres)}
         for r in results:
             vc = by_key.get((r.scenario, r.configuration))
             if vc is None or vc.runs == 0:
@@ -418,7 +415,7 @@ def _cell_results(
             r.verify_runs = vc.runs
             r.verify_new = float(np.mean(critical_scales(vc, bands.new, tau) >= 1.0))
             r.verify_old = float(np.mean(critical_scales(vc, bands.old, tau) >= 1.0))
-    return results, verify_cells
+    return results
 
 
 def _comment(plan: _Plan, cells: list[Cell]) -> str:
@@ -455,7 +452,7 @@ def _collect(plan: _Plan, runs: _Runs) -> Calibration:
                 f"{c.failed[0]}"
             )
     bands = _bands(plan, cells)
-    results_cells, verify_cells = _cell_results(plan, cells, bands, runs.vres)
+    results_cells = _cell_results(plan, cells, bands, runs.vres)
     comment = _comment(plan, cells)
     new_text = set_nominals(
         plan.text, plan.file, {m: bands.new[m] for m in bands.calibrated}, comment)
@@ -476,5 +473,4 @@ def _collect(plan: _Plan, runs: _Runs) -> Calibration:
         data=cells, text=new_text, comment=comment, executor=plan.executor,
         workers=plan.workers, elapsed_s=runs.elapsed, runs=len(runs.results),
         verify_seeds=plan.verify_seeds, verify_elapsed_s=runs.verify_elapsed,
-        verify_data=verify_cells,
     )

@@ -1,9 +1,11 @@
-"""Write new ``residual.nominal`` values into the architecture's text, keeping everything else.
+"""Write new values into the architecture's text, keeping everything else.
 
-The text is composed with ruamel.yaml (the round-trip composer, which keeps the
-position of every node); each ``modules.<m>.residual.nominal`` scalar is replaced
+The calibrated bands (:func:`set_nominals`) and the identified edge weights
+(:func:`set_weights`, ``identify --write-back``). The text is composed with ruamel.yaml
+(the round-trip composer, which keeps the position of every node); each
+``modules.<m>.residual.nominal`` (or ``edges.<i>.weight``) scalar is replaced
 where it stands, between its start and end marks, and the line gets an
-end-of-line comment (``# calibrated: …``). Nothing else of the file changes —
+end-of-line comment (``# calibrated: …``, ``# identified: …``). Nothing else of the file changes —
 comments, flow mappings, key order, blank lines and quoting stay byte for byte
 — and the result is loaded again to check that it holds exactly the new values.
 """
@@ -12,14 +14,19 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from archself.errors import LoadError, OutputError
 
-__all__ = ["check_output", "format_band", "replace_scalars", "same_file", "set_nominals"]
+__all__ = [
+    "check_output", "format_band", "format_weight", "replace_scalars", "same_file",
+    "set_nominals", "set_weights",
+]
 
 COMMENT_TAG = "# calibrated:"
+WEIGHT_TAG = "# identified:"
 
 
 def format_band(value: float, digits: int = 3) -> str:
@@ -208,3 +215,78 @@ def replace_scalars(
         else:
             lines[i] = f"{line.rstrip()}; {note[2:]}"
     return "\n".join(lines)
+
+
+def format_weight(value: float) -> str:
+    """A weight as a YAML float with 3 decimals (``0.0`` for zero).
+
+    Examples
+    --------
+    >>> format_weight(0.41234), format_weight(0.0), format_weight(1.0)
+    ('0.412', '0.0', '1.0')
+    """
+    text = f"{round(value, 3):.3f}".rstrip("0")
+    return text + "0" if text.endswith(".") else text
+
+
+def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], comment: str) -> str:
+    """The text with the weights of the edges ``source → target`` set to ``values``.
+
+    Parallel edges of a pair (several ``carries``) share the fitted weight in the
+    proportion of their declared weights (equally when those are 0). Every
+    changed line gets ``# identified: <comment>``; nothing else changes
+    (:func:`set_nominals` does the same for bands). The result is
+    loaded again and checked.
+
+    Raises
+    ------
+    LoadError
+        An edge whose weight is not a plain scalar, or is shared through a YAML alias.
+    """
+    from ruamel.yaml import YAML
+    from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
+
+    from archself.model.loader import load_text
+    from archself.model.ports import split_ref
+
+    root = YAML(typ="rt").compose(text)
+    seq = _child(root, "edges")
+    if not isinstance(seq, SequenceNode):
+        raise LoadError("no edges to write weights into", file, path="edges")
+    mods = _child(root, "modules")
+    names = {k.value for k, _ in mods.value} if isinstance(mods, MappingNode) else set()
+    groups: dict[tuple[str, str], list[tuple[int, Any, float]]] = {}
+    for i, item in enumerate(seq.value):
+        if not isinstance(item, MappingNode):
+            continue
+        s, t, w = _child(item, "from"), _child(item, "to"), _child(item, "weight")
+        if not (isinstance(s, ScalarNode) and isinstance(t, ScalarNode)):
+            continue
+        key = (split_ref(s.value, names)[0], split_ref(t.value, names)[0])  # module.port ends
+        if key in values:
+            if not isinstance(w, ScalarNode):
+                raise LoadError("edge weight is not a plain value", file, path=f"edges.{i}.weight")
+            groups.setdefault(key, []).append((i, w, float(w.value)))
+    edits: dict[int, tuple[int, int, str]] = {}
+    expect: dict[int, float] = {}
+    for key, items in groups.items():
+        total = sum(d for _, _, d in items)
+        for i, node, d in items:
+            share = d / total if total > 0 else 1.0 / len(items)
+            new = format_weight(values[key] * share)
+            if id(node) in edits and edits[id(node)][2] != new:
+                raise LoadError(
+                    "edge weight is shared (a YAML alias) with another edge; write it out",
+                    file,
+                    node.start_mark.line + 1,
+                    node.start_mark.column + 1,
+                    f"edges.{i}.weight",
+                )
+            edits[id(node)] = (node.start_mark.index, node.end_mark.index, new)
+            expect[i] = float(new)
+    result = replace_scalars(text, list(edits.values()), comment, WEIGHT_TAG)
+    arch = load_text(result, file).arch
+    for i, w in expect.items():
+        if arch.edges[i].weight != w:  # pragma: no cover - a bug of the editor
+            raise LoadError(f"writing the weight of edge {i} failed", file)
+    return result

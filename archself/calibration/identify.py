@@ -14,12 +14,9 @@ and compared with the declared ones (times the loop's ρ(W) scale).
 The runs go to the campaign executors (local process pool, Dask, or inline).
 :func:`set_weights` writes the fitted weights into a copy of the file's text,
 comments and layout kept, like :mod:`archself.calibration.edit` does for bands.
-See docs/identify.md. The result types are in
-:mod:`~archself.calibration.identify_results`, the runs in
-:mod:`~archself.calibration.identify_jobs`, the tables in
-:mod:`~archself.calibration.identify_report` and the write-back in
-:mod:`~archself.calibration.identify_write` (:func:`set_weights` and
-:func:`written_copy` are re-exported here).
+See docs/identify.md. The result types and their
+tables are in :mod:`~archself.calibration.identify_results`; :func:`set_weights` (in
+:mod:`~archself.calibration.edit`) is re-exported here.
 """
 
 from __future__ import annotations
@@ -34,17 +31,16 @@ from typing import Any
 
 import numpy as np
 
-from archself.calibration.identify_jobs import IdJob, run_identify_job
+from archself.calibration.edit import set_weights
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
-from archself.calibration.identify_write import set_weights, written_copy
 from archself.calibration.runs import seeds_from
+from archself.campaign.worker import RunJob, run_error
 from archself.errors import unknown
 from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
 
-# --------------------------------------------------------------------------- driver
 def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[str] | None):
     from archself.calibration.prepare import chosen_configurations, load_checked
 
@@ -93,15 +89,20 @@ def _experiments(
     return chosen, skipped
 
 
+def _fault(module: str, kind: str, magnitude: float) -> Any:
+    """An experiment's fault: ``kind`` of ``magnitude`` on ``module`` from t = 0."""
+    from archself.model.architecture import Fault
+
+    return Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,
+                                 "magnitude": magnitude})
+
+
 def _check_fault(path: str | Path, module: str, kind: str, magnitude: float, own: bool) -> None:
     """Refuse a perturbation the fault model refuses, before any run (each run failed)."""
     from pydantic import ValidationError
 
-    from archself.model.architecture import Fault
-
     try:
-        Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,
-                              "magnitude": magnitude})
+        _fault(module, kind, magnitude)
     except ValidationError as exc:
         err = exc.errors()[0]
         opt = f"--perturb {module}={kind}:{magnitude:g}" if own else f"--magnitude {magnitude:g}"
@@ -172,7 +173,7 @@ def identify(
                  min_excitation, root_seed)
     t0 = time.perf_counter()
     results = run_on_executor(
-        plan.jobs, run_identify_job, "archself.calibration.identify_jobs",
+        plan.jobs, run_identify_job, "archself.calibration.identify",
         executor=executor, workers=workers, address=address, progress=progress,
     )
     return _collect(plan, results, time.perf_counter() - t0, executor)
@@ -265,6 +266,53 @@ def _check_size(path: str | Path, arch: Any, confs: Sequence[str], seeds: int) -
         )
 
 
+# --------------------------------------------------------------------------- runs
+@dataclass(frozen=True, kw_only=True)
+class IdJob(RunJob):
+    """One run: (configuration, seed), unperturbed or with one perturbation
+    (:class:`~archself.campaign.worker.RunJob` and the following).
+
+    ``perturb`` is ``(module, kind, magnitude)`` or None for the nominal run.
+    """
+
+    configuration: str
+    perturb: tuple[str, str, float] | None
+    settle_s: float
+
+
+def run_identify_job(job: IdJob) -> dict[str, Any]:
+    """Run one job; never raises for a failed run.
+
+    Returns
+    -------
+    dict
+        ``configuration``, ``replicate``, ``seed``, ``experiment`` (the perturbed
+        module or None), ``mean`` (time-averaged |s̄| per residual module after
+        ``settle_s``, float64, in the file's module order), ``error``.
+    """
+    from archself.calibration.runs import record
+
+    out: dict[str, Any] = {
+        "configuration": job.configuration,
+        "replicate": job.replicate,
+        "seed": job.seed,
+        "experiment": job.perturb[0] if job.perturb else None,
+        "error": None,
+    }
+    try:
+        arch = job.architecture().model_copy(deep=True)
+        if job.perturb is not None:
+            arch.scenarios[job.scenario].faults.append(_fault(*job.perturb))
+        got = record(arch, job)
+        keep = got["t"] >= job.settle_s - 1e-9
+        if not keep.any():
+            raise IdentifyError(f"no sample after the settling time {job.settle_s:g} s")
+        out["mean"] = got["x"][keep].mean(axis=0)
+    except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
+        out["error"] = run_error(exc)
+    return out
+
+
 def _collect(
     plan: _Plan, results: list[dict[str, Any]], elapsed: float, executor: str
 ) -> Identification:
@@ -350,3 +398,15 @@ def _fit(
         rows.append(EdgeRow(c, s, t, carries, declared, declared * knowledge.w_scale,
                             e.weight, e.se, e.identifiable, e.reason))
     return fits
+
+
+def written_copy(ident: Identification) -> str:
+    """The file's text with the fitted weights (pooled over configurations) written in."""
+    values = {k: w for k, (w, _) in ident.fitted_weights().items()}
+    if not values:
+        raise IdentifyError(f"{ident.file}: no edge was identifiable; nothing to write back")
+    comment = (
+        f"archself identify, {ident.seeds} seeds, scenario {ident.scenario}, "
+        f"configurations {'/'.join(ident.configurations)}"
+    )
+    return set_weights(ident.text, ident.file, values, comment)

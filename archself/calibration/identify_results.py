@@ -2,8 +2,10 @@
 
 :class:`Identification` is the result of :func:`archself.calibration.identify.identify`
 (rows :class:`EdgeRow`, :class:`Experiment`, the fits per target) with its JSON form
-and the weights pooled over configurations; :class:`IdentifyError` is the one-line
-refusal of the command.
+and the weights pooled over configurations; :func:`summary_text` (the terminal table:
+per configuration the identifiable edges, the fit per target, the modules not
+perturbed) and :func:`markdown_table` (the same as Markdown, with the experiments)
+show it; :class:`IdentifyError` is the one-line refusal of the command.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from archself.io.jsondata import JobDoc, OutDoc, document
 from archself.runtime.identify_fit import TargetFit
 
 __all__ = ["FLAG_SE", "EdgeRow", "Experiment", "Identification", "IdentificationDoc",
-           "IdentifyError"]
+           "IdentifyError", "markdown_table", "summary_text"]
 
 #: Flag a fitted weight as different from the declared one beyond this many SE.
 FLAG_SE = 2.0
@@ -117,6 +119,94 @@ class Identification:
             targets={c: {t: {f: getattr(fit, f) for f in TargetDoc.model_fields}
                          for t, fit in fits.items()} for c, fits in self.fits.items()},
             not_perturbed=self.skipped)
+
+
+# ------------------------------------------------------------------ the tables
+def _f(v: float, digits: int = 3) -> str:
+    return "—" if not (isinstance(v, float | int) and math.isfinite(v)) else f"{v:.{digits}f}"
+
+
+def _cells(r: EdgeRow) -> tuple[str, str, str]:
+    """Fitted W, SE and flag of an edge as the tables show them."""
+    if not r.identifiable:
+        return "—", "—", f"not identifiable: {r.reason}"
+    d = r.differs
+    return f"{r.fitted:.3f}", _f(r.se), "" if d is None else ("DIFFERS" if d else "ok")
+
+
+def summary_text(ident: Identification, *, all_edges: bool = False) -> str:
+    """The terminal table: identifiable edges per configuration, then the rest counted."""
+    lines = [
+        f"identify {ident.file} · scenario {ident.scenario} · {ident.seeds} seed"
+        f"{'s' * (ident.seeds != 1)} · {ident.runs} runs in {ident.elapsed_s:.1f} s "
+        f"({ident.executor}) · averages after {ident.settle_s:g} s"
+    ]
+    if ident.w_scale != 1.0:
+        lines.append(f"declared weights × {ident.w_scale:.4g} (the loop's ρ(W) scale) = effective")
+    for c in ident.configurations:
+        rows = [r for r in ident.rows if r.configuration == c]
+        shown = [r for r in rows if r.identifiable or all_edges]
+        lines += ["", f"configuration {c}"]
+        width = max([len(f"{r.source} -> {r.target}") for r in shown] + [4])
+        lines.append(f"  {'edge':<{width}}  {'declared':>8}  {'fitted':>8}  {'SE':>7}  flag")
+        for r in shown:
+            fitted, se, flag = _cells(r)
+            lines.append(f"  {f'{r.source} -> {r.target}':<{width}}  {r.effective:>8.3f}  "
+                         f"{fitted:>8}  {se:>7}  {flag}")
+        hidden = len(rows) - len(shown)
+        if hidden:
+            lines.append(f"  ({hidden} more edge{'s' * (hidden != 1)} not identifiable; --all)")
+        fits = ident.fits.get(c, {})
+        if fits:
+            lines.append(
+                "  fit per target: "
+                + ", ".join(f"{t} R² {_f(f.r2, 2)} ({f.rows} eq.)" for t, f in fits.items())
+            )
+        skipped = ident.skipped.get(c) or []
+        if skipped:
+            lines.append(f"  not perturbed: {', '.join(skipped)}")
+    if ident.failed:
+        lines += ["", f"{len(ident.failed)} failed run(s); first: {ident.failed[0]}"]
+    return "\n".join(lines) + "\n"
+
+
+def markdown_table(ident: Identification) -> str:
+    """The report as Markdown: the edge table, the fit per target, the experiments."""
+    out = [
+        f"# Identified influence weights of {ident.architecture}",
+        "",
+        f"File `{ident.file}`, scenario `{ident.scenario}`, {ident.seeds} seeds, "
+        f"{ident.runs} runs in {ident.elapsed_s:.1f} s ({ident.executor}); averages after "
+        f"{ident.settle_s:g} s. Flag: |fitted − declared| > {FLAG_SE:g} SE.",
+        "",
+        "| configuration | edge | declared W | fitted W | SE | flag |",
+        "| --- | --- | ---: | ---: | ---: | --- |",
+    ]
+    for r in ident.rows:
+        fitted, se, flag = _cells(r)
+        out.append(f"| {r.configuration} | {r.source} → {r.target} | {r.effective:.3f} | "
+                   f"{fitted} | {se} | {flag} |")
+    out += [
+        "",
+        "| configuration | target | equations | largest Δr | R² | RMS of the fit |",
+        "| --- | --- | ---: | ---: | ---: | ---: |",
+    ]
+    for c, fits in ident.fits.items():
+        for t, f in fits.items():
+            out.append(
+                f"| {c} | {t} | {f.rows} | {_f(f.moved, 4)} | {_f(f.r2, 2)} | {_f(f.rms, 4)} |"
+            )
+    out += [
+        "",
+        "| configuration | perturbed | fault | own Δr | largest Δr |",
+        "| --- | --- | --- | ---: | ---: |",
+    ]
+    for e in ident.experiments:
+        out.append(
+            f"| {e.configuration} | {e.module} | {e.kind} {e.magnitude:g} | {_f(e.own_delta)} | "
+            f"{_f(e.max_delta)} |"
+        )
+    return "\n".join(out) + "\n"
 
 
 # ------------------------------------------------------------------ the JSON document

@@ -107,8 +107,7 @@ def _distributions(cal: Calibration) -> list[dict[str, Any]]:
         for c in cal.data:
             if m not in c.modules:
                 continue
-            j = c.modules.index(m)
-            cyc = np.concatenate([xr[:, j] for xr in c.x]) if c.x else np.zeros(0)
+            cyc = c.cycles(m)
             rmax = c.run_max(m)
             rows.append(
                 {
@@ -169,10 +168,9 @@ def _fig_module(cal: Calibration, module: str, path: Path) -> bool:
     ax = fig.add_subplot()
     drawn = False
     for c in cal.data:
-        if module not in c.modules or not c.x:
+        if module not in c.modules:
             continue
-        j = c.modules.index(module)
-        cyc = np.concatenate([xr[:, j] for xr in c.x])
+        cyc = c.cycles(module)
         if not cyc.size or not np.any(cyc > 0):
             continue
         ax.hist(cyc, bins=60, histtype="step", density=True, label=f"{c.configuration}")

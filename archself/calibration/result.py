@@ -8,7 +8,7 @@ old and new, :class:`CellResult` one (scenario, configuration) cell's rates.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from pydantic import Field
@@ -85,7 +85,6 @@ class Calibration:
     runs: int
     verify_seeds: int = 0
     verify_elapsed_s: float = 0.0
-    verify_data: list[Cell] = field(default_factory=list)
 
     def __repr__(self) -> str:
         """One line: the file, the rate asked for, the runs, the bands changed."""

@@ -16,8 +16,12 @@ Jobs run on the campaign executors (:mod:`archself.campaign.executors`): a local
 process pool or Dask, like ``archself campaign``, in lane batches of one scenario
 and configuration (:func:`run_calibration_unit`, :mod:`archself.lanes`). A worker
 parses the architecture text once per process (:meth:`RunJob.architecture
-<archself.campaign.worker.RunJob.architecture>`). The saved runs' file format is in
-:mod:`archself.calibration.saved_runs`.
+<archself.campaign.worker.RunJob.architecture>`).
+
+``--save-runs``/``--from-runs``: :func:`save_runs` writes the recorded residuals of
+every run with the metadata that ties them to the file (an ``.npz``, no pickles);
+:func:`load_runs` reads them back; :func:`band_free_digest` is the file's identity
+without its bands, which ``--from-runs`` checks.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from archself.campaign.worker import RunJob, run_error
@@ -32,11 +37,15 @@ from archself.campaign.worker import RunJob, run_error
 __all__ = [
     "CalJob",
     "Recorder",
+    "band_free_digest",
+    "load_runs",
     "plan_runs",
+    "record",
     "run_calibration_job",
     "run_jobs",
     "run_calibration_unit",
     "run_on_executor",
+    "save_runs",
     "seeds_from",
 ]
 
@@ -218,21 +227,20 @@ def run_calibration_job(job: CalJob) -> dict[str, Any]:
     """
     out = _row(job)
     try:
-        arch = job.architecture()
-        from archself.sim.run import simulate
-
-        rec = Recorder(arch)
-        simulate(
-            arch.model_copy(deep=True),
-            job.scenario,
-            configuration=job.configuration,
-            seed=job.seed,
-            adapt=rec,
-        )
-        out.update(rec.arrays())
+        out.update(record(job.architecture().model_copy(deep=True), job))
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, not fatal
         out["error"] = run_error(exc)
     return out
+
+
+def record(arch: Any, job: Any) -> dict[str, Any]:
+    """:meth:`Recorder.arrays` of ``job``'s scenario run fixed in its configuration with its
+    seed on ``arch`` (stepped: pass a copy); the runs of calibrate and identify."""
+    from archself.sim.run import simulate
+
+    rec = Recorder(arch)
+    simulate(arch, job.scenario, configuration=job.configuration, seed=job.seed, adapt=rec)
+    return rec.arrays()
 
 
 def run_calibration_unit(jobs: tuple[CalJob, ...]) -> list[dict[str, Any]]:
@@ -343,3 +351,93 @@ def run_on_executor(
     finally:
         ex.close()
     return results
+
+
+def band_free_digest(data: dict[str, Any]) -> str:
+    """SHA-256 of the architecture's data without its bands (``modules.*.residual.nominal``).
+
+    The nominal runs are fixed, so their residuals do not depend on the bands: runs
+    saved from a file stay valid for the same file with other bands (e.g. its
+    calibrated copy), and for nothing else.
+    """
+    import copy
+    import json
+
+    d = copy.deepcopy(data)
+    for spec in (d.get("modules") or {}).values():
+        if isinstance(spec, dict) and isinstance(spec.get("residual"), dict):
+            spec["residual"].pop("nominal", None)
+    text = json.dumps(d, sort_keys=True, default=str, ensure_ascii=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str, Any]]) -> None:
+    """Write runs (``run_calibration_job`` results) and ``meta`` to an ``.npz`` file, atomically.
+
+    Arrays ``x<k>``/``forced<k>``/``t<k>`` per run, ``meta`` as a JSON string, a
+    :class:`~archself.io.jsondata.SavedRunsMeta` (no pickles: the file is safe to load).
+    """
+    import io
+    import json
+
+    import numpy as np
+
+    from archself.io.atomic import write_bytes
+    from archself.io.jsondata import SavedRunsMeta, document
+
+    arrays: dict[str, Any] = {}
+    rows = []
+    for k, r in enumerate(results):
+        rows.append(
+            {
+                key: r[key]
+                for key in ("scenario", "configuration", "replicate", "seed", "error", "phase")
+            }
+        )
+        if r["error"] is None:
+            arrays.update({f"{name}{k}": r[name] for name in ("x", "forced", "t")})
+    doc = document(SavedRunsMeta, {**meta, "runs": rows})
+    arrays["meta"] = np.array(json.dumps(doc, ensure_ascii=False))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    write_bytes(path, buf.getvalue())
+
+
+def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """``(meta, results)`` of a file written by :func:`save_runs`.
+
+    Raises
+    ------
+    LoadError
+        When the file is missing or not such a file.
+    """
+    import zipfile
+
+    import numpy as np
+
+    from archself.errors import LoadError
+    from archself.io.jsondata import JsonLimitError, SavedRunsMeta, loads, problem
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = loads(str(z["meta"]))  # JsonLimitError: a ValueError
+            why = problem(SavedRunsMeta, meta, "meta")
+            if why:
+                raise LoadError(f"not a runs file of archself calibrate ({why})", str(path))
+            results = []
+            for k, row in enumerate(meta.pop("runs")):
+                r = dict(row)
+                if r["error"] is None:
+                    r["x"], r["forced"], r["t"] = z[f"x{k}"], z[f"forced{k}"], z[f"t{k}"]
+                    x, forced, t = r["x"], r["forced"], r["t"]
+                    if (x.ndim != 2 or x.dtype.kind not in "fiu" or forced.ndim != 1
+                            or t.ndim != 1 or not len(x) == len(forced) == len(t)):
+                        raise LoadError(f"not a runs file of archself calibrate (the arrays "
+                                        f"of run {k} have the wrong shape or type)", str(path))
+                results.append(r)
+    except FileNotFoundError:
+        raise LoadError("no such file", str(path)) from None
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+        why = str(exc) if isinstance(exc, JsonLimitError) else type(exc).__name__
+        raise LoadError(f"not a runs file of archself calibrate ({why})", str(path)) from None
+    return meta, results

@@ -282,7 +282,7 @@ def _identify(
     from archself.calibration.edit import check_output
     from archself.calibration.identify import identify as run_identify
     from archself.calibration.identify import written_copy
-    from archself.calibration.identify_report import markdown_table, summary_text
+    from archself.calibration.identify_results import markdown_table, summary_text
 
     if not math.isfinite(magnitude):
         raise _fail(f"--magnitude {magnitude}: expected a finite number", 2)

@@ -98,7 +98,7 @@ def _switches_text(switches: list[dict]) -> str:
 
 
 def _summary(results: list) -> str:
-    from archself.sim.metrics import metric_rows
+    from archself.sim.result import metric_rows
 
     rows = metric_rows(results[0].unit)  # labels carry the unit of runtime.objective
     first = results[0]

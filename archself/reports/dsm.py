@@ -48,6 +48,7 @@ from functools import cached_property
 
 import networkx as nx
 
+from archself.check.graph import active_edges
 from archself.model.architecture import Architecture
 
 __all__ = [
@@ -232,19 +233,11 @@ def scope_edges(
     """``(source, target, weight, carries)`` of the scope's edges, in file order.
 
     For a configuration: the edges whose two ends are active and that it does not
-    switch off (``disabled_edges``), the same rule as the runtime's
-    :func:`archself.runtime.knowledge.active_edges`.
+    switch off (``disabled_edges``, :func:`archself.check.graph.active_edges`).
     """
-    if configuration is None:
-        return [(e.source, e.target, float(e.weight), e.carries) for e in arch.edges]
-    conf = arch.configurations[configuration]
-    on = set(conf.modules)
-    off = {tuple(p) for p in conf.disabled_edges}
-    return [
-        (e.source, e.target, float(e.weight), e.carries)
-        for e in arch.edges
-        if e.source in on and e.target in on and (e.source, e.target) not in off
-    ]
+    edges = arch.edges if configuration is None else [
+        e for _, e in active_edges(arch, configuration)]
+    return [(e.source, e.target, float(e.weight), e.carries) for e in edges]
 
 
 def _max_weight(arch: Architecture) -> float:

@@ -52,7 +52,7 @@ def write_run_report(arch: Architecture | None, results: list[Any], out_dir: str
 def _write(arch: Architecture | None, results: list[Any], out: Path,
            formats: tuple[str, ...], dpi: int) -> RunReport:
     from archself.reports import figures
-    from archself.sim.metrics import metric_rows
+    from archself.sim.result import metric_rows
 
     rep = build_run_report(arch, results)
     shown, fmts = figures.shown_formats(formats)

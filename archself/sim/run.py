@@ -17,8 +17,8 @@ Examples
 >>> res.metrics["max_error"] < 0.5, res.unit
 (True, 'm')
 
-The metrics are in :mod:`archself.sim.metrics` and :class:`RunResult` in
-:mod:`archself.sim.result`; both are re-exported here.
+The metrics and :class:`RunResult` are in :mod:`archself.sim.result`; both are
+re-exported here.
 """
 
 from __future__ import annotations
@@ -33,8 +33,7 @@ import numpy as np
 
 from archself.errors import SimulationError, unknown
 from archself.model.architecture import Architecture
-from archself.sim.metrics import METRE_ALIASES, METRICS, error_metrics, metric_rows
-from archself.sim.result import RunResult
+from archself.sim.result import METRE_ALIASES, METRICS, RunResult, error_metrics, metric_rows
 from archself.system.compiler import compile_system
 from archself.system.objective import objective_norm
 
