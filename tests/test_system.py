@@ -19,8 +19,7 @@ from archself.model.loader import load_architecture
 from archself.modules.base import RuntimeModule
 from archself.registry import register, unregister
 from archself.sim.run import simulate
-from archself.system.compiler import compile_system
-from archself.system.executor import stable_hash
+from archself.system.live import compile_system, stable_hash
 
 DIFFDRIVE = Path(__file__).resolve().parents[1] / "architectures" / "diffdrive.yaml"
 
@@ -109,7 +108,7 @@ def test_order_respects_active_edges(arch):
 
 def test_output_types_are_learnt_per_system(arch, monkeypatch):
     """The non-numeric output types a system finds (model objects) stay in that system."""
-    from archself.system.health import NOT_NUMERIC
+    from archself.system.live import NOT_NUMERIC
 
     a = compile_system(arch, "a1", seed=1)
     # the model nodes declare finite outputs (not checked): have one checked here
@@ -171,7 +170,7 @@ def test_declared_finite_outputs_skip_the_scan_and_a_fault_restores_it(toys):
     """A type declaring ``finite_outputs`` is not scanned for NaN (its declaration is
     trusted); the same type with a fault on its outputs, or a type declaring nothing,
     is (health.needs_checks)."""
-    from archself.system.health import needs_checks
+    from archself.system.live import needs_checks
 
     register("toy.flaky_finite")(_FlakyFinite)
     try:
@@ -221,7 +220,7 @@ def test_lost_input_marks_unavailable(arch):
 
 
 def test_stable_hash_across_processes():
-    code = "from archself.system.executor import stable_hash; print(stable_hash('wheel_left'))"
+    code = "from archself.system.live import stable_hash; print(stable_hash('wheel_left'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert int(out.stdout) == stable_hash("wheel_left")
 
