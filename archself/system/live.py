@@ -501,6 +501,87 @@ def build_plan(
     return plan
 
 
+def _input_lines(k: int, direct: tuple[tuple[str, str], ...] | None, name: str
+                 ) -> tuple[list[str], dict[str, str]]:
+    """Lines of a generated step that gather a module's inputs; ``carries -> local``.
+
+    Direct inputs become local variables (the first source of a signal, then a later
+    one's value where it is not None, as :meth:`LiveSystem._gather`); the others
+    come from ``gather``.
+    """
+    if direct is None:
+        return [f"    inputs = gather({name!r})"], {}
+    lines: list[str] = []
+    local: dict[str, str] = {}
+    for j, (carries, src) in enumerate(direct):
+        value = f"(outs.get({src!r}) or _EMPTY).get({carries!r})"
+        if carries not in local:
+            local[carries] = f"v{k}_{j}"
+            lines.append(f"    {local[carries]} = {value}")
+        else:
+            lines += [f"    _v = {value}", "    if _v is not None:",
+                      f"        {local[carries]} = _v"]
+    items = ", ".join(f"{c!r}: {v}" for c, v in local.items())
+    return [*lines, f"    inputs = {{{items}}}"], local
+
+
+def _lost_tests(required: tuple[str, ...], local: dict[str, str] | None
+                ) -> list[tuple[str, str]]:
+    """``(condition, signal)`` per required input, in order, up to one that is never routed."""
+    tests = []
+    for s in required:
+        if local is None:
+            tests.append((f"inputs.get({s!r}) is None", s))
+        elif s in local:
+            tests.append((f"{local[s]} is None", s))
+        else:
+            tests.append(("True", s))
+            break
+    return tests
+
+
+def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
+                      stepped: bool, required: tuple[str, ...], checked: bool) -> list[str]:
+    """Lines of a generated step for module ``k`` of phases 1 and 2 (output or step, publish,
+    lost inputs, health), as :meth:`LiveSystem.step` documents them."""
+    lines, local = _input_lines(k, direct, name) if stepped else ([], {})
+    call = f"m{k}.step(t, dt, inputs)" if stepped else f"m{k}.output(t)"
+    lines += ["    try:", f"        out = {call}"]
+    if checked:
+        lines += [f"        r = publish({name!r}, out, t, L{k})", "    except Exception as exc:",
+                  '        r = f"raised {type(exc).__name__}"']
+    else:
+        lines += ["    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
+                  "    else:", f"        outs[{name!r}] = {{}} if out is None else out",
+                  "        r = None"]
+    tests = _lost_tests(required, local if direct is not None else None)
+    if tests:
+        lines.append("    if r is None:")
+        for i, (cond, s) in enumerate(tests):
+            lines += [f"        {'el' if i else ''}if {cond}:",
+                      f"            r = {'lost input ' + s!r}"]
+    return lines + ["    if r is None:", f"        ok[{name!r}] = True", "        if why:",
+                    f"            why.pop({name!r}, None)", "    else:",
+                    f"        ok[{name!r}] = False", f"        why[{name!r}] = r"]
+
+
+def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
+                     required: tuple[str, ...]) -> list[str]:
+    """Lines of a generated step for state-only module ``k`` of phase 3 (advance to t + dt)."""
+    lines, local = _input_lines(k, direct, name)
+    lines += ["    try:", f"        m{k}.step(t, dt, inputs)", "    except Exception as exc:",
+              f"        ok[{name!r}] = False",
+              f'        why[{name!r}] = f"raised {{type(exc).__name__}}"']
+    tests = _lost_tests(required, local if direct is not None else None)
+    if tests:
+        lines += ["    else:", f"        if ok[{name!r}]:"]
+        for i, (cond, s) in enumerate(tests):
+            lines += [f"            {'el' if i else ''}if {cond}:",
+                      f"                ok[{name!r}] = False",
+                      f"                why[{name!r}] = {'lost input ' + s!r}"]
+    return lines
+
+
 class LiveSystem(Linearizing):
     """A running configuration of an architecture (the compiler → runtime contract).
 
@@ -561,7 +642,7 @@ class LiveSystem(Linearizing):
         self._scoped: dict[str, StepPlan] = {}  # its plans, restricted to them
         self._plan = self._make_plan(configuration)  # instantiates the active modules
         # (plan, publishing ops, state-only ops) of the current plan (_bind); None: to make
-        self._bound: tuple[StepPlan, list[tuple[Any, ...]], list[tuple[Any, ...]]] | None = None
+        self._bound: tuple[StepPlan, Callable[..., None]] | None = None
         self.configuration = configuration
 
     # ------------------------------------------------------------------ plans
@@ -612,16 +693,10 @@ class LiveSystem(Linearizing):
         return list(self._plan.edges)
 
     def _gather(self, name: str) -> dict[str, Any]:
+        """Inputs of ``name`` whose routes need more than a read: latency, noise, a renamed
+        port or a list input (the direct ones are read by the step function, :meth:`_bind`)."""
         outs = self.outputs
         inputs: dict[str, Any] = {}
-        direct = self._plan.direct[name]
-        if direct is not None:
-            for carries, src in direct:
-                src_out = outs.get(src)
-                val = src_out.get(carries) if src_out is not None else None
-                if val is not None or carries not in inputs:
-                    inputs[carries] = val
-            return inputs
         multi = self._plan.multi.get(name, ())
         reads = self._plan.reads
         for carries, src, idx, unc, delay in self._plan.routes[name]:
@@ -651,98 +726,43 @@ class LiveSystem(Linearizing):
                 inputs[carries] = val
         return inputs
 
-    def _bind(self, plan: StepPlan) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
-        """The ops of ``plan`` on this system's modules: what :meth:`step` runs, flat.
+    def _bind(self, plan: StepPlan) -> Callable[..., None]:
+        """The step of ``plan`` on this system's modules, as one straight-line function.
 
-        One tuple per publishing module, ``(name, module, stepped, direct routes,
-        required inputs, limits)``, and one per state-only module of phase 3,
-        ``(name, module, direct routes, required inputs)``. ``limits`` is None for a
-        module :func:`~archself.system.live.needs_checks` finds nothing to check on
-        (its outputs are published as they are), else its ``(max_silence_s,
-        noise_levels)``. Made when the plan or a module's parameters change
-        (:meth:`set_params`), never per step.
+        Generated once per plan (and again when a module's parameters change,
+        :meth:`set_params`; a snapshot makes its own): each module's call in step
+        order, its direct inputs read into local variables, its publishing checked
+        by :meth:`_publish` only where :func:`needs_checks` finds something to check
+        (``(max_silence_s, noise_levels)`` bound then), its lost inputs tested
+        inline. Modules whose inputs need the general path (latency, noise, renamed
+        ports, list inputs) are gathered by :meth:`_gather`.
         """
         pool = self._pool
-        publishing = [
-            (n, pool[n], stepped, plan.direct[n] if stepped else (), plan.required[n],
-             declared_limits(pool[n]) if needs_checks(pool[n], self._faults.get(n)) else None)
-            for n, stepped in plan.publishing
-        ]
-        advancing = [(n, pool[n], plan.direct[n], plan.required[n]) for n in plan.nonft]
-        return publishing, advancing
+        space: dict[str, Any] = {"_EMPTY": {}}
+        body: list[str] = []
+        for k, (n, stepped) in enumerate(plan.publishing):
+            space[f"m{k}"] = mod = pool[n]
+            limits = declared_limits(mod) if needs_checks(mod, self._faults.get(n)) else None
+            space[f"L{k}"] = limits
+            body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
+                                      plan.required[n] if stepped else (), limits is not None)
+        for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
+            space[f"m{k}"] = pool[n]
+            body += _advancing_lines(k, n, plan.direct[n], plan.required[n])
+        src = "def _step(outs, ok, why, publish, gather, t, dt):\n" + "\n".join(
+            body or ["    pass"])
+        exec(compile(src, f"<step plan {plan.name}>", "exec"), space)  # noqa: S102 - our own source
+        return space["_step"]
 
     def step(self) -> None:
-        """Advance the system by one step ``dt``."""
-        t = self.t
-        dt = self.dt
+        """Advance the system by one step ``dt`` (the plan's step function, :meth:`_bind`)."""
         plan = self._plan
         bound = self._bound
         if bound is None or bound[0] is not plan:
-            bound = self._bound = (plan, *self._bind(plan))
-        outs = self.outputs
-        ok = self._ok
-        why = self._why
-        publish = self._publish
-        gather = self._gather
-        inputs: dict[str, Any] = {}
-        # phases 1 and 2: the state-only outputs, then the feedthrough modules in order
-        for name, mod, stepped, direct, req, limits in bound[1]:
-            if stepped:
-                if direct is None:
-                    inputs = gather(name)
-                else:  # inputs that pass unchanged, gathered inline
-                    inputs = {}
-                    for carries, src in direct:
-                        so = outs.get(src)
-                        val = None if so is None else so.get(carries)
-                        if val is not None or carries not in inputs:
-                            inputs[carries] = val
-            try:
-                out = mod.step(t, dt, inputs) if stepped else mod.output(t)
-                if limits is not None:
-                    reason = publish(name, out, t, limits)
-                else:
-                    outs[name] = {} if out is None else out
-                    reason = None
-            except Exception as exc:  # noqa: BLE001 - a failing module must not stop the run
-                reason = f"raised {type(exc).__name__}"
-            if reason is None and stepped:
-                for s in req:
-                    if inputs.get(s) is None:
-                        reason = f"lost input {s}"
-                        break
-            if reason is None:
-                ok[name] = True
-                if why:
-                    why.pop(name, None)
-            else:
-                ok[name] = False
-                why[name] = reason
-        # phase 3: the state-only modules advance to t + dt
-        for name, mod, direct, req in bound[2]:
-            if direct is None:
-                inputs = gather(name)
-            else:
-                inputs = {}
-                for carries, src in direct:
-                    so = outs.get(src)
-                    val = None if so is None else so.get(carries)
-                    if val is not None or carries not in inputs:
-                        inputs[carries] = val
-            try:
-                mod.step(t, dt, inputs)
-            except Exception as exc:  # noqa: BLE001
-                ok[name] = False
-                why[name] = f"raised {type(exc).__name__}"
-                continue
-            if ok[name]:
-                for s in req:
-                    if inputs.get(s) is None:
-                        ok[name] = False
-                        why[name] = f"lost input {s}"
-                        break
+            bound = self._bound = (plan, self._bind(plan))
+        bound[1](self.outputs, self._ok, self._why, self._publish, self._gather, self.t, self.dt)
         self.k += 1
-        self.t = self.k * dt
+        self.t = self.k * self.dt
 
     def run(self, duration_s: float) -> None:
         """Step for ``duration_s`` seconds."""
