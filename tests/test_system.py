@@ -61,7 +61,15 @@ class _Flaky(RuntimeModule):
         return {"value": inputs.get("value")}
 
 
-TOYS = {"toy.clock": _Clock, "toy.pass": _Pass, "toy.flaky": _Flaky}
+class _Gappy(RuntimeModule):
+    role = "source"
+    outputs = ("value",)
+
+    def step(self, t, dt, inputs):
+        return {"value": None if round(t / dt) % 2 else -float(t)}
+
+
+TOYS = {"toy.clock": _Clock, "toy.pass": _Pass, "toy.flaky": _Flaky, "toy.gappy": _Gappy}
 
 
 @pytest.fixture
@@ -160,6 +168,24 @@ def test_failing_module_is_held_and_flagged(toys):
     assert flags[0.7] == (False, pytest.approx(0.45))  # raised: last good output held
     assert flags[1.2] == (False, pytest.approx(0.45))  # NaN: not published
     assert flags[1.6] == (True, pytest.approx(1.6))  # recovered
+
+
+def test_step_function_merges_sources_and_flags_unrouted_inputs(toys):
+    """The generated step reads a signal two edges bring as the general path does (the
+    later source's value where it is not None), and a required input no edge brings is
+    lost every step."""
+    a = toy_arch(
+        {"src": "toy.clock", "gap": "toy.gappy", "sink": "toy.pass", "alone": "toy.pass"},
+        [{"from": "src", "to": "sink"}, {"from": "gap", "to": "sink"}],
+    )
+    s = compile_system(a, "c", seed=0)
+    seen = []
+    for _ in range(6):
+        s.step()
+        seen.append(s.pool()["sink"].seen)
+    np.testing.assert_allclose(seen, [-0.0, 0.05, -0.1, 0.15, -0.2, 0.25], atol=1e-12)
+    assert s.health() == {"src": None, "gap": None, "sink": None,
+                          "alone": "lost input value"}
 
 
 class _FlakyFinite(_Flaky):
