@@ -100,7 +100,7 @@ import heapq
 import math
 from collections import deque
 from collections.abc import Callable, Collection, Mapping
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any, Self
 
 import numpy as np
@@ -545,11 +545,11 @@ def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | N
     """Lines of a generated step for module ``k`` of phases 1 and 2 (output or step, publish,
     lost inputs, health), as :meth:`LiveSystem.step` documents them."""
     lines, local = _input_lines(k, direct, name) if stepped else ([], {})
-    call = f"m{k}.step(t, dt, inputs)" if stepped else f"m{k}.output(t)"
+    call = f"m[{k}].step(t, dt, inputs)" if stepped else f"m[{k}].output(t)"
     lines += ["    try:", f"        out = {call}"]
     if checked:
-        lines += [f"        r = publish({name!r}, out, t, L{k})", "    except Exception as exc:",
-                  '        r = f"raised {type(exc).__name__}"']
+        lines += [f"        r = publish({name!r}, out, t, limits[{k}])",
+                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"']
     else:
         lines += ["    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
                   "    else:", f"        outs[{name!r}] = {{}} if out is None else out",
@@ -569,7 +569,7 @@ def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | No
                      required: tuple[str, ...]) -> list[str]:
     """Lines of a generated step for state-only module ``k`` of phase 3 (advance to t + dt)."""
     lines, local = _input_lines(k, direct, name)
-    lines += ["    try:", f"        m{k}.step(t, dt, inputs)", "    except Exception as exc:",
+    lines += ["    try:", f"        m[{k}].step(t, dt, inputs)", "    except Exception as exc:",
               f"        ok[{name!r}] = False",
               f'        why[{name!r}] = f"raised {{type(exc).__name__}}"']
     tests = _lost_tests(required, local if direct is not None else None)
@@ -580,6 +580,17 @@ def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | No
                       f"                ok[{name!r}] = False",
                       f"                why[{name!r}] = {'lost input ' + s!r}"]
     return lines
+
+
+@lru_cache(maxsize=256)
+def _step_function(body: str) -> Callable[..., None]:
+    """The function ``_step(outs, ok, why, publish, gather, t, dt, m, limits)`` of ``body``
+    (lines of :func:`_publishing_lines` and :func:`_advancing_lines`), compiled once per
+    text: systems and their copies with the same plan share it."""
+    space: dict[str, Any] = {"_EMPTY": {}}
+    src = "def _step(outs, ok, why, publish, gather, t, dt, m, limits):\n" + body
+    exec(compile(src, "<step plan>", "exec"), space)  # noqa: S102 - source built here
+    return space["_step"]
 
 
 class LiveSystem(Linearizing):
@@ -642,7 +653,7 @@ class LiveSystem(Linearizing):
         self._scoped: dict[str, StepPlan] = {}  # its plans, restricted to them
         self._plan = self._make_plan(configuration)  # instantiates the active modules
         # (plan, publishing ops, state-only ops) of the current plan (_bind); None: to make
-        self._bound: tuple[StepPlan, Callable[..., None]] | None = None
+        self._bound: tuple[StepPlan, Callable[..., None], list[Any], list[Any]] | None = None
         self.configuration = configuration
 
     # ------------------------------------------------------------------ plans
@@ -726,41 +737,41 @@ class LiveSystem(Linearizing):
                 inputs[carries] = val
         return inputs
 
-    def _bind(self, plan: StepPlan) -> Callable[..., None]:
-        """The step of ``plan`` on this system's modules, as one straight-line function.
+    def _bind(self, plan: StepPlan) -> tuple[Callable[..., None], list[Any], list[Any]]:
+        """The step of ``plan`` on this system's modules: a straight-line function, its
+        modules and their limits.
 
-        Generated once per plan (and again when a module's parameters change,
-        :meth:`set_params`; a snapshot makes its own): each module's call in step
-        order, its direct inputs read into local variables, its publishing checked
-        by :meth:`_publish` only where :func:`needs_checks` finds something to check
-        (``(max_silence_s, noise_levels)`` bound then), its lost inputs tested
-        inline. Modules whose inputs need the general path (latency, noise, renamed
-        ports, list inputs) are gathered by :meth:`_gather`.
+        The function (:func:`_step_function`) makes each module's call in step order,
+        reads its direct inputs into local variables, checks its publishing by
+        :meth:`_publish` only where :func:`needs_checks` finds something to check (with
+        its ``(max_silence_s, noise_levels)``), and tests its lost inputs inline; inputs
+        that need the general path (latency, noise, renamed ports, list inputs) come
+        from :meth:`_gather`. Bound once per plan and again when a module's parameters
+        change (:meth:`set_params`); copies with the same plan share the function.
         """
         pool = self._pool
-        space: dict[str, Any] = {"_EMPTY": {}}
+        mods: list[Any] = []
+        limits: list[Any] = []
         body: list[str] = []
         for k, (n, stepped) in enumerate(plan.publishing):
-            space[f"m{k}"] = mod = pool[n]
-            limits = declared_limits(mod) if needs_checks(mod, self._faults.get(n)) else None
-            space[f"L{k}"] = limits
+            mods.append(pool[n])
+            limits.append(declared_limits(pool[n])
+                          if needs_checks(pool[n], self._faults.get(n)) else None)
             body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
-                                      plan.required[n] if stepped else (), limits is not None)
+                                      plan.required[n] if stepped else (), limits[k] is not None)
         for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
-            space[f"m{k}"] = pool[n]
+            mods.append(pool[n])
             body += _advancing_lines(k, n, plan.direct[n], plan.required[n])
-        src = "def _step(outs, ok, why, publish, gather, t, dt):\n" + "\n".join(
-            body or ["    pass"])
-        exec(compile(src, f"<step plan {plan.name}>", "exec"), space)  # noqa: S102 - our own source
-        return space["_step"]
+        return _step_function("\n".join(body or ["    pass"])), mods, limits
 
     def step(self) -> None:
         """Advance the system by one step ``dt`` (the plan's step function, :meth:`_bind`)."""
         plan = self._plan
         bound = self._bound
         if bound is None or bound[0] is not plan:
-            bound = self._bound = (plan, self._bind(plan))
-        bound[1](self.outputs, self._ok, self._why, self._publish, self._gather, self.t, self.dt)
+            bound = self._bound = (plan, *self._bind(plan))
+        bound[1](self.outputs, self._ok, self._why, self._publish, self._gather, self.t,
+                 self.dt, bound[2], bound[3])
         self.k += 1
         self.t = self.k * self.dt
 
