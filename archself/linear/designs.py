@@ -24,7 +24,6 @@ import hashlib
 import json
 import os
 from functools import cache
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +54,8 @@ def cache_dir() -> Path | None:
 @cache
 def _control_version() -> str:
     """python-control's version from its metadata (without importing it)."""
+    from importlib.metadata import PackageNotFoundError, version  # not at start-up
+
     try:
         return version("control")
     except PackageNotFoundError:  # pragma: no cover - a declared dependency
