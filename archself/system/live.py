@@ -386,6 +386,8 @@ class StepPlan:
         # some module type overrides linear_model or linearization (set by the system)
         self.linearizable = True
         self._wires: list[Wire] | None = None
+        # which modules' publishing is checked -> the step function (LiveSystem._bind)
+        self.step_functions: dict[tuple[bool, ...], Callable[..., None]] = {}
 
     def wires(self) -> list[Wire]:
         """The active edges as :class:`~archself.linear.wiring.Wire` s (made once)."""
@@ -747,22 +749,24 @@ class LiveSystem(Linearizing):
         its ``(max_silence_s, noise_levels)``), and tests its lost inputs inline; inputs
         that need the general path (latency, noise, renamed ports, list inputs) come
         from :meth:`_gather`. Bound once per plan and again when a module's parameters
-        change (:meth:`set_params`); copies with the same plan share the function.
+        change (:meth:`set_params`); the plan keeps the function per set of checked modules,
+        and copies with the same plan (or the same source text) share it.
         """
         pool = self._pool
-        mods: list[Any] = []
-        limits: list[Any] = []
-        body: list[str] = []
-        for k, (n, stepped) in enumerate(plan.publishing):
-            mods.append(pool[n])
-            limits.append(declared_limits(pool[n])
-                          if needs_checks(pool[n], self._faults.get(n)) else None)
-            body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
-                                      plan.required[n] if stepped else (), limits[k] is not None)
-        for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
-            mods.append(pool[n])
-            body += _advancing_lines(k, n, plan.direct[n], plan.required[n])
-        return _step_function("\n".join(body or ["    pass"])), mods, limits
+        mods = [pool[n] for n, _ in plan.publishing] + [pool[n] for n in plan.nonft]
+        limits = [declared_limits(pool[n]) if needs_checks(pool[n], self._faults.get(n)) else None
+                  for n, _ in plan.publishing]
+        checked = tuple(lim is not None for lim in limits)
+        fn = plan.step_functions.get(checked)
+        if fn is None:
+            body: list[str] = []
+            for k, (n, stepped) in enumerate(plan.publishing):
+                body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
+                                          plan.required[n] if stepped else (), checked[k])
+            for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
+                body += _advancing_lines(k, n, plan.direct[n], plan.required[n])
+            fn = plan.step_functions[checked] = _step_function("\n".join(body or ["    pass"]))
+        return fn, mods, limits
 
     def step(self) -> None:
         """Advance the system by one step ``dt`` (the plan's step function, :meth:`_bind`)."""
