@@ -6,7 +6,7 @@ Several classes play each role, and a third party may add its own:
 ==========================  ===========================================================
 role                        implementations
 ==========================  ===========================================================
-:class:`ManagedSystem`      :class:`~archself.system.executor.LiveSystem` (simulation),
+:class:`ManagedSystem`      :class:`~archself.system.live.LiveSystem` (simulation),
                             :class:`~archself.lanes.view.LaneView` (one lane of many),
                             :class:`~archself.live.system.MeasuredSystem` (a real plant)
 :class:`LoopSystem`         ``LiveSystem`` and ``LaneView`` (every module's state: the
@@ -29,7 +29,7 @@ Examples
 --------
 >>> from archself.model.loader import load_architecture
 >>> from archself.resources import data_dir
->>> from archself.system.compiler import compile_system
+>>> from archself.system.live import compile_system
 >>> arch = load_architecture(data_dir("architectures") / "process_plant.yaml").arch
 >>> isinstance(compile_system(arch, seed=1), ManagedSystem)
 True
@@ -140,7 +140,7 @@ class LoopSystem(ManagedSystem, Protocol):
     """A managed system whose every module's state the planner can read and move.
 
     What the whole-loop stability check (:func:`archself.runtime.stability.whole_loop_check`)
-    needs: simulation (:class:`~archself.system.executor.LiveSystem`) and lanes
+    needs: simulation (:class:`~archself.system.live.LiveSystem`) and lanes
     (:class:`~archself.lanes.view.LaneView`) offer it; a real plant
     (:class:`~archself.live.system.MeasuredSystem`) does not, and the check falls back.
     """

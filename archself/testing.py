@@ -147,7 +147,7 @@ def check_pack(
 def _check_types(arch: Any, report: PackReport) -> None:
     """Every module type of ``arch`` gives a :class:`BatchedModule` (its class in ``report``)."""
     from archself.lanes.batching import lane_module
-    from archself.system.compiler import build_module
+    from archself.system.live import build_module
 
     for name, spec in arch.modules.items():
         try:
@@ -171,7 +171,7 @@ def _check_states(arch: Any, seeds: list[int], report: PackReport, atol: float,
     """
     from archself.lanes.module import PerLane
     from archself.lanes.system import LaneSystem
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     if not seeds:
         return

@@ -7,7 +7,7 @@ noise: ``packs/archself_diffdrive/physical.py``), encoders and IMU, the spline
 reference, dead reckoning and the LQR (gain from ``control.lqr`` on the same error
 dynamics) with the same floating-point operations in the same order, and the same
 random streams: each module draws from ``numpy.random.default_rng([seed,
-blake2b-64(name)])`` (``archself.system.streams.module_rng``), and a Generator's normals do not
+blake2b-64(name)])`` (``archself.system.live.module_rng``), and a Generator's normals do not
 depend on how many are drawn per call, so the floor draws each stream in blocks and
 reproduces the framework's trace bit for bit (tests/test_floor.py checks it to 1e-9).
 
@@ -421,7 +421,7 @@ def load_work(path: str | Path = DIFFDRIVE) -> Work:
     """The parameters :func:`run_floor_same_work` needs, as the compiled a1 modules hold them
     (the file's values and the pack's defaults)."""
     import archself
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = archself.load(path)
     system = compile_system(arch, "a1", seed=1, scenario=arch.scenarios["nominal"])
@@ -997,7 +997,7 @@ class Fused:
 def load_fused(path: str | Path = DIFFDRIVE) -> Fused:
     """The parameters :func:`run_floor_lanes_switching` needs besides :func:`load_work`'s."""
     import archself
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = archself.load(path)
     system = compile_system(arch, "a2", seed=1, scenario=arch.scenarios["nominal"])

@@ -99,7 +99,7 @@ class Adaptive:
 def load_adaptive(path: str | Path = DIFFDRIVE) -> Adaptive:
     """The parameters of the adaptive imu_drift run, as the compiled modules hold them."""
     import archself
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = archself.load(path)
     sc = arch.scenarios[SCENARIO]
@@ -426,7 +426,7 @@ def plumbing_cpu(steps: int = 8000, rounds: int = 3) -> tuple[float, float]:
     and the stubs alone are timed beside it. Best of ``rounds``.
     """
     import archself
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = archself.load(DIFFDRIVE)
     system = compile_system(arch, "a1", seed=1, scenario="nominal")

@@ -104,7 +104,7 @@ def architecture(n: int, *, path: str = "lyapunov"):
 def _run(arch, *, trace: bool) -> dict[str, Any]:
     """Compile, then cycle until the first cycle that evaluates an action; measure it."""
     from archself.runtime import MapeK
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     c0, w0 = time.process_time(), time.perf_counter()
     system = compile_system(arch, arch.initial_configuration(), seed=0)

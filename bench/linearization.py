@@ -38,7 +38,7 @@ def measure(n: int) -> dict[str, Any]:
     import archself.system.linearizing as sl
     from archself.check.stability import loop_table
     from archself.runtime.stability import StabilityVerdict, whole_loop_check
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = architecture(n, path="lyapunov")
     groups: list[int] = []

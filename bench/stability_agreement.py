@@ -33,7 +33,7 @@ import numpy as np
 from archself.check.stability import loop_verdict, map_steps
 from archself.model.loader import load_architecture
 from archself.resources import data_dir
-from archself.system.compiler import compile_system
+from archself.system.live import compile_system
 
 T_S = 20.0
 

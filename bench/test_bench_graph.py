@@ -46,7 +46,7 @@ def big_system():
     from archself.model.generate import generate_architecture
     from archself.model.loader import load_text
     from archself.runtime import MapeK
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = load_text(generate_architecture(10_000, seed=1)).arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

@@ -19,7 +19,7 @@ import scipy.signal
 from numpy.testing import assert_allclose
 
 from archself import registry
-from archself.system.faults import FAULT_KINDS
+from archself.system.live import FAULT_KINDS
 from archself_blocks.actuators import Actuator
 from archself_blocks.estimators import AugmentedEkf, KalmanFilter, Luenberger, observer_gain
 from archself_blocks.lti import LtiModel, LtiModelNode, StateSpacePlant, TransferFunctionPlant
@@ -456,7 +456,7 @@ def test_actuator_saturation_rate_limit_and_lag():
 
 
 def test_actuator_command_error_sees_an_effectiveness_loss():
-    from archself.system.faults import FaultInjector
+    from archself.system.live import FaultInjector
 
     fault = FaultInjector("effectiveness_loss", onset_s=1.0, magnitude=0.4)
     for gain, expect in ((1.0, 0.4 * 3.0), (1.0 / 0.6, 0.0)):

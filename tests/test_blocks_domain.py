@@ -20,7 +20,7 @@ from archself.model.loader import load_text
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate
-from archself.system.faults import FaultInjector
+from archself.system.live import FaultInjector
 from archself.testing import check_pack
 from archself_blocks.actuators import Actuator
 from archself_blocks.signals import Expression, parse_expression

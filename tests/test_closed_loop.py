@@ -12,7 +12,7 @@ from archself.modules.base import LinearModel
 from archself.runtime import MapeK
 from archself.runtime.stability import eigenvalue_margin
 from archself.sim.run import simulate
-from archself.system.compiler import compile_system
+from archself.system.live import compile_system
 
 from conftest import FIXTURES, ROOT
 

@@ -14,7 +14,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from archself.lanes import ALL, lane_module, stack
-from archself.system.streams import module_rng
+from archself.system.live import module_rng
 from archself_diffdrive.drift_glr import DriftGlr, DriftWindows, drift_glr
 from archself_diffdrive.estimators import Odometry
 

@@ -19,7 +19,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 import archself
-from archself.system.streams import module_rng
+from archself.system.live import module_rng
 
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = (1, 2)

@@ -317,7 +317,7 @@ def test_scalar_objective_error_is_finite() -> None:
     """
     from archself.model.generate import generate_architecture
     from archself.runtime.planner import rollout_improvement
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = load_text(generate_architecture(4, seed=1)).arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

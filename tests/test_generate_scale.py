@@ -98,7 +98,7 @@ def test_one_mapek_cycle_on_generated_1k() -> None:
     """Load → compile → one MAPE-K cycle on a generated 10^3-module architecture."""
     from archself.model.loader import load_text
     from archself.runtime import MapeK
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = load_text(generate_architecture(1_000, seed=4)).arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

@@ -356,7 +356,7 @@ def fuzz_outcome(text: str, file: str = "fuzz.json", steps: int = 3) -> str:
     error), ``built`` (valid; every configuration built and stepped), or a failure:
     ``unlocated`` (a message without file:line), ``build-error`` (valid, but the build
     or a step raised), ``internal`` (an exception not archself's: exit 3)."""
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     try:
         loaded = load_text(text, file)

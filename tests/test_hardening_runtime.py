@@ -24,8 +24,7 @@ from archself.registry import register, unregister
 from archself.runtime import MapeK
 from archself.runtime.monitor import unavailable_residual
 from archself.sim.run import simulate
-from archself.system.compiler import compile_system
-from archself.system.faults import FAULT_KINDS, FaultInjector
+from archself.system.live import FAULT_KINDS, FaultInjector, compile_system
 
 ROOT = Path(__file__).resolve().parents[1]
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"

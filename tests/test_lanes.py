@@ -130,7 +130,7 @@ def test_faults_edge_noise_and_latency_per_lane(diffdrive_raw) -> None:
 
 
 def test_a_module_that_raises_holds_its_last_outputs_in_that_lane(diffdrive_raw) -> None:
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
     systems = [compile_system(arch, "a1", seed=s, scenario="nominal") for s in (1, 2)]
@@ -159,7 +159,7 @@ def test_a_module_that_raises_holds_its_last_outputs_in_that_lane(diffdrive_raw)
 
 def test_lanes_in_different_configurations_run_as_groups(diffdrive_raw) -> None:
     """Two groups (a1 and a3) in one lane system: each lane is its per-run run."""
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
     confs = ["a1", "a3", "a1", "a3"]
@@ -182,7 +182,7 @@ def test_lanes_in_different_configurations_run_as_groups(diffdrive_raw) -> None:
 def test_health_per_lane_is_the_per_run_health(diffdrive_raw) -> None:
     """Silence (GPS dropout), stale values (stuck encoders), non-finite output (NaN fault),
     lost inputs downstream: the reason of every module in every lane at every step."""
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     raw = copy.deepcopy(diffdrive_raw)
     raw["scenarios"]["sick"] = {
@@ -213,7 +213,7 @@ def test_health_per_lane_is_the_per_run_health(diffdrive_raw) -> None:
 
 
 def test_lanes_of_different_structure_are_refused(diffdrive_raw) -> None:
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = Architecture.model_validate(diffdrive_raw)
     raw = copy.deepcopy(diffdrive_raw)

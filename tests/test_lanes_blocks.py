@@ -24,7 +24,7 @@ from archself.lanes import ALL, LaneNormals, lane_module, simulate_lanes, stack
 from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
-from archself.system.streams import module_rng
+from archself.system.live import module_rng
 from archself_blocks.actuators import Actuator
 from archself_blocks.estimators import AugmentedEkf, KalmanFilter, Luenberger
 from archself_blocks.lti import LtiModel, LtiModelNode, StateSpacePlant, TransferFunctionPlant

@@ -26,7 +26,7 @@ from archself.lanes import ALL, lane_module, simulate_lanes, stack
 from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
-from archself.system.streams import module_rng
+from archself.system.live import module_rng
 from archself_diffdrive.controllers import AsymLqrController, LqrController
 from archself_diffdrive.estimators import Ekf, InnovationTrend, InnovationWindow, Odometry
 from archself_diffdrive.lanes_control import AsymLqrControllerLanes, LqrControllerLanes

@@ -22,7 +22,7 @@ from archself.lanes import ALL, lane_module, row, simulate_lanes, stack
 from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.sim.run import simulate
-from archself.system.streams import module_rng
+from archself.system.live import module_rng
 from archself_diffdrive.models import ActuatorModel, DiffDriveKinematicsModel
 from archself_diffdrive.physical import DiffDrivePlant, Gps, Imu, WheelActuator, WheelEncoders
 from archself_diffdrive.planner import SplinePlanner

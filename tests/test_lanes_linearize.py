@@ -16,8 +16,8 @@ from numpy.testing import assert_allclose
 import archself
 from archself.lanes.system import LaneSystem
 from archself.lanes.view import lane_loop
-from archself.system.compiler import compile_system
 from archself.system.linearizing import numerical_loop
+from archself.system.live import compile_system
 
 ROOT = Path(__file__).resolve().parents[1]
 

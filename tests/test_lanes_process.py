@@ -27,7 +27,7 @@ from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate
-from archself.system.streams import module_rng
+from archself.system.live import module_rng
 from archself_process.control import (
     LevelObserver,
     PiController,
@@ -410,7 +410,7 @@ def plant():
 
 
 def test_every_type_of_the_process_plant_is_batched(plant) -> None:
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     assert batched_types(plant)
     system = compile_system(plant, "p1", seed=1)

@@ -36,7 +36,7 @@ from archself.live import (
 from archself.model.loader import load_text
 from archself.runtime.mapek import MapeK
 from archself.sim.run import simulate
-from archself.system.compiler import compile_system
+from archself.system.live import compile_system
 
 from conftest import ROOT
 

@@ -13,7 +13,7 @@ from numpy.testing import assert_allclose
 from scipy.stats import chi2
 
 from archself import registry
-from archself.system.faults import FAULT_KINDS, FaultInjector
+from archself.system.live import FAULT_KINDS, FaultInjector
 from archself_diffdrive.controllers import AsymLqrController, LqrController, lqr_gain
 from archself_diffdrive.estimators import Ekf, InnovationTrend, InnovationWindow, Odometry
 from archself_diffdrive.kinematics import error_dynamics

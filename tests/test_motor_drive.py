@@ -73,7 +73,7 @@ def test_drive_loss_switches_to_the_backup_drive(arch):
 
 
 def test_stability_filter_sees_the_whole_loop(arch):
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
     from archself_blocks.pid import pid_closed_loop
 
     system = compile_system(arch, "m1", seed=1)

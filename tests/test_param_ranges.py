@@ -110,7 +110,7 @@ def test_the_planner_rejects_an_update_outside_the_declared_range(monkeypatch) -
 
 
 def test_set_params_refuses_a_value_outside_the_declared_range() -> None:
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     arch = load_architecture(FIXTURES / "valid" / "minimal.yaml").arch
     system = compile_system(arch, arch.initial_configuration(), seed=0)

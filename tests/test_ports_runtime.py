@@ -19,7 +19,7 @@ def test_a_renamed_port_runs_like_the_unit_gain_it_replaces() -> None:
     import numpy as np
 
     from archself.sim.run import simulate
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     assert VIA_GAIN in MOTOR
     before = load_text(MOTOR, "motor.yaml")

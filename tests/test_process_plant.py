@@ -81,7 +81,7 @@ def test_plant_is_not_a_robot(arch):
 
 
 def test_controllers_give_stable_linearizations(arch):
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     system = compile_system(arch, seed=1, scenario="nominal")
     for conf in arch.configurations:

@@ -169,7 +169,7 @@ Signals = Callable[[float, str], dict[str, dict[str, float]]]
 
 
 class FakeSystem:
-    """A programmable stand-in for :class:`archself.system.executor.LiveSystem`.
+    """A programmable stand-in for :class:`archself.system.live.LiveSystem`.
 
     Parameters
     ----------

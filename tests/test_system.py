@@ -19,8 +19,7 @@ from archself.model.loader import load_architecture
 from archself.modules.base import RuntimeModule
 from archself.registry import register, unregister
 from archself.sim.run import simulate
-from archself.system.compiler import compile_system
-from archself.system.executor import stable_hash
+from archself.system.live import compile_system, stable_hash
 
 DIFFDRIVE = Path(__file__).resolve().parents[1] / "architectures" / "diffdrive.yaml"
 
@@ -62,7 +61,15 @@ class _Flaky(RuntimeModule):
         return {"value": inputs.get("value")}
 
 
-TOYS = {"toy.clock": _Clock, "toy.pass": _Pass, "toy.flaky": _Flaky}
+class _Gappy(RuntimeModule):
+    role = "source"
+    outputs = ("value",)
+
+    def step(self, t, dt, inputs):
+        return {"value": None if round(t / dt) % 2 else -float(t)}
+
+
+TOYS = {"toy.clock": _Clock, "toy.pass": _Pass, "toy.flaky": _Flaky, "toy.gappy": _Gappy}
 
 
 @pytest.fixture
@@ -109,7 +116,7 @@ def test_order_respects_active_edges(arch):
 
 def test_output_types_are_learnt_per_system(arch, monkeypatch):
     """The non-numeric output types a system finds (model objects) stay in that system."""
-    from archself.system.health import NOT_NUMERIC
+    from archself.system.live import NOT_NUMERIC
 
     a = compile_system(arch, "a1", seed=1)
     # the model nodes declare finite outputs (not checked): have one checked here
@@ -163,6 +170,24 @@ def test_failing_module_is_held_and_flagged(toys):
     assert flags[1.6] == (True, pytest.approx(1.6))  # recovered
 
 
+def test_step_function_merges_sources_and_flags_unrouted_inputs(toys):
+    """The generated step reads a signal two edges bring as the general path does (the
+    later source's value where it is not None), and a required input no edge brings is
+    lost every step."""
+    a = toy_arch(
+        {"src": "toy.clock", "gap": "toy.gappy", "sink": "toy.pass", "alone": "toy.pass"},
+        [{"from": "src", "to": "sink"}, {"from": "gap", "to": "sink"}],
+    )
+    s = compile_system(a, "c", seed=0)
+    seen = []
+    for _ in range(6):
+        s.step()
+        seen.append(s.pool()["sink"].seen)
+    np.testing.assert_allclose(seen, [-0.0, 0.05, -0.1, 0.15, -0.2, 0.25], atol=1e-12)
+    assert s.health() == {"src": None, "gap": None, "sink": None,
+                          "alone": "lost input value"}
+
+
 class _FlakyFinite(_Flaky):
     finite_outputs = True  # a false declaration: its NaN goes unchecked
 
@@ -171,7 +196,7 @@ def test_declared_finite_outputs_skip_the_scan_and_a_fault_restores_it(toys):
     """A type declaring ``finite_outputs`` is not scanned for NaN (its declaration is
     trusted); the same type with a fault on its outputs, or a type declaring nothing,
     is (health.needs_checks)."""
-    from archself.system.health import needs_checks
+    from archself.system.live import needs_checks
 
     register("toy.flaky_finite")(_FlakyFinite)
     try:
@@ -221,7 +246,7 @@ def test_lost_input_marks_unavailable(arch):
 
 
 def test_stable_hash_across_processes():
-    code = "from archself.system.executor import stable_hash; print(stable_hash('wheel_left'))"
+    code = "from archself.system.live import stable_hash; print(stable_hash('wheel_left'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert int(out.stdout) == stable_hash("wheel_left")
 

@@ -14,7 +14,7 @@ from archself.model.loader import load_architecture, load_text
 from archself.modules.base import RuntimeModule
 from archself.runtime import MapeK
 from archself.sim.run import simulate
-from archself.system.compiler import compile_system
+from archself.system.live import compile_system
 
 from conftest import FIXTURES, ROOT
 

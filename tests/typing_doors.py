@@ -7,7 +7,7 @@ from archself.contracts import BatchedModule, LoopSystem, ManagedSystem, SystemS
 from archself.lanes.module import LaneModule, PerLane
 from archself.lanes.view import LaneView
 from archself.live.system import MeasuredSystem, ModelSnapshot
-from archself.system.executor import LiveSystem
+from archself.system.live import LiveSystem
 from archself_blocks.lanes_control import PidLanes
 from archself_diffdrive.lanes_estimators import EkfLanes
 from archself_process.lanes_tank import TankPlantLanes

@@ -4,7 +4,7 @@
 ``runtime.stability.verify: warning`` or ``error``. For each configuration the
 system is compiled, stepped once (so model nodes have published and estimators
 hold their models) and its closed loop built
-(:meth:`archself.system.executor.LiveSystem.closed_loop`: the modules' linear models wired by
+(:meth:`archself.system.live.LiveSystem.closed_loop`: the modules' linear models wired by
 the configuration's edges, else their ``linearization()`` blocks); the test is the
 runtime's own, ``max Re λ(A) ≤ −ε`` (Eq. 21, ε = ``runtime.stability.margin``). A
 configuration whose modules give no model is not judged. Each structural action is
@@ -170,7 +170,7 @@ def loop_table(arch: Architecture) -> list[LoopVerdict]:
 
     Each configuration is compiled (seed 0), run ``runtime.stability.settle_s``
     (the nominal run's state after warm-up) and linearized
-    (:meth:`~archself.system.executor.LiveSystem.whole_loop`) over ``linearize_s``. The
+    (:meth:`~archself.system.live.LiveSystem.whole_loop`) over ``linearize_s``. The
     table of the same architecture object is computed once (the check and the
     command line share it).
     """
@@ -211,7 +211,7 @@ def _judge(system: Any, configuration: str, margin: float) -> tuple[bool, str] |
 
 
 def _compiled(arch: Architecture, configuration: str) -> Any:
-    from archself.system.compiler import compile_system
+    from archself.system.live import compile_system
 
     system = compile_system(arch, configuration, seed=0)
     system.step()

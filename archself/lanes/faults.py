@@ -1,4 +1,4 @@
-"""A scenario's fault in every lane: one :class:`~archself.system.faults.FaultInjector` per lane.
+"""A scenario's fault in every lane: one :class:`~archself.system.live.FaultInjector` per lane.
 
 The kinds whose value depends only on time and the fault's numbers (``bias_drift``,
 ``bias``, ``effectiveness_loss``, ``dropout``) act on all lanes with array

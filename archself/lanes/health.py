@@ -1,4 +1,4 @@
-"""Per-lane health: what :mod:`archself.system.health` and the executor say of one run, for N lanes.
+"""Per-lane health: what :mod:`archself.system.live` and the executor say of one run, for N lanes.
 
 :class:`LaneHealth` keeps, for every module and lane, whether the module is
 available and why not — the reasons of the per-run executor, in the same order
@@ -6,7 +6,7 @@ of precedence: ``raised <Exception>`` and ``non-finite output`` (the lanes a
 module or a fault reports; their outputs are held), ``silent for <t> s`` (no
 value for longer than the type's ``max_silence_s``), ``stale <signal> (<n>
 identical values)`` (a signal with a declared noise level repeating itself
-:data:`~archself.system.health.STALE_REPEATS` times) and ``lost input <signal>`` (a
+:data:`~archself.system.live.STALE_REPEATS` times) and ``lost input <signal>`` (a
 required input absent in that lane).
 """
 
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.system.health import STALE_REPEATS
+from archself.system.live import STALE_REPEATS
 
 __all__ = ["LaneHealth"]
 

@@ -295,7 +295,7 @@ class PerLane(LaneModule):
 
     def _collect(self, lanes, call) -> dict[str, Any]:
         """``call(instance, j)`` for the ``j``-th lane of ``lanes``; the outputs stacked."""
-        from archself.system.health import is_bad
+        from archself.system.live import is_bad
 
         outs: list[dict[str, Any]] = []
         for j, i in enumerate(self.indices(lanes).tolist()):

@@ -36,7 +36,7 @@ from archself.model.architecture import Architecture
 from archself.model.loader import gc_paused
 from archself.sim.result import RunResult
 from archself.sim.run import Recording
-from archself.system.compiler import compile_system
+from archself.system.live import compile_system
 
 __all__ = ["simulate_lanes"]
 

@@ -1,6 +1,6 @@
 """The lane executor: N runs of one architecture stepped together, one call per module.
 
-:class:`LaneSystem` takes N per-run systems (:class:`archself.system.executor.LiveSystem`,
+:class:`LaneSystem` takes N per-run systems (:class:`archself.system.live.LiveSystem`,
 one per lane: its seed, its sweep point's parameters, its scenario's faults) of
 the same structure and steps them as one. Lanes in the same configuration form a
 *group*; for every active module of a group a
@@ -34,8 +34,7 @@ from archself.lanes.edges import Delay, add_noise
 from archself.lanes.faults import LaneFault
 from archself.lanes.health import LaneHealth
 from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, stack
-from archself.system.executor import LiveSystem
-from archself.system.streams import module_rng
+from archself.system.live import LiveSystem, module_rng
 
 __all__ = ["LaneSystem"]
 

@@ -13,7 +13,7 @@ view then *materializes* it — every module's state stored into the lane's per-
 instances, their random streams put at the per-run position
 (:meth:`~archself.lanes.module.LaneNormals.pin`), the outputs, availability, edge
 streams and latency lines copied — and hands the call to that
-:class:`~archself.system.executor.LiveSystem`. After the cycle :meth:`LaneView.done` gives the
+:class:`~archself.system.live.LiveSystem`. After the cycle :meth:`LaneView.done` gives the
 streams back and moves the lane if the loop switched it or changed a parameter.
 
 The whole-loop linearization of a lane's stability check (:func:`lane_loop`):
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     from archself.linear.closed_loop import ClosedLoop, WholeLoop
     from archself.model.architecture import Architecture
     from archself.modules.base import RuntimeModule
-    from archself.system.executor import LiveSystem
+    from archself.system.live import LiveSystem
 
 __all__ = ["LaneView", "lane_loop"]
 

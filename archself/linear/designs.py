@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,6 @@ from archself.io.atomic import write_text
 __all__ = ["cache_dir", "lqr"]
 
 _MEMO: dict[str, np.ndarray] = {}
-_VERSION: list[str] = []
 
 
 def cache_dir() -> Path | None:
@@ -51,16 +51,15 @@ def cache_dir() -> Path | None:
     return Path(root) / "designs"
 
 
+@cache
 def _control_version() -> str:
     """python-control's version from its metadata (without importing it)."""
-    if not _VERSION:
-        from importlib.metadata import PackageNotFoundError, version
+    from importlib.metadata import PackageNotFoundError, version  # not at start-up
 
-        try:
-            _VERSION.append(version("control"))
-        except PackageNotFoundError:  # pragma: no cover - a declared dependency
-            _VERSION.append("none")
-    return _VERSION[0]
+    try:
+        return version("control")
+    except PackageNotFoundError:  # pragma: no cover - a declared dependency
+        return "none"
 
 
 def _key(kind: str, *arrays: np.ndarray) -> str:

@@ -2,7 +2,7 @@
 
 A module type may give a :class:`~archself.modules.base.LinearModel` (state space
 with named input and output signals, :meth:`RuntimeModule.linear_model`). The
-system (:meth:`archself.system.executor.LiveSystem.closed_loop`) discretizes each model at
+system (:meth:`archself.system.live.LiveSystem.closed_loop`) discretizes each model at
 the run's step, wires them as the executor does — an input port receives the
 outputs of the active edges that carry its signal into the module, an edge with a
 latency becomes a chain of unit delays — and closes the loop::
@@ -42,7 +42,7 @@ A plant ``x⁺ = 0.9 x + u`` under the static feedback ``u = −k y``:
 
 The wiring and the dense closed loop are here; the discretization is in
 :mod:`archself.linear.discrete`, the sparse assembly in :mod:`archself.linear.assembly`, the
-eigenvalue maths in :mod:`archself.linear.modal` and the result types
+eigenvalue maths in :mod:`archself.linear.closed_loop` and the result types
 (:class:`~archself.linear.closed_loop.Interconnection`,
 :class:`~archself.linear.closed_loop.ClosedLoop`)
 in :mod:`archself.linear.closed_loop`; their public names are re-exported here.
@@ -55,9 +55,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from archself.linear.assembly import Wire, feedback_slices, interconnect_sparse, port_offsets
-from archself.linear.closed_loop import ClosedLoop, Interconnection
+from archself.linear.closed_loop import ClosedLoop, Interconnection, eigenvalues, modal_form
 from archself.linear.discrete import LinearizationError, delay_line, discretize
-from archself.linear.modal import eigenvalues, modal_form
 from archself.model.loader import gc_paused
 from archself.modules.base import LinearModel
 

@@ -44,7 +44,7 @@ from archself.errors import ArchselfError
 from archself.linear.closed_loop import ClosedLoop
 from archself.model.architecture import Architecture
 from archself.modules.base import RuntimeModule
-from archself.system.objective import component_error, objective_norm
+from archself.system.live import component_error, objective_norm
 
 __all__ = ["LiveError", "MeasuredSystem", "ModelSnapshot", "NO_ROLLOUT"]
 
@@ -142,7 +142,7 @@ class MeasuredSystem:
         self, arch: Architecture, configuration: str | None = None, *, seed: int = 0,
         max_jump_s: float | None = None,
     ) -> None:
-        from archself.system.compiler import compile_system
+        from archself.system.live import compile_system
 
         self.arch = arch
         self.dt = float(arch.runtime.step_s)

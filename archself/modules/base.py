@@ -1,7 +1,7 @@
 """The interface every runtime module implements.
 
 A runtime module is the live counterpart of one ``modules.<name>`` entry of an
-architecture file. The system executor (:mod:`archself.system.executor`) runs modules as
+architecture file. The system executor (:mod:`archself.system.live`) runs modules as
 a synchronous data-flow graph with Simulink semantics:
 
 1. every module with ``direct_feedthrough = False`` (a plant, a filter whose
@@ -271,14 +271,14 @@ class RuntimeModule:
     parameters: ClassVar[Mapping[str, Param] | None] = None
     ports: ClassVar[Sequence[Any] | None] = None
     #: Nominal noise level per output signal (instance attribute of sensors): a noisy
-    #: signal repeating itself bit for bit is stale (see :mod:`archself.system.executor`).
+    #: signal repeating itself bit for bit is stale (see :mod:`archself.system.live`).
     noise_levels: dict[str, float] | None = None
     #: Longest time without a published value before the module counts as silent (s).
     max_silence_s: float | None = None
     #: True when finite inputs and parameters always give finite outputs (or None): the
     #: executor then skips the scan of this type's outputs for NaN/inf, unless a fault
     #: is injected into them or the module declares ``noise_levels`` or
-    #: ``max_silence_s`` (:func:`archself.system.health.needs_checks`). False (the
+    #: ``max_silence_s`` (:func:`archself.system.live.needs_checks`). False (the
     #: default, safe): every output is checked every step (docs/hardening.md).
     finite_outputs: ClassVar[bool] = False
     #: The batched class of this type (a :class:`archself.lanes.LaneModule` subclass built
@@ -390,7 +390,7 @@ class RuntimeModule:
 
         The system wires the models of a configuration's modules along its active
         edges (signals by ``carries``) into the closed-loop A of Eq. 20
-        (:meth:`archself.system.executor.LiveSystem.closed_loop`); it asks in execution order,
+        (:meth:`archself.system.live.LiveSystem.closed_loop`); it asks in execution order,
         so the ports of a feedthrough module know their sources' widths.
 
         Parameters

@@ -1,7 +1,7 @@
 """A simulated robot on ROS 2: the plant node and the functional modules as lifecycle nodes.
 
 :class:`DemoPlant` steps an architecture's compiled simulated system
-(:func:`archself.system.compiler.compile_system` with a scenario's faults: the
+(:func:`archself.system.live.compile_system` with a scenario's faults: the
 same modules ``archself simulate`` steps) and publishes, every ``runtime.period_s``,
 each module output, residual signal and health on the topics of
 :mod:`archself.ros2.topics`, then a tick, and waits for the loop's answer (lock
@@ -105,7 +105,7 @@ class DemoPlant:
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float64, Float64MultiArray, String
 
-        from archself.system.compiler import compile_system
+        from archself.system.live import compile_system
 
         if scenario not in arch.scenarios:
             raise Ros2Error(f"{arch.name}: no scenario {scenario!r}; "

@@ -30,7 +30,7 @@ from archself.model.architecture import Action, Architecture
 from archself.model.runtime import Risk
 from archself.runtime.improvement import estimate_improvement, mean_objective
 from archself.runtime.stability import action_target, apply_action, rollout_copy
-from archself.system.streams import stable_hash
+from archself.system.live import stable_hash
 
 __all__ = ["RiskRanking", "risk_value", "sampled_rollouts"]
 

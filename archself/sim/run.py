@@ -34,8 +34,7 @@ import numpy as np
 from archself.errors import SimulationError, unknown
 from archself.model.architecture import Architecture
 from archself.sim.result import METRE_ALIASES, METRICS, RunResult, error_metrics, metric_rows
-from archself.system.compiler import compile_system
-from archself.system.objective import objective_norm
+from archself.system.live import compile_system, objective_norm
 
 __all__ = [
     "METRICS", "METRE_ALIASES", "Recording", "RunResult", "simulate", "error_metrics",

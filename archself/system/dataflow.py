@@ -1,6 +1,6 @@
 """The data flow of one step: the algebraic-loop check and the step order (pure graph maths).
 
-A step of :class:`archself.system.executor.LiveSystem` runs along the active edges into
+A step of :class:`archself.system.live.LiveSystem` runs along the active edges into
 modules with direct feedthrough. :func:`algebraic_loop` finds a cycle of that flow
 (the executor's and ``archself validate``'s one check); :func:`topological_order`
 orders an acyclic flow, ties by file order.

@@ -1,12 +1,13 @@
 """The closed loop of a running configuration: the modules' linear models, wired.
 
-:class:`Linearizing` is the part of :class:`archself.system.executor.LiveSystem` that asks
+:class:`Linearizing` is the part of :class:`archself.system.live.LiveSystem` that asks
 each module of a configuration for its :meth:`~archself.modules.base.RuntimeModule.linear_model`
 around the current outputs (inactive modules on hand-over copies, so the live
 system is not changed), wires the models along the configuration's edges with
 :mod:`archself.linear.wiring` (a renamed edge through a stateless identity model) and
 takes the ``linearization()`` blocks of the modules without a model. It works on
-the system's plans (:class:`~archself.system.step_plan.StepPlan`), pool and outputs.
+the system's plans (:class:`~archself.system.live.StepPlan`; typed ``Any`` here: the live
+system imports this file), pool and outputs.
 """
 
 from __future__ import annotations
@@ -22,23 +23,22 @@ import scipy.sparse
 from archself.linear.closed_loop import WholeLoop
 from archself.linear.wiring import ClosedLoop, Wire, gc_paused, interconnect, loop_modules, wiring
 from archself.modules.base import LinearModel, Port, RuntimeModule, _numeric
-from archself.system.step_plan import StepPlan
 
 __all__ = ["Linearizing", "LoopProbes", "loop_probes", "numerical_loop"]
 
 
 class Linearizing:
-    """Closed loop and closed-loop A of a :class:`~archself.system.executor.LiveSystem`."""
+    """Closed loop and closed-loop A of a :class:`~archself.system.live.LiveSystem`."""
 
     dt: float
     configuration: str
     outputs: dict[str, dict[str, Any]]
-    _plan: StepPlan
+    _plan: Any
     _pool: dict[str, RuntimeModule]
     _module: Callable[[str], RuntimeModule]  # LiveSystem's methods
-    _make_plan: Callable[[str], StepPlan]
+    _make_plan: Callable[[str], Any]
 
-    def _linear_module(self, name: str, plan: StepPlan) -> RuntimeModule:
+    def _linear_module(self, name: str, plan: Any) -> RuntimeModule:
         """The module as it would run in ``plan``: live if active now, else a hand-over copy.
 
         An inactive module is evaluated on a copy that is first given the state of
@@ -77,7 +77,7 @@ class Linearizing:
         with gc_paused():  # many small acyclic objects (archself.model.loader.gc_paused)
             return self._closed_loop(plan)
 
-    def _closed_loop(self, plan: StepPlan) -> ClosedLoop:
+    def _closed_loop(self, plan: Any) -> ClosedLoop:
         """:meth:`closed_loop` of a plan that has modules giving models or matrices."""
         mods = {n: self._linear_module(n, plan) for n in plan.active}
         base = RuntimeModule.linear_model
@@ -120,7 +120,7 @@ class Linearizing:
 
     def _port_wires(
         self,
-        plan: StepPlan,
+        plan: Any,
         wires: list[Wire],
         models: dict[str, LinearModel],
         widths: dict[tuple[str, str], int],
@@ -177,7 +177,7 @@ def _state(mod: RuntimeModule) -> np.ndarray:
     return type(mod).state(mod)
 
 
-def _successors(plan: StepPlan) -> dict[str, set[str]]:
+def _successors(plan: Any) -> dict[str, set[str]]:
     nxt: dict[str, set[str]] = {n: set() for n in plan.active}
     for n in plan.active:
         for _carries, src, *_ in plan.routes[n]:
@@ -185,7 +185,7 @@ def _successors(plan: StepPlan) -> dict[str, set[str]]:
     return nxt
 
 
-def _one_step_reach(plan: StepPlan) -> dict[str, set[str]]:
+def _one_step_reach(plan: Any) -> dict[str, set[str]]:
     """module -> the modules whose state one step can move when its state moves.
 
     Itself, and what its outputs reach within the step: along the edges, through

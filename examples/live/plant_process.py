@@ -24,7 +24,7 @@ import sys
 from archself.errors import ArchselfError
 from archself.live import PlantLink
 from archself.model.loader import load_architecture
-from archself.system.compiler import compile_system
+from archself.system.live import compile_system
 
 
 def main(argv: list[str] | None = None) -> int:

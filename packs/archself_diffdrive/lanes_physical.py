@@ -67,7 +67,7 @@ class _Lanes(LaneModule):
     def _screen(self, value: np.ndarray, lanes: slice | np.ndarray) -> np.ndarray:
         """``value`` with present non-finite rows made absent and their lanes failed.
 
-        A row is bad as :func:`archself.system.health.is_bad` judges it: its sum in entry
+        A row is bad as :func:`archself.system.live.is_bad` judges it: its sum in entry
         order is not finite (an absent row is all NaN and not reported). A finite
         sum of the whole value clears every row at once (a row of finite entries
         whose sum alone overflows would need entries near 1e308).

@@ -92,7 +92,7 @@ def parameters_of(cls: type) -> dict[str, Param]:
 
 class _ModelNode(RuntimeModule):
     role = "model"
-    finite_outputs = True  # constants (archself.system.health.needs_checks)
+    finite_outputs = True  # constants (archself.system.live.needs_checks)
     direct_feedthrough = False
     _cls: ClassVar[type] = object
     _key: ClassVar[str] = ""

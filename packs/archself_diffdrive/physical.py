@@ -2,7 +2,7 @@
 
 The plant holds the true state; sensors read it (plus noise) and actuators pass
 the controller's commands to it. Faults of a scenario are injected by the
-system executor on these modules' outputs (:mod:`archself.system.faults`), so the
+system executor on these modules' outputs (:mod:`archself.system.live`), so the
 classes here model only the healthy hardware.
 """
 

@@ -139,7 +139,7 @@ class SplinePlanner(RuntimeModule):
     array([1. , 0. , 0. , 0.5, 0. ])
     """
 
-    finite_outputs = True  # a precomputed table (archself.system.health.needs_checks)
+    finite_outputs = True  # a precomputed table (archself.system.live.needs_checks)
 
     parameters = {
         "waypoints": Param(unit="m", doc="list of at least two [x, y] points", min=-1e6, max=1e6),
