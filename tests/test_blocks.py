@@ -293,9 +293,9 @@ def test_kalman_filter_one_step_by_hand():
     x_pred, p_pred = 0.5 * 2.0 + 1.0, 0.25 * 1.0 + 0.1
     k = p_pred / (p_pred + 0.2)
     assert_allclose(out["state"], [x_pred + k * (3.0 - x_pred)], rtol=1e-12)
-    assert_allclose(kf.kf.P, [[(1 - k) * p_pred]], rtol=1e-12)
+    assert_allclose(kf.P, [[(1 - k) * p_pred]], rtol=1e-12)
     err = kf.linearization()  # (1 − K)·F as a continuous equivalent
-    k_ss = kf.kf.P @ np.linalg.inv(kf.kf.P + 0.2)
+    k_ss = kf.P @ np.linalg.inv(kf.P + 0.2)
     assert_allclose(err, [[math.log(abs((1 - k_ss[0, 0]) * 0.5))]], rtol=1e-12)
 
 

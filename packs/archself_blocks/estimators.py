@@ -1,4 +1,4 @@
-"""Estimators on an LTI model: Kalman filters (filterpy) and the Luenberger observer.
+"""Estimators on an LTI model: Kalman filters and the Luenberger observer.
 
 Both take the model from a ``generic.lti_model`` node (input ``model``), the plant's
 applied input (``u``, optional: zeros without it) and a measurement of some of the
@@ -26,6 +26,7 @@ import numpy as np
 
 from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
+from archself_blocks.kalman import matvec, nis, predict, update
 from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
 
 __all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]
@@ -211,7 +212,8 @@ def _cov(x: Any, n: int) -> np.ndarray:
 
 
 class KalmanFilter(_ModelEstimator):
-    """Linear Kalman filter (filterpy's ``KalmanFilter``) on an LTI model.
+    """Linear Kalman filter on an LTI model (filterpy's ``KalmanFilter``'s formulas,
+    :mod:`archself_blocks.kalman`: one row of its lane class's maths).
 
     A continuous model is discretized at the run's step (zero-order hold) and the
     process noise intensity ``Q`` becomes ``Q·dt`` per step; a discrete model's
@@ -221,7 +223,9 @@ class KalmanFilter(_ModelEstimator):
     its covariance). A number for ``Q``, ``R`` or ``P0`` means that times the
     identity, a flat list the diagonal.
 
-    Residual signals ``innovation`` and ``nis`` (see the module's docstring).
+    Residual signals ``innovation`` and ``nis`` (see the module's docstring). The
+    filter's matrices ``F``, ``B``, ``H``, ``Q``, ``R`` and covariance ``P`` are
+    attributes (``P`` None until the first model arrived).
     """
 
     # P follows its own Riccati map; quiet_until is a timer
@@ -236,32 +240,28 @@ class KalmanFilter(_ModelEstimator):
     residual_signals: ClassVar[tuple[str, ...]] = ("innovation", "nis")
     lanes = "archself_blocks.lanes_estimators:KalmanFilterLanes"
 
-    def _matrices(self, dt: float) -> None:
-        import filterpy.kalman
+    def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
+        self.P: np.ndarray | None = None
+        super().__init__(name, params, rng)
 
+    def _matrices(self, dt: float) -> None:
         m = self.model
         n, k = m.n, self._h().shape[0]
-        Ad, Bd = m.discrete(dt)
+        self.F, self.B = m.discrete(dt)
         q = _cov(self.params["Q"], n)
-        if self.model.dt == 0:
-            q = q * dt
-        prev = getattr(self, "kf", None)
-        kf = filterpy.kalman.KalmanFilter(dim_x=n, dim_z=k, dim_u=m.m)
-        kf.F, kf.B, kf.H, kf.Q = Ad, Bd, self._h(), q
-        kf.R = _cov(self.params["R"], k)
-        if prev is not None and prev.P.shape == (n, n):
-            kf.P = prev.P.copy()
-        else:
-            kf.P = self._p0()
-        self.kf = kf
+        self.Q = q * dt if m.dt == 0 else q
+        self.H = self._h()
+        self.R = _cov(self.params["R"], k)
+        if self.P is None or self.P.shape != (n, n):
+            self.P = self._p0()
         self._dt = dt
 
     def _p0(self) -> np.ndarray:
         return _cov(self.params["P0"], self.model.n)
 
     def _reset_covariance(self) -> None:
-        if getattr(self, "kf", None) is not None and self.model is not None:
-            self.kf.P = self._p0()
+        if self.P is not None and self.model is not None:
+            self.P = self._p0()
 
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         z = self._inputs(t, dt, inputs)
@@ -269,23 +269,31 @@ class KalmanFilter(_ModelEstimator):
             return self._out()
         if self._dt != dt:
             self._matrices(dt)
-        kf = self.kf
         if self.x is None:
-            if z is None:
-                return self._out()
-            self._begin(t, z)
-            kf.x = np.array(self.x, dtype=float)
+            if z is not None:
+                self._begin(t, z)
             return self._out()
-        kf.x = self.x
-        kf.predict(u=self.u)
-        if z is not None:
-            nu = z - kf.H @ kf.x
-            kf.update(z)
-            s = kf.S
-            nis = float(nu @ np.linalg.solve(s, nu))
-            self._monitor(t, nu, nis)
-        self.x = np.asarray(kf.x, dtype=float).ravel().copy()
+        x, P = predict(self.x[None], self.P[None], self.F[None], self.Q[None],
+                       matvec(self.B[None], self.u[None]))
+        self._correct(t, z, x, P, self.H, np.linalg.inv)
         return self._out()
+
+    def _correct(self, t: float, z: np.ndarray | None, x: np.ndarray, P: np.ndarray,
+                 H: np.ndarray, inv: Any) -> np.ndarray:
+        """Update the predicted row ``x``, ``P`` with ``z`` (if any) and keep the result;
+        the full state. An ``S`` that ``inv`` cannot invert raises, the estimate kept and
+        the covariance predicted (as filterpy's filter)."""
+        self.P = P[0]
+        if z is not None:
+            nu = z[None] - matvec(H[None], x)
+            x, P, S, errors = update(x, P, nu, H[None], self.R[None], inv)
+            if errors:
+                raise errors[0]
+            self.P = P[0]
+            self._monitor(t, nu[0], float(nis(nu, S)[0]))
+        n = self.model.n
+        self.x = x[0, :n]
+        return x[0]
 
     def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
         """One predict-update step with the current gain.
@@ -305,8 +313,7 @@ class KalmanFilter(_ModelEstimator):
             F, Bd = model.discrete(dt)
             n = model.n
             q = _cov(self.params["Q"], n) * (dt if model.dt == 0 else 1.0)
-            kf = getattr(self, "kf", None)
-            P = kf.P if kf is not None and kf.P.shape == (n, n) else self._p0()
+            P = self.P if self.P is not None and self.P.shape == (n, n) else self._p0()
             R = _cov(self.params["R"], H.shape[0])
         finally:
             self.model = saved
@@ -317,17 +324,17 @@ class KalmanFilter(_ModelEstimator):
 
     def linearization(self) -> np.ndarray | None:
         """Error dynamics ``(I − K H) F`` of the filter as a continuous equivalent."""
-        kf = getattr(self, "kf", None)
-        if kf is None or self._dt is None:
+        if self.P is None or self._dt is None:
             return None
-        k = kf.P @ kf.H.T @ np.linalg.inv(kf.H @ kf.P @ kf.H.T + kf.R)
-        err = (np.eye(kf.F.shape[0]) - k @ kf.H) @ kf.F
+        k = self.P @ self.H.T @ np.linalg.inv(self.H @ self.P @ self.H.T + self.R)
+        err = (np.eye(self.F.shape[0]) - k @ self.H) @ self.F
         return continuous_equivalent(err, self._dt)
 
 
 class AugmentedEkf(KalmanFilter):
-    """Extended Kalman filter (filterpy's ``ExtendedKalmanFilter``) that also estimates
-    the effectiveness of each plant input and the bias of each measured output.
+    """Extended Kalman filter (filterpy's ``ExtendedKalmanFilter``'s formulas,
+    :mod:`archself_blocks.kalman`) that also estimates the effectiveness of each plant
+    input and the bias of each measured output.
 
     The state is augmented with η (one effectiveness per input, start 1, random walk of
     intensity ``effectiveness_noise``) and b (one bias per measured output, start 0,
@@ -383,8 +390,9 @@ class AugmentedEkf(KalmanFilter):
         return p
 
     def _matrices(self, dt: float) -> None:
-        import filterpy.kalman
+        import scipy.linalg  # filterpy's EKF inverse (it raises on a non-finite S)
 
+        self._inv = scipy.linalg.inv
         m = self.model
         n, ne, nb = self._sizes()
         k = self._h().shape[0]
@@ -397,11 +405,10 @@ class AugmentedEkf(KalmanFilter):
         h = np.zeros((k, n + ne + nb))
         h[:, :n] = self._h()
         h[:, n + ne:] = np.eye(k)[:, :nb] if nb else 0.0
-        prev = getattr(self, "kf", None)
-        kf = filterpy.kalman.ExtendedKalmanFilter(dim_x=n + ne + nb, dim_z=k)
-        kf.Q, kf.R = q, _cov(self.params["R"], k)
-        kf.P = prev.P.copy() if prev is not None and prev.P.shape == q.shape else self._p0()
-        self.kf, self._haug, self._dt = kf, h, dt
+        self.Q, self.R = q, _cov(self.params["R"], k)
+        if self.P is None or self.P.shape != q.shape:
+            self.P = self._p0()
+        self._haug, self._dt = h, dt
         if self.aug is None or self.aug.size != ne + nb:
             self.aug = np.concatenate([np.ones(ne), np.zeros(nb)])
 
@@ -419,31 +426,20 @@ class AugmentedEkf(KalmanFilter):
             return self._out()
         if self._dt != dt:
             self._matrices(dt)
-        kf = self.kf
         n, ne, nb = self._sizes()
         if self.x is None:
-            if z is None:
-                return self._out()
-            self._begin(t, z)
+            if z is not None:
+                self._begin(t, z)
             return self._out()
         u = self.u if self.u is not None else np.zeros(self.model.m)
-        kf.x = np.concatenate([self.x, self.aug])
-        f = self._jacobian(u)
+        xa = np.concatenate([self.x, self.aug])[None]
+        f = self._jacobian(u)[None]
         if not ne:  # η ≡ 1 is not a state: the input enters as in the linear filter
-            kf.B = np.vstack([self._bd, np.zeros((nb, self.model.m))])
-            kf.F = f
-            kf.predict(u=u)
-        else:
-            kf.B = 0
-            kf.F = f  # exact: f(x, η) = F·[x, η, b] for this u
-            kf.predict()
-        if z is not None:
-            h = self._haug
-            kf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ x)
-            nu = np.asarray(kf.y, dtype=float).ravel()
-            self._monitor(t, nu, float(nu @ np.linalg.solve(kf.S, nu)))
-        xa = np.asarray(kf.x, dtype=float).ravel()
-        self.x, self.aug = xa[:n].copy(), xa[n:].copy()
+            B = np.vstack([self._bd, np.zeros((nb, self.model.m))])
+            xa, P = predict(xa, self.P[None], f, self.Q[None], matvec(B[None], u[None]))
+        else:  # exact: f(x, η) = F·[x, η, b] for this u (B = 0)
+            xa, P = predict(xa, self.P[None], f, self.Q[None], 0)
+        self.aug = self._correct(t, z, xa, P, self._haug, self._inv)[n:]
         if t >= self.quiet_until:
             eta, b = self.aug[:ne], self.aug[ne:]
             self.signals["effectiveness_loss"] = float(max(0.0, *(1.0 - eta))) if ne else 0.0

@@ -21,11 +21,11 @@ import numpy as np
 
 from archself.errors import SimulationError
 from archself.lanes.module import ALL, LaneNormals, lane_count
+from archself_blocks.kalman import matvec
 from archself_blocks.lanes_base import (
     BlockLanes,
     as_rows,
     factors,
-    matvec,
     present,
     zoh,
 )
