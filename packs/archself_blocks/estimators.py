@@ -273,27 +273,22 @@ class KalmanFilter(_ModelEstimator):
             if z is not None:
                 self._begin(t, z)
             return self._out()
-        x, P = predict(self.x[None], self.P[None], self.F[None], self.Q[None],
-                       matvec(self.B[None], self.u[None]))
+        x, P = predict(self.x, self.P, self.F, self.Q, matvec(self.B, self.u))
         self._correct(t, z, x, P, self.H, np.linalg.inv)
         return self._out()
 
     def _correct(self, t: float, z: np.ndarray | None, x: np.ndarray, P: np.ndarray,
                  H: np.ndarray, inv: Any) -> np.ndarray:
-        """Update the predicted row ``x``, ``P`` with ``z`` (if any) and keep the result;
-        the full state. An ``S`` that ``inv`` cannot invert raises, the estimate kept and
+        """Update the predicted ``x``, ``P`` with ``z`` (if any) and keep the result; the
+        full state. An ``S`` that ``inv`` cannot invert raises, the estimate kept and
         the covariance predicted (as filterpy's filter)."""
-        self.P = P[0]
+        self.P = P
         if z is not None:
-            nu = z[None] - matvec(H[None], x)
-            x, P, S, errors = update(x, P, nu, H[None], self.R[None], inv)
-            if errors:
-                raise errors[0]
-            self.P = P[0]
-            self._monitor(t, nu[0], float(nis(nu, S)[0]))
-        n = self.model.n
-        self.x = x[0, :n]
-        return x[0]
+            nu = z - matvec(H, x)
+            x, self.P, S, _ = update(x, P, nu, H, self.R, inv)
+            self._monitor(t, nu, float(nis(nu, S)))
+        self.x = x[: self.model.n]
+        return x
 
     def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
         """One predict-update step with the current gain.
@@ -432,13 +427,13 @@ class AugmentedEkf(KalmanFilter):
                 self._begin(t, z)
             return self._out()
         u = self.u if self.u is not None else np.zeros(self.model.m)
-        xa = np.concatenate([self.x, self.aug])[None]
-        f = self._jacobian(u)[None]
+        xa = np.concatenate([self.x, self.aug])
+        f = self._jacobian(u)
         if not ne:  # η ≡ 1 is not a state: the input enters as in the linear filter
             B = np.vstack([self._bd, np.zeros((nb, self.model.m))])
-            xa, P = predict(xa, self.P[None], f, self.Q[None], matvec(B[None], u[None]))
+            xa, P = predict(xa, self.P, f, self.Q, matvec(B, u))
         else:  # exact: f(x, η) = F·[x, η, b] for this u (B = 0)
-            xa, P = predict(xa, self.P[None], f, self.Q[None], 0)
+            xa, P = predict(xa, self.P, f, self.Q, 0)
         self.aug = self._correct(t, z, xa, P, self._haug, self._inv)[n:]
         if t >= self.quiet_until:
             eta, b = self.aug[:ne], self.aug[ne:]
