@@ -188,10 +188,12 @@ class DriftWindows:
         cap = self.cap
         head = self.head[idx]
         first = count == 0
+        some_first = first.any()
         prev_slot = (head + count - 1) % cap
         prev = self.x[:, idx, prev_slot]
         lag = self.t[idx, prev_slot] - self.origin[idx]  # the previous fix about the origin
-        self.origin[idx] = np.where(first, t, self.origin[idx])
+        if some_first:
+            self.origin[idx] = np.where(first, t, self.origin[idx])
         mv = moved.T
         row = np.empty((_WIDTH, len(idx)))
         row[0:2] = e.T
@@ -199,11 +201,12 @@ class DriftWindows:
         np.add(prev[4:6], mv[2:] + lag * mv[:2], out=row[4:6])  # A
         step = row[0:2] - prev[0:2]
         row[11] = step[0] * step[0] + step[1] * step[1]
-        if first.any():
+        sums = self.total[:, idx]  # (a copy)
+        if some_first:
             row[2:6, first] = 0.0
             row[11, first] = 0.0
+            sums[:, first] = 0.0
         _products(row)
-        sums = np.where(first, 0.0, self.total[:, idx])
         self._put(idx, (head + count) % cap, t, row, sums)
         self.total[:, idx] = sums + row
         count = count + 1
