@@ -70,10 +70,11 @@ class DriftWindows:
 
     Per lane a ring buffer of fixes (one capacity for all lanes, doubled when a lane
     fills it, a head and a count per lane; each slot stored twice, at ``s`` and
-    ``s + capacity``, so that the window is the slice ``[head, head + capacity)``): the fix time, its channels (innovation
-    ``e``, the running sums ``D`` and moments ``A`` of ``d⊥`` about the lane's time
-    origin, their products and the squared step of ``e`` from the previous fix) and
-    the sums of those channels over the lane's earlier fixes since its origin.
+    ``s + capacity``, so that the window is the slice ``[head, head + capacity)``):
+    the fix time, its channels (innovation ``e``, the running sums ``D`` and moments
+    ``A`` of ``d⊥`` about the lane's time origin, their products and the squared step
+    of ``e`` from the previous fix) and the sums of those channels over the lane's
+    earlier fixes since its origin.
 
     Parameters
     ----------
@@ -142,7 +143,8 @@ class DriftWindows:
         return self.t[rows, cols], self.x[:, rows, cols], self.before[:, rows, cols]
 
     def _put(self, idx: np.ndarray, slot: np.ndarray, t: Any, x: Any, before: Any) -> None:
-        """Write slots ``slot`` (``(k,)`` or ``(k, w)``, < capacity) of lanes ``idx``, both copies."""
+        """Write slots ``slot`` (``(k,)`` or ``(k, w)``, < capacity) of lanes ``idx``,
+        both copies."""
         rows = idx if slot.ndim == 1 else idx[:, None]
         cols = np.stack([slot, slot + self.cap])  # (2, k[, w]): both copies in one write
         self.t[rows, cols] = t
