@@ -273,6 +273,7 @@ class KalmanFilter(_ModelEstimator):
             if z is not None:
                 self._begin(t, z)
             return self._out()
+        assert self.P is not None and self.u is not None  # (_matrices, _inputs: a model came)
         x, P = predict(self.x, self.P, self.F, self.Q, matvec(self.B, self.u))
         self._correct(t, z, x, P, self.H, np.linalg.inv)
         return self._out()
@@ -427,6 +428,7 @@ class AugmentedEkf(KalmanFilter):
                 self._begin(t, z)
             return self._out()
         u = self.u if self.u is not None else np.zeros(self.model.m)
+        assert self.P is not None  # (_matrices)
         xa = np.concatenate([self.x, self.aug])
         f = self._jacobian(u)
         if not ne:  # η ≡ 1 is not a state: the input enters as in the linear filter
