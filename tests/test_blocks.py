@@ -360,8 +360,9 @@ def test_ekf_matches_the_equations_written_out():
 @pytest.mark.parametrize("parts", [{}, {"estimate_bias": True},
                                    {"estimate_effectiveness": False, "estimate_bias": True}])
 def test_ekf_matches_filterpys_extended_kalman_filter(parts):
-    """filterpy's ``ExtendedKalmanFilter`` (the oracle; a run uses archself_blocks.kalman)
-    fed the same Jacobian and ``h``: state, parameters and covariance within 1e-12."""
+    """filterpy's ``ExtendedKalmanFilter`` (the oracle; a run uses the maths written in
+    archself_blocks.estimators) fed the same Jacobian and ``h``: state, parameters and
+    covariance within 1e-12."""
     from filterpy.kalman import ExtendedKalmanFilter
 
     dt = 0.1

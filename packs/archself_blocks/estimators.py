@@ -13,6 +13,10 @@ sliding window of ``innovation_window_s``:
 
 For ``settle_s`` seconds after the start and after a hand-over the monitor is
 paused: a converging estimate says nothing about the sensor.
+
+The Kalman filters' maths (:func:`predict`, :func:`update`, :func:`nis`) is written
+once, for one filter or a stack of L: the per-run filters and their lane classes run
+the same functions; filterpy is the tests' oracle, never imported by a run.
 """
 
 from __future__ import annotations
@@ -20,16 +24,27 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 
 from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself_blocks.kalman import matvec, nis, predict, update
-from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
+from archself_blocks.lti import (
+    LtiModel,
+    as_matrix,
+    as_vector,
+    continuous_equivalent,
+    matvec,
+    vector,
+)
 
-__all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]
+__all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "nis", "observer_gain",
+           "predict", "update"]
+
+#: the identity of each state size (read only)
+_EYE: dict[int, np.ndarray] = {}
 
 
 class MeanWindow:
@@ -211,9 +226,108 @@ def _cov(x: Any, n: int) -> np.ndarray:
     return as_matrix(x, rows=n, cols=None if np.ndim(x) == 0 else n)
 
 
+# ----------------------------------------------------------------- the Kalman maths, once
+# filterpy's predict and Joseph-form update (KalmanFilter; ExtendedKalmanFilter with the
+# linear h of the augmented filter) on one filter's vector and matrices (the per-run
+# classes below) or on stacks of L (their lane classes in lanes_estimators and
+# lanes_observers): the same numpy calls, so a lane is its run; filterpy stays the
+# tests' oracle (tests/test_blocks.py) and a run imports none of it.
+
+
+def _t(a: np.ndarray) -> np.ndarray:
+    """The (stacked) transposes."""
+    return a.swapaxes(-1, -2)
+
+
+def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray,
+            Bu: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """``x⁺ = F x + B u`` and ``P⁺ = F P Fᵀ + Q`` (filterpy's ``predict``).
+
+    Parameters
+    ----------
+    x : (n,) or (L, n) array
+    P, F, Q : (n, n) or (L, n, n) arrays
+    Bu : array shaped as x, or 0
+        The input's part ``B u`` (0: filterpy's ``B = 0``, which adds an exact 0).
+
+    Examples
+    --------
+    >>> x, P = predict(np.array([[1.0]]), np.array([[[2.0]]]), np.array([[[0.5]]]),
+    ...                np.array([[[0.1]]]), np.array([[3.0]]))
+    >>> x.tolist(), P.tolist()
+    ([[3.5]], [[[0.6]]])
+    """
+    return matvec(F, x) + Bu, (F @ P) @ _t(F) + Q
+
+
+def update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray,
+           inv: Callable[[np.ndarray], Any]
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, Exception]]:
+    """filterpy's ``update`` in Joseph form, with innovation ``nu = z − H x``.
+
+    ``K = P Hᵀ S⁻¹`` with ``S = H P Hᵀ + R``, ``x + K ν`` and
+    ``(I − K H) P (I − K H)ᵀ + K R Kᵀ``. ``inv`` is the filter's inverse (filterpy's
+    ``KalmanFilter``: ``numpy.linalg.inv``; its ``ExtendedKalmanFilter``:
+    ``scipy.linalg.inv``), batched where it can be, else matrix by matrix. Shapes
+    as :func:`predict`'s: one filter, or a stack of L.
+
+    Returns
+    -------
+    x, P : arrays
+        Updated (a stack's row whose ``S`` could not be inverted: ``x`` as given).
+    S : (k, k) or (L, k, k) array
+        The innovation covariance(s).
+    errors : dict
+        Stack row -> the exception ``inv`` raised for it (one filter: it is raised).
+
+    Examples
+    --------
+    >>> x, P, S, errors = update(np.array([[0.0]]), np.array([[[1.0]]]), np.array([[2.0]]),
+    ...                          np.array([[[1.0]]]), np.array([[[1.0]]]), np.linalg.inv)
+    >>> x.tolist(), P.tolist(), S.tolist(), errors
+    ([[1.0]], [[[0.5]]], [[[2.0]]], {})
+    """
+    PHT = P @ _t(H)
+    S = H @ PHT + R
+    errors: dict[int, Exception] = {}
+    try:
+        SI = inv(S)
+        if SI.shape != S.shape:
+            raise ValueError("not batched")
+    except (ValueError, np.linalg.LinAlgError):  # one by one
+        if S.ndim == 2:
+            raise
+        SI = np.zeros_like(S)
+        for j in range(len(S)):
+            try:
+                SI[j] = inv(S[j])
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                errors[j] = exc
+    K = PHT @ SI
+    n = P.shape[-1]
+    eye = _EYE.get(n)
+    if eye is None:
+        eye = _EYE[n] = np.eye(n)
+    I_KH = eye - K @ H
+    return (x + matvec(K, nu), (I_KH @ P) @ _t(I_KH) + (K @ R) @ _t(K), S, errors)
+
+
+def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """The normalized innovation squared ``νᵀ S⁻¹ ν`` (a number, or ``(L,)`` for a stack).
+
+    Examples
+    --------
+    >>> nis(np.array([[2.0]]), np.array([[[4.0]]])).tolist()
+    [1.0]
+    >>> float(nis(np.array([2.0]), np.array([[4.0]])))
+    1.0
+    """
+    return (nu[..., None, :] @ np.linalg.solve(S, nu[..., None]))[..., 0, 0]
+
+
 class KalmanFilter(_ModelEstimator):
     """Linear Kalman filter on an LTI model (filterpy's ``KalmanFilter``'s formulas,
-    :mod:`archself_blocks.kalman`: one row of its lane class's maths).
+    the Kalman maths above, shared with its lane class).
 
     A continuous model is discretized at the run's step (zero-order hold) and the
     process noise intensity ``Q`` becomes ``Q·dt`` per step; a discrete model's
@@ -329,7 +443,7 @@ class KalmanFilter(_ModelEstimator):
 
 class AugmentedEkf(KalmanFilter):
     """Extended Kalman filter (filterpy's ``ExtendedKalmanFilter``'s formulas,
-    :mod:`archself_blocks.kalman`) that also estimates the effectiveness of each plant
+    the Kalman maths above) that also estimates the effectiveness of each plant
     input and the bias of each measured output.
 
     The state is augmented with η (one effectiveness per input, start 1, random walk of

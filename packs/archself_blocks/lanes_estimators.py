@@ -7,7 +7,7 @@ bridge of :class:`~archself_blocks.estimators._ModelEstimator`);
 ``(N, n, n)`` and filter matrices (from the lane's own model object and
 parameters: ``model.discrete(dt)``, ``Q·dt``, the measured rows of C, ``R``, ``P0``)
 and runs the filter's predict and Joseph-form update of
-:mod:`archself_blocks.kalman` on its rows, the functions the per-run filter runs on
+:mod:`~archself_blocks.estimators` on its rows, the functions the per-run filter runs on
 one row. Lanes start (the first measurement: ``x0`` or the least-squares
 estimate), take a new model object, keep their last ``u`` and pause their monitor
 after a hand-over exactly as the per-run filter does; the innovation windows are
@@ -25,11 +25,10 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
-from archself_blocks.estimators import _cov
-from archself_blocks.kalman import matvec, nis, predict, update
+from archself_blocks.estimators import _cov, nis, predict, update
 from archself_blocks.lanes_base import BlockLanes, as_rows, present, zoh
 from archself_blocks.lanes_windows import LaneMeanWindows
-from archself_blocks.lti import vector
+from archself_blocks.lti import matvec, vector
 
 __all__ = ["KalmanFilterLanes", "ModelEstimatorLanes"]
 
@@ -248,7 +247,7 @@ class ModelEstimatorLanes(BlockLanes):
         m.P = self.P[i].copy()  # (else the instance's own matrices, loaded from)
 
     def _joseph(self, t, idx, x, P, nu, H, R, inv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`~archself_blocks.kalman.update` of lanes ``idx`` with innovation ``nu``,
+        """:func:`~archself_blocks.estimators.update` of lanes ``idx`` with innovation ``nu``,
         and the innovation monitor; which lanes did not raise.
 
         ``inv`` is the per-run filter's inverse; a lane whose ``S`` it cannot invert

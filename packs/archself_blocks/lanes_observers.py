@@ -8,7 +8,7 @@ start, paused monitor, windows, the per-run bridge). The observer's matrices (it
 gain L, by ``control.place`` or given, and the zero-order hold of ``A − L C``) come
 from the per-run code run on a copy of the lane's instance, once for the lanes
 whose model and parameters agree; the propagation ``Ad x̂ + Bd [u; y]`` is a stacked
-product. The EKF runs the predict and update of :mod:`archself_blocks.kalman` on the
+product. The EKF runs the predict and update of :mod:`~archself_blocks.estimators` on the
 augmented state ``[x, η, b]``, as its per-run instance does on one row, its ``S⁻¹`` by
 ``scipy.linalg.inv`` (filterpy's EKF's: batched from scipy 1.16, else matrix by matrix).
 """
@@ -23,10 +23,10 @@ import numpy as np
 import scipy.linalg as linalg
 
 from archself.errors import SimulationError
-from archself_blocks.estimators import _cov
-from archself_blocks.kalman import matvec, predict
+from archself_blocks.estimators import _cov, predict
 from archself_blocks.lanes_base import zoh
 from archself_blocks.lanes_estimators import ModelEstimatorLanes
+from archself_blocks.lti import matvec
 
 __all__ = ["AugmentedEkfLanes", "LuenbergerLanes"]
 

@@ -21,7 +21,6 @@ import numpy as np
 
 from archself.errors import SimulationError
 from archself.lanes.module import ALL, LaneNormals, lane_count
-from archself_blocks.kalman import matvec
 from archself_blocks.lanes_base import (
     BlockLanes,
     as_rows,
@@ -29,6 +28,7 @@ from archself_blocks.lanes_base import (
     present,
     zoh,
 )
+from archself_blocks.lti import matvec
 
 __all__ = ["ActuatorLanes", "LtiModelNodeLanes", "SensorLanes", "StateSpacePlantLanes"]
 
