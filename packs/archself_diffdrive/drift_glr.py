@@ -132,15 +132,19 @@ class DriftWindows:
     # ---------------------------------------------------------------- the buffers
     def _window(self, idx: np.ndarray, width: int | None = None) -> tuple[np.ndarray, ...]:
         """``t``, ``x`` and ``before`` of lanes ``idx``, oldest fix first, ``width``
-        slots (default: the capacity): views for one lane, copies for several."""
+        slots (default: the capacity): views where the lanes are one slice and share
+        their head (one run; lanes whose fixes came at the same times), else copies."""
         width = self.cap if width is None else width
-        if len(idx) == 1:
-            i, h = int(idx[0]), int(self.head[idx[0]])
-            rows: Any = slice(i, i + 1)
-            cols: Any = slice(h, h + width)
-        else:
-            rows, cols = idx[:, None], self.head[idx, None] + np.arange(width)
-        return self.t[rows, cols], self.x[:, rows, cols], self.before[:, rows, cols]
+        head = self.head[idx]
+        h = int(head[0])
+        if not (head == h).all():
+            rows, cols = idx[:, None], head[:, None] + np.arange(width)
+            return self.t[rows, cols], self.x[:, rows, cols], self.before[:, rows, cols]
+        first, k = int(idx[0]), len(idx)
+        one: Any = slice(first, first + k) if idx[-1] - first == k - 1 and (
+            k < 3 or (np.diff(idx) == 1).all()) else idx
+        cols = slice(h, h + width)
+        return self.t[one, cols], self.x[:, one, cols], self.before[:, one, cols]
 
     def _put(self, idx: np.ndarray, slot: np.ndarray, t: Any, x: Any, before: Any) -> None:
         """Write slots ``slot`` (``(k,)`` or ``(k, w)``, < capacity) of lanes ``idx``,
