@@ -281,7 +281,8 @@ def test_kalman_filter_matches_filterpy_with_explicit_matrices():
         ref.update(np.array([zs[k]]))
         ours.append(out["state"])
         theirs.append(np.asarray(ref.x, float).ravel())
-    assert_allclose(ours, theirs, rtol=1e-10, atol=1e-12)
+        assert_allclose(kf.P, ref.P, rtol=1e-12, atol=1e-15)
+    assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12)
     assert np.sqrt(np.mean((np.array(ours)[:, 0] - xs[1:, 0]) ** 2)) < 0.2  # filters the noise
 
 
@@ -293,9 +294,9 @@ def test_kalman_filter_one_step_by_hand():
     x_pred, p_pred = 0.5 * 2.0 + 1.0, 0.25 * 1.0 + 0.1
     k = p_pred / (p_pred + 0.2)
     assert_allclose(out["state"], [x_pred + k * (3.0 - x_pred)], rtol=1e-12)
-    assert_allclose(kf.kf.P, [[(1 - k) * p_pred]], rtol=1e-12)
+    assert_allclose(kf.P, [[(1 - k) * p_pred]], rtol=1e-12)
     err = kf.linearization()  # (1 − K)·F as a continuous equivalent
-    k_ss = kf.kf.P @ np.linalg.inv(kf.kf.P + 0.2)
+    k_ss = kf.P @ np.linalg.inv(kf.P + 0.2)
     assert_allclose(err, [[math.log(abs((1 - k_ss[0, 0]) * 0.5))]], rtol=1e-12)
 
 
@@ -354,6 +355,63 @@ def test_ekf_matches_the_equations_written_out():
         P = IKH @ P @ IKH.T + R * K @ K.T
         assert_allclose(out["state"], x[:2], rtol=1e-9, atol=1e-12)
         assert_allclose(out["parameters"], x[2:], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("parts", [{}, {"estimate_bias": True},
+                                   {"estimate_effectiveness": False, "estimate_bias": True}])
+def test_ekf_matches_filterpys_extended_kalman_filter(parts):
+    """filterpy's ``ExtendedKalmanFilter`` (the oracle; a run uses the maths written in
+    archself_blocks.estimators) fed the same Jacobian and ``h``: state, parameters and
+    covariance within 1e-12."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    dt = 0.1
+    zs, us = _plant_run(60, dt, bias=0.2)
+    model = LtiModel(A2, B2, C2)
+    params = {"Q": 0.01, "R": 0.0025, "P0": 0.5, "x0": [0.0, 0.0], "measured_outputs": [0],
+              "effectiveness_noise": 0.01, "effectiveness_p0": 0.04, **parts}
+    ekf = AugmentedEkf("e", params, rng())
+    ekf.step(0.0, dt, {"measurement": zs[0], "model": model})
+    ne, nb = (1 if ekf.params["estimate_effectiveness"] else 0), (1 if parts else 0)
+    na = 2 + ne + nb
+    ref = ExtendedKalmanFilter(dim_x=na, dim_z=1)
+    ref.x = np.concatenate([[0.0, 0.0], np.ones(ne), np.zeros(nb)])
+    ref.P = np.diag([0.5, 0.5] + [0.04] * ne + [ekf.params["bias_p0"]] * nb)
+    ref.Q = np.diag([0.01 * dt] * 2 + [0.01 * dt] * ne + [ekf.params["bias_noise"] * dt] * nb)
+    ref.R = np.array([[0.0025]])
+    h = np.zeros((1, na))
+    h[0, 0] = 1.0
+    h[0, na - nb:] = 1.0
+    Ad, Bd = model.discrete(dt)
+    for k in range(1, len(zs)):
+        out = ekf.step(k * dt, dt, {"measurement": zs[k], "u": us[k], "model": model})
+        F = np.eye(na)
+        F[:2, :2] = Ad
+        if ne:
+            F[:2, 2] = Bd[:, 0] * us[k][0]
+            ref.B = 0
+        else:
+            ref.B = np.vstack([Bd, np.zeros((nb, 1))])
+        ref.F = F
+        ref.predict(u=0 if ne else us[k])
+        ref.update(np.array([zs[k]]), HJacobian=lambda _x: h, Hx=lambda x: h @ x)
+        xa = np.asarray(ref.x, float).ravel()
+        assert_allclose(out["state"], xa[:2], rtol=1e-12, atol=1e-12)
+        assert_allclose(out["parameters"], xa[2:], rtol=1e-12, atol=1e-12)
+        assert_allclose(ekf.P, ref.P, rtol=1e-12, atol=1e-15)
+
+
+def test_a_blocks_run_imports_no_filterpy():
+    """generic.kalman runs archself_blocks.kalman: a run of motor_drive imports no filterpy."""
+    from archself.resources import data_dir
+
+    arch = data_dir("architectures") / "motor_drive.yaml"
+    code = ("import sys\nfrom archself.sim.run import simulate\n"
+            f"simulate({str(arch)!r}, 'nominal', seed=1)\n"
+            "print('filterpy' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split()[-1] == "False"
 
 
 def test_ekf_estimates_an_actuator_effectiveness_loss():

@@ -374,7 +374,7 @@ def test_kalman_lanes_are_the_per_run_filters() -> None:
     batched.store(ALL)
     for mod, twin in zip(batched.modules, twins, strict=True):
         assert_allclose(mod.export_state()["state"], twin.export_state()["state"], **TOL)
-        assert_allclose(mod.kf.P, twin.kf.P, **TOL)
+        assert_allclose(mod.P, twin.P, **TOL)
         assert_allclose(mod.linearization(), twin.linearization(), **TOL)
         assert [t for t, _ in mod.window.items] == [t for t, _ in twin.window.items]
         assert_allclose(mod.window.total, twin.window.total, **TOL)
@@ -433,7 +433,7 @@ def test_ekf_lanes_are_the_per_run_filters(parts) -> None:
         got, want = mod.export_state(), twin.export_state()
         for key in ("state", "parameters"):
             assert_allclose(got[key], want[key], err_msg=key, **TOL)
-        assert_allclose(mod.kf.P, twin.kf.P, **TOL)
+        assert_allclose(mod.P, twin.P, **TOL)
 
 
 @pytest.mark.parametrize(("kind", "why"), [(KalmanFilter, "non-finite output"),
@@ -450,7 +450,7 @@ def test_a_filter_lane_whose_covariance_broke_fails_alone(kind, why) -> None:
         if k == 8:
             batched.store(ALL)
             for m in (batched.modules[1], twins[1]):
-                m.kf.P = np.full_like(m.kf.P, math.nan)
+                m.P = np.full_like(m.P, math.nan)
             batched.load(ALL)
         per_run = [{**_kalman_inputs(rng, k, i), "measurement": 50.0} for i in range(4)]
         got = batched.step(k * DT, DT, _lane_inputs(per_run), ALL)

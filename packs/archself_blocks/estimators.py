@@ -1,4 +1,4 @@
-"""Estimators on an LTI model: Kalman filters (filterpy) and the Luenberger observer.
+"""Estimators on an LTI model: Kalman filters and the Luenberger observer.
 
 Both take the model from a ``generic.lti_model`` node (input ``model``), the plant's
 applied input (``u``, optional: zeros without it) and a measurement of some of the
@@ -13,6 +13,10 @@ sliding window of ``innovation_window_s``:
 
 For ``settle_s`` seconds after the start and after a hand-over the monitor is
 paused: a converging estimate says nothing about the sensor.
+
+The Kalman filters' maths (:func:`predict`, :func:`update`, :func:`nis`) is written
+once, for one filter or a stack of L: the per-run filters and their lane classes run
+the same functions; filterpy is the tests' oracle, never imported by a run.
 """
 
 from __future__ import annotations
@@ -20,15 +24,27 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 
 from archself.model.ports import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
-from archself_blocks.lti import LtiModel, as_matrix, as_vector, continuous_equivalent, vector
+from archself_blocks.lti import (
+    LtiModel,
+    as_matrix,
+    as_vector,
+    continuous_equivalent,
+    matvec,
+    vector,
+)
 
-__all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "observer_gain"]
+__all__ = ["MeanWindow", "KalmanFilter", "AugmentedEkf", "Luenberger", "nis", "observer_gain",
+           "predict", "update"]
+
+#: the identity of each state size (read only)
+_EYE: dict[int, np.ndarray] = {}
 
 
 class MeanWindow:
@@ -210,8 +226,108 @@ def _cov(x: Any, n: int) -> np.ndarray:
     return as_matrix(x, rows=n, cols=None if np.ndim(x) == 0 else n)
 
 
+# ----------------------------------------------------------------- the Kalman maths, once
+# filterpy's predict and Joseph-form update (KalmanFilter; ExtendedKalmanFilter with the
+# linear h of the augmented filter) on one filter's vector and matrices (the per-run
+# classes below) or on stacks of L (their lane classes in lanes_estimators and
+# lanes_observers): the same numpy calls, so a lane is its run; filterpy stays the
+# tests' oracle (tests/test_blocks.py) and a run imports none of it.
+
+
+def _t(a: np.ndarray) -> np.ndarray:
+    """The (stacked) transposes."""
+    return a.swapaxes(-1, -2)
+
+
+def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray,
+            Bu: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """``x⁺ = F x + B u`` and ``P⁺ = F P Fᵀ + Q`` (filterpy's ``predict``).
+
+    Parameters
+    ----------
+    x : (n,) or (L, n) array
+    P, F, Q : (n, n) or (L, n, n) arrays
+    Bu : array shaped as x, or 0
+        The input's part ``B u`` (0: filterpy's ``B = 0``, which adds an exact 0).
+
+    Examples
+    --------
+    >>> x, P = predict(np.array([[1.0]]), np.array([[[2.0]]]), np.array([[[0.5]]]),
+    ...                np.array([[[0.1]]]), np.array([[3.0]]))
+    >>> x.tolist(), P.tolist()
+    ([[3.5]], [[[0.6]]])
+    """
+    return matvec(F, x) + Bu, (F @ P) @ _t(F) + Q
+
+
+def update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray,
+           inv: Callable[[np.ndarray], Any]
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, Exception]]:
+    """filterpy's ``update`` in Joseph form, with innovation ``nu = z − H x``.
+
+    ``K = P Hᵀ S⁻¹`` with ``S = H P Hᵀ + R``, ``x + K ν`` and
+    ``(I − K H) P (I − K H)ᵀ + K R Kᵀ``. ``inv`` is the filter's inverse (filterpy's
+    ``KalmanFilter``: ``numpy.linalg.inv``; its ``ExtendedKalmanFilter``:
+    ``scipy.linalg.inv``), batched where it can be, else matrix by matrix. Shapes
+    as :func:`predict`'s: one filter, or a stack of L.
+
+    Returns
+    -------
+    x, P : arrays
+        Updated (a stack's row whose ``S`` could not be inverted: ``x`` as given).
+    S : (k, k) or (L, k, k) array
+        The innovation covariance(s).
+    errors : dict
+        Stack row -> the exception ``inv`` raised for it (one filter: it is raised).
+
+    Examples
+    --------
+    >>> x, P, S, errors = update(np.array([[0.0]]), np.array([[[1.0]]]), np.array([[2.0]]),
+    ...                          np.array([[[1.0]]]), np.array([[[1.0]]]), np.linalg.inv)
+    >>> x.tolist(), P.tolist(), S.tolist(), errors
+    ([[1.0]], [[[0.5]]], [[[2.0]]], {})
+    """
+    PHT = P @ _t(H)
+    S = H @ PHT + R
+    errors: dict[int, Exception] = {}
+    try:
+        SI = inv(S)
+        if SI.shape != S.shape:
+            raise ValueError("not batched")
+    except (ValueError, np.linalg.LinAlgError):  # one by one
+        if S.ndim == 2:
+            raise
+        SI = np.zeros_like(S)
+        for j in range(len(S)):
+            try:
+                SI[j] = inv(S[j])
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                errors[j] = exc
+    K = PHT @ SI
+    n = P.shape[-1]
+    eye = _EYE.get(n)
+    if eye is None:
+        eye = _EYE[n] = np.eye(n)
+    I_KH = eye - K @ H
+    return (x + matvec(K, nu), (I_KH @ P) @ _t(I_KH) + (K @ R) @ _t(K), S, errors)
+
+
+def nis(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """The normalized innovation squared ``νᵀ S⁻¹ ν`` (a number, or ``(L,)`` for a stack).
+
+    Examples
+    --------
+    >>> nis(np.array([[2.0]]), np.array([[[4.0]]])).tolist()
+    [1.0]
+    >>> float(nis(np.array([2.0]), np.array([[4.0]])))
+    1.0
+    """
+    return (nu[..., None, :] @ np.linalg.solve(S, nu[..., None]))[..., 0, 0]
+
+
 class KalmanFilter(_ModelEstimator):
-    """Linear Kalman filter (filterpy's ``KalmanFilter``) on an LTI model.
+    """Linear Kalman filter on an LTI model (filterpy's ``KalmanFilter``'s formulas,
+    the Kalman maths above, shared with its lane class).
 
     A continuous model is discretized at the run's step (zero-order hold) and the
     process noise intensity ``Q`` becomes ``Q·dt`` per step; a discrete model's
@@ -221,7 +337,9 @@ class KalmanFilter(_ModelEstimator):
     its covariance). A number for ``Q``, ``R`` or ``P0`` means that times the
     identity, a flat list the diagonal.
 
-    Residual signals ``innovation`` and ``nis`` (see the module's docstring).
+    Residual signals ``innovation`` and ``nis`` (see the module's docstring). The
+    filter's matrices ``F``, ``B``, ``H``, ``Q``, ``R`` and covariance ``P`` are
+    attributes (``P`` None until the first model arrived).
     """
 
     # P follows its own Riccati map; quiet_until is a timer
@@ -236,32 +354,28 @@ class KalmanFilter(_ModelEstimator):
     residual_signals: ClassVar[tuple[str, ...]] = ("innovation", "nis")
     lanes = "archself_blocks.lanes_estimators:KalmanFilterLanes"
 
-    def _matrices(self, dt: float) -> None:
-        import filterpy.kalman
+    def __init__(self, name: str, params: dict[str, Any], rng: np.random.Generator) -> None:
+        self.P: np.ndarray | None = None
+        super().__init__(name, params, rng)
 
+    def _matrices(self, dt: float) -> None:
         m = self.model
         n, k = m.n, self._h().shape[0]
-        Ad, Bd = m.discrete(dt)
+        self.F, self.B = m.discrete(dt)
         q = _cov(self.params["Q"], n)
-        if self.model.dt == 0:
-            q = q * dt
-        prev = getattr(self, "kf", None)
-        kf = filterpy.kalman.KalmanFilter(dim_x=n, dim_z=k, dim_u=m.m)
-        kf.F, kf.B, kf.H, kf.Q = Ad, Bd, self._h(), q
-        kf.R = _cov(self.params["R"], k)
-        if prev is not None and prev.P.shape == (n, n):
-            kf.P = prev.P.copy()
-        else:
-            kf.P = self._p0()
-        self.kf = kf
+        self.Q = q * dt if m.dt == 0 else q
+        self.H = self._h()
+        self.R = _cov(self.params["R"], k)
+        if self.P is None or self.P.shape != (n, n):
+            self.P = self._p0()
         self._dt = dt
 
     def _p0(self) -> np.ndarray:
         return _cov(self.params["P0"], self.model.n)
 
     def _reset_covariance(self) -> None:
-        if getattr(self, "kf", None) is not None and self.model is not None:
-            self.kf.P = self._p0()
+        if self.P is not None and self.model is not None:
+            self.P = self._p0()
 
     def step(self, t: float, dt: float, inputs: dict[str, Any]) -> dict[str, Any]:
         z = self._inputs(t, dt, inputs)
@@ -269,23 +383,27 @@ class KalmanFilter(_ModelEstimator):
             return self._out()
         if self._dt != dt:
             self._matrices(dt)
-        kf = self.kf
         if self.x is None:
-            if z is None:
-                return self._out()
-            self._begin(t, z)
-            kf.x = np.array(self.x, dtype=float)
+            if z is not None:
+                self._begin(t, z)
             return self._out()
-        kf.x = self.x
-        kf.predict(u=self.u)
-        if z is not None:
-            nu = z - kf.H @ kf.x
-            kf.update(z)
-            s = kf.S
-            nis = float(nu @ np.linalg.solve(s, nu))
-            self._monitor(t, nu, nis)
-        self.x = np.asarray(kf.x, dtype=float).ravel().copy()
+        assert self.P is not None and self.u is not None  # (_matrices, _inputs: a model came)
+        x, P = predict(self.x, self.P, self.F, self.Q, matvec(self.B, self.u))
+        self._correct(t, z, x, P, self.H, np.linalg.inv)
         return self._out()
+
+    def _correct(self, t: float, z: np.ndarray | None, x: np.ndarray, P: np.ndarray,
+                 H: np.ndarray, inv: Any) -> np.ndarray:
+        """Update the predicted ``x``, ``P`` with ``z`` (if any) and keep the result; the
+        full state. An ``S`` that ``inv`` cannot invert raises, the estimate kept and
+        the covariance predicted (as filterpy's filter)."""
+        self.P = P
+        if z is not None:
+            nu = z - matvec(H, x)
+            x, self.P, S, _ = update(x, P, nu, H, self.R, inv)
+            self._monitor(t, nu, float(nis(nu, S)))
+        self.x = x[: self.model.n]
+        return x
 
     def linear_model(self, dt: float, inputs: Any) -> LinearModel | None:
         """One predict-update step with the current gain.
@@ -305,8 +423,7 @@ class KalmanFilter(_ModelEstimator):
             F, Bd = model.discrete(dt)
             n = model.n
             q = _cov(self.params["Q"], n) * (dt if model.dt == 0 else 1.0)
-            kf = getattr(self, "kf", None)
-            P = kf.P if kf is not None and kf.P.shape == (n, n) else self._p0()
+            P = self.P if self.P is not None and self.P.shape == (n, n) else self._p0()
             R = _cov(self.params["R"], H.shape[0])
         finally:
             self.model = saved
@@ -317,17 +434,17 @@ class KalmanFilter(_ModelEstimator):
 
     def linearization(self) -> np.ndarray | None:
         """Error dynamics ``(I − K H) F`` of the filter as a continuous equivalent."""
-        kf = getattr(self, "kf", None)
-        if kf is None or self._dt is None:
+        if self.P is None or self._dt is None:
             return None
-        k = kf.P @ kf.H.T @ np.linalg.inv(kf.H @ kf.P @ kf.H.T + kf.R)
-        err = (np.eye(kf.F.shape[0]) - k @ kf.H) @ kf.F
+        k = self.P @ self.H.T @ np.linalg.inv(self.H @ self.P @ self.H.T + self.R)
+        err = (np.eye(self.F.shape[0]) - k @ self.H) @ self.F
         return continuous_equivalent(err, self._dt)
 
 
 class AugmentedEkf(KalmanFilter):
-    """Extended Kalman filter (filterpy's ``ExtendedKalmanFilter``) that also estimates
-    the effectiveness of each plant input and the bias of each measured output.
+    """Extended Kalman filter (filterpy's ``ExtendedKalmanFilter``'s formulas,
+    the Kalman maths above) that also estimates the effectiveness of each plant
+    input and the bias of each measured output.
 
     The state is augmented with η (one effectiveness per input, start 1, random walk of
     intensity ``effectiveness_noise``) and b (one bias per measured output, start 0,
@@ -383,8 +500,9 @@ class AugmentedEkf(KalmanFilter):
         return p
 
     def _matrices(self, dt: float) -> None:
-        import filterpy.kalman
+        import scipy.linalg  # filterpy's EKF inverse (it raises on a non-finite S)
 
+        self._inv = scipy.linalg.inv
         m = self.model
         n, ne, nb = self._sizes()
         k = self._h().shape[0]
@@ -397,11 +515,10 @@ class AugmentedEkf(KalmanFilter):
         h = np.zeros((k, n + ne + nb))
         h[:, :n] = self._h()
         h[:, n + ne:] = np.eye(k)[:, :nb] if nb else 0.0
-        prev = getattr(self, "kf", None)
-        kf = filterpy.kalman.ExtendedKalmanFilter(dim_x=n + ne + nb, dim_z=k)
-        kf.Q, kf.R = q, _cov(self.params["R"], k)
-        kf.P = prev.P.copy() if prev is not None and prev.P.shape == q.shape else self._p0()
-        self.kf, self._haug, self._dt = kf, h, dt
+        self.Q, self.R = q, _cov(self.params["R"], k)
+        if self.P is None or self.P.shape != q.shape:
+            self.P = self._p0()
+        self._haug, self._dt = h, dt
         if self.aug is None or self.aug.size != ne + nb:
             self.aug = np.concatenate([np.ones(ne), np.zeros(nb)])
 
@@ -419,31 +536,21 @@ class AugmentedEkf(KalmanFilter):
             return self._out()
         if self._dt != dt:
             self._matrices(dt)
-        kf = self.kf
         n, ne, nb = self._sizes()
         if self.x is None:
-            if z is None:
-                return self._out()
-            self._begin(t, z)
+            if z is not None:
+                self._begin(t, z)
             return self._out()
         u = self.u if self.u is not None else np.zeros(self.model.m)
-        kf.x = np.concatenate([self.x, self.aug])
+        assert self.P is not None  # (_matrices)
+        xa = np.concatenate([self.x, self.aug])
         f = self._jacobian(u)
         if not ne:  # η ≡ 1 is not a state: the input enters as in the linear filter
-            kf.B = np.vstack([self._bd, np.zeros((nb, self.model.m))])
-            kf.F = f
-            kf.predict(u=u)
-        else:
-            kf.B = 0
-            kf.F = f  # exact: f(x, η) = F·[x, η, b] for this u
-            kf.predict()
-        if z is not None:
-            h = self._haug
-            kf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ x)
-            nu = np.asarray(kf.y, dtype=float).ravel()
-            self._monitor(t, nu, float(nu @ np.linalg.solve(kf.S, nu)))
-        xa = np.asarray(kf.x, dtype=float).ravel()
-        self.x, self.aug = xa[:n].copy(), xa[n:].copy()
+            B = np.vstack([self._bd, np.zeros((nb, self.model.m))])
+            xa, P = predict(xa, self.P, f, self.Q, matvec(B, u))
+        else:  # exact: f(x, η) = F·[x, η, b] for this u (B = 0)
+            xa, P = predict(xa, self.P, f, self.Q, 0)
+        self.aug = self._correct(t, z, xa, P, self._haug, self._inv)[n:]
         if t >= self.quiet_until:
             eta, b = self.aug[:ne], self.aug[ne:]
             self.signals["effectiveness_loss"] = float(max(0.0, *(1.0 - eta))) if ne else 0.0

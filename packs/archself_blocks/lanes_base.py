@@ -20,7 +20,7 @@ import numpy as np
 from archself.lanes.module import LaneModule
 
 __all__ = [
-    "BlockLanes", "as_rows", "matvec", "present", "factors", "zoh",
+    "BlockLanes", "as_rows", "present", "factors", "zoh",
 ]
 
 
@@ -46,18 +46,6 @@ def as_rows(value: Any) -> np.ndarray | None:
 def present(rows: np.ndarray) -> np.ndarray:
     """The lanes where ``rows`` (from :func:`as_rows`) hold a value (not a NaN row)."""
     return ~np.isnan(rows[:, 0])
-
-
-def matvec(A: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``A[i] @ x[i]`` for every lane: ``(L, p, n)`` by ``(L, n)`` gives ``(L, p)``.
-
-    Examples
-    --------
-    >>> matvec(np.array([[[1.0, 2.0]], [[0.0, 1.0]]]), np.array([[1.0, 1.0], [3.0, 4.0]]))
-    array([[3.],
-           [4.]])
-    """
-    return np.matmul(A, x[..., None])[..., 0]
 
 
 def factors(values: np.ndarray, of: Callable[[float], float]) -> np.ndarray:

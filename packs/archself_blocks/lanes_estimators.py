@@ -6,15 +6,15 @@ bridge of :class:`~archself_blocks.estimators._ModelEstimator`);
 :class:`KalmanFilterLanes` keeps every lane's estimate ``(N, n)``, covariance
 ``(N, n, n)`` and filter matrices (from the lane's own model object and
 parameters: ``model.discrete(dt)``, ``Q·dt``, the measured rows of C, ``R``, ``P0``)
-and runs filterpy's ``predict`` and ``update`` (Joseph form) as stacked products
-(``numpy.matmul``: each lane's ``dot`` of the per-run filter bit for bit on the
-platforms tested; ``numpy.linalg.inv``/``solve`` per stacked matrix, LAPACK's as
-per run). Lanes start (the first measurement: ``x0`` or the least-squares
+and runs the filter's predict and Joseph-form update of
+:mod:`~archself_blocks.estimators` on its rows, the functions the per-run filter runs on
+one row. Lanes start (the first measurement: ``x0`` or the least-squares
 estimate), take a new model object, keep their last ``u`` and pause their monitor
 after a hand-over exactly as the per-run filter does; the innovation windows are
 :class:`~archself_blocks.lanes_windows.LaneMeanWindows`. The per-run bridge stores a
-lane's state into its instance's filterpy object (built with the instance's own
-``_matrices``), so ``export_state``, ``linear_model`` and ``linearization`` see it.
+lane's state into its instance (its covariance ``P`` and the matrices of the
+instance's own ``_matrices``), so ``export_state``, ``linear_model`` and
+``linearization`` see it.
 """
 
 from __future__ import annotations
@@ -25,17 +25,12 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
-from archself_blocks.estimators import _cov
-from archself_blocks.lanes_base import BlockLanes, as_rows, matvec, present, zoh
+from archself_blocks.estimators import _cov, nis, predict, update
+from archself_blocks.lanes_base import BlockLanes, as_rows, present, zoh
 from archself_blocks.lanes_windows import LaneMeanWindows
-from archself_blocks.lti import vector
+from archself_blocks.lti import matvec, vector
 
 __all__ = ["KalmanFilterLanes", "ModelEstimatorLanes"]
-
-
-def _t(a: np.ndarray) -> np.ndarray:
-    """The stacked transposes."""
-    return a.transpose(0, 2, 1)
 
 
 class ModelEstimatorLanes(BlockLanes):
@@ -49,7 +44,7 @@ class ModelEstimatorLanes(BlockLanes):
 
     settle_s: np.ndarray
     window_s: np.ndarray
-    eye: np.ndarray  # the identity of the filtered state (the Kalman filters')
+    eye: np.ndarray  # the identity of the filtered state (the EKF's)
     has_P: np.ndarray
     P: np.ndarray
     dt_last: np.ndarray
@@ -234,59 +229,41 @@ class ModelEstimatorLanes(BlockLanes):
         self._screen(lanes, out, est, x)
         return {"estimate": est, "state": x}
 
-    # the filterpy object's covariance (Kalman filters): ``has_P``, ``P``, ``dt_last``
+    # the Kalman filters' covariance: ``has_P``, ``P``, ``dt_last``
     def _load_cov(self, i: int, m: Any) -> None:
-        """Lane ``i``'s covariance from its instance's filterpy object (if it has one)."""
-        kf = getattr(m, "kf", None)
-        self.has_P[i] = kf is not None
-        if kf is not None:
-            self.P[i] = kf.P
+        """Lane ``i``'s covariance from its instance (if it has one)."""
+        self.has_P[i] = m.P is not None
+        if m.P is not None:
+            self.P[i] = m.P
         self.dt_last[i] = math.nan
 
-    def _store_cov(self, i: int, m: Any) -> bool:
-        """Lane ``i``'s covariance into its instance's filterpy object, built with the
-        lane's model for the step it was last built for; whether the lane has one."""
+    def _store_cov(self, i: int, m: Any) -> None:
+        """Lane ``i``'s covariance into its instance, whose matrices are built with the
+        lane's model for the step it was last built for."""
         if not self.has_P[i]:
-            return False
+            return
         if not math.isnan(self.dt_last[i]):
             m._matrices(float(self.dt_last[i]))
-        m.kf.P = self.P[i].copy()  # (else the instance's own object, loaded from)
-        return True
+        m.P = self.P[i].copy()  # (else the instance's own matrices, loaded from)
 
     def _joseph(self, t, idx, x, P, nu, H, R, inv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The Kalman update in Joseph form of lanes ``idx`` with innovation ``nu``, and
-        the innovation monitor; which lanes did not raise.
+        """:func:`~archself_blocks.estimators.update` of lanes ``idx`` with innovation ``nu``,
+        and the innovation monitor; which lanes did not raise.
 
-        ``inv`` is the per-run filter's inverse (filterpy's ``KalmanFilter``: numpy's;
-        its ``ExtendedKalmanFilter``: scipy's), batched where it can be, else matrix by
-        matrix; a lane whose ``S`` it cannot invert fails and keeps its rows.
+        ``inv`` is the per-run filter's inverse; a lane whose ``S`` it cannot invert
+        fails (where its run raises) and keeps its rows.
         """
-        PHT = P @ _t(H)
-        S = H @ PHT + R
+        x1, P1, S, errors = update(x, P, nu, H, R, inv)
         keep = np.ones(len(idx), dtype=bool)
-        try:
-            SI = inv(S)
-            if SI.shape != S.shape:
-                raise ValueError("not batched")
-        except (ValueError, np.linalg.LinAlgError):  # one by one; a lane that raises fails
-            SI = np.zeros_like(S)
-            for j in range(len(S)):
-                try:
-                    SI[j] = inv(S[j])
-                except (ValueError, np.linalg.LinAlgError) as exc:
-                    keep[j] = False
-                    self.failed[int(idx[j])] = f"raised {type(exc).__name__}"
-        K = PHT @ SI
-        x1 = x + matvec(K, nu)
-        I_KH = self.eye - K @ H
-        P1 = (I_KH @ P) @ _t(I_KH) + (K @ R) @ _t(K)
+        for j, exc in errors.items():
+            keep[j] = False
+            self.failed[int(idx[j])] = f"raised {type(exc).__name__}"
         if not keep.all():
             x1 = np.where(keep[:, None], x1, x)
             P1 = np.where(keep[:, None, None], P1, P)
             idx, nu, S = idx[keep], nu[keep], S[keep]
         if len(idx):
-            sol = np.linalg.solve(S, nu[..., None])
-            self._monitor(t, idx, nu, (nu[:, None, :] @ sol)[:, 0, 0])
+            self._monitor(t, idx, nu, nis(nu, S))
         return x1, P1, keep
 
     def _monitor(self, t: float, idx: np.ndarray, nu: np.ndarray,
@@ -313,7 +290,7 @@ class KalmanFilterLanes(ModelEstimatorLanes):
 
     def __init__(self, modules) -> None:
         N = len(modules)
-        self.dt_last = np.full(N, math.nan)  # the step the lane's filterpy object was built for
+        self.dt_last = np.full(N, math.nan)  # the step the lane's matrices were built for
         self.has_P = np.zeros(N, dtype=bool)
         super().__init__(modules)
 
@@ -321,14 +298,12 @@ class KalmanFilterLanes(ModelEstimatorLanes):
         N, (n, k, m, _) = self.n, self.sizes
         self.F, self.B, self.Q = np.zeros((N, n, n)), np.zeros((N, n, m)), np.zeros((N, n, n))
         self.R, self.P = np.zeros((N, k, k)), np.zeros((N, n, n))
-        self.eye = np.eye(n)
 
     def _load_lane(self, i: int, m: Any) -> None:
         self._load_cov(i, m)
 
     def _store_lane(self, i: int, m: Any) -> None:
-        if self._store_cov(i, m) and m.x is not None:
-            m.kf.x = m.x.copy()
+        self._store_cov(i, m)
 
     def _build(self, idx: np.ndarray, dt: float) -> None:
         """``KalmanFilter._matrices(dt)`` of lanes ``idx``: F, B, Q, R; P kept or P0."""
@@ -350,9 +325,8 @@ class KalmanFilterLanes(ModelEstimatorLanes):
         A lane whose update raised keeps its estimate and the predicted covariance
         (the per-run filter's state after the exception).
         """
-        F = self.F[sel]
-        x = matvec(F, self.x[sel]) + matvec(self.B[sel], self.u[sel])
-        P = (F @ self.P[sel]) @ _t(F) + self.Q[sel]
+        x, P = predict(self.x[sel], self.P[sel], self.F[sel], self.Q[sel],
+                       matvec(self.B[sel], self.u[sel]))
         if z is not None and zhas.any():
             idx = self.indices(sel)
             if zhas.all():
@@ -367,7 +341,7 @@ class KalmanFilterLanes(ModelEstimatorLanes):
         self.x[sel], self.P[sel] = x, P
 
     def _update(self, t, idx, x, P, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """filterpy's ``update`` (Joseph form) of lanes ``idx``; which lanes did not raise.
+        """The filter's update (Joseph form) of lanes ``idx``; which lanes did not raise.
 
         A lane whose ``S`` is singular raises per run (``numpy.linalg.inv``): its rows
         come back as given.

@@ -8,9 +8,9 @@ start, paused monitor, windows, the per-run bridge). The observer's matrices (it
 gain L, by ``control.place`` or given, and the zero-order hold of ``A − L C``) come
 from the per-run code run on a copy of the lane's instance, once for the lanes
 whose model and parameters agree; the propagation ``Ad x̂ + Bd [u; y]`` is a stacked
-product. The EKF runs filterpy's ``ExtendedKalmanFilter`` predict and update on the
-augmented state ``[x, η, b]`` as stacked products, its ``S⁻¹`` by
-``scipy.linalg.inv`` (filterpy's: batched from scipy 1.16, else matrix by matrix).
+product. The EKF runs the predict and update of :mod:`~archself_blocks.estimators` on the
+augmented state ``[x, η, b]``, as its per-run instance does on one row, its ``S⁻¹`` by
+``scipy.linalg.inv`` (filterpy's EKF's: batched from scipy 1.16, else matrix by matrix).
 """
 
 from __future__ import annotations
@@ -23,15 +23,12 @@ import numpy as np
 import scipy.linalg as linalg
 
 from archself.errors import SimulationError
-from archself_blocks.estimators import _cov
-from archself_blocks.lanes_base import matvec, zoh
+from archself_blocks.estimators import _cov, predict
+from archself_blocks.lanes_base import zoh
 from archself_blocks.lanes_estimators import ModelEstimatorLanes
+from archself_blocks.lti import matvec
 
 __all__ = ["AugmentedEkfLanes", "LuenbergerLanes"]
-
-
-def _t(a: np.ndarray) -> np.ndarray:
-    return a.transpose(0, 2, 1)
 
 
 class LuenbergerLanes(ModelEstimatorLanes):
@@ -182,11 +179,10 @@ class AugmentedEkfLanes(ModelEstimatorLanes):
         f[:, :n, :n] = self.ad[sel]
         if ne:  # exact: f(x, η) = F·[x, η, b] for this u (B = 0)
             f[:, :n, n:n + ne] = bd * u[:, None, :]
-            xa = matvec(f, xa) + 0
+            xa, P = predict(xa, self.P[sel], f, self.Q[sel], 0)
         else:
             B = np.concatenate([bd, np.zeros((len(xa), self.nb, bd.shape[2]))], axis=1)
-            xa = matvec(f, xa) + matvec(B, u)
-        P = (f @ self.P[sel]) @ _t(f) + self.Q[sel]
+            xa, P = predict(xa, self.P[sel], f, self.Q[sel], matvec(B, u))
         keep = np.ones(len(xa), dtype=bool)
         if z is not None and zhas.any():
             rows = np.flatnonzero(zhas)

@@ -25,10 +25,10 @@ from archself_blocks.lanes_base import (
     BlockLanes,
     as_rows,
     factors,
-    matvec,
     present,
     zoh,
 )
+from archself_blocks.lti import matvec
 
 __all__ = ["ActuatorLanes", "LtiModelNodeLanes", "SensorLanes", "StateSpacePlantLanes"]
 

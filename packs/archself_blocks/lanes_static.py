@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from archself.lanes.module import ALL, LaneNormals, PerLane, lane_count
-from archself_blocks.lanes_base import BlockLanes, as_rows, matvec, present
+from archself_blocks.lanes_base import BlockLanes, as_rows, present
+from archself_blocks.lti import matvec
 from archself_blocks.signals import PORTS
 
 __all__ = ["ExpressionLanes", "GainLanes", "RelayLanes", "SelectLanes", "SumLanes"]

@@ -48,6 +48,7 @@ __all__ = [
     "as_vector",
     "vector",
     "continuous_equivalent",
+    "matvec",
 ]
 
 
@@ -111,6 +112,19 @@ def continuous_equivalent(Ad: np.ndarray, dt: float) -> np.ndarray:
     with np.errstate(divide="ignore"):
         re = np.log(np.maximum(np.abs(lam), 1e-300)) / dt
     return np.diag(re)
+
+
+def matvec(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``A[i] @ x[i]`` for every lane: ``(L, p, n)`` by ``(L, n)`` gives ``(L, p)``
+    (and ``(p, n)`` by ``(n,)`` gives ``(p,)``).
+
+    Examples
+    --------
+    >>> matvec(np.array([[[1.0, 2.0]], [[0.0, 1.0]]]), np.array([[1.0, 1.0], [3.0, 4.0]]))
+    array([[3.],
+           [4.]])
+    """
+    return np.matmul(A, x[..., None])[..., 0]
 
 
 class LtiModel:

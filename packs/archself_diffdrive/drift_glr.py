@@ -35,7 +35,9 @@ and first moments ``A`` of ``d⊥`` about a time origin). :class:`DriftWindows` 
 per lane, a ring buffer of the fixes with their moments and the *prefix* sums before
 each, so a new fix adds one row and a suffix sum is one subtraction (total − prefix);
 a value still scans every onset of the window, O(window), in one pass of a dozen
-array operations. The origin is moved to the window's oldest fix once it lies two
+array operations. The ring is written twice (slot ``s`` and ``s + capacity``), so a
+lane's window, oldest first, is one contiguous slice: one run's scan reads views,
+never gathers. The origin is moved to the window's oldest fix once it lies two
 windows back (the moments and prefix sums re-based), so the sums stay as small as a
 window's however long the run. The per-run class (:class:`DriftGlr`) and the
 lane-batched odometry hold the same state and call the same code.
@@ -67,10 +69,12 @@ class DriftWindows:
     """The drift GLR over sliding windows of GPS fixes in L lanes.
 
     Per lane a ring buffer of fixes (one capacity for all lanes, doubled when a lane
-    fills it, a head and a count per lane): the fix time, its channels (innovation
-    ``e``, the running sums ``D`` and moments ``A`` of ``d⊥`` about the lane's time
-    origin, their products and the squared step of ``e`` from the previous fix) and
-    the sums of those channels over the lane's earlier fixes since its origin.
+    fills it, a head and a count per lane; each slot stored twice, at ``s`` and
+    ``s + capacity``, so that the window is the slice ``[head, head + capacity)``):
+    the fix time, its channels (innovation ``e``, the running sums ``D`` and moments
+    ``A`` of ``d⊥`` about the lane's time origin, their products and the squared step
+    of ``e`` from the previous fix) and the sums of those channels over the lane's
+    earlier fixes since its origin.
 
     Parameters
     ----------
@@ -110,10 +114,11 @@ class DriftWindows:
         self.walk = np.full(n, float(walk))
         self.min_span_s = np.full(n, float(min_span_s))
         self.min_support_s = np.full(n, float(min_support_s))
-        self.t = np.zeros((n, capacity))
+        self.cap = capacity
+        self.t = np.zeros((n, 2 * capacity))
         # channel first: each channel of all lanes and slots is one contiguous array
-        self.x = np.zeros((_WIDTH, n, capacity))  # the channels of each fix
-        self.before = np.zeros((_WIDTH, n, capacity))  # their sums over the earlier fixes
+        self.x = np.zeros((_WIDTH, n, 2 * capacity))  # the channels of each fix
+        self.before = np.zeros((_WIDTH, n, 2 * capacity))  # their sums over the earlier fixes
         self.total = np.zeros((_WIDTH, n))  # ... over all fixes since the origin
         self.origin = np.zeros(n)
         self.head = np.zeros(n, dtype=int)
@@ -125,23 +130,45 @@ class DriftWindows:
         return len(self.count)
 
     # ---------------------------------------------------------------- the buffers
-    def _slots(self, idx: np.ndarray, width: int) -> np.ndarray:
-        """The first ``width`` slots of lanes ``idx``, oldest first."""
-        return (self.head[idx, None] + np.arange(width)) % self.t.shape[1]
+    def _window(self, idx: np.ndarray, width: int | None = None) -> tuple[np.ndarray, ...]:
+        """``t``, ``x`` and ``before`` of lanes ``idx``, oldest fix first, ``width``
+        slots (default: the capacity): views where the lanes are one slice and share
+        their head (one run; lanes whose fixes came at the same times), else copies."""
+        width = self.cap if width is None else width
+        head = self.head[idx]
+        h = int(head[0])
+        if not (head == h).all():
+            rows, cols = idx[:, None], head[:, None] + np.arange(width)
+            return self.t[rows, cols], self.x[:, rows, cols], self.before[:, rows, cols]
+        first, k = int(idx[0]), len(idx)
+        one: Any = slice(first, first + k) if idx[-1] - first == k - 1 and (
+            k < 3 or (np.diff(idx) == 1).all()) else idx
+        cols = slice(h, h + width)
+        return self.t[one, cols], self.x[:, one, cols], self.before[:, one, cols]
+
+    def _put(self, idx: np.ndarray, slot: np.ndarray, t: Any, x: Any, before: Any) -> None:
+        """Write slots ``slot`` (``(k,)`` or ``(k, w)``, < capacity) of lanes ``idx``,
+        both copies."""
+        rows = idx if slot.ndim == 1 else idx[:, None]
+        cols = np.stack([slot, slot + self.cap])  # (2, k[, w]): both copies in one write
+        self.t[rows, cols] = t
+        self.x[:, rows, cols] = np.expand_dims(x, 1)
+        self.before[:, rows, cols] = np.expand_dims(before, 1)
 
     def _grow(self, size: int) -> None:
-        cap = self.t.shape[1]
+        cap = self.cap
         while cap < size:
             cap *= 2
-        every = np.arange(self.n)
-        rows, slots = every[:, None], self._slots(every, self.t.shape[1])
-        t = np.zeros((self.n, cap))
-        t[:, : slots.shape[1]] = self.t[rows, slots]
-        self.t = t
-        for name in ("x", "before"):
-            new = np.zeros((_WIDTH, self.n, cap))
-            new[:, :, : slots.shape[1]] = getattr(self, name)[:, rows, slots]
-            setattr(self, name, new)
+        t, x, before = self._window(np.arange(self.n))
+        self.cap = cap
+        self.t = np.zeros((self.n, 2 * cap))
+        self.x = np.zeros((_WIDTH, self.n, 2 * cap))
+        self.before = np.zeros((_WIDTH, self.n, 2 * cap))
+        width = t.shape[1]
+        for lo in (0, cap):
+            self.t[:, lo : lo + width] = t
+            self.x[:, :, lo : lo + width] = x
+            self.before[:, :, lo : lo + width] = before
         self.head[:] = 0
 
     def add(self, t: float | np.ndarray, idx: np.ndarray, e: np.ndarray, moved: np.ndarray
@@ -162,15 +189,17 @@ class DriftWindows:
             first fix).
         """
         count = self.count[idx]
-        if (count >= self.t.shape[1]).any():
+        if (count >= self.cap).any():
             self._grow(int(count.max()) + 1)
-        cap = self.t.shape[1]
+        cap = self.cap
         head = self.head[idx]
         first = count == 0
+        some_first = first.any()
         prev_slot = (head + count - 1) % cap
         prev = self.x[:, idx, prev_slot]
         lag = self.t[idx, prev_slot] - self.origin[idx]  # the previous fix about the origin
-        self.origin[idx] = np.where(first, t, self.origin[idx])
+        if some_first:
+            self.origin[idx] = np.where(first, t, self.origin[idx])
         mv = moved.T
         row = np.empty((_WIDTH, len(idx)))
         row[0:2] = e.T
@@ -178,15 +207,13 @@ class DriftWindows:
         np.add(prev[4:6], mv[2:] + lag * mv[:2], out=row[4:6])  # A
         step = row[0:2] - prev[0:2]
         row[11] = step[0] * step[0] + step[1] * step[1]
-        if first.any():
+        sums = self.total[:, idx]  # (a copy)
+        if some_first:
             row[2:6, first] = 0.0
             row[11, first] = 0.0
+            sums[:, first] = 0.0
         _products(row)
-        sums = np.where(first, 0.0, self.total[:, idx])
-        slot = (head + count) % cap
-        self.t[idx, slot] = t
-        self.x[:, idx, slot] = row
-        self.before[:, idx, slot] = sums
+        self._put(idx, (head + count) % cap, t, row, sums)
         self.total[:, idx] = sums + row
         count = count + 1
         cut = t - self.window_s[idx]
@@ -204,9 +231,10 @@ class DriftWindows:
     def _rebase(self, idx: np.ndarray) -> None:
         """Move the origin of lanes ``idx`` to their oldest fix; recompute the sums."""
         count = self.count[idx]
-        rows, slots = idx[:, None], self._slots(idx, int(count.max()))
-        t, x = self.t[rows, slots], self.x[:, rows, slots]
-        valid = np.arange(slots.shape[1]) < count[:, None]
+        width = int(count.max())
+        t, x, _ = self._window(idx, width)
+        x = x.copy()
+        valid = np.arange(width) < count[:, None]
         shift = t[:, :1] - self.origin[idx, None]
         d = x[2:4] - x[2:4, :, :1]
         x[4:6] = x[4:6] - x[4:6, :, :1] - shift * d  # A about the new origin
@@ -215,8 +243,7 @@ class DriftWindows:
         _products(x)
         x *= valid
         sums = np.cumsum(x, axis=2)
-        self.x[:, rows, slots] = x
-        self.before[:, rows, slots] = sums - x
+        self._put(idx, (self.head[idx, None] + np.arange(width)) % self.cap, t, x, sums - x)
         self.total[:, idx] = sums[:, np.arange(len(idx)), count - 1]
         self.origin[idx] = t[:, 0]
 
@@ -228,12 +255,10 @@ class DriftWindows:
     def copy_lane(self, i: int, other: DriftWindows, j: int) -> None:
         """Lane ``i`` becomes lane ``j`` of ``other`` (fixes, sums and settings, bit for bit)."""
         count = int(other.count[j])
-        if count > self.t.shape[1]:
+        if count > self.cap:
             self._grow(count)
-        slots = other._slots(np.array([j]), count)[0]
-        self.t[i, :count] = other.t[j, slots]
-        self.x[:, i, :count] = other.x[:, j, slots]
-        self.before[:, i, :count] = other.before[:, j, slots]
+        t, x, before = other._window(np.array([j]), count)
+        self._put(np.array([i]), np.arange(count)[None], t, x, before)
         self.total[:, i] = other.total[:, j]
         for name in ("origin", "count", "window_s", "min_span_s", "min_support_s", "walk"):
             getattr(self, name)[i] = getattr(other, name)[j]
@@ -241,7 +266,7 @@ class DriftWindows:
 
     def times(self, i: int) -> list[float]:
         """Lane ``i``'s fix times in the window, oldest first."""
-        return self.t[i, self._slots(np.array([i]), int(self.count[i]))[0]].tolist()
+        return self._window(np.array([i]), int(self.count[i]))[0][0].tolist()
 
     # ---------------------------------------------------------------- the statistic
     def value(self, idx: np.ndarray) -> np.ndarray:
@@ -325,52 +350,47 @@ class DriftWindows:
         """Per lane and slot ``m`` (onset): signed ``z_m``, its numerator ``Σ G̃·e``,
         denominator ``Σ|G̃|²`` and the numerator's variance, the lanes with a value, and
         what the fit at the last fix needs (None: no lane has a value)."""
-        count, head = self.count[idx], self.head[idx]
-        cap = self.t.shape[1]
-        whole = len(idx) == self.n and (idx == np.arange(self.n)).all()
-        pick = slice(None) if whole else idx
-        t, x = self.t[pick], self.x[:, pick]
+        count = self.count[idx]
+        t, x, before = self._window(idx)  # oldest first: slot m is the m-th fix of the window
         rows = np.arange(len(idx))
-        last = (head + count - 1) % cap
-        span = t[rows, last] - t[rows, head]
+        last = count - 1
+        span = t[rows, last] - t[:, 0]
         ok = (count >= 5) & (span >= self.min_span_s[idx])
         if not ok.any():
             return None
-        r = self.total[:, idx, None] - self.before[:, pick]  # suffix sums over j ≥ m
+        r = self.total[:, idx, None] - before  # suffix sums over j ≥ m
         tau = t - self.origin[idx, None]
         n = np.maximum(count, 1).astype(float)
-        k = (count[:, None] - (np.arange(cap) - head[:, None]) % cap).astype(float)
+        k = (count[:, None] - np.arange(self.cap)).astype(float)
         valid = k > 0  # the slot holds a fix of the window (k: fixes j ≥ m)
-        cx = x[4] - tau * x[2]  # the template's constant at onset m: A_m − τ_m D_m
-        cy = x[5] - tau * x[3]
-        s_ge = r[6] - tau * r[7] - (cx * r[0] + cy * r[1])
-        sx = r[4] - tau * r[2]  # Σ_{j≥m} (A_j − τ_m D_j)
-        sy = r[5] - tau * r[3]
-        big = r[8] + tau * tau * r[10] + k * (cx * cx + cy * cy)
-        s_gg = big - 2.0 * tau * r[9] - 2.0 * (cx * sx + cy * sy)
-        sx -= k * cx  # Σ G over j ≥ m
-        sy -= k * cy
-        at_head = r[:, rows, head]
-        mean_e = (at_head[0:2] / n).T
-        num = s_ge - (sx * mean_e[:, :1] + sy * mean_e[:, 1:])
-        den = s_gg - (sx * sx + sy * sy) / n[:, None]
-        pairs = at_head[11] - x[11, rows, head]
+        # (x, y) pairs as one (2, L, cap) array; ``(a * b).sum(0)`` is ``ax·bx + ay·by``
+        c = x[4:6] - tau * x[2:4]  # the template's constant at onset m: A_m − τ_m D_m
+        s_ge = r[6] - tau * r[7] - (c * r[0:2]).sum(0)
+        s = r[4:6] - tau * r[2:4]  # Σ_{j≥m} (A_j − τ_m D_j)
+        big = r[8] + tau * tau * r[10] + k * (c * c).sum(0)
+        s_gg = big - 2.0 * tau * r[9] - 2.0 * (c * s).sum(0)
+        s -= k * c  # Σ G over j ≥ m
+        at_head = r[:, :, 0]
+        mean_e = at_head[0:2] / n  # (2, L)
+        num = s_ge - (s * mean_e[:, :, None]).sum(0)
+        ss = (s * s).sum(0)
+        den = s_gg - ss / n[:, None]
+        pairs = at_head[11] - x[11, :, 0]
         var = pairs / (2.0 * np.maximum(count - 1, 1)) / 2.0
         onset = valid & ((t[rows, last][:, None] - t) >= self.min_support_s[idx, None])
         onset &= den > _CANCEL * big
         noise = den * var[:, None]  # the variance of the numerator: the GPS's white noise,
         walk = self.walk[idx]
         if walk.any():  # ... and the random walk of dead reckoning
-            noise += walk[:, None] * _walk_quadratic(t, r, k, valid, head, n, tau, cx, cy, sx, sy)
+            noise += walk[:, None] * _walk_quadratic(t, r, k, valid, n, tau, c, s, ss)
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.where(onset, num / np.sqrt(np.where(onset, noise, 1.0)), 0.0)
         found = ok & onset.any(1) & (var > 0.0)
-        c = np.stack([cx, cy])
-        mean_g = np.stack([sx, sy]) / n[:, None]
-        return z, num, den, noise, found, (t, x, last, tau, c, mean_g, mean_e, onset)
+        mean_g = s / n[:, None]
+        return z, num, den, noise, found, (t, x, last, tau, c, mean_g, mean_e.T, onset)
 
 
-def _walk_quadratic(t, r, k, valid, head, n, tau, cx, cy, sx, sy) -> np.ndarray:
+def _walk_quadratic(t, r, k, valid, n, tau, c, s, ss) -> np.ndarray:
     """Per lane and onset slot ``m``: ``Σ_{i,j} G̃_i·G̃_j (min(t_i, t_j) − t_first)``.
 
     The numerator ``Σ G̃_j·e_j`` of :meth:`DriftWindows._scan` has the variance
@@ -384,13 +404,11 @@ def _walk_quadratic(t, r, k, valid, head, n, tau, cx, cy, sx, sy) -> np.ndarray:
     sum expands into suffix sums over the window of a few per-fix products: one
     pass, O(window), like the rest of the scan.
 
-    Arguments are :meth:`DriftWindows._scan`'s arrays in slot order ((L, cap); ``r``
-    (12, L, cap)).
+    Arguments are :meth:`DriftWindows._scan`'s arrays, oldest fix first ((L, cap); ``r``
+    (12, L, cap); the pairs ``c`` (``c_m``) and ``s`` (``T``) (2, L, cap), ``ss = |s|²``).
     """
-    cap = t.shape[1]
-    prev = t[np.arange(len(t))[:, None], (np.arange(cap) - 1) % cap]
-    first = np.arange(cap)[None, :] == head[:, None]
-    dt = np.where(valid & ~first, t - prev, 0.0)
+    dt = np.zeros_like(t)
+    dt[:, 1:] = np.where(valid[:, 1:], t[:, 1:] - t[:, :-1], 0.0)
     big_k = np.where(valid, k, 0.0)
     fixes_before = n[:, None] - big_k
     sa, sd = r[4:6], r[2:4]
@@ -403,20 +421,14 @@ def _walk_quadratic(t, r, k, valid, head, n, tau, cx, cy, sx, sy) -> np.ndarray:
     f[6:8] = big_k * sd
     f[8] = fixes_before * fixes_before
     f *= dt
-    # suffix sums over the slots strictly after each (in window order)
-    order = (head[:, None] + np.arange(cap)) % cap
-    rows = np.arange(len(t))[:, None]
-    ordered = f[:, rows, order]
-    after = np.cumsum(ordered[..., ::-1], axis=2)[..., ::-1] - ordered
-    at = (np.arange(cap)[None, :] - head[:, None]) % cap
-    after = after[:, rows, at]
-    up_to = ordered[8].sum(1)[:, None] - after[8]  # Σ_{k ≤ m} Δt_k p_k²
-    ux = cx + sx / n[:, None]
-    uy = cy + sy / n[:, None]
-    quad = (sx * sx + sy * sy) / (n * n)[:, None] * up_to
+    # suffix sums over the slots strictly after each
+    after = np.cumsum(f[..., ::-1], axis=2)[..., ::-1] - f
+    up_to = f[8].sum(1)[:, None] - after[8]  # Σ_{k ≤ m} Δt_k p_k²
+    u = c + s / n[:, None]
+    quad = ss / (n * n)[:, None] * up_to
     quad += after[0] - 2.0 * tau * after[2] + tau * tau * after[1]
-    quad -= 2.0 * (ux * (after[4] - tau * after[6]) + uy * (after[5] - tau * after[7]))
-    quad += (ux * ux + uy * uy) * after[3]
+    quad -= 2.0 * (u * (after[4:6] - tau * after[6:8])).sum(0)
+    quad += (u * u).sum(0) * after[3]
     return np.maximum(quad, 0.0)
 
 

@@ -129,23 +129,54 @@ class InnovationTrend:
 
     def __init__(self, window_s: float) -> None:
         self.window_s = float(window_s)
-        self.items: deque[tuple[float, float, float]] = deque()
+        # rows (t, ex, ey) in a ring written twice (slot s and s + capacity), so the
+        # window, oldest first, is the slice [head, head + count)
+        self._ring = np.zeros((2 * 64, 3))
+        self._head = 0
+        self._count = 0
+
+    @property
+    def items(self) -> list[tuple[float, float, float]]:
+        """The innovations ``(t, ex, ey)`` in the window, oldest first."""
+        return [tuple(r) for r in self._rows().tolist()]
+
+    @items.setter
+    def items(self, rows: list[tuple[float, float, float]]) -> None:
+        self.clear()
+        for row in rows:
+            self._put(*row)
+
+    def _rows(self) -> np.ndarray:
+        return self._ring[self._head : self._head + self._count]
+
+    def _put(self, t: float, ex: float, ey: float) -> None:
+        cap = len(self._ring) // 2
+        if self._count == cap:  # double the ring
+            rows = self._rows().copy()
+            self._ring = np.zeros((4 * cap, 3))
+            self._ring[:cap] = self._ring[2 * cap : 3 * cap] = rows
+            self._head, cap = 0, 2 * cap
+        slot = (self._head + self._count) % cap
+        self._ring[slot] = self._ring[slot + cap] = (t, ex, ey)
+        self._count += 1
 
     def add(self, t: float, ex: float, ey: float) -> None:
         """Add the innovation ``(ex, ey)`` observed at ``t`` and drop old ones."""
-        self.items.append((t, ex, ey))
-        while self.items[0][0] <= t - self.window_s:
-            self.items.popleft()
+        self._put(t, ex, ey)
+        ring, cap = self._ring, len(self._ring) // 2
+        while self._count and ring[self._head, 0] <= t - self.window_s:
+            self._head = (self._head + 1) % cap
+            self._count -= 1
 
     def value(self) -> float:
         """‖slope‖ / standard error (NaN until the window is half full or without noise)."""
-        n = len(self.items)
-        if n < 5 or self.items[-1][0] - self.items[0][0] < 0.5 * self.window_s:
+        n = self._count
+        a = self._rows()  # (as np.array of the rows: the same layout, the same sums)
+        if n < 5 or a[-1, 0] - a[0, 0] < 0.5 * self.window_s:
             return math.nan
-        a = np.array(self.items)
         tt = a[:, 0] - a[:, 0].mean()
         stt = float(tt @ tt)
-        d = np.diff(a[:, 1:], axis=0)
+        d = a[1:, 1:] - a[:-1, 1:]  # (np.diff's own operation)
         var = float(np.mean(d * d)) / 2.0
         if stt <= 0.0 or var <= 0.0:
             return math.nan
@@ -154,7 +185,7 @@ class InnovationTrend:
 
     def clear(self) -> None:
         """Forget every innovation."""
-        self.items.clear()
+        self._head = self._count = 0
 
 
 def _wheel_body(enc, kin: Kinematics) -> tuple[float, float]:

@@ -98,9 +98,12 @@ class LaneWindows(_Windows):
     def store(self, i: int, window: Any) -> None:
         """Lane ``i`` into a per-run ``InnovationWindow`` or ``InnovationTrend``."""
         t, v, sums, start, last = self.get(i)
-        window.items.clear()
-        window.items.extend((a, *b) for a, b in zip(t, v.tolist(), strict=True))
-        if hasattr(window, "sx"):
+        rows = [(a, *b) for a, b in zip(t, v.tolist(), strict=True)]
+        if not hasattr(window, "sx"):  # the trend
+            window.items = rows
+        else:
+            window.items.clear()
+            window.items.extend(rows)
             window.sx, window.sy = (float(x) for x in sums)
             window.start = start
             window.last = last
