@@ -206,7 +206,7 @@ def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None], fi
         from archself.io.outputs import refuse_same_file
 
         refuse_same_file([arch_path, *([source] if source else [])], target, "--save-knowledge")
-    from archself.runtime.learning import OutcomeTable, load_table
+    from archself.runtime.knowledge import OutcomeTable, load_table
 
     if source is None:
         return OutcomeTable()
@@ -302,8 +302,8 @@ def explain(
     ] = False,
 ) -> None:
     """Explain a run's decisions: why (and why not) the architecture switched."""
-    from archself.runtime.decisions import explain as render
-    from archself.runtime.decisions import explain_data
+    from archself.runtime.explanation import explain as render
+    from archself.runtime.explanation import explain_data
     from archself.sim.result import read_trace, trace_from_bytes
 
     try:
@@ -331,7 +331,7 @@ def explain(
     )
     typer.echo(render(decisions))
     if meta.get("knowledge"):  # runtime.learning / runtime.online: what the run learned
-        from archself.runtime.online import knowledge_summary
+        from archself.runtime.knowledge import knowledge_summary
 
         for line in knowledge_summary(meta["knowledge"]):
             typer.echo(line)

@@ -6,7 +6,7 @@
 1. **Monitor** (steps 1–2, :mod:`~archself.runtime.monitor`): J_obs, the global
    residual r = J_ref − J_obs (Eq. 11), the module residuals r_i (Eq. 12) and κ_i.
 2. **Analyze** (steps 3–5, :mod:`~archself.runtime.influence`,
-   :mod:`~archself.runtime.candidates`): W of the active edges (Eq. 13), the
+   :mod:`~archself.runtime.planner`): W of the active edges (Eq. 13), the
    influence z = (I − Wᵀ)⁻¹ r (Eq. 14) and the candidate set C (Eq. 16).
 3. **Plan** (steps 6–8, :mod:`~archself.runtime.planner`): Δ, stability filter,
    dwell time, score and argmax under the constraints (Eq. 17–28).
@@ -27,7 +27,7 @@ downstream; the mark is dropped when an action keyed to the module applies
 again (the compensation is gone) or it becomes inactive.
 
 Localization: besides z, every cycle estimates the local faults ê that explain the
-residuals (:mod:`~archself.runtime.sources`), largest at a fault's origin where z is
+residuals (:mod:`~archself.runtime.influence`), largest at a fault's origin where z is
 largest downstream of it. ``runtime.localization`` chooses what drives the candidate
 set and the planner's weight: ``fit`` (default, :class:`SourceFit`: few sources on
 observed and hidden modules, modules the residuals cannot tell apart kept together
@@ -38,7 +38,7 @@ holds z and ê. The estimate uses every residual as it is (a compensated module'
 residual still explains its downstream echoes).
 ``runtime.ablation`` switches propagation (z = ê = r), the stability filter or the
 dwell time off. Every cycle
-appends a :class:`~archself.runtime.decisions.DecisionRecord` to
+appends a :class:`~archself.runtime.knowledge.DecisionRecord` to
 :attr:`MapeK.decisions`.
 """
 
@@ -51,14 +51,10 @@ import numpy as np
 
 from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
-from archself.runtime.candidates import selector_from_runtime
-from archself.runtime.decisions import DecisionRecord, ValueMap
-from archself.runtime.knowledge import Knowledge
-from archself.runtime.learning import learning_of
+from archself.runtime.influence import SourceEstimator, SourceFit
+from archself.runtime.knowledge import DecisionRecord, Knowledge, ValueMap, learning_of, online_of
 from archself.runtime.monitor import Monitor, Observation
-from archself.runtime.online import online_of
-from archself.runtime.planner import Planner, PlanState
-from archself.runtime.sources import SourceEstimator, SourceFit
+from archself.runtime.planner import Planner, PlanState, selector_from_runtime
 from archself.runtime.stability import apply_action
 from archself.runtime.strategies import Strategies
 
@@ -88,7 +84,7 @@ class MapeK:
         edges and weights, configurations, actions, budgets and the ``runtime``
         settings — comes from it.
     learned : OutcomeTable or path, optional
-        What earlier runs learned (:mod:`~archself.runtime.learning`); used when
+        What earlier runs learned (:mod:`~archself.runtime.knowledge`); used when
         ``runtime.learning.enabled``, which a table given here switches on.
 
     Attributes
