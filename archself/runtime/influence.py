@@ -97,6 +97,7 @@ __all__ = [
     "SourceFit",
     "influence",
     "is_singular",
+    "is_sparse",
     "matrix_key",
     "propagation_matrix",
     "source_estimate",
@@ -111,7 +112,7 @@ DENSE_MAX = 400
 PIVOT_RTOL = 1e-12
 
 
-def _issparse(W: Any) -> bool:
+def is_sparse(W: Any) -> bool:
     """Whether ``W`` is a scipy.sparse matrix (without importing scipy: if it is not
     imported, nothing can be one)."""
     sparse = sys.modules.get("scipy.sparse")
@@ -202,7 +203,7 @@ def spectral_radius(W: Any, *, dense_max: int = DENSE_MAX, tol: float = 1e-9) ->
     >>> round(spectral_radius([[0.0, 0.5], [0.5, 0.0]]), 6)
     0.5
     """
-    sparse = _issparse(W)
+    sparse = is_sparse(W)
     n = W.shape[0] if sparse else np.shape(W)[0]
     if n == 0:
         return 0.0
@@ -331,11 +332,11 @@ def is_singular(W: Any, *, dense_max: int = DENSE_MAX) -> bool:
     >>> is_singular(np.array([[0.0, 1.0], [1.0, 0.0]])), is_singular(np.zeros((2, 2)))
     (True, False)
     """
-    n = W.shape[0] if _issparse(W) else np.shape(W)[0]
+    n = W.shape[0] if is_sparse(W) else np.shape(W)[0]
     if n == 0:
         return False
     if n <= dense_max:
-        dense = W.toarray() if _issparse(W) else np.asarray(W, dtype=float)
+        dense = W.toarray() if is_sparse(W) else np.asarray(W, dtype=float)
         return singular_pivots(lu_pivots(np.eye(n) - dense.T))
     try:
         InfluenceSolver(dense_max).set_matrix(W, key=0)
@@ -346,7 +347,7 @@ def is_singular(W: Any, *, dense_max: int = DENSE_MAX) -> bool:
 
 def matrix_key(W: Any) -> Hashable:
     """A hashable fingerprint of a matrix's sparsity pattern and values."""
-    if _issparse(W):
+    if is_sparse(W):
         C = W.tocsr(copy=True)
         C.sum_duplicates()
         C.sort_indices()
@@ -426,7 +427,7 @@ class InfluenceSolver:
         if n <= self.dense_max:
             import scipy.linalg
 
-            dense = W.toarray() if _issparse(W) else np.asarray(W, dtype=float)
+            dense = W.toarray() if is_sparse(W) else np.asarray(W, dtype=float)
             M = np.eye(n) - dense.T
             if n == 0:
                 self._dense = (np.zeros((0, 0)), np.zeros(0, dtype=np.int32))
@@ -663,7 +664,7 @@ def propagation_matrix(W: Any) -> np.ndarray:
     >>> propagation_matrix([[0.0, 0.5], [0.0, 0.0]]).tolist()
     [[1.0, 0.0], [0.5, 1.0]]
     """
-    dense = W.toarray() if _issparse(W) else np.asarray(W, dtype=float)
+    dense = W.toarray() if is_sparse(W) else np.asarray(W, dtype=float)
     n = dense.shape[0]
     return np.linalg.solve(np.eye(n) - dense.T, np.eye(n))
 

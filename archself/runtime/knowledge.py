@@ -422,8 +422,6 @@ class ValueMap(Mapping[str, float]):
 
 def _value_map(names: Sequence[str], index: Mapping[str, int], values: list[float]) -> ValueMap:
     """Unpickle a :class:`ValueMap`."""
-    import numpy as np
-
     return ValueMap(names, index, np.array(values, dtype=float))
 
 
