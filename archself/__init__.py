@@ -48,7 +48,7 @@ _LAZY = {
     "RunResult": "archself.sim.run",
     "read_trace": "archself.sim.result",
     "MapeK": "archself.runtime.mapek",
-    "explain": "archself.runtime.decisions",
+    "explain": "archself.runtime.explanation",
     "parse_sweep": "archself.campaign.sweep",
     "plan_campaign": "archself.campaign.driver",
     "run_campaign": "archself.campaign.driver",
@@ -85,7 +85,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from archself.errors import ArchselfError, LoadError
     from archself.findings import Finding
     from archself.model.architecture import Architecture
-    from archself.runtime.decisions import explain
+    from archself.runtime.explanation import explain
     from archself.runtime.mapek import MapeK
     from archself.sim.result import read_trace
     from archself.sim.run import RunResult, simulate

@@ -25,7 +25,7 @@ import numpy as np
 from archself.model.loader import load_architecture
 from archself.resources import data_dir
 from archself.runtime import MapeK
-from archself.runtime.learning import OutcomeTable
+from archself.runtime.knowledge import OutcomeTable
 from archself.sim.run import simulate
 
 SCENARIO = "level_b_drift"

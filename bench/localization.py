@@ -7,8 +7,8 @@ Two parts:
   local faults, residuals ``r = max(0, (I − Wᵀ)⁻¹ (e·m) + noise − band)`` with a
   per-edge mismatch ``m`` between the true propagation and the declared W. Reported:
   how often the largest value is at a true fault (top-1) for z, the clipped inverse ê
-  (:class:`archself.runtime.sources.SourceEstimator`), NNLS
-  (:func:`~archself.runtime.sources.source_nnls`) and a sparse L1-penalized fit; the
+  (:class:`archself.runtime.influence.SourceEstimator`), NNLS
+  (:func:`~archself.runtime.influence.source_nnls`) and a sparse L1-penalized fit; the
   time per estimate at 10^3–10^5 modules.
 - ``--campaign``: adaptive campaigns of every shipped system (and the chain fixture)
   with ``runtime.localization`` influence and source, the same seeds; the expected final
@@ -46,12 +46,13 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
-from archself.runtime.influence import influence, weight_matrix
-from archself.runtime.sources import (
+from archself.runtime.influence import (
     SourceEstimator,
     SourceFit,
+    influence,
     propagation_matrix,
     source_nnls,
+    weight_matrix,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -99,7 +99,7 @@ def test_trace_and_explain(tmp_path: Path) -> None:
 
 
 def test_explain_json_holds_what_the_text_shows(tmp_path: Path) -> None:
-    from archself.runtime.decisions import explain
+    from archself.runtime.explanation import explain
 
     trace = tmp_path / "run.json"
     CliRunner().invoke(app, ["simulate", str(MINIMAL), "-s", "calm", "--trace", str(trace)])

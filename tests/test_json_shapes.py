@@ -35,7 +35,7 @@ from archself.io.jsondata import (
     SimulateDoc,
     document,
 )
-from archself.runtime.decisions import ActionEvaluation, DecisionRecord
+from archself.runtime.knowledge import ActionEvaluation, DecisionRecord
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT
 

@@ -1,7 +1,7 @@
 """Issue 36, the rest: online W and bands (runtime.online), the learned table inside the
 trace, and a strategy's tactics through the learning review.
 
-archself/runtime/online.py, MapeK.saved_knowledge, runtime/learning.py load_table,
+archself/runtime/knowledge.py, MapeK.saved_knowledge, runtime/knowledge.py load_table,
 runtime/strategies.py; docs/learning.md.
 """
 
@@ -26,7 +26,7 @@ from archself.model.strategies import Strategy
 from archself.resources import data_dir
 from archself.runtime import MapeK, explain
 from archself.runtime.influence import spectral_radius, weight_matrix
-from archself.runtime.learning import OutcomeTable, load_table
+from archself.runtime.knowledge import OutcomeTable, load_table
 from archself.sim.run import simulate
 
 PLANT = data_dir("architectures") / "process_plant.yaml"

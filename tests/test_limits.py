@@ -8,7 +8,7 @@ import pytest
 from archself.check import check
 from archself.model.loader import load_architecture, load_text
 from archself.runtime import MapeK, explain
-from archself.runtime.status import is_limit_violation, limit_violations
+from archself.runtime.monitor import is_limit_violation, limit_violations
 from archself.sim.run import simulate
 
 from conftest import FIXTURES

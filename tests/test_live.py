@@ -253,7 +253,7 @@ def test_cycles_follow_the_plant_clock(arch) -> None:
 
 def test_a_huge_finite_residual_signal_is_capped_not_a_crash(arch) -> None:
     """1e308 over a nominal of 2.47 overflowed r to inf; the influence solve refused it."""
-    from archself.runtime.residuals import MAX_RESIDUAL
+    from archself.runtime.monitor import MAX_RESIDUAL
 
     loop = LiveLoop(arch)
     out = {"tank": {"level": 1.0}, "setpoint": {"setpoint": [1.0, 0.0]}}

@@ -9,18 +9,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from archself.runtime.candidates import (
-    HysteresisSelector,
-    ThresholdSelector,
-    TopKSelector,
-    threshold_candidates,
-    top_k_candidates,
-)
 from archself.runtime.influence import (
     InfluenceSolver,
     influence,
     spectral_radius,
     weight_matrix,
+)
+from archself.runtime.planner import (
+    HysteresisSelector,
+    ThresholdSelector,
+    TopKSelector,
+    threshold_candidates,
+    top_k_candidates,
 )
 
 

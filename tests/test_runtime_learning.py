@@ -1,6 +1,6 @@
 """Issue 36: decisions that learn from outcomes (runtime.learning) and know their spread.
 
-runtime.learning (archself/runtime/learning.py) and runtime.risk (archself/runtime/risk.py).
+runtime.learning (archself/runtime/knowledge.py) and runtime.risk (archself/runtime/planner.py).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from archself.model.loader import load_architecture
 from archself.model.runtime import Learning as LearningSettings
 from archself.resources import data_dir
 from archself.runtime import MapeK
-from archself.runtime import risk as risk_module
-from archself.runtime.learning import Learning, OutcomeTable, load_table
-from archself.runtime.risk import risk_value
+from archself.runtime import planner as risk_module
+from archself.runtime.knowledge import Learning, OutcomeTable, load_table
+from archself.runtime.planner import risk_value
 from archself.sim.run import simulate
 
 PLANT = data_dir("architectures") / "process_plant.yaml"

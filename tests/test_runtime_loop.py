@@ -16,7 +16,7 @@ from test_runtime_fakes import FakeSystem, high, make_arch, run_loop
 import archself.runtime as runtime_pkg
 from archself.runtime import InfluenceSolver, MapeK, explain
 from archself.runtime.knowledge import Knowledge
-from archself.runtime.monitor import Monitor, ResidualFilter, filter_gain, module_residual
+from archself.runtime.monitor import Monitor, filter_gain, module_residual
 from archself.runtime.planner import (
     budget_violations,
     constraint_violations,
@@ -102,14 +102,6 @@ def test_no_robot_names_in_runtime():
 # --------------------------------------------------------------------------- pure pieces
 def test_filter_and_residual():
     assert filter_gain(1.0, 0.0) == 1.0
-    f = ResidualFilter(2.0)
-    assert f.confidence == 0.0
-    for _ in range(50):
-        f.update(1.0, 1.0)
-    assert f.value == pytest.approx(1.0, abs=1e-6)
-    assert f.confidence == pytest.approx(1.0, abs=1e-6)
-    held = f.update(math.nan, 1.0)  # a missing sample holds the value
-    assert held == f.value
     assert module_residual(0.15, 2.0, 0.1) == pytest.approx(1.0)
     assert module_residual(0.05, 2.0, 0.1) == 0.0
     assert module_residual(-0.3, 1.0, 0.1, "none") == pytest.approx(0.3)

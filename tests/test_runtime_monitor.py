@@ -21,13 +21,64 @@ from archself.model.loader import load_text
 from archself.runtime.monitor import (
     ModuleStatus,
     Monitor,
-    ResidualFilter,
+    filter_confidence,
+    filter_gain,
     is_own_failure,
     module_residual,
     unavailable_residual,
 )
 
 N = 60
+
+
+class ResidualFilter:
+    """First-order low-pass filter ``y ← y + g·(s − y)`` holding on missing samples.
+
+    Starts at 0 (a healthy module's nominal residual) so that one noisy first
+    sample cannot raise an alarm.
+
+    Parameters
+    ----------
+    time_constant : float
+        T in seconds; 0 passes the signal through.
+    """
+
+    def __init__(self, time_constant: float) -> None:
+        self.time_constant = float(time_constant)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start again from 0, with no sample."""
+        self.value = 0.0
+        self.valid_time = 0.0
+        self.samples = 0
+
+    def update(self, sample: float, dt: float) -> float:
+        """Feed one sample taken ``dt`` seconds after the previous one."""
+        if math.isfinite(sample):
+            if self.samples == 0 and self.time_constant <= 0:
+                self.value = sample
+            else:
+                self.value += filter_gain(dt, self.time_constant) * (sample - self.value)
+            self.samples += 1
+            self.valid_time += max(dt, 0.0)
+        return self.value
+
+    @property
+    def confidence(self) -> float:
+        """How settled the filter is: ``1 − exp(−t_valid/T)`` (1 without smoothing)."""
+        return filter_confidence(self.samples, self.valid_time, self.time_constant)
+
+
+def test_reference_filter_settles_and_holds() -> None:
+    f = ResidualFilter(2.0)
+    assert f.confidence == 0.0
+    for _ in range(50):
+        f.update(1.0, 1.0)
+    assert f.value == pytest.approx(1.0, abs=1e-6)
+    assert f.confidence == pytest.approx(1.0, abs=1e-6)
+    held = f.update(math.nan, 1.0)  # a missing sample holds the value
+    assert held == f.value
 
 
 def _arch(normalization: str = "nominal") -> Any:

@@ -7,7 +7,7 @@ import pytest
 from archself import load
 from archself.resources import data_dir
 from archself.runtime import MapeK, explain
-from archself.runtime.paths import Detours
+from archself.runtime.planner import Detours
 from archself.sim.run import simulate
 
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from archself.runtime.candidates import HysteresisSelector, ThresholdSelector, TopKSelector
-from archself.runtime.decisions import ValueMap
+from archself.runtime.knowledge import ValueMap
+from archself.runtime.planner import HysteresisSelector, ThresholdSelector, TopKSelector
 
 
 def _cycles(seed: int, n: int = 40, cycles: int = 30) -> list[np.ndarray]:

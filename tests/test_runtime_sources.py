@@ -1,6 +1,6 @@
 """Root-cause localization: the source estimate ê beside the paper's z.
 
-The maths (archself/runtime/sources.py) against the dense propagation model, the
+The maths (archself/runtime/influence.py) against the dense propagation model, the
 hidden-module elimination, the NNLS fit it was compared with, the runtime setting
 ``runtime.localization`` (z unchanged, both logged, explain shows both) and the
 done-when of issue 17 item 3: on a chain of generic blocks with the fault at its head
@@ -19,14 +19,15 @@ from numpy.testing import assert_allclose
 
 from archself.model.loader import load_architecture
 from archself.runtime import MapeK, explain
-from archself.runtime.decisions import explain_data
-from archself.runtime.influence import influence, weight_matrix
-from archself.runtime.sources import (
+from archself.runtime.explanation import explain_data
+from archself.runtime.influence import (
     SourceEstimator,
     SourceFit,
+    influence,
     propagation_matrix,
     source_estimate,
     source_nnls,
+    weight_matrix,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ from archself.check import check
 from archself.model.loader import load_text
 from archself.resources import data_dir
 from archself.runtime import MapeK, explain
-from archself.runtime.utility import Utility
+from archself.runtime.planner import Utility
 from archself.sim.run import simulate
 
 ROBOT = data_dir("architectures") / "diffdrive.yaml"

@@ -160,7 +160,7 @@ def _check_online(ctx: Context) -> None:
                 "updated online", ("runtime", "online", "bands", "enabled"))
     if not online.weights.enabled:
         return
-    from archself.runtime.online import on_cycles
+    from archself.runtime.knowledge import on_cycles
 
     observed = {n for n, m in arch.modules.items() if m.residual is not None}
     for conf in arch.configurations.values():

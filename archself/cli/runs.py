@@ -198,7 +198,7 @@ def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None]) ->
         if not target.name or not target.parent.is_dir():
             raise _fail(f"{target}: cannot write: --save-knowledge takes a file in a folder "
                         f"that exists")
-    from archself.runtime.learning import OutcomeTable, load_table
+    from archself.runtime.knowledge import OutcomeTable, load_table
 
     return OutcomeTable() if source is None else load_table(source)
 
@@ -308,8 +308,8 @@ def explain(
     ] = False,
 ) -> None:
     """Explain a run's decisions: why (and why not) the architecture switched."""
-    from archself.runtime.decisions import explain as render
-    from archself.runtime.decisions import explain_data
+    from archself.runtime.explanation import explain as render
+    from archself.runtime.explanation import explain_data
     from archself.sim.result import read_trace, trace_from_bytes
 
     with guard((trace, "a trace (Parquet or JSON)"), numeric=False):
@@ -334,7 +334,7 @@ def explain(
     )
     typer.echo(render(decisions))
     if meta.get("knowledge"):  # runtime.learning / runtime.online: what the run learned
-        from archself.runtime.online import knowledge_summary
+        from archself.runtime.knowledge import knowledge_summary
 
         for line in knowledge_summary(meta["knowledge"]):
             typer.echo(line)

@@ -23,9 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from archself.runtime.monitor import Monitor, Observation, confidence_reader
-from archself.runtime.residuals import MAX_RESIDUAL
-from archself.runtime.status import StatusMap
+from archself.runtime.monitor import (
+    MAX_RESIDUAL,
+    Monitor,
+    Observation,
+    StatusMap,
+    confidence_reader,
+)
 
 __all__ = ["observe_group"]
 

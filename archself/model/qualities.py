@@ -6,7 +6,7 @@ configuration — the sum of a module ``resources`` entry over the configuration
 ``u(value) ∈ [0, 1]``, piecewise linear through ``utility`` points ``[value, u]``
 (flat outside them). The utility of a configuration is the weighted sum
 ``U(C) = Σ_q w_q · u_q(value_q(C)) / Σ_q w_q`` under the stated ``preferences``
-(weights ``w_q``). The planner (``archself.runtime.utility``) lets U rank the
+(weights ``w_q``). The planner (``archself.runtime.planner``) lets U rank the
 configurations that deliver the same remedy; hard requirements stay constraints.
 """
 

@@ -102,7 +102,7 @@ class Ablation(StrictModel):
     paths: bool = Field(
         True,
         description="false: no detour to another configuration when an action's target is "
-        "unavailable (archself.runtime.paths).",
+        "unavailable (archself.runtime.planner).",
     )
 
 

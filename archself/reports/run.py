@@ -287,12 +287,12 @@ def quality_table(arch: Architecture | None) -> dict[str, Any] | None:
     """The quality attributes of every configuration, for the run report's figure.
 
     ``{"preferences": {q: w}, "units": {q: unit}, "configurations": {c: {"U": U(C),
-    "attributes": {q: {"value", "utility"}}}}}`` (:class:`archself.runtime.utility.Utility`);
+    "attributes": {q: {"value", "utility"}}}}}`` (:class:`archself.runtime.planner.Utility`);
     None without ``arch`` (a trace read back) or without a ``qualities`` section.
     """
     if arch is None or arch.qualities is None:
         return None
-    from archself.runtime.utility import Utility
+    from archself.runtime.planner import Utility
 
     u = Utility(arch)
     q = arch.qualities

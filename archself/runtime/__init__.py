@@ -5,19 +5,22 @@ read from the :class:`archself.model.architecture.Architecture`, and the running
 reached only through the LiveSystem contract (docs/develop.md).
 
 ============================  ==============================================
-file                          role
+file                          role (the loop's steps)
 ============================  ==============================================
-``influence.py``              W (Eq. 13), ρ(W), z = (I − Wᵀ)⁻¹ r (Eq. 14–15)
-``candidates.py``             candidate set C: τ, top-k, hysteresis (Eq. 16, 28)
-``monitor.py``                J_obs, r (Eq. 11), r_i (Eq. 12), κ_i
-``residuals.py``              one module's residual maths: filter gain, r_i, r_sat
-``status.py``                 κ_i (``ModuleStatus``, ``StatusMap``), measured limits
+``monitor.py``                Monitor: J_obs, r (Eq. 11), r_i (Eq. 12), κ_i
+                              (``ModuleStatus``, ``StatusMap``), the residual
+                              maths of one module, measured limits
+``influence.py``              Analyze: W (Eq. 13), ρ(W), z = (I − Wᵀ)⁻¹ r
+                              (Eq. 14–15), the local faults ê (``SourceFit``)
+``planner.py``                Plan: candidate set C (Eq. 16, 28), s (Eq. 17),
+                              Δ (Eq. 18, rollouts and risk), constraints
+                              (Eq. 27), detours, utility, score and argmax
+                              (Eq. 25–28)
 ``stability.py``              eigenvalue margin (Eq. 21), Lyapunov test (Eq. 24)
-``planner.py``                s (Eq. 17), Δ (Eq. 18), score (Eq. 25), argmax (Eq. 26–28)
-``constraints.py``            C(a, θ, e) ≤ 0 (Eq. 27): budgets, requires/excludes, ranges
-``improvement.py``            Δ_k (Eq. 18): sensitivity, table, rollout
-``knowledge.py``              the live architecture graph, t_last
-``decisions.py``              the decision log (records, evaluations, ``ValueMap``)
+``strategies.py``             the running strategy's state and its cycle
+``knowledge.py``              Knowledge: the live architecture graph, t_last,
+                              the decision log (``DecisionRecord``,
+                              ``ValueMap``), learned outcomes, online W/bands
 ``explanation.py``            :func:`explain` and ``explain_data``: the log for a person
 ``mapek.py``                  :class:`MapeK`: one cycle of Algorithm 1
 ============================  ==============================================
@@ -31,10 +34,10 @@ from typing import TYPE_CHECKING, Any
 # Attributes are imported lazily (PEP 562) so that ``archself explain`` — which only
 # needs :func:`explain` — does not pay for scipy and networkx.
 _LAZY = {
-    "ActionEvaluation": "decisions",
-    "DecisionRecord": "decisions",
-    "explain": "decisions",
-    "explain_data": "decisions",
+    "ActionEvaluation": "knowledge",
+    "DecisionRecord": "knowledge",
+    "explain": "explanation",
+    "explain_data": "explanation",
     "InfluenceSolver": "influence",
     "influence": "influence",
     "spectral_radius": "influence",
@@ -58,14 +61,14 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # pragma: no cover
-    from archself.runtime.decisions import ActionEvaluation, DecisionRecord, explain
+    from archself.runtime.explanation import explain
     from archself.runtime.influence import (
         InfluenceSolver,
         influence,
         spectral_radius,
         weight_matrix,
     )
-    from archself.runtime.knowledge import Knowledge
+    from archself.runtime.knowledge import ActionEvaluation, DecisionRecord, Knowledge
     from archself.runtime.mapek import MapeK
     from archself.runtime.stability import StabilityVerdict
 

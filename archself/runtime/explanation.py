@@ -3,7 +3,7 @@
 :func:`explain` answers "why did it switch?": every cycle that switched, rejected an
 action or saw a candidate, with J, the largest z (or ê) and each evaluation's Δ,
 score and reason; quiet cycles are folded. :func:`explain_data` is the same as
-segments of plain data. Both read :class:`~archself.runtime.decisions.DecisionRecord`
+segments of plain data. Both read :class:`~archself.runtime.knowledge.DecisionRecord`
 objects or their JSON form (a trace's log); importing this module costs
 neither scipy nor networkx.
 """
@@ -39,7 +39,7 @@ def _as_dict(d: Any) -> dict[str, Any]:
 def decision_log_problem(decisions: Any) -> str | None:
     """What makes ``decisions`` not a decision log (``decisions[3].z: expected …``), or None.
 
-    A log is a list of records (:class:`~archself.runtime.decisions.DecisionRecord` or
+    A log is a list of records (:class:`~archself.runtime.knowledge.DecisionRecord` or
     their JSON form, as a trace stores them), checked by the model
     :data:`archself.io.jsondata.DecisionLog`: a field may be missing, but one that is
     there has its type.

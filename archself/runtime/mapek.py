@@ -6,7 +6,7 @@
 1. **Monitor** (steps 1–2, :mod:`~archself.runtime.monitor`): J_obs, the global
    residual r = J_ref − J_obs (Eq. 11), the module residuals r_i (Eq. 12) and κ_i.
 2. **Analyze** (steps 3–5, :mod:`~archself.runtime.influence`,
-   :mod:`~archself.runtime.candidates`): W of the active edges (Eq. 13), the
+   :mod:`~archself.runtime.planner`): W of the active edges (Eq. 13), the
    influence z = (I − Wᵀ)⁻¹ r (Eq. 14) and the candidate set C (Eq. 16).
 3. **Plan** (steps 6–8, :mod:`~archself.runtime.planner`): Δ, stability filter,
    dwell time, score and argmax under the constraints (Eq. 17–28).
@@ -27,7 +27,7 @@ downstream; the mark is dropped when an action keyed to the module applies
 again (the compensation is gone) or it becomes inactive.
 
 Localization: besides z, every cycle estimates the local faults ê that explain the
-residuals (:mod:`~archself.runtime.sources`), largest at a fault's origin where z is
+residuals (:mod:`~archself.runtime.influence`), largest at a fault's origin where z is
 largest downstream of it. ``runtime.localization`` chooses what drives the candidate
 set and the planner's weight: ``fit`` (default, :class:`SourceFit`: few sources on
 observed and hidden modules, modules the residuals cannot tell apart kept together
@@ -38,31 +38,40 @@ holds z and ê. The estimate uses every residual as it is (a compensated module'
 residual still explains its downstream echoes).
 ``runtime.ablation`` switches propagation (z = ê = r), the stability filter or the
 dwell time off. Every cycle
-appends a :class:`~archself.runtime.decisions.DecisionRecord` to
+appends a :class:`~archself.runtime.knowledge.DecisionRecord` to
 :attr:`MapeK.decisions`.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
-from archself.runtime.candidates import selector_from_runtime
-from archself.runtime.decisions import DecisionRecord, ValueMap
-from archself.runtime.knowledge import Knowledge
-from archself.runtime.learning import learning_of
-from archself.runtime.monitor import Monitor
-from archself.runtime.online import online_of
-from archself.runtime.planner import Planner, PlanState
-from archself.runtime.sources import SourceEstimator, SourceFit
+from archself.runtime.influence import SourceEstimator, SourceFit
+from archself.runtime.knowledge import DecisionRecord, Knowledge, ValueMap, learning_of, online_of
+from archself.runtime.monitor import Monitor, Observation
+from archself.runtime.planner import Planner, PlanState, selector_from_runtime
 from archself.runtime.stability import apply_action
 from archself.runtime.strategies import Strategies
 
 __all__ = ["MapeK"]
+
+
+@dataclass(slots=True)
+class _Analysis:
+    """One cycle's Analyze stage over the active modules (values in ``k.active_index`` order)."""
+
+    r_values: Any
+    r_active: ValueMap
+    z_active: ValueMap
+    e_values: Any
+    e_active: ValueMap
+    drive: ValueMap  # what drives C and the planner: z or ê (``runtime.localization``)
+    candidates: list[str]
 
 
 class MapeK:
@@ -75,7 +84,7 @@ class MapeK:
         edges and weights, configurations, actions, budgets and the ``runtime``
         settings — comes from it.
     learned : OutcomeTable or path, optional
-        What earlier runs learned (:mod:`~archself.runtime.learning`); used when
+        What earlier runs learned (:mod:`~archself.runtime.knowledge`); used when
         ``runtime.learning.enabled``, which a table given here switches on.
 
     Attributes
@@ -136,7 +145,7 @@ class MapeK:
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: ManagedSystem, observation: Any = None) -> list[dict[str, Any]]:
-        """Run one MAPE-K cycle on ``system``.
+        """Run one MAPE-K cycle on ``system``: monitor, analyze, plan, execute.
 
         Parameters
         ----------
@@ -157,12 +166,24 @@ class MapeK:
         k = self.knowledge
         k.sync(system)  # the system may start in any configuration: adopt it
         t = float(system.t)
-
         if self.compensated and k.configuration != self._checked_conf:
             self._still_compensated(k.configuration, k.active)
         # MONITOR (Eq. 11-12)
         obs = observation if observation is not None else self.monitor.observe(system, k.active)
         # ANALYZE (Eq. 13-16)
+        cycle = self._analyze(obs, k)
+        record = self._record(t, obs, cycle)
+        if record.phase == "warmup" or not (cycle.candidates or self.strategies.running):
+            return []
+        # PLAN (Eq. 17-28)
+        action, ev = self._plan(system, t, obs, cycle, record)
+        if action is None or ev is None:
+            return []
+        # EXECUTE (step 9)
+        return self._execute(system, t, action, ev, cycle, record)
+
+    def _analyze(self, obs: Observation, k: Knowledge) -> _Analysis:
+        """Steps 3-5: r, z and ê of the active modules and the candidate set C."""
         r_values = obs.r[k.active_index]
         r_active = ValueMap(k.active_names, k.active_pos, r_values)
         self._equivalent = []
@@ -179,7 +200,11 @@ class MapeK:
         else:
             drive, drive_values = e_active, e_values
         candidates = self.selector.select(drive, drive_values)
+        return _Analysis(r_values, r_active, z_active, e_values, e_active, drive, candidates)
 
+    def _record(self, t: float, obs: Observation, cycle: _Analysis) -> DecisionRecord:
+        """This cycle's decision record (warm-up or not), appended to the log and learned from."""
+        k = self.knowledge
         if self.t_start is None:
             self.t_start = t
         warm = t - self.t_start < self.warmup_s - 1e-9
@@ -191,11 +216,11 @@ class MapeK:
             j_obs=obs.j_obs,
             j_ref=obs.j_ref,
             r_global=obs.r_global,
-            r=r_active,
-            z=z_active,
-            candidates=list(candidates),
+            r=cycle.r_active,
+            z=cycle.z_active,
+            candidates=list(cycle.candidates),
             selector=self.selector.describe(),
-            source=e_active,
+            source=cycle.e_active,
             localization=self.localization,
             equivalent=self._equivalent,
             kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
@@ -207,37 +232,43 @@ class MapeK:
             self.learning.cycle(record)
         if self.online is not None and self.online.cycle(record, obs):
             self._sources_key = None  # W changed: the source fit is rebuilt
-        if warm or not (candidates or self.strategies.running):
-            return []
+        return record
 
-        # PLAN (Eq. 17-28)
+    def _plan(self, system: ManagedSystem, t: float, obs: Observation, cycle: _Analysis,
+              record: DecisionRecord) -> tuple[Any, Any]:
+        """Steps 6-8: the running strategy's tactic or the planner's argmax (and the echo's)."""
+        k = self.knowledge
+        r_active = cycle.r_active
         if self.localization == "fit" and self.propagate:
             # a hidden module has no residual of its own: the fit's estimate stands for it
             # (an action's sensitivity Δ is proportional to the module's residual)
-            r_plan = np.where(self._observed_array[k.active_index], r_values, e_values)
+            r_plan = np.where(self._observed_array[k.active_index], cycle.r_values,
+                              cycle.e_values)
             r_active = ValueMap(k.active_names, k.active_pos, r_plan)
         state = PlanState(
             t=t,
             configuration=k.configuration,
             active=k.active,
             edges=k.edges,
-            z=drive,
+            z=cycle.drive,
             r=r_active,
             kappa=obs.kappa,
             params=k.params,
             t_last=k.t_last,
         )
-        if self.strategies.wants(candidates, state, record):  # a strategy runs: its tactic
+        if self.strategies.wants(cycle.candidates, state, record):  # a strategy runs: its tactic
             evaluations, action, ev = self.strategies.cycle(system, state, record)
         else:
-            evaluations, action, ev = self.planner.plan(system, state, candidates)
+            evaluations, action, ev = self.planner.plan(system, state, cycle.candidates)
             if action is None and self.localization == "fit" and self.propagate:
                 evaluations, action, ev = self._echo_plan(system, state, evaluations, record)
         record.evaluations = evaluations
-        if action is None or ev is None:
-            return []
+        return action, ev
 
-        # EXECUTE (step 9)
+    def _execute(self, system: ManagedSystem, t: float, action: Any, ev: Any,
+                 cycle: _Analysis, record: DecisionRecord) -> list[dict[str, Any]]:
+        """Step 9: apply ``action``, synchronize the Knowledge, log the change."""
+        k = self.knowledge
         before = k.configuration
         try:
             apply_action(system, action)
@@ -249,13 +280,14 @@ class MapeK:
         k.sync(system)
         if self.learning is not None:
             self.learning.started(action, before, k.configuration, t, ev.delta)
-        z_chosen = ev.z if self.localization == "influence" else abs(z_active.get(action.module, 0))
+        z_chosen = (ev.z if self.localization == "influence"
+                    else abs(cycle.z_active.get(action.module, 0)))
         chosen: dict[str, Any] = {
             "action": action.id,
             "kind": action.kind,
             "module": action.module,
             "z": z_chosen,
-            "source": abs(e_active.get(action.module, 0.0)),
+            "source": abs(cycle.e_active.get(action.module, 0.0)),
             "delta": ev.delta,
             "score": ev.score,
         }

@@ -48,18 +48,24 @@
   :class:`StatusMap` that builds a :class:`ModuleStatus` only when one is looked
   up (the decision log looks up the modules with a finding); what depends only on
   the active set is computed once per set. The numbers are those of
-  :class:`ResidualFilter` and :func:`module_residual` exactly
-  (tests/test_runtime_monitor.py).
+  the first-written one-module filter and :func:`module_residual` exactly
+  (tests/test_runtime_monitor.py keeps that reference).
 
-The one-module maths is in :mod:`archself.runtime.residuals`, κ_i and the limit
-checks in :mod:`archself.runtime.status`, and the per-active-set arrays
-(:class:`Layout`) below.
+The file holds the Monitor's whole concept, in this order: κ_i (the status
+indicators of Eq. 17: :class:`ModuleStatus` is one module's κ, :class:`StatusMap`
+κ of every module over the Monitor's arrays; :func:`limit_violations` judges a
+module's declared ``max_<signal>`` / ``min_<signal>`` limits against its signals,
+:func:`is_limit_violation` tells those lines from ``requires``/``excludes`` ones),
+the residual maths of one module (Eq. 12: filter gain, r_i, r_sat, the trust of a
+filter, as pure functions) and the per-active-set arrays (:class:`Layout`) with the
+:class:`Monitor` that does the same arithmetic over arrays of modules, operation for
+operation.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -67,32 +73,22 @@ import numpy as np
 
 from archself.contracts import ManagedSystem
 from archself.model.architecture import Architecture
-from archself.runtime.residuals import (
-    MAX_RESIDUAL,
-    ResidualFilter,
-    filter_confidence,
-    filter_gain,
-    is_own_failure,
-    module_residual,
-    to_float,
-    unavailable_residual,
-)
-from archself.runtime.status import ModuleStatus, StatusMap, is_limit_violation, limit_violations
 
 __all__ = [
+    "MAX_RESIDUAL",
     "ModuleStatus",
     "Monitor",
     "Observation",
-    "ResidualFilter",
     "StatusMap",
+    "filter_confidence",
     "filter_gain",
     "is_limit_violation",
     "is_own_failure",
+    "limit_violations",
     "module_residual",
+    "to_float",
     "unavailable_residual",
 ]
-
-
 
 def as_floats(values: list[Any]) -> np.ndarray:
     """``[to_float(v) for v in values]`` as a float array; one numpy call for plain numbers."""
@@ -259,7 +255,7 @@ class Monitor:
     (value, valid time, sample count) and updated together; κ_i is a
     :class:`StatusMap`. What depends only on the set of active modules
     (which filters run, the ``requires``/``excludes`` checks) is computed once
-    per set. The arithmetic is that of :class:`ResidualFilter` and
+    per set. The arithmetic is that of one filter per module and
     :func:`module_residual`, operation for operation, so the numbers are the same.
 
     Parameters
@@ -314,7 +310,7 @@ class Monitor:
         return self.nominal[[slot[n] for n in names]].copy()
 
     def set_nominal(self, name: str, value: float) -> None:
-        """Set the band of ``name`` from the next cycle on (online bands, runtime/online.py)."""
+        """Set the band of ``name`` from the next cycle on (online bands, runtime/knowledge.py)."""
         j = int(np.flatnonzero(self.res_pos == self.index[name])[0])
         self.nominal[j] = float(value)
         if self._layout is not None:
@@ -432,9 +428,9 @@ class Monitor:
     ) -> np.ndarray:
         """Filter update ``y ← y + g·(s − y)`` and r_i of the active residual modules.
 
-        The operations of :class:`ResidualFilter` and :func:`module_residual`,
-        elementwise. Returns the usable-sample mask (``lay.all_ok`` when every
-        sample was usable).
+        The operations of one first-order filter per module and
+        :func:`module_residual`, elementwise. Returns the usable-sample mask
+        (``lay.all_ok`` when every sample was usable).
         """
         x = as_floats(raw)
         with np.errstate(all="ignore"):
@@ -484,3 +480,239 @@ class Monitor:
         out = np.minimum(out, MAX_RESIDUAL)
         fin = np.isfinite(value)
         return out if fin.all() else np.where(fin, out, 0.0)
+
+
+@dataclass
+class ModuleStatus:
+    """κ_i: status indicators of one module (Eq. 17)."""
+
+    active: bool
+    available: bool = True
+    residual_ok: bool = True
+    confidence: float = 1.0
+    violations: list[str] = field(default_factory=list)
+    reason: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "active": self.active,
+            "available": self.available,
+            "residual_ok": self.residual_ok,
+            "confidence": float(self.confidence),
+            "violations": list(self.violations),
+        }
+        if self.reason is not None:
+            out["reason"] = self.reason
+        return out
+
+
+@dataclass(eq=False, repr=False)
+class StatusMap(Mapping[str, ModuleStatus]):
+    """κ of every module (Eq. 17) as a read-only mapping, built on demand.
+
+    The Monitor keeps the status of all modules in arrays; a
+    :class:`ModuleStatus` is only created when a module is looked up (and then
+    kept, so repeated look-ups give the same object). :meth:`findings` lists the
+    modules with something to report without touching the others, which is what
+    keeps a cycle on 10^4 modules cheap.
+
+    Parameters
+    ----------
+    names : list of str
+        All modules, in index order (iteration order of the mapping).
+    index : dict
+        name -> position in ``names``.
+    active, available, residual_ok : numpy.ndarray of bool
+        Per position.
+    confidence : callable
+        position -> confidence of the module's residual filter.
+    violations : dict
+        name -> violated constraints (active modules with at least one).
+    reasons : dict
+        name -> reason of an active unavailable module (may be None).
+    finding : numpy.ndarray of int
+        Positions of the active modules that are unavailable, have an unusable
+        residual signal or violate a constraint, ascending.
+    unavailable : set of str
+        The names where ``available`` is False.
+    """
+
+    _names: list[str]
+    _index: dict[str, int]
+    _active: np.ndarray
+    _available: np.ndarray
+    _residual_ok: np.ndarray
+    _confidence: Callable[[int], float]
+    _violations: dict[str, list[str]]
+    _reasons: dict[str, str | None]
+    _finding: np.ndarray
+    _down: set[str]
+    _built: dict[str, ModuleStatus] = field(default_factory=dict, init=False)
+
+    def __getitem__(self, name: str) -> ModuleStatus:
+        status = self._built.get(name)
+        if status is None:
+            k = self._index[name]
+            status = ModuleStatus(
+                active=bool(self._active[k]),
+                available=bool(self._available[k]),
+                residual_ok=bool(self._residual_ok[k]),
+                confidence=self._confidence(k),
+                violations=list(self._violations.get(name, ())),
+                reason=self._reasons.get(name),
+            )
+            self._built[name] = status
+        return status
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def findings(self) -> list[tuple[str, ModuleStatus]]:
+        """``(name, κ)`` of the active modules with a finding, in index order.
+
+        A finding is: unavailable, residual signal unusable, or a violated
+        constraint (what the decision log records).
+        """
+        names = self._names
+        return [(names[k], self[names[k]]) for k in self._finding.tolist()]
+
+    def unavailable(self) -> set[str]:
+        """Names of the modules the system reports unavailable (active or not)."""
+        return self._down
+
+
+def limit_violations(
+    limits: Mapping[str, Any], local: Mapping[str, Any], outputs: Mapping[str, Any] | None = None
+) -> list[str]:
+    """Declared ``max_<signal>``/``min_<signal>`` limits the module's signals break (e).
+
+    The signal is a local (residual) signal, else a scalar output the module published
+    this step; a limit on anything else (a parameter, θ) is judged by the planner.
+    Each line starts with the limit's key (:func:`is_limit_violation`).
+    """
+    out = []
+    for key, limit in limits.items():
+        for prefix, worse in (("max_", float.__gt__), ("min_", float.__lt__)):
+            if key.startswith(prefix):
+                name = key[len(prefix) :]
+                if name in local:
+                    raw = local[name]
+                else:
+                    raw = outputs.get(name) if outputs else None
+                    if isinstance(raw, np.ndarray):
+                        raw = raw.item() if raw.size == 1 else None
+                value = to_float(math.nan if raw is None else raw)
+                if math.isfinite(value) and worse(value, float(limit)):
+                    out.append(f"{key} {limit:g} violated ({value:g})")
+    return out
+
+
+def is_limit_violation(text: str) -> bool:
+    """True for a κ violation line of a measured limit (not ``requires``/``excludes``)."""
+    return text.startswith(("max_", "min_"))
+
+
+#: r_i is capped here: a finite but huge signal (1e308 over a nominal of 0.1) would
+#: overflow to inf, which the influence solve cannot take; any band is far below.
+MAX_RESIDUAL = 1e12
+
+
+def filter_gain(dt: float, time_constant: float) -> float:
+    """Gain ``1 − exp(−dt/T)`` of a first-order filter sampled every ``dt`` (1 if T = 0).
+
+    Examples
+    --------
+    >>> filter_gain(1.0, 0.0)
+    1.0
+    >>> round(filter_gain(1.0, 10.0), 4)
+    0.0952
+    """
+    if time_constant <= 0:
+        return 1.0
+    return float(1.0 - math.exp(-max(dt, 0.0) / time_constant))
+
+
+def module_residual(
+    value: float, sensitivity: float, nominal: float, normalization: str = "nominal"
+) -> float:
+    """Local residual r_i (Eq. 12) from a (filtered) local signal value.
+
+    Parameters
+    ----------
+    value : float
+        The filtered local signal s̄.
+    sensitivity : float
+        ∂J/∂θ_i.
+    nominal : float
+        The signal's nominal noise level (> 0).
+    normalization : {"nominal", "none"}
+        See the module docstring.
+
+    Returns
+    -------
+    float
+        ``r_i``, at most :data:`MAX_RESIDUAL`; 0 for a non-finite value.
+
+    Examples
+    --------
+    >>> module_residual(0.375, 1.0, 0.25)   # 50 % above nominal
+    0.5
+    >>> module_residual(0.1, 1.0, 0.2)      # inside the noise band
+    0.0
+    >>> module_residual(-0.3, 2.0, 0.2, "none")
+    0.6
+    """
+    if not math.isfinite(value):
+        return 0.0
+    if normalization == "none":
+        return float(min(sensitivity * abs(value), MAX_RESIDUAL))
+    return float(min(sensitivity * max(0.0, abs(value) - nominal) / nominal, MAX_RESIDUAL))
+
+
+def unavailable_residual(runtime: Any) -> float:
+    """``r_sat``: the residual of an unavailable module, ``max(1, 2·τ)``.
+
+    τ is ``runtime.threshold`` (or ``hysteresis.on``), so an unavailable module
+    is always a candidate (z_i ≥ r_i with non-negative weights); 1 is "a
+    deviation as large as the nominal level" under ``nominal`` normalization.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> unavailable_residual(NS(threshold=0.55, hysteresis=None))
+    1.1
+    >>> unavailable_residual(NS(threshold=None, hysteresis=None))
+    1.0
+    """
+    tau = runtime.threshold
+    if tau is None and runtime.hysteresis is not None:
+        tau = runtime.hysteresis.on
+    return float(max(1.0, 2.0 * float(tau or 0.0)))
+
+
+def is_own_failure(reason: str | None) -> bool:
+    """Whether an unavailability reason is the module's own (not a lost upstream input)."""
+    return not (reason or "").startswith("lost input")
+
+
+def filter_confidence(samples: int, valid_time: float, time_constant: float) -> float:
+    """``1 − exp(−t_valid/T)`` of a residual filter (0 before a sample, 1 without smoothing)."""
+    if samples == 0:
+        return 0.0
+    if time_constant <= 0:
+        return 1.0
+    return float(1.0 - math.exp(-valid_time / time_constant))
+
+
+def to_float(x: Any) -> float:
+    """``float(x)``, NaN when ``x`` is no number."""
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan

@@ -47,6 +47,7 @@ from typing import Any, cast
 import numpy as np
 
 from archself.contracts import LoopSystem, ManagedSystem, SystemSnapshot
+from archself.runtime.influence import is_sparse
 
 __all__ = [
     "StabilityVerdict",
@@ -110,11 +111,9 @@ def eigenvalue_margin(A: Any, margin: float) -> StabilityVerdict:
     >>> eigenvalue_margin([[0.5, 0.0], [0.0, -2.0]], 0.01).ok
     False
     """
-    import scipy.sparse
-
     from archself.linear.wiring import eigenvalues
 
-    if scipy.sparse.issparse(A):  # a large closed loop (archself.linear.wiring.eigenvalues)
+    if is_sparse(A):  # a large closed loop (archself.linear.wiring.eigenvalues)
         finite = bool(np.all(np.isfinite(A.data)))
     else:
         A = np.atleast_2d(np.asarray(A, dtype=float))

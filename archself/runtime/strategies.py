@@ -29,7 +29,7 @@ from typing import Any
 from archself.contracts import ManagedSystem
 from archself.model.architecture import Action, Architecture
 from archself.model.strategies import Condition, Strategy
-from archself.runtime.decisions import ActionEvaluation
+from archself.runtime.knowledge import ActionEvaluation
 
 __all__ = ["Running", "Strategies", "holds"]
 
