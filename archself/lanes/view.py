@@ -46,14 +46,14 @@ import io
 import math
 import pickle
 from collections import deque
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from archself.lanes.module import ALL, row
 from archself.lanes.system import LaneSystem
-from archself.system.linearizing import loop_probes
+from archself.system.linearizing import LoopProbes, loop_probes
 
 if TYPE_CHECKING:
     from archself.linear.closed_loop import ClosedLoop, WholeLoop
@@ -61,7 +61,7 @@ if TYPE_CHECKING:
     from archself.modules.base import RuntimeModule
     from archself.system.executor import LiveSystem
 
-__all__ = ["LaneView", "lane_loop"]
+__all__ = ["LaneView", "lane_loop", "lane_loops"]
 
 
 class _Outputs(Mapping):
@@ -101,6 +101,8 @@ class LaneView:
         self.live: LiveSystem = lanes.systems[i]
         self._materialized = False
         self._params_seen = 0
+        #: the worker running the lane's loop call, when its checks are batched
+        self.worker: Any = None
 
     # ------------------------------------------------------------------ the quiet path
     @property
@@ -178,7 +180,11 @@ class LaneView:
         return self._live().closed_loop(configuration)
 
     def whole_loop(self, configuration: str | None = None, steps: int = 1) -> WholeLoop:
-        """The lane's whole loop, its perturbed copies stepped as lanes (:func:`lane_loop`)."""
+        """The lane's whole loop, its perturbed copies stepped as lanes (:func:`lane_loop`;
+        inside a loop call run by :func:`archself.lanes.run._adapt` in a worker, with the
+        other lanes' checks of the cycle: :func:`lane_loops`)."""
+        if self.worker is not None:
+            return self.worker.ask((self._live(), configuration, steps))
         return lane_loop(self._live(), configuration, steps)
 
     def state_error(self) -> np.ndarray:
@@ -253,12 +259,41 @@ def lane_loop(system: Any, configuration: str | None = None, steps: int = 1) -> 
     steps : int
         Steps of the map.
     """
+    return lane_loops([(system, configuration, steps)])[0]
+
+
+def lane_loops(checks: Sequence[tuple[Any, str | None, int]]) -> list[WholeLoop]:
+    """:func:`lane_loop` of several ``(system, configuration, steps)`` at once: the copies
+    of the checks of one configuration, step and step count stepped as the lanes of one
+    :class:`~archself.lanes.system.LaneSystem` (the lanes that check in the same cycle)."""
+    made = [_copies(*check) for check in checks]
+    groups: dict[tuple[str, int, int], list[int]] = {}
+    for j, (_probes, copies) in enumerate(made):
+        groups.setdefault((copies[0].configuration, copies[0].k, checks[j][2]), []).append(j)
+    out: list[Any] = [None] * len(checks)
+    for (_conf, _k, steps), js in groups.items():
+        lanes = LaneSystem.resume([c for j in js for c in made[j][1]], smooth=True)
+        for _ in range(steps):
+            lanes.step()
+        lanes.store(ALL)
+        lane = 0
+        for j in js:
+            probes, copies = made[j]
+            for _ in copies:
+                probes.probe.raised({n: lanes.health.reason(n, lane) for n in lanes.health.why})
+                lane += 1
+            out[j] = probes.assemble(copies)
+    return out
+
+
+def _copies(system: Any, configuration: str | None, steps: int) -> tuple[LoopProbes, list]:
+    """The probes of ``system``'s whole loop and the copy of each of their shifts."""
     probes = loop_probes(system, configuration, steps)
     probe = probes.probe
     active = probe.base._plan.active  # what the copies step: nothing else is copied
     first = probe.copy({}, active)
     try:
-        clones = _Clones(first)
+        clones: _Clones | None = _Clones(first)
     except (pickle.PicklingError, TypeError, AttributeError):  # a value pickle cannot take
         clones = None
     copies = [first]
@@ -273,13 +308,7 @@ def lane_loop(system: Any, configuration: str | None = None, steps: int = 1) -> 
             mod = copy_._pool[n]
             type(mod).set_state(mod, x)
         copies.append(copy_)
-    lanes = LaneSystem.resume(copies, smooth=True)
-    for _ in range(steps):
-        lanes.step()
-    lanes.store(ALL)
-    for i in range(lanes.n):
-        probes.probe.raised({n: lanes.health.reason(n, i) for n in lanes.health.why})
-    return probes.assemble(copies)
+    return probes, copies
 
 
 class _Clones:
