@@ -312,8 +312,8 @@ class _Worker(threading.Thread):
     def run(self) -> None:
         self.view.worker = self
         try:
-            obs = self.observation
-            self._out = self.loop(self.view) if obs is None else self.loop(self.view, observation=obs)
+            obs, loop = self.observation, self.loop
+            self._out = loop(self.view) if obs is None else loop(self.view, observation=obs)
         except BaseException as exc:  # noqa: BLE001 - raised in the caller (result)
             self._error = exc
         finally:

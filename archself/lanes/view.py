@@ -351,7 +351,8 @@ class _Pickler(pickle.Pickler):
         c = self.clones
         if id(obj) in c.shared:
             return ("shared", id(obj))
-        if hasattr(type(obj), "__deepcopy__") and not isinstance(obj, (type, np.ndarray, np.generic)):
+        own = hasattr(type(obj), "__deepcopy__")  # numpy's values copy as they pickle
+        if own and not isinstance(obj, (type, np.ndarray, np.generic)):
             c.own[id(obj)] = obj
             return ("own", id(obj))
         return None
