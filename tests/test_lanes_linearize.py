@@ -15,7 +15,7 @@ from numpy.testing import assert_allclose
 
 import archself
 from archself.lanes.system import LaneSystem
-from archself.lanes.view import lane_loop
+from archself.lanes.view import lane_loop, lane_loops
 from archself.system.linearizing import numerical_loop
 from archself.system.live import compile_system
 
@@ -50,6 +50,23 @@ def test_lane_loop_is_the_per_run_loop(file, start, target, scenario, t_s, steps
                         atol=0, err_msg=name)
 
 
+def test_checks_of_one_cycle_made_together_are_each_lanes_own() -> None:
+    """lane_loops: two lanes' checks stepped as one lane system give each lane's per-run A
+    (the copies after the first are loaded from a pickle of it: the same numbers)."""
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    systems = [compile_system(arch, "a1", seed=s, scenario=arch.scenarios["imu_drift"])
+               for s in (3, 4)]
+    for s in systems:
+        for _ in range(int(round(47.3 / s.dt))):
+            s.step()
+    both = lane_loops([(s, "a2", 24) for s in systems])
+    for got, s in zip(both, systems, strict=True):
+        want = numerical_loop(s, "a2", 24)
+        assert_allclose(_dense(got.A), _dense(want.A), rtol=0, atol=1e-9)
+        assert got.labels == want.labels and got.problems == want.problems
+    assert np.abs(_dense(both[0].A) - _dense(both[1].A)).max() > 0  # two lanes, two loops
+
+
 def test_resume_takes_over_the_outputs_and_latency_lines() -> None:
     """Lanes resumed from running systems step as those systems do (the EKF's delayed fixes)."""
     arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
@@ -68,3 +85,28 @@ def test_resume_takes_over_the_outputs_and_latency_lines() -> None:
                         rtol=0, atol=1e-12)
         assert_allclose(lanes.module("ekf").state()[i], s.modules["ekf"].state(), rtol=0,
                         atol=1e-12)
+
+
+def test_a_clone_is_the_deep_copy_of_a_snapshot() -> None:
+    """lanes.view._Clones: the same states and random streams as the snapshot's deep copy,
+    its own modules and streams, the architecture and step plans shared."""
+    from archself.lanes.view import _Clones
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    system = compile_system(arch, "a2", seed=5, scenario=arch.scenarios["imu_drift"])
+    for _ in range(120):
+        system.step()
+    snap = system.snapshot(system._plan.active)
+    clones = _Clones(snap)
+    a, b = clones(), snap.snapshot(system._plan.active)
+    assert a.arch is snap.arch and a._plan is snap._plan
+    for name in system._plan.active:
+        assert a._pool[name] is not snap._pool[name]
+        assert_allclose(a._pool[name].state(), b._pool[name].state(), rtol=0, atol=0)
+    for _ in range(30):  # stepped, the clone and the deep copy stay equal; the snapshot stays
+        a.step()
+        b.step()
+    assert_allclose(a.objective_error(), b.objective_error(), rtol=0, atol=0)
+    assert_allclose(snap._pool["chassis"].state(), clones()._pool["chassis"].state(), rtol=0,
+                    atol=0)
+    assert not np.array_equal(a._pool["chassis"].state(), snap._pool["chassis"].state())

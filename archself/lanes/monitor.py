@@ -105,13 +105,22 @@ def _gather(monitors: list[Monitor], lanes: Any, idx: np.ndarray) -> _Group | No
         dt = period
     if any(monitors[i]._t_prev != prev for i in keep):
         return None  # a lane out of step with the group: every lane observes alone
-    if any(monitors[i].nominal is not first.nominal
-           and not np.array_equal(monitors[i].nominal, first.nominal) for i in keep):
+    if not _same_bands([monitors[i].nominal for i in keep], first.nominal):
         return None  # bands that differ (runtime.online.bands): every lane observes alone
     lays = [monitors[i].layout(active) for i in keep]
     partial = not F.all()
     whole = F.all(axis=1) if partial else None  # the lanes with every sample usable
     return _Group(first, lay0, keep, lays, X, F, partial, whole, t, dt)
+
+
+def _same_bands(nominals: list[np.ndarray], first: np.ndarray) -> bool:
+    """Whether every lane's bands equal ``first`` (one comparison over the lanes)."""
+    if all(nom is first for nom in nominals):
+        return True
+    try:
+        return bool((np.stack(nominals) == first).all())
+    except ValueError:  # bands of another size
+        return False
 
 
 def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

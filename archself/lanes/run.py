@@ -23,6 +23,7 @@ True
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -235,7 +236,16 @@ def _step(plan: _Lanes) -> list[list[dict[str, Any]]]:
 
 def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) -> None:
     """One cycle of every lane's loop: the Monitor stage in bulk where it can, each loop
-    called with its lane's view; the switches appended to ``switches``."""
+    called with its lane's view; the switches appended to ``switches``.
+
+    A lane with a residual (or that observes on its own) is called in a
+    :class:`_Worker`, which pauses at the lane's whole-loop check: the checks of the
+    cycle are then made together (:func:`~archself.lanes.view.lane_loops`) and the
+    paused calls go on, in lane order. Each call touches its own lane only (its
+    loop, its per-run system, its streams' pins); the lanes move after every call
+    has ended (:meth:`LaneView.done`, in lane order), so the decisions are those of
+    calls one after the other.
+    """
     from archself.lanes.monitor import observe_group
 
     lanes, loops, views = plan.lanes, plan.loops, plan.views
@@ -245,10 +255,94 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
     if plan.monitors is not None:
         for idx in lanes.groups.values():
             observed.update(observe_group(plan.monitors, lanes, idx, J))
+    outs: list[Any] = [None] * lanes.n
+    paused: list[tuple[int, _Worker]] = []
     for lane in range(lanes.n):
         obs = observed.get(lane)
-        view = views[lane]
-        out = loops[lane](view) if obs is None else loops[lane](view, observation=obs)
+        if obs is not None and not obs.r.any():  # nothing to plan from: no check to wait for
+            outs[lane] = loops[lane](views[lane], observation=obs)
+            continue
+        worker = _Worker(loops[lane], views[lane], obs)
+        if worker.resume():
+            paused.append((lane, worker))
+        outs[lane] = worker
+    while paused:
+        answers = _answers([w.request for _, w in paused])
+        paused = [(lane, w) for (lane, w), a in zip(paused, answers, strict=True) if w.resume(a)]
+    for lane, view in enumerate(views):
+        out = outs[lane].result() if isinstance(outs[lane], _Worker) else outs[lane]
         view.done(len(getattr(loops[lane], "updates", ())))
         if out:
             switches[lane].extend(dict(s) for s in out)
+
+
+def _answers(requests: list[Any]) -> list[Any]:
+    """The whole loops of the paused calls' checks, made together; a check that fails
+    alone gets its exception (raised in its call, as the check itself would raise)."""
+    from archself.lanes.view import lane_loop, lane_loops
+
+    try:
+        return lane_loops(requests)
+    except Exception:  # noqa: BLE001 - find which check fails: each made alone
+        out: list[Any] = []
+        for request in requests:
+            try:
+                out.append(lane_loop(*request))
+            except Exception as exc:  # noqa: BLE001 - handed to the call that asked
+                out.append(exc)
+        return out
+
+
+class _Worker(threading.Thread):
+    """A lane's loop call in a thread that pauses at the lane's whole-loop check.
+
+    Only one of the threads and the caller runs at a time: :meth:`resume` runs the call
+    until it ends or asks for a whole loop (:meth:`ask`, from the lane's view), and waits.
+    """
+
+    def __init__(self, loop: Any, view: Any, observation: Any) -> None:
+        super().__init__(daemon=True)
+        self.loop, self.view, self.observation = loop, view, observation
+        self.request: Any = None
+        self._answer: Any = None
+        self._out: Any = None
+        self._error: BaseException | None = None
+        self._go, self._back = threading.Semaphore(0), threading.Semaphore(0)
+
+    def run(self) -> None:
+        self.view.worker = self
+        try:
+            obs, loop = self.observation, self.loop
+            self._out = loop(self.view) if obs is None else loop(self.view, observation=obs)
+        except BaseException as exc:  # noqa: BLE001 - raised in the caller (result)
+            self._error = exc
+        finally:
+            self.view.worker = None
+            self.request = None
+            self._back.release()
+
+    def ask(self, request: Any) -> Any:
+        """In the call: the whole loop of ``request`` (``(system, configuration, steps)``)."""
+        self.request = request
+        self._back.release()
+        self._go.acquire()
+        if isinstance(self._answer, Exception):
+            raise self._answer
+        return self._answer
+
+    def resume(self, answer: Any = None) -> bool:
+        """Run the call (on with ``answer``) until it ends or asks; whether it asks."""
+        self._answer = answer
+        if self.ident is None:
+            self.start()
+        else:
+            self._go.release()
+        self._back.acquire()
+        return self.request is not None
+
+    def result(self) -> Any:
+        """What the call returned (its exception raised here)."""
+        self.join()
+        if self._error is not None:
+            raise self._error
+        return self._out
