@@ -145,10 +145,10 @@ def _calibrate(
         if save_runs is not None:
             check_output(arch_path, save_runs, in_place=False, force=force)
         if report_dir is not None:
-            from archself.io.outputs import refuse_foreign_folder
+            from archself.io.files import refuse_foreign_folder
 
             refuse_foreign_folder(report_dir, "calibration.json", "--report")
-        from archself.io.atomic import protect
+        from archself.io.files import protect
 
         with protect([], [target, save_runs, report_dir]):
             show = show_progress(json_out)
@@ -165,7 +165,7 @@ def _calibrate(
             finally:
                 bar.close()
             if target is not None:
-                from archself.io.atomic import write_text
+                from archself.io.files import write_text
 
                 write_text(target, cal.text)
             if report_dir is not None:
@@ -293,11 +293,11 @@ def _identify(
     overrides = _perturbations(perturb)
     from contextlib import ExitStack
 
-    from archself.io.atomic import protect
+    from archself.io.files import protect
 
     locked = ExitStack()  # the outputs, locked until written
     try:
-        from archself.io.outputs import refuse_same_file
+        from archself.io.files import refuse_same_file
 
         _inputs(arch_path)
 
@@ -327,7 +327,7 @@ def _identify(
         if output is not None:
             _emit(markdown_table(ident), output, f"wrote {output}")
         if write_back is not None and copy is not None:
-            from archself.io.atomic import write_text
+            from archself.io.files import write_text
 
             try:
                 write_text(write_back, copy)

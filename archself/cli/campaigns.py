@@ -111,8 +111,7 @@ def _campaign(
     printed."""
     from archself.campaign.driver import plan_campaign, run_campaign
     from archself.campaign.sweep import parse_sweep
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_same_file
+    from archself.io.files import protect, refuse_same_file
 
     if resume and force:
         raise _fail("--resume and --force exclude each other", 2)
@@ -203,8 +202,7 @@ def campaign_report_cmd(
     """
     from archself.campaign.aggregate import parse_expect
     from archself.campaign.report import campaign_report, summary_text
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_same_file
+    from archself.io.files import protect, refuse_same_file
 
     try:
         _inputs(results, what="a results file (Parquet)")

@@ -279,7 +279,7 @@ def init(
     """
     import os
 
-    from archself.io.atomic import protect, write_text
+    from archself.io.files import protect, write_text
 
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)
@@ -363,7 +363,7 @@ def export(
     _inputs(arch)
     try:
         if output is not None and str(output) != "-":
-            from archself.io.outputs import refuse_same_file
+            from archself.io.files import refuse_same_file
 
             refuse_same_file([arch], output, "--output")
         from archself.reports.export import export as export_text

@@ -94,7 +94,7 @@ def _run_live(arch_path: Path, host: str, port: int, *, config: str | None, roll
               timeout: float, log: Path | None, token: str | None,
               max_jump: float | None) -> tuple[Any, Any, str, int]:
     """Load the file, serve the plant until it ends; (arch, loop, start, measurements)."""
-    from archself.io.atomic import protect
+    from archself.io.files import protect
     from archself.live import LiveLoop, run_remote
 
     try:
@@ -221,7 +221,7 @@ def _check_log(arch_path: Path, log: Path | None) -> None:
     """Refuse a ``--log`` onto the input or where no file can be, before the run, not after."""
     if log is None:
         return
-    from archself.io.outputs import refuse_same_file
+    from archself.io.files import refuse_same_file
 
     refuse_same_file([arch_path], log, "--log")
     if log.is_dir() or not log.parent.is_dir():
@@ -235,7 +235,7 @@ def _write_log(log: Path, text: str) -> None:
     A live run cannot be repeated (the plant went its own way), so its log is never
     dropped: the one-line error names where it was kept.
     """
-    from archself.io.atomic import write_text
+    from archself.io.files import write_text
 
     try:
         write_text(log, text)

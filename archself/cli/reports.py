@@ -64,8 +64,7 @@ def report(
     the saved trace(s) without running anything (ARCH is then optional); a DIR that holds
     other files and no earlier run report needs --force.
     """
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_input_inside
+    from archself.io.files import protect, refuse_input_inside
 
     if trace:
         _report_from_traces(arch_path, trace, output, _formats(fig_format), dpi, force)
@@ -107,8 +106,7 @@ def _report_from_traces(
     force: bool = False,
 ) -> None:
     """``report --trace``: the run report of saved traces (one run, or fixed + adaptive)."""
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_foreign_folder, refuse_same_file
+    from archself.io.files import protect, refuse_foreign_folder, refuse_same_file
     from archself.sim.result import read_trace
 
     if len(traces) > 2:

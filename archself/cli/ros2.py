@@ -99,7 +99,7 @@ def _ros2(arch_path: Path, nodes: str | None, clock: str | None, demo: bool,
     run the bridge until the plant ends (or the timeout), write the log, print the result."""
     clock = _check_options(clock, rollout, demo, scenario)
     from archself.cli.live import _check_log, _log, _say_command, _write_log
-    from archself.io.atomic import protect
+    from archself.io.files import protect
     from archself.ros2.base import require_rclpy
 
     child: subprocess.Popen[str] | None = None

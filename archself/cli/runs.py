@@ -203,7 +203,7 @@ def _knowledge_table(arch_path: Path, paths: tuple[Path | None, Path | None], fi
         if not target.name or not target.parent.is_dir():
             raise _fail(f"{target}: cannot write: --save-knowledge takes a file in a folder "
                         f"that exists")
-        from archself.io.outputs import refuse_same_file
+        from archself.io.files import refuse_same_file
 
         refuse_same_file([arch_path, *([source] if source else [])], target, "--save-knowledge")
     from archself.runtime.learning import OutcomeTable, load_table
@@ -236,8 +236,7 @@ def _simulate(
         raise _fail(f"{trace}: cannot write: is a folder; --trace takes a file name")
     if trace is not None and not trace.parent.is_dir():
         raise _fail(f"{trace}: cannot write: folder {trace.parent} does not exist")
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_foreign_folder, refuse_same_file
+    from archself.io.files import protect, refuse_foreign_folder, refuse_same_file
 
     fixed_trace = None if trace is None else trace.with_name(f"{trace.stem}.fixed{trace.suffix}")
     try:

@@ -69,7 +69,7 @@ class JsonLimitError(ValueError):
 
 
 def _int(digits: str) -> int:
-    from archself.io.yaml_nodes import MAX_INT_DIGITS
+    from archself.io.yaml_source import MAX_INT_DIGITS
 
     if len(digits) > MAX_INT_DIGITS:
         raise JsonLimitError(f"an integer of {len(digits.lstrip('-')):,} digits (at most "

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from archself.errors import ArchselfError
-from archself.model.runtime import Learning as LearningSettings
+from archself.model.architecture import Learning as LearningSettings
 
 __all__ = ["Learning", "OutcomeTable", "learning_of", "load_table"]
 
@@ -118,7 +118,7 @@ class OutcomeTable:
         """Write the table as JSON (atomic)."""
         import json
 
-        from archself.io.atomic import write_text
+        from archself.io.files import write_text
 
         write_text(Path(path), json.dumps(self.to_dict(), indent=1) + "\n")
 
@@ -129,7 +129,7 @@ def load_table(path: str | Path) -> OutcomeTable:
     A trace (Parquet, or JSON with ``meta`` and ``series``) holds the table of its run
     in ``meta.knowledge.learned`` when ``runtime.learning`` was on.
     """
-    from archself.io.file_text import read_text
+    from archself.io.files import read_text
     from archself.io.jsondata import loads
 
     try:
@@ -180,7 +180,7 @@ class Learning:
 
     Parameters
     ----------
-    settings : archself.model.runtime.Learning
+    settings : archself.model.architecture.Learning
         ``runtime.learning`` of the file.
     table : OutcomeTable, optional
         What earlier runs learned (default: empty).

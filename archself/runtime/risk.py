@@ -26,8 +26,7 @@ from typing import Any
 import numpy as np
 
 from archself.contracts import ManagedSystem
-from archself.model.architecture import Action, Architecture
-from archself.model.runtime import Risk
+from archself.model.architecture import Action, Architecture, Risk
 from archself.runtime.improvement import estimate_improvement, mean_objective
 from archself.runtime.stability import action_target, apply_action, rollout_copy
 from archself.system.streams import stable_hash

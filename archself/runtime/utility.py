@@ -1,6 +1,6 @@
 """Weighted utility of a configuration under the file's quality preferences.
 
-``U(C) = Σ_q w_q · u_q(value_q(C)) / Σ_q w_q`` (:mod:`archself.model.qualities`):
+``U(C) = Σ_q w_q · u_q(value_q(C)) / Σ_q w_q`` (:mod:`archself.model.architecture`):
 ``value_q(C)`` is the sum of the attribute's ``resource`` over the configuration's
 modules, or its declared value; ``u_q`` its utility curve; ``w_q`` the preference.
 
