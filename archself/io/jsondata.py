@@ -842,11 +842,56 @@ def document(tp: Any, data: Any, root: str = "", *, complete: bool = False,
 
     if isinstance(tp, type) and issubclass(tp, BaseModel) and not isinstance(data, Mapping | list):
         data = {k: getattr(data, k) for k in tp.model_fields if hasattr(data, k)}
-    clean = jsonable({**data, **fields} if fields else data)
+    data = {**data, **fields} if fields else data
+    clean = jsonable(data) if complete else _writer(tp)(data)
     adapter = _adapter(tp)
     try:
         obj = adapter.validate_python(clean)
     except ValidationError:
         raise ArchselfError("error: the document would not read back: "
                             f"{problem(tp, clean, root)}") from None
-    return adapter.dump_python(obj, mode="json", by_alias=True, exclude_unset=not complete)
+    if not complete:  # already in the model's order: what the dump below would give
+        return clean
+    return adapter.dump_python(obj, mode="json", by_alias=True, exclude_unset=False)
+
+
+@functools.cache
+def _writer(tp: Any) -> Any:
+    """A function that writes a value of the document type ``tp`` as :func:`document` does
+    without ``complete``, in one pass: a model's fields in its order (the keys the value
+    lacks and those a field excludes left out, other keys after them), a ``float`` field's
+    integer as a float, anything else :func:`jsonable` (the dump of the validated model
+    gave the same data at three times the cost: the decision log of a run of 800 cycles).
+    """
+    tp, _ = _unwrap(tp)
+    origin = typing.get_origin(tp)
+    if origin is list and isinstance(_unwrap(typing.get_args(tp)[0])[0], type):
+        item = _writer(typing.get_args(tp)[0])
+        return lambda v: [item(x) for x in v] if isinstance(v, list | tuple) else jsonable(v)
+    if tp is float:
+        return lambda v: float(v) if type(v) is int else jsonable(v)
+    if not (isinstance(tp, type) and issubclass(tp, BaseModel)):
+        return jsonable
+    plan = [(name, f.alias or name, f.exclude_if, _writer(f.rebuild_annotation()))
+            for name, f in tp.model_fields.items()]
+    named = {k for name, alias, _, _ in plan for k in (name, alias)}
+
+    def write(v: Any) -> Any:
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            v = {f.name: getattr(v, f.name) for f in dataclasses.fields(v)}
+        if not isinstance(v, Mapping):
+            return jsonable(v)
+        out = {}
+        for name, alias, exclude, put in plan:
+            x = v[alias] if alias in v else v[name] if name in v else _MISSING
+            if x is not _MISSING:
+                x = put(x)
+                if exclude is None or not exclude(x):
+                    out[alias] = x
+        out.update((str(k), jsonable(x)) for k, x in v.items() if k not in named)
+        return out
+
+    return write
+
+
+_MISSING = object()
