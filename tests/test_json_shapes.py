@@ -86,7 +86,7 @@ def test_the_schemas_are_the_models() -> None:
     assert names == ["ValidateList", "SimulateDoc", "ExplainDoc", "LiveDoc", "Ros2Doc",
                      "CampaignDoc", "CampaignReportDoc", "InfoDoc", "CalibrationDoc",
                      "IdentificationDoc", "TraceDocument", "ParquetHead", "SavedRunsMeta",
-                     "CampaignMeta"]
+                     "CampaignMeta", "RunReportSummary"]
     schema = json.loads(text.split("<!-- schema: archself.io.jsondata:TraceDocument -->\n")[1]
                         .split("```json\n")[1].split("```")[0])
     assert schema["required"] == ["meta", "series", "decisions"] and "TraceMeta" in schema["$defs"]

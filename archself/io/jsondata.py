@@ -17,7 +17,8 @@ with :func:`document` (cleaned, validated, dumped in the model's field order):
 - printed (:class:`OutDoc`: the keys its fields name, no other): each command's
   ``--json`` (:class:`ValidateList`, :class:`InfoDoc`, :class:`SimulateDoc`,
   :class:`ExplainDoc`, :class:`LiveDoc`, :class:`Ros2Doc`, :class:`CampaignReportDoc`,
-  ``summary.json`` too) and the job records of ``campaign``, ``calibrate`` and
+  a campaign report's ``summary.json`` too), a run report's ``summary.json``
+  (:class:`RunReportSummary`) and the job records of ``campaign``, ``calibrate`` and
   ``identify``, which lead with the seven fields of :class:`JobDoc`
   (:class:`CampaignDoc`; ``calibration.result.CalibrationDoc``,
   ``calibration.identify_results.IdentificationDoc``).
@@ -58,9 +59,9 @@ from archself import __version__
 __all__ = ["CampaignDoc", "CampaignMeta", "CampaignReportDoc", "ChosenDoc", "DecisionLog",
            "DecisionRecordDoc", "EvaluationDoc", "ExplainDoc", "InfoDoc", "JobDoc",
            "JsonLimitError", "LiveDoc", "OutDoc", "ParquetHead", "Ros2Doc", "RunContext",
-           "RunDoc", "SavedRunsMeta", "SimulateDoc", "TraceDocument", "TraceMeta",
-           "ValidateDoc", "ValidateList", "document", "json_kind", "jsonable", "loads",
-           "problem"]
+           "RunDoc", "RunReportSummary", "SavedRunsMeta", "SimulateDoc", "TraceDocument",
+           "TraceMeta", "ValidateDoc", "ValidateList", "document", "json_kind", "jsonable",
+           "loads", "problem"]
 
 
 class JsonLimitError(ValueError):
@@ -745,6 +746,52 @@ class CampaignReportDoc(OutDoc):
     tau: TauDoc | None
     sweeps: list[SweepDoc]
     errors: list[str]
+
+
+# ------------------------------------------------------------------ the run report
+class ReportRunDoc(OutDoc):
+    """One run of a run report: its configurations, error metrics (in ``unit``), switches
+    and parameter updates."""
+
+    mode: str
+    configuration: str
+    final_configuration: str
+    metrics: dict[str, Num]
+    switches: list[dict[str, Any]] = Field(description="a list of switches (as in a trace)")
+    parameter_updates: list[dict[str, Any]] = Field(description="a list of parameter updates")
+
+
+class ReportRowDoc(OutDoc):
+    """One row of a run report's decision log: a cycle, or consecutive cycles in the same
+    situation folded into one."""
+
+    t_from: Num
+    t_to: Num
+    cycles: int
+    configuration: str | None
+    phase: str | None
+    candidates: list[list[Any]] = Field(description="a list of [module, z]")
+    outcome: str = Field(description="switch, update, rejected, warm-up, warm-up over, "
+                         "note or no candidate")
+    detail: str
+
+
+class RunReportSummary(OutDoc):
+    """``summary.json`` of a run report (``archself report``, ``simulate --report``): plain
+    JSON, floats rounded to 6 significant digits, keys sorted; the same run gives the same
+    bytes."""
+
+    archself_version: str
+    architecture: str
+    scenario: str
+    seed: int
+    unit: str | None
+    faults: list[dict[str, Any]] = Field(description="a list of the scenario's faults")
+    selector: str = Field(description="the candidate selector, as the report states it")
+    warmup_s: Num
+    min_confidence: Num
+    runs: list[ReportRunDoc]
+    decision_log: list[ReportRowDoc]
 
 
 # ------------------------------------------------------------------ validation
