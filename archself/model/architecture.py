@@ -184,7 +184,7 @@ ParamValue = Annotated[
 class StrictModel(BaseModel):
     """Base of every model of the file: unknown keys are errors (``extra="forbid"``)."""
 
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, frozen=False)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, frozen=False, defer_build=True)
 
 
 #: The branch targets that end a strategy.
