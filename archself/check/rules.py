@@ -4,7 +4,7 @@ The context of the checks: the loaded file, the types of its modules, the findin
 Every rule of :mod:`archself.check` takes a :class:`Context` and adds its findings
 with :meth:`Context.add`, which locates them in the source (file, line, column).
 :func:`refers` reports an unknown module or configuration name with "did you mean";
-:func:`closest` is that hint.
+:func:`did_you_mean` is that hint.
 
 Checks of the modules: registered types, their parameters and ranges, residuals, limits.
 
@@ -43,7 +43,7 @@ from typing import Any
 
 from archself.findings import Finding
 from archself.io.yaml_source import Path_, describe, dotted
-from archself.model.architecture import EXITS, Architecture, Parameter, port_findings
+from archself.model.architecture import EXITS, Architecture, Parameter
 from archself.model.loader import Loaded, gc_paused
 
 __all__ = [
@@ -51,7 +51,7 @@ __all__ = [
     "active_edges", "check", "check_actions", "check_build", "check_clock",
     "check_configurations", "check_edges", "check_limits", "check_objective",
     "check_parameters", "check_ports", "check_scenarios", "check_stability",
-    "check_subsystems", "check_types", "check_weights", "check_work", "closest",
+    "check_subsystems", "check_types", "check_weights", "check_work", "did_you_mean",
     "has_errors", "outside_declared", "outside_space", "refers", "run_estimate",
     "spectrum_summary", "wrong_kind"
 ]
@@ -75,12 +75,18 @@ class Context:
         self.out.append(Finding(sev, code, msg, dotted(path), self.src.file, line, col))  # type: ignore[arg-type]
 
 
-def closest(word: str, options: Any) -> str | None:
-    """The option closest to ``word`` (difflib), or None."""
+def did_you_mean(word: str, options: Any, form: str = "did you mean '{}'?") -> str:
+    """``form`` filled with the option closest to ``word`` (difflib), or ``""``.
+
+    Examples
+    --------
+    >>> did_you_mean("gsp", ["gps", "imu"], "; did you mean '{}'?"), did_you_mean("x", ["gps"])
+    ("; did you mean 'gps'?", '')
+    """
     import difflib
 
     close = difflib.get_close_matches(word, list(options), n=1)
-    return close[0] if close else None
+    return form.format(close[0]) if close else ""
 
 
 def refers(ctx: Context, name: str, path: Path_, what: str = "module") -> bool:
@@ -88,8 +94,7 @@ def refers(ctx: Context, name: str, path: Path_, what: str = "module") -> bool:
     pool = ctx.arch.modules if what == "module" else ctx.arch.configurations
     if name in pool:
         return True
-    close = closest(name, pool)
-    hint = f"; did you mean '{close}'?" if close else ""
+    hint = did_you_mean(name, pool, "; did you mean '{}'?")
     ctx.add("error", "reference", f"unknown {what} '{name}'{hint}", path)
     return False
 
@@ -114,8 +119,7 @@ def check_types(ctx: Context) -> None:
     for name, mod in ctx.arch.modules.items():
         cls = ctx.types[name]
         if cls is None:
-            close = closest(mod.type, known)
-            hint = f"did you mean '{close}'? " if close else ""
+            hint = did_you_mean(mod.type, known, "did you mean '{}'? ")
             ctx.add(
                 "error", "unknown-type",
                 f"unknown module type '{mod.type}'; {hint}{_known_types_text(mod.type, known)}",
@@ -141,9 +145,7 @@ def check_types(ctx: Context) -> None:
                     _declared_range(ctx, mod.type, pname, declared[pname], mod.params[pname],
                                     ("modules", name, "params", pname))
                     continue
-                near = closest(pname, takes)
-                hint = (f"did you mean '{near}'?" if near
-                        else f"it takes: {', '.join(takes) or 'none'}")
+                hint = did_you_mean(pname, takes) or f"it takes: {', '.join(takes) or 'none'}"
                 ctx.add("error", "parameter",
                         f"type '{mod.type}' has no parameter '{pname}'; {hint}",
                         ("modules", name, "params", pname), key=True)
@@ -273,8 +275,7 @@ def check_limits(ctx: Context) -> None:
             continue
         for j, aid in enumerate(cons.blocks):
             if aid not in ids:
-                close = closest(aid, ids)
-                hint = f" (did you mean '{close}'?)" if close else ""
+                hint = did_you_mean(aid, ids, " (did you mean '{}'?)")
                 ctx.add("error", "reference", f"unknown action '{aid}'{hint}", (*path, j))
 
 
@@ -296,10 +297,6 @@ def check_edges(ctx: Context) -> None:
                     f"duplicate edge {e.source} -> {e.target} carrying '{e.carries}' "
                     f"(first at edges[{seen[key]}])", ("edges", i))
         seen.setdefault(key, i)
-        if e.weight < 0:
-            ctx.add("error", "weight",
-                    f"negative weight {e.weight}: influence weights must be ≥ 0 (Eq. 13)",
-                    ("edges", i, "weight"))
         if ok and e.carries:  # named ports: archself.model.architecture
             src = ctx.types.get(e.source)
             if (src is not None and src.outputs and e.carries not in src.outputs
@@ -373,8 +370,30 @@ def spectrum_summary(
 
 
 def check_ports(ctx: Context) -> None:
-    for code, msg, path in port_findings(ctx.arch, ctx.types):
-        ctx.add("error", code, msg, path)
+    """Named ports (:class:`~archself.model.architecture.EdgePorts`): an edge names a signal,
+    ``carries`` agrees with the port in ``from``, the ports exist on the types. (Ports driven
+    twice and undriven required inputs are the ``double-input`` and ``incomplete`` rules.)"""
+    arch, ports = ctx.arch, ctx.arch.edge_ports
+    for i, (e, from_port, to_port) in enumerate(zip(arch.edges, ports.from_port, ports.to_port,
+                                                          strict=True)):
+        if not e.carries:
+            ctx.add("error", "port", "the edge names no signal: give 'carries', or the ports as "
+                    "'from: module.port' / 'to: module.port'", ("edges", i))
+            continue
+        if from_port is None and to_port is None:  # the common case: nothing more to check
+            continue
+        if from_port is not None and e.carries != from_port:
+            ctx.add("error", "port", f"'carries: {e.carries}' contradicts the port in 'from' "
+                    f"('{e.source}.{from_port}'); give one of them", ("edges", i, "carries"))
+        src, dst = ctx.types.get(e.source), ctx.types.get(e.target)
+        for end, name, port, have in (
+                ("from", e.source, from_port, src.outputs if src else ()),
+                ("to", e.target, to_port, dst.inputs + dst.optional_inputs if dst else ())):
+            if port is not None and have and port not in have:
+                hint = did_you_mean(port, have) or f"it has: {', '.join(have)}"
+                side = "output" if end == "from" else "input"
+                ctx.add("error", "port", f"'{name}' ({arch.modules[name].type}) has no {side} "
+                        f"port '{port}'; {hint}", ("edges", i, end))
 
 
 def check_weights(ctx: Context) -> None:
@@ -443,8 +462,7 @@ def check_subsystems(ctx: Context) -> None:
             if known is not None and mode in pool:
                 continue
             word = sname if known is None else mode
-            close = closest(word, pool)
-            hint = f"; did you mean '{close}'?" if close else ""
+            hint = did_you_mean(word, pool, "; did you mean '{}'?")
             what = (f"unknown subsystem '{sname}'" if known is None
                     else f"subsystem '{sname}' has no mode '{mode}' (modes: "
                     f"{', '.join(pool)})")
@@ -589,7 +607,6 @@ def _flow(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any
             ctx.add("warning", "budget",
                     f"configuration '{cname}' uses {use:g} {b.resource} > budget {b.max:g} "
                     "(Eq. 27); the runtime will never choose it", base, key=True)
-
 
 
 def _components(nodes: list[str], links: list[tuple[str, str]]) -> list[list[str]]:
@@ -816,14 +833,12 @@ def check_strategies(ctx: Context) -> None:
         refers(ctx, st.module, (*base, "module"))
         steps = st.steps
         if st.start not in steps:
-            close = closest(st.start, steps)
-            hint = f"; did you mean '{close}'?" if close else ""
+            hint = did_you_mean(st.start, steps, "; did you mean '{}'?")
             ctx.add("error", "strategy", f"unknown step '{st.start}'{hint}", (*base, "start"))
         for sname, step in steps.items():
             at = (*base, "steps", sname)
             if step.tactic not in actions:
-                close = closest(step.tactic, actions)
-                hint = f"; did you mean '{close}'?" if close else ""
+                hint = did_you_mean(step.tactic, actions, "; did you mean '{}'?")
                 ctx.add("error", "strategy", f"unknown tactic '{step.tactic}' (not an action "
                         f"id){hint}", (*at, "tactic"))
             for cond in ("when", "post"):
@@ -833,8 +848,7 @@ def check_strategies(ctx: Context) -> None:
             for branch in ("success", "failure"):
                 nxt = getattr(step, branch)
                 if nxt not in steps and nxt not in EXITS:
-                    close = closest(nxt, [*steps, *EXITS])
-                    hint = f"; did you mean '{close}'?" if close else ""
+                    hint = did_you_mean(nxt, [*steps, *EXITS], "; did you mean '{}'?")
                     ctx.add("error", "strategy", f"unknown step '{nxt}' (a step, 'done' or "
                             f"'rollback'){hint}", (*at, branch))
         seen, todo = set(), [st.start] if st.start in steps else []
@@ -989,7 +1003,6 @@ def check_stability(ctx: Context, verify: str | None = None) -> None:
 #: The finding of a file whose whole-loop stability was not checked (verify off).
 NOT_CHECKED = ("whole-loop stability not checked (verify: off); `archself validate "
                "--stability` checks it (docs/stability.md)")
-
 
 
 def check_clock(ctx: Context) -> None:

@@ -5,15 +5,15 @@ Reading an input file: regular files only, a size cap, UTF-8, one-line errors.
 reading (a FIFO without a writer would block forever) and again on the open
 descriptor; every failure is a located :class:`~archself.errors.LoadError`.
 
-Inputs are files, outputs never land on an input. Every command that reads a file and writes another checks, before it starts,
-that no output is an input (the same file: same ``st_dev`` and ``st_ino``,
-whatever the path, a hard link or a symbolic link), that no input lies inside
-an output folder that is replaced as a whole, and that every input is a
-regular file (``/dev/zero`` is refused, not read until memory runs out; a FIFO is
-refused, not opened: without a writer the open would block forever). The
-inputs are also registered with :func:`archself.io.files.protect`, so that a write
-the up-front check could not foresee is refused at the moment it would happen.
-``--force`` never lifts these checks: it allows replacing an old *output*.
+Inputs are files, outputs never land on an input. Every command that reads a file and
+writes another checks, before it starts, that no output is an input (the same file: same
+``st_dev`` and ``st_ino``, whatever the path, a hard link or a symbolic link), that no
+input lies inside an output folder that is replaced as a whole, and that every input is
+a regular file (``/dev/zero`` is refused, not read until memory runs out; a FIFO is
+refused, not opened: without a writer the open would block forever). The inputs are also
+registered with :func:`archself.io.files.protect`, so that a write the up-front check
+could not foresee is refused at the moment it would happen. ``--force`` never lifts
+these checks: it allows replacing an old *output*.
 
 Examples
 --------

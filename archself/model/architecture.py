@@ -103,7 +103,6 @@ Examples
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import operator
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Annotated, Any, Literal, Union
@@ -815,46 +814,6 @@ def resolve_edges(modules: Mapping[str, Any], edges: Iterable[Any],
         if not e.carries and (from_ports[i] or to_ports[i]):
             e.carries = from_ports[i] or to_ports[i]
     return EdgePorts(edges, tuple(from_ports), tuple(to_ports))
-
-
-def _hint(word: str, options: Iterable[str]) -> str:
-    options = list(options)
-    close = difflib.get_close_matches(word, options, n=1)
-    if close:
-        return f"did you mean '{close[0]}'?"
-    return f"it has: {', '.join(options) or 'none'}"
-
-
-def port_findings(arch: Any, types: Mapping[str, Any]) -> Iterable[tuple[str, str, tuple]]:
-    """``(code, message, path)`` of every port problem of ``arch``'s edges.
-
-    ``types`` maps module name → its runtime class (or None when unknown). Checked:
-    an edge that names no signal, ``carries`` against the port in ``from``, and
-    named ports against the ports the types declare. (Ports driven twice and
-    undriven required inputs are the ``double-input`` and ``incomplete`` rules.)
-    """
-    ports = arch.edge_ports
-    for i, (e, from_port, to_port) in enumerate(zip(arch.edges, ports.from_port, ports.to_port,
-                                                          strict=True)):
-        if not e.carries:
-            yield ("port", "the edge names no signal: give 'carries', or the ports as "
-                   "'from: module.port' / 'to: module.port'", ("edges", i))
-            continue
-        if from_port is None and to_port is None:  # the common case: nothing more to check
-            continue
-        if from_port is not None and e.carries != from_port:
-            yield ("port", f"'carries: {e.carries}' contradicts the port in 'from' "
-                   f"('{e.source}.{from_port}'); give one of them", ("edges", i, "carries"))
-        src, dst = types.get(e.source), types.get(e.target)
-        if from_port is not None and src is not None and src.outputs \
-                and from_port not in src.outputs:
-            yield ("port", f"'{e.source}' ({arch.modules[e.source].type}) has no output port "
-                   f"'{from_port}'; {_hint(from_port, src.outputs)}", ("edges", i, "from"))
-        takes = (dst.inputs + dst.optional_inputs) if dst is not None else ()
-        if to_port is not None and takes and to_port not in takes:
-            yield ("port", f"'{e.target}' ({arch.modules[e.target].type}) has no input port "
-                   f"'{to_port}'; {_hint(to_port, takes)}", ("edges", i, "to"))
-
 
 
 _STRUCTURAL = ["substitute", "activate", "deactivate", "rewire"]
