@@ -71,10 +71,6 @@ def read_text(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
     file is opened non-blocking and checked again on the open descriptor, so a
     path swapped for a FIFO in between is refused too.
     """
-    import os
-    import stat
-
-
     file = str(path)
     st = stat_input(path)
     if stat.S_ISDIR(st.st_mode):
@@ -113,7 +109,6 @@ def decode_text(raw: bytes, file: str, max_bytes: int = MAX_FILE_BYTES) -> str:
 
 
 def _file_kind(mode: int) -> str:
-
     return file_kind(mode) or "not a regular file"
 
 
