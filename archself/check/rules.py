@@ -826,7 +826,6 @@ def check_strategies(ctx: Context) -> None:
     A step must be reachable from ``start``; from every step an exit (``done`` or
     ``rollback``) must be reachable, else the branches form a cycle without exit.
     """
-
     actions = {a.id for a in ctx.arch.actions}
     for name, st in ctx.arch.strategies.items():
         base = ("strategies", name)

@@ -317,7 +317,6 @@ def protect(paths: Iterable[str | Path],
     >>> f.read_text()
     'a: 1'
     """
-
     added = []
     locks: list[tuple[Path, int]] = []
     try:
@@ -441,7 +440,6 @@ def refuse_protected(path: str | Path) -> None:
     """Raise :class:`OutputError` if ``path`` is a file registered with :func:`protect`."""
     if not _PROTECTED:
         return
-
     for fid in file_ids(path):
         if fid in _PROTECTED:
             raise OutputError(

@@ -1217,7 +1217,6 @@ class Architecture(StrictModel):
 
     @model_validator(mode="after")
     def _ports(self) -> Architecture:
-
         expand_modes(self.configurations, self.subsystems, self.modules)
         self._edge_ports = resolve_edges(self.modules, self.edges)
         return self
@@ -1229,7 +1228,6 @@ class Architecture(StrictModel):
         Made when the model is built; made again (keeping the ports of the edges it
         knew) when ``edges`` has changed since. Read it once per pass over the edges.
         """
-
         table = self._edge_ports
         if table is None or not table.describes(self.edges):
             table = self._edge_ports = resolve_edges(self.modules, self.edges, table)
