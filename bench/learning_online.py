@@ -32,9 +32,8 @@ import sys
 
 import numpy as np
 
-from archself.model.architecture import Architecture
+from archself.model.architecture import Architecture, Online
 from archself.model.loader import load_architecture
-from archself.model.runtime import Online
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.sim.run import simulate

@@ -52,8 +52,8 @@ def test_load_10k_in_process(benchmark, file_10k: Path) -> None:
 
 def test_convert_10k_nodes(benchmark, file_10k: Path) -> None:
     """The node graph → data conversion alone (the part archself owns; compose is libyaml's)."""
-    from archself.io.yaml_nodes import Converter as _Converter
-    from archself.io.yaml_nodes import parse as _parse
+    from archself.io.yaml_source import Converter as _Converter
+    from archself.io.yaml_source import parse as _parse
 
     text = file_10k.read_text(encoding="utf-8")
     node = _parse(text, str(file_10k))

@@ -231,7 +231,7 @@ def test_spectrum_of_a_small_graph_imports_no_scipy() -> None:
     import sys
 
     code = ("import sys\n"
-            "from archself.check.graph import spectrum_summary\n"
+            "from archself.check.rules import spectrum_summary\n"
             "print(spectrum_summary(['a', 'b'], [('a', 'b', 1.0), ('b', 'a', 1.0)]),\n"
             "      any(m.startswith('scipy') for m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -244,7 +244,7 @@ def test_the_data_flow_checks_find_what_scipy_finds() -> None:
     import scipy.sparse
     import scipy.sparse.csgraph
 
-    from archself.check.graph import _components
+    from archself.check.rules import _components
     from archself.system.dataflow import strong_components
 
     rng = np.random.default_rng(3)

@@ -18,7 +18,7 @@ import pytest
 
 from archself.cli import main
 from archself.errors import EXIT_CODES, OutputError
-from archself.io.atomic import protect, write_text
+from archself.io.files import protect, write_text
 
 from conftest import FIXTURES, ROOT
 
@@ -796,7 +796,7 @@ def test_a_second_campaign_into_one_out_is_refused_naming_the_holder(tmp_path, a
 
 
 def test_output_locks_are_released_and_shared_within_a_process(tmp_path) -> None:
-    from archself.io.atomic import lock_path
+    from archself.io.files import lock_path
 
     out, folder = tmp_path / "t.json", tmp_path / "rep"
     with protect([], [out, folder, None, "-", "/dev/null"]):

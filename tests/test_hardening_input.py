@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from archself.check import check, has_errors
 from archself.cli import app
 from archself.errors import OutputError
-from archself.io.atomic import write_text
+from archself.io.files import write_text
 from archself.model.generate import generate_architecture
 from archself.model.loader import MAX_FILE_BYTES, load_text
 
@@ -119,7 +119,7 @@ def test_unwritable_output_through_the_cli(tmp_path: Path, monkeypatch, command,
     target (``os.replace``): one line on stderr, exit 1, no traceback, the good file kept
     and no temporary file left behind.
     """
-    from archself.io import atomic
+    from archself.io import files as atomic
 
     target = tmp_path / "out.json"
     target.write_text("good")

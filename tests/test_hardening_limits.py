@@ -94,7 +94,7 @@ def test_deep_nesting_is_refused_before_composing(tmp_path: Path, levels: int,
 def test_the_depth_cap_is_the_same_for_yaml_json_and_the_prescan(monkeypatch,
                                                                  levels: int) -> None:
     """The event pre-scan, the converter and the JSON walk refuse the same documents."""
-    from archself.io import yaml_nodes
+    from archself.io import yaml_source as yaml_nodes
 
     outcomes = set()
     for prescan_from in (0, 10**9):  # always / never pre-scanned
@@ -117,7 +117,7 @@ def test_900k_waypoints_are_refused_while_reading_in_bounded_memory() -> None:
     before the model refused it: now the event pre-scan stops at 500,000 nodes."""
     import tracemalloc
 
-    from archself.io.yaml_nodes import MAX_COMPOSED
+    from archself.io.yaml_source import MAX_COMPOSED
 
     points = ",".join(f"[{i % 10},{i % 7}]" for i in range(900_000))
     text = MINIMAL.replace(WAYPOINTS, f"waypoints: {{value: [{points}], unit: m}}")
@@ -418,7 +418,7 @@ def test_the_fuzz_finds_what_the_build_rule_catches(monkeypatch) -> None:
     """Without the ``build`` rule the same 200 files include a valid file whose build fails
     unlocated (24 of the 2,000 of the slow run: ragged waypoints, a C of the wrong width,
     a non-square A, a reference of one value): the fuzz can fail."""
-    import archself.check as check_module
+    import archself.check.rules as check_module
 
     monkeypatch.setattr(check_module, "check_build", lambda ctx: None)
     counts = run_fuzz(200, seed=39)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 import typer.main
+from pydantic import TypeAdapter
 from typer.testing import CliRunner
 
 from archself.calibration.identify_results import IdentificationDoc
@@ -33,7 +34,9 @@ from archself.io.jsondata import (
     DecisionRecordDoc,
     JobDoc,
     SimulateDoc,
+    TraceMeta,
     document,
+    jsonable,
 )
 from archself.runtime.knowledge import ActionEvaluation, DecisionRecord
 
@@ -83,7 +86,7 @@ def test_the_schemas_are_the_models() -> None:
     assert names == ["ValidateList", "SimulateDoc", "ExplainDoc", "LiveDoc", "Ros2Doc",
                      "CampaignDoc", "CampaignReportDoc", "InfoDoc", "CalibrationDoc",
                      "IdentificationDoc", "TraceDocument", "ParquetHead", "SavedRunsMeta",
-                     "CampaignMeta"]
+                     "CampaignMeta", "RunReportSummary"]
     schema = json.loads(text.split("<!-- schema: archself.io.jsondata:TraceDocument -->\n")[1]
                         .split("```json\n")[1].split("```")[0])
     assert schema["required"] == ["meta", "series", "decisions"] and "TraceMeta" in schema["$defs"]
@@ -325,6 +328,27 @@ def test_a_decision_record_is_written_by_its_model() -> None:
     assert list(d)[9] == "source" and list(d)[-1] == "compensated"
     assert document(DecisionRecordDoc, {"cycle": 1, "update": {"w": 0.5}}) == {
         "cycle": 1, "update": {"w": 0.5}}
+
+
+def test_the_one_pass_writer_equals_the_models_dump() -> None:
+    """document() writes a read-back document in one pass; the validated model's own dump
+    gives the same data, in the same order (an int of a float field becomes a float)."""
+    rec = DecisionRecord(
+        cycle=3, t=0.5, configuration="a", phase="adapt", j_obs=np.float64(0.25), j_ref=0.1,
+        r_global=float("nan"), r={"m": np.float32(1.5)}, z={"m": 2}, candidates=["m"],
+        selector="threshold", chosen={"from": "a", "to": "b", "action": "sw", "x": 1},
+        evaluations=[ActionEvaluation("sw", "m", "switch", "b", z=2.0, cost=1, rule="mean")],
+        equivalent=[["m", "n"]])
+    meta = {"scenario": "s", "seed": 1, "mode": "adaptive", "configuration": "a",
+            "final_configuration": "b", "metrics": {"rmse": np.float64(0.5)}, "extra": (1, 2),
+            "switches": [{"t_s": 2, "from": "a", "to": "b"}], "report": {"threshold": 1}}
+    for tp, data in ((DecisionLog, [rec, {"cycle": 1, "update": {"w": 0.5}}]),
+                     (TraceMeta, meta)):
+        adapter = TypeAdapter(tp)
+        dumped = adapter.dump_python(adapter.validate_python(jsonable(data)), mode="json",
+                                     by_alias=True, exclude_unset=True)
+        assert json.dumps(document(tp, data)) == json.dumps(dumped)
+    assert document(TraceMeta, meta)["switches"] == [{"t_s": 2.0, "from": "a", "to": "b"}]
 
 
 def test_a_writer_bug_is_one_located_line() -> None:

@@ -36,7 +36,7 @@ LAYERS = [
 #: imports that go up, each named in docs/develop.md (Known exceptions) with its way out
 KNOWN = {
     ("linear.wiring", "model.loader"),
-    ("modules.base", "model.ports"),
+    ("modules.base", "model.architecture"),
 }
 
 

@@ -19,10 +19,8 @@ from typer.testing import CliRunner
 from archself.check import check
 from archself.cli import app
 from archself.errors import ArchselfError
-from archself.model.architecture import Architecture
+from archself.model.architecture import Architecture, Online, Strategy
 from archself.model.loader import load_architecture
-from archself.model.runtime import Online
-from archself.model.strategies import Strategy
 from archself.resources import data_dir
 from archself.runtime import MapeK, explain
 from archself.runtime.influence import spectral_radius, weight_matrix

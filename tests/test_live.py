@@ -508,7 +508,7 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
 
     from typer.testing import CliRunner
 
-    import archself.io.atomic
+    import archself.io.files
     from archself.cli import app
     from archself.errors import OutputError
 
@@ -534,7 +534,7 @@ def test_cli_live_log_is_checked_first_and_never_lost(tmp_path: Path, monkeypatc
     def refuse(path, text):
         raise OutputError("disk full", str(path))
 
-    monkeypatch.setattr(archself.io.atomic, "write_text", refuse)
+    monkeypatch.setattr(archself.io.files, "write_text", refuse)
     log = tmp_path / "log.json"
     late = CliRunner().invoke(app, ["live", str(arch_file), "--connect",
                                     f"127.0.0.1:{link.port}", "--log", str(log),

@@ -1,12 +1,12 @@
-"""Named ports (archself.model.ports): declarations, edges that name them, their checks."""
+"""Named ports (archself.model.architecture): declarations, edges that name them, their checks."""
 
 from __future__ import annotations
 
 import pytest
 
 from archself.check import check
+from archself.model.architecture import Input, Output, declare, split_ref
 from archself.model.loader import load_text
-from archself.model.ports import Input, Output, declare, split_ref
 from archself.modules.base import RuntimeModule
 
 from conftest import FIXTURES

@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from archself.cli import app
+from archself.io.jsondata import RunReportSummary
 
 from conftest import DIFFDRIVE, FIXTURES, ROOT
 
@@ -40,6 +41,7 @@ def test_files_and_summary(compare_report) -> None:
     outcomes = [row["outcome"] for row in s["decision_log"]]
     assert outcomes[0] == "warm-up over" and "switch" in outcomes
     assert s["warmup_s"] == 3.0 and s["selector"] == "|z| ≥ τ = 0.5"
+    RunReportSummary.model_validate(s, strict=True)  # its model: no other key, no conversion
 
 
 def test_summary_is_deterministic(compare_report, tmp_path) -> None:

@@ -282,7 +282,7 @@ def test_ros2_log_is_locked_like_every_output(tmp_path: Path) -> None:
     holder = subprocess.Popen(
         [sys.executable, "-c",
          "import sys, time\n"
-         "from archself.io.atomic import protect\n"
+         "from archself.io.files import protect\n"
          f"with protect([], [{str(log)!r}]):\n"
          "    print('held', flush=True)\n"
          "    time.sleep(60)\n"],

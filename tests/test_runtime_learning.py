@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 from archself.cli import app
 from archself.errors import ArchselfError
 from archself.model.architecture import Architecture
+from archself.model.architecture import Learning as LearningSettings
 from archself.model.loader import load_architecture
-from archself.model.runtime import Learning as LearningSettings
 from archself.resources import data_dir
 from archself.runtime import MapeK
 from archself.runtime import planner as risk_module

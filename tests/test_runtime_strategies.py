@@ -7,8 +7,8 @@ import pytest
 from test_runtime_fakes import FakeSystem, high, make_arch, run_loop
 
 from archself.check import check
+from archself.model.architecture import Strategy
 from archself.model.loader import load_text
-from archself.model.strategies import Strategy
 from archself.resources import data_dir
 from archself.runtime import MapeK, explain
 

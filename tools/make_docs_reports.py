@@ -33,7 +33,7 @@ def build(
     out: Path, *, runs: bool = True, render: bool = True, arch_path: Path = ARCH
 ) -> list[Path]:
     """Write the docs reports under ``out``; return the report folders written."""
-    from archself.io.atomic import write_text
+    from archself.io.files import write_text
     from archself.model.loader import load_architecture
     from archself.reports.architecture import write_architecture_report
     from archself.reports.render import render as render_template

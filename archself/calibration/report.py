@@ -253,7 +253,7 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
 
 
 def _write(cal: Calibration, out: Path) -> None:
-    from archself.io.atomic import write_text
+    from archself.io.files import write_text
     from archself.reports.render import render
 
     model = report_model(cal)

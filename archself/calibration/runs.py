@@ -382,7 +382,7 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
 
     import numpy as np
 
-    from archself.io.atomic import write_bytes
+    from archself.io.files import write_bytes
     from archself.io.jsondata import SavedRunsMeta, document
 
     arrays: dict[str, Any] = {}

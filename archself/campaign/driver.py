@@ -133,7 +133,7 @@ def _check_outputs(jobs: Sequence[Job], out: Path) -> None:
     """Refuse ``--out`` or a trace file that is an input; make and probe the traces folder."""
     import tempfile
 
-    from archself.io.outputs import file_ids, refuse_same_file
+    from archself.io.files import file_ids, refuse_same_file
 
     inputs = sorted({j.file for j in jobs})
     refuse_same_file(inputs, out, "--out")

@@ -107,7 +107,7 @@ def campaign_report(
 def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | Path,
            formats: tuple[str, ...], dpi: int) -> None:
     from archself.campaign import figures as fig
-    from archself.io.atomic import write_text
+    from archself.io.files import write_text
     from archself.reports.figures import shown_formats, write_figure
 
     names = [b["scenario"] for b in summary.scenarios]

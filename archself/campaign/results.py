@@ -114,7 +114,7 @@ def write_results(
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from archself.io.atomic import write_bytes
+    from archself.io.files import write_bytes
 
     ordered = sorted(rows, key=lambda r: (
         r["scenario"], tuple(r[p] for p in sweep_paths), r["replicate"], r["mode"]))

@@ -12,7 +12,7 @@ offending node. The rules:
   that I − Wᵀ is nonsingular and z = (I − Wᵀ)⁻¹ r is bounded (Eq. 13–14);
 * ``signal``: an edge carries a signal its source outputs;
 * ``port``: named ports (``from: module.port``) exist on the types, with "did you
-  mean"; an edge names a signal (:mod:`archself.model.ports`);
+  mean"; an edge names a signal (:mod:`archself.model.architecture`);
 * ``incomplete``: in each configuration every active module receives its
   required inputs over active edges, the active modules are connected, and the
   modules ``runtime.objective`` reads are active; a configuration that fills
@@ -29,7 +29,7 @@ offending node. The rules:
   file's ``min``/``max``) lies in the range the type declares (``Param.min``/``max``);
 * ``fault``: faults target modules whose type accepts that fault kind and signal,
   and that are in at least one configuration (else the fault never acts);
-* ``work``: each scenario's run fits the caps of :mod:`archself.check.runs`:
+* ``work``: each scenario's run fits the caps of :mod:`archself.check.rules`:
   ``MAX_RUN_STEPS`` simulation steps, ``MAX_RUN_BYTES`` of recorded series,
   ``MAX_RUN_WORK`` module-steps with the rollouts and Lyapunov tests (:func:`run_estimate`);
 * ``clock``: a scenario lasts at least one step; ``runtime.period_s`` and every period
@@ -54,79 +54,12 @@ offending node. The rules:
   result pass Eq. 21 and the whole-loop check (:mod:`archself.check.stability`); judged
   only on a file without errors; with it off, an ``info`` finding says it was not checked.
 
-The rules live by what they judge: the modules and their parameters in
-:mod:`archself.check.modules`, edges, W and configurations in
-:mod:`archself.check.graph`, actions, faults, work, the objective and stability in
-:mod:`archself.check.runs`, on the shared :class:`~archself.check.context.Context`.
-This module runs them in order and re-exports ``run_estimate`` and ``spectrum_summary``.
+The rules, the :class:`~archself.check.rules.Context` they share and :func:`check`,
+which runs them in order, are in :mod:`archself.check.rules`; the whole-loop stability
+check (it compiles the modules) in :mod:`archself.check.stability`. This package
+re-exports ``check``, ``has_errors``, ``run_estimate`` and ``spectrum_summary``.
 """
 
-from __future__ import annotations
-
-from archself.check.context import Context
-from archself.check.graph import (
-    check_configurations,
-    check_edges,
-    check_ports,
-    check_subsystems,
-    check_weights,
-    spectrum_summary,
-)
-from archself.check.modules import check_limits, check_parameters, check_types
-from archself.check.runs import (
-    check_actions,
-    check_build,
-    check_clock,
-    check_objective,
-    check_qualities,
-    check_scenarios,
-    check_stability,
-    check_strategies,
-    check_work,
-    run_estimate,
-)
-from archself.findings import Finding
-from archself.model.loader import Loaded, gc_paused
+from archself.check.rules import check, has_errors, run_estimate, spectrum_summary
 
 __all__ = ["check", "has_errors", "run_estimate", "spectrum_summary"]
-
-
-def check(loaded: Loaded, stability: str | None = None) -> list[Finding]:
-    """All semantic findings of a loaded architecture, sorted by position.
-
-    ``stability`` (``warning`` or ``error``) runs the whole-loop stability check at
-    that severity when the file's ``runtime.stability.verify`` is off
-    (``archself validate --stability``); with it off too, one ``info`` finding says
-    the check did not run.
-    """
-    # the collector paused, as in the loader (for the imports of the packs and scipy too)
-    with gc_paused():
-        ctx = Context(loaded)
-        for rule in (
-            check_types,
-            check_edges,
-            check_ports,
-            check_weights,
-            check_subsystems,
-            check_configurations,
-            check_parameters,
-            check_actions,
-            check_qualities,
-            check_strategies,
-            check_scenarios,
-            check_work,
-            check_clock,
-            check_objective,
-            check_limits,
-            check_build,
-        ):
-            rule(ctx)
-    check_stability(ctx, stability)  # --verify compiles systems: the collector runs there
-    ctx.out.sort(key=lambda f: (f.line or 0, f.col or 0, f.code))
-    return ctx.out
-
-
-def has_errors(findings: list[Finding]) -> bool:
-    """True when any finding has error severity."""
-    return any(f.severity == "error" for f in findings)
-

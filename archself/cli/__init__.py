@@ -3,7 +3,7 @@
 Data goes to stdout, diagnostics to stderr. Exit codes (``archself.errors.EXIT_CODES``,
 docs/hardening.md): 0 ok, 1 findings or a user error, 2 usage error, 3 internal
 error (a bug), 130 interrupted (SIGINT), 143 terminated (SIGTERM). No output is
-written onto an input (:mod:`archself.io.outputs`). Heavy libraries (python-control,
+written onto an input (:mod:`archself.io.files`). Heavy libraries (python-control,
 filterpy, matplotlib) are imported inside the commands that need them, never at
 start-up.
 

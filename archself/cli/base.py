@@ -142,7 +142,7 @@ STDIN_NAME = "<stdin>"
 
 def _read_stdin() -> str:
     """Standard input as UTF-8 text, capped like a file (``yaml_source.MAX_FILE_BYTES``)."""
-    from archself.io.file_text import MAX_FILE_BYTES, decode_text
+    from archself.io.files import MAX_FILE_BYTES, decode_text
 
     return decode_text(sys.stdin.buffer.read(MAX_FILE_BYTES + 1), STDIN_NAME)
 
@@ -227,7 +227,7 @@ def _file_names(ctx: typer.Context, section: str) -> list[str]:
     if path is None:
         return []
     try:
-        from archself.io.file_text import read_text
+        from archself.io.files import read_text
         from archself.io.yaml_source import load_data
 
         data, _ = load_data(read_text(path), str(path))
@@ -352,7 +352,7 @@ def _emit(text: str, output: Path | None, done: str) -> None:
     if output is None or str(output) == "-":
         sys.stdout.write(text)
         return
-    from archself.io.atomic import protect, write_text
+    from archself.io.files import protect, write_text
 
     if output.is_file():
         try:
@@ -377,7 +377,7 @@ _RUN_REPORT_FILES = ("index.html", "summary.json")
 
 def _inputs(*paths: Path, what: str = "an architecture file") -> None:
     """Every input must be a regular file: not missing, a folder, a FIFO or a device."""
-    from archself.io.outputs import check_input
+    from archself.io.files import check_input
 
     for p in paths:
         if str(p) != "-":  # stdin, read by _load
@@ -416,8 +416,7 @@ def guard(
     numeric : bool
         Catch numeric trouble (False: the command has none or handles it).
     """
-    from archself.io.atomic import protect
-    from archself.io.outputs import refuse_same_file
+    from archself.io.files import protect, refuse_same_file
 
     pairs = [item if isinstance(item, tuple) else (item, what) for item in inputs]
     given = [p for p, _ in pairs if p is not None]

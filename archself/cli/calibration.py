@@ -143,7 +143,7 @@ def _calibrate(
         if save_runs is not None:
             check_output(arch_path, save_runs, in_place=False, force=force)
         if report_dir is not None:
-            from archself.io.outputs import refuse_foreign_folder
+            from archself.io.files import refuse_foreign_folder
 
             refuse_foreign_folder(report_dir, "calibration.json", "--report")
 
@@ -163,7 +163,7 @@ def _calibrate(
         finally:
             bar.close()
         if target is not None:
-            from archself.io.atomic import write_text
+            from archself.io.files import write_text
 
             write_text(target, cal.text)
         if report_dir is not None:
@@ -304,7 +304,7 @@ def _identify(
         if output is not None:
             _emit(markdown_table(ident), output, f"wrote {output}")
         if write_back is not None and copy is not None:
-            from archself.io.atomic import write_text
+            from archself.io.files import write_text
 
             write_text(write_back, copy)
             note(f"wrote {write_back}")

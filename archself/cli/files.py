@@ -270,7 +270,7 @@ def init(
     """
     import os
 
-    from archself.io.atomic import protect, write_text
+    from archself.io.files import protect, write_text
 
     if not name.strip() or name.endswith(("/", os.sep)) or Path(name).name in (".", ".."):
         raise _fail(f"NAME {name!r}: expected a name such as 'tank' or 'plants/tank.yaml'", 2)

@@ -228,7 +228,7 @@ def _check_log(arch_path: Path, log: Path | None) -> None:
     """Refuse a ``--log`` onto the input or where no file can be, before the run, not after."""
     if log is None:
         return
-    from archself.io.outputs import refuse_same_file
+    from archself.io.files import refuse_same_file
 
     refuse_same_file([arch_path], log, "--log")
     if log.is_dir() or not log.parent.is_dir():
@@ -242,7 +242,7 @@ def _write_log(log: Path, text: str) -> None:
     A live run cannot be repeated (the plant went its own way), so its log is never
     dropped: the one-line error names where it was kept.
     """
-    from archself.io.atomic import write_text
+    from archself.io.files import write_text
 
     try:
         write_text(log, text)

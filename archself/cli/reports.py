@@ -66,7 +66,7 @@ def report(
         return
     if arch_path is None:
         raise _fail("missing argument ARCH (or --trace TRACE for a run report)", 2)
-    from archself.io.outputs import refuse_input_inside
+    from archself.io.files import refuse_input_inside
 
     with guard(arch_path, locks=[output],
                check=lambda: refuse_input_inside([arch_path], output, "-o")):
@@ -99,7 +99,7 @@ def _report_from_traces(
     force: bool = False,
 ) -> None:
     """``report --trace``: the run report of saved traces (one run, or fixed + adaptive)."""
-    from archself.io.outputs import refuse_foreign_folder
+    from archself.io.files import refuse_foreign_folder
     from archself.sim.result import read_trace
 
     if len(traces) > 2:

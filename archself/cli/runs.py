@@ -245,7 +245,7 @@ def _simulate(
     def outputs() -> None:  # the report folder and the knowledge table, before any run
         nonlocal learned
         if report is not None:
-            from archself.io.outputs import refuse_foreign_folder
+            from archself.io.files import refuse_foreign_folder
 
             refuse_foreign_folder(report, "summary.json", "--report")
         learned = _knowledge_table(arch_path, knowledge)

@@ -106,7 +106,7 @@ def write_trace(result: Any, path: str | Path) -> None:
     OutputError
         If the file cannot be written.
     """
-    from archself.io.atomic import write_bytes
+    from archself.io.files import write_bytes
 
     write_bytes(path, parquet_bytes(result) if is_parquet_name(path)
                 else json_text(result).encode("utf-8"))
@@ -184,7 +184,7 @@ def read_trace_parts(path: str | Path) -> TraceParts:
     TraceError
         ``PATH: error: not an archself trace (…)`` for any other file.
     """
-    from archself.io.outputs import path_problem
+    from archself.io.files import path_problem
 
     problem = path_problem(path)
     if problem is not None:

@@ -11,7 +11,7 @@ both keyed by the exact design inputs — the bytes, shapes and dtypes of ``A``,
   needs neither python-control nor scipy: a plain ``archself simulate`` of a file whose
   gains were designed before does not import them (≈ 0.7 s of a process).
   ``ARCHSELF_CACHE=off`` switches it off. Entries are written atomically
-  (:mod:`archself.io.atomic`); one that cannot be read, is corrupt or was written for
+  (:mod:`archself.io.files`); one that cannot be read, is corrupt or was written for
   other inputs is ignored and the gain designed again (and the entry rewritten); a
   cache folder that cannot be written is no error (the gain is designed per process).
 
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from archself.errors import ArchselfError
-from archself.io.atomic import write_text
+from archself.io.files import write_text
 
 __all__ = ["cache_dir", "lqr"]
 

@@ -104,7 +104,7 @@ _COMPARE = {"greater_than": ">", "greater_than_equal": "≥", "less_than": "<",
 
 @functools.cache
 def _bound_reasons() -> dict[float, str]:
-    from archself.model import values as model
+    from archself.model import architecture as model
 
     return {
         model.MAX_MAGNITUDE: " (no number of a file is larger: docs/format.md, Ranges)",

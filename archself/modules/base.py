@@ -246,11 +246,11 @@ class RuntimeModule:
         parameter is named. ``self.params`` holds the defaults overlaid with the
         file's values; ``archself validate`` reports missing required and unknown
         parameters. None (the default for plugins that predate it): not checked.
-    ports : sequence of archself.model.ports.Input and Output, or None
+    ports : sequence of archself.model.architecture.Input and Output, or None
         Every signal the type takes and gives, with unit and doc, next to
         ``parameters``: ``inputs``, ``optional_inputs``, ``multi_inputs``, ``outputs``
         and ``output_sizes`` are derived from it when the class defines it
-        (:mod:`archself.model.ports`). None: the tuples are set directly.
+        (:mod:`archself.model.architecture`). None: the tuples are set directly.
     """
 
     type_key: ClassVar[str] = ""
@@ -299,7 +299,7 @@ class RuntimeModule:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        from archself.model.ports import declare
+        from archself.model.architecture import declare
 
         declare(cls)  # the signal tuples from ``ports``, when the class declares them
 

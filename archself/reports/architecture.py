@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from archself.errors import OutputError
-from archself.io.atomic import write_bytes, write_text
+from archself.io.files import write_bytes, write_text
 from archself.model.architecture import Architecture
 from archself.reports.dsm import KIND_TITLES, KINDS, build_dsm, condense, orderings
 from archself.reports.graph import build_graph, config_diff, diff_graph, diff_pairs

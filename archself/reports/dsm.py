@@ -48,7 +48,7 @@ from functools import cached_property
 
 import networkx as nx
 
-from archself.check.graph import active_edges
+from archself.check.rules import active_edges
 from archself.model.architecture import Architecture
 
 __all__ = [
@@ -233,7 +233,7 @@ def scope_edges(
     """``(source, target, weight, carries)`` of the scope's edges, in file order.
 
     For a configuration: the edges whose two ends are active and that it does not
-    switch off (``disabled_edges``, :func:`archself.check.graph.active_edges`).
+    switch off (``disabled_edges``, :func:`archself.check.rules.active_edges`).
     """
     edges = arch.edges if configuration is None else [
         e for _, e in active_edges(arch, configuration)]

@@ -33,7 +33,7 @@ import io
 import json
 from typing import Any
 
-from archself.check.graph import active_edges
+from archself.check.rules import active_edges
 from archself.errors import ArchselfError
 from archself.model.architecture import Architecture
 

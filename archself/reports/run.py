@@ -159,8 +159,9 @@ class RunReport:
     def summary(self) -> dict[str, Any]:
         """Deterministic plain-JSON summary (``summary.json`` of the run report)."""
         from archself import __version__
+        from archself.io.jsondata import RunReportSummary, document
 
-        return _round({
+        return document(RunReportSummary, _round({
             "archself_version": __version__,
             "architecture": self.architecture,
             "scenario": self.scenario,
@@ -194,7 +195,7 @@ class RunReport:
                 }
                 for row in self.decision_rows
             ],
-        })
+        }), complete=True)  # type: ignore[no-any-return]
 
 
 def _selector(ctx: dict[str, Any]) -> tuple[str, list[tuple[str, float]]]:

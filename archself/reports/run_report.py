@@ -21,7 +21,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from archself.io.atomic import write_text
+from archself.io.files import write_text
 from archself.model.architecture import Architecture
 from archself.reports.architecture import new_folder
 from archself.reports.render import render

@@ -121,7 +121,7 @@ from archself.contracts import ManagedSystem
 from archself.errors import ArchselfError
 from archself.io.jsondata import DecisionRecordDoc, EvaluationDoc, document
 from archself.model.architecture import Architecture
-from archself.model.runtime import Learning as LearningSettings
+from archself.model.architecture import Learning as LearningSettings
 from archself.runtime.identify_fit import delta_residuals, fit_target
 from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 from archself.runtime.tails import band_of_level, quantile_level
@@ -555,7 +555,7 @@ class OutcomeTable:
         """Write the table as JSON (atomic)."""
         import json
 
-        from archself.io.atomic import write_text
+        from archself.io.files import write_text
 
         write_text(Path(path), json.dumps(self.to_dict(), indent=1) + "\n")
 
@@ -566,7 +566,7 @@ def load_table(path: str | Path) -> OutcomeTable:
     A trace (Parquet, or JSON with ``meta`` and ``series``) holds the table of its run
     in ``meta.knowledge.learned`` when ``runtime.learning`` was on.
     """
-    from archself.io.file_text import read_text
+    from archself.io.files import read_text
     from archself.io.jsondata import loads
 
     try:
@@ -617,7 +617,7 @@ class Learning:
 
     Parameters
     ----------
-    settings : archself.model.runtime.Learning
+    settings : archself.model.architecture.Learning
         ``runtime.learning`` of the file.
     table : OutcomeTable, optional
         What earlier runs learned (default: empty).

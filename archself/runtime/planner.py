@@ -120,7 +120,7 @@ switches both off.
 
 Weighted utility of a configuration under the file's quality preferences.
 
-``U(C) = Σ_q w_q · u_q(value_q(C)) / Σ_q w_q`` (:mod:`archself.model.qualities`):
+``U(C) = Σ_q w_q · u_q(value_q(C)) / Σ_q w_q`` (:mod:`archself.model.architecture`):
 ``value_q(C)`` is the sum of the attribute's ``resource`` over the configuration's
 modules, or its declared value; ``u_q`` its utility curve; ``w_q`` the preference.
 
@@ -165,8 +165,7 @@ from typing import Any
 import numpy as np
 
 from archself.contracts import ManagedSystem, SystemSnapshot
-from archself.model.architecture import Action, Architecture, Runtime
-from archself.model.runtime import Risk
+from archself.model.architecture import Action, Architecture, Risk, Runtime
 from archself.runtime.knowledge import ActionEvaluation
 from archself.runtime.monitor import StatusMap, is_limit_violation
 from archself.runtime.stability import (

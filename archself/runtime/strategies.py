@@ -1,6 +1,6 @@
 """Strategies: the file's trees of tactics, run by the MAPE-K loop one tactic per cycle.
 
-A strategy (:mod:`archself.model.strategies`) starts when its module is a candidate and
+A strategy (:mod:`archself.model.architecture`) starts when its module is a candidate and
 its first step's ``when`` holds, and no other strategy runs. While it runs it replaces
 the Plan stage's scoring: each cycle :meth:`Strategies.cycle` either
 
@@ -27,8 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.contracts import ManagedSystem
-from archself.model.architecture import Action, Architecture
-from archself.model.strategies import Condition, Strategy
+from archself.model.architecture import Action, Architecture, Condition, Strategy
 from archself.runtime.knowledge import ActionEvaluation
 
 __all__ = ["Running", "Strategies", "holds"]

@@ -397,6 +397,9 @@ def _series_list(arr: np.ndarray) -> list:
     if a.dtype.kind in "iub":
         return a.tolist()
     a = np.round(a.astype(float), 6)
-    if a.ndim == 1:
-        return [v if math.isfinite(v) else None for v in a.tolist()]
-    return [[v if math.isfinite(v) else None for v in row] for row in a.tolist()]
+    finite = np.isfinite(a)
+    if finite.all():
+        return a.tolist()  # type: ignore[no-any-return]
+    out = a.astype(object)  # Python floats, None where not finite
+    out[~finite] = None
+    return out.tolist()  # type: ignore[no-any-return]

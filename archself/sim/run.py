@@ -72,7 +72,7 @@ def _elements(arch: Architecture) -> dict[str, list[str]]:
     The objective names its module (``chassis.pose``); a recorded signal is the first
     module's (file order) whose type publishes it with names.
     """
-    from archself.model.ports import split_ref
+    from archself.model.architecture import split_ref
     from archself.registry import lookup
 
     rt = arch.runtime

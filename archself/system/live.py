@@ -368,7 +368,7 @@ class StepPlan:
         self.required = required
         self.edges = edges
         # edge index -> the source's output it reads, where the target's input port is
-        # named otherwise (archself.model.ports: routes are keyed by the target's port)
+        # named otherwise (archself.model.architecture: routes are keyed by the target's port)
         self.reads = reads
         # (module, whether it steps) of the publishing phases of a step
         self.publishing = [(n, False) for n in nonft] + [(n, True) for n in order]
@@ -473,7 +473,7 @@ def build_plan(
     flow: list[tuple[str, str]] = []  # the data flow of a step: edges into feedthrough
     edges: list[int] = []
     reads: dict[int, str] = {}
-    ports = arch.edge_ports  # named ports: archself.model.ports
+    ports = arch.edge_ports  # named ports: archself.model.architecture
     for i, e in enumerate(arch.edges):
         if e.source not in act or e.target not in act or (e.source, e.target) in disabled:
             continue

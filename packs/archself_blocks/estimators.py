@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from archself.model.ports import Input, Output
+from archself.model.architecture import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import (
     LtiModel,

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.model.ports import Input, Output
+from archself.model.architecture import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
 
 __all__ = [

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from archself.model.ports import Input, Output
+from archself.model.architecture import Input, Output
 from archself.modules.base import Param, RuntimeModule
 
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from archself.model.ports import Input, Output
+from archself.model.architecture import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import as_matrix, as_vector
 
