@@ -49,6 +49,8 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.sweep import CampaignError
+from archself.io.files import write_bytes
+from archself.io.html import card, table
 
 __all__ = ["META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "summary_frame",
            "write_results"]
@@ -113,8 +115,6 @@ def write_results(
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from archself.io.files import write_bytes
 
     ordered = sorted(rows, key=lambda r: (
         r["scenario"], tuple(r[p] for p in sweep_paths), r["replicate"], r["mode"]))
@@ -254,7 +254,6 @@ def outcome_html(outcome: Any) -> str:
     The counts, and per scenario and mode the median errors (from the results file,
     at most :data:`archself.io.html.MAX_ROWS` rows).
     """
-    from archself.io.html import card, table
 
     rows = [("results", outcome.out), ("runs", f"{outcome.rows} in the file: {outcome.ran} ran, "
                                       f"{outcome.skipped} kept, {outcome.failed} failed"),

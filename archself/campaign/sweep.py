@@ -39,6 +39,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.errors import ArchselfError
+from archself.model.loader import dotted
+from archself.model.messages import schema_findings
 
 __all__ = [
     "CampaignError",
@@ -124,8 +126,6 @@ def parse_path(text: str) -> Path_:
 
 
 def _where(path: Path_, k: int) -> str:
-    from archself.model.loader import dotted
-
     return dotted(path[: k + 1]) or "<root>"
 
 
@@ -314,7 +314,6 @@ def apply_values(
         return Architecture.model_validate(out)
     except ValidationError as exc:
         err = exc.errors()[0]
-        from archself.model.loader import dotted
 
         for s in sweeps:  # a new last key that the model refuses: most likely a typo
             parent = get_path(data, s.keys[:-1])
@@ -329,7 +328,6 @@ def apply_values(
 
         setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
         if source is not None:  # located and worded as the loader's (not a union member's)
-            from archself.model.messages import schema_findings
 
             found = schema_findings(out, exc, source)
             if found:
