@@ -95,20 +95,19 @@ def test_the_package_root_is_its_public_surface() -> None:
 #: how many such imports they hold at most. Every other file imports at module level.
 LATE = {
     # start-up: `import archself`, `archself --help`, `validate` and each command's `--help`
-    # load only the command run; a command's work loads on its call
-    "__init__": 6, "cli/base": 10, "cli/calibration": 12, "cli/campaigns": 6, "cli/files": 21,
-    "cli/live": 13, "cli/reports": 5, "cli/runs": 13, "model/architecture": 1,
-    "model/messages": 2, "sim/result": 2,
+    # load only the command run (PEP 562 names in the __init__s); its work loads on its call
+    "__init__": 6, "calibration/__init__": 1, "ros2/__init__": 2, "cli/base": 10,
+    "cli/calibration": 12, "cli/campaigns": 6, "cli/files": 21, "cli/live": 13, "cli/reports": 5,
+    "cli/runs": 13, "model/architecture": 1, "model/messages": 2, "sim/result": 2,
     # on demand: one function needs what the file's other users do not load (matplotlib,
-    # networkx, scipy, pydantic models, the lanes or a whole run)
+    # networkx, scipy, the opt-in stability check, pydantic models, the lanes or a whole run)
     "calibration/bands": 1, "calibration/edit": 1, "calibration/report": 4, "calibration/runs": 7,
     "campaign/figures": 1, "campaign/plan": 2, "campaign/report": 2, "campaign/results": 2,
     "campaign/sweep": 2, "campaign/worker": 4, "check/rules": 4, "check/stability": 2,
     "model/loader": 1, "model/schema": 1, "registry": 1, "reports/run": 2,
     "reports/run_report": 1, "ros2/demo": 2, "runtime/stability": 2, "testing": 9,
-    # circles through a package's __init__ (it imports the module that would import it back;
-    # check/rules holds one of these among its 4)
-    "calibration/__init__": 1, "ros2/__init__": 2, "lanes/run": 5,
+    # not yet sorted: a file being reworked (3 through lanes/__init__, 2 could move)
+    "lanes/run": 5,
     # a layer rule: an import that goes up (KNOWN above)
     "modules/base": 1,
 }
