@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from archself.errors import LoadError, OutputError
+from archself.model.architecture import split_ref
 from archself.model.loader import load_text
 
 __all__ = [
@@ -245,8 +246,6 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
     """
     from ruamel.yaml import YAML
     from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
-
-    from archself.model.architecture import split_ref
 
     root = YAML(typ="rt").compose(text)
     seq = _child(root, "edges")

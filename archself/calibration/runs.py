@@ -38,6 +38,7 @@ from archself.campaign.sweep import sweep_points
 from archself.campaign.worker import RunJob, run_error
 from archself.errors import LoadError
 from archself.io.files import write_bytes
+from archself.io.jsondata import JsonLimitError, SavedRunsMeta, document, loads, problem
 
 __all__ = [
     "CalJob",
@@ -383,8 +384,6 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
 
     import numpy as np
 
-    from archself.io.jsondata import SavedRunsMeta, document
-
     arrays: dict[str, Any] = {}
     rows = []
     for k, r in enumerate(results):
@@ -414,8 +413,6 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     import zipfile
 
     import numpy as np
-
-    from archself.io.jsondata import JsonLimitError, SavedRunsMeta, loads, problem
 
     try:
         with np.load(path, allow_pickle=False) as z:

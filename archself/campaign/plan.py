@@ -21,6 +21,7 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError, Sweep, apply_values, sweep_points
 from archself.campaign.worker import Job, trace_name
+from archself.check import check
 from archself.errors import unknown
 from archself.model.loader import Loaded, load_text, read_text
 
@@ -100,7 +101,6 @@ def plan_campaign(
     CampaignError, LoadError
         Unknown scenario, bad PATH or value, a file with errors.
     """
-    from archself.check import check
 
     _check_options(scenarios, seeds, modes, root_seed, trace_format)
     file = str(arch_path)

@@ -51,6 +51,7 @@ from typing import Any
 from archself.campaign.sweep import CampaignError
 from archself.io.files import write_bytes
 from archself.io.html import card, table
+from archself.io.jsondata import CampaignMeta, JsonLimitError, document, loads, problem
 
 __all__ = ["META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "summary_frame",
            "write_results"]
@@ -92,8 +93,6 @@ def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = Non
     """The :class:`pyarrow.Schema` of a campaign's results table."""
     import pyarrow as pa
 
-    from archself.io.jsondata import CampaignMeta, document
-
     cols = _BEFORE + [(p, "float64") for p in sweep_paths] + _AFTER
     fields = [pa.field(name, _type(pa, t)) for name, t in cols]
     doc = document(CampaignMeta, meta or {})
@@ -134,8 +133,6 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from archself.io.jsondata import CampaignMeta, JsonLimitError, loads, problem
 
     p = Path(path)
     if not p.is_file():

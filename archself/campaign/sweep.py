@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.errors import ArchselfError
+from archself.model.architecture import Architecture
 from archself.model.loader import dotted
 from archself.model.messages import schema_findings
 
@@ -305,8 +306,6 @@ def apply_values(
     """
     from pydantic import ValidationError
 
-    from archself.model.architecture import Architecture
-
     out = data
     for s, v in zip(sweeps, point, strict=True):
         out = set_path(out, s.keys, v)
@@ -347,8 +346,6 @@ def _model_keys(keys: Path_) -> list[str]:
     import typing
 
     from pydantic import BaseModel
-
-    from archself.model.architecture import Architecture
 
     def models(tp: Any) -> list[Any]:
         """The classes a field's annotation may hold (Optional, Union, Annotated unwrapped)."""
