@@ -38,6 +38,8 @@ import numpy as np
 
 from archself.contracts import BatchedModule
 from archself.errors import ArchselfError
+from archself.model.architecture import Architecture
+from archself.model.loader import load_architecture
 
 __all__ = ["PackMismatch", "PackReport", "check_pack"]
 
@@ -108,8 +110,6 @@ def check_pack(
     PackReport
     """
     from archself.lanes.run import simulate_lanes
-    from archself.model.architecture import Architecture
-    from archself.model.loader import load_architecture
     from archself.runtime.mapek import MapeK
     from archself.sim.run import simulate
 

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.runtime.knowledge import Knowledge
 from archself.runtime.tails import TailFit, band_of_level, empirical_level, quantile_level
 
 __all__ = [
@@ -85,7 +86,6 @@ def influence_block(arch: Any, configuration: str, residual_modules: Sequence[st
     :class:`~archself.runtime.knowledge.Knowledge` (active edges, disabled edges,
     the ρ(W) normalization, the same solver), one unit vector per column.
     """
-    from archself.runtime.knowledge import Knowledge
 
     k = Knowledge(arch, configuration)
     out = np.zeros((len(k.active_index), len(residual_modules)))

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.calibration import runs as R
 from archself.calibration.bands import (
     Cell,
     Prediction,
@@ -28,8 +29,12 @@ from archself.calibration.bands import (
     critical_scales,
     influence_block,
 )
+from archself.calibration.edit import format_band, set_nominals
 from archself.calibration.prepare import parse_envelope, prepare
 from archself.calibration.result import Calibration, CalibrationError, CellResult, ModuleBand
+from archself.calibration.runs import band_free_digest, load_runs
+from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
+from archself.campaign.sweep import sweep_points
 
 __all__ = ["Calibration", "CalibrationError", "CellResult", "ModuleBand", "calibrate"]
 
@@ -71,7 +76,6 @@ def _check_size(
     until the bands are fitted: ``--seeds 100000000`` grew past 1.8 GB in 30 s
     before a single run started, and would have ended out of memory.
     """
-    from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
 
     runs = per_cell * len(scenarios) * len(confs)
     width = sum(1 for spec in arch.modules.values() if spec.residual is not None)
@@ -206,8 +210,6 @@ def _plan(
     CalibrationError, LoadError
         As :func:`calibrate`, before any run.
     """
-    from archself.calibration.runs import band_free_digest
-    from archself.campaign.sweep import sweep_points
 
     p = float(false_switch)
     if not 0.0 < p < 1.0:
@@ -244,7 +246,6 @@ def _saved(plan: _Plan, from_runs: str | Path) -> tuple[_Plan, _Runs]:
     CalibrationError
         Runs of another architecture (not only the bands differ), a damaged file.
     """
-    from archself.calibration.runs import load_runs
 
     arch, file = plan.arch, plan.file
     meta, saved = load_runs(from_runs)
@@ -280,7 +281,6 @@ def _run(
     save_runs: str | Path | None,
 ) -> _Runs:
     """Run the calibration (and verification) replicates; write them to ``save_runs``."""
-    from archself.calibration import runs as R
 
     def run(phase: str, first: int, n: int) -> tuple[list[dict[str, Any]], float]:
         """Replicates ``first … first+n−1`` (each envelope point its own seeds)."""
@@ -338,7 +338,6 @@ def _bands(plan: _Plan, cells: list[Cell]) -> _Bands:
     CalibrationError
         No module's residual calibrated, a rate no band gives, no candidate at any band.
     """
-    from archself.calibration.edit import format_band
 
     arch, file, p, tau = plan.arch, plan.file, plan.p, plan.tau
     old = {m: float(s.residual.nominal) for m, s in arch.modules.items() if s.residual}
@@ -441,7 +440,6 @@ def _collect(plan: _Plan, runs: _Runs) -> Calibration:
     CalibrationError
         Every run of a cell failed, or as :func:`_bands`.
     """
-    from archself.calibration.edit import set_nominals
 
     arch = plan.arch
     cells = _cells(arch, runs.results)

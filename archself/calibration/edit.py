@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from archself.errors import LoadError, OutputError
+from archself.model.architecture import split_ref
+from archself.model.loader import load_text
 
 __all__ = [
     "check_output", "format_band", "format_weight", "replace_scalars", "same_file",
@@ -146,7 +148,6 @@ def set_nominals(
         edits[id(node)] = (start.index, end.index, new, name)
     result = replace_scalars(text, [(s, e, new) for s, e, new, _ in edits.values()], comment)
     if verify:  # the new text holds exactly the new values
-        from archself.model.loader import load_text
 
         arch = load_text(result, file).arch
         for name, value in values.items():
@@ -245,9 +246,6 @@ def set_weights(text: str, file: str, values: Mapping[tuple[str, str], float], c
     """
     from ruamel.yaml import YAML
     from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
-
-    from archself.model.architecture import split_ref
-    from archself.model.loader import load_text
 
     root = YAML(typ="rt").compose(text)
     seq = _child(root, "edges")

@@ -31,19 +31,22 @@ from typing import Any
 
 import numpy as np
 
+from archself import registry
 from archself.calibration.edit import set_weights
 from archself.calibration.identify_results import EdgeRow, Experiment, Identification, IdentifyError
-from archself.calibration.runs import seeds_from
+from archself.calibration.prepare import chosen_configurations, load_checked
+from archself.calibration.runs import record, run_on_executor, seeds_from
+from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
 from archself.campaign.worker import RunJob, run_error
 from archself.errors import unknown
+from archself.model.architecture import Fault
 from archself.runtime.identify_fit import TargetFit, delta_residuals, fit_edges
+from archself.runtime.knowledge import Knowledge, active_edges
 
 __all__ = ["Identification", "IdentifyError", "identify", "set_weights", "written_copy"]
 
 
 def _prepare(path: str | Path, scenario: str | None, configurations: Sequence[str] | None):
-    from archself.calibration.prepare import chosen_configurations, load_checked
-
     text, loaded = load_checked(path, IdentifyError)
     arch = loaded.arch
     if not any(m.residual is not None for m in arch.modules.values()):
@@ -72,7 +75,6 @@ def _experiments(
     perturb: Mapping[str, tuple[str, float]],
 ) -> tuple[list[tuple[str, str, float]], list[str]]:
     """The perturbations of one configuration, and the active modules left out (with why)."""
-    from archself import registry
 
     active = arch.configurations[configuration].modules
     chosen: list[tuple[str, str, float]] = []
@@ -91,7 +93,6 @@ def _experiments(
 
 def _fault(module: str, kind: str, magnitude: float) -> Any:
     """An experiment's fault: ``kind`` of ``magnitude`` on ``module`` from t = 0."""
-    from archself.model.architecture import Fault
 
     return Fault.model_validate({"module": module, "kind": kind, "onset_s": 0.0,
                                  "magnitude": magnitude})
@@ -167,7 +168,6 @@ def identify(
         A file with errors, no residual, no fault-free scenario, an unknown
         configuration, or no experiment possible.
     """
-    from archself.calibration.runs import run_on_executor
 
     plan = _plan(path, configurations, scenario, seeds, kind, magnitude, perturb, settle_s,
                  min_excitation, root_seed)
@@ -256,7 +256,6 @@ def _check_size(path: str | Path, arch: Any, confs: Sequence[str], seeds: int) -
     """Refuse runs the driver could not hold: at most one run a seed per module and the
     unperturbed one, each held by the driver, past half the memory (``--seeds 100000000``
     grew for minutes, no run started)."""
-    from archself.campaign.plan import BYTES_PER_RUN, past_half_memory
 
     most = seeds * sum(1 + len(arch.configurations[c].modules) for c in confs)
     if too_much := past_half_memory(most * BYTES_PER_RUN):
@@ -290,7 +289,6 @@ def run_identify_job(job: IdJob) -> dict[str, Any]:
         module or None), ``mean`` (time-averaged |s̄| per residual module after
         ``settle_s``, float64, in the file's module order), ``error``.
     """
-    from archself.calibration.runs import record
 
     out: dict[str, Any] = {
         "configuration": job.configuration,
@@ -317,7 +315,6 @@ def _collect(
     plan: _Plan, results: list[dict[str, Any]], elapsed: float, executor: str
 ) -> Identification:
     """The fitted weights of every configuration beside the declared ones."""
-    from archself.runtime.knowledge import Knowledge
 
     failed = [
         f"{r['configuration']} seed {r['seed']} {r['experiment'] or 'nominal'}: {r['error']}"
@@ -358,7 +355,6 @@ def _fit(
 ) -> dict[str, TargetFit]:
     """Fit the weights into each observed module of configuration ``c``; its edges appended
     to ``rows``, its experiments' mean Δr to ``experiments``; the fits per target."""
-    from archself.runtime.knowledge import active_edges
 
     arch = plan.arch
     residual = {m: spec.residual for m, spec in arch.modules.items() if spec.residual is not None}

@@ -10,7 +10,10 @@ from typing import Any
 
 from archself.calibration.bands import alarm_threshold
 from archself.calibration.result import CalibrationError
+from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
+from archself.check import check, has_errors
 from archself.errors import ArchselfError, LoadError, unknown
+from archself.model.loader import Loaded, load_text, read_text
 
 __all__ = ["chosen_configurations", "load_checked", "located", "parse_envelope", "prepare"]
 
@@ -23,8 +26,6 @@ def load_checked(path: str | Path, error: type[ArchselfError]) -> tuple[str, Any
     tuple
         ``(text, loaded)``: the file's text and its :class:`~archself.model.loader.Loaded`.
     """
-    from archself.check import check, has_errors
-    from archself.model.loader import load_text, read_text
 
     text = read_text(path)
     loaded = load_text(text, str(path))
@@ -114,9 +115,6 @@ def parse_envelope(loaded: Any, specs: Sequence[str]) -> tuple[Any, ...]:
     """Parse ``--envelope`` specs and check every point gives a valid file."""
     if not specs:
         return ()
-    from archself.campaign.sweep import CampaignError, apply_values, parse_sweep, sweep_points
-    from archself.check import check
-    from archself.model.loader import Loaded
 
     try:
         sweeps = tuple(parse_sweep(s) for s in specs)

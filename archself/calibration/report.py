@@ -17,7 +17,11 @@ from typing import Any
 
 import numpy as np
 
+from archself.calibration.edit import same_file
 from archself.calibration.result import Calibration, CellResult
+from archself.errors import OutputError
+from archself.io.files import write_text
+from archself.reports.render import render, unique_slugs
 
 __all__ = ["report_model", "summary_text", "write_report"]
 
@@ -98,7 +102,6 @@ def _band_rows(cal: Calibration) -> list[dict[str, Any]]:
 
 def _distributions(cal: Calibration) -> list[dict[str, Any]]:
     """Per module and cell: quantiles of its filtered residual per cycle and per run."""
-    from archself.reports.render import unique_slugs
 
     slugs = unique_slugs(list(cal.modules))
     dists = []
@@ -239,8 +242,6 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
     OutputError
         If the folder or a file cannot be written.
     """
-    from archself.calibration.edit import same_file
-    from archself.errors import OutputError
     from archself.reports.architecture import new_folder
 
     out = Path(out_dir)
@@ -253,9 +254,6 @@ def write_report(cal: Calibration, out_dir: str | Path) -> Path:
 
 
 def _write(cal: Calibration, out: Path) -> None:
-    from archself.io.files import write_text
-    from archself.reports.render import render
-
     model = report_model(cal)
     try:
         import matplotlib  # noqa: F401

@@ -15,6 +15,7 @@ from pydantic import Field
 
 from archself.calibration.bands import Cell, Prediction
 from archself.errors import ArchselfError
+from archself.io.html import card, table
 from archself.io.jsondata import JobDoc, OutDoc, document
 
 __all__ = ["Calibration", "CalibrationDoc", "CalibrationError", "CellResult", "ModuleBand"]
@@ -95,7 +96,6 @@ class Calibration:
 
     def _repr_html_(self) -> str:
         """A short card for notebooks: the setting, the worst rates, the bands old → new."""
-        from archself.io.html import card, table
 
         rates = self.rates()
         rows = [(b.name, f"{b.old:.4g}", f"{b.new:.4g}", "yes" if b.calibrated else b.note)

@@ -32,7 +32,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from archself.campaign.driver import run_seeds
+from archself.campaign.executors import default_workers, make_executor
+from archself.campaign.sweep import sweep_points
 from archself.campaign.worker import RunJob, run_error
+from archself.errors import LoadError
+from archself.io.files import write_bytes
+from archself.io.jsondata import JsonLimitError, SavedRunsMeta, document, loads, problem
 
 __all__ = [
     "CalJob",
@@ -73,7 +79,6 @@ def seeds_from(root_seed: int, start: int, n: int) -> list[int]:
     >>> seeds_from(0, 2, 1) == run_seeds(0, 3)[2:]
     True
     """
-    from archself.campaign.driver import run_seeds
 
     return run_seeds(root_seed, start + n)[start:]
 
@@ -99,7 +104,6 @@ def plan_runs(
     800 runs holding the information of 100. Configurations and scenarios share the
     seeds (each is a cell of its own).
     """
-    from archself.campaign.sweep import sweep_points
 
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     sweeps = tuple(envelope)
@@ -293,7 +297,6 @@ def run_jobs(
     ``executor`` is ``"local"``, ``"dask"`` or ``"inline"`` (in this process; tests).
     Ctrl-C cancels the queued runs and propagates.
     """
-    from archself.campaign.executors import default_workers
     from archself.lanes.batching import batched_types
 
     if jobs and batched_types(jobs[0].architecture()):
@@ -325,7 +328,6 @@ def run_on_executor(
     the workers import first (where ``fn`` lives). Ctrl-C cancels the queued runs and
     propagates. Used by calibrate and identify.
     """
-    from archself.campaign.executors import make_executor
 
     if not jobs:
         return []
@@ -382,9 +384,6 @@ def save_runs(path: str | Path, meta: dict[str, Any], results: Sequence[dict[str
 
     import numpy as np
 
-    from archself.io.files import write_bytes
-    from archself.io.jsondata import SavedRunsMeta, document
-
     arrays: dict[str, Any] = {}
     rows = []
     for k, r in enumerate(results):
@@ -414,9 +413,6 @@ def load_runs(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     import zipfile
 
     import numpy as np
-
-    from archself.errors import LoadError
-    from archself.io.jsondata import JsonLimitError, SavedRunsMeta, loads, problem
 
     try:
         with np.load(path, allow_pickle=False) as z:

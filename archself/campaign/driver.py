@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from archself.campaign.executors import make_executor
+from archself.campaign.figures import plot_results
 from archself.campaign.plan import (
     CampaignEstimate,
     available_memory,
@@ -47,9 +49,11 @@ from archself.campaign.plan import (
     plan_campaign,
     run_seeds,
 )
+from archself.campaign.results import outcome_html, read_results, summary_frame, write_results
 from archself.campaign.sweep import CampaignError
 from archself.campaign.worker import Job, _base_row, run_job, run_unit
-from archself.errors import ArchselfError, OutputError
+from archself.errors import ArchselfError, OutputError, Terminated
+from archself.io.files import file_ids, refuse_same_file
 
 __all__ = [
     "RunProgress",
@@ -93,7 +97,6 @@ class CampaignOutcome:
 
         :func:`archself.campaign.results.summary_frame` of :attr:`out`.
         """
-        from archself.campaign.results import summary_frame
 
         return summary_frame(self.out)
 
@@ -102,19 +105,14 @@ class CampaignOutcome:
 
         :func:`archself.campaign.figures.plot_results` of :attr:`out`.
         """
-        from archself.campaign.figures import plot_results
 
         return plot_results(self.out, metric, **kwargs)
 
     def _repr_html_(self) -> str:
-        from archself.campaign.results import outcome_html
-
         return outcome_html(self)
 
 
 def _existing(out: Path, meta: dict[str, Any]) -> list[dict[str, Any]]:
-    from archself.campaign.results import read_results
-
     table, old = read_results(out)
     for key, what in (
         ("sha256", "architecture file"),
@@ -132,8 +130,6 @@ def _existing(out: Path, meta: dict[str, Any]) -> list[dict[str, Any]]:
 def _check_outputs(jobs: Sequence[Job], out: Path) -> None:
     """Refuse ``--out`` or a trace file that is an input; make and probe the traces folder."""
     import tempfile
-
-    from archself.io.files import file_ids, refuse_same_file
 
     inputs = sorted({j.file for j in jobs})
     refuse_same_file(inputs, out, "--out")
@@ -371,8 +367,6 @@ class _Campaign:
         self.t0 = time.perf_counter()
 
     def flush(self) -> None:
-        from archself.campaign.results import write_results
-
         write_results(self.out, self.rows, list(self.meta.get("sweeps", [])), self.meta)
 
     def saved(self) -> str:
@@ -391,7 +385,6 @@ class _Campaign:
 
     def start(self) -> None:
         """Start the executor (again after a worker died)."""
-        from archself.campaign.executors import make_executor
 
         try:
             self.ex = make_executor(self.executor, workers=self.n_start, address=self.address,
@@ -422,8 +415,6 @@ class _Campaign:
                 self.round()
             self.flush()
         except KeyboardInterrupt as exc:
-            from archself.errors import Terminated
-
             _abort(self.ex, self.futures)
             self.flush()
             terminated = isinstance(exc, Terminated)

@@ -31,6 +31,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from archself.campaign.results import read_results
+
 #: ``"one"``/``"two"`` columns, (width, height) in inches, or None: the report's size
 #: (:func:`archself.sim.plot.paper_figure`).
 Size = str | tuple[float, float] | None
@@ -196,7 +198,6 @@ def plot_results(path: str | Path, metric: str = "max_error", size: Size = None,
     ValueError
         If ``metric`` is none of ``max_error``, ``final_error``, ``rms_error``.
     """
-    from archself.campaign.results import read_results
 
     if metric not in ERROR_TITLES:
         raise ValueError(f"metric must be one of {', '.join(ERROR_TITLES)}, not {metric!r}")

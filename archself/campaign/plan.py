@@ -21,7 +21,9 @@ from typing import Any
 
 from archself.campaign.sweep import CampaignError, Sweep, apply_values, sweep_points
 from archself.campaign.worker import Job, trace_name
+from archself.check import check
 from archself.errors import unknown
+from archself.model.loader import Loaded, load_text, read_text
 
 __all__ = [
     "BYTES_PER_RUN",
@@ -99,8 +101,6 @@ def plan_campaign(
     CampaignError, LoadError
         Unknown scenario, bad PATH or value, a file with errors.
     """
-    from archself.check import check
-    from archself.model.loader import Loaded, load_text, read_text
 
     _check_options(scenarios, seeds, modes, root_seed, trace_format)
     file = str(arch_path)

@@ -15,8 +15,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from archself.campaign import figures as fig
 from archself.campaign.aggregate import CampaignSummary, summarize
+from archself.campaign.results import read_results
+from archself.io.files import write_text
 from archself.io.jsondata import CampaignReportDoc, document
+from archself.reports.render import environment
 
 __all__ = ["campaign_report", "summary_text"]
 
@@ -64,7 +68,6 @@ def summary_text(s: CampaignSummary) -> str:
 
 def _environment() -> Any:
     """The report templates' environment with this report's ``pct`` and ``num`` filters."""
-    from archself.reports.render import environment
 
     env = environment().overlay()
     env.filters = {**env.filters, "pct": _pct, "num": _num}  # not the shared dict
@@ -92,7 +95,6 @@ def campaign_report(
     OutputError
         If ``out_dir`` cannot be written.
     """
-    from archself.campaign.results import read_results
     from archself.reports.architecture import new_folder
 
     table, meta = read_results(results)
@@ -106,8 +108,6 @@ def campaign_report(
 
 def _write(out: Path, summary: Any, rows: list[dict[str, Any]], results: str | Path,
            formats: tuple[str, ...], dpi: int) -> None:
-    from archself.campaign import figures as fig
-    from archself.io.files import write_text
     from archself.reports.figures import shown_formats, write_figure
 
     names = [b["scenario"] for b in summary.scenarios]

@@ -49,6 +49,9 @@ from pathlib import Path
 from typing import Any
 
 from archself.campaign.sweep import CampaignError
+from archself.io.files import write_bytes
+from archself.io.html import card, table
+from archself.io.jsondata import CampaignMeta, JsonLimitError, document, loads, problem
 
 __all__ = ["META_KEY", "OLD_METRIC_COLUMNS", "read_results", "results_schema", "summary_frame",
            "write_results"]
@@ -90,8 +93,6 @@ def results_schema(sweep_paths: Sequence[str], meta: dict[str, Any] | None = Non
     """The :class:`pyarrow.Schema` of a campaign's results table."""
     import pyarrow as pa
 
-    from archself.io.jsondata import CampaignMeta, document
-
     cols = _BEFORE + [(p, "float64") for p in sweep_paths] + _AFTER
     fields = [pa.field(name, _type(pa, t)) for name, t in cols]
     doc = document(CampaignMeta, meta or {})
@@ -114,8 +115,6 @@ def write_results(
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from archself.io.files import write_bytes
-
     ordered = sorted(rows, key=lambda r: (
         r["scenario"], tuple(r[p] for p in sweep_paths), r["replicate"], r["mode"]))
     table = pa.Table.from_pylist(ordered, schema=results_schema(sweep_paths, meta))
@@ -134,8 +133,6 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from archself.io.jsondata import CampaignMeta, JsonLimitError, loads, problem
 
     p = Path(path)
     if not p.is_file():
@@ -254,7 +251,6 @@ def outcome_html(outcome: Any) -> str:
     The counts, and per scenario and mode the median errors (from the results file,
     at most :data:`archself.io.html.MAX_ROWS` rows).
     """
-    from archself.io.html import card, table
 
     rows = [("results", outcome.out), ("runs", f"{outcome.rows} in the file: {outcome.ran} ran, "
                                       f"{outcome.skipped} kept, {outcome.failed} failed"),

@@ -39,6 +39,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from archself.errors import ArchselfError
+from archself.model.architecture import Architecture
+from archself.model.loader import dotted
+from archself.model.messages import schema_findings
 
 __all__ = [
     "CampaignError",
@@ -124,8 +127,6 @@ def parse_path(text: str) -> Path_:
 
 
 def _where(path: Path_, k: int) -> str:
-    from archself.model.loader import dotted
-
     return dotted(path[: k + 1]) or "<root>"
 
 
@@ -305,8 +306,6 @@ def apply_values(
     """
     from pydantic import ValidationError
 
-    from archself.model.architecture import Architecture
-
     out = data
     for s, v in zip(sweeps, point, strict=True):
         out = set_path(out, s.keys, v)
@@ -314,7 +313,6 @@ def apply_values(
         return Architecture.model_validate(out)
     except ValidationError as exc:
         err = exc.errors()[0]
-        from archself.model.loader import dotted
 
         for s in sweeps:  # a new last key that the model refuses: most likely a typo
             parent = get_path(data, s.keys[:-1])
@@ -329,7 +327,6 @@ def apply_values(
 
         setting = ", ".join(f"{s.path}={v:g}" for s, v in zip(sweeps, point, strict=True))
         if source is not None:  # located and worded as the loader's (not a union member's)
-            from archself.model.messages import schema_findings
 
             found = schema_findings(out, exc, source)
             if found:
@@ -349,8 +346,6 @@ def _model_keys(keys: Path_) -> list[str]:
     import typing
 
     from pydantic import BaseModel
-
-    from archself.model.architecture import Architecture
 
     def models(tp: Any) -> list[Any]:
         """The classes a field's annotation may hold (Optional, Union, Annotated unwrapped)."""

@@ -19,7 +19,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from archself.campaign.sweep import Sweep
+from archself.campaign.sweep import Sweep, apply_values
 
 __all__ = ["Job", "RunJob", "run_error", "run_job", "run_unit", "summarize_run"]
 
@@ -74,8 +74,6 @@ class RunJob:
             _TEXTS.clear()  # one campaign at a time
             _TEXTS[self.arch_digest] = loaded
         if self.sweeps:
-            from archself.campaign.sweep import apply_values
-
             arch = apply_values(loaded.data, self.sweeps, self.point, self.file)
         else:
             arch = loaded.arch

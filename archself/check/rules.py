@@ -41,10 +41,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
+from archself import registry
 from archself.findings import Finding
 from archself.io.yaml_source import Path_, describe, dotted
 from archself.model.architecture import EXITS, Architecture, Parameter
 from archself.model.loader import Loaded, gc_paused
+from archself.system.dataflow import algebraic_loop
 
 __all__ = [
     "Context", "MAX_MODULE_BYTES", "MAX_RUN_BYTES", "MAX_RUN_STEPS", "MAX_RUN_WORK",
@@ -61,8 +63,6 @@ class Context:
     """A loaded architecture under check: ``arch``, ``src``, ``types`` (name → class), ``out``."""
 
     def __init__(self, loaded: Loaded) -> None:
-        from archself import registry
-
         self.arch: Architecture = loaded.arch
         self.src = loaded.source
         self.out: list[Finding] = []
@@ -112,8 +112,6 @@ def _known_types_text(key: str, known: list[str]) -> str:
 
 
 def check_types(ctx: Context) -> None:
-    from archself import registry
-
     known = registry.known_types()
     legacy: set[str] = set()
     for name, mod in ctx.arch.modules.items():
@@ -577,7 +575,6 @@ def _inputs(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, A
 
 def _flow(ctx: Context, cname: str, names: list[str], edges: list[tuple[int, Any]]) -> None:
     """The data flow of a configuration: no algebraic loop, connected, within the budgets."""
-    from archself.system.dataflow import algebraic_loop
 
     arch = ctx.arch
     base: Path_ = ("configurations", cname)

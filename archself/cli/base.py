@@ -22,13 +22,13 @@ from typing import Annotated, Any
 
 import typer
 
-from archself.errors import ArchselfError
+from archself import __version__
+from archself.errors import ArchselfError, Terminated, raise_terminated, unknown
+from archself.resources import single_thread_blas
 
 
 def _version(value: bool) -> None:
     if value:
-        from archself import __version__
-
         typer.echo(f"archself {__version__}")
         raise typer.Exit()
 
@@ -487,8 +487,6 @@ def _numeric_warning(w: Any) -> bool:
 def _known_configuration(arch: Any, config: str | None, path: Path) -> None:
     """``--config`` must name a configuration of the file (one-line error, exit 1)."""
     if config is not None and config not in arch.configurations:
-        from archself.errors import unknown
-
         raise _fail(f"{path}: {unknown('configuration', config, arch.configurations)}")
 
 
@@ -549,14 +547,11 @@ def register(names: Any = None, into: typer.Typer | None = None) -> typer.Typer:
 
 def main() -> None:
     """Entry point of the ``archself`` script: the command named, else every command, runs."""
-    from archself.resources import single_thread_blas
 
     single_thread_blas()  # before numpy loads: small matrices, no use for BLAS threads
     first = sys.argv[1] if len(sys.argv) > 1 else None  # `archself --help x`: every command
     cli = register([first], _new_app()) if first in COMMANDS else register()
     import signal
-
-    from archself.errors import Terminated, raise_terminated
 
     signal.signal(signal.SIGTERM, raise_terminated)  # the clean-up of Ctrl-C, exit 143
     def stopped(exc: KeyboardInterrupt) -> SystemExit:

@@ -19,8 +19,10 @@ from archself.cli.base import (
     _load,
     _read_stdin,
     guard,
+    numeric_lines,
 )
-from archself.errors import ArchselfError
+from archself.errors import ArchselfError, unknown
+from archself.resources import data_dir
 
 
 def validate(
@@ -115,7 +117,6 @@ def _stability_table(loaded: object, asked: bool) -> list | None:
 
 def _warning_findings(caught: list, file: str) -> list:
     """numpy/scipy warnings of a check as findings (once each): no warning text on the terminal."""
-    from archself.cli.base import numeric_lines
     from archself.findings import Finding
 
     lines = numeric_lines(caught, lambda w, text: "numeric trouble while checking: "
@@ -226,7 +227,6 @@ def _template_text(template: str, name: str, file_name: str, schema: str) -> str
     import re
 
     from archself.reports.render import render, yaml_string
-    from archself.resources import data_dir
 
     folder, _, file = TEMPLATES[template][1].partition("/")
     if folder == "templates":
@@ -348,8 +348,6 @@ def export(
     from archself.reports.export import FORMATS
 
     if to not in FORMATS:
-        from archself.errors import unknown
-
         raise _fail(f"error: --to: {unknown('format', to, FORMATS)}", 2)
     with guard(arch, refuse=[("--output", output)], numeric=False):
         from archself.reports.export import export as export_text

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from archself.cli.base import _fail, _known_configuration, _load, guard
-from archself.errors import ArchselfError
+from archself.errors import ArchselfError, Terminated
 
 
 def live(
@@ -157,7 +157,6 @@ def _result(name: str, start: str, loop: Any, measurements: int) -> dict[str, An
 
 def _ending(exc: BaseException) -> str:
     """How a live run ended, for the log's ``meta.ended``."""
-    from archself.errors import Terminated
 
     if isinstance(exc, Terminated):
         return "terminated (SIGTERM)"

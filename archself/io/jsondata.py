@@ -55,6 +55,8 @@ from pydantic.functional_validators import PlainValidator, model_validator
 from pydantic.json_schema import WithJsonSchema
 
 from archself import __version__
+from archself.errors import ArchselfError
+from archself.io.yaml_source import MAX_INT_DIGITS
 
 __all__ = ["CampaignDoc", "CampaignMeta", "CampaignReportDoc", "ChosenDoc", "DecisionLog",
            "DecisionRecordDoc", "EvaluationDoc", "ExplainDoc", "InfoDoc", "JobDoc",
@@ -70,8 +72,6 @@ class JsonLimitError(ValueError):
 
 
 def _int(digits: str) -> int:
-    from archself.io.yaml_source import MAX_INT_DIGITS
-
     if len(digits) > MAX_INT_DIGITS:
         raise JsonLimitError(f"an integer of {len(digits.lstrip('-')):,} digits (at most "
                              f"{MAX_INT_DIGITS:,})")
@@ -885,7 +885,6 @@ def document(tp: Any, data: Any, root: str = "", *, complete: bool = False,
     >>> document(ChosenDoc, {"to": "b", "action": "x", "z": float("nan"), "from": "a"})
     {'action': 'x', 'z': None, 'from': 'a', 'to': 'b'}
     """
-    from archself.errors import ArchselfError
 
     if isinstance(tp, type) and issubclass(tp, BaseModel) and not isinstance(data, Mapping | list):
         data = {k: getattr(data, k) for k in tp.model_fields if hasattr(data, k)}

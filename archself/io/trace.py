@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from archself.errors import TraceError
+from archself.io.files import path_problem, write_bytes
 from archself.io.jsondata import (
     DecisionLog,
     JsonLimitError,
@@ -106,7 +107,6 @@ def write_trace(result: Any, path: str | Path) -> None:
     OutputError
         If the file cannot be written.
     """
-    from archself.io.files import write_bytes
 
     write_bytes(path, parquet_bytes(result) if is_parquet_name(path)
                 else json_text(result).encode("utf-8"))
@@ -184,7 +184,6 @@ def read_trace_parts(path: str | Path) -> TraceParts:
     TraceError
         ``PATH: error: not an archself trace (…)`` for any other file.
     """
-    from archself.io.files import path_problem
 
     problem = path_problem(path)
     if problem is not None:

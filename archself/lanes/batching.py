@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from archself import registry
 from archself.errors import SimulationError
 from archself.lanes.module import LaneModule, PerLane
 
@@ -24,7 +25,6 @@ def batched_types(arch: Any) -> bool:
     way) and hold more memory, so campaigns and calibrations batch by default only files
     for which this holds (all three shipped files do).
     """
-    from archself import registry
 
     return all(
         getattr(registry.get(spec.type), "lanes", None) is not None

@@ -39,6 +39,7 @@ import numpy as np
 
 from archself.errors import SimulationError
 from archself.modules.base import RuntimeModule
+from archself.system.live import is_bad
 
 __all__ = ["ALL", "LaneModule", "LaneNormals", "PerLane", "lane_count", "row", "stack"]
 
@@ -295,7 +296,6 @@ class PerLane(LaneModule):
 
     def _collect(self, lanes, call) -> dict[str, Any]:
         """``call(instance, j)`` for the ``j``-th lane of ``lanes``; the outputs stacked."""
-        from archself.system.live import is_bad
 
         outs: list[dict[str, Any]] = []
         for j, i in enumerate(self.indices(lanes).tolist()):

@@ -32,6 +32,8 @@ from typing import Any
 
 from archself.live.system import LiveError, MeasuredSystem
 from archself.model.architecture import Architecture
+from archself.reports.export import _mode_name
+from archself.runtime.mapek import MapeK
 
 __all__ = ["Command", "LiveLoop", "MAX_JUMP_PERIODS", "live_problems"]
 
@@ -102,7 +104,6 @@ class Command:
         >>> Command(1.0, "parameters", "raise-gain", "pi", "p1", "p1").ros2_mode("x")
         ('pi', 'RAISE_GAIN')
         """
-        from archself.reports.export import _mode_name
 
         if self.kind == "configuration":
             return _mode_name(system).lower(), _mode_name(self.configuration)
@@ -252,8 +253,6 @@ class LiveLoop:
         rollout: str = "refuse",
         on_command: Callable[[Command], Any] | None = None,
     ) -> None:
-        from archself.runtime.mapek import MapeK
-
         if rollout not in ("refuse", "reject"):
             raise LiveError(f"rollout must be 'refuse' or 'reject', not {rollout!r}")
         self.arch = arch

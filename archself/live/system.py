@@ -44,7 +44,7 @@ from archself.errors import ArchselfError
 from archself.linear.closed_loop import ClosedLoop
 from archself.model.architecture import Architecture
 from archself.modules.base import RuntimeModule
-from archself.system.live import component_error, objective_norm
+from archself.system.live import compile_system, component_error, objective_norm
 
 __all__ = ["LiveError", "MeasuredSystem", "ModelSnapshot", "NO_ROLLOUT"]
 
@@ -142,8 +142,6 @@ class MeasuredSystem:
         self, arch: Architecture, configuration: str | None = None, *, seed: int = 0,
         max_jump_s: float | None = None,
     ) -> None:
-        from archself.system.live import compile_system
-
         self.arch = arch
         self.dt = float(arch.runtime.step_s)
         self.t = 0.0

@@ -6,6 +6,8 @@ import json
 from functools import cache
 from typing import Any
 
+from archself.registry import _points
+
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 SCHEMA_ID = "https://archself.dev/schemas/architecture.schema.json"
 
@@ -41,7 +43,6 @@ def module_types(installed: bool = True) -> list[str]:
     With ``installed=False`` only the types of the archself distribution itself (the
     checked-in schema, the same on every machine).
     """
-    from archself.registry import _points
 
     return sorted(name for name, ep in _points().items()
                   if installed or getattr(ep.dist, "name", None) == BUILTIN_DIST)

@@ -9,6 +9,9 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from archself.model.schema import architecture_schema
+from archself.reports.render import render
+
 
 def _type(s: dict[str, Any]) -> str:
     if "$ref" in s:
@@ -50,8 +53,6 @@ def _cell(text: Any) -> str:
 
 def format_reference() -> str:
     """Markdown reference of every object of the architecture file format."""
-    from archself.model.schema import architecture_schema
-    from archself.reports.render import render
 
     schema = architecture_schema(installed=False)
     defs = schema.get("$defs", {})
@@ -84,8 +85,6 @@ def cli_reference(cli: Any) -> str:
     """
     import typer
     import typer.main
-
-    from archself.reports.render import render
 
     group: Any = typer.main.get_command(cli) if isinstance(cli, typer.Typer) else cli
     ctx = group.make_context("archself", [], resilient_parsing=True)

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.io.files import write_bytes
 from archself.reports.run import RunReport
 from archself.sim.plot import (
     COLORS,
@@ -108,7 +109,6 @@ def shown_formats(formats: Sequence[str]) -> tuple[str, tuple[str, ...]]:
 
 def write_figure(out: Path, stem: str, fig: Any, formats: Sequence[str], dpi: int) -> None:
     """``fig`` as ``out/stem.<format>`` in every one of ``formats`` (atomic files)."""
-    from archself.io.files import write_bytes
 
     for fmt in formats:
         write_bytes(out / f"{stem}.{fmt}", figure_bytes(fig, fmt, dpi))

@@ -25,6 +25,8 @@ import re
 import unicodedata
 from typing import Any
 
+from archself.resources import data_dir
+
 __all__ = [
     "csv_field", "dot_label", "dot_quote", "md_cell", "num", "render", "slug", "yaml_string",
 ]
@@ -143,8 +145,6 @@ def environment() -> Any:
     """The sandboxed Jinja environment over ``templates/`` (built once)."""
     from jinja2 import FileSystemLoader, StrictUndefined, select_autoescape
     from jinja2.sandbox import SandboxedEnvironment
-
-    from archself.resources import data_dir
 
     env = SandboxedEnvironment(
         loader=FileSystemLoader(str(data_dir("templates"))),

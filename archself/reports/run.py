@@ -27,6 +27,10 @@ from typing import Any
 
 import numpy as np
 
+from archself import __version__
+from archself.errors import TraceError
+from archself.io.html import card, table
+from archself.io.jsondata import RunReportSummary, document
 from archself.model.architecture import Architecture
 
 __all__ = ["DecisionRow", "Rejection", "RunReport", "RunSummary", "build_run_report",
@@ -142,7 +146,6 @@ class RunReport:
 
     def _repr_html_(self) -> str:
         """A short card for notebooks: each run's path and worst error, the decision log's size."""
-        from archself.io.html import card, table
 
         unit = f" [{self.unit}]" if self.unit else ""
         runs = table(["mode", "configurations", f"max error{unit}"], [
@@ -158,8 +161,6 @@ class RunReport:
 
     def summary(self) -> dict[str, Any]:
         """Deterministic plain-JSON summary (``summary.json`` of the run report)."""
-        from archself import __version__
-        from archself.io.jsondata import RunReportSummary, document
 
         return document(RunReportSummary, _round({
             "archself_version": __version__,
@@ -364,7 +365,6 @@ def _settings(
                      "components": list(arch.runtime.objective.components)}
         return (ctx, arch.name, objective, arch.runtime.objective.unit,
                 float(arch.runtime.period_s), list(arch.modules))
-    from archself.errors import TraceError
 
     if not isinstance(meta.get("report"), dict) or "objective" not in meta:
         raise TraceError("error: the trace does not hold the run report's settings "

@@ -26,6 +26,7 @@ from archself.model.architecture import Architecture
 from archself.reports.architecture import new_folder
 from archself.reports.render import render
 from archself.reports.run import RunReport, build_run_report
+from archself.sim.result import metric_rows
 
 __all__ = ["write_run_report"]
 
@@ -52,7 +53,6 @@ def write_run_report(arch: Architecture | None, results: list[Any], out_dir: str
 def _write(arch: Architecture | None, results: list[Any], out: Path,
            formats: tuple[str, ...], dpi: int) -> RunReport:
     from archself.reports import figures
-    from archself.sim.result import metric_rows
 
     rep = build_run_report(arch, results)
     shown, fmts = figures.shown_formats(formats)

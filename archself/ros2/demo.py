@@ -31,7 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from archself.errors import ArchselfError
 from archself.model.architecture import Architecture
+from archself.model.loader import load_architecture
 from archself.reports.export import node_modules
 from archself.ros2.base import Ros2Error, require_rclpy
 from archself.ros2.topics import (
@@ -319,8 +321,6 @@ def _percentiles(xs: list[float]) -> dict[str, float] | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m archself.ros2.demo ARCH --scenario S``: run the demo plant (exit 1 on error)."""
-    from archself.errors import ArchselfError
-    from archself.model.loader import load_architecture
 
     ap = argparse.ArgumentParser(prog="python -m archself.ros2.demo")
     ap.add_argument("arch")

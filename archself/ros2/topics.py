@@ -34,6 +34,8 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from archself.model.architecture import Architecture
+from archself.registry import get
+from archself.reports.export import _ros_value
 
 PREFIX = "/archself"
 DECISIONS = f"{PREFIX}/decisions"
@@ -81,7 +83,6 @@ def measured_signals(arch: Architecture) -> tuple[list[tuple[str, str]], list[tu
     The outputs are those the module types declare (``outputs``); the residual
     signals are each module's ``residual.signal``.
     """
-    from archself.registry import get
 
     outputs = [(m, str(s)) for m, mod in arch.modules.items()
                for s in getattr(get(mod.type), "outputs", ())]
@@ -150,7 +151,6 @@ def transitions(
 
 def parameter_value(v: Any) -> Any:
     """A value a ROS 2 parameter can hold (numbers as float, flat lists, else JSON text)."""
-    from archself.reports.export import _ros_value
 
     v = _ros_value(v)
     if isinstance(v, int) and not isinstance(v, bool):

@@ -14,7 +14,15 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import is_dataclass
 from typing import Any
 
-from archself.io.jsondata import json_kind, jsonable
+from archself.errors import TraceError
+from archself.io.jsondata import (
+    DecisionLog,
+    DecisionRecordDoc,
+    document,
+    json_kind,
+    jsonable,
+    problem,
+)
 
 __all__ = ["explain", "explain_data"]
 
@@ -31,7 +39,6 @@ def _fmt(x: Any, spec: str = ".3g") -> str:
 
 def _as_dict(d: Any) -> dict[str, Any]:
     """A record as plain data."""
-    from archself.io.jsondata import DecisionRecordDoc, document
 
     return dict(d) if isinstance(d, Mapping) else dict(document(DecisionRecordDoc, d))
 
@@ -44,7 +51,6 @@ def decision_log_problem(decisions: Any) -> str | None:
     :data:`archself.io.jsondata.DecisionLog`: a field may be missing, but one that is
     there has its type.
     """
-    from archself.io.jsondata import DecisionLog, problem
 
     if isinstance(decisions, str | bytes | Mapping) or not isinstance(decisions, Iterable):
         hint = (" (a run's are its .decisions; a trace's: read_trace(path).decisions)"
@@ -61,8 +67,6 @@ def _records(decisions: Any) -> list[dict[str, Any]]:
         decisions = list(decisions)
     problem = decision_log_problem(decisions)
     if problem is not None:
-        from archself.errors import TraceError
-
         raise TraceError(f"error: not a decision log: {problem}")
     return [_as_dict(d) for d in decisions]
 

@@ -119,7 +119,9 @@ import numpy as np
 
 from archself.contracts import ManagedSystem
 from archself.errors import ArchselfError
-from archself.io.jsondata import DecisionRecordDoc, EvaluationDoc, document
+from archself.io.files import read_text, write_text
+from archself.io.jsondata import DecisionRecordDoc, EvaluationDoc, document, loads
+from archself.io.trace import read_trace_parts
 from archself.model.architecture import Architecture
 from archself.model.architecture import Learning as LearningSettings
 from archself.runtime.identify_fit import delta_residuals, fit_target
@@ -555,8 +557,6 @@ class OutcomeTable:
         """Write the table as JSON (atomic)."""
         import json
 
-        from archself.io.files import write_text
-
         write_text(Path(path), json.dumps(self.to_dict(), indent=1) + "\n")
 
 
@@ -566,8 +566,6 @@ def load_table(path: str | Path) -> OutcomeTable:
     A trace (Parquet, or JSON with ``meta`` and ``series``) holds the table of its run
     in ``meta.knowledge.learned`` when ``runtime.learning`` was on.
     """
-    from archself.io.files import read_text
-    from archself.io.jsondata import loads
 
     try:
         with open(path, "rb") as fh:
@@ -590,7 +588,6 @@ def load_table(path: str | Path) -> OutcomeTable:
 
 def _table_of_trace(path: str | Path) -> OutcomeTable:
     """The learned table in a trace's ``meta.knowledge.learned`` (the trace checked)."""
-    from archself.io.trace import read_trace_parts
 
     meta = read_trace_parts(path).meta
     known = meta.get("knowledge")
@@ -915,7 +912,6 @@ class Online:
     def _apply_weights(self, t: float, pairs: dict, proposed: dict, window: list[float],
                        rows: int, notes: list[str]) -> bool:
         """Check the spectral rule on the whole W; apply and log, or reject all."""
-        from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
 
         trial = dict(pairs)
         trial.update({p: v[0] for p, v in proposed.items()})

@@ -50,6 +50,8 @@ from typing import Any
 import numpy as np
 
 from archself.contracts import ManagedSystem
+from archself.errors import SimulationError
+from archself.io.jsondata import DecisionLog, document
 from archself.model.architecture import Architecture
 from archself.runtime.influence import SourceEstimator, SourceFit
 from archself.runtime.knowledge import DecisionRecord, Knowledge, ValueMap, learning_of, online_of
@@ -109,8 +111,6 @@ class MapeK:
 
     def __init__(self, arch: Architecture, learned: Any = None) -> None:
         if not isinstance(arch, Architecture):
-            from archself.errors import SimulationError
-
             raise SimulationError(f"MapeK: expected an Architecture (archself.load(path)), "
                                   f"got {type(arch).__name__}")
         self.arch = arch
@@ -423,6 +423,5 @@ class MapeK:
     # ------------------------------------------------------------------ output
     def log(self) -> list[dict[str, Any]]:
         """The decision log as JSON data (:data:`~archself.io.jsondata.DecisionLog`)."""
-        from archself.io.jsondata import DecisionLog, document
 
         return list(document(DecisionLog, self.decisions, "decisions"))

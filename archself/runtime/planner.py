@@ -164,8 +164,10 @@ from typing import Any
 
 import numpy as np
 
+from archself import registry
 from archself.contracts import ManagedSystem, SystemSnapshot
 from archself.model.architecture import Action, Architecture, Risk, Runtime
+from archself.modules.base import Param
 from archself.runtime.knowledge import ActionEvaluation
 from archself.runtime.monitor import StatusMap, is_limit_violation
 from archself.runtime.stability import (
@@ -712,8 +714,6 @@ def declared_ranges(arch: Architecture) -> dict[tuple[str, str], tuple[Any, str]
     >>> spec.outside(-1.0), type_
     ('-1 is outside [0, ∞]', 'generic.relay')
     """
-    from archself import registry
-    from archself.modules.base import Param
 
     out: dict[tuple[str, str], tuple[Any, str]] = {}
     for a in arch.actions:

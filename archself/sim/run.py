@@ -32,7 +32,9 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError, unknown
-from archself.model.architecture import Architecture
+from archself.model.architecture import Architecture, split_ref
+from archself.model.loader import load_architecture
+from archself.registry import lookup
 from archself.sim.result import METRE_ALIASES, METRICS, RunResult, error_metrics, metric_rows
 from archself.system.live import compile_system, objective_norm
 
@@ -72,8 +74,6 @@ def _elements(arch: Architecture) -> dict[str, list[str]]:
     The objective names its module (``chassis.pose``); a recorded signal is the first
     module's (file order) whose type publishes it with names.
     """
-    from archself.model.architecture import split_ref
-    from archself.registry import lookup
 
     rt = arch.runtime
     types = {m: lookup(spec.type) for m, spec in arch.modules.items()}
@@ -272,8 +272,6 @@ def _plan(
         As :func:`simulate`.
     """
     if not isinstance(arch, Architecture):
-        from archself.model.loader import load_architecture
-
         arch = load_architecture(arch).arch
     assert isinstance(arch, Architecture)
     if seed is not None and (not isinstance(seed, int | np.integer) or isinstance(seed, bool)
