@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from archself.linear.designs import cached
@@ -34,7 +36,7 @@ def path_points(waypoints) -> np.ndarray:
     return pts
 
 
-def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
+def spline_path(waypoints, ds: float = 0.02) -> dict[str, Any]:
     """Arc-length table of a cubic spline through ``waypoints``.
 
     The spline (:class:`scipy.interpolate.CubicSpline`, not-a-knot) is
