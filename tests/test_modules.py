@@ -268,6 +268,25 @@ def test_a_run_with_cached_designs_imports_no_python_control_and_is_the_same(
     assert j1 == j2 and len(j1) > 1000
 
 
+def test_a_fixed_run_with_cached_designs_imports_no_scipy(tmp_path) -> None:
+    """A warm fixed diff-drive run needs no scipy: the gain and the spline path come from
+    the design cache, the whole-loop A of a small loop is dense (numpy), and no sparse
+    matrix is made (the first, cold process imports scipy to design them)."""
+    import os
+
+    code = (
+        "import sys\n"
+        "from archself.sim.run import simulate\n"
+        f"simulate({str(DIFFDRIVE)!r}, 'nominal', seed=1)\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'control'}))\n"
+    )
+    env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env=env) for _ in range(2)]
+    assert runs[0].stdout.split("\n")[-2] == "['control', 'scipy']", runs[0].stderr[-2000:]
+    assert runs[1].stdout.split("\n")[-2] == "[]", runs[1].stderr[-2000:]
+
+
 def test_the_spline_path_cache_gives_the_computed_table_to_the_bit(design_cache) -> None:
     """spline_path's miss (scipy), memo and file hit are the same arrays, bit for bit;
     another resolution is another entry; an entry of the wrong shape is made again."""
