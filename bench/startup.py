@@ -4,11 +4,13 @@ Per round, interleaved: the CPU (user + system, ``os.wait4``) of a fresh
 ``archself simulate FILE --scenario S`` process, then, in another fresh process,
 ``archself.load`` and ``simulate(..., adapt=MapeK(arch))`` (``--fixed``: ``adapt=None``)
 three times, timed with ``time.process_time()``: the run is the median of the last two
-(imports and the first run's caches not counted). The design cache (``ARCHSELF_CACHE_DIR``, else the user's) is
-warmed by one untimed process first. Prints per round and the medians; the ratio is
-whole / run. ``--tree DIR`` (repeatable) measures source trees side by side (a
-``git archive`` extract: the processes run in ``DIR``, with ``DIR`` and ``DIR/packs``
-first on ``PYTHONPATH``), one round of each in turn; default: the installed archself.
+(imports and the first run's caches not counted). The design cache
+(``ARCHSELF_CACHE_DIR``, else the user's) is warmed by one untimed process first.
+Prints per round and the medians; the ratio is whole / run.
+
+``--tree DIR`` (repeatable) measures source trees side by side (a ``git archive``
+extract: the processes run in ``DIR``, with ``DIR`` and ``DIR/packs`` first on
+``PYTHONPATH``), one round of each in turn; default: the installed archself.
 
 Usage::
 
