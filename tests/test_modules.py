@@ -201,9 +201,11 @@ def test_lqr_design_cache_hit_and_miss_give_the_same_gain_to_the_bit(design_cach
     assert entry.read_text().startswith('{"key": ')
 
 
-@pytest.mark.parametrize("damage", ["corrupt", "truncated", "foreign", "wrong shape"])
+@pytest.mark.parametrize("damage", ["corrupt", "truncated", "foreign", "wrong shape",
+                                    "not base64"])
 def test_a_damaged_or_foreign_design_entry_is_ignored_and_rewritten(design_cache,
                                                                    damage) -> None:
+    import base64
     import json
 
     from archself.linear import designs
@@ -211,11 +213,14 @@ def test_a_damaged_or_foreign_design_entry_is_ignored_and_rewritten(design_cache
     want = designs.lqr(*_design_inputs())
     (entry,) = design_cache.glob("*.json")
     good = json.loads(entry.read_text())
+    nines = {"shape": [2, 3], "data": base64.b64encode(np.full(6, 9.0).tobytes()).decode()}
     bad = {"corrupt": "not json {",
            "truncated": entry.read_text()[:40],
-           "foreign": json.dumps({**good, "key": "0" * 64,
-                                  "gain": [(9.0).hex()] * 6}),
-           "wrong shape": json.dumps({**good, "shape": [3, 2]})}[damage]
+           "foreign": json.dumps({**good, "key": "0" * 64, "arrays": {"gain": nines}}),
+           "wrong shape": json.dumps({**good, "arrays": {"gain": {**good["arrays"]["gain"],
+                                                                   "shape": [3, 2]}}}),
+           "not base64": json.dumps({**good, "arrays": {"gain": {**nines, "data": "?!"}}}),
+           }[damage]
     entry.write_text(bad)
     designs._MEMO.clear()
     got = designs.lqr(*_design_inputs())
@@ -240,8 +245,9 @@ def test_the_design_cache_can_be_switched_off_or_unwritable(design_cache, monkey
 def test_a_run_with_cached_designs_imports_no_python_control_and_is_the_same(
     tmp_path,
 ) -> None:
-    """Two processes with one design cache: the first designs (python-control), the
-    second reads the gains and never imports python-control; the traces are equal."""
+    """Two processes with one design cache: the first designs (python-control, the
+    spline path with scipy.interpolate), the second reads the gains and the path and
+    imports neither; the traces are equal."""
     import os
 
     code = (
@@ -250,14 +256,64 @@ def test_a_run_with_cached_designs_imports_no_python_control_and_is_the_same(
         "from archself.sim.run import simulate\n"
         f"res = simulate({str(DIFFDRIVE)!r}, 'imu_drift', seed=2)\n"
         "sys.stdout.write(np.asarray(res.series['J'], dtype=float).tobytes().hex()\n"
-        "                 + ' ' + str('control' in sys.modules))\n"
+        "                 + ' ' + str('control' in sys.modules)\n"
+        "                 + ' ' + str('scipy.interpolate' in sys.modules))\n"
     )
     env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
     runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                            env=env) for _ in range(2)]
-    (j1, imported1), (j2, imported2) = (r.stdout.split() for r in runs)
-    assert (imported1, imported2) == ("True", "False"), runs[1].stderr[-2000:]
+    (j1, *imported1), (j2, *imported2) = (r.stdout.split() for r in runs)
+    assert imported1 == ["True", "True"], runs[0].stderr[-2000:]
+    assert imported2 == ["False", "False"], runs[1].stderr[-2000:]
     assert j1 == j2 and len(j1) > 1000
+
+
+def test_a_fixed_run_with_cached_designs_imports_no_scipy(tmp_path) -> None:
+    """A warm fixed diff-drive run needs no scipy: the gain and the spline path come from
+    the design cache, the whole-loop A of a small loop is dense (numpy), and no sparse
+    matrix is made (the first, cold process imports scipy to design them)."""
+    import os
+
+    code = (
+        "import sys\n"
+        "from archself.sim.run import simulate\n"
+        f"simulate({str(DIFFDRIVE)!r}, 'nominal', seed=1)\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'control'}))\n"
+    )
+    env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env=env) for _ in range(2)]
+    assert runs[0].stdout.split("\n")[-2] == "['control', 'scipy']", runs[0].stderr[-2000:]
+    assert runs[1].stdout.split("\n")[-2] == "[]", runs[1].stderr[-2000:]
+
+
+def test_the_spline_path_cache_gives_the_computed_table_to_the_bit(design_cache) -> None:
+    """spline_path's miss (scipy), memo and file hit are the same arrays, bit for bit;
+    another resolution is another entry; an entry of the wrong shape is made again."""
+    import json
+
+    from archself.linear import designs
+    from archself_diffdrive.planner import _spline_table, path_points, spline_path
+
+    wp = [[0, 0], [10, 5], [20, 0], [30, -5], [40, 0]]
+    want = _spline_table(path_points(wp), 0.05)
+    miss = spline_path(wp, 0.05)
+    (entry,) = design_cache.glob("*.json")
+    designs._MEMO.clear()
+    hit = spline_path(wp, 0.05)
+    for k in ("s", "x", "y", "theta", "kappa"):
+        assert miss[k].tobytes() == want[k].tobytes() == hit[k].tobytes(), k
+        assert not hit[k].flags.writeable
+    assert miss["length"] == hit["length"] == float(want["length"]) > 40.0
+    assert len(hit["s"]) == len(want["s"]) > 800
+    spline_path(wp, 0.1)
+    assert len(list(design_cache.glob("*.json"))) == 2
+    good = json.loads(entry.read_text())
+    short = {**good["arrays"]["x"], "shape": [3]}  # rows of unequal length
+    entry.write_text(json.dumps({**good, "arrays": {**good["arrays"], "x": short}}))
+    designs._MEMO.clear()
+    assert spline_path(wp, 0.05)["x"].tobytes() == want["x"].tobytes()
+    assert json.loads(entry.read_text()) == good
 
 
 def test_lqr_linearization_is_stable_and_updates():

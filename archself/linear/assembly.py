@@ -10,13 +10,15 @@ matrices.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-import scipy.sparse
 
 from archself.linear.discrete import LinearizationError
 from archself.modules.base import LinearModel
+
+if TYPE_CHECKING:  # scipy is imported where a large loop needs it, not with the system
+    import scipy.sparse
 
 __all__ = ["Wire", "feedback_slices", "interconnect_sparse", "port_offsets"]
 
@@ -107,6 +109,7 @@ def interconnect_sparse(
     The block diagonals of A, B, C and D are assembled from arrays: the models are
     grouped by shape and each group's blocks are stacked and placed at once.
     """
+    import scipy.sparse
     from scipy.sparse.csgraph import connected_components
 
     xo, uo, yo = offsets

@@ -15,12 +15,15 @@ mode with the modules' shares of it (:meth:`ClosedLoop.worst_mode`).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse
+
+if TYPE_CHECKING:  # scipy is imported where a sparse matrix is made, not with the system
+    import scipy.sparse
 
 __all__ = ["ClosedLoop", "Interconnection", "LAMBDA_FLOOR", "WholeLoop", "block_diag",
            "eigenvalues", "modal_form"]
@@ -28,6 +31,12 @@ __all__ = ["ClosedLoop", "Interconnection", "LAMBDA_FLOOR", "WholeLoop", "block_
 
 #: Floor of |λ| when mapping a discrete eigenvalue to ln|λ|/dt (a pure delay has λ = 0).
 LAMBDA_FLOOR = 1e-12
+
+
+def issparse(A: Any) -> bool:
+    """``scipy.sparse.issparse(A)`` without importing scipy (no sparse matrix without it)."""
+    sparse = sys.modules.get("scipy.sparse")
+    return sparse is not None and sparse.issparse(A)
 
 
 def eigenvalues(A: np.ndarray | scipy.sparse.spmatrix) -> np.ndarray:
@@ -44,9 +53,10 @@ def eigenvalues(A: np.ndarray | scipy.sparse.spmatrix) -> np.ndarray:
     >>> sorted(eigenvalues(A).round(6).tolist(), key=lambda z: (z.real, z.imag))
     [-2j, 2j, (0.5+0j)]
     """
-    if not scipy.sparse.issparse(A):
+    if not issparse(A):
         A = np.atleast_2d(np.asarray(A, dtype=float))
         return np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
+    import scipy.sparse
     from scipy.sparse.csgraph import connected_components
 
     A = scipy.sparse.csr_matrix(A)
@@ -76,7 +86,7 @@ def modal_form(Ad: np.ndarray, dt: float) -> np.ndarray:
     >>> modal_form(np.array([[0.5]]), 0.1).round(4).tolist()
     [[-6.9315]]
     """
-    if scipy.sparse.issparse(Ad):
+    if issparse(Ad):
         return _modal_sparse(eigenvalues(Ad), dt)
     lam = np.linalg.eigvals(np.atleast_2d(Ad)) if Ad.size else np.zeros(0)
     blocks = []
@@ -104,6 +114,8 @@ def _modal_sparse(lam: np.ndarray, dt: float) -> scipy.sparse.csr_matrix:
     cols = [start, start[pair] + 1, start[pair], start[pair] + 1]
     vals = [a, w[pair], -w[pair], a[pair]]
     size = int(width.sum())
+    import scipy.sparse
+
     return scipy.sparse.csr_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
     )
@@ -111,7 +123,9 @@ def _modal_sparse(lam: np.ndarray, dt: float) -> scipy.sparse.csr_matrix:
 
 def block_diag(blocks: Sequence[Any]) -> Any:
     """The blocks on a diagonal: sparse if any block is, else dense."""
-    if any(scipy.sparse.issparse(b) for b in blocks):
+    if any(issparse(b) for b in blocks):
+        import scipy.sparse
+
         return scipy.sparse.block_diag(blocks, format="csr")
     size = sum(b.shape[0] for b in blocks)
     out = np.zeros((size, size))
@@ -183,7 +197,7 @@ class ClosedLoop:
         """
         best: tuple[float, float | None, list[tuple[str, float]]] | None = None
         loop = self.loop
-        if loop is not None and loop.A.shape[0] and scipy.sparse.issparse(loop.A):
+        if loop is not None and loop.A.shape[0] and issparse(loop.A):
             best = _worst_sparse(loop)
         elif loop is not None and loop.A.shape[0]:  # dense
             lam, vec = np.linalg.eig(loop.A)
@@ -210,6 +224,7 @@ def _worst_sparse(loop: Interconnection) -> tuple[float, float, list[tuple[str, 
     mode's states in that component; its echo in the components downstream is
     not counted).
     """
+    import scipy.sparse
     from scipy.sparse.csgraph import connected_components
 
     A = scipy.sparse.csr_matrix(loop.A)
@@ -307,6 +322,8 @@ class WholeLoop:
         ``|λ(A)|^(1/steps)``; a mode is marginal within ``tol`` of 1, unstable above.
         One mode per complex pair.
         """
+        import scipy.sparse
+
         A = scipy.sparse.csr_matrix(self.A)
         n = A.shape[0]
         if n == 0:

@@ -1,28 +1,33 @@
-"""Controller designs computed once: in the process, and across processes on disk.
+"""Designs computed once: in the process, and across processes on disk.
 
-:func:`lqr` is ``control.lqr`` (python-control designs every gain) behind two caches,
-both keyed by the exact design inputs — the bytes, shapes and dtypes of ``A``, ``B``,
-``Q``, ``R`` and python-control's version:
+A design is a pure function of numeric inputs whose result is a few named float
+arrays: :func:`lqr` (``control.lqr``: python-control designs every gain) and, through
+:func:`cached`, any other (the diff-drive pack's spline path, ``scipy.interpolate``).
+Both caches are keyed by the exact design inputs — the design's name, the version of the
+library that computes it, the bytes, shapes and dtypes of the input arrays:
 
-* an in-process memo: a campaign worker's runs and a batch's lanes share a gain;
-* a persistent cache, one small JSON file per design with the gain's entries as
-  ``float.hex`` (bit-exact), in ``$ARCHSELF_CACHE_DIR``, else
+* an in-process memo: a campaign worker's runs and a batch's lanes share a design;
+* a persistent cache, one small JSON file per design with each array's bytes
+  (little-endian float64, base64: bit-exact), in ``$ARCHSELF_CACHE_DIR``, else
   ``$XDG_CACHE_HOME/archself``, else ``~/.cache/archself`` (folder ``designs``). A hit
-  needs neither python-control nor scipy: a plain ``archself simulate`` of a file whose
-  gains were designed before does not import them (≈ 0.7 s of a process).
-  ``ARCHSELF_CACHE=off`` switches it off. Entries are written atomically
-  (:mod:`archself.io.files`); one that cannot be read, is corrupt or was written for
-  other inputs is ignored and the gain designed again (and the entry rewritten); a
-  cache folder that cannot be written is no error (the gain is designed per process).
+  imports neither the library nor scipy: a plain ``archself simulate`` of a file whose
+  designs were computed before imports neither python-control (≈ 0.7 s of a process)
+  nor scipy.interpolate (≈ 0.35 s). ``ARCHSELF_CACHE=off`` switches it off. Entries are
+  written atomically (:mod:`archself.io.files`); one that cannot be read, is corrupt or
+  was written for other inputs is ignored and the design computed again (and the entry
+  rewritten); a cache folder that cannot be written is no error (the design is computed
+  per process).
 
-A hit and a miss give the same gain to the bit (tests/test_modules.py).
+A hit and a miss give the same arrays to the bit (tests/test_modules.py).
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import json
 import os
+from collections.abc import Callable, Sequence
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -32,9 +37,11 @@ import numpy as np
 from archself.errors import ArchselfError
 from archself.io.files import write_text
 
-__all__ = ["cache_dir", "lqr"]
+__all__ = ["cache_dir", "cached", "lqr"]
 
-_MEMO: dict[str, np.ndarray] = {}
+Arrays = dict[str, np.ndarray]
+
+_MEMO: dict[str, Arrays] = {}
 
 
 def cache_dir() -> Path | None:
@@ -52,46 +59,90 @@ def cache_dir() -> Path | None:
 
 
 @cache
-def _control_version() -> str:
-    """python-control's version from its metadata (without importing it)."""
+def _version(distribution: str) -> str:
+    """The installed version of ``distribution`` from its metadata (without importing it)."""
     from importlib.metadata import PackageNotFoundError, version  # not at start-up
 
     try:
-        return version("control")
+        return version(distribution)
     except PackageNotFoundError:  # pragma: no cover - a declared dependency
         return "none"
 
 
-def _key(kind: str, *arrays: np.ndarray) -> str:
-    h = hashlib.sha256(f"{kind} control {_control_version()}".encode())
+def _key(design: str, library: str, arrays: Sequence[np.ndarray]) -> str:
+    # "base64": the entry's format (an older archself's float.hex entries have other keys)
+    h = hashlib.sha256(f"{design} {library} {_version(library)} base64".encode())
     for a in arrays:
         h.update(f"|{a.dtype.str}{a.shape}|".encode())
         h.update(a.tobytes())
     return h.hexdigest()
 
 
-def _read(path: Path, key: str) -> np.ndarray | None:
-    """The gain stored for ``key`` at ``path``; None if absent, unreadable or foreign."""
+def _read(path: Path, key: str) -> Arrays | None:
+    """The arrays stored for ``key`` at ``path``; None if absent, unreadable or foreign."""
     try:
         entry = json.loads(path.read_text(encoding="utf-8"))
         if entry.get("key") != key:
             return None
-        shape = tuple(int(n) for n in entry["shape"])
-        values = [float.fromhex(v) for v in entry["gain"]]
-        return np.array(values, dtype=float).reshape(shape)
+        return {name: np.frombuffer(base64.b64decode(a["data"], validate=True), dtype="<f8")
+                .astype(float).reshape(tuple(int(n) for n in a["shape"]))
+                for name, a in entry["arrays"].items()}
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return None
 
 
-def _write(path: Path, key: str, K: np.ndarray) -> None:
-    """Store ``K`` atomically; a folder that cannot be made or written is left alone."""
-    entry = {"key": key, "design": "control.lqr", "control": _control_version(),
-             "shape": list(K.shape), "gain": [float(v).hex() for v in K.ravel()]}
+def _write(path: Path, key: str, design: str, library: str, arrays: Arrays) -> None:
+    """Store ``arrays`` atomically; a folder that cannot be made or written is left alone."""
+    entry = {"key": key, "design": design, library: _version(library),
+             "arrays": {name: {"shape": list(a.shape), "data": base64.b64encode(
+                 np.ascontiguousarray(a, dtype="<f8").tobytes()).decode("ascii")}
+                 for name, a in arrays.items()}}
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_text(path, json.dumps(entry) + "\n")
     except (OSError, ArchselfError):
         pass
+
+
+def cached(design: str, library: str, inputs: Sequence[Any], compute: Callable[[], Arrays],
+           shapes: Callable[[Arrays], bool]) -> Arrays:
+    """The arrays ``compute()`` makes of ``inputs``, computed once (module doc).
+
+    Parameters
+    ----------
+    design : str
+        Name of the design (part of the key; change it when ``compute`` changes).
+    library : str
+        Distribution that computes it (its installed version is part of the key).
+    inputs : sequence of array_like
+        Every numeric input of the design (converted to float arrays for the key).
+    compute : callable
+        ``compute()`` → ``{name: float array}``: called on a miss only, so it is where
+        the library is imported.
+    shapes : callable
+        ``shapes(arrays)`` is True when a stored entry has the names and shapes of a
+        design of these inputs (an entry that fails is computed again).
+
+    Returns
+    -------
+    dict
+        ``{name: numpy.ndarray}``, read-only: shared by every caller.
+    """
+    key = _key(design, library, [np.ascontiguousarray(m, dtype=float) for m in inputs])
+    found = _MEMO.get(key)
+    if found is not None:
+        return found
+    folder = cache_dir()
+    path = None if folder is None else folder / f"{key}.json"
+    found = None if path is None else _read(path, key)
+    if found is None or not shapes(found):
+        found = {name: np.array(a, dtype=float) for name, a in compute().items()}
+        if path is not None:
+            _write(path, key, design, library, found)
+    for a in found.values():
+        a.setflags(write=False)
+    _MEMO[key] = found
+    return found
 
 
 def lqr(A: Any, B: Any, Q: Any, R: Any) -> np.ndarray:
@@ -109,19 +160,12 @@ def lqr(A: Any, B: Any, Q: Any, R: Any) -> np.ndarray:
     [[2.0]]
     """
     mats = [np.ascontiguousarray(m, dtype=float) for m in (A, B, Q, R)]
-    key = _key("lqr", *mats)
-    K = _MEMO.get(key)
-    if K is not None:
-        return K
-    folder = cache_dir()
-    path = None if folder is None else folder / f"{key}.json"
-    K = None if path is None else _read(path, key)
-    if K is None or K.shape != (mats[1].shape[1], mats[0].shape[0]):
+
+    def design() -> Arrays:
         import control
 
-        K = np.array(control.lqr(*mats)[0], dtype=float)
-        if path is not None:
-            _write(path, key, K)
-    K.setflags(write=False)
-    _MEMO[key] = K
-    return K
+        return {"gain": control.lqr(*mats)[0]}
+
+    shape = (mats[1].shape[1], mats[0].shape[0])
+    return cached("lqr", "control", mats, design,
+                  lambda found: set(found) == {"gain"} and found["gain"].shape == shape)["gain"]

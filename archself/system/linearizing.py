@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.sparse
 
 from archself.linear.closed_loop import WholeLoop
 from archself.linear.wiring import ClosedLoop, Wire, gc_paused, interconnect, loop_modules, wiring
@@ -300,9 +299,14 @@ class LoopProbes:
                         cols += [col] * nz.size
                         vals += d[nz].tolist()
         total = len(self.owners)
-        A: Any = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
-        if total <= DENSE_MAX:
-            A = A.toarray()
+        if total <= DENSE_MAX:  # dense, without scipy (a run need not import it)
+            A: Any = np.zeros((total, total))
+            np.add.at(A, (np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)),
+                      vals)
+        else:
+            import scipy.sparse
+
+            A = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(total, total))
         return WholeLoop(A, float(self.system.dt), int(probe.steps), self.owners, labels,
                          self.stateful, probe.problems)
 

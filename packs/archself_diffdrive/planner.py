@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from archself.linear.designs import cached
 from archself.modules.base import Param, RuntimeModule
 
 __all__ = ["SplinePlanner", "spline_path"]
@@ -33,12 +36,15 @@ def path_points(waypoints) -> np.ndarray:
     return pts
 
 
-def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
+def spline_path(waypoints, ds: float = 0.02) -> dict[str, Any]:
     """Arc-length table of a cubic spline through ``waypoints``.
 
     The spline (:class:`scipy.interpolate.CubicSpline`, not-a-knot) is
     parametrized by cumulative chord length, then resampled at equal arc-length
     steps ``ds`` so that a reference moving at constant speed is a table lookup.
+    A pure function of the distinct waypoints and ``ds``: computed once and kept in the
+    design cache (:func:`archself.linear.designs.cached`), so a later process reads the
+    table bit for bit and imports no scipy.interpolate.
 
     Parameters
     ----------
@@ -59,9 +65,25 @@ def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
     >>> round(float(p["length"]), 6), float(abs(p["kappa"]).max()) < 1e-9
     (10.0, True)
     """
+    pts = path_points(waypoints)
+    table = cached("spline_path", "scipy", [pts, [ds]], lambda: _spline_table(pts, ds),
+                   _is_table)
+    return {**{k: table[k] for k in _ROWS}, "length": float(table["length"])}
+
+
+_ROWS = ("s", "x", "y", "theta", "kappa")
+
+
+def _is_table(found: dict[str, np.ndarray]) -> bool:
+    """Whether a stored entry has the arrays of :func:`_spline_table` (rows of one length)."""
+    return (set(found) == {*_ROWS, "length"} and found["length"].shape == ()
+            and len({found[k].shape for k in _ROWS}) == 1 and found["s"].ndim == 1)
+
+
+def _spline_table(pts: np.ndarray, ds: float) -> dict[str, np.ndarray]:
+    """The arrays of :func:`spline_path` of the distinct points ``pts`` (scipy imported)."""
     from scipy.interpolate import CubicSpline
 
-    pts = path_points(waypoints)
     chord = np.r_[0.0, np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]
     bc = "not-a-knot" if len(pts) > 3 else "natural"
     cs = CubicSpline(chord, pts, axis=0, bc_type=bc)
@@ -85,7 +107,7 @@ def spline_path(waypoints, ds: float = 0.02) -> dict[str, np.ndarray]:
         "y": xy[:, 1],
         "theta": theta,
         "kappa": kappa,
-        "length": float(arc[-1]),
+        "length": np.array(arc[-1]),
     }
 
 
