@@ -32,9 +32,13 @@ import numpy as np
 
 from archself.errors import SimulationError, unknown
 from archself.lanes.module import ALL
+from archself.lanes.monitor import observe_group
 from archself.lanes.system import LaneSystem
+from archself.lanes.view import LaneView, lane_loop, lane_loops
 from archself.model.architecture import Architecture
 from archself.model.loader import gc_paused
+from archself.runtime.mapek import MapeK
+from archself.runtime.monitor import Monitor
 from archself.sim.result import RunResult
 from archself.sim.run import Recording
 from archself.system.live import compile_system
@@ -158,9 +162,6 @@ def _plan(
     lanes = LaneSystem(systems)
     plan = _Lanes(archs, start, lanes, Recording.of(first, scenario, lanes.n))
     if adapt:
-        from archself.lanes.view import LaneView
-        from archself.runtime.mapek import MapeK
-        from archself.runtime.monitor import Monitor
 
         make = MapeK if adapt is True else adapt
         plan.loops = loops = [make(a) for a in archs]
@@ -246,7 +247,6 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
     has ended (:meth:`LaneView.done`, in lane order), so the decisions are those of
     calls one after the other.
     """
-    from archself.lanes.monitor import observe_group
 
     lanes, loops, views = plan.lanes, plan.loops, plan.views
     assert loops is not None and views is not None
@@ -279,7 +279,6 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
 def _answers(requests: list[Any]) -> list[Any]:
     """The whole loops of the paused calls' checks, made together; a check that fails
     alone gets its exception (raised in its call, as the check itself would raise)."""
-    from archself.lanes.view import lane_loop, lane_loops
 
     try:
         return lane_loops(requests)
