@@ -34,17 +34,14 @@ own streams were a third faster per check, but a type that runs lane by lane und
 ``smooth`` stepped state shared with the other copies: a lane ended a
 ``sensor_dropout`` run of ``thermal_zone.yaml`` in another configuration than its
 per-run twin (tests/test_blocks_domain.py), so the copies stay deep. Only the first is
-made by ``copy.deepcopy`` (``_Probe.copy``); the others are loaded from one pickle of
-it (:class:`_Clones`: 0.4 against 1.1 ms a copy of the diff-drive's a2, 29 copies a
-check), sharing what the deep copy shares.
+made by ``copy.deepcopy``; the others are loaded from one pickle of it
+(:class:`archself.system.linearizing.Clones`, as the per-run check's copies: 0.4 against
+1.1 ms a copy of the diff-drive's a2, 29 copies a check), sharing what the deep copy shares.
 """
 
 from __future__ import annotations
 
-import copy
-import io
 import math
-import pickle
 from collections import deque
 from collections.abc import Collection, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -287,85 +284,7 @@ def lane_loops(checks: Sequence[tuple[Any, str | None, int]]) -> list[WholeLoop]
 
 
 def _copies(system: Any, configuration: str | None, steps: int) -> tuple[LoopProbes, list]:
-    """The probes of ``system``'s whole loop and the copy of each of their shifts."""
+    """The probes of ``system``'s whole loop and the copy of each of their shifts
+    (:meth:`~archself.system.linearizing._Probe.copy`)."""
     probes = loop_probes(system, configuration, steps)
-    probe = probes.probe
-    active = probe.base._plan.active  # what the copies step: nothing else is copied
-    first = probe.copy({}, active)
-    try:
-        clones = _Clones(first)
-    except (pickle.PicklingError, TypeError, AttributeError):  # a value pickle cannot take
-        return probes, [first] + [probe.copy(shift, active) for shift in probes.shifts[1:]]
-    copies = [first]
-    for shift in probes.shifts[1:]:
-        copy_ = clones()
-        for n, (i, h) in shift.items():  # as _Probe.copy moves the base's state
-            x = probe.x0[n].copy()
-            x[i] += h
-            mod = copy_._pool[n]
-            type(mod).set_state(mod, x)
-        copies.append(copy_)
-    return probes, copies
-
-
-class _Clones:
-    """Copies of a snapshot, each what ``copy.deepcopy`` of it (with the snapshot's memo)
-    gives: loaded from one pickle of it.
-
-    What a snapshot's deep copy shares stays shared (the architecture, the module factory,
-    the step plans); a value whose type has its own ``__deepcopy__`` (an immutable table
-    that returns itself) is deep-copied at each load, as ``copy.deepcopy`` would; a random
-    generator is pickled as its bit generator's type and state (loaded without the fresh
-    entropy numpy's own pickle draws first: 17 against 46 µs). A value pickle cannot take
-    raises at construction (the caller deep-copies then).
-    """
-
-    def __init__(self, snap: Any) -> None:
-        shared = [snap.arch, snap._factory, *snap._plans.values(), *snap._scoped.values()]
-        self.shared = {id(v): v for v in shared}
-        self.own: dict[int, Any] = {}
-        buf = io.BytesIO()
-        _Pickler(buf, self).dump(snap)
-        self.blob = buf.getvalue()
-
-    def __call__(self) -> Any:
-        memo = dict(self.shared)
-        unpickler = pickle.Unpickler(io.BytesIO(self.blob))
-
-        def load(pid: tuple[str, int]) -> Any:
-            kind, key = pid
-            return self.shared[key] if kind == "shared" else copy.deepcopy(self.own[key], memo)
-
-        unpickler.persistent_load = load  # type: ignore[method-assign]
-        return unpickler.load()
-
-
-class _Pickler(pickle.Pickler):
-    """The pickler of :class:`_Clones`: shared values by reference, generators by state."""
-
-    def __init__(self, buf: io.BytesIO, clones: _Clones) -> None:
-        super().__init__(buf, protocol=pickle.HIGHEST_PROTOCOL)
-        self.clones = clones
-
-    def persistent_id(self, obj: Any) -> Any:
-        c = self.clones
-        if id(obj) in c.shared:
-            return ("shared", id(obj))
-        own = hasattr(type(obj), "__deepcopy__")  # numpy's values copy as they pickle
-        if own and not isinstance(obj, (type, np.ndarray, np.generic)):
-            c.own[id(obj)] = obj
-            return ("own", id(obj))
-        return None
-
-    def reducer_override(self, obj: Any) -> Any:
-        if type(obj) is np.random.Generator:
-            bg = obj.bit_generator
-            return _generator, (type(bg), bg.state)
-        return NotImplemented
-
-
-def _generator(kind: type, state: dict[str, Any]) -> np.random.Generator:
-    """A generator of bit generator type ``kind`` at ``state``."""
-    bg = kind(0)
-    bg.state = state
-    return np.random.Generator(bg)
+    return probes, [probes.probe.copy(shift) for shift in probes.shifts]

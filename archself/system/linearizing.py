@@ -13,6 +13,8 @@ system imports this file), pool and outputs.
 from __future__ import annotations
 
 import copy
+import io
+import pickle
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -23,7 +25,7 @@ from archself.linear.closed_loop import WholeLoop
 from archself.linear.wiring import ClosedLoop, Wire, gc_paused, interconnect, loop_modules, wiring
 from archself.modules.base import LinearModel, Port, RuntimeModule, _numeric
 
-__all__ = ["Linearizing", "LoopProbes", "loop_probes", "numerical_loop"]
+__all__ = ["Clones", "Linearizing", "LoopProbes", "loop_probes", "numerical_loop"]
 
 
 class Linearizing:
@@ -360,16 +362,30 @@ def _state_labels(
 
 
 class _Probe:
-    """Copies of a snapshot stepped with some states moved, and what went wrong in them."""
+    """Copies of a snapshot stepped with some states moved, and what went wrong in them.
+
+    Each copy holds the base's active modules only (what a copy steps). The first is
+    ``base.snapshot(active)``; the others are loaded from one pickle of it
+    (:class:`Clones`, before the first is stepped): 0.3 against 1.1 ms a copy of the
+    diff-drive's a2, the same values bit for bit.
+    """
 
     def __init__(self, base: Any, x0: dict[str, np.ndarray], steps: int) -> None:
         self.base, self.x0, self.steps = base, x0, steps
         self.problems: list[str] = []
+        self._clones: Callable[[], Any] | None = None
 
-    def copy(self, shift: dict[str, tuple[int, float]], only: Any = None) -> Any:
-        """A copy of the base (of the modules ``only``) with entry ``i`` of each module's
-        state moved by ``h``."""
-        copy_ = self.base.snapshot(only)
+    def copy(self, shift: dict[str, tuple[int, float]]) -> Any:
+        """A copy of the base's active modules with entry ``i`` of each module's state
+        moved by ``h``."""
+        if self._clones is None:
+            copy_ = self.base.snapshot(self.base._plan.active)
+            try:
+                self._clones = Clones(copy_)
+            except (pickle.PicklingError, TypeError, AttributeError):  # deep copies then
+                self._clones = lambda: self.base.snapshot(self.base._plan.active)
+        else:
+            copy_ = self._clones()
         for n, (i, h) in shift.items():
             x = self.x0[n].copy()
             x[i] += h
@@ -420,3 +436,66 @@ class _Probe:
                 f"a discontinuity: {labels[row0 + r]} against {labels[col]} has one-sided "
                 f"slopes {right[r]:.4g} and {left[r]:.4g}")
         return d
+
+
+class Clones:
+    """Copies of a snapshot, each what ``copy.deepcopy`` of it (with the snapshot's memo,
+    :meth:`LiveSystem.snapshot`) gives: loaded from one pickle of it.
+
+    What a snapshot's deep copy shares stays shared (the architecture, the module factory,
+    the step plans); a value whose type has its own ``__deepcopy__`` (an immutable table
+    that returns itself) is deep-copied at each load, as ``copy.deepcopy`` would; a random
+    generator is pickled as its bit generator's type and state (loaded without the fresh
+    entropy numpy's own pickle draws first: 17 against 46 µs). A value pickle cannot take
+    raises at construction (the caller deep-copies then).
+    """
+
+    def __init__(self, snap: Any) -> None:
+        shared = [snap.arch, snap._factory, *snap._plans.values(), *snap._scoped.values()]
+        self.shared = {id(v): v for v in shared}
+        self.own: dict[int, Any] = {}
+        buf = io.BytesIO()
+        _Pickler(buf, self).dump(snap)
+        self.blob = buf.getvalue()
+
+    def __call__(self) -> Any:
+        memo = dict(self.shared)
+        unpickler = pickle.Unpickler(io.BytesIO(self.blob))
+
+        def load(pid: tuple[str, int]) -> Any:
+            kind, key = pid
+            return self.shared[key] if kind == "shared" else copy.deepcopy(self.own[key], memo)
+
+        unpickler.persistent_load = load  # type: ignore[method-assign]
+        return unpickler.load()
+
+
+class _Pickler(pickle.Pickler):
+    """The pickler of :class:`Clones`: shared values by reference, generators by state."""
+
+    def __init__(self, buf: io.BytesIO, clones: Clones) -> None:
+        super().__init__(buf, protocol=pickle.HIGHEST_PROTOCOL)
+        self.clones = clones
+
+    def persistent_id(self, obj: Any) -> Any:
+        c = self.clones
+        if id(obj) in c.shared:
+            return ("shared", id(obj))
+        own = hasattr(type(obj), "__deepcopy__")  # numpy's values copy as they pickle
+        if own and not isinstance(obj, (type, np.ndarray, np.generic)):
+            c.own[id(obj)] = obj
+            return ("own", id(obj))
+        return None
+
+    def reducer_override(self, obj: Any) -> Any:
+        if type(obj) is np.random.Generator:
+            bg = obj.bit_generator
+            return _generator, (type(bg), bg.state)
+        return NotImplemented
+
+
+def _generator(kind: type, state: dict[str, Any]) -> np.random.Generator:
+    """A generator of bit generator type ``kind`` at ``state``."""
+    bg = kind(0)
+    bg.state = state
+    return np.random.Generator(bg)
