@@ -88,9 +88,9 @@ def test_resume_takes_over_the_outputs_and_latency_lines() -> None:
 
 
 def test_a_clone_is_the_deep_copy_of_a_snapshot() -> None:
-    """lanes.view._Clones: the same states and random streams as the snapshot's deep copy,
+    """system.linearizing.Clones: the same states and random streams as the snapshot's deep copy,
     its own modules and streams, the architecture and step plans shared."""
-    from archself.lanes.view import _Clones
+    from archself.system.linearizing import Clones as _Clones
 
     arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
     system = compile_system(arch, "a2", seed=5, scenario=arch.scenarios["imu_drift"])
