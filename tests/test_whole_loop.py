@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -156,6 +158,32 @@ def test_columns_grouped_by_reach_give_the_same_a_as_one_by_one(monkeypatch) -> 
     alone = np.asarray(system.whole_loop().A)
     assert_allclose(grouped, alone, rtol=1e-9, atol=1e-12)
     assert np.count_nonzero(grouped) >= 4
+
+
+def test_probe_copies_from_one_pickle_give_the_deep_copies_a(monkeypatch) -> None:
+    """The check's copies loaded from one pickle (``Clones``) give A bit for bit as deep
+    copies of the snapshot do (the fallback when pickle cannot take a value): the
+    diff-drive's a1 → a2 over its 24-step map, mid-run with the imu drift on."""
+    import archself.system.linearizing as sl
+
+    arch = load_architecture(ARCHS / "diffdrive.yaml").arch
+    system = compile_system(arch, "a1", seed=2, scenario=arch.scenarios["imu_drift"])
+    system.run(65.0)
+    loaded = system.whole_loop("a2", 24)
+    made: list[int] = []
+
+    class Unpicklable:
+        def __init__(self, snap) -> None:
+            made.append(1)
+            raise pickle.PicklingError("a value pickle cannot take")
+
+    monkeypatch.setattr(sl, "Clones", Unpicklable)
+    deep = system.whole_loop("a2", 24)
+    assert made == [1]  # tried once a check, then deep copies
+    assert loaded.A.shape == (14, 14) and np.count_nonzero(loaded.A) > 50
+    assert_allclose(loaded.A, deep.A, rtol=0, atol=0)
+    assert loaded.problems == deep.problems == []
+    assert_allclose(loaded.modes()[0], deep.modes()[0], rtol=0, atol=0)
 
 
 def test_a_discontinuity_leaves_the_configuration_unverified() -> None:
