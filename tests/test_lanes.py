@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -364,3 +365,63 @@ def test_every_shipped_architecture_runs_in_lanes_as_per_run(name, scenario) -> 
         want = simulate(arch, scenario, seed=seed, adapt=MapeK(arch))
         assert got.switches == want.switches and want.switches
         assert_allclose(got.series["J"], want.series["J"], rtol=0, atol=1e-9)
+
+
+def test_quiet_lanes_record_what_the_per_lane_call_records(diffdrive_raw, monkeypatch) -> None:
+    """Lanes with r = 0 and nothing pending skip ``MapeK.__call__`` (``MapeK.quiet``): the
+    decision logs, switches and J equal those of every lane's loop called every cycle."""
+    from archself.runtime import MapeK
+
+    class Called(MapeK):  # a subclass: simulate_lanes calls it every cycle
+        pass
+
+    arch = Architecture.model_validate(diffdrive_raw)
+    seeds = [2, 5]
+    full = simulate_lanes(arch, "imu_drift", seeds, adapt=Called)
+    taken: list[bool] = []
+    quiet = MapeK.quiet
+
+    def counted(self, system, observation):
+        taken.append(quiet(self, system, observation))
+        return taken[-1]
+
+    monkeypatch.setattr(MapeK, "quiet", counted)
+    got = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
+    n_cycles = sum(len(r.decisions) for r in got)
+    assert sum(taken) > 0.9 * n_cycles  # most cycles are quiet
+    for a, b in zip(got, full, strict=True):
+        assert a.switches == b.switches and len(a.switches) == 1
+        assert [d.to_dict() for d in a.decisions] == [d.to_dict() for d in b.decisions]
+        assert_array_equal(a.series["J"], b.series["J"])
+
+
+def test_quiet_refuses_a_cycle_with_anything_to_analyze(diffdrive_raw) -> None:
+    """``MapeK.quiet`` records nothing (False) with a residual, a selector that selects on
+    zeros or keeps members, or a configuration the Knowledge has not adopted."""
+    from archself.runtime import MapeK
+    from archself.runtime.planner import HysteresisSelector, ThresholdSelector
+    from archself.system.live import compile_system
+
+    arch = Architecture.model_validate(diffdrive_raw)
+    loop = MapeK(arch)
+    system = compile_system(arch, arch.initial_configuration(), seed=1)
+    obs = loop.monitor.observe(system, loop.knowledge.active)
+    loop.knowledge.sync(system)
+    assert not obs.r.any()
+    assert loop.quiet(system, obs) and len(loop.decisions) == 1 and loop.cycle == 1
+    want = MapeK(arch)
+    want(system, observation=obs)
+    assert loop.decisions[0].to_dict() == want.decisions[0].to_dict()
+    r = obs.r.copy()
+    r[0] = 1.0
+    hot = dataclasses.replace(obs, r=r)
+    for o, sel in ((hot, ThresholdSelector(0.5)), (obs, ThresholdSelector(0.0))):
+        loop.selector = sel
+        assert not loop.quiet(system, o)
+    h = loop.selector = HysteresisSelector(on=0.6, off=0.0)
+    h.members = {"imu"}
+    assert not loop.quiet(system, obs)
+    h.members = set()
+    assert loop.quiet(system, obs)
+    system.apply_configuration(next(c for c in arch.configurations if c != system.configuration))
+    assert not loop.quiet(system, obs) and len(loop.decisions) == 2

@@ -129,6 +129,7 @@ class _Lanes:
     loops: list[Any] | None = None
     views: list[Any] | None = None
     monitors: list[Any] | None = None
+    quiet: bool = False  # the loops are MapeK's own: a cycle without residual is MapeK.quiet
 
 
 def _plan(
@@ -169,6 +170,7 @@ def _plan(
         # loops observing with the runtime's Monitor take the lanes' bulk Monitor stage
         if all(isinstance(getattr(lp, "monitor", None), Monitor) for lp in loops):
             plan.monitors = [lp.monitor for lp in loops]
+        plan.quiet = all(type(lp) is MapeK for lp in loops)  # a subclass may do more a cycle
     return plan
 
 
@@ -257,10 +259,12 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
             observed.update(observe_group(plan.monitors, lanes, idx, J))
     outs: list[Any] = [None] * lanes.n
     paused: list[tuple[int, _Worker]] = []
+    quiet = plan.quiet
     for lane in range(lanes.n):
         obs = observed.get(lane)
         if obs is not None and not obs.r.any():  # nothing to plan from: no check to wait for
-            outs[lane] = loops[lane](views[lane], observation=obs)
+            if not (quiet and loops[lane].quiet(views[lane], obs)):
+                outs[lane] = loops[lane](views[lane], observation=obs)
             continue
         worker = _Worker(loops[lane], views[lane], obs)
         if worker.resume():

@@ -56,7 +56,14 @@ from archself.model.architecture import Architecture
 from archself.runtime.influence import SourceEstimator, SourceFit
 from archself.runtime.knowledge import DecisionRecord, Knowledge, ValueMap, learning_of, online_of
 from archself.runtime.monitor import Monitor, Observation
-from archself.runtime.planner import Planner, PlanState, selector_from_runtime
+from archself.runtime.planner import (
+    HysteresisSelector,
+    Planner,
+    PlanState,
+    ThresholdSelector,
+    TopKSelector,
+    selector_from_runtime,
+)
 from archself.runtime.stability import apply_action
 from archself.runtime.strategies import Strategies
 
@@ -233,6 +240,34 @@ class MapeK:
         if self.online is not None and self.online.cycle(record, obs):
             self._sources_key = None  # W changed: the source fit is rebuilt
         return record
+
+    def quiet(self, system: ManagedSystem, observation: Observation) -> bool:
+        """Record a cycle with every residual 0 as :meth:`__call__` would; False: not one.
+
+        With r = 0 (and propagation on) z = ê = r = 0 and the shipped selectors select
+        nothing (a threshold τ > 0, top-k, hysteresis without members): the cycle only
+        appends its decision record (the same :meth:`_record`). It is made here without
+        the Analyze and Plan calls when nothing else is pending — the system in the
+        configuration and active set the Knowledge holds, its compensation checked there,
+        no strategy running. Otherwise nothing is done and False returned: the caller
+        runs the cycle. Lane batches call it for the lanes whose bulk observation has no
+        residual (:func:`archself.lanes.run.simulate_lanes`).
+        """
+        k, sel = self.knowledge, self.selector
+        if (
+            observation.r.any() or not self.propagate or self.strategies.running is not None
+            or not (type(sel) is TopKSelector
+                    or (type(sel) is ThresholdSelector and sel.tau > 0)
+                    or (type(sel) is HysteresisSelector and sel.on > 0 and not sel.members))
+            or system.configuration != k.configuration or system.active != k.active
+            or (self.compensated and k.configuration != self._checked_conf)
+        ):
+            return False
+        r_values = observation.r[k.active_index]
+        r = ValueMap(k.active_names, k.active_pos, r_values)
+        self._equivalent = []
+        self._record(float(system.t), observation, _Analysis(r_values, r, r, r_values, r, r, []))
+        return True
 
     def _plan(self, system: ManagedSystem, t: float, obs: Observation, cycle: _Analysis,
               record: DecisionRecord) -> tuple[Any, Any]:
