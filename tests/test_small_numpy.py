@@ -32,7 +32,7 @@ from archself.runtime.influence import (
 
 ROOT = Path(__file__).resolve().parent.parent
 DIFFDRIVE = ROOT / "architectures" / "diffdrive.yaml"
-inf = importlib.import_module("archself.runtime.influence")  # the package exports a function so named
+inf = importlib.import_module("archself.runtime.influence")  # the attribute is a function
 
 
 def _random_problems(seed: int, count: int):

@@ -42,6 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from archself.runtime.influence import nnls
+
 __all__ = [
     "EdgeEstimate",
     "TargetFit",

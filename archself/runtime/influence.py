@@ -83,7 +83,6 @@ from __future__ import annotations
 
 import math
 import sys
-import warnings
 from collections.abc import Hashable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
