@@ -16,7 +16,7 @@ flows *downstream*, in the direction of the edges: on a chain ``a → b → c`` 
 a residual only at ``a``, ``z_c = ω_ab · ω_bc · r_a``.
 
 The solve is prepared once and reused for as long as ``W`` is unchanged
-(:class:`InfluenceSolver`): up to :data:`DENSE_MAX` modules the dense
+(:class:`InfluenceSolver`): up to :data:`SOLVE_DENSE_MAX` modules the dense
 ``P = (I − Wᵀ)⁻¹`` (:func:`propagation_matrix`, numpy's LAPACK ``gesv``; each
 solve is then one product ``P r``), above it a sparse LU of ``I − Wᵀ``
 (:func:`scipy.sparse.linalg.splu`, never an inverse).
@@ -93,6 +93,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "DENSE_MAX",
+    "NNLS_NUMPY_MAX",
+    "SOLVE_DENSE_MAX",
     "InfluenceSolver",
     "SourceEstimator",
     "SourceFit",
@@ -110,9 +112,14 @@ __all__ = [
 
 #: Graphs with at most this many modules are handled with dense linear algebra.
 DENSE_MAX = 400
+#: :class:`InfluenceSolver` keeps the dense ``(I − Wᵀ)⁻¹`` up to this many modules (numpy:
+#: ≤ 0.8 ms per factorization, its pivots included; 9 ms at 100, 108 ms at 400, where
+#: SuperLU takes 0.3 and 1.4 ms), SuperLU above. bench/dense_bounds.py measures both.
+SOLVE_DENSE_MAX = 64
 #: Non-negative least squares with at most this many unknowns are solved in numpy
-#: (:func:`nnls`), larger ones by :func:`scipy.optimize.nnls`.
-NNLS_NUMPY_MAX = 64
+#: (:func:`nnls`; ≤ 0.3 ms a call, scipy's C 15 µs at 16, 4 ms against 0.18 ms at 64),
+#: larger ones by :func:`scipy.optimize.nnls`.
+NNLS_NUMPY_MAX = 16
 #: A pivot of the LU of ``I − Wᵀ`` at most this times the largest (or 1) makes it singular.
 PIVOT_RTOL = 1e-12
 
@@ -380,8 +387,8 @@ class InfluenceSolver:
     ----------
     dense_max : int, optional
         Graphs with at most this many nodes keep the dense ``P = (I − Wᵀ)⁻¹``
-        (:func:`propagation_matrix`; a solve is ``P r``, numpy only); larger ones
-        sparse LU (:func:`scipy.sparse.linalg.splu`).
+        (:func:`propagation_matrix`; a solve is ``P r``, numpy only; default
+        :data:`SOLVE_DENSE_MAX`); larger ones sparse LU (:func:`scipy.sparse.linalg.splu`).
 
     Attributes
     ----------
@@ -401,7 +408,7 @@ class InfluenceSolver:
     [1.0, 0.5, 0.2]
     """
 
-    def __init__(self, dense_max: int = DENSE_MAX) -> None:
+    def __init__(self, dense_max: int = SOLVE_DENSE_MAX) -> None:
         self.dense_max = dense_max
         self.factorizations = 0
         self.key: Hashable | None = None
