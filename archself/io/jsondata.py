@@ -180,7 +180,7 @@ class _Doc(BaseModel):
     """A JSON document archself writes and reads back: JSON types only (no coercion),
     other keys allowed; written in the order of its fields (:func:`document`)."""
 
-    model_config = ConfigDict(strict=True, extra="allow", populate_by_name=True)
+    model_config = ConfigDict(strict=True, extra="allow", populate_by_name=True, defer_build=True)
 
 
 # ------------------------------------------------------------------ the decision log
@@ -411,7 +411,7 @@ class CampaignMeta(_Doc):
 class OutDoc(BaseModel):
     """An output document: the keys its fields name, no other."""
 
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, defer_build=True)
 
 
 class JobDoc(OutDoc):

@@ -51,11 +51,19 @@ in :mod:`archself.linear.closed_loop`; their public names are re-exported here.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from archself.linear.assembly import Wire, feedback_slices, interconnect_sparse, port_offsets
-from archself.linear.closed_loop import ClosedLoop, Interconnection, eigenvalues, modal_form
+from archself.linear.closed_loop import (
+    COMPONENTS_DENSE_MAX,
+    ClosedLoop,
+    Interconnection,
+    eigenvalues,
+    modal_form,
+    strong_components,
+)
 from archself.linear.discrete import LinearizationError, delay_line, discretize
 from archself.model.loader import gc_paused
 from archself.modules.base import LinearModel
@@ -125,9 +133,6 @@ def loop_modules(
     ...                     [Wire("x", "y", "a"), Wire("y", "x", "a"), Wire("y", "z", "a")]))
     ['x', 'y']
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
     names = list(models)
     index = {n: i for i, n in enumerate(names)}
     if routes is None:
@@ -136,8 +141,15 @@ def loop_modules(
     if not pairs:
         return set()
     rows, cols = zip(*pairs, strict=True)
-    g = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(names), len(names)))
-    _, labels = connected_components(g, directed=True, connection="strong")
+    n = len(names)
+    if n <= COMPONENTS_DENSE_MAX:
+        g: Any = np.zeros((n, n))
+        g[rows, cols] = 1.0
+    else:
+        from scipy.sparse import csr_matrix
+
+        g = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    labels = strong_components(g)
     size = np.bincount(labels)
     on = {names[i] for i in np.flatnonzero(size[labels] > 1).tolist()}
     on.update(names[s] for s, t in pairs if s == t)

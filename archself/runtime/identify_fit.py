@@ -42,6 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from archself.runtime.influence import nnls
+
 __all__ = [
     "EdgeEstimate",
     "TargetFit",
@@ -245,8 +247,6 @@ def fit_target(
     >>> fit_target(np.zeros((2, 1)), np.ones(2)).identifiable.tolist()
     [False]
     """
-    from scipy.optimize import nnls
-
     X = np.asarray(X, dtype=float)
     if X.ndim != 2:  # a 2-D X may have no rows (no usable experiment): (0, p), not (0, -1)
         X = X.reshape(len(y), -1)

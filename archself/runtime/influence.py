@@ -15,14 +15,16 @@ multiplied by the product of the weights along the path. A residual therefore
 flows *downstream*, in the direction of the edges: on a chain ``a → b → c`` with
 a residual only at ``a``, ``z_c = ω_ab · ω_bc · r_a``.
 
-The solve never forms an inverse: ``I - Wᵀ`` is LU-factorized once (dense
-:func:`scipy.linalg.lu_factor` for small graphs, sparse
-:func:`scipy.sparse.linalg.splu` for large ones) and the factorization is reused
-for as long as ``W`` is unchanged (:class:`InfluenceSolver`).
+The solve is prepared once and reused for as long as ``W`` is unchanged
+(:class:`InfluenceSolver`): up to :data:`SOLVE_DENSE_MAX` modules the dense
+``P = (I − Wᵀ)⁻¹`` (:func:`propagation_matrix`, numpy's LAPACK ``gesv``; each
+solve is then one product ``P r``), above it a sparse LU of ``I − Wᵀ``
+(:func:`scipy.sparse.linalg.splu`, never an inverse).
 
-scipy is imported where a function needs it: ρ(W) and the singularity test of a
-small dense W (:func:`spectral_radius`, :func:`is_singular`, used by
-``archself validate``) need numpy only.
+scipy is imported only above those sizes: a small system's run path (W, ρ(W),
+the singularity test, the solves, the source fit and its non-negative least
+squares, :func:`nnls`) and ``archself validate`` need numpy only. Dense numpy is
+also the faster tool there (docs/benchmarks.md, "Start-up").
 
 Root-cause localization: the local faults e that explain the residuals r.
 
@@ -58,7 +60,7 @@ propagation instead of applying it once more:
   module's own source is its own residual (non-zero only when the system reports
   it unavailable).
 - :func:`source_nnls` — the non-negative least-squares fit
-  ``min ‖((I − Wᵀ)⁻¹)_OO e_O − r_O‖₂, e_O ≥ 0`` (:func:`scipy.optimize.nnls` on
+  ``min ‖((I − Wᵀ)⁻¹)_OO e_O − r_O‖₂, e_O ≥ 0`` (:func:`nnls` on
   the dense propagation matrix; for comparison, up to a few hundred modules).
   Where the residuals downstream of a fault are *smaller* than W predicts, it
   lowers the estimate at the fault to fit them too, so the head of a chain
@@ -81,7 +83,6 @@ from __future__ import annotations
 
 import math
 import sys
-import warnings
 from collections.abc import Hashable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -92,6 +93,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "DENSE_MAX",
+    "NNLS_NUMPY_MAX",
+    "SOLVE_DENSE_MAX",
     "InfluenceSolver",
     "SourceEstimator",
     "SourceFit",
@@ -99,6 +102,7 @@ __all__ = [
     "is_singular",
     "is_sparse",
     "matrix_key",
+    "nnls",
     "propagation_matrix",
     "source_estimate",
     "source_nnls",
@@ -108,6 +112,14 @@ __all__ = [
 
 #: Graphs with at most this many modules are handled with dense linear algebra.
 DENSE_MAX = 400
+#: :class:`InfluenceSolver` keeps the dense ``(I − Wᵀ)⁻¹`` up to this many modules (numpy:
+#: ≤ 0.8 ms per factorization, its pivots included; 9 ms at 100, 108 ms at 400, where
+#: SuperLU takes 0.3 and 1.4 ms), SuperLU above. bench/dense_bounds.py measures both.
+SOLVE_DENSE_MAX = 64
+#: Non-negative least squares with at most this many unknowns are solved in numpy
+#: (:func:`nnls`; ≤ 0.3 ms a call, scipy's C 15 µs at 16, 4 ms against 0.18 ms at 64),
+#: larger ones by :func:`scipy.optimize.nnls`.
+NNLS_NUMPY_MAX = 16
 #: A pivot of the LU of ``I − Wᵀ`` at most this times the largest (or 1) makes it singular.
 PIVOT_RTOL = 1e-12
 
@@ -125,8 +137,9 @@ def weight_matrix(
     *,
     scale: float = 1.0,
     allow_negative: bool = False,
-) -> scipy.sparse.csr_matrix:
-    """Weighted adjacency matrix W of Eq. 13 as a sparse CSR matrix.
+    dense_max: int = -1,
+) -> np.ndarray | scipy.sparse.csr_matrix:
+    """Weighted adjacency matrix W of Eq. 13: sparse CSR, or dense up to ``dense_max``.
 
     Parameters
     ----------
@@ -140,10 +153,13 @@ def weight_matrix(
     allow_negative : bool, optional
         Keep negative weights instead of raising (``archself validate`` measures
         ρ(W) of a file whose negative weight it reports).
+    dense_max : int, optional
+        Up to this many modules W is a dense numpy array (no scipy import; the
+        runtime passes :data:`DENSE_MAX`); default: always sparse.
 
     Returns
     -------
-    scipy.sparse.csr_matrix
+    numpy.ndarray or scipy.sparse.csr_matrix
         ``W`` with ``W[j, i]`` the weight of the edge ``names[j] → names[i]``.
 
     Raises
@@ -170,9 +186,13 @@ def weight_matrix(
             rows.append(index[source])
             cols.append(index[target])
             data.append(w * scale)
+    n = len(names)
+    if n <= dense_max:
+        dense = np.zeros((n, n))
+        np.add.at(dense, (rows, cols), data)  # parallel edges add up, in their order
+        return dense
     import scipy.sparse
 
-    n = len(names)
     W = scipy.sparse.coo_matrix((data, (rows, cols)), shape=(n, n), dtype=float)
     return W.tocsr()  # duplicates are summed
 
@@ -366,9 +386,9 @@ class InfluenceSolver:
     Parameters
     ----------
     dense_max : int, optional
-        Graphs with at most this many nodes use dense LU
-        (:func:`scipy.linalg.lu_factor`); larger ones sparse LU
-        (:func:`scipy.sparse.linalg.splu`).
+        Graphs with at most this many nodes keep the dense ``P = (I − Wᵀ)⁻¹``
+        (:func:`propagation_matrix`; a solve is ``P r``, numpy only; default
+        :data:`SOLVE_DENSE_MAX`); larger ones sparse LU (:func:`scipy.sparse.linalg.splu`).
 
     Attributes
     ----------
@@ -388,15 +408,14 @@ class InfluenceSolver:
     [1.0, 0.5, 0.2]
     """
 
-    def __init__(self, dense_max: int = DENSE_MAX) -> None:
+    def __init__(self, dense_max: int = SOLVE_DENSE_MAX) -> None:
         self.dense_max = dense_max
         self.factorizations = 0
         self.key: Hashable | None = None
         self.n = 0
-        self._dense: tuple[np.ndarray, np.ndarray] | None = None
+        self._dense: np.ndarray | None = None
         self._sparse: Any = None
         self._order: np.ndarray | None = None
-        self._getrs: Any = None
 
     def set_matrix(self, W: Any, key: Hashable | None = None) -> bool:
         """Use ``W``; refactorize only if its key differs from the current one.
@@ -425,21 +444,12 @@ class InfluenceSolver:
             return False
         n = W.shape[0]
         if n <= self.dense_max:
-            import scipy.linalg
-
             dense = W.toarray() if is_sparse(W) else np.asarray(W, dtype=float)
-            M = np.eye(n) - dense.T
-            if n == 0:
-                self._dense = (np.zeros((0, 0)), np.zeros(0, dtype=np.int32))
-            else:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-                    lu, piv = scipy.linalg.lu_factor(M, check_finite=True)
-                if singular_pivots(np.abs(np.diag(lu))):
-                    raise np.linalg.LinAlgError("I - W^T is singular")
-                self._dense = (lu, piv)
-                # LAPACK getrs, the routine lu_solve calls, without its per-call checks
-                (self._getrs,) = scipy.linalg.get_lapack_funcs(("getrs",), (lu,))
+            if not np.all(np.isfinite(dense)):
+                raise ValueError("array must not contain infs or NaNs")
+            if singular_pivots(lu_pivots(np.eye(n) - dense.T)):
+                raise np.linalg.LinAlgError("I - W^T is singular")
+            self._dense = propagation_matrix(dense)
             self._sparse = None
         else:
             import scipy.sparse
@@ -492,13 +502,9 @@ class InfluenceSolver:
         if self.n == 0:
             return np.zeros(0)
         if self._dense is not None:
-            if not math.isfinite(sum(r.tolist())):  # what lu_solve's check_finite reports
+            if not math.isfinite(sum(r.tolist())):
                 raise ValueError("array must not contain infs or NaNs")
-            lu, piv = self._dense
-            z, info = self._getrs(lu, piv, r, trans=0, overwrite_b=False)
-            if info != 0:
-                raise ValueError(f"illegal value in {-info}th argument of internal getrs")
-            return np.asarray(z)
+            return self._dense @ r
         if self._order is None:
             return np.asarray(self._sparse.solve(r))
         z = np.empty(self.n)
@@ -518,6 +524,21 @@ def influence(W: Any, r: Any) -> np.ndarray:
     solver = InfluenceSolver()
     solver.set_matrix(W, key=0)
     return solver.solve(r)
+
+
+def _operand(W: Any) -> Any:
+    """``W`` as a float numpy array up to :data:`DENSE_MAX` modules, else CSR (scipy then)."""
+    sparse = is_sparse(W)
+    if (W.shape[0] if sparse else np.shape(W)[0]) <= DENSE_MAX:
+        return W.toarray() if sparse else np.array(W, dtype=float)
+    import scipy.sparse
+
+    return scipy.sparse.csr_matrix(W, dtype=float)
+
+
+def _transpose(S: Any) -> Any:
+    """``Sᵀ`` of an :func:`_operand`, laid out for products (CSR, or a C-ordered array)."""
+    return S.T.tocsr() if is_sparse(S) else np.ascontiguousarray(S.T)
 
 
 def _mask(observed: Any, n: int) -> np.ndarray:
@@ -562,21 +583,19 @@ class SourceEstimator:
     """
 
     def __init__(self, W: Any, observed: Any = None) -> None:
-        import scipy.sparse
-
-        S = scipy.sparse.csr_matrix(W, dtype=float)
+        S = _operand(W)
         n = S.shape[0]
         self.n = n
         self.observed = _mask(observed, n)
         self.hidden_index = np.flatnonzero(~self.observed)
         self.observed_index = np.flatnonzero(self.observed)
-        self._WT = S.T.tocsr()
+        self._WT = _transpose(S)
         self._solver: InfluenceSolver | None = None
         if self.hidden_index.size:
             h, o = self.hidden_index, self.observed_index
             self._solver = InfluenceSolver()
             self._solver.set_matrix(S[h][:, h], key=0)
-            self._W_OH_T = S[o][:, h].T.tocsr()
+            self._W_OH_T = _transpose(S[o][:, h])
 
     def estimate(self, r: Any) -> np.ndarray:
         """``ê``: observed modules ``max(0, r_O − (Wᵀ x)_O)``, hidden ones their own ``r``.
@@ -712,10 +731,79 @@ def source_nnls(W: Any, r: Any, observed: Any = None) -> np.ndarray:
     e = np.where(mask, 0.0, r)
     o = np.flatnonzero(mask)
     if o.size:
-        from scipy.optimize import nnls
-
         e[o], _ = nnls(P[np.ix_(o, o)], r[o])
     return e
+
+
+def nnls(A: Any, b: Any) -> tuple[np.ndarray, float]:
+    """Non-negative least squares ``argmin_{x ≥ 0} ‖A x − b‖₂`` and ``‖A x − b‖₂``.
+
+    What :func:`scipy.optimize.nnls` returns (it is the tests' oracle, and solves
+    the problems of more than :data:`NNLS_NUMPY_MAX` unknowns); smaller ones by the
+    active-set algorithm of Lawson & Hanson, *Solving Least Squares Problems*
+    (SIAM, 1995), ch. 23, in numpy: no scipy import on a small system's run path.
+
+    Parameters
+    ----------
+    A : array_like, shape (m, k)
+    b : array_like, shape (m,)
+
+    Returns
+    -------
+    x : numpy.ndarray, shape (k,)
+        The solution, ``≥ 0``.
+    rnorm : float
+        ``‖A x − b‖₂``.
+
+    Raises
+    ------
+    ValueError
+        If ``A`` or ``b`` is not finite, or their shapes do not match.
+
+    Examples
+    --------
+    >>> x, rnorm = nnls(np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([2.0, 1.0, -1.0]))
+    >>> x.tolist(), round(rnorm, 6)
+    ([1.5, 0.0], 1.224745)
+    """
+    A = np.asarray_chkfinite(A, dtype=float)
+    b = np.asarray_chkfinite(b, dtype=float).ravel()
+    if A.ndim != 2 or A.shape[0] != b.shape[0]:
+        raise ValueError(f"A has shape {A.shape}, b {b.shape}: expected (m, k) and (m,)")
+    k = A.shape[1]
+    if k > NNLS_NUMPY_MAX:
+        from scipy.optimize import nnls as scipy_nnls
+
+        x, rnorm = scipy_nnls(A, b)
+        return x, float(rnorm)
+    x = np.zeros(k)
+    passive = np.zeros(k, dtype=bool)  # L&H's set P; the others are held at 0
+    refused = np.zeros(k, dtype=bool)  # entered with a non-positive value: skipped until x moves
+    tol = 10.0 * np.finfo(float).eps * max(A.shape) * float(np.abs(A).sum(axis=0).max(initial=0.0))
+    w = A.T @ b
+    moves = 0
+    while True:
+        free = ~passive & ~refused
+        if not free.any() or float(w[free].max()) <= tol:
+            break
+        j = int(np.argmax(np.where(free, w, -np.inf)))
+        passive[j] = True
+        s = _passive_lstsq(A, b, passive)
+        if s[j] <= 0.0:  # rounding: j cannot enter (L&H's test on z_j)
+            passive[j], refused[j] = False, True
+            continue
+        moves += 1
+        if moves > 3 * k:
+            raise ValueError(f"nnls: no convergence in {3 * k} steps (A has shape {A.shape})")
+        while (low := passive & (s <= 0.0)).any():  # step back to the bound, drop those at 0
+            x = x + float(np.min(x[low] / (x[low] - s[low]))) * (s - x)
+            passive &= x > tol
+            x[~passive] = 0.0
+            s = _passive_lstsq(A, b, passive)
+        x = s
+        refused[:] = False
+        w = A.T @ (b - A @ x)
+    return x, float(np.linalg.norm(A @ x - b))
 
 
 #: Two columns of the observed influence matrix closer than this (cosine) explain any
@@ -805,9 +893,7 @@ class SourceFit:
     """
 
     def __init__(self, W: Any, observed: Any = None) -> None:
-        import scipy.sparse
-
-        S = scipy.sparse.csr_matrix(W, dtype=float)
+        S = _operand(W)
         n = S.shape[0]
         self.n = n
         self.observed = _mask(observed, n)
@@ -819,7 +905,7 @@ class SourceFit:
         self._row[self.observed_index] = np.arange(self.observed_index.size)
         self._P_O: np.ndarray | None = None
         self._P: np.ndarray | None = None
-        self._WT = S.T.tocsr()  # parents of i: row i of Wᵀ
+        self._WT = _transpose(S)  # parents of i: row i of Wᵀ
         self._cols: dict[int, np.ndarray] = {}
         self._solver: InfluenceSolver | None = None
         self._adjoint: InfluenceSolver | None = None
@@ -974,14 +1060,12 @@ class SourceFit:
 
 
 def _nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
-    """:func:`scipy.optimize.nnls` and the squared residual; a tall ``A`` via its Gram matrix.
+    """:func:`nnls` and the squared residual; a tall ``A`` via its Gram matrix.
 
     With ``G = AᵀA = V Λ Vᵀ`` and ``c = Aᵀb``, ``‖A x − b‖²`` equals
     ``‖Λ^½ Vᵀ x − Λ^-½ Vᵀ c‖²`` up to a constant: the same solution from a k × k
     problem (scipy's nnls on 10^4 × 64 took seconds).
     """
-    from scipy.optimize import nnls
-
     if A.shape[0] <= 2 * A.shape[1]:
         x, res = nnls(A, b)
         return x, float(res) ** 2
@@ -991,6 +1075,13 @@ def _nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
     root = np.sqrt(lam[keep])
     x, _ = nnls(root[:, None] * V[:, keep].T, (V[:, keep].T @ c) / root)
     return x, max(0.0, float(b @ b) - 2.0 * float(c @ x) + float(x @ G @ x))
+
+
+def _passive_lstsq(A: np.ndarray, b: np.ndarray, passive: np.ndarray) -> np.ndarray:
+    """Least squares on the columns ``passive`` of ``A``, zeros elsewhere (:func:`nnls`)."""
+    s = np.zeros(A.shape[1])
+    s[passive] = np.linalg.lstsq(A[:, passive], b, rcond=None)[0]
+    return s
 
 
 def _censored_fit(U: np.ndarray, r: np.ndarray, x: np.ndarray) -> np.ndarray:

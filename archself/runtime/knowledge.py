@@ -125,7 +125,7 @@ from archself.io.trace import read_trace_parts
 from archself.model.architecture import Architecture
 from archself.model.architecture import Learning as LearningSettings
 from archself.runtime.identify_fit import delta_residuals, fit_target
-from archself.runtime.influence import InfluenceSolver, spectral_radius, weight_matrix
+from archself.runtime.influence import DENSE_MAX, InfluenceSolver, spectral_radius, weight_matrix
 from archself.runtime.tails import band_of_level, quantile_level
 
 if TYPE_CHECKING:  # networkx (~0.1 s to import) only when the graph is asked for
@@ -248,7 +248,8 @@ class Knowledge:
         # Normalize W so that ρ(W) stays below the declared bound (paper: "the
         # weights are normalized such that ρ(W) < 1"). W of any active subset is
         # entrywise ≤ W of all edges, so by Perron–Frobenius its ρ is no larger.
-        full = weight_matrix(self.names, [(e.source, e.target, e.weight) for e in arch.edges])
+        full = weight_matrix(self.names, [(e.source, e.target, e.weight) for e in arch.edges],
+                             dense_max=DENSE_MAX)
         self.rho_full = spectral_radius(full)
         bound = arch.runtime.max_spectral_radius
         self.w_scale = 1.0 if self.rho_full <= bound else bound / self.rho_full
@@ -322,12 +323,14 @@ class Knowledge:
         self.params.setdefault(module, {}).update(values)
 
     # ------------------------------------------------------------------ analysis
-    def weight_matrix(self) -> scipy.sparse.csr_matrix:
-        """W of the active edges (Eq. 13), normalized by :attr:`w_scale`."""
+    def weight_matrix(self) -> np.ndarray | scipy.sparse.csr_matrix:
+        """W of the active edges (Eq. 13), normalized by :attr:`w_scale` (dense up to
+        :data:`~archself.runtime.influence.DENSE_MAX` modules, else sparse)."""
         return weight_matrix(
             self.names,
             [(s, t, self.arch_weight(s, t, c)) for s, t, c in sorted(self.edges)],
             scale=self.w_scale,
+            dense_max=DENSE_MAX,
         )
 
     def set_weight(self, source: str, target: str, weight: float) -> None:
@@ -915,7 +918,8 @@ class Online:
 
         trial = dict(pairs)
         trial.update({p: v[0] for p, v in proposed.items()})
-        W = weight_matrix(self.k.names, [(a, b, w) for (a, b), w in trial.items()])
+        W = weight_matrix(self.k.names, [(a, b, w) for (a, b), w in trial.items()],
+                          dense_max=DENSE_MAX)
         rho = spectral_radius(W)
         limit = self.k.arch.runtime.max_spectral_radius
         broken = ""
