@@ -116,7 +116,7 @@ from archself.system.linearizing import Linearizing
 __all__ = ["FAULT_KINDS", "FaultInjector", "LiveSystem", "NOT_NUMERIC", "STALE_REPEATS",
            "StepPlan", "build_module", "build_plan", "compile_system", "component_error",
            "declared_limits", "default_signal", "is_bad", "module_rng", "needs_checks",
-           "objective_norm", "stable_hash"]
+           "objective_norm", "publish_checks", "stable_hash"]
 
 
 # ---------------------------------------------------------------- random streams
@@ -339,6 +339,19 @@ def needs_checks(module: RuntimeModule, faults: Any = None) -> bool:
         or getattr(module, "max_silence_s", None) is not None
         or getattr(module, "noise_levels", None)
     )
+
+
+def publish_checks(module: RuntimeModule, name: str, faults: Any = None
+                   ) -> tuple[bool, Any, tuple[tuple[str, tuple[str, str], Any], ...]]:
+    """What :meth:`LiveSystem._publish` checks of ``module`` (named ``name``), once per bind.
+
+    ``(scan, max_silence_s, stale)``: ``scan`` the NaN/inf scan of every output (a type
+    without ``finite_outputs``, or a fault on its outputs); ``stale`` one
+    ``(signal, (name, signal), level)`` per declared noise level (the repeat counts).
+    """
+    limit, levels = declared_limits(module)
+    scan = bool(faults) or not getattr(type(module), "finite_outputs", False)
+    return scan, limit, tuple((sig, (name, sig), lv) for sig, lv in (levels or {}).items())
 
 
 # ---------------------------------------------------------------- the step plan
@@ -745,8 +758,8 @@ class LiveSystem(Linearizing):
 
         The function (:func:`_step_function`) makes each module's call in step order,
         reads its direct inputs into local variables, checks its publishing by
-        :meth:`_publish` only where :func:`needs_checks` finds something to check (with
-        its ``(max_silence_s, noise_levels)``), and tests its lost inputs inline; inputs
+        :meth:`_publish` only where :func:`needs_checks` finds something to check (and
+        only what :func:`publish_checks` finds), and tests its lost inputs inline; inputs
         that need the general path (latency, noise, renamed ports, list inputs) come
         from :meth:`_gather`. Bound once per plan and again when a module's parameters
         change (:meth:`set_params`); the plan keeps the function per set of checked modules,
@@ -754,8 +767,9 @@ class LiveSystem(Linearizing):
         """
         pool = self._pool
         mods = [pool[n] for n, _ in plan.publishing] + [pool[n] for n in plan.nonft]
-        limits = [declared_limits(pool[n]) if needs_checks(pool[n], self._faults.get(n)) else None
-                  for n, _ in plan.publishing]
+        faults = self._faults
+        limits = [publish_checks(pool[n], n, faults.get(n)) if needs_checks(pool[n], faults.get(n))
+                  else None for n, _ in plan.publishing]
         checked = tuple(lim is not None for lim in limits)
         fn = plan.step_functions.get(checked)
         if fn is None:
@@ -886,15 +900,15 @@ class LiveSystem(Linearizing):
         return dict(self._pool)
 
     # ------------------------------------------------------------------ publishing and health
-    def _publish(
-        self, name: str, out: dict[str, Any] | None, t: float, limits: tuple[Any, Any] | None = None
-    ) -> str | None:
+    def _publish(self, name: str, out: dict[str, Any] | None, t: float,
+                 checks: tuple[bool, Any, tuple[Any, ...]] | None = None) -> str | None:
         """Apply the faults and publish ``out``; the reason the module is unavailable, or None.
 
         The reason covers the module's own output only: a non-finite value, silence
         longer than its ``max_silence_s``, or a noisy signal (``noise_levels``) that
-        repeated itself ``STALE_REPEATS`` times. ``limits``: the module's
-        ``(max_silence_s, noise_levels)`` as the caller read them (None: read here).
+        repeated itself ``STALE_REPEATS`` times. ``checks``: what to check, as
+        :func:`publish_checks` gives it (None: read here); the scan for non-finite
+        values runs only where it says so.
         """
         if out is None:
             out = {}
@@ -904,7 +918,34 @@ class LiveSystem(Linearizing):
             for sig, inj in faults:
                 if sig in out:
                     out[sig] = inj.apply(t, out[sig])
+        scan, limit, stale = checks or publish_checks(self._pool[name], name, faults)
         heard = False
+        if scan:
+            if self._non_finite(out):
+                self._broken.add(name)
+                return "non-finite output"
+            heard = any(v is not None for v in out.values())
+        else:
+            for v in out.values():
+                if v is not None:
+                    heard = True
+                    break
+        self.outputs[name] = out
+        if heard:
+            self._heard[name] = t
+            if self._broken:
+                self._broken.discard(name)
+        elif name in self._broken:  # its last value was NaN: broken until a good one comes
+            return "non-finite output"
+        if limit is not None:  # (quiet is 0 when heard now)
+            quiet = t - self._heard.setdefault(name, t)
+            if quiet > float(limit) + 1e-9:
+                return f"silent for {quiet:.3g} s"
+        return self._count_repeats(stale, out) if stale else None
+
+    def _non_finite(self, out: dict[str, Any]) -> bool:
+        """Whether a value of ``out`` is non-finite (output types found not to be numbers
+        are learnt and skipped)."""
         for v in out.values():
             if v is None:
                 continue
@@ -922,39 +963,24 @@ class LiveSystem(Linearizing):
                 if not bad and not isinstance(v, (float, int, np.number)):
                     self._not_numeric.add(tp)
             if bad:
-                self._broken.add(name)
-                return "non-finite output"
-            heard = True
-        self.outputs[name] = out
-        if heard:
-            self._heard[name] = t
-            if self._broken:
-                self._broken.discard(name)
-        elif name in self._broken:  # its last value was NaN: broken until a good one comes
-            return "non-finite output"
-        limit, levels = limits or declared_limits(self._pool[name])
-        if limit is not None:  # (quiet is 0 when heard now)
-            quiet = t - self._heard.setdefault(name, t)
-            if quiet > float(limit) + 1e-9:
-                return f"silent for {quiet:.3g} s"
-        return self._count_repeats(name, levels, out) if levels else None
+                return True
+        return False
 
-    def _count_repeats(
-        self, name: str, levels: dict[str, float], out: dict[str, Any]
-    ) -> str | None:
-        """Count bit-identical repeats of the noisy signals; the stale reason, or None.
+    def _count_repeats(self, stale: tuple[tuple[str, tuple[str, str], Any], ...],
+                       out: dict[str, Any]) -> str | None:
+        """Count bit-identical repeats of the noisy signals (``stale`` of
+        :func:`publish_checks`); the stale reason, or None.
 
         A signal without a value this step keeps its count (and stays stale).
         """
         last = self._last
         repeats = self._repeats
         reason = None
-        for sig, level in levels.items():
+        for sig, key, level in stale:
             v = out.get(sig)
             if v is None or not level or level <= 0:
-                n = repeats.get((name, sig), 0)
+                n = repeats.get(key, 0)
             else:
-                key = (name, sig)
                 cur = v.tobytes() if type(v) is np.ndarray else v
                 n = repeats[key] = repeats.get(key, 0) + 1 if last.get(key) == cur else 0
                 last[key] = cur
