@@ -516,20 +516,22 @@ def build_plan(
     return plan
 
 
-def _input_lines(k: int, direct: tuple[tuple[str, str], ...] | None, name: str
-                 ) -> tuple[list[str], dict[str, str]]:
+def _input_lines(k: int, direct: tuple[tuple[str, str], ...] | None, name: str,
+                 held: dict[str, str]) -> tuple[list[str], dict[str, str]]:
     """Lines of a generated step that gather a module's inputs; ``carries -> local``.
 
     Direct inputs become local variables (the first source of a signal, then a later
-    one's value where it is not None, as :meth:`LiveSystem._gather`); the others
-    come from ``gather``.
+    one's value where it is not None, as :meth:`LiveSystem._gather`), read from the
+    source's outputs as this step holds them (``held``: module -> local, set where it
+    published); the others come from ``gather``.
     """
     if direct is None:
         return [f"    inputs = gather({name!r})"], {}
     lines: list[str] = []
     local: dict[str, str] = {}
     for j, (carries, src) in enumerate(direct):
-        value = f"(outs.get({src!r}) or _EMPTY).get({carries!r})"
+        value = (f"{held[src]}.get({carries!r})" if src in held
+                 else f"(outs.get({src!r}) or _EMPTY).get({carries!r})")
         if carries not in local:
             local[carries] = f"v{k}_{j}"
             lines.append(f"    {local[carries]} = {value}")
@@ -556,18 +558,23 @@ def _lost_tests(required: tuple[str, ...], local: dict[str, str] | None
 
 
 def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
-                      stepped: bool, required: tuple[str, ...], checked: bool) -> list[str]:
+                      stepped: bool, required: tuple[str, ...], checked: bool,
+                      held: dict[str, str]) -> list[str]:
     """Lines of a generated step for module ``k`` of phases 1 and 2 (output or step, publish,
-    lost inputs, health), as :meth:`LiveSystem.step` documents them."""
-    lines, local = _input_lines(k, direct, name) if stepped else ([], {})
+    lost inputs, health), as :meth:`LiveSystem.step` documents them; its outputs as
+    published (or held) go into the local ``o<k>``, recorded in ``held``."""
+    lines, local = _input_lines(k, direct, name, held) if stepped else ([], {})
+    held[name] = f"o{k}"
     call = f"m[{k}].step(t, dt, inputs)" if stepped else f"m[{k}].output(t)"
     lines += ["    try:", f"        out = {call}"]
     if checked:
         lines += [f"        r = publish({name!r}, out, t, limits[{k}])",
-                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"']
+                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
+                  f"    o{k} = outs.get({name!r}) or _EMPTY"]
     else:
         lines += ["    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
-                  "    else:", f"        outs[{name!r}] = {{}} if out is None else out",
+                  f"        o{k} = outs.get({name!r}) or _EMPTY",
+                  "    else:", f"        outs[{name!r}] = o{k} = {{}} if out is None else out",
                   "        r = None"]
     tests = _lost_tests(required, local if direct is not None else None)
     if tests:
@@ -581,9 +588,9 @@ def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | N
 
 
 def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
-                     required: tuple[str, ...]) -> list[str]:
+                     required: tuple[str, ...], held: dict[str, str]) -> list[str]:
     """Lines of a generated step for state-only module ``k`` of phase 3 (advance to t + dt)."""
-    lines, local = _input_lines(k, direct, name)
+    lines, local = _input_lines(k, direct, name, held)
     lines += ["    try:", f"        m[{k}].step(t, dt, inputs)", "    except Exception as exc:",
               f"        ok[{name!r}] = False",
               f'        why[{name!r}] = f"raised {{type(exc).__name__}}"']
@@ -774,11 +781,12 @@ class LiveSystem(Linearizing):
         fn = plan.step_functions.get(checked)
         if fn is None:
             body: list[str] = []
+            held: dict[str, str] = {}  # module -> the local holding its outputs this step
             for k, (n, stepped) in enumerate(plan.publishing):
                 body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
-                                          plan.required[n] if stepped else (), checked[k])
+                                          plan.required[n] if stepped else (), checked[k], held)
             for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
-                body += _advancing_lines(k, n, plan.direct[n], plan.required[n])
+                body += _advancing_lines(k, n, plan.direct[n], plan.required[n], held)
             fn = plan.step_functions[checked] = _step_function("\n".join(body or ["    pass"]))
         return fn, mods, limits
 
@@ -919,12 +927,12 @@ class LiveSystem(Linearizing):
                 if sig in out:
                     out[sig] = inj.apply(t, out[sig])
         scan, limit, stale = checks or publish_checks(self._pool[name], name, faults)
-        heard = False
+        heard: bool | None = False
         if scan:
-            if self._non_finite(out):
+            heard = self._scan(out)
+            if heard is None:
                 self._broken.add(name)
                 return "non-finite output"
-            heard = any(v is not None for v in out.values())
         else:
             for v in out.values():
                 if v is not None:
@@ -943,9 +951,10 @@ class LiveSystem(Linearizing):
                 return f"silent for {quiet:.3g} s"
         return self._count_repeats(stale, out) if stale else None
 
-    def _non_finite(self, out: dict[str, Any]) -> bool:
-        """Whether a value of ``out`` is non-finite (output types found not to be numbers
-        are learnt and skipped)."""
+    def _scan(self, out: dict[str, Any]) -> bool | None:
+        """None when a value of ``out`` is not finite, else whether it has a value (output
+        types found not to be numbers are learnt and skipped)."""
+        heard = False
         for v in out.values():
             if v is None:
                 continue
@@ -963,8 +972,9 @@ class LiveSystem(Linearizing):
                 if not bad and not isinstance(v, (float, int, np.number)):
                     self._not_numeric.add(tp)
             if bad:
-                return True
-        return False
+                return None
+            heard = True
+        return heard
 
     def _count_repeats(self, stale: tuple[tuple[str, tuple[str, str], Any], ...],
                        out: dict[str, Any]) -> str | None:
