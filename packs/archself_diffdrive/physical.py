@@ -150,13 +150,15 @@ class DiffDrivePlant(RuntimeModule):
         in the stream's order: slip's two, then the pose noise's two."""
         slip = self.slip > 0 and dt > 0
         noisy = (self.lateral > 0 or self.yaw > 0) and dt > 0
-        z = self.rng.standard_normal(2 * slip + 2 * noisy).tolist() if slip or noisy else ()
+        z: list[float] = self.rng.standard_normal(2 * slip + 2 * noisy).tolist() if (
+            slip or noisy) else []
         wl, wr = float(u[0]), float(u[1])
         r = self.radius
         if slip:
             wl = wl + math.sqrt(self.slip * abs(r * wl * dt)) * z[0] / (r * dt)
             wr = wr + math.sqrt(self.slip * abs(r * wr * dt)) * z[1] / (r * dt)
-        (el, er), px, py, th = self._eff, *self.pose.tolist()
+        el, er = self._eff
+        px, py, th = self.pose.tolist()
         px, py, th = arc_step(px, py, th, r, self._base, wl * el, wr * er, dt)
         if not noisy:
             return np.array([px, py, th])
@@ -278,7 +280,7 @@ class WheelEncoders(RuntimeModule):
     Input ``wheel_speeds`` (true, from the plant); output ``encoder_speeds`` ``[l, r]``.
     """
 
-    finite_outputs = True  # finite speeds plus finite noise: no NaN scan (stale, silence still checked)
+    finite_outputs = True  # finite speeds plus noise: no NaN scan (stale still checked)
 
     parameters = {
         "noise_rad_s": Param(
@@ -317,7 +319,7 @@ class Imu(RuntimeModule):
     ``heading`` (rad).
     """
 
-    finite_outputs = True  # a finite heading plus finite noise, wrapped: no NaN scan (stale, silence still checked)
+    finite_outputs = True  # a finite heading plus noise: no NaN scan (stale still checked)
 
     parameters = {
         "noise_rad": Param(
@@ -353,7 +355,7 @@ class Gps(RuntimeModule):
     fixes is in dropout.
     """
 
-    finite_outputs = True  # a finite position plus finite noise: no NaN scan (stale, silence still checked)
+    finite_outputs = True  # a position plus noise: no NaN scan (stale, silence checked)
 
     state_fields = ()  # the fix timer is the clock, not the loop
 
