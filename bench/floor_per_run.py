@@ -452,12 +452,124 @@ def plumbing_cpu(steps: int = 8000, rounds: int = 3) -> tuple[float, float]:
     return best, alone
 
 
+def module_cpu(seed: int = 2, rounds: int = 3) -> dict[str, float]:
+    """µs a step of each module of a fixed a1 run: its calls of one run recorded, then
+    replayed on a fresh copy of the module (best of ``rounds``); and the step's parts
+    around them: the executor (:func:`plumbing_cpu`), ``recording`` (``simulate``'s loop
+    besides ``LiveSystem.step``) and, part of the executor, the health checks
+    ``_publish`` keeps (from switching ``needs_checks`` off; not in the sum)."""
+    import archself
+    import archself.system.live as live
+    from archself.sim import run as simrun
+
+    arch = archself.load(DIFFDRIVE)
+    n = 8000
+    system = live.compile_system(arch, "a1", seed=seed, scenario="nominal")
+    fresh = {name: copy.deepcopy(m) for name, m in system.pool().items()}
+    calls: dict[str, list[tuple[str, tuple[Any, ...]]]] = {name: [] for name in fresh}
+    def spy(f: Any, c: list, m: str) -> Any:
+        def call(*a: Any) -> Any:
+            c.append((m, a))
+            return f(*a)
+        return call
+
+    for name, mod in system.pool().items():
+        for meth in ("step", "output"):
+            setattr(mod, meth, spy(getattr(mod, meth), calls[name], meth))
+    for _ in range(n):
+        system.step()
+    out: dict[str, float] = {}
+    for name, made in calls.items():
+        best = math.inf
+        for _ in range(rounds):
+            mod = copy.deepcopy(fresh[name])
+            fns = {"step": mod.step, "output": mod.output}
+            best = min(best, _cpu(lambda fns=fns, made=made: [fns[m](*a) for m, a in made]))
+        out[name] = best / n * 1e6
+
+    def stepping(checks: bool) -> float:
+        s = live.compile_system(arch, "a1", seed=seed, scenario="nominal")
+        keep, live.needs_checks = live.needs_checks, (live.needs_checks if checks
+                                                       else lambda *_a: False)
+        try:
+            s.step()
+        finally:
+            live.needs_checks = keep
+        return _cpu(lambda: [s.step() for _ in range(n - 1)]) / (n - 1) * 1e6
+
+    def looping() -> float:
+        run = simrun._plan(arch, "nominal", "a1", seed, None, None, None)
+        return _cpu(lambda: simrun._step(run, None, None)) / n * 1e6
+
+    step = min(stepping(True) for _ in range(rounds))
+    executor, stubs = plumbing_cpu(n, rounds)
+    out["executor (modules stubbed)"] = (executor - stubs) / n * 1e6
+    out["recording"] = min(looping() for _ in range(rounds)) - step
+    out["(of the executor: health)"] = step - min(stepping(False) for _ in range(rounds))
+    return out
+
+
+#: The floor's sections (its comment lines) -> the framework's modules they do the work of
+SECTIONS = {"# encoders, IMU and GPS": "encoders, imu, gps",
+            "# dead reckoning": "odometry", "# LQR and its": "lqr",
+            "# the wheels' command error": "wheel_left, wheel_right (+ recording)",
+            "# chassis": "chassis"}
+
+
+def floor_sections(seed: int = 2, rounds: int = 5) -> dict[str, float]:
+    """µs a step of each section of :func:`run_floor_same_work` (its comment lines,
+    :data:`SECTIONS`): a timer (``perf_counter_ns``, ≈ 0.1 µs a section) inserted
+    before each, best of ``rounds`` per section. An estimate: wall time."""
+    import inspect
+
+    S, W = load_setup(), load_work()
+    lines, names = [], ["J, reference, actual (recording)"]
+    for line in inspect.getsource(run_floor_same_work).splitlines():
+        text = line.strip()
+        hit = next((v for k, v in SECTIONS.items() if text.startswith(k)), None)
+        if hit is not None or text.startswith("t = (np.arange(n) + 1) * dt"):
+            lines.append(" " * 8 + f"_t1 = _pc(); _acc[{len(names) - 1}] += _t1 - _t0; _t0 = _t1")
+            names += [hit] if hit else []
+        lines.append(line)
+        if text.startswith("for k in range(n):"):
+            lines.append(" " * 8 + "_t0 = _pc()")
+    space = dict(vars(sys.modules["floor_diffdrive"]))
+    acc = space["_acc"] = [0] * len(names)
+    space["_pc"] = time.perf_counter_ns
+    exec(compile("\n".join(lines), "<floor sections>", "exec"), space)  # noqa: S102
+    best = [math.inf] * len(names)
+    for _ in range(rounds):
+        acc[:] = [0] * len(names)
+        space["run_floor_same_work"](seed, S, W)
+        best = [min(b, a / S.steps / 1e3) for b, a in zip(best, acc, strict=True)]
+    return dict(zip(names, best, strict=True))
+
+
+def by_module(seed: int = 2) -> None:
+    """Print the framework's µs a step by module beside the floor's sections (fixed a1)."""
+    fw, fl = module_cpu(seed), floor_sections(seed)
+    print(f"fixed a1, seed {seed}: µs a step, framework by module (replayed calls), "
+          f"load {os.getloadavg()[0]:.2f}")
+    for name, us in fw.items():
+        print(f"  {name:34} {us:6.2f}")
+    print(f"  {'sum':34} {sum(v for k, v in fw.items() if not k.startswith('(')):6.2f}")
+    print("the floor by section (timers inserted)")
+    for name, us in fl.items():
+        print(f"  {name:34} {us:6.2f}")
+    print(f"  {'sum':34} {sum(fl.values()):6.2f}")
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """The framework's per run against the same-work floors, fixed a1 and adaptive."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[2, 3, 4])
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds per seed")
+    ap.add_argument("--by-module", action="store_true",
+                    help="µs a step by module (framework) and by section (floor), fixed a1")
     args = ap.parse_args(argv)
+    if args.by_module:
+        by_module(args.seeds[0])
+        return
 
     import archself
     from archself.runtime import MapeK

@@ -16,7 +16,7 @@ from archself import registry
 from archself.system.live import FAULT_KINDS, FaultInjector
 from archself_diffdrive.controllers import AsymLqrController, LqrController, lqr_gain
 from archself_diffdrive.estimators import Ekf, InnovationTrend, InnovationWindow, Odometry
-from archself_diffdrive.kinematics import error_dynamics
+from archself_diffdrive.kinematics import arc_step, error_dynamics
 from archself_diffdrive.models import (
     Actuation,
     ActuatorModel,
@@ -805,6 +805,35 @@ def test_plant_lag_and_limit():
     ws = p.output(5.0)["wheel_speeds"]
     assert_allclose(ws, [6.0, 0.0], atol=1e-6)
     assert p.output(5.0)["pose"][2] < 0  # only the left wheel drives: turns right
+
+
+def test_plant_draws_its_disturbances_in_the_stream_order() -> None:
+    """One draw a step (slip's two normals, then the pose noise's two) is the per-call
+    order: the pose equals the step written out on the stream's first four normals, and
+    the stream is left where four draws leave it (lanes draw the same numbers)."""
+    params = {"wheel_time_constant_s": 0.0, "slip_variance_m": 0.01,
+              "lateral_noise_m_sqrt_s": 0.02, "yaw_noise_rad_sqrt_s": 0.03}
+    p = DiffDrivePlant("c", params, np.random.default_rng(7))
+    p.step(0.0, 0.05, {"wheel_speed_left": 4.0, "wheel_speed_right": 6.0})
+    ref = np.random.default_rng(7)
+    z = ref.standard_normal(4).tolist()
+    r, b, dt = p.radius, p._base, 0.05
+    wl = 4.0 + math.sqrt(0.01 * abs(r * 4.0 * dt)) * z[0] / (r * dt)
+    wr = 6.0 + math.sqrt(0.01 * abs(r * 6.0 * dt)) * z[1] / (r * dt)
+    x, y, th = arc_step(0.0, 0.0, 0.0, r, b, wl, wr, dt)
+    lat = 0.02 * (z[2] * math.sqrt(dt))
+    want = [x - math.sin(th) * lat, y + math.cos(th) * lat, th + 0.03 * (z[3] * math.sqrt(dt))]
+    assert_allclose(p.pose, want, rtol=0, atol=0)
+    assert p.rng.standard_normal() == ref.standard_normal()
+
+
+def test_encoders_on_floats_are_the_array_formula_to_the_bit() -> None:
+    enc = WheelEncoders("enc", {"noise_rad_s": 0.07}, np.random.default_rng(3))
+    ref = np.random.default_rng(3)
+    for ws in (np.array([4.25, -1.5]), np.array([1e-3, 7.0])):
+        got = enc.step(0.0, 0.05, {"wheel_speeds": ws})["encoder_speeds"]
+        assert type(got) is np.ndarray
+        assert_allclose(got, ws + 0.07 * ref.standard_normal(2), rtol=0, atol=0)
 
 
 def test_planner_arc_length_and_curvature():

@@ -196,7 +196,7 @@ def test_declared_finite_outputs_skip_the_scan_and_a_fault_restores_it(toys):
     """A type declaring ``finite_outputs`` is not scanned for NaN (its declaration is
     trusted); the same type with a fault on its outputs, or a type declaring nothing,
     is (health.needs_checks)."""
-    from archself.system.live import needs_checks
+    from archself.system.live import needs_checks, publish_checks
 
     register("toy.flaky_finite")(_FlakyFinite)
     try:
@@ -215,6 +215,10 @@ def test_declared_finite_outputs_skip_the_scan_and_a_fault_restores_it(toys):
         assert needs_checks(s.modules["sink"])  # declares nothing: checked
         mod.noise_levels = {"value": 0.1}
         assert needs_checks(mod)  # a stale test to run
+        # ... and only that: no NaN scan unless a fault acts on its outputs
+        assert publish_checks(mod, "f") == (False, None, (("value", ("f", "value"), 0.1),))
+        assert publish_checks(mod, "f", [("value", object())])[0] is True
+        assert publish_checks(s.modules["sink"], "sink") == (True, None, ())
     finally:
         unregister("toy.flaky_finite")
 

@@ -277,8 +277,8 @@ class RuntimeModule:
     max_silence_s: float | None = None
     #: True when finite inputs and parameters always give finite outputs (or None): the
     #: executor then skips the scan of this type's outputs for NaN/inf, unless a fault
-    #: is injected into them or the module declares ``noise_levels`` or
-    #: ``max_silence_s`` (:func:`archself.system.live.needs_checks`). False (the
+    #: is injected into them; the stale and silence checks of ``noise_levels`` and
+    #: ``max_silence_s`` stay (:func:`archself.system.live.publish_checks`). False (the
     #: default, safe): every output is checked every step (docs/hardening.md).
     finite_outputs: ClassVar[bool] = False
     #: The batched class of this type (a :class:`archself.lanes.LaneModule` subclass built

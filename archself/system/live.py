@@ -116,7 +116,7 @@ from archself.system.linearizing import Linearizing
 __all__ = ["FAULT_KINDS", "FaultInjector", "LiveSystem", "NOT_NUMERIC", "STALE_REPEATS",
            "StepPlan", "build_module", "build_plan", "compile_system", "component_error",
            "declared_limits", "default_signal", "is_bad", "module_rng", "needs_checks",
-           "objective_norm", "stable_hash"]
+           "objective_norm", "publish_checks", "stable_hash"]
 
 
 # ---------------------------------------------------------------- random streams
@@ -341,6 +341,19 @@ def needs_checks(module: RuntimeModule, faults: Any = None) -> bool:
     )
 
 
+def publish_checks(module: RuntimeModule, name: str, faults: Any = None
+                   ) -> tuple[bool, Any, tuple[tuple[str, tuple[str, str], Any], ...]]:
+    """What :meth:`LiveSystem._publish` checks of ``module`` (named ``name``), once per bind.
+
+    ``(scan, max_silence_s, stale)``: ``scan`` the NaN/inf scan of every output (a type
+    without ``finite_outputs``, or a fault on its outputs); ``stale`` one
+    ``(signal, (name, signal), level)`` per declared noise level (the repeat counts).
+    """
+    limit, levels = declared_limits(module)
+    scan = bool(faults) or not getattr(type(module), "finite_outputs", False)
+    return scan, limit, tuple((sig, (name, sig), lv) for sig, lv in (levels or {}).items())
+
+
 # ---------------------------------------------------------------- the step plan
 
 
@@ -503,20 +516,22 @@ def build_plan(
     return plan
 
 
-def _input_lines(k: int, direct: tuple[tuple[str, str], ...] | None, name: str
-                 ) -> tuple[list[str], dict[str, str]]:
+def _input_lines(k: int, direct: tuple[tuple[str, str], ...] | None, name: str,
+                 held: dict[str, str]) -> tuple[list[str], dict[str, str]]:
     """Lines of a generated step that gather a module's inputs; ``carries -> local``.
 
     Direct inputs become local variables (the first source of a signal, then a later
-    one's value where it is not None, as :meth:`LiveSystem._gather`); the others
-    come from ``gather``.
+    one's value where it is not None, as :meth:`LiveSystem._gather`), read from the
+    source's outputs as this step holds them (``held``: module -> local, set where it
+    published); the others come from ``gather``.
     """
     if direct is None:
         return [f"    inputs = gather({name!r})"], {}
     lines: list[str] = []
     local: dict[str, str] = {}
     for j, (carries, src) in enumerate(direct):
-        value = f"(outs.get({src!r}) or _EMPTY).get({carries!r})"
+        value = (f"{held[src]}.get({carries!r})" if src in held
+                 else f"(outs.get({src!r}) or _EMPTY).get({carries!r})")
         if carries not in local:
             local[carries] = f"v{k}_{j}"
             lines.append(f"    {local[carries]} = {value}")
@@ -543,18 +558,23 @@ def _lost_tests(required: tuple[str, ...], local: dict[str, str] | None
 
 
 def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
-                      stepped: bool, required: tuple[str, ...], checked: bool) -> list[str]:
+                      stepped: bool, required: tuple[str, ...], checked: bool,
+                      held: dict[str, str]) -> list[str]:
     """Lines of a generated step for module ``k`` of phases 1 and 2 (output or step, publish,
-    lost inputs, health), as :meth:`LiveSystem.step` documents them."""
-    lines, local = _input_lines(k, direct, name) if stepped else ([], {})
+    lost inputs, health), as :meth:`LiveSystem.step` documents them; its outputs as
+    published (or held) go into the local ``o<k>``, recorded in ``held``."""
+    lines, local = _input_lines(k, direct, name, held) if stepped else ([], {})
+    held[name] = f"o{k}"
     call = f"m[{k}].step(t, dt, inputs)" if stepped else f"m[{k}].output(t)"
     lines += ["    try:", f"        out = {call}"]
     if checked:
         lines += [f"        r = publish({name!r}, out, t, limits[{k}])",
-                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"']
+                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
+                  f"    o{k} = outs.get({name!r}) or _EMPTY"]
     else:
         lines += ["    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
-                  "    else:", f"        outs[{name!r}] = {{}} if out is None else out",
+                  f"        o{k} = outs.get({name!r}) or _EMPTY",
+                  "    else:", f"        outs[{name!r}] = o{k} = {{}} if out is None else out",
                   "        r = None"]
     tests = _lost_tests(required, local if direct is not None else None)
     if tests:
@@ -568,9 +588,9 @@ def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | N
 
 
 def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
-                     required: tuple[str, ...]) -> list[str]:
+                     required: tuple[str, ...], held: dict[str, str]) -> list[str]:
     """Lines of a generated step for state-only module ``k`` of phase 3 (advance to t + dt)."""
-    lines, local = _input_lines(k, direct, name)
+    lines, local = _input_lines(k, direct, name, held)
     lines += ["    try:", f"        m[{k}].step(t, dt, inputs)", "    except Exception as exc:",
               f"        ok[{name!r}] = False",
               f'        why[{name!r}] = f"raised {{type(exc).__name__}}"']
@@ -745,8 +765,8 @@ class LiveSystem(Linearizing):
 
         The function (:func:`_step_function`) makes each module's call in step order,
         reads its direct inputs into local variables, checks its publishing by
-        :meth:`_publish` only where :func:`needs_checks` finds something to check (with
-        its ``(max_silence_s, noise_levels)``), and tests its lost inputs inline; inputs
+        :meth:`_publish` only where :func:`needs_checks` finds something to check (and
+        only what :func:`publish_checks` finds), and tests its lost inputs inline; inputs
         that need the general path (latency, noise, renamed ports, list inputs) come
         from :meth:`_gather`. Bound once per plan and again when a module's parameters
         change (:meth:`set_params`); the plan keeps the function per set of checked modules,
@@ -754,17 +774,19 @@ class LiveSystem(Linearizing):
         """
         pool = self._pool
         mods = [pool[n] for n, _ in plan.publishing] + [pool[n] for n in plan.nonft]
-        limits = [declared_limits(pool[n]) if needs_checks(pool[n], self._faults.get(n)) else None
-                  for n, _ in plan.publishing]
+        faults = self._faults
+        limits = [publish_checks(pool[n], n, faults.get(n)) if needs_checks(pool[n], faults.get(n))
+                  else None for n, _ in plan.publishing]
         checked = tuple(lim is not None for lim in limits)
         fn = plan.step_functions.get(checked)
         if fn is None:
             body: list[str] = []
+            held: dict[str, str] = {}  # module -> the local holding its outputs this step
             for k, (n, stepped) in enumerate(plan.publishing):
                 body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
-                                          plan.required[n] if stepped else (), checked[k])
+                                          plan.required[n] if stepped else (), checked[k], held)
             for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
-                body += _advancing_lines(k, n, plan.direct[n], plan.required[n])
+                body += _advancing_lines(k, n, plan.direct[n], plan.required[n], held)
             fn = plan.step_functions[checked] = _step_function("\n".join(body or ["    pass"]))
         return fn, mods, limits
 
@@ -886,15 +908,15 @@ class LiveSystem(Linearizing):
         return dict(self._pool)
 
     # ------------------------------------------------------------------ publishing and health
-    def _publish(
-        self, name: str, out: dict[str, Any] | None, t: float, limits: tuple[Any, Any] | None = None
-    ) -> str | None:
+    def _publish(self, name: str, out: dict[str, Any] | None, t: float,
+                 checks: tuple[bool, Any, tuple[Any, ...]] | None = None) -> str | None:
         """Apply the faults and publish ``out``; the reason the module is unavailable, or None.
 
         The reason covers the module's own output only: a non-finite value, silence
         longer than its ``max_silence_s``, or a noisy signal (``noise_levels``) that
-        repeated itself ``STALE_REPEATS`` times. ``limits``: the module's
-        ``(max_silence_s, noise_levels)`` as the caller read them (None: read here).
+        repeated itself ``STALE_REPEATS`` times. ``checks``: what to check, as
+        :func:`publish_checks` gives it (None: read here); the scan for non-finite
+        values runs only where it says so.
         """
         if out is None:
             out = {}
@@ -904,6 +926,34 @@ class LiveSystem(Linearizing):
             for sig, inj in faults:
                 if sig in out:
                     out[sig] = inj.apply(t, out[sig])
+        scan, limit, stale = checks or publish_checks(self._pool[name], name, faults)
+        heard: bool | None = False
+        if scan:
+            heard = self._scan(out)
+            if heard is None:
+                self._broken.add(name)
+                return "non-finite output"
+        else:
+            for v in out.values():
+                if v is not None:
+                    heard = True
+                    break
+        self.outputs[name] = out
+        if heard:
+            self._heard[name] = t
+            if self._broken:
+                self._broken.discard(name)
+        elif name in self._broken:  # its last value was NaN: broken until a good one comes
+            return "non-finite output"
+        if limit is not None:  # (quiet is 0 when heard now)
+            quiet = t - self._heard.setdefault(name, t)
+            if quiet > float(limit) + 1e-9:
+                return f"silent for {quiet:.3g} s"
+        return self._count_repeats(stale, out) if stale else None
+
+    def _scan(self, out: dict[str, Any]) -> bool | None:
+        """None when a value of ``out`` is not finite, else whether it has a value (output
+        types found not to be numbers are learnt and skipped)."""
         heard = False
         for v in out.values():
             if v is None:
@@ -922,39 +972,25 @@ class LiveSystem(Linearizing):
                 if not bad and not isinstance(v, (float, int, np.number)):
                     self._not_numeric.add(tp)
             if bad:
-                self._broken.add(name)
-                return "non-finite output"
+                return None
             heard = True
-        self.outputs[name] = out
-        if heard:
-            self._heard[name] = t
-            if self._broken:
-                self._broken.discard(name)
-        elif name in self._broken:  # its last value was NaN: broken until a good one comes
-            return "non-finite output"
-        limit, levels = limits or declared_limits(self._pool[name])
-        if limit is not None:  # (quiet is 0 when heard now)
-            quiet = t - self._heard.setdefault(name, t)
-            if quiet > float(limit) + 1e-9:
-                return f"silent for {quiet:.3g} s"
-        return self._count_repeats(name, levels, out) if levels else None
+        return heard
 
-    def _count_repeats(
-        self, name: str, levels: dict[str, float], out: dict[str, Any]
-    ) -> str | None:
-        """Count bit-identical repeats of the noisy signals; the stale reason, or None.
+    def _count_repeats(self, stale: tuple[tuple[str, tuple[str, str], Any], ...],
+                       out: dict[str, Any]) -> str | None:
+        """Count bit-identical repeats of the noisy signals (``stale`` of
+        :func:`publish_checks`); the stale reason, or None.
 
         A signal without a value this step keeps its count (and stays stale).
         """
         last = self._last
         repeats = self._repeats
         reason = None
-        for sig, level in levels.items():
+        for sig, key, level in stale:
             v = out.get(sig)
             if v is None or not level or level <= 0:
-                n = repeats.get((name, sig), 0)
+                n = repeats.get(key, 0)
             else:
-                key = (name, sig)
                 cur = v.tobytes() if type(v) is np.ndarray else v
                 n = repeats[key] = repeats.get(key, 0) + 1 if last.get(key) == cur else 0
                 last[key] = cur

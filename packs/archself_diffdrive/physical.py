@@ -138,40 +138,35 @@ class DiffDrivePlant(RuntimeModule):
         else:
             u = (self.wl, self.wr)
         if self.slip > 0 or self.lateral > 0 or self.yaw > 0:
-            u = self._disturb(u, dt)
-            self.pose = self._noisy_pose(self._move(u, dt), dt)
+            self.pose = self._disturbed_move(u, dt)
         else:
             self.pose = integrate_pose(t, self.pose, u, self._kp)
         return {}
 
-    def _move(self, u: tuple[float, float], dt: float) -> tuple[float, float, float]:
-        """:func:`integrate_pose` of the pose on floats (the same operations, no arrays)."""
-        (el, er), r, b = self._eff, self.radius, self._base
+    def _disturbed_move(self, u: tuple[float, float], dt: float) -> np.ndarray:
+        """The pose after ``dt`` with the disturbances, on floats (:func:`integrate_pose`'s
+        operations): the wheels' ground travel carries the slip (σ² = k·|r·ω·dt| per
+        wheel), the pose the lateral and yaw noise. The step's normals are drawn at once,
+        in the stream's order: slip's two, then the pose noise's two."""
+        slip = self.slip > 0 and dt > 0
+        noisy = (self.lateral > 0 or self.yaw > 0) and dt > 0
+        z: list[float] = self.rng.standard_normal(2 * slip + 2 * noisy).tolist() if (
+            slip or noisy) else []
+        wl, wr = float(u[0]), float(u[1])
+        r = self.radius
+        if slip:
+            wl = wl + math.sqrt(self.slip * abs(r * wl * dt)) * z[0] / (r * dt)
+            wr = wr + math.sqrt(self.slip * abs(r * wr * dt)) * z[1] / (r * dt)
+        el, er = self._eff
         px, py, th = self.pose.tolist()
-        return arc_step(px, py, th, r, b, float(u[0]) * el, float(u[1]) * er, dt)
-
-    def _noisy_pose(self, pose: tuple[float, float, float], dt: float) -> np.ndarray:
-        """``pose`` plus the lateral and yaw noise over ``dt`` (two draws)."""
-        px, py, th = pose
-        if (self.lateral <= 0 and self.yaw <= 0) or dt <= 0:
+        px, py, th = arc_step(px, py, th, r, self._base, wl * el, wr * er, dt)
+        if not noisy:
             return np.array([px, py, th])
+        n0, n1 = z[-2:]
         sq = math.sqrt(dt)
-        n0, n1 = self.rng.standard_normal(2).tolist()
         lat = self.lateral * (n0 * sq)
         return np.array([px + -math.sin(th) * lat, py + math.cos(th) * lat,
                          th + self.yaw * (n1 * sq)])
-
-    def _disturb(self, u: tuple[float, float], dt: float) -> tuple[float, float]:
-        """Wheel speeds whose ground travel carries the slip: σ² = k·|r·ω·dt| per wheel."""
-        if self.slip <= 0 or dt <= 0:
-            return u
-        r = self.radius
-        n = self.rng.standard_normal(2)
-        wl, wr = u
-        return (
-            wl + math.sqrt(self.slip * abs(r * wl * dt)) * float(n[0]) / (r * dt),
-            wr + math.sqrt(self.slip * abs(r * wr * dt)) * float(n[1]) / (r * dt),
-        )
 
     def export_state(self):
         return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
@@ -285,6 +280,8 @@ class WheelEncoders(RuntimeModule):
     Input ``wheel_speeds`` (true, from the plant); output ``encoder_speeds`` ``[l, r]``.
     """
 
+    finite_outputs = True  # finite speeds plus noise: no NaN scan (stale still checked)
+
     parameters = {
         "noise_rad_s": Param(
             0.05, "rad/s", "standard deviation of the speed noise"
@@ -307,7 +304,11 @@ class WheelEncoders(RuntimeModule):
         ws = inputs.get("wheel_speeds")
         if ws is None:
             return {"encoder_speeds": None}
-        return {"encoder_speeds": ws + self.noise * self.rng.standard_normal(2)}
+        # on floats: the same operations as ``ws + noise · N(0, 1)`` (an array's arithmetic
+        # costs 1.7 µs a step, these 0.9)
+        n0, n1 = self.rng.standard_normal(2).tolist()
+        wl, wr = ws.tolist() if type(ws) is np.ndarray else (float(ws[0]), float(ws[1]))
+        return {"encoder_speeds": np.array([wl + self.noise * n0, wr + self.noise * n1])}
 
 
 class Imu(RuntimeModule):
@@ -317,6 +318,8 @@ class Imu(RuntimeModule):
     ``bias_drift`` fault of the scenario. Input ``pose`` (true); output
     ``heading`` (rad).
     """
+
+    finite_outputs = True  # a finite heading plus noise: no NaN scan (stale still checked)
 
     parameters = {
         "noise_rad": Param(
@@ -351,6 +354,8 @@ class Gps(RuntimeModule):
     ``max_silence_s`` (2.5 fix periods) tells the system when a receiver without
     fixes is in dropout.
     """
+
+    finite_outputs = True  # a position plus noise: no NaN scan (stale, silence checked)
 
     state_fields = ()  # the fix timer is the clock, not the loop
 
