@@ -196,7 +196,7 @@ class LtiModel:
         (1, 2.0)
         """
         m = designs.tf2ss(num, den, dt or 0.0)
-        return cls(*(np.array(m[k]) for k in "ABCD"), dt)
+        return cls(np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), dt)
 
     def discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(Ad, Bd)`` for a step ``dt``: zero-order hold (``control.c2d``) of a
