@@ -99,6 +99,8 @@ LATE = {
     "__init__": 6, "calibration/__init__": 1, "ros2/__init__": 2, "cli/base": 10,
     "cli/calibration": 12, "cli/campaigns": 6, "cli/files": 21, "cli/live": 13, "cli/reports": 5,
     "cli/runs": 13, "model/architecture": 1, "model/messages": 2, "sim/result": 2,
+    # io/jsondata: its printed documents (io/outdocs) by name, PEP 562 (a run prints none)
+    "io/jsondata": 1,
     # on demand: one function needs what the file's other users do not load (matplotlib,
     # networkx, scipy, the opt-in stability check, pydantic models, the lanes or a whole run)
     "calibration/report": 4, "calibration/runs": 5, "campaign/figures": 1, "campaign/plan": 1,

@@ -201,6 +201,42 @@ def test_lqr_design_cache_hit_and_miss_give_the_same_gain_to_the_bit(design_cach
     assert entry.read_text().startswith('{"key": ')
 
 
+def _block_designs(designs):
+    """The blocks pack's designs: observer poles (a complex pair), a ZOH, a realization."""
+    A = np.array([[0.0, 1.0], [-2.0, -0.3]])
+    return {"place": designs.place(A.T, np.array([[1.0, 0.0]]).T,
+                                   [complex(-2.0, 1.0), complex(-2.0, -1.0)]),
+            "zoh A": designs.zoh(A, [[0.0], [1.0]], [[1.0, 0.0]], [[0.0]], 0.05)[0],
+            "zoh B": designs.zoh(A, [[0.0], [1.0]], [[1.0, 0.0]], [[0.0]], 0.05)[1],
+            **{f"tf {k}": v for k, v in designs.tf2ss([2.0], [1.0, 0.5, 3.0], 0.0).items()}}
+
+
+def test_place_zoh_and_tf2ss_hit_and_miss_equal_python_control_to_the_bit(design_cache) -> None:
+    """The blocks pack's per-run designs (observer gain, discretization, realization): a
+    miss, the memo and a read-back entry all equal python-control's own result."""
+    import control
+
+    from archself.linear import designs
+
+    A = np.array([[0.0, 1.0], [-2.0, -0.3]])
+    sysd = control.c2d(control.ss(A, [[0.0], [1.0]], [[1.0, 0.0]], [[0.0]]), 0.05, method="zoh")
+    tf = control.ss(control.tf([2.0], [1.0, 0.5, 3.0], 0.0))
+    want = {"place": control.place(A.T, np.array([[1.0, 0.0]]).T,
+                                   [complex(-2.0, 1.0), complex(-2.0, -1.0)]),
+            "zoh A": sysd.A, "zoh B": sysd.B,
+            "tf A": tf.A, "tf B": tf.B, "tf C": tf.C, "tf D": tf.D}
+    miss = _block_designs(designs)
+    assert len(list(design_cache.glob("*.json"))) == 3
+    designs._MEMO.clear()
+    hit = _block_designs(designs)
+    for name, w in want.items():
+        w = np.asarray(w, dtype=float)
+        assert miss[name].tobytes() == w.tobytes() == hit[name].tobytes(), name
+        assert hit[name] is not miss[name] and not hit[name].flags.writeable
+    eig = np.linalg.eigvals(A - want["place"].T @ np.array([[1.0, 0.0]]))
+    assert_allclose(sorted(eig, key=lambda z: z.imag), [-2.0 - 1.0j, -2.0 + 1.0j], atol=1e-9)
+
+
 @pytest.mark.parametrize("damage", ["corrupt", "truncated", "foreign", "wrong shape",
                                     "not base64"])
 def test_a_damaged_or_foreign_design_entry_is_ignored_and_rewritten(design_cache,

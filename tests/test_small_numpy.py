@@ -2,7 +2,9 @@
 
 W, the influence solve, ρ(W), the singularity test, strong components and the NNLS of the
 source fit use numpy up to their size bounds; each is checked here against the scipy
-routine it stands in for, and a warm diff-drive run is checked to import no scipy at all.
+routine it stands in for, and a warm diff-drive run is checked to import no scipy at all;
+so are warm runs of the blocks pack's files (their observer gains and discretizations
+come from the design cache).
 """
 
 from __future__ import annotations
@@ -174,6 +176,30 @@ def test_whole_loop_modes_the_same_for_a_dense_and_a_sparse_a() -> None:
         assert [m.magnitude for m in d] == pytest.approx([m.magnitude for m in s], rel=1e-12)
         assert [m.shares for m in d] == [m.shares for m in s]
     assert len(dense[1]) == 1 and len(dense[2]) == 2
+
+
+@pytest.mark.parametrize("name", ["thermal_zone", "heated_chain", "motor_drive"])
+def test_a_warm_blocks_simulate_imports_no_control_or_scipy(tmp_path, name) -> None:
+    """The blocks pack's designs (Luenberger poles, zero-order holds) come from the design
+    cache on a warm run: neither python-control nor scipy is imported; the cold, first
+    process designs with python-control, and both print the same result."""
+    code = (
+        "import runpy, sys\n"
+        f"sys.argv = ['archself', 'simulate', {str(ROOT / 'architectures' / f'{name}.yaml')!r},"
+        " '--scenario', 'nominal']\n"
+        "try:\n"
+        "    runpy.run_module('archself', run_name='__main__')\n"
+        "except SystemExit as exc:\n"
+        "    assert not exc.code, exc.code\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'control')))\n"
+    )
+    env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env=env, cwd=ROOT) for _ in range(2)]
+    cold, warm = (r.stdout.split("\n") for r in runs)
+    assert "'control'" in cold[-2], runs[0].stderr[-2000:]
+    assert warm[-2] == "[]", runs[1].stderr[-2000:]
+    assert cold[:-2] == warm[:-2] and any("switches (adaptive)" in line for line in warm)
 
 
 def test_a_warm_diffdrive_simulate_imports_no_scipy(tmp_path) -> None:

@@ -1,8 +1,10 @@
 """Designs computed once: in the process, and across processes on disk.
 
 A design is a pure function of numeric inputs whose result is a few named float
-arrays: :func:`lqr` (``control.lqr``: python-control designs every gain) and, through
-:func:`cached`, any other (the diff-drive pack's spline path, ``scipy.interpolate``).
+arrays: :func:`lqr` (``control.lqr``: python-control designs every gain), :func:`place`
+(an observer's poles), :func:`zoh` (an LTI block's discretization at the run's step),
+:func:`tf2ss` (a transfer function's realization) and, through :func:`cached`, any other
+(the diff-drive pack's spline path, ``scipy.interpolate``).
 Both caches are keyed by the exact design inputs — the design's name, the version of the
 library that computes it, the bytes, shapes and dtypes of the input arrays:
 
@@ -37,7 +39,7 @@ import numpy as np
 from archself.errors import ArchselfError
 from archself.io.files import write_text
 
-__all__ = ["cache_dir", "cached", "lqr"]
+__all__ = ["cache_dir", "cached", "lqr", "place", "tf2ss", "zoh"]
 
 Arrays = dict[str, np.ndarray]
 
@@ -169,3 +171,85 @@ def lqr(A: Any, B: Any, Q: Any, R: Any) -> np.ndarray:
     shape = (mats[1].shape[1], mats[0].shape[0])
     return cached("lqr", "control", mats, design,
                   lambda found: set(found) == {"gain"} and found["gain"].shape == shape)["gain"]
+
+
+def place(A: Any, B: Any, poles: Sequence[float | complex]) -> np.ndarray:
+    """The gain ``K`` of ``control.place(A, B, poles)`` (eig(A − B K) at ``poles``), placed once.
+
+    ``poles`` are passed to python-control as given (floats and complex numbers).
+
+    Examples
+    --------
+    >>> place([[0.0, 0.0], [1.0, 0.0]], [[1.0], [0.0]], [-2.0, -3.0]).round(6).tolist()
+    [[5.0, 6.0]]
+    """
+    given = [np.asarray(m, dtype=float) for m in (A, B)]  # designed as given (their layout)
+    mats = [np.ascontiguousarray(m) for m in given]
+    wanted = list(poles)
+    # each pole's real part, imaginary part and kind (1: given complex): the key's input
+    spec = np.array([[complex(p).real, complex(p).imag, float(isinstance(p, complex))]
+                     for p in wanted], dtype=float).reshape(-1, 3)
+
+    def design() -> Arrays:
+        import control
+
+        return {"gain": control.place(*given, wanted)}
+
+    shape = (mats[1].shape[1], mats[0].shape[0])
+    return cached("place", "control", [*mats, spec], design,
+                  lambda found: set(found) == {"gain"} and found["gain"].shape == shape)["gain"]
+
+
+def zoh(A: Any, B: Any, C: Any, D: Any, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(Ad, Bd)`` of ``control.c2d(control.ss(A, B, C, D), dt, method="zoh")``, once.
+
+    Examples
+    --------
+    >>> Ad, Bd = zoh([[0.0]], [[1.0]], [[1.0]], [[0.0]], 0.5)   # ẋ = u
+    >>> Ad.tolist(), Bd.tolist()
+    ([[1.0]], [[0.5]])
+    """
+    given = [np.asarray(m, dtype=float) for m in (A, B, C, D)]  # designed as given
+    mats = [np.ascontiguousarray(m) for m in given]
+    step = float(dt)
+
+    def design() -> Arrays:
+        import control
+
+        sysd = control.c2d(control.ss(*given), step, method="zoh")
+        return {"A": sysd.A, "B": sysd.B}
+
+    n, m = mats[1].shape
+    got = cached("zoh", "control", [*mats, np.array(step)], design,
+                 lambda found: set(found) == {"A", "B"} and found["A"].shape == (n, n)
+                 and found["B"].shape == (n, m))
+    return got["A"], got["B"]
+
+
+def tf2ss(num: Sequence[float], den: Sequence[float], dt: float) -> Arrays:
+    """``A, B, C, D`` of ``control.ss(control.tf(num, den, dt))``, realized once.
+
+    Examples
+    --------
+    >>> m = tf2ss([2.0], [1.0, 1.0], 0.0)
+    >>> sorted(m), m["A"].shape
+    (['A', 'B', 'C', 'D'], (1, 1))
+    """
+    coeffs = [list(np.ravel(np.asarray(c, dtype=float))) for c in (num, den)]
+    step = float(dt)
+
+    def design() -> Arrays:
+        import control
+
+        sys = control.ss(control.tf(coeffs[0], coeffs[1], step))
+        return {"A": sys.A, "B": sys.B, "C": sys.C, "D": sys.D}
+
+    def shapes(found: Arrays) -> bool:
+        if set(found) != {"A", "B", "C", "D"} or any(a.ndim != 2 for a in found.values()):
+            return False
+        n = found["A"].shape[0]
+        return (found["A"].shape == (n, n) and found["B"].shape == (n, 1)
+                and found["C"].shape == (1, n) and found["D"].shape == (1, 1))
+
+    return cached("tf2ss", "control", [np.array(c) for c in coeffs] + [np.array(step)],
+                  design, shapes)

@@ -29,6 +29,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from archself.linear import designs
 from archself.model.architecture import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
 from archself_blocks.lti import (
@@ -588,8 +589,6 @@ def observer_gain(model: LtiModel, poles: Any, rows: list[int] | None = None) ->
     >>> observer_gain(m, [-2.0, -3.0]).round(6).tolist()
     [[5.0], [6.0]]
     """
-    import control
-
     C = model.C if rows is None else model.C[rows, :]
     wanted: list[complex] = []
     for p in poles:
@@ -598,7 +597,7 @@ def observer_gain(model: LtiModel, poles: Any, rows: list[int] | None = None) ->
             wanted += [complex(re, im), complex(re, -im)]
         else:
             wanted.append(float(p))
-    return np.asarray(control.place(model.A.T, C.T, wanted), dtype=float).T
+    return np.array(designs.place(model.A.T, C.T, wanted)).T
 
 
 class Luenberger(_ModelEstimator):
@@ -647,10 +646,8 @@ class Luenberger(_ModelEstimator):
         H = self._h()
         ao, bo = m.A - L @ H, np.hstack([m.B, L])
         if m.dt == 0:
-            import control
-
-            sysd = control.c2d(control.ss(ao, bo, np.eye(m.n), 0), dt, method="zoh")
-            self._ad, self._bd = np.asarray(sysd.A), np.asarray(sysd.B)
+            self._ad, self._bd = designs.zoh(ao, bo, np.eye(m.n),
+                                             np.zeros((m.n, bo.shape[1])), dt)
         else:
             self._ad, self._bd = ao, bo
         self._dt = dt

@@ -3,7 +3,8 @@
 The model is written once as matrices (or a numerator/denominator) in the file;
 python-control converts and discretizes it (``control.ss``, ``control.tf``,
 ``control.c2d`` with a zero-order hold) when the block first runs, never at
-import time, so ``archself validate`` stays light.
+import time, so ``archself validate`` stays light; both go through the design cache
+(:mod:`archself.linear.designs`), so a warm run imports neither python-control nor scipy.
 
 Signal vocabulary of the block library (edges name signals by ``carries``):
 
@@ -36,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from archself.linear import designs
 from archself.model.architecture import Input, Output
 from archself.modules.base import LinearModel, Param, RuntimeModule
 
@@ -193,10 +195,8 @@ class LtiModel:
         >>> m.n, round(float((m.C @ np.linalg.solve(-m.A, m.B) + m.D)[0, 0]), 6)  # DC gain
         (1, 2.0)
         """
-        import control
-
-        sys = control.ss(control.tf(list(np.ravel(num)), list(np.ravel(den)), dt or 0))
-        return cls(sys.A, sys.B, sys.C, sys.D, dt)
+        m = designs.tf2ss(num, den, dt or 0.0)
+        return cls(np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), dt)
 
     def discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(Ad, Bd)`` for a step ``dt``: zero-order hold (``control.c2d``) of a
@@ -205,11 +205,7 @@ class LtiModel:
             return self.A, self.B
         hit = self._cache.get(dt)
         if hit is None:
-            import control
-
-            sysd = control.c2d(control.ss(self.A, self.B, self.C, self.D), dt, method="zoh")
-            hit = (np.asarray(sysd.A, dtype=float), np.asarray(sysd.B, dtype=float))
-            self._cache[dt] = hit
+            hit = self._cache[dt] = designs.zoh(self.A, self.B, self.C, self.D, dt)
         return hit
 
     def continuous_a(self) -> np.ndarray:
