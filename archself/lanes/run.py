@@ -243,12 +243,12 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
 
     A lane's cycle without a candidate is recorded by :meth:`MapeK.quiet` (its
     Analyze made there, r = 0 or not). A lane with a candidate (or that observes on
-    its own) is called in a :class:`_Worker`, which pauses at the lane's whole-loop check: the checks of the
-    cycle are then made together (:func:`~archself.lanes.view.lane_loops`) and the
-    paused calls go on, in lane order. Each call touches its own lane only (its
-    loop, its per-run system, its streams' pins); the lanes move after every call
-    has ended (:meth:`LaneView.done`, in lane order), so the decisions are those of
-    calls one after the other.
+    its own) is called in a :class:`_Worker`, which pauses at the lane's whole-loop
+    check: the checks of the cycle are then made together
+    (:func:`~archself.lanes.view.lane_loops`) and the paused calls go on, in lane
+    order. Each call touches its own lane only (its loop, its per-run system, its
+    streams' pins); the lanes move after every call has ended (:meth:`LaneView.done`,
+    in lane order), so the decisions are those of calls one after the other.
     """
 
     lanes, loops, views = plan.lanes, plan.loops, plan.views
