@@ -418,10 +418,26 @@ def test_quiet_refuses_a_cycle_with_anything_to_analyze(diffdrive_raw) -> None:
     for o, sel in ((hot, ThresholdSelector(0.5)), (obs, ThresholdSelector(0.0))):
         loop.selector = sel
         assert not loop.quiet(system, o)
+    # a residual without a candidate: Analyze made and recorded as the call records it
+    for lp in (loop, want):
+        lp.selector = ThresholdSelector(1e9)
+    assert loop.quiet(system, hot) and len(loop.decisions) == 2
+    want(system, observation=hot)
+    got, ref = loop.decisions[1].to_dict(), want.decisions[1].to_dict()
+    assert got == ref and ref["z"] and max(ref["source"].values()) > 0.5
+    # with a candidate: refused, and the call that follows reuses that Analyze (no second
+    # Analyze: the selector, which may keep state, is asked once a cycle)
+    loop.selector = ThresholdSelector(0.5)
+    assert not loop.quiet(system, hot)
+    asked = []
+    loop._analyze = lambda *a: asked.append(a)  # type: ignore[method-assign]
+    loop(system, observation=hot)
+    del loop._analyze
+    assert not asked and loop.decisions[2].candidates and len(loop.decisions) == 3
     h = loop.selector = HysteresisSelector(on=0.6, off=0.0)
     h.members = {"imu"}
     assert not loop.quiet(system, obs)
     h.members = set()
     assert loop.quiet(system, obs)
     system.apply_configuration(next(c for c in arch.configurations if c != system.configuration))
-    assert not loop.quiet(system, obs) and len(loop.decisions) == 2
+    assert not loop.quiet(system, obs) and len(loop.decisions) == 4

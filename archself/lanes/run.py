@@ -241,13 +241,14 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
     """One cycle of every lane's loop: the Monitor stage in bulk where it can, each loop
     called with its lane's view; the switches appended to ``switches``.
 
-    A lane with a residual (or that observes on its own) is called in a
-    :class:`_Worker`, which pauses at the lane's whole-loop check: the checks of the
-    cycle are then made together (:func:`~archself.lanes.view.lane_loops`) and the
-    paused calls go on, in lane order. Each call touches its own lane only (its
-    loop, its per-run system, its streams' pins); the lanes move after every call
-    has ended (:meth:`LaneView.done`, in lane order), so the decisions are those of
-    calls one after the other.
+    A lane's cycle without a candidate is recorded by :meth:`MapeK.quiet` (its
+    Analyze made there, r = 0 or not). A lane with a candidate (or that observes on
+    its own) is called in a :class:`_Worker`, which pauses at the lane's whole-loop
+    check: the checks of the cycle are then made together
+    (:func:`~archself.lanes.view.lane_loops`) and the paused calls go on, in lane
+    order. Each call touches its own lane only (its loop, its per-run system, its
+    streams' pins); the lanes move after every call has ended (:meth:`LaneView.done`,
+    in lane order), so the decisions are those of calls one after the other.
     """
 
     lanes, loops, views = plan.lanes, plan.loops, plan.views
@@ -262,9 +263,10 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
     quiet = plan.quiet
     for lane in range(lanes.n):
         obs = observed.get(lane)
+        if obs is not None and quiet and loops[lane].quiet(views[lane], obs):
+            continue  # no candidate: recorded, nothing to plan
         if obs is not None and not obs.r.any():  # nothing to plan from: no check to wait for
-            if not (quiet and loops[lane].quiet(views[lane], obs)):
-                outs[lane] = loops[lane](views[lane], observation=obs)
+            outs[lane] = loops[lane](views[lane], observation=obs)
             continue
         worker = _Worker(loops[lane], views[lane], obs)
         if worker.resume():

@@ -149,6 +149,7 @@ class MapeK:
         self._sources_key: Any = None
         self._estimator: SourceEstimator | SourceFit | None = None
         self._equivalent: list[list[str]] = []
+        self._pending: tuple[Observation, _Analysis] | None = None  # quiet's analysis
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: ManagedSystem, observation: Any = None) -> list[dict[str, Any]]:
@@ -177,8 +178,9 @@ class MapeK:
             self._still_compensated(k.configuration, k.active)
         # MONITOR (Eq. 11-12)
         obs = observation if observation is not None else self.monitor.observe(system, k.active)
-        # ANALYZE (Eq. 13-16)
-        cycle = self._analyze(obs, k)
+        # ANALYZE (Eq. 13-16), unless :meth:`quiet` made it for this observation
+        pending, self._pending = self._pending, None
+        cycle = pending[1] if pending is not None and pending[0] is obs else self._analyze(obs, k)
         record = self._record(t, obs, cycle)
         if record.phase == "warmup" or not (cycle.candidates or self.strategies.running):
             return []
@@ -214,7 +216,7 @@ class MapeK:
         k = self.knowledge
         if self.t_start is None:
             self.t_start = t
-        warm = t - self.t_start < self.warmup_s - 1e-9
+        warm = self._warm(t)
         record = DecisionRecord(
             cycle=self.cycle,
             t=t,
@@ -241,32 +243,49 @@ class MapeK:
             self._sources_key = None  # W changed: the source fit is rebuilt
         return record
 
-    def quiet(self, system: ManagedSystem, observation: Observation) -> bool:
-        """Record a cycle with every residual 0 as :meth:`__call__` would; False: not one.
+    def _warm(self, t: float) -> bool:
+        """Whether a cycle at ``t`` is in warm-up (the first cycle starts it)."""
+        return t - (t if self.t_start is None else self.t_start) < self.warmup_s - 1e-9
 
-        With r = 0 (and propagation on) z = ê = r = 0 and the shipped selectors select
-        nothing (a threshold τ > 0, top-k, hysteresis without members): the cycle only
-        appends its decision record (the same :meth:`_record`). It is made here without
-        the Analyze and Plan calls when nothing else is pending — the system in the
-        configuration and active set the Knowledge holds, its compensation checked there,
-        no strategy running. Otherwise nothing is done and False returned: the caller
-        runs the cycle. Lane batches call it for the lanes whose bulk observation has no
-        residual (:func:`archself.lanes.run.simulate_lanes`).
+    def quiet(self, system: ManagedSystem, observation: Observation) -> bool:
+        """Record a cycle without a candidate as :meth:`__call__` would; False: not one.
+
+        A cycle whose selector selects nothing (or in warm-up) only appends its decision
+        record (the same :meth:`_record`); no Plan, no whole-loop check. It is made here
+        when nothing else is pending — the system in the configuration and active set
+        the Knowledge holds, its compensation checked there, no strategy running,
+        propagation on. With every residual 0, z = ê = r = 0 and no Analyze is needed
+        where the selector selects nothing on zeros (a threshold τ > 0, top-k,
+        hysteresis without members); with a residual the cycle's Analyze is made here.
+        Otherwise nothing is recorded and False returned: the caller runs the cycle,
+        and a call of :meth:`__call__` with the same ``observation`` reuses the Analyze
+        made here (the selector is asked once a cycle). Lane batches call it for every
+        lane (:func:`archself.lanes.run.simulate_lanes`): only lanes with a candidate
+        go on to the per-lane call.
         """
         k, sel = self.knowledge, self.selector
+        self._pending = None
         if (
-            observation.r.any() or not self.propagate or self.strategies.running is not None
-            or not (type(sel) is TopKSelector
-                    or (type(sel) is ThresholdSelector and sel.tau > 0)
-                    or (type(sel) is HysteresisSelector and sel.on > 0 and not sel.members))
+            not self.propagate or self.strategies.running is not None
             or system.configuration != k.configuration or system.active != k.active
             or (self.compensated and k.configuration != self._checked_conf)
         ):
             return False
-        r_values = observation.r[k.active_index]
-        r = ValueMap(k.active_names, k.active_pos, r_values)
-        self._equivalent = []
-        self._record(float(system.t), observation, _Analysis(r_values, r, r, r_values, r, r, []))
+        t = float(system.t)
+        if observation.r.any():
+            cycle = self._analyze(observation, k)
+            if cycle.candidates and not self._warm(t):
+                self._pending = (observation, cycle)
+                return False
+        elif (type(sel) is TopKSelector or (type(sel) is ThresholdSelector and sel.tau > 0)
+              or (type(sel) is HysteresisSelector and sel.on > 0 and not sel.members)):
+            r_values = observation.r[k.active_index]
+            r = ValueMap(k.active_names, k.active_pos, r_values)
+            self._equivalent = []
+            cycle = _Analysis(r_values, r, r, r_values, r, r, [])
+        else:
+            return False
+        self._record(t, observation, cycle)
         return True
 
     def _plan(self, system: ManagedSystem, t: float, obs: Observation, cycle: _Analysis,
