@@ -277,6 +277,29 @@ def test_raising_module_is_routed_around(crash_types, seed):
     assert res.metrics["final_error"] < 0.1
 
 
+def test_a_run_reports_its_module_faults(crash_types):
+    """A module that raises is in the run's faults (and the command's summary), fixed
+    from its crash to the end, adaptive until the loop routed around it."""
+    from archself.cli.runs import _summary
+
+    a = crash_arch()
+    fixed = simulate(a, "run", seed=0)
+    assert [(f["module"], f["reason"]) for f in fixed.faults] == [("primary", "raised RuntimeError")]
+    f = fixed.faults[0]
+    dt = a.runtime.step_s
+    assert 3.0 <= f["first_s"] <= 3.0 + 2 * dt
+    np.testing.assert_allclose(f["last_s"], 12.0, atol=1e-9)
+    assert f["steps"] == round((f["last_s"] - f["first_s"]) / dt) + 1
+    adaptive = simulate(a, "run", seed=0, adapt=MapeK(a))
+    spans = {(g["module"], g["reason"]): g for g in adaptive.faults}
+    assert set(spans) == {("primary", "raised RuntimeError")}  # inactive after the switch
+    assert spans["primary", "raised RuntimeError"]["last_s"] < adaptive.switches[0]["t_s"] + dt
+    text = _summary([fixed, adaptive])
+    assert f"module faults (fixed): primary raised RuntimeError t = {f['first_s']:.1f}–12.0 s" in text
+    assert "module faults (adaptive): primary raised RuntimeError" in text
+    assert "module faults" not in _summary([simulate(crash_arch(crash_s=99.0), "run", seed=0)])
+
+
 # ---------------------------------------------------------------- the robot's scenarios
 def run(arch, scenario, seed):
     loop = MapeK(arch)

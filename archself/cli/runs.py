@@ -113,7 +113,18 @@ def _summary(results: list) -> str:
         lines.append(label.ljust(left) + vals)
     for r in results:
         lines.append(f"switches ({r.mode}): {_switches_text(r.switches)}")
+    for r in results:
+        if r.faults:
+            lines.append(f"module faults ({r.mode}): {_faults_text(r.faults)}")
     return "\n".join(lines)
+
+
+def _faults_text(faults: list[dict]) -> str:
+    """``module reason t = a–b s (n steps)``, the first five, then how many more."""
+    text = [f"{f['module']} {f['reason']} t = {f['first_s']:.1f}–{f['last_s']:.1f} s "
+            f"({f['steps']:,} step{'s' * (f['steps'] != 1)})" for f in faults[:5]]
+    more = len(faults) - 5
+    return "; ".join(text) + (f"; and {more} more" if more > 0 else "")
 
 
 def simulate(

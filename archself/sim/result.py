@@ -125,6 +125,13 @@ class RunResult:
         Architecture name, step, period, duration.
     unit : str or None
         Unit of the error metrics: ``runtime.objective.unit`` (None if not declared).
+    faults : list of dict
+        The modules that were unavailable while active, one entry per module and
+        reason, in the order first seen: ``{module, reason, first_s, last_s, steps}``
+        (``reason`` as :meth:`LiveSystem.health` gives it, without a running count:
+        ``raised RuntimeError``, ``non-finite output``, ``silent``, ``stale <signal>``,
+        ``lost input <signal>``). Filled by :func:`archself.simulate`; lane-batched
+        runs leave it empty.
     """
 
     scenario: str
@@ -139,6 +146,7 @@ class RunResult:
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
     configurations: list[str] = dataclasses.field(default_factory=list)
     unit: str | None = None
+    faults: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The run as JSON data (one of ``archself simulate --json``'s ``runs``): its

@@ -24,6 +24,7 @@ re-exported here.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -323,7 +324,8 @@ def _step(
     progress: Callable[[int, int], None] | None,
 ) -> list[dict[str, Any]]:
     """Step the run's system through the scenario, record every step (the series the
-    recording keeps), call ``adapt`` every ``runtime.period_s``; the switches it made."""
+    recording keeps), call ``adapt`` every ``runtime.period_s``; the switches it made and
+    the module faults seen (:func:`fault_spans`)."""
     system, rec, rt = run.system, run.rec, run.arch.runtime
     n = rec.n
     per = max(1, int(round(rt.period_s / rec.dt)))
@@ -340,8 +342,11 @@ def _step(
     t_col, J_col, conf_col, res = rec.t, rec.J[:, 0], rec.conf[:, 0], rec.res[:, 0]
     comps, put = rec.comps, rec.put
     empty: dict[str, Any] = {}
+    faults: dict[tuple[str, str], list[Any]] = {}
     for i in range(n):
         system.step()
+        if system.unavailable:
+            _note_faults(faults, system)
         if system.configuration != cur_conf:
             cur_conf = system.configuration
             index = rec.conf_index.get(cur_conf, -1)
@@ -374,7 +379,34 @@ def _step(
                 switches.extend(dict(s) for s in out)
         if progress is not None and ((i + 1) % every == 0 or i + 1 == n):
             progress(i + 1, n)
-    return switches
+    return switches, fault_spans(faults)
+
+
+_VARYING = re.compile(r" for [-+0-9.e]+ s$| \(\d+ identical values\)$")
+
+
+def _note_faults(faults: dict[tuple[str, str], list[Any]], system: Any) -> None:
+    """Count this step's unavailable active modules into ``faults``: (module, reason
+    without its running count) -> [first t, last t, steps, reason as first seen]."""
+    t, active = system.t, system.active
+    for name, why in system.unavailable.items():
+        if name not in active:
+            continue
+        key = (name, _VARYING.sub("", why))
+        span = faults.get(key)
+        if span is None:
+            faults[key] = [t, t, 1, why]
+        else:
+            span[1] = t
+            span[2] += 1
+
+
+def fault_spans(faults: dict[tuple[str, str], list[Any]]) -> list[dict[str, Any]]:
+    """The module faults of a run as data, in the order first seen: ``{module, reason,
+    first_s, last_s, steps}`` (``reason`` without a running count: ``raised
+    RuntimeError``, ``silent``, ``stale estimate``, ``lost input pose`` …)."""
+    return [{"module": m, "reason": r, "first_s": float(v[0]), "last_s": float(v[1]),
+             "steps": int(v[2])} for (m, r), v in faults.items()]
 
 
 def simulate(
@@ -424,11 +456,12 @@ def simulate(
         The configuration cannot be built.
     """
     run = _plan(arch, scenario, configuration, seed, adapt, progress, keep)
-    switches = _step(run, adapt, progress)
+    switches, faults = _step(run, adapt, progress)
     res = run.rec.result(
         0, run.arch, run.seed, "fixed" if adapt is None else "adaptive", run.start,
         run.system.configuration, switches, list(getattr(adapt, "decisions", None) or []),
     )
+    res.faults = faults
     saved = getattr(adapt, "saved_knowledge", None)  # what the loop learned: in the trace
     known = saved() if callable(saved) else None
     if known is not None:

@@ -815,6 +815,13 @@ class LiveSystem(Linearizing):
         stale in the last step."""
         return {n: self._ok.get(n, True) for n in self._plan.active}
 
+    @property
+    def unavailable(self) -> dict[str, str]:
+        """module -> why it was unavailable in the last step, for the modules that were
+        (the executor's own dict: read it, do not change it; may name a module the last
+        hand-over deactivated)."""
+        return self._why
+
     def health(self) -> dict[str, str | None]:
         """module -> why it is unavailable (None when available), for the active modules.
 
