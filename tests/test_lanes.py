@@ -151,11 +151,13 @@ def test_a_module_that_raises_holds_its_last_outputs_in_that_lane(diffdrive_raw)
     assert_array_equal(after[1], before[1])  # held
     assert not np.array_equal(after[0], before[0])
     assert lanes.failed["odometry"].tolist() == [1]
+    assert [lanes.reasons(i)["odometry"] for i in (0, 1)] == [None, "raised KeyError"]
     lanes.step()  # the failure is reported each step it lasts, then cleared
     assert lanes.failed["odometry"].tolist() == [1]
     del systems[1]._module("odometry").step
-    lanes.step()
+    lanes.step()  # a publishing with nothing to judge settles the lane back
     assert "odometry" not in lanes.failed
+    assert lanes.available(1)["odometry"] and lanes.reasons(1)["odometry"] is None
 
 
 def test_lanes_in_different_configurations_run_as_groups(diffdrive_raw) -> None:

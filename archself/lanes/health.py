@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from itertools import repeat
+from operator import is_not
 from typing import Any
 
 import numpy as np
@@ -70,7 +72,7 @@ class LaneHealth:
         reasons, the time each module was last heard, the broken modules, stale counts."""
         names = {n for s in systems for n in (*s._ok, *s._why, *s._heard, *s._broken)}
         for name in sorted(names):
-            ok, why = self._arrays(name)
+            ok, why = self.arrays(name)
             for i, s in enumerate(systems):
                 ok[i] = s._ok.get(name, True)
                 if s._why.get(name):
@@ -88,7 +90,8 @@ class LaneHealth:
                     if v is not None:
                         arr[i] = v
 
-    def _arrays(self, name: str) -> tuple[np.ndarray, dict[int, str]]:
+    def arrays(self, name: str) -> tuple[np.ndarray, dict[int, str]]:
+        """``ok`` (per lane) and ``why`` (lane -> reason) of ``name``, made on first use."""
         ok = self.ok.get(name)
         if ok is None:
             ok = self.ok[name] = np.ones(self.n, dtype=bool)
@@ -116,6 +119,12 @@ class LaneHealth:
             got = self._constants[name] = (levels, limit)
         return got
 
+    def unjudged(self, name: str, modules: list[Any]) -> bool:
+        """Whether a publishing of ``name`` that no lane failed has nothing to judge:
+        no silence limit, no noisy signal, no lane broken (:meth:`published` gives ``{}``)."""
+        levels, limit = self.constants(name, modules)
+        return levels is None and limit is None and not self._any_broken.get(name)
+
     def invalidate(self) -> None:
         """A lane's parameters changed: read the noise levels and silence limits again."""
         self._constants.clear()
@@ -134,10 +143,10 @@ class LaneHealth:
         ``out`` holds the lane values of the lanes ``idx`` (rows in their order);
         ``failed`` the lanes whose module raised or went non-finite (not published).
         """
-        levels, limit = self.constants(name, modules)
-        if not failed and levels is None and limit is None and not self._any_broken.get(name):
+        if not failed and self.unjudged(name, modules):
             return {}  # nothing to judge: no failure, no silence limit, no noisy signal
-        self._arrays(name)
+        levels, limit = self.constants(name, modules)
+        self.arrays(name)
         heard_t = self.heard[name]
         broken = self.broken[name]
         reasons = dict(failed)
@@ -218,7 +227,7 @@ class LaneHealth:
 
     def settle(self, name: str, idx: np.ndarray, reasons: dict[int, str]) -> None:
         """Set ``ok``/``why`` of lanes ``idx`` from ``reasons`` (the lanes not named are ok)."""
-        ok, why = self._arrays(name)
+        ok, why = self.arrays(name)
         if why:  # a lane is down: ok is False exactly where why has a reason
             ok[idx] = True
             for i in idx.tolist():
@@ -237,6 +246,8 @@ class LaneHealth:
             if type(v) is np.ndarray:  # present in every lane unless the sum is NaN
                 if not math.isnan(np.add.reduce(v if v.ndim == 1 else v[:, 0])):
                     continue
+            elif type(v) is list and all(map(is_not, v, repeat(None))):
+                continue  # objects in every lane (by identity, no item's __eq__)
             for i in idx[~_present(v, len(idx))].tolist():
                 reasons.setdefault(i, f"lost input {s}")
 

@@ -38,6 +38,9 @@ from archself.system.live import LiveSystem, module_rng
 
 __all__ = ["LaneSystem"]
 
+#: The reasons of a publishing call with nothing to judge (never filled in).
+_NONE: dict[int, str] = {}
+
 
 def _plan_key(plan: Any) -> Any:
     """What lanes must share of a configuration's plan (edge noise may differ)."""
@@ -98,6 +101,7 @@ class LaneSystem:
         self.objective: np.ndarray | None = None
         self._arrays: dict[str, dict[str, np.ndarray]] = {}
         self._arrays_k = -1
+        self._plans_calls: dict[str, tuple[list[tuple], list[tuple]]] = {}
 
     @classmethod
     def resume(cls, systems: Sequence[LiveSystem], *, smooth: bool = False) -> LaneSystem:
@@ -208,14 +212,40 @@ class LaneSystem:
                 self._edge_noise[idx] = (unc, LaneNormals(rngs))
         return self._edge_noise[idx]
 
-    def _gather(self, name: str, plan: Any, idx: np.ndarray, whole: bool) -> dict[str, Any]:
+    def _calls(self, configuration: str) -> tuple[list[tuple], list[tuple]]:
+        """The publishing and state-only calls of ``configuration``'s plan (made once).
+
+        A call is ``(name, module, stepped, routes, required, faults)``: the lane module
+        itself, and its routes with the signal each reads resolved
+        (``(carries, source, signal, edge, noisy, delay, multi)``), so a step does no
+        per-module lookups.
+        """
+        got = self._plans_calls.get(configuration)
+        if got is None:
+            plan = self.plans[configuration]
+            reads = plan.reads
+
+            def call(name: str, stepped: bool) -> tuple:
+                multi = plan.multi.get(name, ())
+                routes = tuple(
+                    (carries, src, reads.get(e, carries), e, bool(unc), delay, carries in multi)
+                    for carries, src, e, unc, delay in plan.routes[name]
+                )
+                self.health.arrays(name)  # its availability is recorded from now on
+                return (name, self.module(name), stepped, routes, plan.required[name],
+                        self._faults.get(name, ()))
+
+            got = self._plans_calls[configuration] = (
+                [call(n, stepped) for n, stepped in plan.publishing],
+                [call(n, True) for n in plan.nonft],
+            )
+        return got
+
+    def _gather(self, routes: tuple, idx: np.ndarray, whole: bool) -> dict[str, Any]:
         outs = self.outputs
-        multi = plan.multi.get(name, ())
-        reads = plan.reads
         inputs: dict[str, Any] = {}
-        for carries, src, e, unc, delay in plan.routes[name]:
+        for carries, src, sig, e, noisy, delay, multi in routes:
             src_out = outs.get(src)
-            sig = reads.get(e, carries) if reads else carries
             val = src_out.get(sig) if src_out is not None else None
             if val is not None and not whole:
                 val = [val[i] for i in idx] if type(val) is list else val[idx]
@@ -224,24 +254,27 @@ class LaneSystem:
                 if line is None:
                     line = self._delay[e] = Delay(self.n, delay)
                 val = line.exchange(val, idx)
-            if unc and val is not None and type(val) is not list:
+            if noisy and val is not None and type(val) is not list:
                 noise = self._noise(e)
                 if noise is not None:
                     val = add_noise(val, idx, *noise)
-            if carries in multi:
+            if multi:
                 inputs[carries] = (*inputs.get(carries, ()), val)
             elif val is not None or carries not in inputs:
                 inputs[carries] = val
         return inputs
 
-    def _publish(self, name: str, out: dict[str, Any], t: float, idx: np.ndarray,
-                 whole: bool) -> dict[int, str]:
+    def _publish(self, name: str, mod: LaneModule, faults: Any, out: dict[str, Any] | None,
+                 t: float, idx: np.ndarray, whole: bool) -> dict[int, str]:
         """Faults, held outputs and the health reasons of one publishing call."""
-        mod = self.modules[name]
+        if whole and not mod.failed and not faults and self.health.unjudged(name, mod.modules):
+            self.outputs[name] = out if out is not None else {}  # nothing can fail here
+            self.failed.pop(name, None)
+            return _NONE
         failed = dict(mod.failed)
         mod.failed.clear()
         out = dict(out or {})
-        for fault in self._faults.get(name, ()):
+        for fault in faults:
             if fault.signal in out:
                 out[fault.signal], broken = fault.apply(t, out[fault.signal], idx)
                 for i in broken:
@@ -267,34 +300,37 @@ class LaneSystem:
         t, dt = self.t, self.dt
         health = self.health
         for conf, idx in list(self.groups.items()):
-            plan = self.plans[conf]
+            publishing, state_only = self._calls(conf)
             whole = len(idx) == self.n
             lanes = ALL if whole else idx
-            for name, stepped in plan.publishing:
-                mod = self.module(name)
-                inputs = self._gather(name, plan, idx, whole) if stepped else None
+            for name, mod, stepped, routes, required, faults in publishing:
+                inputs = self._gather(routes, idx, whole) if stepped else None
                 try:
                     out = (mod.step(t, dt, inputs, lanes) if inputs is not None
                            else mod.output(t, lanes))
                 except Exception as exc:  # noqa: BLE001 - every lane of the call failed
                     mod.failed.update({int(i): f"raised {type(exc).__name__}" for i in idx})
-                    out = {}
-                reasons = self._publish(name, out, t, idx, whole)
-                if inputs is not None:
-                    health.lost_inputs(inputs, plan.required[name], idx, reasons)
-                health.settle(name, idx, reasons)
-            for name in plan.nonft:
-                mod = self.modules[name]
-                inputs = self._gather(name, plan, idx, whole)
+                    out = None
+                reasons = self._publish(name, mod, faults, out, t, idx, whole)
+                if inputs is not None and required:
+                    if reasons is _NONE:
+                        reasons = {}
+                    health.lost_inputs(inputs, required, idx, reasons)
+                if reasons or health.why.get(name):
+                    health.settle(name, idx, reasons)
+            for name, mod, _stepped, routes, required, _faults in state_only:
+                inputs = self._gather(routes, idx, whole)
                 try:
                     mod.step(t, dt, inputs, lanes)
                 except Exception as exc:  # noqa: BLE001
                     mod.failed.update({int(i): f"raised {type(exc).__name__}" for i in idx})
                 reasons = dict(mod.failed)
                 mod.failed.clear()
-                ok, why = health.ok[name], health.why[name]
                 later: dict[int, str] = {}
-                health.lost_inputs(inputs, plan.required[name], idx, later)
+                health.lost_inputs(inputs, required, idx, later)
+                if not reasons and not later:
+                    continue
+                ok, why = health.arrays(name)
                 reasons.update({i: r for i, r in later.items() if i not in reasons and ok[i]})
                 for i, r in reasons.items():
                     ok[i] = False
