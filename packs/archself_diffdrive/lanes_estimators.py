@@ -5,10 +5,10 @@ classes of :class:`~archself_diffdrive.estimators.Odometry` and
 :class:`~archself_diffdrive.estimators.Ekf`: every lane computes what its per-run
 instance computes from the same inputs, with the same floating-point operations in
 the same order — the EKF's closed-form predict, heading and GPS updates are the
-per-run instance's own (:func:`~archself_diffdrive.estimators.predict_rows`,
-:func:`~archself_diffdrive.estimators.update_heading_rows`,
-:func:`~archself_diffdrive.estimators.update_position_rows`: one row there, L rows
-here) — so a lane's pose and covariance are its run's but for an ulp of
+per-run instance's own (:func:`~archself_diffdrive.estimators.predict_entries`,
+:func:`~archself_diffdrive.estimators.update_heading_entries`,
+:func:`~archself_diffdrive.estimators.update_position_entries`: floats there, rows
+of L lanes here) — so a lane's pose and covariance are its run's but for an ulp of
 ``np.cos`` (none on x86-64 with numpy 2.4: the poses, commands and J of a1–a4 runs
 are the per-run runs' bit for bit). The residual signals may differ in the last
 bits (``np.hypot`` against ``math.hypot``; the trend's sums in another order). The
@@ -33,9 +33,12 @@ from archself.lanes.module import LaneModule, ModelFields
 from archself_diffdrive.drift_glr import DriftWindows
 from archself_diffdrive.estimators import (
     _DEFAULT_KIN,
-    predict_rows,
-    update_heading_rows,
-    update_position_rows,
+    _FULL,
+    _UI,
+    _UJ,
+    predict_entries,
+    update_heading_entries,
+    update_position_entries,
 )
 from archself_diffdrive.lanes_windows import LaneWindows
 
@@ -43,6 +46,14 @@ __all__ = ["EkfLanes", "OdometryLanes", "kinematics_fields"]
 
 PI = math.pi
 TWO_PI = 2 * math.pi
+#: the rows of ``p`` (P's upper triangle) that make P[:3, :3], row by row
+_COV = _FULL[:3, :3].ravel()
+
+
+def _entries(fn, x, p, *args) -> tuple[np.ndarray, np.ndarray]:
+    """``fn`` (an ``*_entries`` step) on entry-major lanes: ``x`` (5, L), ``p`` (15, L)."""
+    xe, pe = fn(list(x), list(p), *args)
+    return np.array(xe), np.array(pe)
 
 
 def kinematics_fields() -> ModelFields:
@@ -219,71 +230,79 @@ class OdometryLanes(_EstimatorLanes):
 
 
 class EkfLanes(_EstimatorLanes):
-    """:class:`~archself_diffdrive.estimators.Ekf` in N lanes: state ``(N, 5)``, P ``(N, 5, 5)``."""
+    """:class:`~archself_diffdrive.estimators.Ekf` in N lanes.
+
+    State entry-major: ``x`` (5, N) and P's upper triangle ``p`` (15, N), so an entry of
+    all lanes is one contiguous row and a step hands the ``*_entries`` functions row
+    views, never gathering or stacking the lanes (P in full only in ``store``).
+    """
 
     def __init__(self, modules: Sequence[Any]) -> None:
         n = len(modules)
-        self.x = np.zeros((n, 5))
-        self.P = np.zeros((n, 5, 5))
+        self.x = np.zeros((5, n))
+        self.p = np.zeros((15, n))
         super().__init__(modules)
 
     def step(self, t, dt, inputs, lanes):
-        x, P = self.x[lanes], self.P[lanes]  # copies for an index array, views for ALL
-        n = len(x)
+        x, p = self.x[:, lanes], self.p[:, lanes]  # copies for an index array, views for ALL
+        n = x.shape[1]
         r, base = self.kin(inputs.get("kinematics"), n)
         heading = inputs.get("heading")
         started = self.started[lanes]
         enc = inputs.get("encoder_speeds")
         if started.all():
-            x, P = self._predict(x, P, dt, enc, r, base, lanes)
+            x, p = self._predict(x, p, dt, enc, r, base, lanes)
         else:
             go = np.flatnonzero(started)
             if len(go):
                 sub = self.indices(lanes)[go]
-                x[go], P[go] = self._predict(
-                    x[go], P[go], dt, None if enc is None else enc[go], r[go], base[go], sub
+                x[:, go], p[:, go] = self._predict(
+                    x[:, go], p[:, go], dt, None if enc is None else enc[go], r[go], base[go], sub
                 )
             if heading is not None:
                 first = ~started & ~np.isnan(heading)
-                x[first, 2] = heading[first] - x[first, 3]
+                x[2, first] = heading[first] - x[3, first]
         self.started[lanes] = True
         if heading is not None:
             has = ~np.isnan(heading)
             if has.all():
-                x, P = update_heading_rows(x, P, heading, self.r_head[lanes])
+                x, p = _entries(update_heading_entries, x, p, heading, self.r_head[lanes])
             elif has.any():
-                x[has], P[has] = update_heading_rows(
-                    x[has], P[has], heading[has], self.r_head[lanes][has]
+                x[:, has], p[:, has] = _entries(
+                    update_heading_entries, x[:, has], p[:, has], heading[has],
+                    self.r_head[lanes][has],
                 )
         pos = inputs.get("position")
         if pos is not None:
             has = ~np.isnan(pos[:, 0])
             # a covariance gone non-finite makes the per-run update raise
-            raised = has & ~np.isfinite(P[:, :2, :2]).all((1, 2))
+            raised = has & ~(np.isfinite(p[0]) & np.isfinite(p[1]) & np.isfinite(p[5]))
             if raised.any():
                 for i in self.indices(lanes)[raised]:
                     self.failed[int(i)] = "raised ValueError"
                 has &= ~raised
             if has.any():
-                e = pos[has, :2] - x[has, :2]
-                x[has], P[has] = update_position_rows(
-                    x[has], P[has], pos[has, :2], self.r2_gps[lanes][has]
+                z = pos[has, :2]
+                e = z - x[:2, has].T
+                x[:, has], p[:, has] = _entries(
+                    update_position_entries, x[:, has], p[:, has], z[:, 0], z[:, 1],
+                    self.r2_gps[lanes][has],
                 )
                 idx = self.indices(lanes)[has]
                 self.monitor.add(t, idx, e)
                 self.innovation[idx] = self.monitor.mean_norm(idx)
-        self.x[lanes], self.P[lanes] = x, P
-        pose = x[:, :3].copy()
-        cov = P[:, :3, :3].reshape(n, 9)
+        self.x[:, lanes], self.p[:, lanes] = x, p
+        pose = x[:3].T.copy()
+        cov = p[_COV].T.copy()
         self._flag_nonfinite(lanes, pose, cov)
         return {"pose_estimate": pose, "covariance": cov}
 
-    def _predict(self, x, P, dt, enc, r, base, lanes):
-        """:func:`~archself_diffdrive.estimators.predict_rows` of every lane."""
-        v, w, absent = wheel_body(enc, r, base, len(x))
+    def _predict(self, x, p, dt, enc, r, base, lanes):
+        """:func:`~archself_diffdrive.estimators.predict_entries` of every lane."""
+        v, w, absent = wheel_body(enc, r, base, x.shape[1])
         sig_enc = self.sig_enc[lanes]
         sig2 = (sig_enc if absent is None else np.where(absent, 10.0, sig_enc)) ** 2
-        return predict_rows(x, P, dt, v, w, sig2, r, base, self.q2[lanes])
+        return _entries(predict_entries, x, p, dt, v, w, sig2, r, base, list(self.q2[:, lanes]))
 
     def local_signals(self, lanes):
         return {"innovation": self.innovation[lanes].copy()}
@@ -291,21 +310,21 @@ class EkfLanes(_EstimatorLanes):
     def load(self, lanes):
         for i in self.indices(lanes):
             m = self.modules[i]
-            self.x[i] = m.x
-            self.P[i] = m.P
+            self.x[:, i] = m.x
+            self.p[:, i] = m.P[_UI, _UJ]
             self.started[i] = m.started
             self.monitor.load(i, m.monitor)
             self.innovation[i] = m.signals["innovation"]
         self.r_head = self.lane_attr("r_head")
         self.sig_enc = self.lane_attr("sig_enc")
         self.r2_gps = np.array([m.R_gps[0, 0] for m in self.modules], dtype=float)
-        self.q2 = np.array([m._q2 for m in self.modules], dtype=float)
+        self.q2 = np.array([m._q2 for m in self.modules], dtype=float).T
 
     def store(self, lanes):
         for i in self.indices(lanes):
             m = self.modules[i]
-            m.x = self.x[i].copy()
-            m.P = self.P[i].copy()
+            m.x = self.x[:, i].copy()
+            m.P = self.p[:, i][_FULL]
             m.started = bool(self.started[i])
             self.monitor.store(i, m.monitor)
             m.signals["innovation"] = float(self.innovation[i])
