@@ -300,6 +300,22 @@ def test_a_run_reports_its_module_faults(crash_types):
     assert "module faults" not in _summary([simulate(crash_arch(crash_s=99.0), "run", seed=0)])
 
 
+def test_lanes_report_the_per_run_module_faults(crash_types):
+    """Lanes fill each lane's faults as the per-run run does: the same entries, times
+    and steps, fixed and adaptive, a crashing lane next to one that never crashes."""
+    from archself.lanes.run import simulate_lanes
+
+    archs = [crash_arch(), crash_arch(crash_s=99.0), crash_arch(crash_s=5.0)]
+    for adapt in (False, True):
+        lanes = simulate_lanes(archs, "run", [0, 1, 2], adapt=adapt)
+        for a, seed, lane in zip(archs, [0, 1, 2], lanes, strict=True):
+            one = simulate(a, "run", seed=seed, adapt=MapeK(a) if adapt else None)
+            assert lane.faults == one.faults
+        assert [f["module"] for f in lanes[0].faults] == ["primary"]
+        assert lanes[1].faults == []
+        assert lanes[2].faults[0]["first_s"] > lanes[0].faults[0]["first_s"] + 1.9
+
+
 # ---------------------------------------------------------------- the robot's scenarios
 def run(arch, scenario, seed):
     loop = MapeK(arch)
