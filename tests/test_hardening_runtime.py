@@ -316,6 +316,28 @@ def test_lanes_report_the_per_run_module_faults(crash_types):
         assert lanes[2].faults[0]["first_s"] > lanes[0].faults[0]["first_s"] + 1.9
 
 
+def test_module_faults_in_json_and_traces(crash_types, tmp_path):
+    """A run's faults are in its JSON and its trace and read back; a run without faults
+    writes no ``faults`` key (outputs as before), and a trace without it reads as []."""
+    import json
+
+    from archself.sim.result import read_trace
+
+    res = simulate(crash_arch(), "run", seed=0)
+    assert res.to_dict()["faults"] == res.faults and len(res.faults) == 1
+    for name in ("t.json", "t.parquet"):
+        res.write_trace(tmp_path / name)
+        back = read_trace(tmp_path / name)
+        assert back.faults == res.faults
+        np.testing.assert_allclose(back.faults[0]["first_s"], res.faults[0]["first_s"], atol=0)
+    calm = simulate(crash_arch(crash_s=99.0), "run", seed=0)
+    assert "faults" not in calm.to_dict() and "faults" not in calm.trace_meta()
+    doc = json.loads((tmp_path / "t.json").read_text(encoding="utf-8"))
+    del doc["meta"]["faults"]
+    (tmp_path / "old.json").write_text(json.dumps(doc), encoding="utf-8")
+    assert read_trace(tmp_path / "old.json").faults == []
+
+
 # ---------------------------------------------------------------- the robot's scenarios
 def run(arch, scenario, seed):
     loop = MapeK(arch)
