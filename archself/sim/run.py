@@ -27,6 +27,7 @@ import math
 import re
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -385,6 +386,13 @@ def _step(
 _VARYING = re.compile(r" for [-+0-9.e]+ s$| \(\d+ identical values\)$")
 
 
+@lru_cache(maxsize=4096)
+def _bare(why: str) -> str:
+    """``why`` without its running count (``silent for 1.2 s`` -> ``silent``); cached:
+    a down module gives the same reason step after step, in every lane."""
+    return _VARYING.sub("", why)
+
+
 def note_faults(faults: dict[tuple[str, str], list[Any]], t: float,
                 active: Collection[str], unavailable: dict[str, str]) -> None:
     """Count one step's unavailable active modules (``unavailable``: module -> reason)
@@ -393,7 +401,7 @@ def note_faults(faults: dict[tuple[str, str], list[Any]], t: float,
     for name, why in unavailable.items():
         if name not in active:
             continue
-        key = (name, _VARYING.sub("", why))
+        key = (name, _bare(why))
         span = faults.get(key)
         if span is None:
             faults[key] = [t, t, 1, why]
