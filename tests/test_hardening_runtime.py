@@ -317,10 +317,12 @@ def test_lanes_report_the_per_run_module_faults(crash_types):
 
 
 def test_module_faults_in_json_and_traces(crash_types, tmp_path):
-    """A run's faults are in its JSON and its trace and read back; a run without faults
+    """A run's faults are in its JSON, its trace (read back) and its run report's
+    summary.json; a run without faults
     writes no ``faults`` key (outputs as before), and a trace without it reads as []."""
     import json
 
+    from archself.reports.run import build_run_report
     from archself.sim.result import read_trace
 
     res = simulate(crash_arch(), "run", seed=0)
@@ -332,6 +334,11 @@ def test_module_faults_in_json_and_traces(crash_types, tmp_path):
         np.testing.assert_allclose(back.faults[0]["first_s"], res.faults[0]["first_s"], atol=0)
     calm = simulate(crash_arch(crash_s=99.0), "run", seed=0)
     assert "faults" not in calm.to_dict() and "faults" not in calm.trace_meta()
+    (got,) = build_run_report(crash_arch(), [res]).summary()["runs"][0]["faults"]
+    assert (got["module"], got["reason"], got["steps"]) == ("primary", "raised RuntimeError",
+                                                            res.faults[0]["steps"])
+    np.testing.assert_allclose(got["first_s"], res.faults[0]["first_s"], rtol=1e-6)
+    assert "faults" not in build_run_report(crash_arch(), [calm]).summary()["runs"][0]
     doc = json.loads((tmp_path / "t.json").read_text(encoding="utf-8"))
     del doc["meta"]["faults"]
     (tmp_path / "old.json").write_text(json.dumps(doc), encoding="utf-8")
