@@ -318,8 +318,8 @@ def test_lanes_report_the_per_run_module_faults(crash_types):
 
 def test_module_faults_in_json_and_traces(crash_types, tmp_path):
     """A run's faults are in its JSON, its trace (read back) and its run report's
-    summary.json; a run without faults
-    writes no ``faults`` key (outputs as before), and a trace without it reads as []."""
+    summary.json; a run without faults writes no ``faults`` key (outputs as before), and
+    a trace without it reads as []."""
     import json
 
     from archself.reports.run import build_run_report
