@@ -284,7 +284,8 @@ def test_a_run_reports_its_module_faults(crash_types):
 
     a = crash_arch()
     fixed = simulate(a, "run", seed=0)
-    assert [(f["module"], f["reason"]) for f in fixed.faults] == [("primary", "raised RuntimeError")]
+    assert [(f["module"], f["reason"]) for f in fixed.faults] == \
+        [("primary", "raised RuntimeError")]
     f = fixed.faults[0]
     dt = a.runtime.step_s
     assert 3.0 <= f["first_s"] <= 3.0 + 2 * dt
@@ -295,7 +296,8 @@ def test_a_run_reports_its_module_faults(crash_types):
     assert set(spans) == {("primary", "raised RuntimeError")}  # inactive after the switch
     assert spans["primary", "raised RuntimeError"]["last_s"] < adaptive.switches[0]["t_s"] + dt
     text = _summary([fixed, adaptive])
-    assert f"module faults (fixed): primary raised RuntimeError t = {f['first_s']:.1f}–12.0 s" in text
+    assert (f"module faults (fixed): primary raised RuntimeError t = {f['first_s']:.1f}–12.0 s"
+            in text)
     assert "module faults (adaptive): primary raised RuntimeError" in text
     assert "module faults" not in _summary([simulate(crash_arch(crash_s=99.0), "run", seed=0)])
 

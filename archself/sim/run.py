@@ -323,7 +323,7 @@ def _step(
     run: _Run,
     adapt: Callable[[Any], list[dict[str, Any]] | None] | None,
     progress: Callable[[int, int], None] | None,
-) -> list[dict[str, Any]]:
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Step the run's system through the scenario, record every step (the series the
     recording keeps), call ``adapt`` every ``runtime.period_s``; the switches it made and
     the module faults seen (:func:`fault_spans`)."""
