@@ -5,7 +5,8 @@ every module type of an architecture file that names a ``lanes`` class must give
 :class:`~archself.contracts.BatchedModule`, and every scenario run as lanes
 (:func:`~archself.lanes.run.simulate_lanes`) must give the per-run runs
 (:func:`~archself.sim.run.simulate`), fixed and with the MAPE-K loop: the same
-switches at the same times and every recorded series and metric within ``atol``; and
+switches at the same times, the same module faults (``RunResult.faults``) and every
+recorded series and metric within ``atol``; and
 each batched class's per-lane ``state()`` must equal its per-run twin's state vector
 (the layout the whole-loop linearization perturbs, docs/stability.md).
 The in-repo packs (tests/test_packs.py) and the example plugin
@@ -211,6 +212,8 @@ def _differences(got: Any, want: Any, atol: float) -> list[str]:
     if [(s.get("t"), s.get("to")) for s in got.switches] != \
             [(s.get("t"), s.get("to")) for s in want.switches]:
         out.append(f"switches {got.switches} differ from the per-run {want.switches}")
+    if got.faults != want.faults:
+        out.append(f"module faults {got.faults} differ from the per-run {want.faults}")
     for key in sorted(set(want.series) | set(got.series)):
         if key not in got.series or key not in want.series:
             out.append(f"series {key!r} recorded by one side only")

@@ -84,12 +84,14 @@ def _campaign(
 
 
 def _compare(a: Any, b: Any) -> tuple[bool, float]:
-    """Whether the rows of ``a`` (per run) and ``b`` (lanes) switch alike, and max |Δ error|."""
+    """Whether the rows of ``a`` (per run) and ``b`` (lanes) switch alike and report the
+    same module faults, and max |Δ error|."""
     import numpy as np
 
     b = b.loc[a.index]
     same = bool((a["configuration_path"] == b["configuration_path"]).all()
-                and (a["switch_times_s"].map(list) == b["switch_times_s"].map(list)).all())
+                and (a["switch_times_s"].map(list) == b["switch_times_s"].map(list)).all()
+                and (a["module_faults"] == b["module_faults"]).all())
     dev = float(np.max(np.abs(a["max_error"].to_numpy() - b["max_error"].to_numpy())))
     return same, dev
 
@@ -122,7 +124,9 @@ def main(argv: list[str] | None = None) -> None:
             for sc in scenarios:
                 rows = a[a["scenario"] == sc]
                 same, dev = _compare(rows, b)
-                print(f"{path.name:20} {sc:18} {len(rows):4d} runs: switches identical {same}, "
+                faulted = int((rows["module_faults"] != "").sum())
+                print(f"{path.name:20} {sc:18} {len(rows):4d} runs ({faulted} with module "
+                      f"faults): switches and faults identical {same}, "
                       f"max |Δ max_error| = {dev:.1e}")
             print(f"{path.name}: per run {t1:.1f} s, lanes {t2:.1f} s ({t1 / t2:.1f}x)")
         return

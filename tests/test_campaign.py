@@ -215,6 +215,7 @@ SCHEMA = {
     "false_switches": "int32",
     "n_updates": "int32",
     "updates": "string",
+    "module_faults": "string",
     "max_error": "double",
     "final_error": "double",
     "rms_error": "double",
@@ -676,3 +677,23 @@ def test_lane_units_balance_workers_whatever_the_scenarios_cost(runs: int) -> No
     assert _finish_spread(units, real) < 0.05
     if runs <= 2 * width:  # without workers: one unit per scenario, one per worker
         assert _finish_spread(lane_units(jobs, width), real) > 0.3
+
+
+def test_rows_name_the_module_faults(tmp_path: Path) -> None:
+    """``module_faults``: the run's faults as ``module: reason``, the same as lanes and
+    per run (thermal_zone's sensor A drops out at 100 s: its observer loses its input,
+    then the sensor is silent)."""
+    text = (DIFFDRIVE.parent / "thermal_zone.yaml").read_text(encoding="utf-8")
+    arch = tmp_path / "thermal.yaml"
+    arch.write_text(text.replace("duration_s: 300", "duration_s: 110"), encoding="utf-8")
+    jobs, meta = plan_campaign(arch, ["sensor_dropout", "nominal"], 2)
+    rows = {}
+    for lanes in (1, None):
+        out = tmp_path / f"lanes{lanes}.parquet"
+        run_campaign(jobs, meta, out, executor="inline", lanes=lanes)
+        rows[lanes] = {r["run_id"]: r["module_faults"] for r in read_results(out)[0].to_pylist()}
+    assert rows[1] == rows[None]
+    faults = {k.split("|")[0] + "|" + k.split("|")[-1]: v for k, v in rows[1].items()}
+    assert faults["sensor_dropout|fixed"] == "obs_a: lost input measurement;sensor_a: silent"
+    assert faults["nominal|fixed"] == "" and faults["nominal|adaptive"] == ""
+    assert "sensor_a: silent" in faults["sensor_dropout|adaptive"]

@@ -284,8 +284,8 @@ def test_a_run_reports_its_module_faults(crash_types):
 
     a = crash_arch()
     fixed = simulate(a, "run", seed=0)
-    assert [(f["module"], f["reason"]) for f in fixed.faults] == [
-        ("primary", "raised RuntimeError")]
+    assert [(f["module"], f["reason"]) for f in fixed.faults] == \
+        [("primary", "raised RuntimeError")]
     f = fixed.faults[0]
     dt = a.runtime.step_s
     assert 3.0 <= f["first_s"] <= 3.0 + 2 * dt
@@ -296,10 +296,55 @@ def test_a_run_reports_its_module_faults(crash_types):
     assert set(spans) == {("primary", "raised RuntimeError")}  # inactive after the switch
     assert spans["primary", "raised RuntimeError"]["last_s"] < adaptive.switches[0]["t_s"] + dt
     text = _summary([fixed, adaptive])
-    want = f"module faults (fixed): primary raised RuntimeError t = {f['first_s']:.1f}–12.0 s"
-    assert want in text
+    assert (f"module faults (fixed): primary raised RuntimeError t = {f['first_s']:.1f}–12.0 s"
+            in text)
     assert "module faults (adaptive): primary raised RuntimeError" in text
     assert "module faults" not in _summary([simulate(crash_arch(crash_s=99.0), "run", seed=0)])
+
+
+def test_lanes_report_the_per_run_module_faults(crash_types):
+    """Lanes fill each lane's faults as the per-run run does: the same entries, times
+    and steps, fixed and adaptive, a crashing lane next to one that never crashes."""
+    from archself.lanes.run import simulate_lanes
+
+    archs = [crash_arch(), crash_arch(crash_s=99.0), crash_arch(crash_s=5.0)]
+    for adapt in (False, True):
+        lanes = simulate_lanes(archs, "run", [0, 1, 2], adapt=adapt)
+        for a, seed, lane in zip(archs, [0, 1, 2], lanes, strict=True):
+            one = simulate(a, "run", seed=seed, adapt=MapeK(a) if adapt else None)
+            assert lane.faults == one.faults
+        assert [f["module"] for f in lanes[0].faults] == ["primary"]
+        assert lanes[1].faults == []
+        assert lanes[2].faults[0]["first_s"] > lanes[0].faults[0]["first_s"] + 1.9
+
+
+def test_module_faults_in_json_and_traces(crash_types, tmp_path):
+    """A run's faults are in its JSON, its trace (read back) and its run report's
+    summary.json; a run without faults writes no ``faults`` key (outputs as before), and
+    a trace without it reads as []."""
+    import json
+
+    from archself.reports.run import build_run_report
+    from archself.sim.result import read_trace
+
+    res = simulate(crash_arch(), "run", seed=0)
+    assert res.to_dict()["faults"] == res.faults and len(res.faults) == 1
+    for name in ("t.json", "t.parquet"):
+        res.write_trace(tmp_path / name)
+        back = read_trace(tmp_path / name)
+        assert back.faults == res.faults
+        np.testing.assert_allclose(back.faults[0]["first_s"], res.faults[0]["first_s"], atol=0)
+    calm = simulate(crash_arch(crash_s=99.0), "run", seed=0)
+    assert "faults" not in calm.to_dict() and "faults" not in calm.trace_meta()
+    (got,) = build_run_report(crash_arch(), [res]).summary()["runs"][0]["faults"]
+    assert (got["module"], got["reason"], got["steps"]) == ("primary", "raised RuntimeError",
+                                                            res.faults[0]["steps"])
+    np.testing.assert_allclose(got["first_s"], res.faults[0]["first_s"], rtol=1e-6)
+    assert "faults" not in build_run_report(crash_arch(), [calm]).summary()["runs"][0]
+    doc = json.loads((tmp_path / "t.json").read_text(encoding="utf-8"))
+    del doc["meta"]["faults"]
+    (tmp_path / "old.json").write_text(json.dumps(doc), encoding="utf-8")
+    assert read_trace(tmp_path / "old.json").faults == []
 
 
 # ---------------------------------------------------------------- the robot's scenarios

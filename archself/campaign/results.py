@@ -21,6 +21,9 @@ column                    type             meaning
 ``false_switches``        int32            switches without a fault / before the onset
 ``n_updates``             int32            parameter updates the loop made
 ``updates``               string           each as ``action@t_s``, ``;``-separated
+``module_faults``         string (null)    modules unavailable while active, each as
+                                           ``module: reason``, ``;``-separated
+                                           (``RunResult.faults``; null: the run failed)
 ``max_error``             float64          objective error J of the run: maximum,
 ``final_error``           float64          at the end, RMS (in ``unit``), and when
 ``rms_error``             float64          the maximum was reached
@@ -73,6 +76,7 @@ _AFTER = [
     ("false_switches", "int32"),
     ("n_updates", "int32"),
     ("updates", "string"),
+    ("module_faults", "string"),
     ("max_error", "float64"),
     ("final_error", "float64"),
     ("rms_error", "float64"),
@@ -156,7 +160,7 @@ def read_results(path: str | Path) -> tuple[Any, dict[str, Any]]:
 
 
 #: Columns a results table may lack (written before they were added); null when resumed.
-OPTIONAL_COLUMNS = frozenset({"n_updates", "updates", "unit", "trace", "error"})
+OPTIONAL_COLUMNS = frozenset({"n_updates", "updates", "module_faults", "unit", "trace", "error"})
 #: Columns no row leaves empty (the keys of a run; the sweep columns too).
 KEY_COLUMNS = ("run_id", "scenario", "replicate", "mode")
 

@@ -206,6 +206,7 @@ def _base_row(job: Job) -> dict[str, Any]:
         "false_switches": 0,
         "n_updates": 0,
         "updates": "",
+        "module_faults": None,
         "max_error": nan,
         "final_error": nan,
         "rms_error": nan,
@@ -225,6 +226,8 @@ def summarize_run(result: Any, arch: Any) -> dict[str, Any]:
       (None without faults or without such a switch).
     - ``false_switches``: every switch in a scenario without faults, or before the
       first onset in one with faults.
+    - ``module_faults``: the run's :attr:`~archself.sim.result.RunResult.faults` as
+      ``module: reason``, ``;``-separated (``""``: none).
     - ``max_error``, ``final_error``, ``rms_error``, ``peak_time_s``: the run's metrics;
       ``unit``: theirs (``runtime.objective.unit``).
     """
@@ -249,6 +252,7 @@ def summarize_run(result: Any, arch: Any) -> dict[str, Any]:
         "first_fault_onset_s": onset,
         "detection_delay_s": delay,
         "false_switches": false,
+        "module_faults": ";".join(f"{f['module']}: {f['reason']}" for f in result.faults),
         "max_error": float(m["max_error"]),
         "final_error": float(m["final_error"]),
         "rms_error": float(m["rms_error"]),

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from pydantic.functional_validators import PlainValidator
 from pydantic.json_schema import WithJsonSchema
 
-__all__ = ["Num", "RunDoc", "SwitchDoc", "json_kind"]
+__all__ = ["ModuleFaultDoc", "Num", "RunDoc", "SwitchDoc", "json_kind"]
 
 
 def json_kind(x: Any) -> str:
@@ -60,6 +60,22 @@ class SwitchDoc(_Doc):
     module: str | None = None
 
 
+class ModuleFaultDoc(_Doc):
+    """A module unavailable while active, for one reason: when first and last, for how
+    many steps (one of :attr:`archself.sim.result.RunResult.faults`)."""
+
+    module: str
+    reason: str = Field(description="why, without a running count: 'raised RuntimeError', "
+                        "'non-finite output', 'silent', 'stale <signal>', 'lost input <signal>'")
+    first_s: float
+    last_s: float
+    steps: int
+
+
+def _empty(v: Any) -> bool:
+    return not v
+
+
 class RunDoc(_Doc):
     """One run (``archself simulate --json``'s ``runs``; the run part of a trace's ``meta``).
     ``metrics`` in ``unit``, null when not finite."""
@@ -72,3 +88,8 @@ class RunDoc(_Doc):
     unit: str | None = None
     metrics: dict[str, Num]
     switches: list[SwitchDoc] | None = None
+    faults: list[ModuleFaultDoc] = Field(
+        [], exclude_if=_empty,
+        description="the modules that were unavailable while active, in the order first "
+                    "seen; left out when there were none (and in a trace written before "
+                    "runs reported them): read a missing key as []")

@@ -14,7 +14,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, RootModel
 
 from archself import __version__
-from archself.io.docbase import Num, RunDoc, SwitchDoc
+from archself.io.docbase import ModuleFaultDoc, Num, RunDoc, SwitchDoc, _empty
 
 
 # ------------------------------------------------------------------ outputs: the job records
@@ -369,6 +369,9 @@ class ReportRunDoc(OutDoc):
     metrics: dict[str, Num]
     switches: list[dict[str, Any]] = Field(description="a list of switches (as in a trace)")
     parameter_updates: list[dict[str, Any]] = Field(description="a list of parameter updates")
+    faults: list[ModuleFaultDoc] = Field(
+        [], exclude_if=_empty, description="the run's module faults (as a run's JSON "
+        "gives them); left out when there were none")
 
 
 class ReportRowDoc(OutDoc):

@@ -40,7 +40,7 @@ from archself.model.loader import gc_paused
 from archself.runtime.mapek import MapeK
 from archself.runtime.monitor import Monitor
 from archself.sim.result import RunResult
-from archself.sim.run import Recording
+from archself.sim.run import Recording, fault_spans, note_faults
 from archself.system.live import compile_system
 
 __all__ = ["simulate_lanes"]
@@ -106,16 +106,18 @@ def simulate_lanes(
     """
     plan = _plan(arch, scenario, seeds, configuration, adapt)
     with gc_paused():  # no reference cycles are made; the decision logs grow (see _step)
-        switches = _step(plan)
+        switches, faults = _step(plan)
     loops = plan.loops
-    return [
-        plan.rec.result(
+    out = []
+    for lane, (a, seed) in enumerate(zip(plan.archs, seeds, strict=True)):
+        res = plan.rec.result(
             lane, a, seed, "adaptive" if adapt else "fixed", plan.start,
             plan.lanes.configuration[lane], switches[lane],
             list(getattr(loops[lane], "decisions", None) or []) if loops is not None else [],
         )
-        for lane, (a, seed) in enumerate(zip(plan.archs, seeds, strict=True))
-    ]
+        res.faults = fault_spans(faults[lane])
+        out.append(res)
+    return out
 
 
 @dataclass
@@ -197,9 +199,11 @@ def _layouts(plan: _Lanes) -> Callable[[str], tuple[list, list]]:
     return layout
 
 
-def _step(plan: _Lanes) -> list[list[dict[str, Any]]]:
+def _step(plan: _Lanes) -> tuple[list[list[dict[str, Any]]], list[dict[tuple[str, str], Any]]]:
     """Step the lanes through the scenario, record every step, call each lane's loop
-    every ``runtime.period_s``; the switches of each lane.
+    every ``runtime.period_s``; the switches of each lane and its module faults (as
+    :func:`~archself.sim.run.note_faults` counts them; looked at only in the steps where
+    some lane has a module down).
 
     The caller pauses the cyclic garbage collector: stepping and the loops make no
     reference cycles (a 20-lane adaptive run left none to collect), but the lanes'
@@ -214,9 +218,13 @@ def _step(plan: _Lanes) -> list[list[dict[str, Any]]]:
     switches: list[list[dict[str, Any]]] = [[] for _ in range(N)]
     layout = _layouts(plan)
     signal = lanes.signal
+    faults: list[dict[tuple[str, str], Any]] = [{} for _ in range(N)]
+    health = lanes.health
     for i in range(rec.n):
         lanes.step()
         rec.t[i] = lanes.t
+        if health.any_down():
+            _note_lane_faults(faults, lanes)
         a = signal(act_mod, act_sig)
         r = signal(ref_mod, ref_sig)
         rec.J[i] = _norms(a, r, rec.comps, N)
@@ -234,7 +242,18 @@ def _step(plan: _Lanes) -> list[list[dict[str, Any]]]:
                     rec.res[i, sel, j] = v[sel]
         if plan.loops is not None and (i + 1) % per == 0:
             _adapt(plan, rec.J[i], switches)
-    return switches
+    return switches, faults
+
+
+def _note_lane_faults(faults: list[dict[tuple[str, str], Any]], lanes: LaneSystem) -> None:
+    """Count this step's unavailable modules of every lane into ``faults`` (one per lane),
+    as the per-run step counts its system's ``unavailable``."""
+    down: dict[int, dict[str, str]] = {}
+    for name, why in lanes.health.why.items():
+        for lane, reason in why.items():
+            down.setdefault(lane, {})[name] = reason
+    for lane, unavailable in down.items():
+        note_faults(faults[lane], lanes.t, lanes.active_set(lane), unavailable)
 
 
 def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) -> None:

@@ -60,6 +60,7 @@ class RunSummary:
     metrics: dict[str, float]
     switches: tuple[dict[str, Any], ...]
     updates: tuple[dict[str, Any], ...] = ()
+    faults: tuple[dict[str, Any], ...] = ()  # the run's module faults (RunResult.faults)
 
 
 @dataclass(frozen=True)
@@ -180,6 +181,7 @@ class RunReport:
                     "metrics": r.metrics,
                     "switches": list(r.switches),
                     "parameter_updates": list(r.updates),
+                    "faults": list(r.faults),
                 }
                 for r in self.runs
             ],
@@ -390,7 +392,8 @@ def _runs(
             for d in recs if d.get("chosen") and not d["chosen"].get("to")
         )
         runs.append(RunSummary(r.mode, r.configuration, r.final_configuration,
-                               dict(r.metrics), tuple(dict(s) for s in r.switches), updates))
+                               dict(r.metrics), tuple(dict(s) for s in r.switches), updates,
+                               tuple(dict(f) for f in r.faults)))
         series[r.mode] = r.series
         if r.mode == "adaptive":
             decisions = recs

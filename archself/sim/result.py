@@ -130,8 +130,9 @@ class RunResult:
         reason, in the order first seen: ``{module, reason, first_s, last_s, steps}``
         (``reason`` as :meth:`LiveSystem.health` gives it, without a running count:
         ``raised RuntimeError``, ``non-finite output``, ``silent``, ``stale <signal>``,
-        ``lost input <signal>``). Filled by :func:`archself.simulate`; lane-batched
-        runs leave it empty.
+        ``lost input <signal>``). Filled by :func:`archself.simulate` and, per lane,
+        :func:`archself.lanes.run.simulate_lanes`; in the JSON (``--json``, a trace's
+        ``meta``) only when not empty, so a trace without it reads back with ``[]``.
     """
 
     scenario: str
@@ -353,6 +354,7 @@ class RunResult:
         return cls(**{**run, "metrics": {k: math.nan if v is None else float(v)
                                          for k, v in meta["metrics"].items()},
                       "switches": [dict(s) for s in run["switches"] or []],
+                      "faults": [dict(f) for f in run["faults"] or []],  # absent: none
                       "configurations": list(run["configurations"] or [])},
                    series=series, decisions=decisions,
                    meta={k: v for k, v in meta.items() if k not in run})

@@ -27,6 +27,7 @@ import math
 import re
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -346,7 +347,7 @@ def _step(
     for i in range(n):
         system.step()
         if system.unavailable:
-            _note_faults(faults, system)
+            note_faults(faults, system.t, system.active, system.unavailable)
         if system.configuration != cur_conf:
             cur_conf = system.configuration
             index = rec.conf_index.get(cur_conf, -1)
@@ -385,14 +386,22 @@ def _step(
 _VARYING = re.compile(r" for [-+0-9.e]+ s$| \(\d+ identical values\)$")
 
 
-def _note_faults(faults: dict[tuple[str, str], list[Any]], system: Any) -> None:
-    """Count this step's unavailable active modules into ``faults``: (module, reason
-    without its running count) -> [first t, last t, steps, reason as first seen]."""
-    t, active = system.t, system.active
-    for name, why in system.unavailable.items():
+@lru_cache(maxsize=4096)
+def _bare(why: str) -> str:
+    """``why`` without its running count (``silent for 1.2 s`` -> ``silent``); cached:
+    a down module gives the same reason step after step, in every lane."""
+    return _VARYING.sub("", why)
+
+
+def note_faults(faults: dict[tuple[str, str], list[Any]], t: float,
+                active: Collection[str], unavailable: dict[str, str]) -> None:
+    """Count one step's unavailable active modules (``unavailable``: module -> reason)
+    into ``faults``: (module, reason without its running count) -> [first t, last t,
+    steps, reason as first seen]. Shared by the per-run and the lane-batched run."""
+    for name, why in unavailable.items():
         if name not in active:
             continue
-        key = (name, _VARYING.sub("", why))
+        key = (name, _bare(why))
         span = faults.get(key)
         if span is None:
             faults[key] = [t, t, 1, why]
@@ -402,11 +411,13 @@ def _note_faults(faults: dict[tuple[str, str], list[Any]], system: Any) -> None:
 
 
 def fault_spans(faults: dict[tuple[str, str], list[Any]]) -> list[dict[str, Any]]:
-    """The module faults of a run as data, in the order first seen: ``{module, reason,
-    first_s, last_s, steps}`` (``reason`` without a running count: ``raised
+    """The module faults of a run as data, in the order first seen (the same step: by
+    module and reason, so that lanes and per-run runs list them alike): ``{module,
+    reason, first_s, last_s, steps}`` (``reason`` without a running count: ``raised
     RuntimeError``, ``silent``, ``stale estimate``, ``lost input pose`` …)."""
     return [{"module": m, "reason": r, "first_s": float(v[0]), "last_s": float(v[1]),
-             "steps": int(v[2])} for (m, r), v in faults.items()]
+             "steps": int(v[2])}
+            for (m, r), v in sorted(faults.items(), key=lambda kv: (kv[1][0], kv[0]))]
 
 
 def simulate(
