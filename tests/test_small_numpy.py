@@ -178,25 +178,34 @@ def test_whole_loop_modes_the_same_for_a_dense_and_a_sparse_a() -> None:
     assert len(dense[1]) == 1 and len(dense[2]) == 2
 
 
-@pytest.mark.parametrize("name", ["thermal_zone", "heated_chain", "motor_drive"])
-def test_a_warm_blocks_simulate_imports_no_control_or_scipy(tmp_path, name) -> None:
-    """The blocks pack's designs (Luenberger poles, zero-order holds) come from the design
-    cache on a warm run: neither python-control nor scipy is imported; the cold, first
-    process designs with python-control, and both print the same result."""
+def _cold_then_warm(tmp_path: Path, path: Path, scenario: str, libraries: tuple[str, ...]
+                    ) -> tuple[list[str], list[str], list[subprocess.CompletedProcess]]:
+    """``archself simulate PATH --scenario S`` in two fresh processes sharing one empty
+    design cache; each prints, last, the modules of ``libraries`` it imported. The two
+    outputs (lines) and the processes."""
     code = (
         "import runpy, sys\n"
-        f"sys.argv = ['archself', 'simulate', {str(ROOT / 'architectures' / f'{name}.yaml')!r},"
-        " '--scenario', 'nominal']\n"
+        f"sys.argv = ['archself', 'simulate', {str(path)!r}, '--scenario', {scenario!r}]\n"
         "try:\n"
         "    runpy.run_module('archself', run_name='__main__')\n"
         "except SystemExit as exc:\n"
         "    assert not exc.code, exc.code\n"
-        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'control')))\n"
+        f"print(sorted(m for m in sys.modules if m.split('.')[0] in {libraries!r}))\n"
     )
     env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
     runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                            env=env, cwd=ROOT) for _ in range(2)]
     cold, warm = (r.stdout.split("\n") for r in runs)
+    return cold, warm, runs
+
+
+@pytest.mark.parametrize("name", ["thermal_zone", "heated_chain", "motor_drive"])
+def test_a_warm_blocks_simulate_imports_no_control_or_scipy(tmp_path, name) -> None:
+    """The blocks pack's designs (Luenberger poles, zero-order holds) come from the design
+    cache on a warm run: neither python-control nor scipy is imported; the cold, first
+    process designs with python-control, and both print the same result."""
+    cold, warm, runs = _cold_then_warm(tmp_path, ROOT / "architectures" / f"{name}.yaml",
+                                       "nominal", ("scipy", "control"))
     assert "'control'" in cold[-2], runs[0].stderr[-2000:]
     assert warm[-2] == "[]", runs[1].stderr[-2000:]
     assert cold[:-2] == warm[:-2] and any("switches (adaptive)" in line for line in warm)
@@ -206,18 +215,7 @@ def test_a_warm_diffdrive_simulate_imports_no_scipy(tmp_path) -> None:
     """``archself simulate diffdrive --scenario imu_drift`` (adaptive), design cache warm:
     W, ρ(W), the solves, the source fit and the stability check of a 10-module system
     need numpy only; the first, cold process designs with python-control (scipy)."""
-    code = (
-        "import runpy, sys\n"
-        f"sys.argv = ['archself', 'simulate', {str(DIFFDRIVE)!r}, '--scenario', 'imu_drift']\n"
-        "try:\n"
-        "    runpy.run_module('archself', run_name='__main__')\n"
-        "except SystemExit as exc:\n"
-        "    assert not exc.code, exc.code\n"
-        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))\n"
-    )
-    env = {**os.environ, "ARCHSELF_CACHE_DIR": str(tmp_path)}
-    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                           env=env, cwd=ROOT) for _ in range(2)]
-    assert "scipy" in runs[0].stdout.split("\n")[-2], runs[0].stderr[-2000:]
-    assert runs[1].stdout.split("\n")[-2] == "[]", runs[1].stderr[-2000:]
+    cold, warm, runs = _cold_then_warm(tmp_path, DIFFDRIVE, "imu_drift", ("scipy",))
+    assert "scipy" in cold[-2], runs[0].stderr[-2000:]
+    assert warm[-2] == "[]", runs[1].stderr[-2000:]
     assert "switches (adaptive): t = " in runs[1].stdout
