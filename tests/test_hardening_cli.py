@@ -564,10 +564,12 @@ def test_sigterm_keeps_the_finished_runs_and_exits_143(tmp_path, arch) -> None:
 def test_a_killed_worker_is_replaced_and_the_campaign_finishes(tmp_path, arch) -> None:
     from archself.campaign.results import read_results
 
-    # enough runs that the kill lands while work is left (a run of X.yaml takes ~0.05 s)
-    proc, kids, err = _start_campaign(tmp_path, arch, seeds=60)
+    # enough runs that the kill lands while work is left: 400 runs of X.yaml (≈ 0.02 s
+    # each); the kill comes as soon as the workers run, not after a fixed wait (60 seeds
+    # and a 1 s wait let the campaign finish first on an idle machine)
+    proc, kids, err = _start_campaign(tmp_path, arch, seeds=200)
     try:
-        time.sleep(1.0)
+        time.sleep(0.2)
         workers = _workers(proc.pid)
         assert workers, kids
         os.kill(workers[0], signal.SIGKILL)
@@ -576,11 +578,12 @@ def test_a_killed_worker_is_replaced_and_the_campaign_finishes(tmp_path, arch) -
         err.close()
         if proc.poll() is None:
             proc.kill()
+            proc.wait()
     text = (tmp_path / "campaign.err").read_text()
     assert code == 0, text
     assert "a worker process died" in text and "pool restarted (1/10)" in text
     table, _ = read_results(tmp_path / "r.parquet")
-    assert table.num_rows == 120 and all(e is None for e in table.column("error").to_pylist())
+    assert table.num_rows == 400 and all(e is None for e in table.column("error").to_pylist())
 
 
 def poison_job(job):
