@@ -14,7 +14,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from archself.errors import CompileError, SimulationError
-from archself.model.architecture import Architecture
+from archself.model.architecture import Architecture, Scenario
 from archself.model.loader import load_architecture
 from archself.modules.base import RuntimeModule
 from archself.registry import register, unregister
@@ -221,6 +221,55 @@ def test_declared_finite_outputs_skip_the_scan_and_a_fault_restores_it(toys):
         assert publish_checks(s.modules["sink"], "sink") == (True, None, ())
     finally:
         unregister("toy.flaky_finite")
+
+
+class _Sensor(RuntimeModule):
+    """Noisy, then silent (0.5–1 s), then frozen (1–1.5 s), then noisy: a type declaring
+    finite outputs, a silence limit and a noise level (its checks inlined in the step)."""
+
+    role = "source"
+    outputs = ("value", "level", "spread")
+    fault_kinds = frozenset({"bias"})
+    finite_outputs = True
+    max_silence_s = 0.2
+    noise_levels = {"value": 0.1, "level": 0.0, "spread": 0.2}
+
+    def step(self, t, dt, inputs):
+        if 0.5 <= t < 1.0:
+            return {"value": None, "level": None, "spread": None}
+        if 1.0 <= t < 1.5:
+            return {"value": np.array([3.0, 1.0]), "level": 1.0, "spread": 2.0}
+        return {"value": self.rng.standard_normal(2), "level": 1.0,
+                "spread": float(self.rng.standard_normal())}
+
+
+def test_inlined_health_checks_match_publish(toys):
+    """The silence and stale checks the step plan inlines for a declared finite-output
+    type give, step by step, the reasons and the health state of ``_publish`` (which a
+    fault that never acts brings back); and they do fire."""
+    register("toy.sensor")(_Sensor)
+    try:
+        a = toy_arch({"src": "toy.clock", "sen": "toy.sensor"}, [])
+        never = Scenario.model_validate({"duration_s": 2.0, "faults": [
+            {"module": "sen", "kind": "bias", "onset_s": 1e6, "magnitude": 1.0}]})
+        inline, general = compile_system(a, "c", seed=4), compile_system(a, "c", seed=4,
+                                                                          scenario=never)
+        seen = []
+        for _ in range(40):
+            inline.step()
+            general.step()
+            assert inline.health() == general.health()
+            for attr in ("_heard", "_last", "_repeats", "_broken"):
+                assert getattr(inline, attr) == getattr(general, attr), attr
+            seen.append(inline.health()["sen"])
+        assert inline._repeats[("sen", "spread")] == 0  # noisy again
+        stale = tuple((s, ("sen", s), v) for s, v in _Sensor.noise_levels.items())
+        assert list(inline._plan.step_functions) == [(True, (0.2, stale))]  # src: undeclared
+        assert list(general._plan.step_functions) == [(True, True)]
+        assert "silent for 0.25 s" in seen and "stale value (4 identical values)" in seen
+        assert seen[-1] is None and seen.count(None) == 10 + 4 + 3 + 10
+    finally:
+        unregister("toy.sensor")
 
 
 def test_keep_records_only_the_series_asked_for(arch):

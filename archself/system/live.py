@@ -399,8 +399,8 @@ class StepPlan:
         # some module type overrides linear_model or linearization (set by the system)
         self.linearizable = True
         self._wires: list[Wire] | None = None
-        # which modules' publishing is checked -> the step function (LiveSystem._bind)
-        self.step_functions: dict[tuple[bool, ...], Callable[..., None]] = {}
+        # what is checked of each module's publishing -> the step function (LiveSystem._bind)
+        self.step_functions: dict[tuple[Any, ...], Callable[..., None]] = {}
 
     def wires(self) -> list[Wire]:
         """The active edges as :class:`~archself.linear.wiring.Wire` s (made once)."""
@@ -557,20 +557,67 @@ def _lost_tests(required: tuple[str, ...], local: dict[str, str] | None
     return tests
 
 
+def _literal(x: float) -> str:
+    """``x`` as Python source (``float('inf')`` and ``float('nan')`` too)."""
+    return repr(x) if math.isfinite(x) else f"float({str(x)!r})"
+
+
+def _health_lines(name: str, local: str, limit: Any,
+                  stale: tuple[tuple[str, tuple[str, str], Any], ...]) -> list[str]:
+    """Lines of a generated step that check what module ``name`` published (its outputs
+    in ``local``) as :meth:`LiveSystem._publish` does for a module without faults whose
+    type declares ``finite_outputs`` (no scan): heard, broken, its silence ``limit``
+    (``max_silence_s``) and the repeats of its noisy signals ``stale``
+    (:meth:`LiveSystem._count_repeats`). Indented for the ``try`` of its call."""
+    lines = [f"        for _v in {local}.values():", "            if _v is not None:",
+             f"                heard[{name!r}] = t", "                if broken:",
+             f"                    broken.discard({name!r})", "                break",
+             "        else:", f"            if {name!r} in broken:",
+             "                r = 'non-finite output'"]
+    if limit is not None:
+        lines += ["        if r is None:", f"            _q = t - heard.setdefault({name!r}, t)",
+                  f"            if _q > {_literal(float(limit) + 1e-9)}:",
+                  '                r = f"silent for {_q:.3g} s"']
+    if stale:  # every noisy signal counted; the first stale one gives the reason
+        lines.append("        if r is None:")
+    for i, (sig, key, level) in enumerate(stale):
+        lines.append(f"            _v = {local}.get({sig!r})")
+        if level and level > 0:
+            lines += ["            if _v is None:", f"                _n = repeats.get({key!r}, 0)",
+                      "            else:",
+                      "                _c = _v.tobytes() if type(_v) is _nd else _v",
+                      f"                _n = repeats[{key!r}] = (repeats.get({key!r}, 0) + 1"
+                      f" if last.get({key!r}) == _c else 0)",
+                      f"                last[{key!r}] = _c"]
+        else:
+            lines.append(f"            _n = repeats.get({key!r}, 0)")
+        lines += [f"            if _n >= {STALE_REPEATS}{' and r is None' if i else ''}:",
+                  f"                r = {'stale ' + sig + ' ('!r} + str(_n + 1)"
+                  " + ' identical values)'"]
+    return lines
+
+
 def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | None,
-                      stepped: bool, required: tuple[str, ...], checked: bool,
+                      stepped: bool, required: tuple[str, ...], checks: Any,
                       held: dict[str, str]) -> list[str]:
     """Lines of a generated step for module ``k`` of phases 1 and 2 (output or step, publish,
     lost inputs, health), as :meth:`LiveSystem.step` documents them; its outputs as
-    published (or held) go into the local ``o<k>``, recorded in ``held``."""
+    published (or held) go into the local ``o<k>``, recorded in ``held``. ``checks``: None
+    (nothing to check), ``True`` (by :meth:`LiveSystem._publish`) or the ``(limit, stale)``
+    of :func:`_health_lines`."""
     lines, local = _input_lines(k, direct, name, held) if stepped else ([], {})
     held[name] = f"o{k}"
     call = f"m[{k}].step(t, dt, inputs)" if stepped else f"m[{k}].output(t)"
     lines += ["    try:", f"        out = {call}"]
-    if checked:
+    if checks is True:
         lines += [f"        r = publish({name!r}, out, t, limits[{k}])",
                   "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
                   f"    o{k} = outs.get({name!r}) or _EMPTY"]
+    elif checks is not None:
+        lines += [f"        outs[{name!r}] = o{k} = {{}} if out is None else out",
+                  "        r = None", *_health_lines(name, f"o{k}", *checks),
+                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
+                  f"        o{k} = outs.get({name!r}) or _EMPTY"]
     else:
         lines += ["    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
                   f"        o{k} = outs.get({name!r}) or _EMPTY",
@@ -604,13 +651,20 @@ def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | No
     return lines
 
 
+#: what a generated step reads of its system, by the name its lines use
+_STEP_READS = {"publish": "_publish", "gather": "_gather", "heard": "_heard",
+               "broken": "_broken", "last": "_last", "repeats": "_repeats"}
+
+
 @lru_cache(maxsize=256)
-def _step_function(body: str) -> Callable[..., None]:
-    """The function ``_step(outs, ok, why, publish, gather, t, dt, m, limits)`` of ``body``
-    (lines of :func:`_publishing_lines` and :func:`_advancing_lines`), compiled once per
-    text: systems and their copies with the same plan share it."""
-    space: dict[str, Any] = {"_EMPTY": {}}
-    src = "def _step(outs, ok, why, publish, gather, t, dt, m, limits):\n" + body
+def _step_function(body: str, reads: tuple[str, ...]) -> Callable[..., None]:
+    """The function ``_step(outs, ok, why, system, t, dt, m, limits)`` of ``body`` (lines
+    of :func:`_publishing_lines` and :func:`_advancing_lines`) that first reads ``reads``
+    (names of :data:`_STEP_READS`) of ``system``; compiled once per text: systems and
+    their copies with the same plan share it."""
+    space: dict[str, Any] = {"_EMPTY": {}, "_nd": np.ndarray}
+    src = "".join(["def _step(outs, ok, why, system, t, dt, m, limits):\n",
+                   *(f"    {r} = system.{_STEP_READS[r]}\n" for r in reads), body])
     exec(compile(src, "<step plan>", "exec"), space)  # noqa: S102 - source built here
     return space["_step"]
 
@@ -764,30 +818,39 @@ class LiveSystem(Linearizing):
         modules and their limits.
 
         The function (:func:`_step_function`) makes each module's call in step order,
-        reads its direct inputs into local variables, checks its publishing by
-        :meth:`_publish` only where :func:`needs_checks` finds something to check (and
-        only what :func:`publish_checks` finds), and tests its lost inputs inline; inputs
-        that need the general path (latency, noise, renamed ports, list inputs) come
-        from :meth:`_gather`. Bound once per plan and again when a module's parameters
-        change (:meth:`set_params`); the plan keeps the function per set of checked modules,
-        and copies with the same plan (or the same source text) share it.
+        reads its direct inputs into local variables, checks its publishing only where
+        :func:`needs_checks` finds something to check (and only what :func:`publish_checks`
+        finds): inline (:func:`_health_lines`: silence, repeats) for a module without
+        faults whose type declares ``finite_outputs``, else by :meth:`_publish`; and tests
+        its lost inputs inline; inputs that need the general path (latency, noise, renamed
+        ports, list inputs) come from :meth:`_gather`. Bound once per plan and again when a
+        module's parameters change (:meth:`set_params`); the plan keeps the function per
+        set of checks, and copies with the same plan (or the same source text) share it.
         """
         pool = self._pool
         mods = [pool[n] for n, _ in plan.publishing] + [pool[n] for n in plan.nonft]
         faults = self._faults
         limits = [publish_checks(pool[n], n, faults.get(n)) if needs_checks(pool[n], faults.get(n))
                   else None for n, _ in plan.publishing]
-        checked = tuple(lim is not None for lim in limits)
-        fn = plan.step_functions.get(checked)
+        # per module: None (nothing to check), True (_publish: faults or the NaN scan) or
+        # (max_silence_s, stale) checked inline (_health_lines)
+        checks = tuple(lim if lim is None else True if lim[0] or faults.get(n) else lim[1:]
+                       for (n, _), lim in zip(plan.publishing, limits, strict=True))
+        fn = plan.step_functions.get(checks)
         if fn is None:
             body: list[str] = []
             held: dict[str, str] = {}  # module -> the local holding its outputs this step
             for k, (n, stepped) in enumerate(plan.publishing):
                 body += _publishing_lines(k, n, plan.direct[n] if stepped else (), stepped,
-                                          plan.required[n] if stepped else (), checked[k], held)
+                                          plan.required[n] if stepped else (), checks[k], held)
             for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
                 body += _advancing_lines(k, n, plan.direct[n], plan.required[n], held)
-            fn = plan.step_functions[checked] = _step_function("\n".join(body or ["    pass"]))
+            reads = (("publish",) * (True in checks)
+                     + ("gather",) * any(plan.direct[n] is None for n in plan.active)
+                     + ("heard", "broken", "last", "repeats")
+                     * any(c not in (None, True) for c in checks))
+            fn = plan.step_functions[checks] = _step_function("\n".join(body or ["    pass"]),
+                                                              reads)
         return fn, mods, limits
 
     def step(self) -> None:
@@ -796,8 +859,7 @@ class LiveSystem(Linearizing):
         bound = self._bound
         if bound is None or bound[0] is not plan:
             bound = self._bound = (plan, *self._bind(plan))
-        bound[1](self.outputs, self._ok, self._why, self._publish, self._gather, self.t,
-                 self.dt, bound[2], bound[3])
+        bound[1](self.outputs, self._ok, self._why, self, self.t, self.dt, bound[2], bound[3])
         self.k += 1
         self.t = self.k * self.dt
 
