@@ -243,10 +243,10 @@ class _Sensor(RuntimeModule):
                 "spread": float(self.rng.standard_normal())}
 
 
-def test_inlined_health_checks_match_publish(toys):
-    """The silence and stale checks the step plan inlines for a declared finite-output
-    type give, step by step, the reasons and the health state of ``_publish`` (which a
-    fault that never acts brings back); and they do fire."""
+def test_health_checks_with_and_without_fault_and_scan_agree(toys):
+    """The step plan's checks of a declared finite-output type (silence and repeats only)
+    give, step by step, the reasons and health state of the same type with a fault that
+    never acts (the fault path and the NaN scan too); and they do fire."""
     register("toy.sensor")(_Sensor)
     try:
         a = toy_arch({"src": "toy.clock", "sen": "toy.sensor"}, [])
@@ -264,8 +264,9 @@ def test_inlined_health_checks_match_publish(toys):
             seen.append(inline.health()["sen"])
         assert inline._repeats[("sen", "spread")] == 0  # noisy again
         stale = tuple((s, ("sen", s), v) for s, v in _Sensor.noise_levels.items())
-        assert list(inline._plan.step_functions) == [(True, (0.2, stale))]  # src: undeclared
-        assert list(general._plan.step_functions) == [(True, True)]
+        clock = (True, False, None, ())  # declares nothing: the scan
+        assert list(inline._plan.step_functions) == [(clock, (False, False, 0.2, stale))]
+        assert list(general._plan.step_functions) == [(clock, (True, True, 0.2, stale))]
         assert "silent for 0.25 s" in seen and "stale value (4 identical values)" in seen
         assert seen[-1] is None and seen.count(None) == 10 + 4 + 3 + 10
     finally:

@@ -325,7 +325,7 @@ def declared_limits(module: RuntimeModule) -> tuple[Any, Any]:
 
 
 def needs_checks(module: RuntimeModule, faults: Any = None) -> bool:
-    """Whether the executor checks what ``module`` publishes (:meth:`LiveSystem._publish`).
+    """Whether the executor checks what ``module`` publishes (:func:`_health_lines`).
 
     False only when nothing there can fail: the type declares ``finite_outputs``
     (:class:`~archself.modules.base.RuntimeModule`: finite inputs give finite outputs),
@@ -343,7 +343,7 @@ def needs_checks(module: RuntimeModule, faults: Any = None) -> bool:
 
 def publish_checks(module: RuntimeModule, name: str, faults: Any = None
                    ) -> tuple[bool, Any, tuple[tuple[str, tuple[str, str], Any], ...]]:
-    """What :meth:`LiveSystem._publish` checks of ``module`` (named ``name``), once per bind.
+    """What the step checks of what ``module`` (named ``name``) publishes, once per bind.
 
     ``(scan, max_silence_s, stale)``: ``scan`` the NaN/inf scan of every output (a type
     without ``finite_outputs``, or a fault on its outputs); ``stale`` one
@@ -352,6 +352,15 @@ def publish_checks(module: RuntimeModule, name: str, faults: Any = None
     limit, levels = declared_limits(module)
     scan = bool(faults) or not getattr(type(module), "finite_outputs", False)
     return scan, limit, tuple((sig, (name, sig), lv) for sig, lv in (levels or {}).items())
+
+
+def _module_checks(module: RuntimeModule, name: str, faults: Any) -> tuple[Any, ...] | None:
+    """What the generated step checks of ``module``'s publishing (:func:`_health_lines`):
+    None (nothing, :func:`needs_checks`) or ``(scan, faulted, max_silence_s, stale)``."""
+    if not needs_checks(module, faults):
+        return None
+    scan, limit, stale = publish_checks(module, name, faults)
+    return scan, bool(faults), limit, stale
 
 
 # ---------------------------------------------------------------- the step plan
@@ -562,26 +571,47 @@ def _literal(x: float) -> str:
     return repr(x) if math.isfinite(x) else f"float({str(x)!r})"
 
 
-def _health_lines(name: str, local: str, limit: Any,
+def _health_lines(k: int, name: str, scan: bool, faulted: bool, limit: Any,
                   stale: tuple[tuple[str, tuple[str, str], Any], ...]) -> list[str]:
-    """Lines of a generated step that check what module ``name`` published (its outputs
-    in ``local``) as :meth:`LiveSystem._publish` does for a module without faults whose
-    type declares ``finite_outputs`` (no scan): heard, broken, its silence ``limit``
-    (``max_silence_s``) and the repeats of its noisy signals ``stale``
-    (:meth:`LiveSystem._count_repeats`). Indented for the ``try`` of its call."""
-    lines = [f"        for _v in {local}.values():", "            if _v is not None:",
-             f"                heard[{name!r}] = t", "                if broken:",
-             f"                    broken.discard({name!r})", "                break",
-             "        else:", f"            if {name!r} in broken:",
-             "                r = 'non-finite output'"]
-    if limit is not None:
+    """Lines of a generated step that publish what module ``k`` (``name``) returned (``out``)
+    into ``o<k>`` and check it; the reason it is unavailable into ``r`` (None: available).
+
+    In order: the scenario's faults on its outputs (``faulted``: the injectors in
+    ``inj[k]``); the NaN/inf ``scan`` (:meth:`LiveSystem._scan`; a non-finite value is
+    not published, the last good outputs are held, and the module is broken until a
+    good value comes); silence longer than ``limit`` (``max_silence_s``); the repeats of
+    its noisy signals ``stale`` (of :func:`publish_checks`: each counted, the first that
+    repeated :data:`STALE_REPEATS` times gives the reason). Indented for the ``try`` of
+    its call.
+    """
+    lines = ["        if out is None:", "            out = {}"]
+    if faulted:
+        lines += ["        out = dict(out)", f"        for _s, _inj in inj[{k}]:",
+                  "            if _s in out:", "                out[_s] = _inj.apply(t, out[_s])"]
+    if scan:
+        lines += ["        _h = scan(out)", "        if _h is None:",
+                  f"            broken.add({name!r})", "            r = 'non-finite output'",
+                  f"            o{k} = outs.get({name!r}) or _EMPTY", "        else:",
+                  f"            outs[{name!r}] = o{k} = out", "            r = None",
+                  "            if _h:", f"                heard[{name!r}] = t",
+                  "                if broken:", f"                    broken.discard({name!r})",
+                  f"            elif {name!r} in broken:",
+                  "                r = 'non-finite output'"]
+    else:
+        lines += [f"        outs[{name!r}] = o{k} = out", "        r = None",
+                  "        for _v in out.values():", "            if _v is not None:",
+                  f"                heard[{name!r}] = t", "                if broken:",
+                  f"                    broken.discard({name!r})", "                break",
+                  "        else:", f"            if {name!r} in broken:",
+                  "                r = 'non-finite output'"]
+    if limit is not None:  # (quiet is 0 when heard now)
         lines += ["        if r is None:", f"            _q = t - heard.setdefault({name!r}, t)",
                   f"            if _q > {_literal(float(limit) + 1e-9)}:",
                   '                r = f"silent for {_q:.3g} s"']
-    if stale:  # every noisy signal counted; the first stale one gives the reason
+    if stale:  # a signal without a value this step keeps its count (and stays stale)
         lines.append("        if r is None:")
     for i, (sig, key, level) in enumerate(stale):
-        lines.append(f"            _v = {local}.get({sig!r})")
+        lines.append(f"            _v = o{k}.get({sig!r})")
         if level and level > 0:
             lines += ["            if _v is None:", f"                _n = repeats.get({key!r}, 0)",
                       "            else:",
@@ -603,19 +633,13 @@ def _publishing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | N
     """Lines of a generated step for module ``k`` of phases 1 and 2 (output or step, publish,
     lost inputs, health), as :meth:`LiveSystem.step` documents them; its outputs as
     published (or held) go into the local ``o<k>``, recorded in ``held``. ``checks``: None
-    (nothing to check), ``True`` (by :meth:`LiveSystem._publish`) or the ``(limit, stale)``
-    of :func:`_health_lines`."""
+    (nothing to check) or the ``(scan, faulted, limit, stale)`` of :func:`_health_lines`."""
     lines, local = _input_lines(k, direct, name, held) if stepped else ([], {})
     held[name] = f"o{k}"
     call = f"m[{k}].step(t, dt, inputs)" if stepped else f"m[{k}].output(t)"
     lines += ["    try:", f"        out = {call}"]
-    if checks is True:
-        lines += [f"        r = publish({name!r}, out, t, limits[{k}])",
-                  "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
-                  f"    o{k} = outs.get({name!r}) or _EMPTY"]
-    elif checks is not None:
-        lines += [f"        outs[{name!r}] = o{k} = {{}} if out is None else out",
-                  "        r = None", *_health_lines(name, f"o{k}", *checks),
+    if checks is not None:
+        lines += [*_health_lines(k, name, *checks),
                   "    except Exception as exc:", '        r = f"raised {type(exc).__name__}"',
                   f"        o{k} = outs.get({name!r}) or _EMPTY"]
     else:
@@ -652,18 +676,18 @@ def _advancing_lines(k: int, name: str, direct: tuple[tuple[str, str], ...] | No
 
 
 #: what a generated step reads of its system, by the name its lines use
-_STEP_READS = {"publish": "_publish", "gather": "_gather", "heard": "_heard",
-               "broken": "_broken", "last": "_last", "repeats": "_repeats"}
+_STEP_READS = {"gather": "_gather", "scan": "_scan", "heard": "_heard", "broken": "_broken",
+               "last": "_last", "repeats": "_repeats"}
 
 
 @lru_cache(maxsize=256)
 def _step_function(body: str, reads: tuple[str, ...]) -> Callable[..., None]:
-    """The function ``_step(outs, ok, why, system, t, dt, m, limits)`` of ``body`` (lines
+    """The function ``_step(outs, ok, why, system, t, dt, m, inj)`` of ``body`` (lines
     of :func:`_publishing_lines` and :func:`_advancing_lines`) that first reads ``reads``
     (names of :data:`_STEP_READS`) of ``system``; compiled once per text: systems and
     their copies with the same plan share it."""
     space: dict[str, Any] = {"_EMPTY": {}, "_nd": np.ndarray}
-    src = "".join(["def _step(outs, ok, why, system, t, dt, m, limits):\n",
+    src = "".join(["def _step(outs, ok, why, system, t, dt, m, inj):\n",
                    *(f"    {r} = system.{_STEP_READS[r]}\n" for r in reads), body])
     exec(compile(src, "<step plan>", "exec"), space)  # noqa: S102 - source built here
     return space["_step"]
@@ -815,27 +839,23 @@ class LiveSystem(Linearizing):
 
     def _bind(self, plan: StepPlan) -> tuple[Callable[..., None], list[Any], list[Any]]:
         """The step of ``plan`` on this system's modules: a straight-line function, its
-        modules and their limits.
+        modules and their fault injectors.
 
         The function (:func:`_step_function`) makes each module's call in step order,
-        reads its direct inputs into local variables, checks its publishing only where
-        :func:`needs_checks` finds something to check (and only what :func:`publish_checks`
-        finds): inline (:func:`_health_lines`: silence, repeats) for a module without
-        faults whose type declares ``finite_outputs``, else by :meth:`_publish`; and tests
-        its lost inputs inline; inputs that need the general path (latency, noise, renamed
-        ports, list inputs) come from :meth:`_gather`. Bound once per plan and again when a
-        module's parameters change (:meth:`set_params`); the plan keeps the function per
+        reads its direct inputs into local variables, applies the faults and checks its
+        publishing inline (:func:`_health_lines`) only where :func:`needs_checks` finds
+        something to check (and only what :func:`publish_checks` finds), and tests its
+        lost inputs inline; inputs that need the general path (latency, noise, renamed
+        ports, list inputs) come from :meth:`_gather`. Bound once per plan and again when
+        a module's parameters change (:meth:`set_params`); the plan keeps the function per
         set of checks, and copies with the same plan (or the same source text) share it.
         """
         pool = self._pool
         mods = [pool[n] for n, _ in plan.publishing] + [pool[n] for n in plan.nonft]
         faults = self._faults
-        limits = [publish_checks(pool[n], n, faults.get(n)) if needs_checks(pool[n], faults.get(n))
-                  else None for n, _ in plan.publishing]
-        # per module: None (nothing to check), True (_publish: faults or the NaN scan) or
-        # (max_silence_s, stale) checked inline (_health_lines)
-        checks = tuple(lim if lim is None else True if lim[0] or faults.get(n) else lim[1:]
-                       for (n, _), lim in zip(plan.publishing, limits, strict=True))
+        # per module: None (nothing to check) or (scan, faulted, max_silence_s, stale)
+        checks = tuple(_module_checks(pool[n], n, faults.get(n)) for n, _ in plan.publishing)
+        inj = [faults.get(n) for n, _ in plan.publishing]
         fn = plan.step_functions.get(checks)
         if fn is None:
             body: list[str] = []
@@ -845,13 +865,13 @@ class LiveSystem(Linearizing):
                                           plan.required[n] if stepped else (), checks[k], held)
             for k, n in enumerate(plan.nonft, start=len(plan.publishing)):
                 body += _advancing_lines(k, n, plan.direct[n], plan.required[n], held)
-            reads = (("publish",) * (True in checks)
-                     + ("gather",) * any(plan.direct[n] is None for n in plan.active)
-                     + ("heard", "broken", "last", "repeats")
-                     * any(c not in (None, True) for c in checks))
+            checked = [c for c in checks if c is not None]
+            reads = (("gather",) * any(plan.direct[n] is None for n in plan.active)
+                     + ("scan",) * any(c[0] for c in checked)
+                     + ("heard", "broken", "last", "repeats") * bool(checked))
             fn = plan.step_functions[checks] = _step_function("\n".join(body or ["    pass"]),
                                                               reads)
-        return fn, mods, limits
+        return fn, mods, inj
 
     def step(self) -> None:
         """Advance the system by one step ``dt`` (the plan's step function, :meth:`_bind`)."""
@@ -977,49 +997,6 @@ class LiveSystem(Linearizing):
         return dict(self._pool)
 
     # ------------------------------------------------------------------ publishing and health
-    def _publish(self, name: str, out: dict[str, Any] | None, t: float,
-                 checks: tuple[bool, Any, tuple[Any, ...]] | None = None) -> str | None:
-        """Apply the faults and publish ``out``; the reason the module is unavailable, or None.
-
-        The reason covers the module's own output only: a non-finite value, silence
-        longer than its ``max_silence_s``, or a noisy signal (``noise_levels``) that
-        repeated itself ``STALE_REPEATS`` times. ``checks``: what to check, as
-        :func:`publish_checks` gives it (None: read here); the scan for non-finite
-        values runs only where it says so.
-        """
-        if out is None:
-            out = {}
-        faults = self._faults.get(name)
-        if faults:
-            out = dict(out)
-            for sig, inj in faults:
-                if sig in out:
-                    out[sig] = inj.apply(t, out[sig])
-        scan, limit, stale = checks or publish_checks(self._pool[name], name, faults)
-        heard: bool | None = False
-        if scan:
-            heard = self._scan(out)
-            if heard is None:
-                self._broken.add(name)
-                return "non-finite output"
-        else:
-            for v in out.values():
-                if v is not None:
-                    heard = True
-                    break
-        self.outputs[name] = out
-        if heard:
-            self._heard[name] = t
-            if self._broken:
-                self._broken.discard(name)
-        elif name in self._broken:  # its last value was NaN: broken until a good one comes
-            return "non-finite output"
-        if limit is not None:  # (quiet is 0 when heard now)
-            quiet = t - self._heard.setdefault(name, t)
-            if quiet > float(limit) + 1e-9:
-                return f"silent for {quiet:.3g} s"
-        return self._count_repeats(stale, out) if stale else None
-
     def _scan(self, out: dict[str, Any]) -> bool | None:
         """None when a value of ``out`` is not finite, else whether it has a value (output
         types found not to be numbers are learnt and skipped)."""
@@ -1044,28 +1021,6 @@ class LiveSystem(Linearizing):
                 return None
             heard = True
         return heard
-
-    def _count_repeats(self, stale: tuple[tuple[str, tuple[str, str], Any], ...],
-                       out: dict[str, Any]) -> str | None:
-        """Count bit-identical repeats of the noisy signals (``stale`` of
-        :func:`publish_checks`); the stale reason, or None.
-
-        A signal without a value this step keeps its count (and stays stale).
-        """
-        last = self._last
-        repeats = self._repeats
-        reason = None
-        for sig, key, level in stale:
-            v = out.get(sig)
-            if v is None or not level or level <= 0:
-                n = repeats.get(key, 0)
-            else:
-                cur = v.tobytes() if type(v) is np.ndarray else v
-                n = repeats[key] = repeats.get(key, 0) + 1 if last.get(key) == cur else 0
-                last[key] = cur
-            if n >= STALE_REPEATS and reason is None:
-                reason = f"stale {sig} ({n + 1} identical values)"
-        return reason
 
     # ------------------------------------------------------------------ snapshots
     def snapshot(self, only: Collection[str] | None = None) -> Self:
