@@ -457,7 +457,7 @@ def module_cpu(seed: int = 2, rounds: int = 3) -> dict[str, float]:
     replayed on a fresh copy of the module (best of ``rounds``); and the step's parts
     around them: the executor (:func:`plumbing_cpu`), ``recording`` (``simulate``'s loop
     besides ``LiveSystem.step``) and, part of the executor, the health checks
-    ``_publish`` keeps (from switching ``needs_checks`` off; not in the sum)."""
+    the generated step keeps (from switching ``needs_checks`` off; not in the sum)."""
     import archself
     import archself.system.live as live
     from archself.sim import run as simrun

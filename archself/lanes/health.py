@@ -196,7 +196,8 @@ class LaneHealth:
         return reasons
 
     def _repeats(self, name, out, idx, heard, levels, reasons) -> None:
-        """Count bit-identical repeats of the noisy signals per lane (per-run _count_repeats).
+        """Count bit-identical repeats of the noisy signals per lane (per run: the step's
+        generated repeat counts, ``system.live._health_lines``).
 
         ``heard``: the lanes that published a value; only they can be stale here.
         """
