@@ -29,14 +29,14 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
-from archself.lanes.batching import lane_module, lane_module_class
+from archself.lanes.batching import lane_module_class
 from archself.lanes.edges import Delay, add_noise
 from archself.lanes.faults import LaneFault
 from archself.lanes.health import LaneHealth
-from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, stack
+from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, distinct, stack
 from archself.system.live import LiveSystem, module_rng
 
-__all__ = ["LaneSystem"]
+__all__ = ["LaneSystem", "replicable"]
 
 #: The reasons of a publishing call with nothing to judge (never filled in).
 _NONE: dict[int, str] = {}
@@ -90,10 +90,7 @@ class LaneSystem:
             if any(len(f) != len(per_lane[0]) for f in per_lane):
                 raise SimulationError(f"lanes must have the same faults on {name!r}")
             if per_lane[0]:  # the j-th fault of every lane: (signal, injector) pairs
-                self._faults[name] = [
-                    LaneFault(fs[0][0], [f[1] for f in fs])
-                    for fs in zip(*per_lane, strict=True)
-                ]
+                self._faults[name] = [_fault(fs) for fs in zip(*per_lane, strict=True)]
         self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
         self._delay: dict[int, Delay] = {}
         self._streams: tuple[int, list[LaneNormals]] | None = None
@@ -113,10 +110,16 @@ class LaneSystem:
         (the whole-loop linearization), a type whose lane class does not follow the
         per-run ``smooth`` flag (``LaneModule.follows_smooth``) runs lane by lane.
 
+        One system may be given for several lanes (:func:`replicable`): its per-run
+        modules are then shared by those lanes (the lane modules hold each lane's state;
+        :meth:`LaneModule.state` and ``set_state`` go through them lane by lane), its
+        random streams and its faults' injectors are copied per lane at their state.
+
         Raises
         ------
         SimulationError
-            Systems of different structure, configuration or time.
+            Systems of different structure, configuration or time; a module that runs
+            lane by lane (:class:`PerLane`) in lanes that share a system.
         """
         first = systems[0]
         if any(s.configuration != first.configuration or s.k != first.k for s in systems):
@@ -126,7 +129,7 @@ class LaneSystem:
         for name in lanes.plan(first.configuration).active:
             mods = [s._module(name) for s in systems]
             if smooth and not getattr(lane_module_class(mods[0]), "follows_smooth", True):
-                lanes.modules[name] = PerLane(mods)
+                lanes.modules[name] = _per_lane(mods)
         for name, out in first.outputs.items():
             lanes.outputs[name] = {
                 sig: stack([(s.outputs.get(name) or {}).get(sig) for s in systems]) for sig in out
@@ -167,7 +170,9 @@ class LaneSystem:
         """The lane module of ``name`` (built from the per-run instances on first use)."""
         mod = self.modules.get(name)
         if mod is None:
-            mod = self.modules[name] = lane_module([s._module(name) for s in self.systems])
+            mods = [s._module(name) for s in self.systems]
+            cls = lane_module_class(mods[0])
+            mod = self.modules[name] = _per_lane(mods) if cls is PerLane else cls(mods)
         return mod
 
     def move(self, lane: int, configuration: str) -> None:
@@ -389,6 +394,34 @@ class LaneSystem:
         """Write ``lanes``' state into their per-run systems' modules."""
         for mod in self.modules.values():
             mod.store(lanes)
+
+
+def replicable(system: LiveSystem, *, smooth: bool = False) -> bool:
+    """Whether lanes may share ``system`` (:meth:`LaneSystem.resume` of it for several lanes):
+    every active module runs in a batched lane class (under ``smooth``, one that follows
+    the flag), none lane by lane on the per-run instances (:class:`PerLane`)."""
+    for name in system._plan.active:
+        cls = lane_module_class(system._module(name))
+        if cls is PerLane or (smooth and not getattr(cls, "follows_smooth", True)):
+            return False
+    return True
+
+
+def _per_lane(mods: list[Any]) -> PerLane:
+    """:class:`PerLane` of ``mods``: each lane steps its own instance, so none is shared."""
+    if len({id(m) for m in mods}) < len(mods):
+        raise SimulationError(f"{mods[0].name}: lanes that share a system cannot run it lane "
+                              "by lane (its per-run instance would step once per lane)")
+    return PerLane(mods)
+
+
+def _fault(faults: Sequence[tuple[str, Any]]) -> LaneFault:
+    """The lane fault of one ``(signal, injector)`` per lane; an injector named by several
+    lanes (a shared system) is copied per lane where the kind keeps state in it."""
+    fault = LaneFault(faults[0][0], [f[1] for f in faults])
+    if not fault.vector:  # noise from the injector's stream, a held value
+        fault.injectors = distinct(fault.injectors)
+    return fault
 
 
 def _absent_rows(value: Any, lanes: np.ndarray) -> Any:
