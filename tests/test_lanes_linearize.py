@@ -50,16 +50,20 @@ def test_lane_loop_is_the_per_run_loop(file, start, target, scenario, t_s, steps
                         atol=0, err_msg=name)
 
 
-def test_checks_of_one_cycle_made_together_are_each_lanes_own() -> None:
+def test_checks_of_one_cycle_made_together_are_each_lanes_own(monkeypatch) -> None:
     """lane_loops: two lanes' checks stepped as one lane system give each lane's per-run A
-    (the copies after the first are loaded from a pickle of it: the same numbers)."""
+    (each check's probes are lanes of its one base: no copy is made)."""
+    from archself.system import linearizing
+
     arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
     systems = [compile_system(arch, "a1", seed=s, scenario=arch.scenarios["imu_drift"])
                for s in (3, 4)]
     for s in systems:
         for _ in range(int(round(47.3 / s.dt))):
             s.step()
-    both = lane_loops([(s, "a2", 24) for s in systems])
+    with monkeypatch.context() as m:
+        m.setattr(linearizing._Probe, "copy", lambda *a: pytest.fail("a probe was copied"))
+        both = lane_loops([(s, "a2", 24) for s in systems])
     for got, s in zip(both, systems, strict=True):
         want = numerical_loop(s, "a2", 24)
         assert_allclose(_dense(got.A), _dense(want.A), rtol=0, atol=1e-9)
@@ -110,3 +114,63 @@ def test_a_clone_is_the_deep_copy_of_a_snapshot() -> None:
     assert_allclose(snap._pool["chassis"].state(), clones()._pool["chassis"].state(), rtol=0,
                     atol=0)
     assert not np.array_equal(a._pool["chassis"].state(), snap._pool["chassis"].state())
+
+
+def test_lanes_resumed_from_one_system_are_each_its_own_copy() -> None:
+    """LaneSystem.resume of one system for several lanes (the check's probes): each lane
+    steps as a deep copy of it, its state moved through LaneModule.set_state as the copy's
+    set_state moves it; random streams and a noise fault's injector drawn per lane."""
+    from archself.system.live import FaultInjector
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    system = compile_system(arch, "a2", seed=5, scenario=arch.scenarios["imu_drift"])
+    for _ in range(60):
+        system.step()
+    system._faults.setdefault("imu", []).append(
+        ("heading", FaultInjector("noise_increase", 0.0, 0.05, rng=np.random.default_rng(7))))
+    twins = [system.snapshot() for _ in range(3)]
+    lanes = LaneSystem.resume([system] * 3)
+    x = twins[0].modules["chassis"].state().copy()
+    x[0] += 1e-3
+    type(twins[2]._pool["chassis"]).set_state(twins[2]._pool["chassis"], x)
+    for name in system._plan.active:
+        lanes.module(name)
+    lanes.module("chassis").set_state(x[None], np.array([2]))
+    for _ in range(30):
+        lanes.step()
+        for s in twins:
+            s.step()
+    for i, s in enumerate(twins):
+        for name in ("chassis", "ekf", "imu"):
+            assert_allclose(lanes.module(name).state(np.array([i]))[0], s.modules[name].state(),
+                            rtol=0, atol=1e-12, err_msg=f"{name} lane {i}")
+        assert_allclose(lanes.signal("imu", "heading")[i], s.outputs["imu"]["heading"],
+                        rtol=0, atol=1e-12)
+    heading = lanes.signal("imu", "heading")
+    assert heading[0] == heading[1] != heading[2]  # the moved lane went its own way
+    streams = lanes.module("imu").normals.rngs
+    assert streams[0] is not streams[1]
+
+
+def test_a_check_with_a_lane_by_lane_type_steps_copies(monkeypatch) -> None:
+    """A type that runs lane by lane under smooth (the motor drive's quantizing sensor) cannot
+    share one system between lanes: resume refuses, and lane_loop steps copies."""
+    from archself.errors import SimulationError
+    from archself.lanes.system import replicable
+    from archself.system import linearizing
+
+    arch = archself.load(ROOT / "architectures" / "motor_drive.yaml")
+    system = compile_system(arch, "m1", seed=3, scenario=arch.scenarios["nominal"])
+    for _ in range(10):
+        system.step()
+    assert replicable(system) and not replicable(system, smooth=True)
+    with pytest.raises(SimulationError, match="share a system"):
+        LaneSystem.resume([system, system], smooth=True)
+    made = []
+    copy = linearizing._Probe.copy
+    monkeypatch.setattr(linearizing._Probe, "copy", lambda self, s: made.append(1) or copy(self, s))
+    want = numerical_loop(system, "m2", 2)
+    made.clear()
+    loop = lane_loop(system, "m2", 2)
+    assert len(made) == len(linearizing.loop_probes(system, "m2", 2).shifts) > 2
+    assert_allclose(_dense(loop.A), _dense(want.A), rtol=0, atol=1e-9)
