@@ -369,7 +369,9 @@ class LaneNormals:
     Parameters
     ----------
     rngs : sequence of numpy.random.Generator
-        One generator per lane (the per-run instance's ``rng``).
+        One generator per lane (the per-run instance's ``rng``); one named for several
+        lanes (lanes that share a per-run system) draws for the first, the others get
+        generators of their own at its state (:func:`distinct`).
     block : int
         Numbers drawn per refill.
 
