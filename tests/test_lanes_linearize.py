@@ -152,25 +152,27 @@ def test_lanes_resumed_from_one_system_are_each_its_own_copy() -> None:
     assert streams[0] is not streams[1]
 
 
-def test_a_check_with_a_lane_by_lane_type_steps_copies(monkeypatch) -> None:
-    """A type that runs lane by lane under smooth (the motor drive's quantizing sensor) cannot
-    share one system between lanes: resume refuses, and lane_loop steps copies."""
+def test_a_type_that_runs_lane_by_lane_gets_its_own_instance_per_probe(monkeypatch) -> None:
+    """A type that runs lane by lane under smooth (the motor drive's quantizing sensor)
+    cannot share its per-run instance between lanes: resume refuses; the check's probe lanes
+    (lane_copies) share the base's other modules and own a copy of it; no probe is copied."""
     from archself.errors import SimulationError
-    from archself.lanes.system import replicable
+    from archself.lanes.system import lane_copies
     from archself.system import linearizing
 
     arch = archself.load(ROOT / "architectures" / "motor_drive.yaml")
     system = compile_system(arch, "m1", seed=3, scenario=arch.scenarios["nominal"])
     for _ in range(10):
         system.step()
-    assert replicable(system) and not replicable(system, smooth=True)
     with pytest.raises(SimulationError, match="share a system"):
         LaneSystem.resume([system, system], smooth=True)
-    made = []
-    copy = linearizing._Probe.copy
-    monkeypatch.setattr(linearizing._Probe, "copy", lambda self, s: made.append(1) or copy(self, s))
+    copies = lane_copies(system, 3, smooth=True)
+    own = {n for n in system._plan.active if copies[1]._pool[n] is not system._pool[n]}
+    assert own and all(type(system._pool[n]).__name__ == "Sensor" for n in own)
+    assert copies[0] is system and copies[2]._pool[next(iter(own))] is not copies[1]._pool[
+        next(iter(own))]
     want = numerical_loop(system, "m2", 2)
-    made.clear()
+    monkeypatch.setattr(linearizing._Probe, "copy", lambda *a: pytest.fail("a probe was copied"))
     loop = lane_loop(system, "m2", 2)
-    assert len(made) == len(linearizing.loop_probes(system, "m2", 2).shifts) > 2
     assert_allclose(_dense(loop.A), _dense(want.A), rtol=0, atol=1e-9)
+    assert loop.labels == want.labels and loop.problems == want.problems

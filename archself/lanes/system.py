@@ -22,6 +22,7 @@ Lane values follow :mod:`archself.lanes.module` (NaN = absent in that lane).
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -36,7 +37,7 @@ from archself.lanes.health import LaneHealth
 from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, distinct, stack
 from archself.system.live import LiveSystem, module_rng
 
-__all__ = ["LaneSystem", "replicable"]
+__all__ = ["LaneSystem", "lane_copies"]
 
 #: The reasons of a publishing call with nothing to judge (never filled in).
 _NONE: dict[int, str] = {}
@@ -110,7 +111,7 @@ class LaneSystem:
         (the whole-loop linearization), a type whose lane class does not follow the
         per-run ``smooth`` flag (``LaneModule.follows_smooth``) runs lane by lane.
 
-        One system may be given for several lanes (:func:`replicable`): its per-run
+        One system may be given for several lanes (:func:`lane_copies`): its per-run
         modules are then shared by those lanes (the lane modules hold each lane's state;
         :meth:`LaneModule.state` and ``set_state`` go through them lane by lane), its
         random streams and its faults' injectors are copied per lane at their state.
@@ -396,15 +397,30 @@ class LaneSystem:
             mod.store(lanes)
 
 
-def replicable(system: LiveSystem, *, smooth: bool = False) -> bool:
-    """Whether lanes may share ``system`` (:meth:`LaneSystem.resume` of it for several lanes):
-    every active module runs in a batched lane class (under ``smooth``, one that follows
-    the flag), none lane by lane on the per-run instances (:class:`PerLane`)."""
+def lane_copies(system: LiveSystem, n: int, *, smooth: bool = False) -> list[LiveSystem]:
+    """``system`` for ``n`` lanes of :meth:`LaneSystem.resume` (the whole-loop check's probes).
+
+    The first is ``system``; the others are shallow copies that share its per-run
+    modules, except those that run lane by lane (:class:`PerLane`: no lane class, or
+    under ``smooth`` one that does not follow it), which step their per-run instance and
+    so get a deep copy each.
+    """
+    own = []
     for name in system._plan.active:
         cls = lane_module_class(system._module(name))
         if cls is PerLane or (smooth and not getattr(cls, "follows_smooth", True)):
-            return False
-    return True
+            own.append(name)
+    if not own:
+        return [system] * n
+    memo = {id(system.arch): system.arch, id(system._factory): system._factory}
+    out = [system]
+    for _ in range(n - 1):
+        lane = copy.copy(system)
+        lane._pool = dict(system._pool)
+        for name in own:
+            lane._pool[name] = copy.deepcopy(system._pool[name], dict(memo))
+        out.append(lane)
+    return out
 
 
 def _per_lane(mods: list[Any]) -> PerLane:

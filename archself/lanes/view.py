@@ -34,12 +34,12 @@ compute (docs/lanes.md), so A is the per-run path's (bit for bit on the diff-dri
 a1 → a2 and a2 and the motor drive's m1 → m2 checks, tests/test_lanes_linearize.py).
 
 A type that runs lane by lane there (no lane class, or one that does not follow
-``smooth``: :func:`~archself.lanes.system.replicable`) steps its per-run instances, so
-its lanes need copies of their own: such a check steps the base's deep copies
-(:meth:`~archself.system.linearizing._Probe.copy`, loaded from one pickle,
-:class:`~archself.system.linearizing.Clones`). They stay deep: shallow copies with their
-own streams stepped state shared with the other copies (a lane ended a
-``sensor_dropout`` run of ``thermal_zone.yaml`` in another configuration than its
+``smooth``: :class:`~archself.lanes.module.PerLane`) steps its per-run instances, so each
+probe lane gets a deep copy of that module alone
+(:func:`~archself.lanes.system.lane_copies`). Copies of the whole base stay deep where
+they are made (the per-run check's, :class:`~archself.system.linearizing.Clones`): shallow
+copies with their own streams stepped state shared with the other copies (a lane ended
+a ``sensor_dropout`` run of ``thermal_zone.yaml`` in another configuration than its
 per-run twin, tests/test_blocks_domain.py).
 """
 
@@ -52,8 +52,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from archself.lanes.module import ALL, row
-from archself.lanes.system import LaneSystem, replicable
+from archself.lanes.module import row
+from archself.lanes.system import LaneSystem, lane_copies
 from archself.system.linearizing import LoopProbes, loop_probes
 
 if TYPE_CHECKING:
@@ -281,40 +281,33 @@ def lane_loops(checks: Sequence[tuple[Any, str | None, int]]) -> list[WholeLoop]
 
 def _stepped(group: list[LoopProbes], steps: int) -> list[WholeLoop]:
     """The whole loops of checks at one configuration and step, their probes stepped as
-    lanes: each check's base shared by its probes' lanes where every module runs batched
-    (:func:`_probe_lanes`), else a copy per probe."""
-    shared = replicable(group[0].probe.base, smooth=True)
-    copies: list[list[Any]] = []
-    if shared:
-        lanes = _probe_lanes(group)
-    else:
-        copies = [[p.probe.copy(shift) for shift in p.shifts] for p in group]
-        lanes = LaneSystem.resume([c for cs in copies for c in cs], smooth=True)
+    the lanes of one lane system (:func:`_probe_lanes`)."""
+    lanes = _probe_lanes(group)
     for _ in range(steps):
         lanes.step()
-    if not shared:
-        lanes.store(ALL)
     out = []
     first = 0
-    for g, probes in enumerate(group):
+    for probes in group:
         runs = range(first, first + len(probes.shifts))
         for lane in runs:
             probes.probe.raised({n: lanes.health.reason(n, lane) for n in lanes.health.why})
-        if shared:
-            def read(lane: int, n: str, probe: Any = probes.probe) -> np.ndarray:
-                return probe.checked(n, lanes.module(n).state(np.array([lane]))[0])
 
-            out.append(probes.assemble(runs, read))
-        else:
-            out.append(probes.assemble(copies[g]))
+        def read(lane: int, n: str, probe: Any = probes.probe) -> np.ndarray:
+            return probe.checked(n, lanes.module(n).state(np.array([lane]))[0])
+
+        out.append(probes.assemble(runs, read))
         first += len(probes.shifts)
     return out
 
 
 def _probe_lanes(group: list[LoopProbes]) -> LaneSystem:
-    """One lane per probe of each check, all resumed from the check's base; each lane's
-    perturbed states set through the lane modules."""
-    lanes = LaneSystem.resume([p.probe.base for p in group for _ in p.shifts], smooth=True)
+    """One lane per probe of each check, all resumed from the check's base
+    (:func:`~archself.lanes.system.lane_copies`); each lane's perturbed states set through
+    the lane modules."""
+    lanes = LaneSystem.resume(
+        [s for p in group for s in lane_copies(p.probe.base, len(p.shifts), smooth=True)],
+        smooth=True,
+    )
     for n in lanes.plan(lanes.configuration[0]).active:
         lanes.module(n)  # every lane loaded from the base before any state is moved in it
     lane = 0
