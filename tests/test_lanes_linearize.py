@@ -29,13 +29,15 @@ def _dense(A):
 @pytest.mark.parametrize(
     ("file", "start", "target", "scenario", "t_s", "steps"),
     [
-        ("diffdrive.yaml", "a1", "a2", "imu_drift", 47.3, 24),  # EKF, GPS latency line
-        ("diffdrive.yaml", "a2", None, "nominal", 12.0, 24),
-        ("motor_drive.yaml", "m1", "m2", "nominal", 3.0, 2),  # a quantizing sensor: lane by lane
+        ("architectures/diffdrive.yaml", "a1", "a2", "imu_drift", 47.3, 24),  # EKF, GPS latency
+        ("architectures/diffdrive.yaml", "a2", None, "nominal", 12.0, 24),
+        ("architectures/motor_drive.yaml", "m1", "m2", "nominal", 3.0, 2),  # quantizing sensor
+        # relays, whose lane class keeps a ``state`` array (the state API on the class)
+        ("tests/fixtures/valid/relay_side_loop.yaml", "normal", "hot", "main_loss", 3.0, 5),
     ],
 )
 def test_lane_loop_is_the_per_run_loop(file, start, target, scenario, t_s, steps) -> None:
-    arch = archself.load(ROOT / "architectures" / file)
+    arch = archself.load(ROOT / file)
     system = compile_system(arch, start, seed=3, scenario=arch.scenarios[scenario])
     for _ in range(int(round(t_s / system.dt))):
         system.step()

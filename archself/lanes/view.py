@@ -293,7 +293,8 @@ def _stepped(group: list[LoopProbes], steps: int) -> list[WholeLoop]:
             probes.probe.raised({n: lanes.health.reason(n, lane) for n in lanes.health.why})
 
         def read(lane: int, n: str, probe: Any = probes.probe) -> np.ndarray:
-            return probe.checked(n, lanes.module(n).state(np.array([lane]))[0])
+            mod = lanes.module(n)  # the method on the class: a relay's lanes keep a ``state``
+            return probe.checked(n, type(mod).state(mod, np.array([lane]))[0])
 
         out.append(probes.assemble(runs, read))
         first += len(probes.shifts)
@@ -315,6 +316,7 @@ def _probe_lanes(group: list[LoopProbes]) -> LaneSystem:
         for shift in probes.shifts:
             one = np.array([lane])
             for n in shift:
-                lanes.module(n).set_state(probes.probe.moved(n, shift)[None], one)
+                mod = lanes.module(n)
+                type(mod).set_state(mod, probes.probe.moved(n, shift)[None], one)
             lane += 1
     return lanes
