@@ -249,7 +249,7 @@ class LaneView:
 # ---------------------------------------------------------------------- the whole loop
 def lane_loop(system: Any, configuration: str | None = None, steps: int = 1) -> WholeLoop:
     """:func:`~archself.system.linearizing.numerical_loop` of the per-run ``system``, its
-    perturbed copies stepped as lanes.
+    probes stepped as the lanes of one base.
 
     Parameters
     ----------

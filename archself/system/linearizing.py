@@ -260,8 +260,9 @@ class _Runs:
 class LoopProbes:
     """What :func:`numerical_loop` steps: the smoothed base copy, the perturbations
     (``shifts``: the nominal run first, then +h and −h of each column group), and
-    how their states make A (:meth:`assemble`). A lane executor may step the copies
-    together (``archself.lanes.view``) and hand them to :meth:`assemble`."""
+    how their states make A (:meth:`assemble`). A lane executor may step the probes
+    together (``archself.lanes.view``: lanes of the base, :meth:`_Probe.moved` set in
+    each, read back through ``read``) and hand them to :meth:`assemble`."""
 
     system: Any
     probe: _Probe
