@@ -29,13 +29,15 @@ def _dense(A):
 @pytest.mark.parametrize(
     ("file", "start", "target", "scenario", "t_s", "steps"),
     [
-        ("diffdrive.yaml", "a1", "a2", "imu_drift", 47.3, 24),  # EKF, GPS latency line
-        ("diffdrive.yaml", "a2", None, "nominal", 12.0, 24),
-        ("motor_drive.yaml", "m1", "m2", "nominal", 3.0, 2),  # a quantizing sensor: lane by lane
+        ("architectures/diffdrive.yaml", "a1", "a2", "imu_drift", 47.3, 24),  # EKF, GPS latency
+        ("architectures/diffdrive.yaml", "a2", None, "nominal", 12.0, 24),
+        ("architectures/motor_drive.yaml", "m1", "m2", "nominal", 3.0, 2),  # quantizing sensor
+        # relays, whose lane class keeps a ``state`` array (the state API on the class)
+        ("tests/fixtures/valid/relay_side_loop.yaml", "normal", "hot", "main_loss", 3.0, 5),
     ],
 )
 def test_lane_loop_is_the_per_run_loop(file, start, target, scenario, t_s, steps) -> None:
-    arch = archself.load(ROOT / "architectures" / file)
+    arch = archself.load(ROOT / file)
     system = compile_system(arch, start, seed=3, scenario=arch.scenarios[scenario])
     for _ in range(int(round(t_s / system.dt))):
         system.step()
@@ -50,16 +52,20 @@ def test_lane_loop_is_the_per_run_loop(file, start, target, scenario, t_s, steps
                         atol=0, err_msg=name)
 
 
-def test_checks_of_one_cycle_made_together_are_each_lanes_own() -> None:
+def test_checks_of_one_cycle_made_together_are_each_lanes_own(monkeypatch) -> None:
     """lane_loops: two lanes' checks stepped as one lane system give each lane's per-run A
-    (the copies after the first are loaded from a pickle of it: the same numbers)."""
+    (each check's probes are lanes of its one base: no copy is made)."""
+    from archself.system import linearizing
+
     arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
     systems = [compile_system(arch, "a1", seed=s, scenario=arch.scenarios["imu_drift"])
                for s in (3, 4)]
     for s in systems:
         for _ in range(int(round(47.3 / s.dt))):
             s.step()
-    both = lane_loops([(s, "a2", 24) for s in systems])
+    with monkeypatch.context() as m:
+        m.setattr(linearizing._Probe, "copy", lambda *a: pytest.fail("a probe was copied"))
+        both = lane_loops([(s, "a2", 24) for s in systems])
     for got, s in zip(both, systems, strict=True):
         want = numerical_loop(s, "a2", 24)
         assert_allclose(_dense(got.A), _dense(want.A), rtol=0, atol=1e-9)
@@ -110,3 +116,65 @@ def test_a_clone_is_the_deep_copy_of_a_snapshot() -> None:
     assert_allclose(snap._pool["chassis"].state(), clones()._pool["chassis"].state(), rtol=0,
                     atol=0)
     assert not np.array_equal(a._pool["chassis"].state(), snap._pool["chassis"].state())
+
+
+def test_lanes_resumed_from_one_system_are_each_its_own_copy() -> None:
+    """LaneSystem.resume of one system for several lanes (the check's probes): each lane
+    steps as a deep copy of it, its state moved through LaneModule.set_state as the copy's
+    set_state moves it; random streams and a noise fault's injector drawn per lane."""
+    from archself.system.live import FaultInjector
+
+    arch = archself.load(ROOT / "architectures" / "diffdrive.yaml")
+    system = compile_system(arch, "a2", seed=5, scenario=arch.scenarios["imu_drift"])
+    for _ in range(60):
+        system.step()
+    system._faults.setdefault("imu", []).append(
+        ("heading", FaultInjector("noise_increase", 0.0, 0.05, rng=np.random.default_rng(7))))
+    twins = [system.snapshot() for _ in range(3)]
+    lanes = LaneSystem.resume([system] * 3)
+    x = twins[0].modules["chassis"].state().copy()
+    x[0] += 1e-3
+    type(twins[2]._pool["chassis"]).set_state(twins[2]._pool["chassis"], x)
+    for name in system._plan.active:
+        lanes.module(name)
+    lanes.module("chassis").set_state(x[None], np.array([2]))
+    for _ in range(30):
+        lanes.step()
+        for s in twins:
+            s.step()
+    for i, s in enumerate(twins):
+        for name in ("chassis", "ekf", "imu"):
+            assert_allclose(lanes.module(name).state(np.array([i]))[0], s.modules[name].state(),
+                            rtol=0, atol=1e-12, err_msg=f"{name} lane {i}")
+        assert_allclose(lanes.signal("imu", "heading")[i], s.outputs["imu"]["heading"],
+                        rtol=0, atol=1e-12)
+    heading = lanes.signal("imu", "heading")
+    assert heading[0] == heading[1] != heading[2]  # the moved lane went its own way
+    streams = lanes.module("imu").normals.rngs
+    assert streams[0] is not streams[1]
+
+
+def test_a_type_that_runs_lane_by_lane_gets_its_own_instance_per_probe(monkeypatch) -> None:
+    """A type that runs lane by lane under smooth (the motor drive's quantizing sensor)
+    cannot share its per-run instance between lanes: resume refuses; the check's probe lanes
+    (lane_copies) share the base's other modules and own a copy of it; no probe is copied."""
+    from archself.errors import SimulationError
+    from archself.lanes.system import lane_copies
+    from archself.system import linearizing
+
+    arch = archself.load(ROOT / "architectures" / "motor_drive.yaml")
+    system = compile_system(arch, "m1", seed=3, scenario=arch.scenarios["nominal"])
+    for _ in range(10):
+        system.step()
+    with pytest.raises(SimulationError, match="share a system"):
+        LaneSystem.resume([system, system], smooth=True)
+    copies = lane_copies(system, 3, smooth=True)
+    own = {n for n in system._plan.active if copies[1]._pool[n] is not system._pool[n]}
+    assert own and all(type(system._pool[n]).__name__ == "Sensor" for n in own)
+    assert copies[0] is system and copies[2]._pool[next(iter(own))] is not copies[1]._pool[
+        next(iter(own))]
+    want = numerical_loop(system, "m2", 2)
+    monkeypatch.setattr(linearizing._Probe, "copy", lambda *a: pytest.fail("a probe was copied"))
+    loop = lane_loop(system, "m2", 2)
+    assert_allclose(_dense(loop.A), _dense(want.A), rtol=0, atol=1e-9)
+    assert loop.labels == want.labels and loop.problems == want.problems

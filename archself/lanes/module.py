@@ -31,8 +31,9 @@ by lane through :class:`PerLane`, with the same results.
 
 from __future__ import annotations
 
+import copy
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,9 @@ from archself.errors import SimulationError
 from archself.modules.base import RuntimeModule
 from archself.system.live import is_bad
 
-__all__ = ["ALL", "LaneModule", "LaneNormals", "PerLane", "lane_count", "row", "stack"]
+__all__ = [
+    "ALL", "LaneModule", "LaneNormals", "PerLane", "distinct", "lane_count", "row", "stack",
+]
 
 #: ``lanes`` of a call that steps every lane.
 ALL = slice(None)
@@ -79,6 +82,38 @@ def row(value: Any, j: int) -> Any:
         f = float(v)
         return None if f != f else f
     return None if math.isnan(float(v[0])) else v.copy()
+
+
+def distinct(objs: Sequence[Any], clone: Callable[[Any], Any] = copy.deepcopy) -> list[Any]:
+    """``objs`` with every object an earlier entry already names replaced by ``clone`` of it.
+
+    Lanes replicated from one per-run system (the whole-loop check's probes,
+    :func:`archself.lanes.view.lane_loops`) name its random streams and fault injectors
+    once per lane; each lane must draw and hold on its own, from the same state.
+
+    Examples
+    --------
+    >>> a = [1.0]
+    >>> got = distinct([a, a, [2.0]])
+    >>> got[0] is a, got[1] is a, got[1] == a
+    (True, False, True)
+    """
+    seen: set[int] = set()
+    out = []
+    for obj in objs:
+        if id(obj) in seen:
+            obj = clone(obj)
+        else:
+            seen.add(id(obj))
+        out.append(obj)
+    return out
+
+
+def _same_stream(rng: np.random.Generator) -> np.random.Generator:
+    """A generator of its own at ``rng``'s state (8 against 23 µs for ``copy.deepcopy``)."""
+    bg = type(rng.bit_generator)(0)
+    bg.state = rng.bit_generator.state
+    return np.random.Generator(bg)
 
 
 def stack(values: Sequence[Any]) -> Any:
@@ -247,18 +282,21 @@ class LaneModule:
         """Each lane's state vector, an ``(L, n)`` array: the per-run class's
         :meth:`~archself.modules.base.RuntimeModule.state` of every lane.
 
-        Derived through the per-run bridge (:meth:`store`, then each instance's
-        ``state()``), so the layout is the per-run class's and a lane class declares
-        nothing; :func:`archself.testing.check_pack` checks that it equals the
-        per-run twin's state.
+        Derived through the per-run bridge (:meth:`store`, then the instance's
+        ``state()``), lane by lane, so the layout is the per-run class's, a lane class
+        declares nothing, and lanes that share one per-run instance (replicated from
+        one system) read right; :func:`archself.testing.check_pack` checks that it
+        equals the per-run twin's state.
 
         Raises
         ------
         SimulationError
             When the lanes' states differ in size (a state that is absent in some lanes).
         """
-        self.store(lanes)
-        rows = [m.state() for m in self._mods(lanes)]
+        rows = []
+        for i, m in zip(self.indices(lanes).tolist(), self._mods(lanes), strict=True):
+            self.store(np.array([i]))
+            rows.append(type(m).state(m))  # on the class: a relay's ``state`` value
         if len({r.size for r in rows}) > 1:
             raise SimulationError(f"{self.name}: the lanes' states differ in size "
                                   f"({sorted({r.size for r in rows})})")
@@ -267,14 +305,15 @@ class LaneModule:
     def set_state(self, x: Any, lanes: slice | np.ndarray = ALL) -> None:
         """Write an ``(L, n)`` array of :meth:`state`'s layout back into ``lanes``.
 
-        Each row goes to its lane's per-run instance (``set_state``), then :meth:`load`
-        reads the lanes back.
+        Each row goes to its lane's per-run instance (``set_state``) and :meth:`load`
+        reads that lane back, lane by lane (lanes may share an instance).
         """
         x = np.asarray(x, dtype=float)
         mods = self._mods(lanes)
-        for m, xj in zip(mods, x.reshape(len(mods), -1), strict=True):
-            m.set_state(xj)
-        self.load(lanes)
+        rows = x.reshape(len(mods), -1)
+        for i, m, xj in zip(self.indices(lanes).tolist(), mods, rows, strict=True):
+            type(m).set_state(m, xj)
+            self.load(np.array([i]))
 
 
 class PerLane(LaneModule):
@@ -330,7 +369,9 @@ class LaneNormals:
     Parameters
     ----------
     rngs : sequence of numpy.random.Generator
-        One generator per lane (the per-run instance's ``rng``).
+        One generator per lane (the per-run instance's ``rng``); one named for several
+        lanes (lanes that share a per-run system) draws for the first, the others get
+        generators of their own at its state (:func:`distinct`).
     block : int
         Numbers drawn per refill.
 
@@ -344,7 +385,7 @@ class LaneNormals:
     """
 
     def __init__(self, rngs: Sequence[np.random.Generator], block: int = 512) -> None:
-        self.rngs = list(rngs)
+        self.rngs = distinct(rngs, _same_stream)  # one stream per lane, if lanes share one
         self.block = int(block)
         n = len(self.rngs)
         self.buf = np.empty((n, self.block))

@@ -22,6 +22,7 @@ Lane values follow :mod:`archself.lanes.module` (NaN = absent in that lane).
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -29,14 +30,14 @@ from typing import Any
 import numpy as np
 
 from archself.errors import SimulationError
-from archself.lanes.batching import lane_module, lane_module_class
+from archself.lanes.batching import lane_module_class
 from archself.lanes.edges import Delay, add_noise
 from archself.lanes.faults import LaneFault
 from archself.lanes.health import LaneHealth
-from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, stack
+from archself.lanes.module import ALL, LaneModule, LaneNormals, PerLane, distinct, stack
 from archself.system.live import LiveSystem, module_rng
 
-__all__ = ["LaneSystem"]
+__all__ = ["LaneSystem", "lane_copies"]
 
 #: The reasons of a publishing call with nothing to judge (never filled in).
 _NONE: dict[int, str] = {}
@@ -90,10 +91,7 @@ class LaneSystem:
             if any(len(f) != len(per_lane[0]) for f in per_lane):
                 raise SimulationError(f"lanes must have the same faults on {name!r}")
             if per_lane[0]:  # the j-th fault of every lane: (signal, injector) pairs
-                self._faults[name] = [
-                    LaneFault(fs[0][0], [f[1] for f in fs])
-                    for fs in zip(*per_lane, strict=True)
-                ]
+                self._faults[name] = [_fault(fs) for fs in zip(*per_lane, strict=True)]
         self._edge_noise: dict[int, tuple[np.ndarray, LaneNormals] | None] = {}
         self._delay: dict[int, Delay] = {}
         self._streams: tuple[int, list[LaneNormals]] | None = None
@@ -113,10 +111,16 @@ class LaneSystem:
         (the whole-loop linearization), a type whose lane class does not follow the
         per-run ``smooth`` flag (``LaneModule.follows_smooth``) runs lane by lane.
 
+        One system may be given for several lanes (:func:`lane_copies`): its per-run
+        modules are then shared by those lanes (the lane modules hold each lane's state;
+        :meth:`LaneModule.state` and ``set_state`` go through them lane by lane), its
+        random streams and its faults' injectors are copied per lane at their state.
+
         Raises
         ------
         SimulationError
-            Systems of different structure, configuration or time.
+            Systems of different structure, configuration or time; a module that runs
+            lane by lane (:class:`PerLane`) in lanes that share a system.
         """
         first = systems[0]
         if any(s.configuration != first.configuration or s.k != first.k for s in systems):
@@ -126,7 +130,7 @@ class LaneSystem:
         for name in lanes.plan(first.configuration).active:
             mods = [s._module(name) for s in systems]
             if smooth and not getattr(lane_module_class(mods[0]), "follows_smooth", True):
-                lanes.modules[name] = PerLane(mods)
+                lanes.modules[name] = _per_lane(mods)
         for name, out in first.outputs.items():
             lanes.outputs[name] = {
                 sig: stack([(s.outputs.get(name) or {}).get(sig) for s in systems]) for sig in out
@@ -167,7 +171,9 @@ class LaneSystem:
         """The lane module of ``name`` (built from the per-run instances on first use)."""
         mod = self.modules.get(name)
         if mod is None:
-            mod = self.modules[name] = lane_module([s._module(name) for s in self.systems])
+            mods = [s._module(name) for s in self.systems]
+            cls = lane_module_class(mods[0])
+            mod = self.modules[name] = _per_lane(mods) if cls is PerLane else cls(mods)
         return mod
 
     def move(self, lane: int, configuration: str) -> None:
@@ -389,6 +395,49 @@ class LaneSystem:
         """Write ``lanes``' state into their per-run systems' modules."""
         for mod in self.modules.values():
             mod.store(lanes)
+
+
+def lane_copies(system: LiveSystem, n: int, *, smooth: bool = False) -> list[LiveSystem]:
+    """``system`` for ``n`` lanes of :meth:`LaneSystem.resume` (the whole-loop check's probes).
+
+    The first is ``system``; the others are shallow copies that share its per-run
+    modules, except those that run lane by lane (:class:`PerLane`: no lane class, or
+    under ``smooth`` one that does not follow it), which step their per-run instance and
+    so get a deep copy each.
+    """
+    own = []
+    for name in system._plan.active:
+        cls = lane_module_class(system._module(name))
+        if cls is PerLane or (smooth and not getattr(cls, "follows_smooth", True)):
+            own.append(name)
+    if not own:
+        return [system] * n
+    memo = {id(system.arch): system.arch, id(system._factory): system._factory}
+    out = [system]
+    for _ in range(n - 1):
+        lane = copy.copy(system)
+        lane._pool = dict(system._pool)
+        for name in own:
+            lane._pool[name] = copy.deepcopy(system._pool[name], dict(memo))
+        out.append(lane)
+    return out
+
+
+def _per_lane(mods: list[Any]) -> PerLane:
+    """:class:`PerLane` of ``mods``: each lane steps its own instance, so none is shared."""
+    if len({id(m) for m in mods}) < len(mods):
+        raise SimulationError(f"{mods[0].name}: lanes that share a system cannot run it lane "
+                              "by lane (its per-run instance would step once per lane)")
+    return PerLane(mods)
+
+
+def _fault(faults: Sequence[tuple[str, Any]]) -> LaneFault:
+    """The lane fault of one ``(signal, injector)`` per lane; an injector named by several
+    lanes (a shared system) is copied per lane where the kind keeps state in it."""
+    fault = LaneFault(faults[0][0], [f[1] for f in faults])
+    if not fault.vector:  # noise from the injector's stream, a held value
+        fault.injectors = distinct(fault.injectors)
+    return fault
 
 
 def _absent_rows(value: Any, lanes: np.ndarray) -> Any:

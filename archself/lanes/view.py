@@ -17,26 +17,30 @@ streams and latency lines copied — and hands the call to that
 streams back and moves the lane if the loop switched it or changed a parameter.
 
 The whole-loop linearization of a lane's stability check (:func:`lane_loop`):
-:func:`archself.system.linearizing.numerical_loop` steps one snapshot per perturbation
-(the nominal copy, then +h and −h of every column group: 29 copies of the diff-drive's
-a2) for ``steps`` steps each, one per-run step at a time. :func:`lane_loop` takes the
-same base copy and perturbations (:func:`~archself.system.linearizing.loop_probes`) and
-steps them together as the lanes of a :class:`~archself.lanes.system.LaneSystem`
-resumed from them (:meth:`LaneSystem.resume`); each lane's state is read back through
-its lane class's :meth:`~archself.lanes.module.LaneModule.store`, and the same
-:meth:`~archself.system.linearizing.LoopProbes.assemble` makes A. The lane classes
-compute what the per-run classes compute (docs/lanes.md), so A is the per-run path's
-(bit for bit on the diff-drive's a1 → a2 and a2 and the motor drive's m1 → m2 checks,
-tests/test_lanes_linearize.py).
+:func:`archself.system.linearizing.numerical_loop` steps one copy per perturbation
+(the nominal, then +h and −h of every column group: 29 of the diff-drive's a2) for
+``steps`` steps each, one per-run step at a time. :func:`lane_loop` takes the same
+base copy and perturbations (:func:`~archself.system.linearizing.loop_probes`) and steps
+them together as the lanes of one :class:`~archself.lanes.system.LaneSystem`: the base
+is resumed once per perturbation (:meth:`LaneSystem.resume` of one system for several
+lanes: its per-run modules shared, its random streams and fault injectors copied per
+lane), each lane's perturbed state set through its lane module
+(:meth:`~archself.lanes.module.LaneModule.set_state` of that lane) and read back after the
+steps (:meth:`~archself.lanes.module.LaneModule.state`); the same
+:meth:`~archself.system.linearizing.LoopProbes.assemble` makes A. No per-probe copy is
+made (before: 29 copies a check, loaded from one pickle, then packed into lanes again:
+0.4 ms a copy, a third of the check). The lane classes compute what the per-run classes
+compute (docs/lanes.md), so A is the per-run path's (bit for bit on the diff-drive's
+a1 → a2 and a2 and the motor drive's m1 → m2 checks, tests/test_lanes_linearize.py).
 
-Each lane is a deep copy of the active modules of the base. Shallow copies with their
-own streams were a third faster per check, but a type that runs lane by lane under
-``smooth`` stepped state shared with the other copies: a lane ended a
-``sensor_dropout`` run of ``thermal_zone.yaml`` in another configuration than its
-per-run twin (tests/test_blocks_domain.py), so the copies stay deep. Only the first is
-made by ``copy.deepcopy``; the others are loaded from one pickle of it
-(:class:`archself.system.linearizing.Clones`, as the per-run check's copies: 0.4 against
-1.1 ms a copy of the diff-drive's a2, 29 copies a check), sharing what the deep copy shares.
+A type that runs lane by lane there (no lane class, or one that does not follow
+``smooth``: :class:`~archself.lanes.module.PerLane`) steps its per-run instances, so each
+probe lane gets a deep copy of that module alone
+(:func:`~archself.lanes.system.lane_copies`). Copies of the whole base stay deep where
+they are made (the per-run check's, :class:`~archself.system.linearizing.Clones`): shallow
+copies with their own streams stepped state shared with the other copies (a lane ended
+a ``sensor_dropout`` run of ``thermal_zone.yaml`` in another configuration than its
+per-run twin, tests/test_blocks_domain.py).
 """
 
 from __future__ import annotations
@@ -48,8 +52,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from archself.lanes.module import ALL, row
-from archself.lanes.system import LaneSystem
+from archself.lanes.module import row
+from archself.lanes.system import LaneSystem, lane_copies
 from archself.system.linearizing import LoopProbes, loop_probes
 
 if TYPE_CHECKING:
@@ -245,7 +249,7 @@ class LaneView:
 # ---------------------------------------------------------------------- the whole loop
 def lane_loop(system: Any, configuration: str | None = None, steps: int = 1) -> WholeLoop:
     """:func:`~archself.system.linearizing.numerical_loop` of the per-run ``system``, its
-    perturbed copies stepped as lanes.
+    probes stepped as the lanes of one base.
 
     Parameters
     ----------
@@ -260,31 +264,59 @@ def lane_loop(system: Any, configuration: str | None = None, steps: int = 1) -> 
 
 
 def lane_loops(checks: Sequence[tuple[Any, str | None, int]]) -> list[WholeLoop]:
-    """:func:`lane_loop` of several ``(system, configuration, steps)`` at once: the copies
+    """:func:`lane_loop` of several ``(system, configuration, steps)`` at once: the probes
     of the checks of one configuration, step and step count stepped as the lanes of one
     :class:`~archself.lanes.system.LaneSystem` (the lanes that check in the same cycle)."""
-    made = [_copies(*check) for check in checks]
+    made = [loop_probes(*check) for check in checks]
     groups: dict[tuple[str, int, int], list[int]] = {}
-    for j, (_probes, copies) in enumerate(made):
-        groups.setdefault((copies[0].configuration, copies[0].k, checks[j][2]), []).append(j)
+    for j, probes in enumerate(made):
+        base = probes.probe.base
+        groups.setdefault((base.configuration, base.k, checks[j][2]), []).append(j)
     out: list[Any] = [None] * len(checks)
     for (_conf, _k, steps), js in groups.items():
-        lanes = LaneSystem.resume([c for j in js for c in made[j][1]], smooth=True)
-        for _ in range(steps):
-            lanes.step()
-        lanes.store(ALL)
-        lane = 0
-        for j in js:
-            probes, copies = made[j]
-            for _ in copies:
-                probes.probe.raised({n: lanes.health.reason(n, lane) for n in lanes.health.why})
-                lane += 1
-            out[j] = probes.assemble(copies)
+        for j, loop in zip(js, _stepped([made[j] for j in js], steps), strict=True):
+            out[j] = loop
     return out
 
 
-def _copies(system: Any, configuration: str | None, steps: int) -> tuple[LoopProbes, list]:
-    """The probes of ``system``'s whole loop and the copy of each of their shifts
-    (:meth:`~archself.system.linearizing._Probe.copy`)."""
-    probes = loop_probes(system, configuration, steps)
-    return probes, [probes.probe.copy(shift) for shift in probes.shifts]
+def _stepped(group: list[LoopProbes], steps: int) -> list[WholeLoop]:
+    """The whole loops of checks at one configuration and step, their probes stepped as
+    the lanes of one lane system (:func:`_probe_lanes`)."""
+    lanes = _probe_lanes(group)
+    for _ in range(steps):
+        lanes.step()
+    out = []
+    first = 0
+    for probes in group:
+        runs = range(first, first + len(probes.shifts))
+        for lane in runs:
+            probes.probe.raised({n: lanes.health.reason(n, lane) for n in lanes.health.why})
+
+        def read(lane: int, n: str, probe: Any = probes.probe) -> np.ndarray:
+            mod = lanes.module(n)  # the method on the class: a relay's lanes keep a ``state``
+            return probe.checked(n, type(mod).state(mod, np.array([lane]))[0])
+
+        out.append(probes.assemble(runs, read))
+        first += len(probes.shifts)
+    return out
+
+
+def _probe_lanes(group: list[LoopProbes]) -> LaneSystem:
+    """One lane per probe of each check, all resumed from the check's base
+    (:func:`~archself.lanes.system.lane_copies`); each lane's perturbed states set through
+    the lane modules."""
+    lanes = LaneSystem.resume(
+        [s for p in group for s in lane_copies(p.probe.base, len(p.shifts), smooth=True)],
+        smooth=True,
+    )
+    for n in lanes.plan(lanes.configuration[0]).active:
+        lanes.module(n)  # every lane loaded from the base before any state is moved in it
+    lane = 0
+    for probes in group:
+        for shift in probes.shifts:
+            one = np.array([lane])
+            for n in shift:
+                mod = lanes.module(n)
+                type(mod).set_state(mod, probes.probe.moved(n, shift)[None], one)
+            lane += 1
+    return lanes

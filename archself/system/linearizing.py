@@ -260,8 +260,9 @@ class _Runs:
 class LoopProbes:
     """What :func:`numerical_loop` steps: the smoothed base copy, the perturbations
     (``shifts``: the nominal run first, then +h and −h of each column group), and
-    how their states make A (:meth:`assemble`). A lane executor may step the copies
-    together (``archself.lanes.view``) and hand them to :meth:`assemble`."""
+    how their states make A (:meth:`assemble`). A lane executor may step the probes
+    together (``archself.lanes.view``: lanes of the base, :meth:`_Probe.moved` set in
+    each, read back through ``read``) and hand them to :meth:`assemble`."""
 
     system: Any
     probe: _Probe
@@ -386,11 +387,9 @@ class _Probe:
                 self._clones = lambda: self.base.snapshot(self.base._plan.active)
         else:
             copy_ = self._clones()
-        for n, (i, h) in shift.items():
-            x = self.x0[n].copy()
-            x[i] += h
+        for n in shift:
             mod = copy_._pool[n]
-            type(mod).set_state(mod, x)
+            type(mod).set_state(mod, self.moved(n, shift))
         return copy_
 
     def raised(self, why: dict[str, str | None]) -> None:
@@ -409,7 +408,18 @@ class _Probe:
 
     def read(self, copy_: Any, n: str) -> np.ndarray:
         """Module ``n``'s state in ``copy_`` (NaN, and a problem, if it changed size)."""
-        x = _state(copy_._pool[n])
+        return self.checked(n, _state(copy_._pool[n]))
+
+    def moved(self, n: str, shift: dict[str, tuple[int, float]]) -> np.ndarray:
+        """Module ``n``'s base state with the entry ``shift`` names for it moved."""
+        i, h = shift[n]
+        x = self.x0[n].copy()
+        x[i] += h
+        return x
+
+    def checked(self, n: str, x: np.ndarray) -> np.ndarray:
+        """``x``, module ``n``'s state after the steps (NaN, and a problem, if it changed
+        size)."""
         if x.size != self.x0[n].size:
             self.problems.append(f"{n}'s state changed size ({self.x0[n].size} → {x.size} "
                                  "values)")
