@@ -494,6 +494,8 @@ class Ekf(_PoseEstimator):
         # time, so an array read and changed in place is what the next step starts from
         self._x: list[float] = []
         self._p: list[float] = []
+        self._xa: np.ndarray | None = None
+        self._pa: np.ndarray | None = None
         self.x = np.array([*map(float, self.params["initial_pose"]), 0.0, 0.0])
         self.P = self._initial_covariance()
         self.started = False
