@@ -187,11 +187,10 @@ class LqrController(RuntimeModule):
     # data flow ---------------------------------------------------------------
     def body_command(self, ref, est) -> tuple[float, float]:
         """``(v, ω)`` from the reference and the pose estimate."""
-        if type(ref) is np.ndarray:  # floats once (indexing an array costs more)
-            ref = ref.tolist()
-        if type(est) is np.ndarray:
-            est = est.tolist()
-        v_ref = float(ref[3])
+        # floats once (indexing an array costs more)
+        ref = ref.tolist() if type(ref) is np.ndarray else [float(v) for v in ref]
+        est = est.tolist() if type(est) is np.ndarray else [float(v) for v in est]
+        v_ref = ref[3]
         if abs(v_ref - self.v_ref) > 0.005:
             self.v_ref = v_ref
             self.K = self.gain(v_ref)
@@ -200,45 +199,37 @@ class LqrController(RuntimeModule):
         if K is not self._k_of:  # the gain changed: refresh its float copy
             self._k_of, self._k = K, K.tolist()
         (k00, k01, k02), (k10, k11, k12) = self._k
-        du0 = k00 * e0 + k01 * e1 + k02 * e2
-        du1 = k10 * e0 + k11 * e1 + k12 * e2
-        self.signals["tracking_error"] = math.hypot(
-            float(est[0]) - float(ref[0]), float(est[1]) - float(ref[1])
-        )
-        return v_ref - du0, float(ref[4]) - du1
+        self.signals["tracking_error"] = math.hypot(est[0] - ref[0], est[1] - ref[1])
+        return v_ref - (k00 * e0 + k01 * e1 + k02 * e2), ref[4] - (k10 * e0 + k11 * e1 + k12 * e2)
 
-    @staticmethod
-    def _wheel_speeds(v: float, w: float, inputs) -> tuple[float, float]:
+    def wheel_speeds(self, ref, est, inputs, eff: tuple[float, float] = (1.0, 1.0)
+                     ) -> tuple[float, float]:
+        """Wheel speeds ``(l, r)`` (rad/s) realising :meth:`body_command`'s ``(v, ω)``, each
+        divided by its wheel's effectiveness ``eff`` (a division by 1 is exact), both
+        scaled together into the actuation limit: clipping each alone would change the
+        curvature (a saturated pair turns in circles instead of slowing down on the path)."""
+        v, w = self.body_command(ref, est)
         kin = inputs.get("kinematics") or _DEFAULT_KIN
         half = w * kin.wheel_base_m / 2.0
         r = kin.wheel_radius_m
-        return (v - half) / r, (v + half) / r
-
-    @staticmethod
-    def _limit(left: float, right: float, inputs) -> tuple[float, float]:
+        left, right = (v - half) / r / eff[0], (v + half) / r / eff[1]
         act: Actuation | None = inputs.get("actuation")
         if act is not None:
-            # scale both wheels together: clipping each alone would change the curvature
-            # (a saturated pair turns in circles instead of slowing down on the path)
             lim = act.max_wheel_speed_rad_s
             peak = max(abs(left), abs(right))
             if peak > lim:
                 left, right = left * lim / peak, right * lim / peak
         return left, right
 
-    def wheel_command(self, v: float, w: float, inputs) -> np.ndarray:
-        """Wheel speeds ``[l, r]`` (rad/s) realising ``(v, ω)``, within the actuation limit."""
-        return np.array(self._limit(*self._wheel_speeds(v, w, inputs), inputs))
-
     def step(self, t, dt, inputs):
-        self.dynamics = inputs.get("dynamics") or self.dynamics
+        dyn = inputs.get("dynamics")
+        if dyn is not None:
+            self.dynamics = dyn
         ref = inputs.get("reference")
         est = inputs.get("pose_estimate")
         if ref is None or est is None:
             return {"wheel_cmd": self.last_cmd}
-        v, w = self.body_command(ref, est)
-        cmd = self.wheel_command(v, w, inputs)
-        self.last_cmd = cmd
+        cmd = self.last_cmd = np.array(self.wheel_speeds(ref, est, inputs))
         return {"wheel_cmd": cmd}
 
     def export_state(self):
@@ -331,9 +322,7 @@ class AsymLqrController(LqrController):
             last = self.last_cmd
             self._sent = None if last is None else (float(last[0]), float(last[1]))
             return {"wheel_cmd": last}
-        v, w = self.body_command(ref, pose)
-        left, right = self._wheel_speeds(v, w, inputs)
-        self._sent = self._limit(left / self._eff[0], right / self._eff[1], inputs)
+        self._sent = self.wheel_speeds(ref, pose, inputs, self._eff)
         cmd = self.last_cmd = np.array(self._sent)
         return {"wheel_cmd": cmd}
 

@@ -489,6 +489,13 @@ class Ekf(_PoseEstimator):
     def __init__(self, name, params, rng):
         self.monitor = InnovationWindow(math.nan)  # its window is set by configure()
         super().__init__(name, params, rng)
+        # the state and P live as floats (``_x``, P's upper triangle ``_p``) while the filter
+        # steps, as arrays (``_xa``, ``_pa``) once read through ``x`` / ``P``: one form at a
+        # time, so an array read and changed in place is what the next step starts from
+        self._x: list[float] = []
+        self._p: list[float] = []
+        self._xa: np.ndarray | None = None
+        self._pa: np.ndarray | None = None
         self.x = np.array([*map(float, self.params["initial_pose"]), 0.0, 0.0])
         self.P = self._initial_covariance()
         self.started = False
@@ -515,13 +522,39 @@ class Ekf(_PoseEstimator):
         pos, th, b, rate = self._p0
         return np.diag([pos**2, pos**2, th**2, b**2, rate**2])
 
+    @property
+    def x(self) -> np.ndarray:
+        """The state ``[x, y, θ, b, ḃ]`` (filterpy's name; changed in place, it is kept)."""
+        if self._xa is None:
+            self._xa = np.array(self._x)
+        return self._xa
+
+    @x.setter
+    def x(self, value) -> None:
+        self._xa = np.asarray(value, dtype=float)
+
+    @property
+    def P(self) -> np.ndarray:  # noqa: N802 - filterpy's name
+        """The covariance (5×5; filterpy's name; changed in place, it is kept)."""
+        if self._pa is None:
+            self._pa = np.array(self._p)[_FULL]
+        return self._pa
+
+    @P.setter
+    def P(self, value) -> None:  # noqa: N802
+        self._pa = np.asarray(value, dtype=float)
+
     def _entries(self) -> tuple[list[float], list[float]]:
-        """The state and P's upper triangle as floats (the ``*_entries`` functions')."""
-        return self.x.tolist(), self.P[_UI, _UJ].tolist()
+        """The state and P's upper triangle as floats (the ``*_entries`` functions'); the
+        arrays read through ``x`` / ``P`` are taken back first."""
+        if self._xa is not None:
+            self._x, self._xa = self._xa.tolist(), None
+        if self._pa is not None:
+            self._p, self._pa = self._pa[_UI, _UJ].tolist(), None
+        return self._x, self._p
 
     def _set(self, x: list[float], p: list[float]) -> None:
-        self.x = np.array(x)
-        self.P = np.array(p)[_FULL]
+        self._x, self._p, self._xa, self._pa = x, p, None, None
 
     def _predict(self, x, p, dt: float, enc, kin: Kinematics):
         v, w = _wheel_body(enc, kin) if enc is not None else (0.0, 0.0)
@@ -571,7 +604,7 @@ class Ekf(_PoseEstimator):
         if self.started:
             x, p = self._predict(x, p, dt, inputs.get("encoder_speeds"), kin)
         elif heading is not None:
-            x[2] = float(heading) - x[3]
+            x = [*x[:2], float(heading) - x[3], *x[3:]]
         self.started = True
         if heading is not None:
             x, p = update_heading_entries(x, p, float(heading), self.r_head)
@@ -581,7 +614,8 @@ class Ekf(_PoseEstimator):
             self.monitor.add(t, ex, ey)
             self.signals["innovation"] = self.monitor.value()
         self._set(x, p)
-        return {"pose_estimate": self.x[:3].copy(), "covariance": self.P[:3, :3].copy()}
+        return {"pose_estimate": np.array(x[:3]), "covariance": np.array(
+            [[p[0], p[1], p[2]], [p[1], p[5], p[6]], [p[2], p[6], p[9]]])}
 
     def export_state(self):
         return {

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from archself.modules.base import Param, RuntimeModule
-from archself_diffdrive.kinematics import arc_step, integrate_pose
+from archself_diffdrive.kinematics import arc_step
 from archself_diffdrive.models import Dynamics, Kinematics, parameters_of
 
 __all__ = ["DiffDrivePlant", "WheelActuator", "WheelEncoders", "Imu", "Gps"]
@@ -98,16 +98,24 @@ class DiffDrivePlant(RuntimeModule):
 
     def __init__(self, name, params, rng):
         super().__init__(name, params, rng)
-        self.pose = np.array(self.params["initial_pose"], dtype=float)
+        self.pose = self.params["initial_pose"]  # held as the floats px, py, th
         self.wl = 0.0
         self.wr = 0.0
+
+    @property
+    def pose(self) -> np.ndarray:
+        """The true pose ``[x, y, θ]`` (a new array; the plant steps on floats)."""
+        return np.array([self.px, self.py, self.th])
+
+    @pose.setter
+    def pose(self, value) -> None:
+        self.px, self.py, self.th = np.asarray(value, dtype=float)[:3].tolist()
 
     def configure(self) -> None:
         p = self.params
         self.tau = float(p["wheel_time_constant_s"])
         self.limit = float(p["max_wheel_speed_rad_s"])
-        self._kp = {
-            "dt": 0.0,
+        self._kp = {  # (read by the lanes)
             "wheel_radius_m": float(p["wheel_radius_m"]),
             "wheel_base_m": float(p["wheel_base_m"]),
             "effectiveness": [float(e) for e in p["effectiveness"]],
@@ -118,9 +126,12 @@ class DiffDrivePlant(RuntimeModule):
         self.slip = float(p["slip_variance_m"])
         self.lateral = float(p["lateral_noise_m_sqrt_s"])
         self.yaw = float(p["yaw_noise_rad_sqrt_s"])
+        self._lag_of = math.nan  # the dt of _lag: the wheels' lag factor 1 − exp(−dt/τ)
+        self._lag = 1.0
 
     def output(self, t):
-        return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
+        return {"pose": np.array([self.px, self.py, self.th]),
+                "wheel_speeds": np.array([self.wl, self.wr])}
 
     def step(self, t, dt, inputs):
         lim = self.limit
@@ -128,52 +139,47 @@ class DiffDrivePlant(RuntimeModule):
         tr = inputs.get("wheel_speed_right")
         tl = 0.0 if tl is None else min(max(float(tl), -lim), lim)
         tr = 0.0 if tr is None else min(max(float(tr), -lim), lim)
-        a = 1.0 - math.exp(-dt / self.tau) if self.tau > 0 else 1.0
+        if dt != self._lag_of:
+            self._lag_of, self._lag = dt, 1.0 - math.exp(-dt / self.tau) if self.tau > 0 else 1.0
+        a = self._lag
         wl0, wr0 = self.wl, self.wr
-        self.wl = wl0 + a * (tl - wl0)
-        self.wr = wr0 + a * (tr - wr0)
-        self._kp["dt"] = dt
+        wl = self.wl = wl0 + a * (tl - wl0)
+        wr = self.wr = wr0 + a * (tr - wr0)
         if self.tau > 0:  # trapezoidal wheel speeds over the step
-            u = (0.5 * (wl0 + self.wl), 0.5 * (wr0 + self.wr))
-        else:
-            u = (self.wl, self.wr)
-        if self.slip > 0 or self.lateral > 0 or self.yaw > 0:
-            self.pose = self._disturbed_move(u, dt)
-        else:
-            self.pose = integrate_pose(t, self.pose, u, self._kp)
+            wl, wr = 0.5 * (wl0 + wl), 0.5 * (wr0 + wr)
+        self._move(wl, wr, dt)
         return {}
 
-    def _disturbed_move(self, u: tuple[float, float], dt: float) -> np.ndarray:
-        """The pose after ``dt`` with the disturbances, on floats (:func:`integrate_pose`'s
-        operations): the wheels' ground travel carries the slip (σ² = k·|r·ω·dt| per
-        wheel), the pose the lateral and yaw noise. The step's normals are drawn at once,
-        in the stream's order: slip's two, then the pose noise's two."""
+    def _move(self, wl: float, wr: float, dt: float) -> None:
+        """The pose after ``dt`` at wheel speeds ``wl``, ``wr`` with the disturbances
+        (:func:`arc_step`): the wheels' ground travel carries the
+        slip (σ² = k·|r·ω·dt| per wheel), the pose the lateral and yaw noise. The step's
+        normals are drawn at once, in the stream's order: slip's two, then the pose
+        noise's two."""
         slip = self.slip > 0 and dt > 0
         noisy = (self.lateral > 0 or self.yaw > 0) and dt > 0
-        z: list[float] = self.rng.standard_normal(2 * slip + 2 * noisy).tolist() if (
-            slip or noisy) else []
-        wl, wr = float(u[0]), float(u[1])
         r = self.radius
-        if slip:
-            wl = wl + math.sqrt(self.slip * abs(r * wl * dt)) * z[0] / (r * dt)
-            wr = wr + math.sqrt(self.slip * abs(r * wr * dt)) * z[1] / (r * dt)
-        el, er = self._eff
-        px, py, th = self.pose.tolist()
-        px, py, th = arc_step(px, py, th, r, self._base, wl * el, wr * er, dt)
-        if not noisy:
-            return np.array([px, py, th])
-        n0, n1 = z[-2:]
-        sq = math.sqrt(dt)
-        lat = self.lateral * (n0 * sq)
-        return np.array([px + -math.sin(th) * lat, py + math.cos(th) * lat,
-                         th + self.yaw * (n1 * sq)])
+        if slip or noisy:
+            z: list[float] = self.rng.standard_normal(2 * slip + 2 * noisy).tolist()
+            if slip:
+                rdt = r * dt
+                wl = wl + math.sqrt(self.slip * abs(r * wl * dt)) * z[0] / rdt
+                wr = wr + math.sqrt(self.slip * abs(r * wr * dt)) * z[1] / rdt
+        px, py, th = arc_step(self.px, self.py, self.th, r, self._base, wl * self._eff[0],
+                              wr * self._eff[1], dt)
+        if noisy:
+            sq = math.sqrt(dt)
+            lat = self.lateral * (z[-2] * sq)
+            px, py, th = px + -math.sin(th) * lat, py + math.cos(th) * lat, th + self.yaw * (
+                z[-1] * sq)
+        self.px, self.py, self.th = px, py, th
 
     def export_state(self):
-        return {"pose": self.pose.copy(), "wheel_speeds": np.array([self.wl, self.wr])}
+        return self.output(0.0)
 
     def import_state(self, state):
         if "pose" in state:
-            self.pose = np.array(state["pose"], dtype=float)[:3]
+            self.pose = state["pose"]
         if "wheel_speeds" in state:
             self.wl, self.wr = (float(w) for w in state["wheel_speeds"])
 
