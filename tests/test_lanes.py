@@ -331,6 +331,21 @@ def test_adaptive_lanes_make_the_per_run_decisions(diffdrive_raw, scenario) -> N
             assert_allclose(got.series[key], val, rtol=0, atol=1e-9, err_msg=key)
 
 
+def test_sweep_lanes_of_another_acceptable_j_record_their_own_j_ref() -> None:
+    """Sweep points that differ in ``runtime.objective.acceptable`` share a configuration
+    group: each lane's records hold its own J_ref (and r = J_ref − J_obs), as per run."""
+    from archself.runtime import MapeK
+
+    a = Architecture.model_validate(_raw("process_plant"))
+    b = a.model_copy(deep=True)
+    b.runtime.objective.acceptable = 0.5 * a.runtime.objective.acceptable
+    lanes = simulate_lanes([a, b], "level_drift", [3, 3], adapt=True)
+    for arch, got in zip((a, b), lanes, strict=True):
+        want = simulate(arch, "level_drift", seed=3, adapt=MapeK(arch))
+        assert {d.j_ref for d in got.decisions} == {arch.runtime.objective.acceptable}
+        assert [d.to_dict() for d in got.decisions] == [d.to_dict() for d in want.decisions]
+
+
 def test_calibration_runs_in_lanes_record_the_per_run_residuals() -> None:
     """calibrate's runs batched (one unit of sweep points and seeds, 2 each): the same recorded
     filtered residuals, unusable flags and times as run by run."""

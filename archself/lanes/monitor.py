@@ -172,10 +172,10 @@ class Observed:
     ----------
     lanes : list of int
         The observed lanes, one row each.
-    t, j_ref : float
-        The cycle's time and J_ref.
-    j_obs : list of float
-        J_obs per row.
+    t : float
+        The cycle's time.
+    j_obs, j_ref : list of float
+        J_obs and J_ref per row (sweep points may differ in ``runtime.objective``).
     zero : numpy.ndarray of bool
         Per row: every r_i is +0 (none negative zero) and κ has no finding (every
         sample usable, no violated constraint).
@@ -190,7 +190,7 @@ class Observed:
         self._monitors, self._g, self._R = monitors, g, R
         self._violations, self._violated, self._flagged = violations, violated, flagged
         self.lanes, self.t, self.j_obs = g.keep, g.t, j_obs
-        self.j_ref = float(g.first.arch.runtime.objective.acceptable)
+        self.j_ref = [float(monitors[i].arch.runtime.objective.acceptable) for i in g.keep]
         if flagged.size:
             self.zero = np.zeros(len(g.keep), dtype=bool)
         else:
@@ -212,9 +212,9 @@ class Observed:
             mon.names, mon.index, lay.active, mon._true, residual_ok, confidence_reader(lay),
             dict(self._violations), {}, found, set(),
         )
-        j_obs = self.j_obs[row]
+        j_obs, j_ref = self.j_obs[row], self.j_ref[row]
         return Observation(
-            self.t, j_obs, self.j_ref, self.j_ref - j_obs, self._R[row].copy(), kappa,
+            self.t, j_obs, j_ref, j_ref - j_obs, self._R[row].copy(), kappa,
             lay.on_names, lay.value, ok,
         )
 

@@ -319,7 +319,7 @@ def _quiet(loops: list[Any], conf: str, active: frozenset[str], group: Any) -> s
     t, j_ref, j_obs, lanes = group.t, group.j_ref, group.j_obs, group.lanes
     return {
         lanes[row] for row in np.flatnonzero(group.zero).tolist()
-        if loops[lanes[row]].quiet_zeros(conf, active, t, j_obs[row], j_ref)
+        if loops[lanes[row]].quiet_zeros(conf, active, t, j_obs[row], j_ref[row])
     }
 
 
