@@ -134,9 +134,10 @@ def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The filters of every lane updated as ``(lanes, modules)`` arrays, as
     :meth:`Monitor.observe` updates one lane's: ``(value, samples, valid_time, r)``."""
     first, lay0, X, F, dt = g.first, g.lay0, g.X, g.F, g.dt
-    V = np.stack([lay.value for lay in g.lays])
-    S = np.stack([lay.samples for lay in g.lays])
-    VT = np.stack([lay.valid_time for lay in g.lays])
+    # np.array of equal-shaped rows: np.stack's copy, without its Python loops over the lanes
+    V = np.array([lay.value for lay in g.lays])
+    S = np.array([lay.samples for lay in g.lays])
+    VT = np.array([lay.valid_time for lay in g.lays])
     gain = lay0.gains(first, dt)
     with np.errstate(all="ignore"):
         new = V + gain * (X - V)
@@ -157,7 +158,7 @@ def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         else:
             res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
         res = np.where(np.isfinite(new), np.minimum(res, MAX_RESIDUAL), 0.0)
-        untrusted = VT1 < np.stack([lay.trust_time for lay in g.lays])  # per lane (at start)
+        untrusted = VT1 < np.array([lay.trust_time for lay in g.lays])  # per lane (at start)
         if g.partial:
             untrusted |= ~F  # no residual from a filter that took no sample
         if untrusted.any():
