@@ -398,12 +398,18 @@ def test_quiet_lanes_record_what_the_per_lane_call_records(diffdrive_raw, monkey
     seeds = [2, 5]
     full = simulate_lanes(arch, "imu_drift", seeds, adapt=Called)
     taken: dict[str, list[bool]] = {"quiet": [], "quiet_zeros": []}
-    for name in taken:
-        def counted(self, *args, _f=getattr(MapeK, name), _n=name):
-            taken[_n].append(_f(self, *args))
-            return taken[_n][-1]
 
-        monkeypatch.setattr(MapeK, name, counted)
+    def counting(name: str):
+        real = getattr(MapeK, name)
+
+        def counted(self, *args):
+            taken[name].append(real(self, *args))
+            return taken[name][-1]
+
+        return counted
+
+    for name in taken:
+        monkeypatch.setattr(MapeK, name, counting(name))
     got = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
     n_cycles = sum(len(r.decisions) for r in got)
     assert sum(taken["quiet_zeros"]) > 0.8 * n_cycles  # most cycles: r = 0, no Observation
