@@ -331,6 +331,21 @@ def test_adaptive_lanes_make_the_per_run_decisions(diffdrive_raw, scenario) -> N
             assert_allclose(got.series[key], val, rtol=0, atol=1e-9, err_msg=key)
 
 
+def test_sweep_lanes_of_another_acceptable_j_record_their_own_j_ref() -> None:
+    """Sweep points that differ in ``runtime.objective.acceptable`` share a configuration
+    group: each lane's records hold its own J_ref (and r = J_ref − J_obs), as per run."""
+    from archself.runtime import MapeK
+
+    a = Architecture.model_validate(_raw("process_plant"))
+    b = a.model_copy(deep=True)
+    b.runtime.objective.acceptable = 0.5 * a.runtime.objective.acceptable
+    lanes = simulate_lanes([a, b], "level_drift", [3, 3], adapt=True)
+    for arch, got in zip((a, b), lanes, strict=True):
+        want = simulate(arch, "level_drift", seed=3, adapt=MapeK(arch))
+        assert {d.j_ref for d in got.decisions} == {arch.runtime.objective.acceptable}
+        assert [d.to_dict() for d in got.decisions] == [d.to_dict() for d in want.decisions]
+
+
 def test_calibration_runs_in_lanes_record_the_per_run_residuals() -> None:
     """calibrate's runs batched (one unit of sweep points and seeds, 2 each): the same recorded
     filtered residuals, unusable flags and times as run by run."""
@@ -370,8 +385,10 @@ def test_every_shipped_architecture_runs_in_lanes_as_per_run(name, scenario) -> 
 
 
 def test_quiet_lanes_record_what_the_per_lane_call_records(diffdrive_raw, monkeypatch) -> None:
-    """Lanes with r = 0 and nothing pending skip ``MapeK.__call__`` (``MapeK.quiet``): the
-    decision logs, switches and J equal those of every lane's loop called every cycle."""
+    """Lanes without a candidate and nothing pending skip ``MapeK.__call__``: those with
+    r = 0 recorded from their group's numbers (``MapeK.quiet_zeros``, no Observation
+    made), those with a residual by ``MapeK.quiet``. The decision logs, switches and J
+    equal those of every lane's loop called every cycle."""
     from archself.runtime import MapeK
 
     class Called(MapeK):  # a subclass: simulate_lanes calls it every cycle
@@ -380,21 +397,74 @@ def test_quiet_lanes_record_what_the_per_lane_call_records(diffdrive_raw, monkey
     arch = Architecture.model_validate(diffdrive_raw)
     seeds = [2, 5]
     full = simulate_lanes(arch, "imu_drift", seeds, adapt=Called)
-    taken: list[bool] = []
-    quiet = MapeK.quiet
+    taken: dict[str, list[bool]] = {"quiet": [], "quiet_zeros": []}
 
-    def counted(self, system, observation):
-        taken.append(quiet(self, system, observation))
-        return taken[-1]
+    def counting(name: str):
+        real = getattr(MapeK, name)
 
-    monkeypatch.setattr(MapeK, "quiet", counted)
+        def counted(self, *args):
+            taken[name].append(real(self, *args))
+            return taken[name][-1]
+
+        return counted
+
+    for name in taken:
+        monkeypatch.setattr(MapeK, name, counting(name))
     got = simulate_lanes(arch, "imu_drift", seeds, adapt=True)
     n_cycles = sum(len(r.decisions) for r in got)
-    assert sum(taken) > 0.9 * n_cycles  # most cycles are quiet
+    assert sum(taken["quiet_zeros"]) > 0.8 * n_cycles  # most cycles: r = 0, no Observation
+    assert sum(taken["quiet"]) > 0  # a residual without a candidate
+    assert sum(taken["quiet_zeros"]) + sum(taken["quiet"]) > 0.9 * n_cycles
     for a, b in zip(got, full, strict=True):
         assert a.switches == b.switches and len(a.switches) == 1
         assert [d.to_dict() for d in a.decisions] == [d.to_dict() for d in b.decisions]
         assert_array_equal(a.series["J"], b.series["J"])
+
+
+def test_quiet_zeros_records_what_quiet_records(diffdrive_raw) -> None:
+    """``MapeK.quiet_zeros`` appends the record ``MapeK.quiet`` appends for an observation
+    with r = 0 and no κ finding (its zeros shared between records, read-only), and
+    records nothing where ``quiet`` would refuse, nor with ``runtime.online`` on."""
+    from archself.runtime import MapeK
+    from archself.runtime.planner import HysteresisSelector, ThresholdSelector
+    from archself.system.live import compile_system
+
+    arch = Architecture.model_validate(diffdrive_raw)
+    loop, ref = MapeK(arch), MapeK(arch)
+    system = compile_system(arch, arch.initial_configuration(), seed=1)
+    for step in range(1, 1000):  # until every residual signal is usable (the GLR's window)
+        system.step()
+        if step % 10 == 0:
+            obs = ref.monitor.observe(system, ref.knowledge.active)
+            loop.monitor.observe(system, loop.knowledge.active)
+            if not obs.kappa.findings():
+                break
+    for lp in (loop, ref):
+        lp.knowledge.sync(system)
+    assert not obs.r.any() and not obs.kappa.findings()
+    conf, active, t = system.configuration, system.active, float(system.t)
+    for _ in range(2):
+        assert loop.quiet_zeros(conf, active, t, obs.j_obs, obs.j_ref)
+        assert ref.quiet(system, obs)
+    assert [d.to_dict() for d in loop.decisions] == [d.to_dict() for d in ref.decisions]
+    assert loop.cycle == ref.cycle == 2 and loop.decisions[1].cycle == 1
+    r0, r1 = loop.decisions[0].r, loop.decisions[1].r
+    assert r0 is r1 and len(r0) == len(loop.knowledge.active_names)
+    with pytest.raises(ValueError):
+        r0._values[0] = 1.0  # shared: never written
+    other = next(c for c in arch.configurations if c != conf)
+    refused = [(other, active), (conf, frozenset(active) - {next(iter(active))})]
+    for c, a in refused:
+        assert not loop.quiet_zeros(c, a, t, obs.j_obs, obs.j_ref)
+    h = loop.selector = HysteresisSelector(on=0.6, off=0.0)
+    h.members = {"imu"}
+    assert not loop.quiet_zeros(conf, active, t, obs.j_obs, obs.j_ref)
+    loop.selector = ThresholdSelector(0.0)  # selects every module on zeros
+    assert not loop.quiet_zeros(conf, active, t, obs.j_obs, obs.j_ref)
+    loop.selector = ThresholdSelector(0.5)
+    loop.online = object()  # type: ignore[assignment]  # online reads the observation
+    assert not loop.quiet_zeros(conf, active, t, obs.j_obs, obs.j_ref)
+    assert len(loop.decisions) == 2
 
 
 def test_quiet_refuses_a_cycle_with_anything_to_analyze(diffdrive_raw) -> None:

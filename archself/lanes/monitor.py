@@ -31,15 +31,21 @@ from archself.runtime.monitor import (
     confidence_reader,
 )
 
-__all__ = ["observe_group"]
+__all__ = ["Observed", "observe_group"]
 
 _NO_FLAGS = np.zeros(0, dtype=np.intp)
 
 
 def observe_group(
     monitors: list[Monitor], lanes: Any, idx: np.ndarray, j_now: np.ndarray
-) -> dict[int, Observation]:
-    """Observations of the lanes ``idx`` (one configuration) that the bulk path can make.
+) -> Observed | None:
+    """The Monitor stage of the lanes ``idx`` (one configuration) that the bulk path can make.
+
+    Every observed lane's filters are updated and stored back into its Monitor; its
+    :class:`~archself.runtime.monitor.Observation` is made on demand
+    (:meth:`Observed.observation`): a lane whose residuals are all 0 and whose κ has no
+    finding (:attr:`Observed.zero`) is recorded from the group's numbers
+    (:meth:`~archself.runtime.mapek.MapeK.quiet_zeros`) and needs none.
 
     Parameters
     ----------
@@ -53,13 +59,14 @@ def observe_group(
 
     Returns
     -------
-    dict of int to Observation
-        lane -> its observation; the lanes left out observe on their own.
+    Observed or None
+        The observed lanes; None (or a lane not in :attr:`Observed.lanes`): the lanes
+        left out observe on their own.
     """
     group = _gather(monitors, lanes, idx)
     if group is None:
-        return {}
-    return _observations(monitors, group, j_now, *_update(group))
+        return None
+    return _observed(monitors, group, j_now, *_update(group))
 
 
 @dataclass(frozen=True)
@@ -127,9 +134,10 @@ def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The filters of every lane updated as ``(lanes, modules)`` arrays, as
     :meth:`Monitor.observe` updates one lane's: ``(value, samples, valid_time, r)``."""
     first, lay0, X, F, dt = g.first, g.lay0, g.X, g.F, g.dt
-    V = np.stack([lay.value for lay in g.lays])
-    S = np.stack([lay.samples for lay in g.lays])
-    VT = np.stack([lay.valid_time for lay in g.lays])
+    # np.array of equal-shaped rows: np.stack's copy, without its Python loops over the lanes
+    V = np.array([lay.value for lay in g.lays])
+    S = np.array([lay.samples for lay in g.lays])
+    VT = np.array([lay.valid_time for lay in g.lays])
     gain = lay0.gains(first, dt)
     with np.errstate(all="ignore"):
         new = V + gain * (X - V)
@@ -150,7 +158,7 @@ def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         else:
             res = sens * np.maximum(np.abs(new) - nom, 0.0) / nom
         res = np.where(np.isfinite(new), np.minimum(res, MAX_RESIDUAL), 0.0)
-        untrusted = VT1 < np.stack([lay.trust_time for lay in g.lays])  # per lane (at start)
+        untrusted = VT1 < np.array([lay.trust_time for lay in g.lays])  # per lane (at start)
         if g.partial:
             untrusted |= ~F  # no residual from a filter that took no sample
         if untrusted.any():
@@ -158,12 +166,66 @@ def _update(g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return new, S1, VT1, res
 
 
-def _observations(
+class Observed:
+    """The Monitor stage of a configuration group's observed lanes (:func:`observe_group`).
+
+    Attributes
+    ----------
+    lanes : list of int
+        The observed lanes, one row each.
+    t : float
+        The cycle's time.
+    j_obs, j_ref : list of float
+        J_obs and J_ref per row (sweep points may differ in ``runtime.objective``).
+    zero : numpy.ndarray of bool
+        Per row: every r_i is +0 (none negative zero) and κ has no finding (every
+        sample usable, no violated constraint).
+    """
+
+    __slots__ = ("_R", "_flagged", "_g", "_monitors", "_violated", "_violations", "j_obs",
+                 "j_ref", "lanes", "t", "zero")
+
+    def __init__(self, monitors: list[Monitor], g: _Group, j_obs: list[float], R: np.ndarray,
+                 violations: dict[str, list[str]], violated: np.ndarray,
+                 flagged: np.ndarray) -> None:
+        self._monitors, self._g, self._R = monitors, g, R
+        self._violations, self._violated, self._flagged = violations, violated, flagged
+        self.lanes, self.t, self.j_obs = g.keep, g.t, j_obs
+        self.j_ref = [float(monitors[i].arch.runtime.objective.acceptable) for i in g.keep]
+        if flagged.size:
+            self.zero = np.zeros(len(g.keep), dtype=bool)
+        else:
+            self.zero = ~(R.astype(bool).any(axis=1) | np.signbit(R).any(axis=1))
+            if g.whole is not None:
+                self.zero &= g.whole
+
+    def observation(self, row: int) -> Observation:
+        """The :class:`Observation` of row ``row`` (as :meth:`Monitor.observe` makes it)."""
+        g, lay = self._g, self._g.lays[row]
+        mon = self._monitors[g.keep[row]]
+        ok, residual_ok, found = lay.all_ok, mon._true, self._flagged
+        if g.whole is not None and not g.whole[row]:  # as Monitor._update with unusable samples
+            ok = g.F[row]
+            residual_ok = mon._true.copy()
+            residual_ok[lay.on_pos] = ok
+            found = ((self._violated | ~residual_ok) & lay.active).nonzero()[0]
+        kappa = StatusMap(
+            mon.names, mon.index, lay.active, mon._true, residual_ok, confidence_reader(lay),
+            dict(self._violations), {}, found, set(),
+        )
+        j_obs, j_ref = self.j_obs[row], self.j_ref[row]
+        return Observation(
+            self.t, j_obs, j_ref, j_ref - j_obs, self._R[row].copy(), kappa,
+            lay.on_names, lay.value, ok,
+        )
+
+
+def _observed(
     monitors: list[Monitor], g: _Group, j_now: np.ndarray, new: np.ndarray, S1: np.ndarray,
     VT1: np.ndarray, res: np.ndarray,
-) -> dict[int, Observation]:
-    """Each lane's filters stored back into its Monitor, and its :class:`Observation`."""
-    first, lay0, F, t = g.first, g.lay0, g.F, g.t
+) -> Observed:
+    """Each lane's filters stored back into its Monitor; the group's :class:`Observed`."""
+    first, lay0, t = g.first, g.lay0, g.t
     n = len(first.names)
     R = np.zeros((len(g.keep), n))
     R[:, lay0.on_pos] = res
@@ -172,26 +234,9 @@ def _observations(
     if violations:
         violated[[k for k, name, *_ in lay0.constrained if name in violations]] = True
     flagged = (violated & lay0.active).nonzero()[0] if violations else _NO_FLAGS
-    whole = g.whole
-    j_ref = float(first.arch.runtime.objective.acceptable)
-    out: dict[int, Observation] = {}
-    for row, (i, lay) in enumerate(zip(g.keep, g.lays, strict=True)):
-        mon = monitors[i]
-        mon._t_prev = t
-        lay.value, lay.samples, lay.valid_time = new[row], S1[row], VT1[row]
-        j_obs = float(j_now[i])
-        j_obs = math.nan if j_obs != j_obs else j_obs
-        ok, residual_ok, found = lay.all_ok, mon._true, flagged
-        if whole is not None and not whole[row]:  # as Monitor._update with unusable samples
-            ok = F[row]
-            residual_ok = mon._true.copy()
-            residual_ok[lay.on_pos] = ok
-            found = ((violated | ~residual_ok) & lay.active).nonzero()[0]
-        kappa = StatusMap(
-            mon.names, mon.index, lay.active, mon._true, residual_ok, confidence_reader(lay),
-            dict(violations), {}, found, set(),
-        )
-        out[i] = Observation(
-            t, j_obs, j_ref, j_ref - j_obs, R[row].copy(), kappa, lay.on_names, lay.value, ok,
-        )
-    return out
+    for i, lay, value, samples, valid in zip(g.keep, g.lays, new, S1, VT1, strict=True):
+        monitors[i]._t_prev = t
+        lay.value, lay.samples, lay.valid_time = value, samples, valid
+    j_obs = j_now[g.keep].tolist()
+    return Observed(monitors, g, [math.nan if j != j else j for j in j_obs], R, violations,
+                    violated, flagged)

@@ -260,29 +260,39 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
     """One cycle of every lane's loop: the Monitor stage in bulk where it can, each loop
     called with its lane's view; the switches appended to ``switches``.
 
-    A lane's cycle without a candidate is recorded by :meth:`MapeK.quiet` (its
-    Analyze made there, r = 0 or not). A lane with a candidate (or that observes on
-    its own) is called in a :class:`_Worker`, which pauses at the lane's whole-loop
-    check: the checks of the cycle are then made together
-    (:func:`~archself.lanes.view.lane_loops`) and the paused calls go on, in lane
-    order. Each call touches its own lane only (its loop, its per-run system, its
-    streams' pins); the lanes move after every call has ended (:meth:`LaneView.done`,
-    in lane order), so the decisions are those of calls one after the other.
+    A lane whose residuals are all 0 (most lanes, most cycles) is recorded from its
+    group's numbers (:func:`_quiet`) and is done. A lane's cycle with a residual but
+    without a candidate is recorded by :meth:`MapeK.quiet` (its Analyze made there). A
+    lane with a candidate (or that observes on its own) is called in a
+    :class:`_Worker`, which pauses at the lane's whole-loop check: the checks of the
+    cycle are then made together (:func:`~archself.lanes.view.lane_loops`) and the
+    paused calls go on, in lane order. Each call touches its own lane only (its loop,
+    its per-run system, its streams' pins); the lanes move after every call has ended
+    (:meth:`LaneView.done`, in lane order), so the decisions are those of calls one
+    after the other.
     """
 
     lanes, loops, views = plan.lanes, plan.loops, plan.views
     assert loops is not None and views is not None
     lanes.objective = J
     observed: dict[int, Any] = {}
+    rest = np.ones(lanes.n, dtype=bool)  # the lanes not recorded by _quiet
     if plan.monitors is not None:
-        for idx in lanes.groups.values():
-            observed.update(observe_group(plan.monitors, lanes, idx, J))
-    outs: list[Any] = [None] * lanes.n
+        for conf, idx in lanes.groups.items():
+            group = observe_group(plan.monitors, lanes, idx, J)
+            if group is None:
+                continue
+            done = _quiet(loops, conf, lanes.active_set(int(idx[0])), group) if plan.quiet else ()
+            for row, lane in enumerate(group.lanes):
+                if lane not in done:
+                    observed[lane] = group.observation(row)
+            rest[list(done)] = False
+    busy = np.flatnonzero(rest).tolist()
+    outs: dict[int, Any] = {}
     paused: list[tuple[int, _Worker]] = []
-    quiet = plan.quiet
-    for lane in range(lanes.n):
+    for lane in busy:
         obs = observed.get(lane)
-        if obs is not None and quiet and loops[lane].quiet(views[lane], obs):
+        if obs is not None and plan.quiet and loops[lane].quiet(views[lane], obs):
             continue  # no candidate: recorded, nothing to plan
         if obs is not None and not obs.r.any():  # nothing to plan from: no check to wait for
             outs[lane] = loops[lane](views[lane], observation=obs)
@@ -294,11 +304,23 @@ def _adapt(plan: _Lanes, J: np.ndarray, switches: list[list[dict[str, Any]]]) ->
     while paused:
         answers = _answers([w.request for _, w in paused])
         paused = [(lane, w) for (lane, w), a in zip(paused, answers, strict=True) if w.resume(a)]
-    for lane, view in enumerate(views):
-        out = outs[lane].result() if isinstance(outs[lane], _Worker) else outs[lane]
-        view.done(len(getattr(loops[lane], "updates", ())))
+    for lane in busy:  # a lane recorded by _quiet never materializes: nothing to be done
+        out = outs.get(lane)
+        if isinstance(out, _Worker):
+            out = out.result()
+        views[lane].done(len(getattr(loops[lane], "updates", ())))
         if out:
             switches[lane].extend(dict(s) for s in out)
+
+
+def _quiet(loops: list[Any], conf: str, active: frozenset[str], group: Any) -> set[int]:
+    """The lanes of ``group`` (one configuration) whose cycle
+    :meth:`MapeK.quiet_zeros` records: every r_i 0, no κ finding, nothing pending."""
+    t, j_ref, j_obs, lanes = group.t, group.j_ref, group.j_obs, group.lanes
+    return {
+        lanes[row] for row in np.flatnonzero(group.zero).tolist()
+        if loops[lanes[row]].quiet_zeros(conf, active, t, j_obs[row], j_ref[row])
+    }
 
 
 def _answers(requests: list[Any]) -> list[Any]:

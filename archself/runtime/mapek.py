@@ -150,6 +150,7 @@ class MapeK:
         self._estimator: SourceEstimator | SourceFit | None = None
         self._equivalent: list[list[str]] = []
         self._pending: tuple[Observation, _Analysis] | None = None  # quiet's analysis
+        self._zero: tuple[list[str], _Analysis] | None = None  # quiet_zeros' 0s of an active set
 
     # ------------------------------------------------------------------ cycle
     def __call__(self, system: ManagedSystem, observation: Any = None) -> list[dict[str, Any]]:
@@ -213,18 +214,22 @@ class MapeK:
 
     def _record(self, t: float, obs: Observation, cycle: _Analysis) -> DecisionRecord:
         """This cycle's decision record (warm-up or not), appended to the log and learned from."""
-        k = self.knowledge
+        kappa = {n: s.to_dict() for n, s in obs.kappa.findings()}
+        return self._log(t, obs.j_obs, obs.j_ref, obs.r_global, cycle, kappa, obs)
+
+    def _log(self, t: float, j_obs: float, j_ref: float, r_global: float, cycle: _Analysis,
+             kappa: dict[str, Any], obs: Observation | None) -> DecisionRecord:
+        """:meth:`_record` from the numbers it reads (``obs``: None only with ``online`` off)."""
         if self.t_start is None:
             self.t_start = t
-        warm = self._warm(t)
         record = DecisionRecord(
             cycle=self.cycle,
             t=t,
-            configuration=k.configuration,
-            phase="warmup" if warm else "adapt",
-            j_obs=obs.j_obs,
-            j_ref=obs.j_ref,
-            r_global=obs.r_global,
+            configuration=self.knowledge.configuration,
+            phase="warmup" if self._warm(t) else "adapt",
+            j_obs=j_obs,
+            j_ref=j_ref,
+            r_global=r_global,
             r=cycle.r_active,
             z=cycle.z_active,
             candidates=list(cycle.candidates),
@@ -232,8 +237,8 @@ class MapeK:
             source=cycle.e_active,
             localization=self.localization,
             equivalent=self._equivalent,
-            kappa={n: s.to_dict() for n, s in obs.kappa.findings()},
-            compensated=sorted(self.compensated),
+            kappa=kappa,
+            compensated=sorted(self.compensated) if self.compensated else [],
         )
         self.decisions.append(record)
         self.cycle += 1
@@ -259,17 +264,14 @@ class MapeK:
         hysteresis without members); with a residual the cycle's Analyze is made here.
         Otherwise nothing is recorded and False returned: the caller runs the cycle,
         and a call of :meth:`__call__` with the same ``observation`` reuses the Analyze
-        made here (the selector is asked once a cycle). Lane batches call it for every
-        lane (:func:`archself.lanes.run.simulate_lanes`): only lanes with a candidate
-        go on to the per-lane call.
+        made here (the selector is asked once a cycle). Lane batches call it for the
+        lanes with a residual (:func:`archself.lanes.run.simulate_lanes`; the lanes
+        without one go to :meth:`quiet_zeros`): only lanes with a candidate go on to
+        the per-lane call.
         """
-        k, sel = self.knowledge, self.selector
+        k = self.knowledge
         self._pending = None
-        if (
-            not self.propagate or self.strategies.running is not None
-            or system.configuration != k.configuration or system.active != k.active
-            or (self.compensated and k.configuration != self._checked_conf)
-        ):
+        if not self._settled(system.configuration, system.active):
             return False
         t = float(system.t)
         if observation.r.any():
@@ -277,8 +279,7 @@ class MapeK:
             if cycle.candidates and not self._warm(t):
                 self._pending = (observation, cycle)
                 return False
-        elif (type(sel) is TopKSelector or (type(sel) is ThresholdSelector and sel.tau > 0)
-              or (type(sel) is HysteresisSelector and sel.on > 0 and not sel.members)):
+        elif self._none_on_zeros():
             r_values = observation.r[k.active_index]
             r = ValueMap(k.active_names, k.active_pos, r_values)
             self._equivalent = []
@@ -287,6 +288,50 @@ class MapeK:
             return False
         self._record(t, observation, cycle)
         return True
+
+    def quiet_zeros(self, configuration: str, active: Any, t: float, j_obs: float,
+                    j_ref: float) -> bool:
+        """:meth:`quiet` of an observation with every r_i = +0 and no κ finding, without one.
+
+        What lane batches call for such a lane (most lanes, most cycles): the record is
+        the one :meth:`quiet` appends — r = z = ê = 0 (one read-only array and map per
+        active set, shared by the records), κ empty, no candidate — from the group's
+        numbers alone. ``configuration`` and ``active`` are the system's; the loop must
+        have nothing pending as :meth:`quiet` requires, and ``runtime.online`` off (it
+        reads the observation's signals). False: nothing recorded, the caller makes the
+        lane's :class:`Observation` and goes on as without this call.
+        """
+        self._pending = None
+        if self.online is not None or not self._settled(configuration, active) or (
+                not self._none_on_zeros()):
+            return False
+        k = self.knowledge
+        if self._zero is None or self._zero[0] is not k.active_names:
+            values = np.zeros(len(k.active_names))
+            values.flags.writeable = False
+            r = ValueMap(k.active_names, k.active_pos, values)
+            self._zero = (k.active_names, _Analysis(values, r, r, values, r, r, []))
+        self._equivalent = []
+        self._log(t, j_obs, j_ref, j_ref - j_obs, self._zero[1], {}, None)
+        return True
+
+    def _settled(self, configuration: str, active: Any) -> bool:
+        """Whether a cycle may be recorded by :meth:`quiet`: the system in the Knowledge's
+        configuration and active set, its compensation checked there, no strategy running,
+        propagation on."""
+        k = self.knowledge
+        return not (
+            not self.propagate or self.strategies.running is not None
+            or configuration != k.configuration or active != k.active
+            or (self.compensated and k.configuration != self._checked_conf)
+        )
+
+    def _none_on_zeros(self) -> bool:
+        """Whether the selector selects nothing when every value is 0 (without asking it):
+        a threshold τ > 0, top-k, hysteresis without members."""
+        sel = self.selector
+        return (type(sel) is TopKSelector or (type(sel) is ThresholdSelector and sel.tau > 0)
+                or (type(sel) is HysteresisSelector and sel.on > 0 and not sel.members))
 
     def _plan(self, system: ManagedSystem, t: float, obs: Observation, cycle: _Analysis,
               record: DecisionRecord) -> tuple[Any, Any]:
