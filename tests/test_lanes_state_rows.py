@@ -26,6 +26,10 @@ CASES = [
     ("architectures/diffdrive.yaml", "a2", "imu_drift", 130,
      {"DiffDrivePlantLanes", "WheelActuatorLanes", "EkfLanes"}),
     ("architectures/diffdrive.yaml", "a1", "imu_drift", 130, {"OdometryLanes"}),
+    ("architectures/process_plant.yaml", "p1", "level_drift", 40,
+     {"TankPlantLanes", "ControlValveLanes", "LevelObserverLanes", "PiControllerLanes"}),
+    ("architectures/thermal_zone.yaml", "z1", "sensor_dropout", 40,
+     {"StateSpacePlantLanes", "ActuatorLanes", "PidLanes"}),
 ]
 
 

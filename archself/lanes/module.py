@@ -255,6 +255,38 @@ class LaneModule:
         m = self._all_lanes[name][0][lanes]
         return m, bool(m.any()), bool(m.all())
 
+    def _present(self, lanes: slice | np.ndarray, names: Sequence[str]) -> list[str] | None:
+        """The per-lane scalar state arrays ``self.<name>`` present (not NaN: the per-run
+        ``None``) in every lane of ``lanes``; None where one is present in some only."""
+        out = []
+        for k in names:
+            absent = np.isnan(getattr(self, k)[lanes])
+            if not absent.any():
+                out.append(k)
+            elif not absent.all():
+                return None
+        return out
+
+    def _scalar_rows(self, lanes: slice | np.ndarray, *names: str) -> np.ndarray | None:
+        """:meth:`state_rows` of per-lane scalar state arrays (``names`` in the per-run
+        ``state_fields`` order, NaN for the per-run ``None``, left out of its state)."""
+        present = self._present(lanes, names)
+        if present is None:
+            return None
+        if not present:
+            return np.zeros((lane_count(self.n, lanes), 0))
+        return np.stack([getattr(self, k)[lanes] for k in present], axis=1)
+
+    def _set_scalar_rows(self, x: np.ndarray, lanes: slice | np.ndarray, *names: str) -> bool:
+        """:meth:`set_state_rows` of :meth:`_scalar_rows`' arrays: False where ``x`` does
+        not fit those present in ``lanes``."""
+        present = self._present(lanes, names)
+        if present is None or len(present) != x.shape[1]:
+            return False
+        for j, k in enumerate(present):
+            getattr(self, k)[lanes] = x[:, j]
+        return True
+
     # ------------------------------------------------------------------ data flow
     def output(self, t: float, lanes: slice | np.ndarray) -> dict[str, Any]:
         """Outputs from the state at ``t`` in ``lanes`` (modules without direct feedthrough)."""
