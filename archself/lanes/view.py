@@ -24,9 +24,10 @@ base copy and perturbations (:func:`~archself.system.linearizing.loop_probes`) a
 them together as the lanes of one :class:`~archself.lanes.system.LaneSystem`: the base
 is resumed once per perturbation (:meth:`LaneSystem.resume` of one system for several
 lanes: its per-run modules shared, its random streams and fault injectors copied per
-lane), each lane's perturbed state set through its lane module
-(:meth:`~archself.lanes.module.LaneModule.set_state` of that lane) and read back after the
-steps (:meth:`~archself.lanes.module.LaneModule.state`); the same
+lane), the lanes' perturbed states set through each lane module in one call
+(:meth:`~archself.lanes.module.LaneModule.set_state`) and read back after the steps in one
+array read per module (:meth:`~archself.lanes.module.LaneModule.state_rows`, or lane by
+lane through the per-run bridge where a class declares no array state); the same
 :meth:`~archself.system.linearizing.LoopProbes.assemble` makes A. No per-probe copy is
 made (before: 29 copies a check, loaded from one pickle, then packed into lanes again:
 0.4 ms a copy, a third of the check). The lane classes compute what the per-run classes
