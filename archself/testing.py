@@ -168,7 +168,9 @@ def _check_states(arch: Any, seeds: list[int], report: PackReport, atol: float,
 
     The initial configuration is compiled once per seed as lanes and once per seed per
     run, both stepped ``steps`` times; every module whose lanes class is not
-    ``PerLane`` (whose lanes are the per-run instances themselves) is compared.
+    ``PerLane`` (whose lanes are the per-run instances themselves) is compared, through
+    both its array state (``state()``, where the class declares ``state_rows``) and the
+    per-run bridge (``bridged_state()``: a ``store`` that leaves a state out).
     """
     from archself.lanes.module import PerLane
     from archself.lanes.system import LaneSystem
@@ -190,17 +192,18 @@ def _check_states(arch: Any, seeds: list[int], report: PackReport, atol: float,
         if isinstance(mod, PerLane):
             continue
         try:
-            got = mod.state()
+            views = [mod.state(), mod.bridged_state()]
         except ArchselfError as exc:
             report.problems.append(f"{name}: state() of its lanes class failed: {exc}")
             continue
         for j, twin in enumerate(twins):
             want = twin._module(name).state()
-            if got[j].shape != want.shape or not np.allclose(got[j], want, rtol=0.0,
-                                                              atol=atol, equal_nan=True):
+            got = next((v[j] for v in views if v[j].shape != want.shape or not np.allclose(
+                v[j], want, rtol=0.0, atol=atol, equal_nan=True)), None)
+            if got is not None:
                 report.problems.append(
                     f"{name} ({type(mod).__name__}), seed {seeds[j]}: lane state "
-                    f"{np.round(got[j], 12).tolist()} after {steps} steps, per run "
+                    f"{np.round(got, 12).tolist()} after {steps} steps, per run "
                     f"{np.round(want, 12).tolist()}")
 
 

@@ -255,6 +255,38 @@ class LaneModule:
         m = self._all_lanes[name][0][lanes]
         return m, bool(m.any()), bool(m.all())
 
+    def _present(self, lanes: slice | np.ndarray, names: Sequence[str]) -> list[str] | None:
+        """The per-lane scalar state arrays ``self.<name>`` present (not NaN: the per-run
+        ``None``) in every lane of ``lanes``; None where one is present in some only."""
+        out = []
+        for k in names:
+            absent = np.isnan(getattr(self, k)[lanes])
+            if not absent.any():
+                out.append(k)
+            elif not absent.all():
+                return None
+        return out
+
+    def _scalar_rows(self, lanes: slice | np.ndarray, *names: str) -> np.ndarray | None:
+        """:meth:`state_rows` of per-lane scalar state arrays (``names`` in the per-run
+        ``state_fields`` order, NaN for the per-run ``None``, left out of its state)."""
+        present = self._present(lanes, names)
+        if present is None:
+            return None
+        if not present:
+            return np.zeros((lane_count(self.n, lanes), 0))
+        return np.stack([getattr(self, k)[lanes] for k in present], axis=1)
+
+    def _set_scalar_rows(self, x: np.ndarray, lanes: slice | np.ndarray, *names: str) -> bool:
+        """:meth:`set_state_rows` of :meth:`_scalar_rows`' arrays: False where ``x`` does
+        not fit those present in ``lanes``."""
+        present = self._present(lanes, names)
+        if present is None or len(present) != x.shape[1]:
+            return False
+        for j, k in enumerate(present):
+            getattr(self, k)[lanes] = x[:, j]
+        return True
+
     # ------------------------------------------------------------------ data flow
     def output(self, t: float, lanes: slice | np.ndarray) -> dict[str, Any]:
         """Outputs from the state at ``t`` in ``lanes`` (modules without direct feedthrough)."""
@@ -278,21 +310,57 @@ class LaneModule:
         """Read the parameters and the state of ``lanes`` from their per-run instances."""
 
     # ------------------------------------------------------------------ state vector
+    def state_rows(self, lanes: slice | np.ndarray) -> np.ndarray | None:
+        """Optional: each lane's state vector read from the arrays the class holds.
+
+        An ``(L, n)`` array (a copy) in the per-run class's
+        :meth:`~archself.modules.base.RuntimeModule.state` layout, or None where the class
+        does not declare its layout (the default) or cannot give it for these lanes (a
+        state whose size differs between them): :meth:`state` then goes through the
+        per-run bridge.
+        """
+        return None
+
+    def set_state_rows(self, x: np.ndarray, lanes: slice | np.ndarray) -> bool:
+        """Optional: write an ``(L, n)`` array of :meth:`state_rows`' layout into the arrays.
+
+        True if written; False (the default) where the class does not declare its layout
+        or ``x`` does not fit the per-run layout of these lanes: :meth:`set_state` then
+        goes through the per-run bridge (whose ``set_state`` says what does not fit).
+        """
+        return False
+
     def state(self, lanes: slice | np.ndarray = ALL) -> np.ndarray:
         """Each lane's state vector, an ``(L, n)`` array: the per-run class's
         :meth:`~archself.modules.base.RuntimeModule.state` of every lane.
 
-        Derived through the per-run bridge (:meth:`store`, then the instance's
-        ``state()``), lane by lane, so the layout is the per-run class's, a lane class
-        declares nothing, and lanes that share one per-run instance (replicated from
-        one system) read right; :func:`archself.testing.check_pack` checks that it
-        equals the per-run twin's state.
+        One array read where the class declares its layout (:meth:`state_rows`), else
+        derived through the per-run bridge (:meth:`bridged_state`);
+        :func:`archself.testing.check_pack` checks that it equals the per-run twin's state.
 
         Raises
         ------
         SimulationError
             When the lanes' states differ in size (a state that is absent in some lanes).
         """
+        rows = self.state_rows(lanes)
+        return self.bridged_state(lanes) if rows is None else rows
+
+    def set_state(self, x: Any, lanes: slice | np.ndarray = ALL) -> None:
+        """Write an ``(L, n)`` array of :meth:`state`'s layout back into ``lanes``.
+
+        One array write where the class declares its layout (:meth:`set_state_rows`),
+        else through the per-run bridge (:meth:`bridged_set_state`).
+        """
+        x = np.asarray(x, dtype=float)
+        x = x.reshape(lane_count(self.n, lanes), -1)
+        if not self.set_state_rows(x, lanes):
+            self.bridged_set_state(x, lanes)
+
+    def bridged_state(self, lanes: slice | np.ndarray = ALL) -> np.ndarray:
+        """:meth:`state` through the per-run bridge: lane by lane, :meth:`store`, then the
+        instance's ``state()`` (the layout is the per-run class's, and lanes that share one
+        per-run instance, replicated from one system, read right)."""
         rows = []
         for i, m in zip(self.indices(lanes).tolist(), self._mods(lanes), strict=True):
             self.store(np.array([i]))
@@ -302,15 +370,11 @@ class LaneModule:
                                   f"({sorted({r.size for r in rows})})")
         return np.stack(rows) if rows else np.zeros((0, 0))
 
-    def set_state(self, x: Any, lanes: slice | np.ndarray = ALL) -> None:
-        """Write an ``(L, n)`` array of :meth:`state`'s layout back into ``lanes``.
-
-        Each row goes to its lane's per-run instance (``set_state``) and :meth:`load`
-        reads that lane back, lane by lane (lanes may share an instance).
-        """
-        x = np.asarray(x, dtype=float)
+    def bridged_set_state(self, x: Any, lanes: slice | np.ndarray = ALL) -> None:
+        """:meth:`set_state` through the per-run bridge: each row to its lane's per-run
+        instance (``set_state``), then :meth:`load` of that lane, lane by lane."""
         mods = self._mods(lanes)
-        rows = x.reshape(len(mods), -1)
+        rows = np.asarray(x, dtype=float).reshape(len(mods), -1)
         for i, m, xj in zip(self.indices(lanes).tolist(), mods, rows, strict=True):
             type(m).set_state(m, xj)
             self.load(np.array([i]))

@@ -113,7 +113,8 @@ class LaneSystem:
 
         One system may be given for several lanes (:func:`lane_copies`): its per-run
         modules are then shared by those lanes (the lane modules hold each lane's state;
-        :meth:`LaneModule.state` and ``set_state`` go through them lane by lane), its
+        :meth:`LaneModule.state` and ``set_state`` read and write the lane arrays, or go
+        through those instances lane by lane where a class declares no array state), its
         random streams and its faults' injectors are copied per lane at their state.
 
         Raises

@@ -24,9 +24,10 @@ base copy and perturbations (:func:`~archself.system.linearizing.loop_probes`) a
 them together as the lanes of one :class:`~archself.lanes.system.LaneSystem`: the base
 is resumed once per perturbation (:meth:`LaneSystem.resume` of one system for several
 lanes: its per-run modules shared, its random streams and fault injectors copied per
-lane), each lane's perturbed state set through its lane module
-(:meth:`~archself.lanes.module.LaneModule.set_state` of that lane) and read back after the
-steps (:meth:`~archself.lanes.module.LaneModule.state`); the same
+lane), the lanes' perturbed states set through each lane module in one call
+(:meth:`~archself.lanes.module.LaneModule.set_state`) and read back after the steps in one
+array read per module (:meth:`~archself.lanes.module.LaneModule.state_rows`, or lane by
+lane through the per-run bridge where a class declares no array state); the same
 :meth:`~archself.system.linearizing.LoopProbes.assemble` makes A. No per-probe copy is
 made (before: 29 copies a check, loaded from one pickle, then packed into lanes again:
 0.4 ms a copy, a third of the check). The lane classes compute what the per-run classes
@@ -52,7 +53,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from archself.lanes.module import row
+from archself.lanes.module import ALL, row
 from archself.lanes.system import LaneSystem, lane_copies
 from archself.system.linearizing import LoopProbes, loop_probes
 
@@ -285,6 +286,7 @@ def _stepped(group: list[LoopProbes], steps: int) -> list[WholeLoop]:
     lanes = _probe_lanes(group)
     for _ in range(steps):
         lanes.step()
+    states = _States(lanes)
     out = []
     first = 0
     for probes in group:
@@ -293,12 +295,30 @@ def _stepped(group: list[LoopProbes], steps: int) -> list[WholeLoop]:
             probes.probe.raised({n: lanes.health.reason(n, lane) for n in lanes.health.why})
 
         def read(lane: int, n: str, probe: Any = probes.probe) -> np.ndarray:
-            mod = lanes.module(n)  # the method on the class: a relay's lanes keep a ``state``
-            return probe.checked(n, type(mod).state(mod, np.array([lane]))[0])
+            return probe.checked(n, states(n, lane))
 
         out.append(probes.assemble(runs, read))
         first += len(probes.shifts)
     return out
+
+
+class _States:
+    """Each lane's state of a module after the steps: one array read of every lane per
+    module (:meth:`~archself.lanes.module.LaneModule.state_rows`), or lane by lane through
+    the per-run bridge where the class declares no layout (or a lane's differs in size)."""
+
+    def __init__(self, lanes: LaneSystem) -> None:
+        self.lanes = lanes
+        self.rows: dict[str, np.ndarray | None] = {}
+
+    def __call__(self, n: str, lane: int) -> np.ndarray:
+        mod = self.lanes.module(n)
+        if n not in self.rows:
+            self.rows[n] = mod.state_rows(ALL)
+        rows = self.rows[n]
+        if rows is None:  # the method on the class: a relay's lanes keep a ``state``
+            return type(mod).state(mod, np.array([lane]))[0]
+        return rows[lane]
 
 
 def _probe_lanes(group: list[LoopProbes]) -> LaneSystem:
@@ -311,12 +331,16 @@ def _probe_lanes(group: list[LoopProbes]) -> LaneSystem:
     )
     for n in lanes.plan(lanes.configuration[0]).active:
         lanes.module(n)  # every lane loaded from the base before any state is moved in it
+    moved: dict[str, tuple[list[int], list[np.ndarray]]] = {}
     lane = 0
     for probes in group:
         for shift in probes.shifts:
-            one = np.array([lane])
             for n in shift:
-                mod = lanes.module(n)
-                type(mod).set_state(mod, probes.probe.moved(n, shift)[None], one)
+                at, rows = moved.setdefault(n, ([], []))
+                at.append(lane)
+                rows.append(probes.probe.moved(n, shift))
             lane += 1
+    for n, (at, rows) in moved.items():  # one write per module (lane by lane: the bridge)
+        mod = lanes.module(n)
+        type(mod).set_state(mod, np.stack(rows), np.array(at))
     return lanes

@@ -59,6 +59,12 @@ class PidLanes(BlockLanes):
             m.signals["tracking_error"] = float(self.error[i])
             m.model = self.models[i]
 
+    def state_rows(self, lanes):
+        return self._scalar_rows(lanes, "integral", "y_f")
+
+    def set_state_rows(self, x, lanes):
+        return self._set_scalar_rows(x, lanes, "integral", "y_f")
+
     def local_signals(self, lanes):
         return {"tracking_error": self.error[lanes].copy()}
 

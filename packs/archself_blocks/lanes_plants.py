@@ -75,6 +75,16 @@ class StateSpacePlantLanes(BlockLanes):
             mod._u_sample = self.u_sample[i].copy()
             mod._acc = float(self.acc[i])
 
+    def state_rows(self, lanes):
+        return np.concatenate((self.x[lanes], self.u[lanes]), axis=1)  # x, u
+
+    def set_state_rows(self, x, lanes):
+        n = self.sizes[0]
+        if x.shape[1] != n + self.sizes[1]:
+            return False
+        self.x[lanes], self.u[lanes] = x[:, :n], x[:, n:]
+        return True
+
     def _matrices(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(Ad, Bd)`` of every lane at ``dt`` (a discrete lane's own ``A``, ``B``)."""
         got = self._held.get(dt)
@@ -187,6 +197,12 @@ class ActuatorLanes(BlockLanes):
             m.v, m.x = float(self.v[i]), float(self.x[i])
             m.prev = None if math.isnan(self.prev[i]) else float(self.prev[i])
             m.signals["command_error"] = float(self.error[i])
+
+    def state_rows(self, lanes):
+        return self._scalar_rows(lanes, "v", "x")
+
+    def set_state_rows(self, x, lanes):
+        return self._set_scalar_rows(x, lanes, "v", "x")
 
     def local_signals(self, lanes):
         return {"command_error": self.error[lanes].copy()}

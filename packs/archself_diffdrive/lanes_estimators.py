@@ -228,6 +228,15 @@ class OdometryLanes(_EstimatorLanes):
             m.signals["drift_glr"] = float(self.drift_glr[i])
             m.last_fix = (float(self.last_fix[i, 0]), float(self.last_fix[i, 1]))
 
+    def state_rows(self, lanes):
+        return self.pose[lanes].copy()  # x, y, th
+
+    def set_state_rows(self, x, lanes):
+        if x.shape[1] != 3:
+            return False
+        self.pose[lanes] = x
+        return True
+
 
 class EkfLanes(_EstimatorLanes):
     """:class:`~archself_diffdrive.estimators.Ekf` in N lanes.
@@ -328,3 +337,12 @@ class EkfLanes(_EstimatorLanes):
             m.started = bool(self.started[i])
             self.monitor.store(i, m.monitor)
             m.signals["innovation"] = float(self.innovation[i])
+
+    def state_rows(self, lanes):
+        return self.x[:, lanes].T.copy()  # x: pose, heading bias and rate
+
+    def set_state_rows(self, x, lanes):
+        if x.shape[1] != 5:
+            return False
+        self.x[:, lanes] = x.T
+        return True

@@ -144,6 +144,16 @@ class DiffDrivePlantLanes(_Drawing):
             m.pose = self.pose[i].copy()
             m.wl, m.wr = (float(w) for w in self.wheels[i])
 
+    def state_rows(self, lanes):
+        return np.concatenate((self.pose[lanes], self.wheels[lanes]), axis=1)  # pose, wl, wr
+
+    def set_state_rows(self, x, lanes):
+        if x.shape[1] != 5:
+            return False
+        self.pose[lanes] = x[:, :3]
+        self.wheels[lanes] = x[:, 3:]
+        return True
+
     def output(self, t, lanes):
         return {
             "pose": self._screen(self.pose[lanes].copy(), lanes),
@@ -274,6 +284,22 @@ class WheelActuatorLanes(_Lanes):
             m.prev_cmd = float(self.prev[i]) if self.has_prev[i] else None
             m.expected = float(self.expected[i])
             m.signals["command_error"] = float(self.error[i])
+
+    def state_rows(self, lanes):
+        # prev_cmd, expected; a lane without a previous command has ``expected`` alone
+        has = self.has_prev[lanes]
+        if has.all():
+            return np.column_stack((self.prev[lanes], self.expected[lanes]))
+        return None if has.any() else self.expected[lanes][:, None].copy()
+
+    def set_state_rows(self, x, lanes):
+        has = self.has_prev[lanes]
+        if x.shape[1] == 2 and has.all():
+            self.prev[lanes] = x[:, 0]
+        elif x.shape[1] != 1 or has.any():
+            return False
+        self.expected[lanes] = x[:, -1]
+        return True
 
     def local_signals(self, lanes):
         return {"command_error": self.error[lanes].copy()}

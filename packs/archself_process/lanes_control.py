@@ -79,6 +79,12 @@ class LevelObserverLanes(ProcessLanes):
             self.monitor.store(int(i), m.monitor)
             self.check.store(int(i), m.check)
 
+    def state_rows(self, lanes):
+        return self._scalar_rows(lanes, "h")
+
+    def set_state_rows(self, x, lanes):
+        return self._set_scalar_rows(x, lanes, "h")
+
     def local_signals(self, lanes):
         return {"innovation": self.innovation[lanes].copy(),
                 "disagreement": self.disagreement[lanes].copy()}
@@ -182,6 +188,12 @@ class PiControllerLanes(ProcessLanes):
             cmd = float(self.last_cmd[i])
             m.last_cmd = None if math.isnan(cmd) else cmd
             m.signals["tracking_error"] = float(self.tracking_error[i])
+
+    def state_rows(self, lanes):
+        return self._scalar_rows(lanes, "integral")
+
+    def set_state_rows(self, x, lanes):
+        return self._set_scalar_rows(x, lanes, "integral")
 
     def local_signals(self, lanes):
         return {"tracking_error": self.tracking_error[lanes].copy()}

@@ -126,6 +126,12 @@ class TankPlantLanes(_Drawing):
             m.h, m.q_in = float(self.h[i]), float(self.q_in[i])
             m.d_in, m.d_out = float(self.d_in[i]), float(self.d_out[i])
 
+    def state_rows(self, lanes):
+        return self._scalar_rows(lanes, "h", "q_in")
+
+    def set_state_rows(self, x, lanes):
+        return self._set_scalar_rows(x, lanes, "h", "q_in")
+
     def output(self, t, lanes):
         return {
             "level": self._screen(self.h[lanes][:, None].copy(), lanes),  # not a view
@@ -195,6 +201,12 @@ class ControlValveLanes(ProcessLanes):
             prev = float(self.prev[i])
             m.prev_flow = None if math.isnan(prev) else prev
             m.signals["command_error"] = float(self.error[i])
+
+    def state_rows(self, lanes):
+        return self._scalar_rows(lanes, "prev")  # prev_flow
+
+    def set_state_rows(self, x, lanes):
+        return self._set_scalar_rows(x, lanes, "prev")
 
     def local_signals(self, lanes):
         return {"command_error": self.error[lanes].copy()}
