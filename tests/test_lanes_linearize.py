@@ -150,8 +150,12 @@ def test_lanes_resumed_from_one_system_are_each_its_own_copy() -> None:
                         rtol=0, atol=1e-12)
     heading = lanes.signal("imu", "heading")
     assert heading[0] == heading[1] != heading[2]  # the moved lane went its own way
-    streams = lanes.module("imu").normals.rngs
-    assert streams[0] is not streams[1]
+    normals = lanes.module("imu").normals  # one stream drawn once while the lanes share it
+    for i, s in enumerate(twins):  # pinned, each lane's own generator at its twin's state
+        normals.pin(i)
+        assert normals.rngs[i].bit_generator.state == s._pool["imu"].rng.bit_generator.state
+    assert normals.rngs[0] is not normals.rngs[1]
+    normals.unpin()
 
 
 def test_a_type_that_runs_lane_by_lane_gets_its_own_instance_per_probe(monkeypatch) -> None:

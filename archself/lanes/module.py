@@ -433,9 +433,13 @@ class LaneNormals:
     Parameters
     ----------
     rngs : sequence of numpy.random.Generator
-        One generator per lane (the per-run instance's ``rng``); one named for several
-        lanes (lanes that share a per-run system) draws for the first, the others get
-        generators of their own at its state (:func:`distinct`).
+        One generator per lane (the per-run instance's ``rng``). One named for several
+        lanes (lanes that share a per-run system: the whole-loop check's probes) is one
+        stream drawn once for them while they refill together at one position (those
+        lanes then have the same numbers: 512 normals drawn once per check, not per
+        probe lane, and no generator copied); a refill of some of them alone, a
+        :meth:`direct` draw or a :meth:`pin` first gives each a generator of its own at
+        the stream's state (:meth:`_part`).
     block : int
         Numbers drawn per refill.
 
@@ -449,17 +453,21 @@ class LaneNormals:
     """
 
     def __init__(self, rngs: Sequence[np.random.Generator], block: int = 512) -> None:
-        self.rngs = distinct(rngs, _same_stream)  # one stream per lane, if lanes share one
+        self.rngs = list(rngs)
         self.block = int(block)
         n = len(self.rngs)
+        first: dict[int, int] = {}
+        #: per lane, the lane whose generator it draws from while they share a stream
+        self.src = np.array([first.setdefault(id(r), i) for i, r in enumerate(self.rngs)],
+                            dtype=np.intp)
+        self._shares = len(first) < n
         self.buf = np.empty((n, self.block))
         self.pos = np.full(n, self.block)  # every lane starts with an empty buffer
         self._same = True  # every lane at the same position
         self.drawn = np.zeros(n, dtype=np.int64)  # normals drawn from each stream so far
         # per lane, the last refills' (stream state, normals drawn before it): replay points
-        self.marks: list[list[tuple[Any, int]]] = [
-            [(r.bit_generator.state, 0)] for r in self.rngs
-        ]
+        start = {i: (self.rngs[i].bit_generator.state, 0) for i in first.values()}
+        self.marks: list[list[tuple[Any, int]]] = [[start[j]] for j in self.src.tolist()]
         self._pinned: dict[int, Any] = {}
 
     def take(self, lanes: slice | np.ndarray, k: int) -> np.ndarray:
@@ -485,10 +493,17 @@ class LaneNormals:
         return out
 
     def _refill(self, idx: np.ndarray, k: int) -> None:
-        """Keep what lanes ``idx`` have left, then draw; ``k`` at most one block."""
+        """Keep what lanes ``idx`` have left, then draw; ``k`` at most one block.
+
+        Lanes that name one generator (:attr:`src`) and are refilled together at one
+        position (every lane, :meth:`take` of ``ALL``) draw once and copy the rows; any
+        other refill gives each its own generator first (:meth:`_part`)."""
         if k > self.block:
             raise ValueError(f"{k} draws at once exceed the block of {self.block}")
-        for i in idx:
+        together = self._shares and self._same and len(idx) == len(self.rngs)
+        if self._shares and not together:
+            self._part()
+        for i in (np.flatnonzero(self.src == np.arange(len(self.rngs))) if together else idx):
             p = int(self.pos[i])
             left = self.block - p
             rng = self.rngs[i]
@@ -499,6 +514,22 @@ class LaneNormals:
             self.buf[i, left:] = rng.standard_normal(self.block - left)
             self.drawn[i] += self.block - left
             self.pos[i] = 0
+        if together:  # the lanes at one stream's position: its rows, drawn once
+            sharers = np.flatnonzero(self.src != np.arange(len(self.rngs)))
+            self.buf[sharers] = self.buf[self.src[sharers]]
+            self.drawn[sharers] = self.drawn[self.src[sharers]]
+            self.pos[sharers] = 0
+            for i in sharers.tolist():
+                self.marks[i] = [*self.marks[self.src[i]]]
+
+    def _part(self) -> None:
+        """Each lane its own generator, at the state of the stream it shared (every
+        lane of a shared stream has drawn what the stream has)."""
+        for i, j in enumerate(self.src.tolist()):
+            if i != j:
+                self.rngs[i] = _same_stream(self.rngs[j])
+        self.src = np.arange(len(self.rngs))
+        self._shares = False
 
     # ------------------------------------------------------------------ the exact stream
     def exact_state(self, i: int) -> Any:
@@ -522,6 +553,8 @@ class LaneNormals:
         are dropped and the stream set back to where the per-run run stands
         (:meth:`exact_state`). Call :meth:`resume` after the draws.
         """
+        if self._shares:
+            self._part()
         rng = self.rngs[i]
         if self.pos[i] < self.block:
             rng.bit_generator.state = self.exact_state(i)
@@ -536,6 +569,8 @@ class LaneNormals:
 
     def pin(self, i: int) -> None:
         """Put lane ``i``'s stream at its per-run state (for the per-run API) until unpin."""
+        if self._shares:
+            self._part()
         if i not in self._pinned:
             bg = self.rngs[i].bit_generator
             self._pinned[i] = bg.state
