@@ -69,6 +69,33 @@ def test_lane_normals_are_the_per_run_draws_in_any_chunking() -> None:
         z.take(ALL, 8)
 
 
+def test_lane_normals_of_a_shared_generator_are_each_lanes_own_stream() -> None:
+    """Lanes that name one generator (a check's probe lanes) draw it once while they
+    refill together; each lane still gets the per-run draws of its own copy, also after
+    a refill of some lanes alone and at its exact state when pinned."""
+    shared = np.random.default_rng(5)
+    z = LaneNormals([shared, np.random.default_rng(9), shared, shared], block=6)
+    seeds = (5, 9, 5, 5)
+    got = [[] for _ in range(4)]
+    for k in (4, 5, 3):  # every lane together: one stream drawn for lanes 0, 2 and 3
+        for i, v in enumerate(z.take(ALL, k)):
+            got[i].extend(v)
+    assert z.rngs[2] is shared and z.rngs[3] is shared
+    for i, v in zip((2, 3), z.take(np.array([2, 3]), 5), strict=True):  # a lone refill parts them
+        got[i].extend(v)
+    assert len({id(r) for r in z.rngs}) == 4
+    for k in (6, 2):
+        for i, v in enumerate(z.take(ALL, k)):
+            got[i].extend(v)
+    for i in range(4):
+        assert_array_equal(got[i], np.random.default_rng(seeds[i]).standard_normal(len(got[i])))
+        z.pin(i)
+        twin = np.random.default_rng(seeds[i])
+        twin.standard_normal(len(got[i]))
+        assert z.rngs[i].bit_generator.state == twin.bit_generator.state
+    z.unpin()
+
+
 def test_row_and_stack_are_inverse_with_absent_lanes() -> None:
     values = [np.array([1.0, 2.0]), None, np.array([3.0, 4.0])]
     lane = stack(values)
