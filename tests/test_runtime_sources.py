@@ -320,7 +320,7 @@ def test_fit_reused_over_residual_patterns_is_bit_for_bit_a_fresh_one(monkeypatc
         np.testing.assert_array_equal(reused.estimate(r), fresh.estimate(r))
         assert reused.classes == fresh.classes
         assert len(reused.shares) == len(fresh.shares)
-        for a, b in zip(reused.shares, fresh.shares):
+        for a, b in zip(reused.shares, fresh.shares, strict=True):
             np.testing.assert_array_equal(a, b)
         assert len(reused._bases) <= 3
     assert len(seen) > 3  # the cache was refilled
