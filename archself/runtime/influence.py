@@ -857,7 +857,9 @@ class SourceFit:
     column per candidate source with the reused factorization (cached per W), the
     candidates restricted to the ancestors of the modules with a residual and, when
     there are more than :data:`SCREEN`, to those whose columns carry the most of
-    ``r_O`` (one adjoint solve, :meth:`_screen`).
+    ``r_O`` (one adjoint solve, :meth:`_screen`). With a dense ``P_O`` the candidates,
+    their classes and unit columns depend on ``r_O`` only through which observed
+    residuals are positive: they are kept per such pattern (:meth:`_basis`).
 
     Parameters
     ----------
@@ -1164,11 +1166,11 @@ def _collinear_classes(U: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
 
 
 def _parsimonious_fit(
-    U: np.ndarray, r: np.ndarray, gain: float, gram: np.ndarray | None = None
+    U: np.ndarray, r: np.ndarray, gain: float, gram: np.ndarray
 ) -> tuple[np.ndarray, list[int]]:
     """Non-negative coefficients on unit columns: one, two or all, by ``gain`` per source.
 
-    ``gram[a]`` is ``Uᵀ U[:, a]`` (computed here when not given). Returns the
+    ``gram[a]`` is ``Uᵀ U[:, a]`` (:class:`_Basis`). Returns the
     coefficients (one per column) and the indices of the chosen support.
     """
     m = U.shape[1]
@@ -1184,7 +1186,7 @@ def _parsimonious_fit(
     # pairs (a among the best 12 singles, b any): the 2×2 normal equations on unit columns,
     # both coefficients > 0 (else the pair is one of the singles already tried); one row per a
     top = np.argsort(-proj, kind="stable")[: min(m, 12)]
-    c = gram[top] if gram is not None else np.array([U.T @ U[:, a] for a in top.tolist()])
+    c = gram[top]
     det = 1.0 - c * c
     ok = det > 1e-9
     ok[np.arange(top.size), top] = False
