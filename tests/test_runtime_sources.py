@@ -300,6 +300,32 @@ def test_fit_of_an_unavailable_hidden_module_and_of_nothing():
         fit.estimate([0.0, np.inf, 0.0])
 
 
+def test_fit_reused_over_residual_patterns_is_bit_for_bit_a_fresh_one(monkeypatch):
+    """The candidate classes cached per pattern of positive residuals (issue 38) give
+    the same ê, classes and shares, bit for bit, as a fit that computes them anew,
+    also when the cache is full and starts over."""
+    import archself.runtime.influence as influence_module
+
+    rng = np.random.default_rng(5)
+    W = _random_dag(8, rng, p=0.35)
+    observed = np.array([True, False, True, True, False, True, True, True])
+    monkeypatch.setattr(influence_module, "BASES_MAX", 3)
+    reused = SourceFit(W, observed)
+    seen = set()
+    for _ in range(40):
+        e_true = np.where(rng.random(8) < 0.3, rng.uniform(0.5, 4.0, 8), 0.0)
+        r = np.where(observed, np.maximum(influence(W, e_true) - 0.3, 0.0), 0.0)
+        seen.add((r[observed] > 0.0).tobytes())
+        fresh = SourceFit(W, observed)
+        np.testing.assert_array_equal(reused.estimate(r), fresh.estimate(r))
+        assert reused.classes == fresh.classes
+        assert len(reused.shares) == len(fresh.shares)
+        for a, b in zip(reused.shares, fresh.shares, strict=True):
+            np.testing.assert_array_equal(a, b)
+        assert len(reused._bases) <= 3
+    assert len(seen) > 3  # the cache was refilled
+
+
 def test_fit_on_a_large_graph_matches_the_dense_path():
     """Above DENSE_MAX: ancestors by search, columns by the reused factorization."""
     rng = np.random.default_rng(7)

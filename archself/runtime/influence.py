@@ -813,6 +813,8 @@ COLLINEAR_COS = 0.999
 PARSIMONY = 0.1
 #: Above DENSE_MAX modules, at most this many candidate sources are fitted (screened).
 SCREEN = 64
+#: Patterns of positive residuals whose candidate classes a dense fit keeps (then starts over).
+BASES_MAX = 256
 #: A zero residual is read as "inside the band": a predicted echo up to this is no
 #: contradiction (residuals are in units of the nominal level, Eq. 12).
 BAND = 1.0
@@ -855,7 +857,9 @@ class SourceFit:
     column per candidate source with the reused factorization (cached per W), the
     candidates restricted to the ancestors of the modules with a residual and, when
     there are more than :data:`SCREEN`, to those whose columns carry the most of
-    ``r_O`` (one adjoint solve, :meth:`_screen`).
+    ``r_O`` (one adjoint solve, :meth:`_screen`). With a dense ``P_O`` the candidates,
+    their classes and unit columns depend on ``r_O`` only through which observed
+    residuals are positive: they are kept per such pattern (:meth:`_basis`).
 
     Parameters
     ----------
@@ -907,6 +911,7 @@ class SourceFit:
         self._P: np.ndarray | None = None
         self._WT = _transpose(S)  # parents of i: row i of Wᵀ
         self._cols: dict[int, np.ndarray] = {}
+        self._bases: dict[bytes, _Basis] = {}
         self._solver: InfluenceSolver | None = None
         self._adjoint: InfluenceSolver | None = None
         if n <= DENSE_MAX:
@@ -999,17 +1004,10 @@ class SourceFit:
         total = float(r_O @ r_O)
         if total <= 0.0:
             return e
-        cand = self._ancestors(o[r_O > 0.0])
-        if self._P_O is None and cand.size > SCREEN:
-            cand = self._screen(cand, r_O)
-        A = self._columns(cand)
-        norms = np.linalg.norm(A, axis=0)
-        keep = norms > 1e-12
-        cand, A, norms = cand[keep], A[:, keep], norms[keep]
-        U = A / norms
-        members, reps = _collinear_classes(U)
-        x, support = _parsimonious_fit(U[:, reps], r_O, PARSIMONY * total)
-        chosen = U[:, [reps[c] for c in support]]
+        basis = self._basis(r_O)
+        cand, members = basis.cand, basis.members
+        x, support = _parsimonious_fit(basis.U, r_O, PARSIMONY * total, basis.gram)
+        chosen = basis.U[:, support]
         size = _censored_fit(chosen, r_O, x[support])
         z_share, shares = self._explained_z(chosen * size, r_O, [
             cand[members[c]] for c in support])
@@ -1023,6 +1021,34 @@ class SourceFit:
             self.shares.append(shares[k])
         return e
 
+
+    def _basis(self, r_O: np.ndarray) -> _Basis:
+        """The candidate sources of ``r_O`` and their classes' unit columns.
+
+        They depend on ``r_O`` only through which observed residuals are positive
+        when ``P_O`` is dense: cached per such pattern (W is fixed per fit); large
+        graphs screen by the values and recompute.
+        """
+        pos = r_O > 0.0
+        key = pos.tobytes() if self._P_O is not None else None
+        basis = self._bases.get(key) if key is not None else None
+        if basis is not None:
+            return basis
+        cand = self._ancestors(self.observed_index[pos])
+        if self._P_O is None and cand.size > SCREEN:
+            cand = self._screen(cand, r_O)
+        A = self._columns(cand)
+        norms = np.linalg.norm(A, axis=0)
+        keep = norms > 1e-12
+        cand, A, norms = cand[keep], A[:, keep], norms[keep]
+        U = A / norms
+        members, reps = _collinear_classes(U)
+        basis = _Basis(cand, members, U[:, reps])
+        if key is not None:
+            if len(self._bases) >= BASES_MAX:
+                self._bases.clear()
+            self._bases[key] = basis
+        return basis
 
     def _explained_z(
         self, echoes: np.ndarray, r_O: np.ndarray, classes: list[np.ndarray]
@@ -1057,6 +1083,22 @@ class SourceFit:
             return self._P @ a
         assert self._solver is not None
         return self._solver.solve(a)
+
+
+class _Basis:
+    """What :meth:`SourceFit.estimate` fits on for one pattern of positive residuals.
+
+    ``cand`` the candidate modules, ``members`` per class its positions in ``cand``,
+    ``U`` one unit column of ``P_O`` per class (its representative's) and ``gram``
+    its Gram matrix by rows, ``gram[a] = Uᵀ U[:, a]`` (:func:`_parsimonious_fit`).
+    """
+
+    __slots__ = ("cand", "members", "U", "gram")
+
+    def __init__(self, cand: np.ndarray, members: list[np.ndarray], U: np.ndarray) -> None:
+        self.cand, self.members, self.U = cand, members, U
+        self.gram = np.array([U.T @ U[:, a] for a in range(U.shape[1])]).reshape(
+            U.shape[1], U.shape[1])
 
 
 def _nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -1124,15 +1166,17 @@ def _collinear_classes(U: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
 
 
 def _parsimonious_fit(
-    U: np.ndarray, r: np.ndarray, gain: float
+    U: np.ndarray, r: np.ndarray, gain: float, gram: np.ndarray
 ) -> tuple[np.ndarray, list[int]]:
     """Non-negative coefficients on unit columns: one, two or all, by ``gain`` per source.
 
-    Returns the coefficients (one per column) and the indices of the chosen support.
+    ``gram[a]`` is ``Uᵀ U[:, a]`` (:class:`_Basis`). Returns the
+    coefficients (one per column) and the indices of the chosen support.
     """
     m = U.shape[1]
     total = float(r @ r)
-    proj = np.maximum(U.T @ r, 0.0)
+    p = U.T @ r
+    proj = np.maximum(p, 0.0)
     best = int(np.argmax(proj))
     x = np.zeros(m)
     x[best] = proj[best]
@@ -1140,28 +1184,29 @@ def _parsimonious_fit(
     if m < 2 or rss < gain:
         return x, support
     # pairs (a among the best 12 singles, b any): the 2×2 normal equations on unit columns,
-    # both coefficients > 0 (else the pair is one of the singles already tried)
-    p = U.T @ r
-    pair_x, pair_rss, pair = x, rss, support
-    for a in np.argsort(-proj, kind="stable")[: min(m, 12)].tolist():
-        c = U.T @ U[:, a]
-        det = 1.0 - c * c
-        ok = det > 1e-9
-        ok[a] = False
-        xa = np.where(ok, (p[a] - c * p) / np.where(ok, det, 1.0), 0.0)
-        xb = np.where(ok, (p - c * p[a]) / np.where(ok, det, 1.0), 0.0)
-        ok &= (xa > 0) & (xb > 0)
-        if not ok.any():
-            continue
-        res = np.where(ok, total - (xa * p[a] + xb * p), np.inf)
-        b = int(np.argmin(res))
-        if res[b] < pair_rss - 1e-12:
-            pair_x = np.zeros(m)
-            pair_x[[a, b]] = xa[b], xb[b]
-            pair_rss, pair = float(res[b]), [a, b]
-    if rss - pair_rss < gain:
+    # both coefficients > 0 (else the pair is one of the singles already tried); one row per a
+    top = np.argsort(-proj, kind="stable")[: min(m, 12)]
+    c = gram[top]
+    det = 1.0 - c * c
+    ok = det > 1e-9
+    ok[np.arange(top.size), top] = False
+    pa = p[top][:, None]
+    safe = np.where(ok, det, 1.0)
+    xa = np.where(ok, (pa - c * p) / safe, 0.0)
+    xb = np.where(ok, (p - c * pa) / safe, 0.0)
+    ok &= (xa > 0) & (xb > 0)
+    res = np.where(ok, total - (xa * pa + xb * p), np.inf)
+    bs = np.argmin(res, axis=1)
+    pair_rss, pair = rss, None
+    for i, low in enumerate(res[np.arange(top.size), bs].tolist()):
+        if low < pair_rss - 1e-12:  # the first a reaching the lowest, as tried in order
+            pair_rss, pair = low, i
+    if pair is None or rss - pair_rss < gain:
         return x, support
-    x, rss, support = pair_x, pair_rss, pair
+    a, b = int(top[pair]), int(bs[pair])
+    x = np.zeros(m)
+    x[[a, b]] = xa[pair, b], xb[pair, b]
+    rss, support = pair_rss, [a, b]
     coef, res2 = _nnls(U, r)
     if rss - res2 >= gain and np.count_nonzero(coef) > 2:
         return coef, np.flatnonzero(coef).tolist()
