@@ -381,11 +381,23 @@ def test_numeric_warnings_do_not_precede_an_error(arch, monkeypatch, capsys) -> 
     assert code == 1 and lines[0] == f"{arch}: error: the run failed", err
 
 
+def _catches(pid: int, sig: int) -> bool:
+    """Whether process ``pid`` has a handler for ``sig`` (Linux: ``SigCgt`` of its status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return True  # gone or not Linux: do not wait for it
+    caught = next((int(line.split()[1], 16) for line in status.splitlines()
+                   if line.startswith("SigCgt:")), None)
+    return caught is None or bool(caught >> (int(sig) - 1) & 1)
+
+
 def _signal_after_start(
     args: list[str], sig: int, tmp: Path, marker: str | None = None, delay: float = 2.0
 ) -> tuple[int, str]:
     """Start ``archself ARGS`` in ``tmp``, send ``sig`` once a file named ``marker*``
-    appears (or after ``delay`` s); the exit code and stderr. Bounded: 60 s."""
+    appears (or after ``delay`` s and once the process catches ``sig``: a loaded machine
+    may still be importing after ``delay``); the exit code and stderr. Bounded: 60 s."""
     err_path = tmp / f"stderr-{int(sig)}.txt"
     with open(err_path, "w") as err_file:
         proc = subprocess.Popen(ARCHSELF + args, stdout=subprocess.DEVNULL, stderr=err_file,
@@ -393,7 +405,8 @@ def _signal_after_start(
         try:
             t0 = time.monotonic()
             while time.monotonic() - t0 < 60 and proc.poll() is None:
-                if marker is None and time.monotonic() - t0 >= delay:
+                if (marker is None and time.monotonic() - t0 >= delay
+                        and _catches(proc.pid, sig)):
                     break
                 if marker is not None and any(p.name.startswith(marker) for p in tmp.iterdir()):
                     break
